@@ -1,0 +1,29 @@
+//! gatewatch: early warning of self-excited vibrations of hydraulic gates.
+//!
+//! The library identifies a gate's equation of motion, a second-order ODE such as
+//! `ydd + (c1 + c2*yd^2)*yd + c3*y = 0`, from a sampled signal with a self-adaptive differential
+//! evolution, and turns the identified model into damping figures an engineer can act on.
+//! The `gatewatch` binary wraps it as a command-line tool and a monitoring daemon.
+//!
+//! # Layout
+//!
+//! Numerical core (no tokio, axum or prometheus below this line):
+//! - [`model`]: the model language: parse an equation, check it is linear in `ydd`, compile it.
+//! - [`ode`]: integrators (Dormand-Prince 5(4), fixed-step RK4, Rosenbrock) with failure reports.
+//! - [`de`]: the Cauchy differential evolution, generic over any objective, parallel and seeded.
+//! - [`data`]: time series and their CSV loading, with errors that name line and column.
+//! - [`identify`]: fitness, train/test split, DE + local refinement + restarts: the identification.
+//! - [`cases`]: the chapter's seed cases (Table 8.1), generated in code.
+//! - [`bench`]: `gatewatch bench seed-cases`: the chapter's protocol and its comparison table.
+//!
+//! Front ends:
+//! - [`cli`]: the command-line interface behind `src/main.rs`.
+
+pub mod bench;
+pub mod cases;
+pub mod cli;
+pub mod data;
+pub mod de;
+pub mod identify;
+pub mod model;
+pub mod ode;
