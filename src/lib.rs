@@ -14,11 +14,13 @@
 //! - [`data`]: time series and their CSV loading, with errors that name line and column.
 //! - [`identify`]: fitness, train/test split, DE + local refinement + restarts: the identification.
 //! - [`cases`]: the chapter's seed cases (Table 8.1), generated in code.
+//! - [`analysis`]: the early-warning analysis of a window: damping figures and a verdict.
 //! - [`bench`]: `gatewatch bench seed-cases`: the chapter's protocol and its comparison table.
 //!
 //! Front ends:
 //! - [`cli`]: the command-line interface behind `src/main.rs`.
 
+pub mod analysis;
 pub mod bench;
 pub mod cases;
 pub mod cli;
