@@ -1,1 +1,196 @@
-//! (in progress)
+//! `gatewatch bench seed-cases`: the chapter's protocol on its seed cases, beside its numbers.
+//!
+//! Per case: the data are generated ([`crate::cases`]), split once with a fixed seed (the
+//! chapter's pseudo-code splits before its run loop), and identified in `runs` independent runs
+//! with DE seeds `seed, seed + 1, ...` at the chapter's population and generations, one thread.
+
+use crate::cases::{CaseError, SeedCase};
+use crate::identify::{self, Config, IdentifyError, Initial};
+use crate::ode::Method;
+use serde::Serialize;
+
+/// Options of a benchmark.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct BenchOptions {
+    /// Runs per case (chapter: 25).
+    pub runs: usize,
+    /// Seed of the first run.
+    pub seed: u64,
+    /// Seed of the train/test split.
+    pub split_seed: u64,
+    /// Fitness solver.
+    pub solver: Method,
+    /// Fitness tolerance (chapter: 1e-3).
+    pub rtol: f64,
+    /// Nelder-Mead polish on or off.
+    pub refine: bool,
+    /// DE restart on stagnation on or off.
+    pub restart: bool,
+}
+
+impl Default for BenchOptions {
+    fn default() -> Self {
+        BenchOptions {
+            runs: 25,
+            seed: 1,
+            split_seed: 1,
+            solver: Method::Dopri5,
+            rtol: 1e-3,
+            refine: true,
+            restart: true,
+        }
+    }
+}
+
+/// Results of one case.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct CaseReport {
+    /// Case id.
+    pub id: &'static str,
+    /// Number of unknowns `#C`.
+    pub unknowns: usize,
+    /// Runs made.
+    pub runs: usize,
+    /// Mean test NMAE.
+    pub mean_nmae: f64,
+    /// Standard deviation of the test NMAE.
+    pub std_nmae: f64,
+    /// Smallest test NMAE.
+    pub min_nmae: f64,
+    /// Median test NMAE.
+    pub median_nmae: f64,
+    /// Runs with test NMAE below 0.01.
+    pub successes: usize,
+    /// Median wall time per run, seconds.
+    pub median_seconds: f64,
+    /// Mean objective evaluations per run.
+    pub evaluations_per_run: f64,
+    /// The chapter's evaluations per run: `NP + G * (NP + 1)`.
+    pub chapter_evaluations: usize,
+    /// The chapter's mean NMAE.
+    pub chapter_mean: Option<f64>,
+    /// The chapter's std NMAE.
+    pub chapter_std: Option<f64>,
+    /// The chapter's remark.
+    pub chapter_note: &'static str,
+}
+
+/// Why a benchmark failed.
+#[derive(Debug, thiserror::Error)]
+pub enum BenchError {
+    /// A case could not be generated.
+    #[error(transparent)]
+    Case(#[from] CaseError),
+    /// The identification refused its settings.
+    #[error("case {id}: {source}")]
+    Identify {
+        id: &'static str,
+        source: IdentifyError,
+    },
+}
+
+/// Runs one case. `progress(run, generation)` is called after each generation.
+pub fn run_case(
+    case: &SeedCase,
+    opts: &BenchOptions,
+    mut progress: impl FnMut(usize, usize),
+) -> Result<CaseReport, BenchError> {
+    let data = case.generate()?;
+    let model = case.compiled()?;
+    let config = Config {
+        initial: if case.fit_initial {
+            Initial::Fit
+        } else {
+            Initial::Known {
+                y0: case.y0,
+                v0: case.v0,
+            }
+        },
+        split_seed: opts.split_seed,
+        population: case.population,
+        generations: case.generations,
+        runs: opts.runs,
+        seed: opts.seed,
+        solver: opts.solver,
+        rtol: opts.rtol,
+        refine: opts.refine,
+        restart: opts.restart,
+        parallel: false,
+        ..Config::default()
+    };
+    let result =
+        identify::identify(&model, &data, &config, |r, g, _| progress(r, g)).map_err(|source| {
+            BenchError::Identify {
+                id: case.id,
+                source,
+            }
+        })?;
+    let mut seconds: Vec<f64> = result.runs.iter().map(|r| r.seconds).collect();
+    seconds.sort_by(f64::total_cmp);
+    let median_seconds = if seconds.len() % 2 == 1 {
+        seconds[seconds.len() / 2]
+    } else {
+        0.5 * (seconds[seconds.len() / 2 - 1] + seconds[seconds.len() / 2])
+    };
+    Ok(CaseReport {
+        id: case.id,
+        unknowns: case.unknowns(),
+        runs: result.runs.len(),
+        mean_nmae: result.summary.mean,
+        std_nmae: result.summary.std,
+        min_nmae: result.summary.min,
+        median_nmae: result.summary.median,
+        successes: result
+            .runs
+            .iter()
+            .filter(|r| r.test_nmae.is_some_and(|v| v < 0.01))
+            .count(),
+        median_seconds,
+        evaluations_per_run: result
+            .runs
+            .iter()
+            .map(|r| r.evaluations as f64)
+            .sum::<f64>()
+            / result.runs.len() as f64,
+        chapter_evaluations: case.population + case.generations * (case.population + 1),
+        chapter_mean: case.chapter.mean,
+        chapter_std: case.chapter.std,
+        chapter_note: case.chapter.note,
+    })
+}
+
+/// The comparison table, as Markdown.
+pub fn table(reports: &[CaseReport]) -> String {
+    let mut s = String::from(
+        "| case | #C | mean NMAE | std NMAE | min NMAE | median NMAE | runs < 0.01 | median s/run | evals/run | chapter mean (std) |\n\
+         |---|---|---|---|---|---|---|---|---|---|\n",
+    );
+    for r in reports {
+        let chapter = match (r.chapter_mean, r.chapter_std) {
+            (Some(m), Some(sd)) => format!("{m:.3e} ({sd:.2e})"),
+            (Some(m), None) => format!("{m:.3e}"),
+            _ => "-".to_string(),
+        };
+        let note = if r.chapter_note.is_empty() {
+            String::new()
+        } else {
+            format!(" {}", r.chapter_note)
+        };
+        s.push_str(&format!(
+            "| {} | {} | {:.3e} | {:.2e} | {:.2e} | {:.2e} | {}/{} | {:.4} | {:.0} | {}{} |\n",
+            r.id,
+            r.unknowns,
+            r.mean_nmae,
+            r.std_nmae,
+            r.min_nmae,
+            r.median_nmae,
+            r.successes,
+            r.runs,
+            r.median_seconds,
+            r.evaluations_per_run,
+            chapter,
+            note
+        ));
+    }
+    s
+}

@@ -1,4 +1,451 @@
-//! (in progress)
-pub fn main() -> std::process::ExitCode {
-    std::process::ExitCode::SUCCESS
+//! The command-line interface: argument definitions and the commands behind them.
+//!
+//! Exit codes: 0 success, 2 bad input (file, column, model, option) with a one-line message on
+//! stderr naming the problem, 1 anything else.
+
+use crate::bench::{self, BenchOptions};
+use crate::cases;
+use crate::data::TimeSeries;
+use crate::identify::{self, Config, Identification, Initial};
+use crate::model::Model;
+use crate::ode::Method;
+use clap::{Args, Parser, Subcommand};
+use indicatif::{ProgressBar, ProgressStyle};
+use serde_json::json;
+use std::io::Write;
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+/// gatewatch: early warning of self-excited gate vibrations.
+#[derive(Debug, Parser)]
+#[command(name = "gatewatch", version, about, propagate_version = true)]
+pub struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Identify the coefficients of an equation of motion from a CSV time series.
+    Identify(IdentifyArgs),
+    /// Benchmarks.
+    #[command(subcommand)]
+    Bench(BenchCommand),
+}
+
+#[derive(Debug, Subcommand)]
+enum BenchCommand {
+    /// The chapter's seed cases (Table 8.1) with its protocol, beside its numbers.
+    SeedCases(SeedCasesArgs),
+}
+
+/// Arguments of `gatewatch identify`.
+#[derive(Debug, Args)]
+pub struct IdentifyArgs {
+    /// CSV file with a header row.
+    #[arg(long, value_name = "FILE")]
+    input: PathBuf,
+    /// The equation, e.g. 'ydd + (c1 + c2*y^2)*yd + y = 0'.
+    #[arg(long, value_name = "EQUATION")]
+    model: String,
+    /// Known initial displacement y(t0) (with --v0).
+    #[arg(
+        long,
+        requires = "v0",
+        conflicts_with = "fit_initial",
+        allow_hyphen_values = true
+    )]
+    y0: Option<f64>,
+    /// Known initial velocity yd(t0) (with --y0).
+    #[arg(
+        long,
+        requires = "y0",
+        conflicts_with = "fit_initial",
+        allow_hyphen_values = true
+    )]
+    v0: Option<f64>,
+    /// Identify y(t0) and yd(t0) as two extra unknowns.
+    #[arg(long)]
+    fit_initial: bool,
+    /// A known constant of the equation, NAME=VALUE (repeatable).
+    #[arg(long = "param", value_name = "NAME=VALUE", value_parser = parse_param)]
+    params: Vec<(String, f64)>,
+    /// Column holding time.
+    #[arg(long, default_value = "t")]
+    time_column: String,
+    /// Column holding the signal.
+    #[arg(long, default_value = "y")]
+    value_column: String,
+    /// Fraction of the samples used for training.
+    #[arg(long, default_value_t = 0.5)]
+    train_fraction: f64,
+    /// Seed of the train/test split.
+    #[arg(long, default_value_t = 1)]
+    split_seed: u64,
+    /// DE population size.
+    #[arg(long, default_value_t = 50)]
+    population: usize,
+    /// DE generations.
+    #[arg(long, default_value_t = 120)]
+    generations: usize,
+    /// Independent runs.
+    #[arg(long, default_value_t = 1)]
+    runs: usize,
+    /// Seed of the first run.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Relative tolerance of the fitness solver.
+    #[arg(long, default_value_t = 1e-3)]
+    rtol: f64,
+    /// Relative tolerance of the test solver.
+    #[arg(long, default_value_t = 1e-5)]
+    test_rtol: f64,
+    /// Fitness solver: dopri5, rk4 or stiff.
+    #[arg(long, default_value = "dopri5")]
+    solver: Method,
+    /// RK4 steps per sample interval.
+    #[arg(long, default_value_t = 2)]
+    substeps: usize,
+    /// Skip the Nelder-Mead polish of the DE winner.
+    #[arg(long)]
+    no_refine: bool,
+    /// Never restart a stagnating DE population.
+    #[arg(long)]
+    no_restart: bool,
+    /// Evaluate each generation on all cores (same result as serial).
+    #[arg(long)]
+    parallel: bool,
+    /// Print exactly one JSON object on stdout.
+    #[arg(long)]
+    json: bool,
+}
+
+/// Arguments of `gatewatch bench seed-cases`.
+#[derive(Debug, Args)]
+pub struct SeedCasesArgs {
+    /// Runs per case.
+    #[arg(long, default_value_t = 25)]
+    runs: usize,
+    /// Only these cases (repeatable); all by default.
+    #[arg(long = "case", value_name = "ID")]
+    cases: Vec<String>,
+    /// Seed of the first run.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Fitness solver: dopri5, rk4 or stiff.
+    #[arg(long, default_value = "dopri5")]
+    solver: Method,
+    /// Relative tolerance of the fitness solver.
+    #[arg(long, default_value_t = 1e-3)]
+    rtol: f64,
+    /// Skip the Nelder-Mead polish (the chapter's protocol).
+    #[arg(long)]
+    no_refine: bool,
+    /// Never restart a stagnating population (the chapter's protocol).
+    #[arg(long)]
+    no_restart: bool,
+    /// Print the results as JSON.
+    #[arg(long)]
+    json: bool,
+}
+
+fn parse_param(s: &str) -> Result<(String, f64), String> {
+    let (name, value) = s
+        .split_once('=')
+        .ok_or_else(|| format!("'{s}': expected NAME=VALUE"))?;
+    let name = name.trim();
+    if name.is_empty() {
+        return Err(format!("'{s}': the name is empty"));
+    }
+    let v: f64 = value
+        .trim()
+        .parse()
+        .map_err(|_| format!("'{s}': '{}' is not a number", value.trim()))?;
+    if !v.is_finite() {
+        return Err(format!("'{s}': the value must be finite"));
+    }
+    Ok((name.to_string(), v))
+}
+
+/// An error of a command: bad input (exit 2) or anything else (exit 1).
+#[derive(Debug)]
+pub enum CliError {
+    /// The user's input is wrong: exit code 2.
+    Input(String),
+    /// Anything else: exit code 1.
+    Other(anyhow::Error),
+}
+
+impl<E: Into<anyhow::Error>> From<E> for CliError {
+    fn from(e: E) -> Self {
+        CliError::Other(e.into())
+    }
+}
+
+fn input(msg: impl std::fmt::Display) -> CliError {
+    CliError::Input(msg.to_string())
+}
+
+/// Parses the process arguments and runs the command.
+pub fn main() -> ExitCode {
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(e) => {
+            use clap::error::ErrorKind;
+            if matches!(
+                e.kind(),
+                ErrorKind::DisplayHelp
+                    | ErrorKind::DisplayVersion
+                    | ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand
+            ) {
+                let _ = e.print();
+                return if e.kind() == ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand {
+                    ExitCode::from(2)
+                } else {
+                    ExitCode::SUCCESS
+                };
+            }
+            // One line: clap's first line, without its usage block.
+            let text = e.render().to_string();
+            let line = text.lines().next().unwrap_or("error: invalid arguments");
+            eprintln!("gatewatch: {}", line.trim_start_matches("error: "));
+            return ExitCode::from(2);
+        }
+    };
+    let result = match cli.command {
+        Command::Identify(args) => run_identify(args),
+        Command::Bench(BenchCommand::SeedCases(args)) => run_seed_cases(args),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(CliError::Input(msg)) => {
+            eprintln!("gatewatch: {msg}");
+            ExitCode::from(2)
+        }
+        Err(CliError::Other(e)) => {
+            eprintln!("gatewatch: error: {e:#}");
+            ExitCode::from(1)
+        }
+    }
+}
+
+fn progress_bar(len: u64, what: &str) -> ProgressBar {
+    // indicatif draws to stderr only when it is a terminal, so piped runs stay silent.
+    let bar = ProgressBar::new(len);
+    if let Ok(style) =
+        ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} generations {elapsed}")
+    {
+        bar.set_style(style.progress_chars("=> "));
+    }
+    bar.set_message(what.to_string());
+    bar
+}
+
+fn run_identify(a: IdentifyArgs) -> Result<(), CliError> {
+    let model = Model::parse(&a.model, &a.params).map_err(|e| input(format!("model: {e}")))?;
+    let series = TimeSeries::from_csv(&a.input, &a.time_column, &a.value_column).map_err(input)?;
+    let initial = match (a.y0, a.v0, a.fit_initial) {
+        (Some(y0), Some(v0), _) => Initial::Known { y0, v0 },
+        (_, _, true) => Initial::Fit,
+        _ => Initial::FromData,
+    };
+    let config = Config {
+        initial,
+        train_fraction: a.train_fraction,
+        split_seed: a.split_seed,
+        population: a.population,
+        generations: a.generations,
+        runs: a.runs,
+        seed: a.seed,
+        solver: a.solver,
+        rtol: a.rtol,
+        test_rtol: a.test_rtol,
+        substeps: a.substeps,
+        refine: !a.no_refine,
+        restart: !a.no_restart,
+        parallel: a.parallel,
+        ..Config::default()
+    };
+    let total = (a.runs * a.generations) as u64;
+    let bar = progress_bar(total, "identify");
+    let result = identify::identify(&model, &series, &config, |r, g, _| {
+        bar.set_position((r * a.generations + g) as u64)
+    })
+    .map_err(|e| match e {
+        identify::IdentifyError::De(_) => CliError::Other(e.into()),
+        other => input(other),
+    })?;
+    bar.finish_and_clear();
+    let mut out = std::io::stdout().lock();
+    if a.json {
+        let v = identification_json(&model, &result);
+        writeln!(out, "{v}")?;
+    } else {
+        write_identification(&mut out, &model, &result, &config)?;
+    }
+    Ok(())
+}
+
+fn coefficients_json(c: &[f64]) -> serde_json::Value {
+    let map: serde_json::Map<String, serde_json::Value> = c
+        .iter()
+        .enumerate()
+        .map(|(i, v)| (format!("c{}", i + 1), json!(v)))
+        .collect();
+    serde_json::Value::Object(map)
+}
+
+/// The `--json` object of `gatewatch identify` (field names are a stable interface).
+pub fn identification_json(model: &Model, r: &Identification) -> serde_json::Value {
+    let best = r.best_run();
+    json!({
+        "model": model.equation(),
+        "equation": model.substitute(&best.coefficients),
+        "coefficients": coefficients_json(&best.coefficients),
+        "initial": {"y0": best.initial.y0, "v0": best.initial.v0},
+        "train_mae": best.train_mae,
+        "test_nmae": best.test_nmae,
+        "evaluations": best.evaluations,
+        "seconds": best.seconds,
+        "convergence": best.history,
+        "summary": {
+            "mean_nmae": finite_or_null(r.summary.mean),
+            "std_nmae": finite_or_null(r.summary.std),
+            "min_nmae": finite_or_null(r.summary.min),
+            "median_nmae": finite_or_null(r.summary.median),
+        },
+        "runs": r.runs.iter().map(|run| json!({
+            "seed": run.seed,
+            "coefficients": coefficients_json(&run.coefficients),
+            "initial": {"y0": run.initial.y0, "v0": run.initial.v0},
+            "train_mae": run.train_mae,
+            "test_nmae": run.test_nmae,
+            "evaluations": run.evaluations,
+            "restarts": run.restarts,
+            "seconds": run.seconds,
+        })).collect::<Vec<_>>(),
+    })
+}
+
+fn finite_or_null(v: f64) -> serde_json::Value {
+    if v.is_finite() {
+        json!(v)
+    } else {
+        serde_json::Value::Null
+    }
+}
+
+fn write_identification(
+    out: &mut impl Write,
+    model: &Model,
+    r: &Identification,
+    config: &Config,
+) -> std::io::Result<()> {
+    let best = r.best_run();
+    writeln!(out, "model:        {}", model.equation())?;
+    writeln!(
+        out,
+        "identified:   {}",
+        model.substitute(&best.coefficients)
+    )?;
+    for (i, c) in best.coefficients.iter().enumerate() {
+        writeln!(out, "  c{:<3} = {c:.8e}", i + 1)?;
+    }
+    let how = match config.initial {
+        Initial::Known { .. } => "given",
+        Initial::FromData => "from the data",
+        Initial::Fit => "identified",
+    };
+    writeln!(
+        out,
+        "initial:      y0 = {:.6e}, v0 = {:.6e} ({how})",
+        best.initial.y0, best.initial.v0
+    )?;
+    writeln!(out, "train MAE:    {:.3e}", best.train_mae)?;
+    match best.test_nmae {
+        Some(v) => writeln!(out, "test NMAE:    {v:.3e}")?,
+        None => writeln!(out, "test NMAE:    n/a (the test integration failed)")?,
+    }
+    writeln!(
+        out,
+        "evaluations:  {} (of which {} in the polish)",
+        best.evaluations, best.refine_evaluations
+    )?;
+    writeln!(out, "time:         {:.3} s", best.seconds)?;
+    if r.runs.len() > 1 {
+        writeln!(
+            out,
+            "runs:         {} (best by training error: seed {})",
+            r.runs.len(),
+            best.seed
+        )?;
+        writeln!(
+            out,
+            "test NMAE:    mean {:.3e}, std {:.3e}, min {:.3e}, median {:.3e}",
+            r.summary.mean, r.summary.std, r.summary.min, r.summary.median
+        )?;
+    }
+    Ok(())
+}
+
+fn run_seed_cases(a: SeedCasesArgs) -> Result<(), CliError> {
+    if a.runs == 0 {
+        return Err(input("--runs must be at least 1"));
+    }
+    let selected: Vec<&cases::SeedCase> = if a.cases.is_empty() {
+        cases::CASES.iter().collect()
+    } else {
+        a.cases
+            .iter()
+            .map(|id| {
+                cases::find(id).ok_or_else(|| {
+                    let known: Vec<&str> = cases::CASES.iter().map(|c| c.id).collect();
+                    input(format!(
+                        "--case: unknown case '{id}' (known: {})",
+                        known.join(", ")
+                    ))
+                })
+            })
+            .collect::<Result<_, _>>()?
+    };
+    let opts = BenchOptions {
+        runs: a.runs,
+        seed: a.seed,
+        solver: a.solver,
+        rtol: a.rtol,
+        refine: !a.no_refine,
+        restart: !a.no_restart,
+        ..BenchOptions::default()
+    };
+    let mut reports = Vec::new();
+    for case in selected {
+        let bar = progress_bar((a.runs * case.generations) as u64, case.id);
+        let report = bench::run_case(case, &opts, |r, g| {
+            bar.set_position((r * case.generations + g) as u64)
+        })?;
+        bar.finish_and_clear();
+        if !a.json {
+            eprintln!(
+                "{}: mean NMAE {:.3e}, {}/{} runs below 0.01, median {:.4} s/run",
+                report.id, report.mean_nmae, report.successes, report.runs, report.median_seconds
+            );
+        }
+        reports.push(report);
+    }
+    let mut out = std::io::stdout().lock();
+    if a.json {
+        writeln!(out, "{}", json!({"options": opts, "cases": reports}))?;
+    } else {
+        writeln!(
+            out,
+            "solver {} rtol {:e}, polish {}, restart {}, {} runs per case, one thread",
+            opts.solver,
+            opts.rtol,
+            if opts.refine { "on" } else { "off" },
+            if opts.restart { "on" } else { "off" },
+            opts.runs
+        )?;
+        write!(out, "{}", bench::table(&reports))?;
+    }
+    Ok(())
 }

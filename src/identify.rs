@@ -1,1 +1,612 @@
-//! (in progress)
+//! Identification: the coefficients of a model from a sampled signal (sections 8.3 and 8.4).
+//!
+//! One run is: a Cauchy DE on the training samples with the evaluation solver and tolerance (the
+//! chapter's protocol), then, beyond the chapter, a Nelder-Mead polish of the DE winner on the
+//! same training samples with a tighter solver tolerance, and a restart of the DE when its
+//! population stagnates. The test NMAE is computed on the held-out samples with the test
+//! tolerance. Several runs with consecutive seeds give the spread the chapter reports.
+//!
+//! # Fitness
+//! The chapter's fitness, `-MAE * penalty` over the samples the solver reached, rewards a
+//! candidate whose integration dies right after `t0` (a perfect 0 on the one sample it reached).
+//! Here a candidate that completes costs its training MAE; a candidate that fails costs
+//! `B * (1 + missing / n_train) + partial_sum / n_train`, where `B` is the largest error any
+//! completing candidate can have per sample (the integrator's blow-up bound plus the data's
+//! largest magnitude). So a failed candidate never beats a completed one, and among failures the
+//! one that got further wins, which gives the search a direction. The solver's work per
+//! evaluation is capped, so a pathological candidate (chattering `sign()`, extreme stiffness)
+//! costs a bounded time and counts as failed.
+
+use crate::data::TimeSeries;
+use crate::de::{self, Objective};
+use crate::model::{Bound, Model};
+use crate::nelder_mead;
+use crate::ode::{self, Method, Options};
+use rand::seq::SliceRandom;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use serde::Serialize;
+use std::ops::ControlFlow;
+use std::time::Instant;
+
+/// Where the initial conditions `y(t0)`, `yd(t0)` come from.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Initial {
+    /// Given by the caller.
+    Known {
+        /// `y(t0)`.
+        y0: f64,
+        /// `yd(t0)`.
+        v0: f64,
+    },
+    /// `y0` is the first sample; `v0` the slope at `t0` of a least-squares quadratic through the
+    /// first samples (up to 7).
+    FromData,
+    /// Identified as two extra unknowns after the coefficients.
+    Fit,
+}
+
+/// Settings of an identification. [`Config::default`] is the chapter's protocol with the
+/// improvements switched on.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Config {
+    /// Initial conditions.
+    pub initial: Initial,
+    /// Fraction of the samples used for training (the rest is the test set).
+    pub train_fraction: f64,
+    /// Seed of the random train/test split.
+    pub split_seed: u64,
+    /// DE population size.
+    pub population: usize,
+    /// DE generations.
+    pub generations: usize,
+    /// Independent runs (seeds `seed`, `seed + 1`, ...).
+    pub runs: usize,
+    /// Seed of the first run.
+    pub seed: u64,
+    /// Solver used in the fitness.
+    pub solver: Method,
+    /// Relative tolerance of the fitness solver (chapter: 1e-3).
+    pub rtol: f64,
+    /// Relative tolerance of the test solver (chapter: 1e-5); the test always uses Dormand-Prince.
+    pub test_rtol: f64,
+    /// RK4 steps per sample interval.
+    pub substeps: usize,
+    /// Polish the DE winner with Nelder-Mead (not in the chapter).
+    pub refine: bool,
+    /// Relative tolerance of the solver during the polish.
+    pub refine_rtol: f64,
+    /// Objective evaluations the polish may spend.
+    pub refine_evaluations: usize,
+    /// Restart a stagnating DE population (not in the chapter).
+    pub restart: bool,
+    /// Evaluate each generation's trials in parallel (results are identical either way).
+    pub parallel: bool,
+    /// Individuals placed first in the initial population of every run (warm start, bias), in
+    /// the DE's coordinates (coefficients, then `y0`, `v0` when fitted).
+    pub initial_population: Vec<Vec<f64>>,
+}
+
+impl Default for Config {
+    fn default() -> Self {
+        Config {
+            initial: Initial::FromData,
+            train_fraction: 0.5,
+            split_seed: 1,
+            population: 50,
+            generations: 120,
+            runs: 1,
+            seed: 1,
+            solver: Method::Dopri5,
+            rtol: 1e-3,
+            test_rtol: 1e-5,
+            substeps: 2,
+            refine: true,
+            refine_rtol: 1e-7,
+            refine_evaluations: 600,
+            restart: true,
+            parallel: false,
+            initial_population: Vec::new(),
+        }
+    }
+}
+
+/// Why an identification could not run.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum IdentifyError {
+    /// An option is out of range.
+    #[error("{0}")]
+    Option(String),
+    /// Too few samples for the split.
+    #[error("{samples} samples are too few: the split needs at least {needed} ({train} train, {test} test)")]
+    TooFewSamples {
+        samples: usize,
+        needed: usize,
+        train: usize,
+        test: usize,
+    },
+    /// The model has no unknowns to identify.
+    #[error("the model has no unknown coefficients (c1, c2, ...) to identify")]
+    NoUnknowns,
+    /// RK4 needs uniformly spaced samples.
+    #[error("the rk4 solver needs uniformly spaced samples; use --solver dopri5 for this file")]
+    NotUniform,
+    /// The DE refused its settings.
+    #[error(transparent)]
+    De(#[from] de::DeError),
+}
+
+/// One run's result.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct RunResult {
+    /// The run's DE seed.
+    pub seed: u64,
+    /// Identified coefficients `c1..cN`.
+    pub coefficients: Vec<f64>,
+    /// Initial conditions used or identified.
+    pub initial: InitialValues,
+    /// Training MAE of the final coefficients (at the polish tolerance when polished).
+    pub train_mae: f64,
+    /// Test NMAE (`None` when the test integration failed).
+    pub test_nmae: Option<f64>,
+    /// Objective evaluations (DE and polish).
+    pub evaluations: usize,
+    /// Of which spent by the polish.
+    pub refine_evaluations: usize,
+    /// DE restarts.
+    pub restarts: usize,
+    /// Wall time of the run, seconds.
+    pub seconds: f64,
+    /// Best-so-far training cost per generation (the chapter's Figure 8.5, right).
+    pub history: Vec<f64>,
+}
+
+/// Initial conditions of a result.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct InitialValues {
+    /// `y(t0)`.
+    pub y0: f64,
+    /// `yd(t0)`.
+    pub v0: f64,
+}
+
+/// Mean, standard deviation and minimum of the runs' test NMAE.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct Summary {
+    /// Mean test NMAE (failed tests count as infinite).
+    pub mean: f64,
+    /// Sample standard deviation (0 for one run).
+    pub std: f64,
+    /// Smallest test NMAE.
+    pub min: f64,
+    /// Median test NMAE.
+    pub median: f64,
+}
+
+/// The result of [`identify`].
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Identification {
+    /// Every run, in seed order.
+    pub runs: Vec<RunResult>,
+    /// Index of the run with the smallest training MAE (never chosen on test data).
+    pub best: usize,
+    /// Test NMAE statistics over the runs.
+    pub summary: Summary,
+    /// Indices of the training samples.
+    pub train: Vec<usize>,
+    /// Indices of the test samples.
+    pub test: Vec<usize>,
+}
+
+impl Identification {
+    /// The chosen run.
+    pub fn best_run(&self) -> &RunResult {
+        &self.runs[self.best]
+    }
+}
+
+/// Identifies `model`'s coefficients from `series`. `progress(run, generation, best_cost)` is
+/// called after every generation.
+pub fn identify(
+    model: &Model,
+    series: &TimeSeries,
+    config: &Config,
+    mut progress: impl FnMut(usize, usize, f64),
+) -> Result<Identification, IdentifyError> {
+    validate(config)?;
+    if model.n_coeffs() == 0 {
+        return Err(IdentifyError::NoUnknowns);
+    }
+    if config.solver == Method::Rk4 && series.uniform_step().is_none() {
+        return Err(IdentifyError::NotUniform);
+    }
+    let (train, test) = split(series.len(), config.train_fraction, config.split_seed)?;
+    let mut is_train = vec![false; series.len()];
+    for &i in &train {
+        is_train[i] = true;
+    }
+    let initial = match config.initial {
+        Initial::FromData => {
+            let (y0, v0) = initial_from_data(series);
+            Initial::Known { y0, v0 }
+        }
+        other => other,
+    };
+    let fitness = Fitness::new(
+        model,
+        series,
+        is_train,
+        initial,
+        config.solver,
+        config.rtol,
+        config.substeps,
+    );
+    let mut runs = Vec::with_capacity(config.runs);
+    for r in 0..config.runs {
+        let seed = config.seed.wrapping_add(r as u64);
+        let started = Instant::now();
+        let mut settings = de::Settings::new(config.population, config.generations, seed);
+        settings.parallel = config.parallel;
+        settings.restart = config.restart.then(de::Restart::default);
+        let found = de::minimize(&fitness, &settings, &config.initial_population, |g, c| {
+            progress(r, g, c)
+        })?;
+        let mut x = found.best;
+        let mut evaluations = found.evaluations;
+        let mut refine_evaluations = 0;
+        let fine = fitness.with_tolerance(Method::Dopri5, config.refine_rtol.min(config.rtol));
+        let mut train_cost = fine.cost(&x, f64::INFINITY, &mut ());
+        if config.refine {
+            let polished =
+                nelder_mead::minimize(&fine, &x, 0.05, config.refine_evaluations, 1e-12, 1e-10);
+            refine_evaluations = polished.evaluations;
+            evaluations += polished.evaluations;
+            if polished.cost <= train_cost {
+                x = polished.x;
+                train_cost = polished.cost;
+            }
+        }
+        let (coefficients, init) = fitness.unpack(&x);
+        let test_nmae = test_nmae(model, series, &coefficients, init, &test, config.test_rtol);
+        runs.push(RunResult {
+            seed,
+            coefficients,
+            initial: init,
+            train_mae: train_cost,
+            test_nmae,
+            evaluations,
+            refine_evaluations,
+            restarts: found.restarts,
+            seconds: started.elapsed().as_secs_f64(),
+            history: found.history,
+        });
+    }
+    let best = (0..runs.len())
+        .min_by(|&a, &b| runs[a].train_mae.total_cmp(&runs[b].train_mae))
+        .unwrap_or(0);
+    let summary = summarize(runs.iter().map(|r| r.test_nmae.unwrap_or(f64::INFINITY)));
+    Ok(Identification {
+        runs,
+        best,
+        summary,
+        train,
+        test,
+    })
+}
+
+fn validate(c: &Config) -> Result<(), IdentifyError> {
+    let bad = |s: &str| Err(IdentifyError::Option(s.to_string()));
+    if !(c.train_fraction > 0.0 && c.train_fraction < 1.0) {
+        return bad("--train-fraction must be strictly between 0 and 1");
+    }
+    if c.population < 4 {
+        return bad("--population must be at least 4");
+    }
+    if c.runs == 0 {
+        return bad("--runs must be at least 1");
+    }
+    for (name, v) in [
+        ("--rtol", c.rtol),
+        ("--test-rtol", c.test_rtol),
+        ("refine rtol", c.refine_rtol),
+    ] {
+        if !(v > 0.0 && v < 1.0) {
+            return Err(IdentifyError::Option(format!(
+                "{name} must be in (0, 1), got {v}"
+            )));
+        }
+    }
+    if c.substeps == 0 || c.substeps > 1000 {
+        return bad("--substeps must be between 1 and 1000");
+    }
+    if let Initial::Known { y0, v0 } = c.initial {
+        if !y0.is_finite() || !v0.is_finite() {
+            return bad("--y0 and --v0 must be finite numbers");
+        }
+    }
+    Ok(())
+}
+
+/// A seeded random split: `round(n * fraction)` training indices, the rest for testing, both
+/// sorted.
+pub fn split(
+    n: usize,
+    fraction: f64,
+    seed: u64,
+) -> Result<(Vec<usize>, Vec<usize>), IdentifyError> {
+    const MIN_TRAIN: usize = 4;
+    const MIN_TEST: usize = 2;
+    let n_train = ((n as f64) * fraction).round() as usize;
+    if n_train < MIN_TRAIN || n - n_train.min(n) < MIN_TEST {
+        let needed = (MIN_TRAIN as f64 / fraction)
+            .max(MIN_TEST as f64 / (1.0 - fraction))
+            .ceil() as usize;
+        return Err(IdentifyError::TooFewSamples {
+            samples: n,
+            needed,
+            train: MIN_TRAIN,
+            test: MIN_TEST,
+        });
+    }
+    let mut idx: Vec<usize> = (0..n).collect();
+    idx.shuffle(&mut ChaCha8Rng::seed_from_u64(seed));
+    let mut train = idx[..n_train].to_vec();
+    let mut test = idx[n_train..].to_vec();
+    train.sort_unstable();
+    test.sort_unstable();
+    Ok((train, test))
+}
+
+/// `y0` = first sample; `v0` = slope at `t0` of the least-squares quadratic through the first
+/// samples (up to 7), which tolerates mild noise better than a two-point difference.
+pub fn initial_from_data(s: &TimeSeries) -> (f64, f64) {
+    let m = s.len().min(7);
+    if m < 2 {
+        return (s.y.first().copied().unwrap_or(0.0), 0.0);
+    }
+    if m == 2 {
+        return (s.y[0], (s.y[1] - s.y[0]) / (s.t[1] - s.t[0]));
+    }
+    // Fit y = a + b*dt + c*dt^2 with dt = t - t0; v0 = b.
+    let mut a = nalgebra::Matrix3::<f64>::zeros();
+    let mut rhs = nalgebra::Vector3::<f64>::zeros();
+    for i in 0..m {
+        let dt = s.t[i] - s.t[0];
+        let row = nalgebra::Vector3::new(1.0, dt, dt * dt);
+        a += row * row.transpose();
+        rhs += row * s.y[i];
+    }
+    match a.lu().solve(&rhs) {
+        Some(sol) => (s.y[0], sol[1]),
+        None => (s.y[0], (s.y[1] - s.y[0]) / (s.t[1] - s.t[0])),
+    }
+}
+
+/// Test NMAE: mean |prediction - target| over the test samples divided by the (population)
+/// standard deviation of the test targets. `None` when the integration fails.
+pub fn test_nmae(
+    model: &Model,
+    series: &TimeSeries,
+    coefficients: &[f64],
+    init: InitialValues,
+    test: &[usize],
+    rtol: f64,
+) -> Option<f64> {
+    let prediction = simulate(model, series, coefficients, init, rtol)?;
+    nmae(test.iter().map(|&i| (prediction[i], series.y[i])))
+}
+
+/// NMAE of `(prediction, target)` pairs; `None` when empty or the targets are constant.
+pub fn nmae(pairs: impl Iterator<Item = (f64, f64)> + Clone) -> Option<f64> {
+    let n = pairs.clone().count();
+    if n == 0 {
+        return None;
+    }
+    let mean = pairs.clone().map(|(_, t)| t).sum::<f64>() / n as f64;
+    let var = pairs.clone().map(|(_, t)| (t - mean).powi(2)).sum::<f64>() / n as f64;
+    let mae = pairs.map(|(p, t)| (p - t).abs()).sum::<f64>() / n as f64;
+    (var > 0.0).then(|| mae / var.sqrt())
+}
+
+/// The model's prediction at every sample time (Dormand-Prince at `rtol`), `None` on failure.
+pub fn simulate(
+    model: &Model,
+    series: &TimeSeries,
+    coefficients: &[f64],
+    init: InitialValues,
+    rtol: f64,
+) -> Option<Vec<f64>> {
+    let scale = magnitude(&series.y);
+    let opts = Options {
+        rtol,
+        atol: rtol * 1e-3 * scale,
+        bound: 1e6 * scale,
+        max_steps: 1_000_000,
+        max_rhs_evals: 10_000_000,
+        ..Options::default()
+    };
+    let mut out = vec![0.0; series.len()];
+    let sys = Bound {
+        model,
+        coeffs: coefficients,
+    };
+    let o = ode::integrate(
+        Method::Dopri5,
+        &sys,
+        [init.y0, init.v0],
+        &series.t,
+        &opts,
+        |i, s| {
+            out[i] = s[0];
+            ControlFlow::Continue(())
+        },
+    );
+    o.is_complete().then_some(out)
+}
+
+fn magnitude(y: &[f64]) -> f64 {
+    let m = y.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    if m > 0.0 {
+        m
+    } else {
+        1.0
+    }
+}
+
+fn summarize(values: impl Iterator<Item = f64>) -> Summary {
+    let mut v: Vec<f64> = values.collect();
+    let n = v.len() as f64;
+    let mean = v.iter().sum::<f64>() / n;
+    let std = if v.len() > 1 {
+        (v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0)).sqrt()
+    } else {
+        0.0
+    };
+    v.sort_by(f64::total_cmp);
+    let median = if v.len() % 2 == 1 {
+        v[v.len() / 2]
+    } else {
+        0.5 * (v[v.len() / 2 - 1] + v[v.len() / 2])
+    };
+    Summary {
+        mean,
+        std,
+        min: v.first().copied().unwrap_or(f64::NAN),
+        median,
+    }
+}
+
+/// The training objective of section 8.3 with the corrected penalty (see the module docs).
+#[derive(Debug, Clone)]
+pub struct Fitness<'a> {
+    model: &'a Model,
+    t: &'a [f64],
+    y: &'a [f64],
+    is_train: Vec<bool>,
+    n_train: usize,
+    initial: Initial,
+    method: Method,
+    opts: Options,
+    /// Largest magnitude in the data (scales tolerances and bounds).
+    scale: f64,
+    /// Largest per-sample error of a completing candidate: blow-up bound + data magnitude.
+    fail_base: f64,
+}
+
+impl<'a> Fitness<'a> {
+    /// The objective on the samples flagged in `is_train`. `initial` must be `Known` or `Fit`.
+    pub fn new(
+        model: &'a Model,
+        series: &'a TimeSeries,
+        is_train: Vec<bool>,
+        initial: Initial,
+        method: Method,
+        rtol: f64,
+        substeps: usize,
+    ) -> Fitness<'a> {
+        let scale = magnitude(&series.y);
+        let n = series.len();
+        let n_train = is_train.iter().filter(|b| **b).count().max(1);
+        let bound = 1e6 * scale;
+        let opts = Options {
+            rtol,
+            atol: rtol * 1e-3 * scale,
+            substeps,
+            bound,
+            // Work caps: about 25 times what a well-behaved candidate needs.
+            max_steps: 50 * n + 10_000,
+            max_rhs_evals: 100 * substeps.max(2) * n + 50_000,
+            initial_step: None,
+        };
+        Fitness {
+            model,
+            t: &series.t,
+            y: &series.y,
+            is_train,
+            n_train,
+            initial,
+            method,
+            opts,
+            scale,
+            fail_base: bound + scale,
+        }
+    }
+
+    /// The same objective with another solver and tolerance.
+    pub fn with_tolerance(&self, method: Method, rtol: f64) -> Fitness<'a> {
+        let mut f = self.clone();
+        f.method = method;
+        f.opts.rtol = rtol;
+        f.opts.atol = rtol * 1e-3 * f.scale;
+        f
+    }
+
+    /// Splits a DE vector into coefficients and initial conditions.
+    pub fn unpack(&self, x: &[f64]) -> (Vec<f64>, InitialValues) {
+        let nc = self.model.n_coeffs();
+        let init = match self.initial {
+            Initial::Known { y0, v0 } => InitialValues { y0, v0 },
+            _ => InitialValues {
+                y0: x[nc],
+                v0: x[nc + 1],
+            },
+        };
+        (x[..nc].to_vec(), init)
+    }
+}
+
+impl Objective for Fitness<'_> {
+    type Workspace = ();
+
+    fn dimension(&self) -> usize {
+        self.model.n_coeffs()
+            + if matches!(self.initial, Initial::Fit) {
+                2
+            } else {
+                0
+            }
+    }
+
+    fn workspace(&self) {}
+
+    fn cost(&self, x: &[f64], bound: f64, _ws: &mut ()) -> f64 {
+        let nc = self.model.n_coeffs();
+        let (y0, v0) = match self.initial {
+            Initial::Known { y0, v0 } => (y0, v0),
+            _ => (x[nc], x[nc + 1]),
+        };
+        let sys = Bound {
+            model: self.model,
+            coeffs: &x[..nc],
+        };
+        let limit = bound * self.n_train as f64;
+        let (mut sum, mut reached) = (0.0, 0usize);
+        let mut abandoned = false;
+        let outcome = ode::integrate(self.method, &sys, [y0, v0], self.t, &self.opts, |i, s| {
+            if self.is_train[i] {
+                let e = (s[0] - self.y[i]).abs();
+                if !e.is_finite() {
+                    return ControlFlow::Break(());
+                }
+                sum += e;
+                reached += 1;
+                if sum > limit {
+                    abandoned = true;
+                    return ControlFlow::Break(());
+                }
+            }
+            ControlFlow::Continue(())
+        });
+        if abandoned {
+            return f64::INFINITY;
+        }
+        let n = self.n_train as f64;
+        if outcome.is_complete() {
+            sum / n
+        } else {
+            let missing = (self.n_train - reached.min(self.n_train)) as f64;
+            self.fail_base * (1.0 + missing / n) + sum / n
+        }
+    }
+}
