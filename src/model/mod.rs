@@ -310,8 +310,9 @@ impl Model {
     /// `ydd + (-0.1434 + 0*y)*yd + y = 0`, for reports.
     ///
     /// The user's layout is kept; each `cK` becomes its value with six significant digits
-    /// (scientific notation when tiny or huge), in parentheses when negative and not already
-    /// safe (after `(`, `,` or `=` or at the start, and not followed by `^`). A missing value
+    /// (scientific notation when tiny or huge). A negative value is put in parentheses unless it
+    /// stands alone as a term: after `(`, `,`, `=` or the start, and before `+`, `-`, `)`, `,`,
+    /// `=` or the end; so `c1*y` becomes `(-2)*y` and `(c1 + y)` becomes `(-2 + y)`. A missing value
     /// (`c` too short) leaves the `cK` token as it was.
     pub fn substitute(&self, c: &[f64]) -> String {
         let mut out = String::with_capacity(self.equation.len() + 8 * self.sites.len());

@@ -394,7 +394,12 @@ impl<'a> Parser<'a> {
             let next = self.all.get(abs + 1);
             let safe_before =
                 prev.is_none_or(|p| matches!(p.tok, Tok::LParen | Tok::Comma | Tok::Eq));
-            let safe_after = next.is_none_or(|n| n.tok != Tok::Caret);
+            let safe_after = next.is_none_or(|n| {
+                matches!(
+                    n.tok,
+                    Tok::Plus | Tok::Minus | Tok::RParen | Tok::Comma | Tok::Eq
+                )
+            });
             self.facts.coef_sites.push(CoefSite {
                 start: t.start,
                 end: t.end,
