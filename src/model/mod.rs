@@ -14,7 +14,17 @@
 //! A [`Model`] evaluates without allocation or name lookups, takes `&self` only, and is
 //! `Send + Sync`, so one compiled model serves every thread of a parallel search.
 
+mod lexer;
+mod linear;
+mod parser;
+mod program;
+#[cfg(test)]
+mod tests;
+
 use crate::ode::System;
+use lexer::{Tok, Token};
+use parser::{CoefSite, Expr, Facts, Parser};
+use program::Program;
 
 /// A parse or compile error, with the 1-based column where it was found when there is one.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -26,52 +36,304 @@ pub struct ModelError {
     pub column: Option<usize>,
 }
 
+/// Deepest nesting accepted: parentheses, function calls, unary signs and exponents each open
+/// one level. Deeper input is rejected (with the column where the limit is crossed) so that
+/// parsing and compiling can never exhaust the stack, whatever the input.
+pub const MAX_DEPTH: usize = 64;
+
+/// Highest coefficient number accepted (`c1000`): far above any identifiable model, and it keeps
+/// a stray `c99999999` from allocating a huge "seen" table.
+pub const MAX_COEFFS: usize = 1000;
+
+/// How `accel` obtains `M`: most models have `ydd` alone (`M = 1`), which saves a division.
+#[derive(Debug, Clone, Copy)]
+enum MassKind {
+    One,
+    Const(f64),
+    Varying,
+}
+
 /// A compiled equation of motion `M(t, y, yd) * ydd + R(t, y, yd) = 0`.
+///
+/// `M` and `R` are flat programs (see the `program` submodule): constants and params are folded
+/// in at parse time, integer powers become multiplications, and evaluation uses a register plus
+/// a small fixed-size stack array, so `accel` allocates nothing and takes `&self` only.
 #[derive(Debug, Clone)]
 pub struct Model {
-    _private: (),
+    equation: String,
+    n_coeffs: usize,
+    uses_time: bool,
+    mass: Program,
+    residual: Program,
+    mass_kind: MassKind,
+    sites: Vec<CoefSite>,
+}
+
+fn error<T>(message: String, column: Option<usize>) -> Result<T, ModelError> {
+    Err(ModelError { message, column })
+}
+
+/// Rejects params that could never be referenced or would shadow a built-in name.
+fn check_params(params: &[(String, f64)]) -> Result<(), ModelError> {
+    for (i, (name, value)) in params.iter().enumerate() {
+        let valid = name
+            .chars()
+            .next()
+            .is_some_and(|c| c.is_ascii_alphabetic() || c == '_')
+            && name.chars().all(|c| c.is_ascii_alphanumeric() || c == '_');
+        if !valid {
+            return error(
+                format!("invalid param name '{}': a name is a letter or '_' followed by letters, digits or '_'", name.escape_debug()),
+                None,
+            );
+        }
+        let reserved = matches!(name.as_str(), "y" | "yd" | "ydd" | "t" | "pi")
+            || parser::coef_digits(name).is_some()
+            || parser::FUNCS.iter().any(|(f, _)| f == name);
+        if reserved {
+            return error(
+                format!("param name '{name}' is reserved (y, yd, ydd, t, c1, c2, ..., pi and function names cannot be params)"),
+                None,
+            );
+        }
+        if !value.is_finite() {
+            return error(
+                format!("param '{name}' has the non-finite value {value}"),
+                None,
+            );
+        }
+        if params[..i].iter().any(|(n, _)| n == name) {
+            return error(format!("param '{name}' is given more than once"), None);
+        }
+    }
+    Ok(())
+}
+
+/// Reports the first parenthesis without a partner in `toks`, which is one side of the equation.
+fn check_parens(toks: &[Token]) -> Result<(), ModelError> {
+    let mut open = Vec::new();
+    for t in toks {
+        match t.tok {
+            Tok::LParen => open.push(t.col),
+            Tok::RParen if open.pop().is_none() => {
+                return error(
+                    format!("unbalanced parenthesis at column {}", t.col),
+                    Some(t.col),
+                );
+            }
+            _ => {}
+        }
+    }
+    match open.last() {
+        Some(&col) => error(format!("unbalanced parenthesis at column {col}"), Some(col)),
+        None => Ok(()),
+    }
+}
+
+/// Formats a coefficient for `substitute`: six significant digits, trailing zeros trimmed,
+/// scientific notation outside `[1e-4, 1e6)`.
+fn format_value(v: f64) -> String {
+    if v == 0.0 {
+        return "0".to_string();
+    }
+    if !v.is_finite() {
+        return format!("{v}");
+    }
+    let a = v.abs();
+    if (1e-4..1e6).contains(&a) {
+        let magnitude = a.log10().floor() as i32;
+        let decimals = (5 - magnitude).clamp(0, 9) as usize;
+        let s = format!("{v:.decimals$}");
+        if s.contains('.') {
+            s.trim_end_matches('0').trim_end_matches('.').to_string()
+        } else {
+            s
+        }
+    } else {
+        let s = format!("{v:.5e}");
+        match s.split_once('e') {
+            Some((mantissa, exp)) if mantissa.contains('.') => {
+                let m = mantissa.trim_end_matches('0').trim_end_matches('.');
+                format!("{m}e{exp}")
+            }
+            _ => s,
+        }
+    }
 }
 
 impl Model {
     /// Parses and compiles `equation`. `params` are the known named constants.
-    pub fn parse(_equation: &str, _params: &[(String, f64)]) -> Result<Model, ModelError> {
-        todo!("model language not yet implemented")
+    ///
+    /// Never panics, whatever the input. Linearity errors report the column of the offending
+    /// `ydd` (for `ydd*ydd`, the second one; for `sin(ydd)`, the `ydd` inside the call), since
+    /// that is the token the engineer has to move.
+    pub fn parse(equation: &str, params: &[(String, f64)]) -> Result<Model, ModelError> {
+        check_params(params)?;
+        let toks = lexer::lex(equation)?;
+        if toks.is_empty() {
+            return error("empty equation".to_string(), None);
+        }
+        let eqs: Vec<usize> = (0..toks.len())
+            .filter(|&i| toks[i].tok == Tok::Eq)
+            .collect();
+        let eq = match eqs.as_slice() {
+            [] => {
+                return error(
+                    "missing '=': write the equation as left = right, e.g. ydd + y = 0".to_string(),
+                    None,
+                )
+            }
+            [eq] => *eq,
+            [_, second, ..] => {
+                let col = toks[*second].col;
+                return error(
+                    format!("more than one '=' (the second is at column {col})"),
+                    Some(col),
+                );
+            }
+        };
+        let eq_col = toks[eq].col;
+        check_parens(&toks[..eq])?;
+        check_parens(&toks[eq + 1..])?;
+        if eq == 0 {
+            return error(
+                format!("nothing before '=' at column {eq_col}"),
+                Some(eq_col),
+            );
+        }
+        if eq + 1 == toks.len() {
+            return error(
+                format!("nothing after '=' at column {eq_col}"),
+                Some(eq_col),
+            );
+        }
+        let end_col = equation.chars().count() + 1;
+        let mut facts = Facts::default();
+        let lhs = Parser::new(equation, &toks, 0..eq, eq_col, params, &mut facts).parse_all()?;
+        let rhs = Parser::new(
+            equation,
+            &toks,
+            eq + 1..toks.len(),
+            end_col,
+            params,
+            &mut facts,
+        )
+        .parse_all()?;
+
+        if let Some(k) = facts.coefs_seen.iter().position(|seen| !seen) {
+            return error(
+                format!(
+                    "coefficients must be numbered c1..cN: c{} is missing",
+                    k + 1
+                ),
+                None,
+            );
+        }
+        if !facts.has_ydd {
+            return error(
+                "the equation does not contain ydd: it must give the acceleration, e.g. ydd + c1*yd + c2*y = 0"
+                    .to_string(),
+                None,
+            );
+        }
+        let (ml, rl) = linear::split(&lhs)?;
+        let (mr, rr) = linear::split(&rhs)?;
+        let combine = |l: Option<Expr>, r: Option<Expr>| match (l, r) {
+            (l, None) => l,
+            (None, Some(r)) => Some(linear::neg(r)),
+            (Some(l), Some(r)) => Some(Expr::Sum(vec![l, linear::neg(r)])),
+        };
+        let m = combine(ml, mr).map(linear::simplify);
+        let r = combine(rl, rr).map(linear::simplify);
+        let too_deep = || ModelError {
+            message: format!("expression too deeply nested (the limit is {MAX_DEPTH} levels)"),
+            column: None,
+        };
+        let mass = Program::compile(m.as_ref()).ok_or_else(too_deep)?;
+        let residual = Program::compile(r.as_ref()).ok_or_else(too_deep)?;
+        let mass_kind = match mass.constant() {
+            Some(1.0) => MassKind::One,
+            Some(v) => MassKind::Const(v),
+            None => MassKind::Varying,
+        };
+        Ok(Model {
+            equation: equation.to_string(),
+            n_coeffs: facts.coefs_seen.len(),
+            uses_time: facts.uses_time,
+            mass,
+            residual,
+            mass_kind,
+            sites: facts.coef_sites,
+        })
     }
 
     /// The equation text as given.
     pub fn equation(&self) -> &str {
-        todo!()
+        &self.equation
     }
 
     /// Number of unknown coefficients `N` (`c1..cN`).
     pub fn n_coeffs(&self) -> usize {
-        todo!()
+        self.n_coeffs
     }
 
     /// Whether `t` appears in the equation (the system is non-autonomous).
     pub fn uses_time(&self) -> bool {
-        todo!()
+        self.uses_time
     }
 
-    /// `M(t, y, yd)`, the factor of `ydd`. `c.len()` must be `n_coeffs()`.
-    pub fn mass(&self, _t: f64, _y: f64, _yd: f64, _c: &[f64]) -> f64 {
-        todo!()
+    /// `M(t, y, yd)`, the factor of `ydd`. `c.len()` must be `n_coeffs()` (a missing
+    /// coefficient reads as NaN rather than panicking).
+    #[inline]
+    pub fn mass(&self, t: f64, y: f64, yd: f64, c: &[f64]) -> f64 {
+        self.mass.eval(t, y, yd, c)
     }
 
     /// `R(t, y, yd)`, everything else moved to the left-hand side.
-    pub fn residual(&self, _t: f64, _y: f64, _yd: f64, _c: &[f64]) -> f64 {
-        todo!()
+    #[inline]
+    pub fn residual(&self, t: f64, y: f64, yd: f64, c: &[f64]) -> f64 {
+        self.residual.eval(t, y, yd, c)
     }
 
     /// `ydd = -R / M` (NaN or infinite when `M` vanishes; the integrators report that).
-    pub fn accel(&self, _t: f64, _y: f64, _yd: f64, _c: &[f64]) -> f64 {
-        todo!()
+    #[inline]
+    pub fn accel(&self, t: f64, y: f64, yd: f64, c: &[f64]) -> f64 {
+        let r = self.residual.eval(t, y, yd, c);
+        match self.mass_kind {
+            MassKind::One => -r,
+            MassKind::Const(m) => -r / m,
+            MassKind::Varying => -r / self.mass.eval(t, y, yd, c),
+        }
     }
 
     /// The equation with the coefficients' values put in, e.g.
     /// `ydd + (-0.1434 + 0*y)*yd + y = 0`, for reports.
-    pub fn substitute(&self, _c: &[f64]) -> String {
-        todo!()
+    ///
+    /// The user's layout is kept; each `cK` becomes its value with six significant digits
+    /// (scientific notation when tiny or huge). A negative value is put in parentheses unless it
+    /// stands alone as a term: after `(`, `,`, `=` or the start, and before `+`, `-`, `)`, `,`,
+    /// `=` or the end; so `c1*y` becomes `(-2)*y` and `(c1 + y)` becomes `(-2 + y)`. A missing value
+    /// (`c` too short) leaves the `cK` token as it was.
+    pub fn substitute(&self, c: &[f64]) -> String {
+        let mut out = String::with_capacity(self.equation.len() + 8 * self.sites.len());
+        let mut at = 0;
+        for site in &self.sites {
+            let Some(&v) = c.get(site.index as usize) else {
+                continue;
+            };
+            out.push_str(self.equation.get(at..site.start).unwrap_or(""));
+            let s = format_value(v);
+            if s.starts_with('-') && site.wrap_negative {
+                out.push('(');
+                out.push_str(&s);
+                out.push(')');
+            } else {
+                out.push_str(&s);
+            }
+            at = site.end;
+        }
+        out.push_str(self.equation.get(at..).unwrap_or(""));
+        out
     }
 }
 

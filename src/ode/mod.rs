@@ -18,7 +18,10 @@ pub trait System<const N: usize> {
     fn rhs(&self, t: f64, y: &[f64; N], dy: &mut [f64; N]);
 
     /// Writes the Jacobian `jac[i][j] = d f_i / d y_j` into `jac`. The default uses forward
-    /// differences (N extra right-hand-side evaluations, which the caller counts).
+    /// differences: `N + 1` right-hand-side evaluations (`f(t, y)` and one per column), which
+    /// the integrator counts in [`Stats::rhs_evals`] through [`System::jacobian_cost`].
+    /// A system that overrides this with an analytic Jacobian should override
+    /// [`System::jacobian_cost`] too.
     fn jacobian(&self, t: f64, y: &[f64; N], jac: &mut [[f64; N]; N]) {
         let mut f0 = [0.0; N];
         self.rhs(t, y, &mut f0);
@@ -33,6 +36,20 @@ pub trait System<const N: usize> {
             }
             yp[j] = y[j];
         }
+    }
+
+    /// How many right-hand-side evaluations one call of [`System::jacobian`] costs, for the
+    /// work statistics and [`Options::max_rhs_evals`]: `N + 1` for the default finite
+    /// differences; return 0 (or the true cost) when `jacobian` is overridden.
+    fn jacobian_cost(&self) -> usize {
+        N + 1
+    }
+
+    /// Whether `f` does not depend on `t`. The Rosenbrock method needs `df/dt` and takes it by
+    /// a forward difference (one extra evaluation per Jacobian) unless this returns `true`.
+    /// The default `false` is always correct, only slower.
+    fn is_autonomous(&self) -> bool {
+        false
     }
 }
 
@@ -114,6 +131,47 @@ impl Default for Options {
     }
 }
 
+impl Options {
+    /// Checks the settings the integrators rely on: `rtol > 0` and `atol > 0` finite (with
+    /// `atol = 0` a state component passing through zero makes the error scale vanish),
+    /// `substeps >= 1`, `max_steps >= 1`, `max_rhs_evals >= 1`, `bound > 0` (infinity allowed)
+    /// and an initial step, if given, positive and finite. The integrators do not panic on
+    /// invalid options (they treat `substeps = 0` as 1 and ignore an unusable initial step),
+    /// but their results are only meaningful for options that pass this check.
+    pub fn validate(&self) -> Result<(), String> {
+        if !(self.rtol.is_finite() && self.rtol > 0.0) {
+            return Err(format!(
+                "rtol must be positive and finite, got {}",
+                self.rtol
+            ));
+        }
+        if !(self.atol.is_finite() && self.atol > 0.0) {
+            return Err(format!(
+                "atol must be positive and finite, got {}",
+                self.atol
+            ));
+        }
+        if self.substeps == 0 {
+            return Err("substeps must be at least 1".into());
+        }
+        if self.max_steps == 0 {
+            return Err("max_steps must be at least 1".into());
+        }
+        if self.max_rhs_evals == 0 {
+            return Err("max_rhs_evals must be at least 1".into());
+        }
+        if self.bound.is_nan() || self.bound <= 0.0 {
+            return Err(format!("bound must be positive, got {}", self.bound));
+        }
+        if let Some(h) = self.initial_step {
+            if !(h.is_finite() && h > 0.0) {
+                return Err(format!("initial_step must be positive and finite, got {h}"));
+            }
+        }
+        Ok(())
+    }
+}
+
 /// Work done by one integration.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
 pub struct Stats {
@@ -174,6 +232,7 @@ impl Outcome {
 mod dopri5;
 mod rk4;
 mod rosenbrock;
+mod util;
 
 /// Integrates `sys` from `times[0]`, where the state is `y0`, and hands the state at every
 /// requested time to `observe(index, &state)`, in order, starting with index 0 (`y0` itself).

@@ -1,0 +1,724 @@
+//! Unit tests of the model language: values at hand-computed points, the `M`/`R` split,
+//! every error message with its column, precedence, functions, params and `substitute`.
+
+use super::program::{Leaf, Op};
+use super::*;
+use approx::assert_relative_eq;
+
+const TOL: f64 = 1e-12;
+
+fn model(eq: &str) -> Model {
+    match Model::parse(eq, &[]) {
+        Ok(m) => m,
+        Err(e) => panic!("{eq:?} should parse, got {e:?}"),
+    }
+}
+
+fn model_p(eq: &str, params: &[(&str, f64)]) -> Model {
+    let params: Vec<(String, f64)> = params.iter().map(|(n, v)| (n.to_string(), *v)).collect();
+    match Model::parse(eq, &params) {
+        Ok(m) => m,
+        Err(e) => panic!("{eq:?} should parse, got {e:?}"),
+    }
+}
+
+fn fails(eq: &str) -> ModelError {
+    match Model::parse(eq, &[]) {
+        Ok(_) => panic!("{eq:?} should be rejected"),
+        Err(e) => e,
+    }
+}
+
+fn fails_p(eq: &str, params: &[(&str, f64)]) -> ModelError {
+    let params: Vec<(String, f64)> = params.iter().map(|(n, v)| (n.to_string(), *v)).collect();
+    match Model::parse(eq, &params) {
+        Ok(_) => panic!("{eq:?} with {params:?} should be rejected"),
+        Err(e) => e,
+    }
+}
+
+fn assert_err(eq: &str, message: &str, column: Option<usize>) {
+    let e = fails(eq);
+    assert_eq!(e.message, message, "message for {eq:?}");
+    assert_eq!(e.column, column, "column for {eq:?}");
+}
+
+/// `ydd = <expr>` evaluated at `y`: accel is then exactly the expression.
+fn value_of(expr: &str, y: f64) -> f64 {
+    model(&format!("ydd = {expr}")).accel(0.0, y, 0.0, &[])
+}
+
+// ---------- the example equations at hand-computed points ----------
+
+#[test]
+fn polynomial_damping_example() {
+    let m = model("ydd + (c1 + c2*y + c3*y^2)*yd + y = 0");
+    let c = [-0.5, 0.1, 2.0];
+    // (-0.5 + 0.15 + 4.5) * (-0.7) + 1.5 = -1.405
+    assert_relative_eq!(m.mass(0.3, 1.5, -0.7, &c), 1.0, max_relative = TOL);
+    assert_relative_eq!(m.residual(0.3, 1.5, -0.7, &c), -1.405, max_relative = TOL);
+    assert_relative_eq!(m.accel(0.3, 1.5, -0.7, &c), 1.405, max_relative = TOL);
+    assert_eq!(m.n_coeffs(), 3);
+    assert!(!m.uses_time());
+    assert_eq!(m.equation(), "ydd + (c1 + c2*y + c3*y^2)*yd + y = 0");
+}
+
+#[test]
+fn forced_linear_example_splits_into_m_and_r() {
+    let m = model("c1*ydd + c2*yd + c3*y = c4*sin(c5*t)");
+    let c = [2.0, 0.3, 5.0, 1.5, 3.0];
+    let (t, y, yd) = (0.4, 0.2, -1.0);
+    // M = c1 = 2; R = c2*yd + c3*y - c4*sin(c5*t) = -0.3 + 1.0 - 1.5*sin(1.2)
+    let r = -0.3 + 1.0 - 1.5 * 0.932_039_085_967_226_3;
+    assert_relative_eq!(m.mass(t, y, yd, &c), 2.0, max_relative = TOL);
+    assert_relative_eq!(m.residual(t, y, yd, &c), r, max_relative = TOL);
+    assert_relative_eq!(m.accel(t, y, yd, &c), -r / 2.0, max_relative = TOL);
+    assert_eq!(m.n_coeffs(), 5);
+    assert!(m.uses_time());
+}
+
+#[test]
+fn state_dependent_mass_example() {
+    let m = model("(c1 + c2*y + c3*y^2)*ydd + y = 0");
+    let c = [1.0, 0.5, 0.25];
+    // M = 1 + 1 + 1 = 3 at y = 2; R = 2
+    assert_relative_eq!(m.mass(0.0, 2.0, 7.0, &c), 3.0, max_relative = TOL);
+    assert_relative_eq!(m.residual(0.0, 2.0, 7.0, &c), 2.0, max_relative = TOL);
+    assert_relative_eq!(m.accel(0.0, 2.0, 7.0, &c), -2.0 / 3.0, max_relative = TOL);
+}
+
+#[test]
+fn parametric_excitation_example() {
+    let m = model("ydd + (c1 + c2*sin(c3*t))*y = 0");
+    let c = [4.0, 0.5, 2.0];
+    // t = pi/4: sin(pi/2) = 1, so (4 + 0.5) * 2 = 9
+    let t = std::f64::consts::FRAC_PI_4;
+    assert_relative_eq!(m.residual(t, 2.0, 0.0, &c), 9.0, max_relative = TOL);
+    assert_relative_eq!(m.accel(t, 2.0, 0.0, &c), -9.0, max_relative = TOL);
+    assert!(m.uses_time());
+}
+
+#[test]
+fn params_example() {
+    let m = model_p(
+        "m*ydd + (c1 + c2*yd^2)*yd + k*y = 0",
+        &[("m", 2.0), ("k", 81360.0)],
+    );
+    let c = [0.1, 0.01];
+    // R = (0.1 + 0.01*9)*3 + 81360*0.001 = 0.57 + 81.36; M = 2
+    assert_eq!(m.n_coeffs(), 2);
+    assert_relative_eq!(m.mass(0.0, 0.001, 3.0, &c), 2.0, max_relative = TOL);
+    assert_relative_eq!(m.residual(0.0, 0.001, 3.0, &c), 81.93, max_relative = TOL);
+    assert_relative_eq!(m.accel(0.0, 0.001, 3.0, &c), -40.965, max_relative = TOL);
+}
+
+// ---------- the M / R split ----------
+
+#[test]
+fn split_variants() {
+    // ydd/c1: M = 1/c1
+    let m = model("ydd/c1 + y = 0");
+    assert_relative_eq!(m.mass(0.0, 3.0, 0.0, &[4.0]), 0.25, max_relative = TOL);
+    assert_relative_eq!(m.accel(0.0, 3.0, 0.0, &[4.0]), -12.0, max_relative = TOL);
+    // -ydd = y: M = -1, R = -y, ydd = -y
+    let m = model("-ydd = y");
+    assert_relative_eq!(m.mass(0.0, 3.0, 0.0, &[]), -1.0, max_relative = TOL);
+    assert_relative_eq!(m.residual(0.0, 3.0, 0.0, &[]), -3.0, max_relative = TOL);
+    assert_relative_eq!(m.accel(0.0, 3.0, 0.0, &[]), -3.0, max_relative = TOL);
+    // 2*(ydd + y) = 0: M = 2, R = 2y
+    let m = model("2*(ydd + y) = 0");
+    assert_relative_eq!(m.mass(0.0, 3.0, 0.0, &[]), 2.0, max_relative = TOL);
+    assert_relative_eq!(m.residual(0.0, 3.0, 0.0, &[]), 6.0, max_relative = TOL);
+    assert_relative_eq!(m.accel(0.0, 3.0, 0.0, &[]), -3.0, max_relative = TOL);
+    // ydd on the right-hand side
+    let m = model("0 = ydd + c1*yd + y");
+    assert_relative_eq!(m.mass(0.0, 3.0, 2.0, &[0.5]), -1.0, max_relative = TOL);
+    assert_relative_eq!(m.accel(0.0, 3.0, 2.0, &[0.5]), -4.0, max_relative = TOL);
+    // ydd on both sides: (1 + y)*ydd - y*ydd = -y gives M = 1, ydd = -y
+    let m = model("(1 + y)*ydd + yd = y*ydd - y");
+    assert_relative_eq!(m.mass(0.0, 3.0, 2.0, &[]), 1.0, max_relative = TOL);
+    assert_relative_eq!(m.residual(0.0, 3.0, 2.0, &[]), 5.0, max_relative = TOL);
+    // ydd inside a product chain with divisions
+    let m = model("c1*y*ydd/2 + 1 = 0");
+    assert_relative_eq!(m.mass(0.0, 3.0, 0.0, &[4.0]), 6.0, max_relative = TOL);
+    assert_relative_eq!(m.residual(0.0, 3.0, 0.0, &[4.0]), 1.0, max_relative = TOL);
+}
+
+#[test]
+fn vanishing_mass_gives_non_finite_accel() {
+    let m = model("0*ydd + y = 0");
+    assert_eq!(m.mass(0.0, 1.0, 0.0, &[]), 0.0);
+    assert!(!m.accel(0.0, 1.0, 0.0, &[]).is_finite());
+    let m = model("c1*ydd + y = 0");
+    assert!(m.accel(0.0, 0.0, 0.0, &[0.0]).is_nan());
+}
+
+#[test]
+fn short_coefficient_slice_reads_nan() {
+    let m = model("ydd + c1*y + c2 = 0");
+    assert!(m.accel(0.0, 1.0, 0.0, &[1.0]).is_nan());
+    assert!(m.accel(0.0, 1.0, 0.0, &[]).is_nan());
+}
+
+// ---------- compiled form ----------
+
+#[test]
+fn integer_powers_become_multiplications() {
+    let m = model("ydd + (c1 + c2*y + c3*y^2)*yd + y^3 + y^5 + y^-2 = 0");
+    let ops = m.residual.ops();
+    assert!(ops.contains(&Op::Square));
+    assert!(ops.contains(&Op::Cube));
+    assert!(ops.contains(&Op::Powi(5)));
+    assert!(ops.contains(&Op::Powi(-2)));
+    assert!(!ops.iter().any(|o| matches!(o, Op::PowL(_) | Op::PowS)));
+    let (y, yd): (f64, f64) = (1.5, -0.7);
+    let want = (-0.5 + 0.1 * y + 2.0 * y * y) * yd + y * y * y + y.powi(5) + 1.0 / (y * y);
+    assert_relative_eq!(
+        m.residual(0.0, y, yd, &[-0.5, 0.1, 2.0]),
+        want,
+        max_relative = TOL
+    );
+}
+
+#[test]
+fn polynomial_model_is_short_and_needs_no_more_than_one_stack_slot() {
+    let m = model("ydd + (c1 + c2*y + c3*y^2)*yd + y = 0");
+    let ops = m.residual.ops();
+    assert!(ops.len() <= 10, "{ops:?}");
+    let pushes = ops.iter().filter(|o| matches!(o, Op::Push(_))).count();
+    assert!(pushes <= 1, "{ops:?}");
+    assert!(matches!(m.mass_kind, MassKind::One));
+}
+
+#[test]
+fn constants_and_params_are_folded() {
+    let m = model_p(
+        "ydd + (2*pi*f)^2*y + sin(pi/2)*k = 0",
+        &[("f", 0.5), ("k", 3.0)],
+    );
+    let ops = m.residual.ops();
+    let w2 = (2.0 * std::f64::consts::PI * 0.5).powi(2);
+    assert_eq!(
+        ops,
+        &[
+            Op::Load(Leaf::Const(w2)),
+            Op::MulL(Leaf::Y),
+            Op::AddL(Leaf::Const(3.0))
+        ][..]
+    );
+    assert_relative_eq!(
+        m.accel(0.0, 2.0, 0.0, &[]),
+        -(w2 * 2.0 + 3.0),
+        max_relative = TOL
+    );
+    // constant mass other than one
+    let m = model("(1 + 1)*ydd = -y");
+    assert!(matches!(m.mass_kind, MassKind::Const(v) if v == 2.0));
+    assert_relative_eq!(m.accel(0.0, 4.0, 0.0, &[]), -2.0, max_relative = TOL);
+}
+
+#[test]
+fn deep_but_allowed_nesting_evaluates() {
+    // 64 levels of parentheses is the limit and is accepted.
+    let eq = format!("ydd = {}y{}", "(".repeat(64), ")".repeat(64));
+    assert_relative_eq!(
+        model(&eq).accel(0.0, 2.5, 0.0, &[]),
+        2.5,
+        max_relative = TOL
+    );
+    // right-nested sums need a stack slot per level.
+    let mut e = String::from("y");
+    for _ in 0..60 {
+        e = format!("(y + {e})");
+    }
+    let m = model(&format!("ydd = {e}"));
+    assert_relative_eq!(m.accel(0.0, 1.5, 0.0, &[]), 61.0 * 1.5, max_relative = TOL);
+    let mut e = String::from("y");
+    for _ in 0..30 {
+        e = format!("(y*2 + min(y, {e}))");
+    }
+    // innermost 2*1 + min(1, 1) = 3, and every outer level is 2 + min(1, 3) = 3
+    let m = model(&format!("ydd = {e}"));
+    assert_relative_eq!(m.accel(0.0, 1.0, 0.0, &[]), 3.0, max_relative = TOL);
+    assert_relative_eq!(
+        m.accel(0.0, -1.0, 0.0, &[]),
+        -3.0 - 30.0 * 2.0 + 2.0,
+        max_relative = TOL
+    );
+}
+
+#[test]
+fn long_flat_equation() {
+    let eq = format!("ydd{} = 0", " + c1*y".repeat(100_000));
+    let m = model(&eq);
+    assert_relative_eq!(
+        m.accel(0.0, 2.0, 0.0, &[0.5]),
+        -100_000.0,
+        max_relative = 1e-9
+    );
+}
+
+#[test]
+fn model_is_send_sync_clone_debug() {
+    fn check<T: Send + Sync + Clone + std::fmt::Debug>() {}
+    check::<Model>();
+    let m = model("ydd + y = 0");
+    let m2 = m.clone();
+    assert_eq!(m2.accel(0.0, 3.0, 0.0, &[]), -3.0);
+    assert!(format!("{m:?}").contains("ydd + y = 0"));
+}
+
+#[test]
+fn bound_gives_velocity_and_acceleration() {
+    let m = model("ydd + c1*yd + c2*y = 0");
+    let c = [0.5, 4.0];
+    let b = Bound {
+        model: &m,
+        coeffs: &c,
+    };
+    let mut ds = [0.0; 2];
+    b.rhs(0.0, &[2.0, -1.0], &mut ds);
+    // ydd = -(0.5*(-1) + 4*2) = -7.5
+    assert_eq!(ds[0], -1.0);
+    assert_relative_eq!(ds[1], -7.5, max_relative = TOL);
+}
+
+// ---------- operators ----------
+
+#[test]
+fn precedence_and_associativity() {
+    assert_relative_eq!(value_of("2 + 3*4^2", 0.0), 50.0, max_relative = TOL);
+    assert_relative_eq!(value_of("2^3^2", 0.0), 512.0, max_relative = TOL);
+    assert_relative_eq!(value_of("(2^3)^2", 0.0), 64.0, max_relative = TOL);
+    assert_relative_eq!(value_of("-y^2", 3.0), -9.0, max_relative = TOL);
+    assert_relative_eq!(value_of("(-y)^2", 3.0), 9.0, max_relative = TOL);
+    assert_relative_eq!(value_of("-2^2", 0.0), -4.0, max_relative = TOL);
+    assert_relative_eq!(value_of("2^-1", 0.0), 0.5, max_relative = TOL);
+    assert_relative_eq!(value_of("y^-1", 4.0), 0.25, max_relative = TOL);
+    assert_relative_eq!(value_of("y - 1 - 2", 10.0), 7.0, max_relative = TOL);
+    assert_relative_eq!(value_of("y - (1 - 2)", 10.0), 11.0, max_relative = TOL);
+    assert_relative_eq!(value_of("y/2/5", 10.0), 1.0, max_relative = TOL);
+    assert_relative_eq!(value_of("y/(2/5)", 10.0), 25.0, max_relative = TOL);
+    assert_relative_eq!(value_of("1/y*2", 4.0), 0.5, max_relative = TOL);
+    assert_relative_eq!(value_of("--y", 4.0), 4.0, max_relative = TOL);
+    assert_relative_eq!(value_of("+y", 4.0), 4.0, max_relative = TOL);
+    assert_relative_eq!(value_of("-y*2", 4.0), -8.0, max_relative = TOL);
+    assert_relative_eq!(value_of("y*-2", 4.0), -8.0, max_relative = TOL);
+    assert_relative_eq!(value_of("3 - -y", 4.0), 7.0, max_relative = TOL);
+    assert_relative_eq!(value_of("(y + 1)*(y - 1)", 4.0), 15.0, max_relative = TOL);
+    assert_relative_eq!(value_of("1 - y*2", 4.0), -7.0, max_relative = TOL);
+    assert_relative_eq!(value_of("1/(y*2)", 4.0), 0.125, max_relative = TOL);
+    assert_relative_eq!(value_of("y^0.5", 4.0), 2.0, max_relative = TOL);
+    assert_relative_eq!(value_of("2^(y - 1)", 4.0), 8.0, max_relative = TOL);
+    assert_relative_eq!(value_of("y^y", 2.0), 4.0, max_relative = TOL);
+}
+
+#[test]
+fn numbers_and_pi() {
+    assert_relative_eq!(value_of("1e-3", 0.0), 0.001, max_relative = TOL);
+    assert_relative_eq!(value_of("2.5E+4", 0.0), 25000.0, max_relative = TOL);
+    assert_relative_eq!(value_of(".5", 0.0), 0.5, max_relative = TOL);
+    assert_relative_eq!(value_of("3.", 0.0), 3.0, max_relative = TOL);
+    assert_relative_eq!(value_of("1.5e2*y", 2.0), 300.0, max_relative = TOL);
+    assert_relative_eq!(
+        value_of("pi", 0.0),
+        std::f64::consts::PI,
+        max_relative = TOL
+    );
+    assert_relative_eq!(
+        value_of("2*pi*y", 0.5),
+        std::f64::consts::PI,
+        max_relative = TOL
+    );
+}
+
+#[test]
+fn functions() {
+    assert_eq!(value_of("step(y)", 0.0), 1.0);
+    assert_eq!(value_of("step(y)", -0.0), 1.0);
+    assert_eq!(value_of("step(y)", -1e-300), 0.0);
+    assert_eq!(value_of("step(y)", 2.0), 1.0);
+    assert_eq!(value_of("sign(y)", 0.0), 0.0);
+    assert_eq!(value_of("sign(y)", -3.0), -1.0);
+    assert_eq!(value_of("sign(y)", 2.0), 1.0);
+    assert_eq!(value_of("step(0)", 9.0), 1.0); // folded at compile time
+    assert_eq!(value_of("sign(0)", 9.0), 0.0);
+    assert_eq!(value_of("min(y, 2)", 3.0), 2.0);
+    assert_eq!(value_of("min(y, 2)", -3.0), -3.0);
+    assert_eq!(value_of("max(y, 2)", 3.0), 3.0);
+    assert_eq!(value_of("max(y, 2)", -3.0), 2.0);
+    assert_eq!(value_of("max(2, y*y)", -3.0), 9.0);
+    assert_eq!(value_of("min(1 + y, y*y)", 3.0), 4.0);
+    assert!(value_of("min(y, 2)", f64::NAN).is_nan());
+    assert_eq!(value_of("abs(y)", -3.5), 3.5);
+    assert_relative_eq!(value_of("sqrt(y)", 6.25), 2.5, max_relative = TOL);
+    assert_relative_eq!(
+        value_of("exp(y)", 1.0),
+        std::f64::consts::E,
+        max_relative = TOL
+    );
+    assert_relative_eq!(
+        value_of("ln(y)", std::f64::consts::E),
+        1.0,
+        max_relative = TOL
+    );
+    assert_relative_eq!(
+        value_of("sin(y)", std::f64::consts::FRAC_PI_6),
+        0.5,
+        max_relative = 1e-9
+    );
+    assert_relative_eq!(
+        value_of("cos(y)", std::f64::consts::FRAC_PI_3),
+        0.5,
+        max_relative = 1e-9
+    );
+    assert_relative_eq!(
+        value_of("tan(y)", std::f64::consts::FRAC_PI_4),
+        1.0,
+        max_relative = 1e-9
+    );
+    assert_relative_eq!(
+        value_of("tanh(y)", 0.5),
+        0.462_117_157_260_009_8,
+        max_relative = 1e-12
+    );
+    assert_relative_eq!(value_of("sin(pi/6)", 0.0), 0.5, max_relative = 1e-9);
+}
+
+#[test]
+fn time_dependence() {
+    let m = model("ydd + y = sin(t)");
+    assert!(m.uses_time());
+    assert_relative_eq!(
+        m.accel(std::f64::consts::FRAC_PI_2, 1.0, 0.0, &[]),
+        0.0,
+        epsilon = 1e-12
+    );
+    assert!(!model("ydd + y = sin(2)").uses_time());
+}
+
+#[test]
+fn params_fold_and_coefficients_count() {
+    let m = model_p("ydd + k*y = c2*yd - c1", &[("k", 81360.0), ("_damp2", 1.0)]);
+    assert_eq!(m.n_coeffs(), 2);
+    // R = k*y - (c2*yd - c1) = 81.36 - (2*1 - 3) = 82.36
+    assert_relative_eq!(
+        m.residual(0.0, 0.001, 1.0, &[3.0, 2.0]),
+        82.36,
+        max_relative = TOL
+    );
+    assert_eq!(model("ydd + y = 0").n_coeffs(), 0);
+}
+
+// ---------- errors ----------
+
+#[test]
+fn error_unknown_symbol() {
+    assert_err(
+        "ydd + c1*y + z = 0",
+        "unknown symbol 'z' at column 14",
+        Some(14),
+    );
+    assert_err("ydd + Y = 0", "unknown symbol 'Y' at column 7", Some(7));
+    assert_err("ydd + c1y = 0", "unknown symbol 'c1y' at column 7", Some(7));
+}
+
+#[test]
+fn error_ydd_inside_function() {
+    assert_err(
+        "ydd + y + c1*sin(t*ydd) = 0",
+        "ydd appears inside sin() at column 20: the equation must be linear in ydd",
+        Some(20),
+    );
+    assert_err(
+        "abs(ydd) + y = 0",
+        "ydd appears inside abs() at column 5: the equation must be linear in ydd",
+        Some(5),
+    );
+    assert_err(
+        "ydd = max(y, 2*ydd)",
+        "ydd appears inside max() at column 16: the equation must be linear in ydd",
+        Some(16),
+    );
+}
+
+#[test]
+fn error_nonlinear_ydd() {
+    assert_err(
+        "ydd*ydd + y = 0",
+        "ydd is multiplied by ydd at column 5: the equation must be linear in ydd",
+        Some(5),
+    );
+    assert_err(
+        "(ydd + y)*(2*ydd) = 0",
+        "ydd is multiplied by ydd at column 14: the equation must be linear in ydd",
+        Some(14),
+    );
+    assert_err(
+        "ydd + y/ydd = 0",
+        "ydd appears in a denominator at column 9: the equation must be linear in ydd",
+        Some(9),
+    );
+    assert_err(
+        "ydd^2 + y = 0",
+        "ydd appears in a power at column 1: the equation must be linear in ydd",
+        Some(1),
+    );
+    assert_err(
+        "ydd + 2^ydd = 0",
+        "ydd appears in a power at column 9: the equation must be linear in ydd",
+        Some(9),
+    );
+}
+
+#[test]
+fn error_coefficient_numbering() {
+    assert_err(
+        "ydd + c1*yd + c2*y + c4 = 0",
+        "coefficients must be numbered c1..cN: c3 is missing",
+        None,
+    );
+    assert_err(
+        "ydd + c2*y = 0",
+        "coefficients must be numbered c1..cN: c1 is missing",
+        None,
+    );
+    assert_err(
+        "ydd + c0*y = 0",
+        "invalid coefficient name 'c0' at column 7: coefficients are numbered c1, c2, c3, ... without leading zeros",
+        Some(7),
+    );
+    assert_err(
+        "ydd + c1001*y = 0",
+        "coefficient 'c1001' at column 7 is beyond the limit of 1000 coefficients",
+        Some(7),
+    );
+}
+
+#[test]
+fn error_parentheses() {
+    assert_err(
+        "ydd + yd) = 0",
+        "unbalanced parenthesis at column 9",
+        Some(9),
+    );
+    assert_err(
+        "ydd + (y*(yd + 1 = 0",
+        "unbalanced parenthesis at column 10",
+        Some(10),
+    );
+    // balanced overall but across the '='
+    assert_err("(ydd = y)", "unbalanced parenthesis at column 1", Some(1));
+    assert_err("ydd + () = 0", "unexpected ')' at column 8", Some(8));
+}
+
+#[test]
+fn error_equation_shape() {
+    assert_err("", "empty equation", None);
+    assert_err("  \t ", "empty equation", None);
+    assert_err(
+        "ydd + y",
+        "missing '=': write the equation as left = right, e.g. ydd + y = 0",
+        None,
+    );
+    assert_err(
+        "ydd = y = 0",
+        "more than one '=' (the second is at column 9)",
+        Some(9),
+    );
+    assert_err("= ydd", "nothing before '=' at column 1", Some(1));
+    assert_err("ydd + y =", "nothing after '=' at column 9", Some(9));
+    assert_err(
+        "y + yd = 0",
+        "the equation does not contain ydd: it must give the acceleration, e.g. ydd + c1*yd + c2*y = 0",
+        None,
+    );
+}
+
+#[test]
+fn error_tokens() {
+    assert_err("ydd + * y = 0", "unexpected '*' at column 7", Some(7));
+    assert_err("ydd y = 0", "unexpected 'y' at column 5", Some(5));
+    assert_err("ydd + 2y = 0", "unexpected 'y' at column 8", Some(8));
+    assert_err(
+        "ydd + y + = 0",
+        "expected an expression at column 11",
+        Some(11),
+    );
+    assert_err("ydd = y +", "expected an expression at column 10", Some(10));
+    assert_err(
+        "ydd + y # 2 = 0",
+        "unexpected character '#' at column 9",
+        Some(9),
+    );
+    assert_err(
+        "ydd + é = 0",
+        "unexpected character 'é' at column 7",
+        Some(7),
+    );
+    assert_err(
+        "é + ydd + § = 0",
+        "unexpected character 'é' at column 1",
+        Some(1),
+    );
+    assert_err("ydd + 2e = 0", "malformed number '2e' at column 7", Some(7));
+    assert_err(
+        "ydd + 1e999 = 0",
+        "number '1e999' at column 7 is too large",
+        Some(7),
+    );
+    assert_err("ydd + y, = 0", "unexpected ',' at column 8", Some(8));
+    assert_err(
+        "ydd + . = 0",
+        "unexpected character '.' at column 7",
+        Some(7),
+    );
+}
+
+#[test]
+fn error_functions() {
+    assert_err(
+        "ydd + sin(y, t) = 0",
+        "sin() takes 1 argument but was given 2 at column 7",
+        Some(7),
+    );
+    assert_err(
+        "ydd + min(y) = 0",
+        "min() takes 2 arguments but was given 1 at column 7",
+        Some(7),
+    );
+    assert_err(
+        "ydd + exp() = 0",
+        "exp() takes 1 argument but was given 0 at column 7",
+        Some(7),
+    );
+    assert_err(
+        "ydd + foo(y) = 0",
+        "unknown function 'foo' at column 7",
+        Some(7),
+    );
+    assert_err(
+        "ydd + y(2) = 0",
+        "unknown function 'y' at column 7",
+        Some(7),
+    );
+    assert_err(
+        "ydd + sin y = 0",
+        "function 'sin' at column 7 needs its argument in parentheses, e.g. sin(t)",
+        Some(7),
+    );
+}
+
+#[test]
+fn error_params() {
+    for name in [
+        "y", "yd", "ydd", "t", "c1", "c12", "pi", "sin", "step", "max",
+    ] {
+        let e = fails_p("ydd + y = 0", &[(name, 1.0)]);
+        assert_eq!(
+            e.message,
+            format!("param name '{name}' is reserved (y, yd, ydd, t, c1, c2, ..., pi and function names cannot be params)")
+        );
+        assert_eq!(e.column, None);
+    }
+    let e = fails_p("ydd + k*y = 0", &[("k", f64::NAN)]);
+    assert_eq!(e.message, "param 'k' has the non-finite value NaN");
+    let e = fails_p("ydd + k*y = 0", &[("k", f64::INFINITY)]);
+    assert_eq!(e.message, "param 'k' has the non-finite value inf");
+    let e = fails_p("ydd + k*y = 0", &[("k", 1.0), ("k", 2.0)]);
+    assert_eq!(e.message, "param 'k' is given more than once");
+    let e = fails_p("ydd + y = 0", &[("2k", 1.0)]);
+    assert_eq!(
+        e.message,
+        "invalid param name '2k': a name is a letter or '_' followed by letters, digits or '_'"
+    );
+    assert!(fails_p("ydd + y = 0", &[("", 1.0)])
+        .message
+        .starts_with("invalid param name ''"));
+    // "c" alone and "cx" are not coefficient names, so they are fine as params
+    let m = model_p("ydd + c*y + cx = 0", &[("c", 2.0), ("cx", 1.0)]);
+    assert_relative_eq!(m.accel(0.0, 3.0, 0.0, &[]), -7.0, max_relative = TOL);
+}
+
+#[test]
+fn error_too_deep() {
+    // ydd = (((...y...))) with 65 levels: "ydd = " is 6 characters, the 65th '(' is column 71.
+    let eq = format!("ydd = {}y{}", "(".repeat(65), ")".repeat(65));
+    assert_err(
+        &eq,
+        "expression too deeply nested at column 71 (the limit is 64 levels)",
+        Some(71),
+    );
+    let eq = format!("ydd = {}y", "-".repeat(100_000));
+    assert_eq!(fails(&eq).column, Some(71));
+    let eq = format!("ydd = {}y{}", "sin(".repeat(65), ")".repeat(65));
+    assert_eq!(fails(&eq).column, Some(6 + 64 * 4 + 1));
+    let eq = format!("ydd = y{}", "^y".repeat(65));
+    assert_eq!(fails(&eq).column, Some(8 + 64 * 2));
+    // unbalanced deep input is caught before parsing
+    let eq = format!("ydd = {}", "(".repeat(1_000_000));
+    assert_eq!(
+        fails(&eq).message,
+        "unbalanced parenthesis at column 1000006"
+    );
+}
+
+// ---------- substitute ----------
+
+#[test]
+fn substitute_keeps_layout() {
+    let m = model("ydd + (c1 + c2*y)*yd + y = 0");
+    assert_eq!(
+        m.substitute(&[-0.1434, 0.0001]),
+        "ydd + (-0.1434 + 0.0001*y)*yd + y = 0"
+    );
+    assert_eq!(m.substitute(&[0.0, 2.5]), "ydd + (0 + 2.5*y)*yd + y = 0");
+    let m = model("ydd +   c1*y  =c2");
+    assert_eq!(m.substitute(&[-2.0, -3.0]), "ydd +   (-2)*y  =-3");
+    let m = model("c1*ydd = -c2 + c3^2 - c4");
+    assert_eq!(
+        m.substitute(&[-2.0, -1.0, -3.0, -4.0]),
+        "(-2)*ydd = -(-1) + (-3)^2 - (-4)"
+    );
+    let m = model("ydd + max(c1, y)*c2 = 0");
+    assert_eq!(m.substitute(&[-1.5, 1.0]), "ydd + max(-1.5, y)*1 = 0");
+    let m = model("ydd + (c1*y + c2) = c3");
+    assert_eq!(
+        m.substitute(&[-1.0, -2.0, -3.0]),
+        "ydd + ((-1)*y + (-2)) = -3"
+    );
+}
+
+#[test]
+fn substitute_formats_compactly() {
+    let m = model("ydd + c1*y = 0");
+    assert_eq!(m.substitute(&[1.0 / 3.0]), "ydd + 0.333333*y = 0");
+    assert_eq!(m.substitute(&[81360.0]), "ydd + 81360*y = 0");
+    assert_eq!(m.substitute(&[123456.789]), "ydd + 123457*y = 0");
+    assert_eq!(m.substitute(&[0.00123456789]), "ydd + 0.00123457*y = 0");
+    assert_eq!(m.substitute(&[1.5e-7]), "ydd + 1.5e-7*y = 0");
+    assert_eq!(m.substitute(&[-1.234567e9]), "ydd + (-1.23457e9)*y = 0");
+    assert_eq!(m.substitute(&[2e10]), "ydd + 2e10*y = 0");
+    // too few values: the remaining tokens stay as written
+    assert_eq!(
+        model("ydd + c1*y + c2 = 0").substitute(&[2.0]),
+        "ydd + 2*y + c2 = 0"
+    );
+}
+
+#[test]
+fn substituted_equation_reparses_to_the_same_model() {
+    let eq = "c1*ydd + (c2 + c3*y^2)*yd + c4*y = c5*sin(c6*t) - c2";
+    let c = [2.0, -0.5, 0.25, -4.0, 1.5, -3.0];
+    let m = model(eq);
+    let text = m.substitute(&c);
+    let m2 = model(&text);
+    assert_eq!(m2.n_coeffs(), 0);
+    for &(t, y, yd) in &[(0.1, 0.5, -1.0), (2.0, -1.5, 3.0)] {
+        assert_relative_eq!(
+            m.accel(t, y, yd, &c),
+            m2.accel(t, y, yd, &[]),
+            max_relative = TOL
+        );
+    }
+}

@@ -1,0 +1,129 @@
+//! Helpers shared by the integrators: finiteness and bound checks, the minimum step, Hairer's
+//! initial step selection and the early-return bookkeeping. Everything is `#[inline]` and works
+//! on stack arrays.
+
+#![allow(clippy::needless_range_loop)] // indexed loops over N mirror the formulas
+
+use super::{Failure, Options, Outcome, Stats, System};
+
+/// Relative step-size floor: a step below `UNDERFLOW * max(|t0|, |t_end|)` cannot move `t` by
+/// more than a few ulps and is reported as [`Failure::StepSizeUnderflow`].
+pub(super) const UNDERFLOW: f64 = 16.0 * f64::EPSILON;
+
+/// Factor applied to the step after a trial step produced a non-finite value (the largest
+/// decrease the error controllers allow).
+pub(super) const NONFINITE_SHRINK: f64 = 0.2;
+
+/// Whether every component is finite.
+#[inline(always)]
+pub(super) fn all_finite<const N: usize>(y: &[f64; N]) -> bool {
+    let mut ok = true;
+    for v in y {
+        ok &= v.is_finite();
+    }
+    ok
+}
+
+/// `max_i |y_i|` (for finite input).
+#[inline(always)]
+pub(super) fn norm_inf<const N: usize>(y: &[f64; N]) -> f64 {
+    let mut m = 0.0_f64;
+    for v in y {
+        m = m.max(v.abs());
+    }
+    m
+}
+
+/// `None` when `y` is finite and within `bound`; otherwise the failure at `t`.
+#[inline(always)]
+pub(super) fn check_state<const N: usize>(y: &[f64; N], t: f64, bound: f64) -> Option<Failure> {
+    if !all_finite(y) {
+        return Some(Failure::NonFinite { t });
+    }
+    let m = norm_inf(y);
+    if m > bound {
+        Some(Failure::BlowUp { t, value: m })
+    } else {
+        None
+    }
+}
+
+/// The smallest step allowed on `[t0, t_end]` (see [`UNDERFLOW`]).
+#[inline(always)]
+pub(super) fn min_step(t0: f64, t_end: f64) -> f64 {
+    UNDERFLOW * t0.abs().max(t_end.abs()).max(f64::MIN_POSITIVE)
+}
+
+/// An early return.
+#[inline(always)]
+pub(super) fn stop(reached: usize, stats: Stats, failure: Failure) -> Outcome {
+    Outcome {
+        reached,
+        stats,
+        failure: Some(failure),
+    }
+}
+
+/// The user's initial step if it is usable (positive and finite), clipped to `hmax`.
+#[inline(always)]
+pub(super) fn user_initial_step(opts: &Options, hmax: f64) -> Option<f64> {
+    opts.initial_step
+        .filter(|h| h.is_finite() && *h > 0.0)
+        .map(|h| h.min(hmax))
+}
+
+/// Hairer's `HINIT` (Hairer, Norsett & Wanner, *Solving ODEs I*, 2nd ed., sec. II.4, and the
+/// routine of the same name in `dopri5.f`): a first guess from `|y0|/|f0|`, one explicit Euler
+/// step to estimate the second derivative, and `h = (0.01 / max(|f'|, |f|))^(1/order)`.
+/// Costs exactly one right-hand-side evaluation. Always returns a positive finite step
+/// `<= hmax`, even when the trial evaluation is not finite.
+#[inline]
+pub(super) fn hinit<const N: usize, S: System<N> + ?Sized>(
+    sys: &S,
+    t0: f64,
+    y0: &[f64; N],
+    f0: &[f64; N],
+    hmax: f64,
+    order: i32,
+    opts: &Options,
+) -> f64 {
+    let mut sk = [0.0; N];
+    let mut dnf = 0.0;
+    let mut dny = 0.0;
+    for i in 0..N {
+        sk[i] = opts.atol + opts.rtol * y0[i].abs();
+        dnf += (f0[i] / sk[i]) * (f0[i] / sk[i]);
+        dny += (y0[i] / sk[i]) * (y0[i] / sk[i]);
+    }
+    let mut h = if dnf <= 1e-10 || dny <= 1e-10 {
+        1e-6
+    } else {
+        (dny / dnf).sqrt() * 0.01
+    };
+    h = h.min(hmax);
+    let mut y1 = [0.0; N];
+    for i in 0..N {
+        y1[i] = y0[i] + h * f0[i];
+    }
+    let mut f1 = [0.0; N];
+    sys.rhs(t0 + h, &y1, &mut f1);
+    let mut der2 = 0.0;
+    for i in 0..N {
+        let d = (f1[i] - f0[i]) / sk[i];
+        der2 += d * d;
+    }
+    der2 = der2.sqrt() / h;
+    // f64::max ignores a NaN operand: a non-finite trial falls back on |f0|.
+    let der12 = der2.abs().max(dnf.sqrt());
+    let h1 = if der12 <= 1e-15 {
+        (h * 1e-3).max(1e-6)
+    } else {
+        (0.01 / der12).powf(1.0 / f64::from(order))
+    };
+    let h = (100.0 * h).min(h1).min(hmax);
+    if h.is_finite() && h > 0.0 {
+        h
+    } else {
+        hmax.min(1e-6)
+    }
+}
