@@ -37,6 +37,19 @@ enum Command {
 enum BenchCommand {
     /// The chapter's seed cases (Table 8.1) with its protocol, beside its numbers.
     SeedCases(SeedCasesArgs),
+    /// Write a seed case's data as CSV (columns t, y) to stdout or a file.
+    Generate(GenerateArgs),
+}
+
+/// Arguments of `gatewatch bench generate`.
+#[derive(Debug, Args)]
+pub struct GenerateArgs {
+    /// The case id, e.g. van_der_pol_2.
+    #[arg(long = "case", value_name = "ID")]
+    case: String,
+    /// Output file (stdout when absent).
+    #[arg(long, value_name = "FILE")]
+    output: Option<PathBuf>,
 }
 
 /// Arguments of `gatewatch identify`.
@@ -215,6 +228,7 @@ pub fn main() -> ExitCode {
     let result = match cli.command {
         Command::Identify(args) => run_identify(args),
         Command::Bench(BenchCommand::SeedCases(args)) => run_seed_cases(args),
+        Command::Bench(BenchCommand::Generate(args)) => run_generate(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -384,6 +398,32 @@ fn write_identification(
             "test NMAE:    mean {:.3e}, std {:.3e}, min {:.3e}, median {:.3e}",
             r.summary.mean, r.summary.std, r.summary.min, r.summary.median
         )?;
+    }
+    Ok(())
+}
+
+fn find_case(id: &str) -> Result<&'static cases::SeedCase, CliError> {
+    cases::find(id).ok_or_else(|| {
+        let known: Vec<&str> = cases::CASES.iter().map(|c| c.id).collect();
+        input(format!(
+            "--case: unknown case '{id}' (known: {})",
+            known.join(", ")
+        ))
+    })
+}
+
+fn run_generate(a: GenerateArgs) -> Result<(), CliError> {
+    let case = find_case(&a.case)?;
+    let data = case.generate()?;
+    match a.output {
+        Some(path) => data.to_csv(&path, "t", "y")?,
+        None => {
+            let mut out = std::io::stdout().lock();
+            writeln!(out, "t,y")?;
+            for (t, y) in data.t.iter().zip(&data.y) {
+                writeln!(out, "{t:.17e},{y:.17e}")?;
+            }
+        }
     }
     Ok(())
 }

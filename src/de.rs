@@ -44,20 +44,29 @@ pub trait Objective: Sync {
     fn cost(&self, x: &[f64], bound: f64, ws: &mut Self::Workspace) -> f64;
 }
 
-/// Restart of a stalled population (not in the chapter).
+/// What to do when the population stalls (not in the chapter).
+///
+/// The best cost is compared with its value `stall_generations` ago; when it improved by less
+/// than `tolerance` (relative), the run has stalled. A stalled run whose best cost is at or below
+/// `converged_below` has converged and stops; any other stalled run restarts from a fresh random
+/// population (all individuals, so that the old basin does not pull the new population back), the
+/// best individual found so far being kept aside and returned if nothing beats it.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct Restart {
-    /// Generations without a relative improvement of the best cost larger than `tolerance`.
+    /// Length of the window over which stagnation is judged.
     pub stall_generations: usize,
-    /// Relative improvement below which a generation counts as stalled.
+    /// Relative improvement over the window below which the run has stalled.
     pub tolerance: f64,
+    /// A stalled run at or below this cost stops instead of restarting.
+    pub converged_below: f64,
 }
 
 impl Default for Restart {
     fn default() -> Self {
         Restart {
-            stall_generations: 25,
-            tolerance: 1e-6,
+            stall_generations: 20,
+            tolerance: 1e-3,
+            converged_below: 0.0,
         }
     }
 }
@@ -87,7 +96,7 @@ pub struct Settings {
     pub init_range: (f64, f64),
     /// Replace one non-fittest individual by a random one after each generation (chapter: yes).
     pub replace_random: bool,
-    /// Restart on stagnation (`None`: never, as in the chapter).
+    /// Restart or stop on stagnation (`None`: never, as in the chapter).
     pub restart: Option<Restart>,
     /// Stop as soon as the best cost is at or below this.
     pub target_cost: Option<f64>,
@@ -176,6 +185,9 @@ pub struct DeResult {
     pub history: Vec<f64>,
     /// Number of restarts.
     pub restarts: usize,
+    /// The final population, the best individual first (to continue the search on another
+    /// objective, e.g. a longer horizon).
+    pub population: Vec<Vec<f64>>,
 }
 
 /// Runs the Cauchy DE on `objective`. `initial` individuals (warm start, biased sampling) take the
@@ -250,14 +262,17 @@ pub fn minimize<O: Objective>(
     let mut success = vec![false; np];
 
     let mut best = argmin(&cost);
+    // The best individual ever seen: the population's best until a restart replaces it.
+    let mut elite = pop[best * d..(best + 1) * d].to_vec();
+    let mut elite_cost = cost[best];
     let mut history = Vec::with_capacity(settings.generations + 1);
-    history.push(cost[best]);
+    history.push(elite_cost);
     let mut restarts = 0;
-    let mut stall = 0;
+    let mut since_restart = 0;
     let mut generations = 0;
 
     for g in 1..=settings.generations {
-        if settings.target_cost.is_some_and(|t| cost[best] <= t) {
+        if settings.target_cost.is_some_and(|t| elite_cost <= t) {
             break;
         }
         generations = g;
@@ -318,44 +333,58 @@ pub fn minimize<O: Objective>(
                 best = k;
             }
         }
-        // Stagnation and restart.
-        let previous = *history.last().unwrap_or(&f64::INFINITY);
-        history.push(cost[best]);
+        if cost[best] < elite_cost {
+            elite_cost = cost[best];
+            elite.copy_from_slice(&pop[best * d..(best + 1) * d]);
+        }
+        history.push(elite_cost);
+        progress(g, elite_cost);
+        // Stagnation: stop when converged, otherwise restart.
+        since_restart += 1;
         if let Some(restart) = settings.restart {
-            let improved =
-                previous - cost[best] > restart.tolerance * previous.abs().max(f64::MIN_POSITIVE);
-            stall = if improved { 0 } else { stall + 1 };
-            if stall >= restart.stall_generations && g < settings.generations {
-                stall = 0;
-                restarts += 1;
-                for i in (0..np).filter(|&i| i != best) {
-                    for v in &mut pop[i * d..(i + 1) * d] {
+            let w = restart.stall_generations.max(1);
+            if since_restart >= w {
+                let before = history[history.len() - 1 - w];
+                let stalled = before - elite_cost <= restart.tolerance * before.abs();
+                if stalled && elite_cost <= restart.converged_below {
+                    break;
+                }
+                if stalled && g < settings.generations {
+                    since_restart = 0;
+                    restarts += 1;
+                    for v in pop.iter_mut() {
                         *v = rng.random_range(lo..=hi);
                     }
+                    pool.evaluate(objective, &pop, d, &vec![f64::INFINITY; np], &mut cost);
+                    evaluations += np;
+                    f.iter_mut().for_each(|v| *v = settings.f_init);
+                    cr.iter_mut().for_each(|v| *v = settings.cr_init);
+                    f_avg = settings.f_init;
+                    cr_avg = settings.cr_init;
+                    best = argmin(&cost);
+                    if cost[best] < elite_cost {
+                        elite_cost = cost[best];
+                        elite.copy_from_slice(&pop[best * d..(best + 1) * d]);
+                    }
                 }
-                pool.evaluate(
-                    objective,
-                    &pop,
-                    d,
-                    &vec![f64::INFINITY; np],
-                    &mut trial_cost,
-                );
-                for i in (0..np).filter(|&i| i != best) {
-                    cost[i] = trial_cost[i];
-                }
-                evaluations += np - 1;
-                f.iter_mut().for_each(|v| *v = settings.f_init);
-                cr.iter_mut().for_each(|v| *v = settings.cr_init);
-                f_avg = settings.f_init;
-                cr_avg = settings.cr_init;
-                best = argmin(&cost);
             }
         }
-        progress(g, cost[best]);
     }
+    let mut order: Vec<usize> = (0..np).collect();
+    order.sort_by(|&a, &b| cost[a].total_cmp(&cost[b]));
+    let mut population = Vec::with_capacity(np);
+    population.push(elite.clone());
+    population.extend(
+        order
+            .iter()
+            .map(|&i| pop[i * d..(i + 1) * d].to_vec())
+            .filter(|x| *x != elite)
+            .take(np - 1),
+    );
     Ok(DeResult {
-        best: pop[best * d..(best + 1) * d].to_vec(),
-        best_cost: cost[best],
+        population,
+        best: elite,
+        best_cost: elite_cost,
         evaluations,
         generations,
         history,
