@@ -307,10 +307,10 @@ impl NotifierHandle {
             guard.take();
         }
         let mut done = self.inner.done.clone();
-        let finished = matches!(
-            tokio::time::timeout(deadline, done.wait_for(|d| *d)).await,
-            Ok(_)
-        );
+        // A dispatcher that ended without saying so (panicked) also counts as finished.
+        let finished = tokio::time::timeout(deadline, done.wait_for(|d| *d))
+            .await
+            .is_ok();
         if !finished {
             tracing::warn!(
                 ?deadline,
