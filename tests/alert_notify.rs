@@ -312,6 +312,30 @@ async fn client_errors_are_not_retried() {
 }
 
 #[tokio::test]
+async fn invalid_url_fails_without_panic_or_retries() {
+    let config = NotifyConfig {
+        webhooks: vec![webhook("not a url".into(), Some("t"))],
+        alertmanager_urls: vec!["ftp://am".into()],
+        initial_backoff_ms: 1000,
+        ..fast_config()
+    };
+    assert!(config.validate().is_err());
+    let (handle, task) = spawn_notifier(config, Vec::new);
+    let start = Instant::now();
+    handle.notify(events("g1").0);
+    wait_until("both failures counted", WAIT, || {
+        handle.stats().snapshot().failed == 2
+    })
+    .await;
+    assert!(start.elapsed() < Duration::from_millis(900), "not retried");
+    assert!(handle.shutdown(WAIT).await);
+    tokio::time::timeout(WAIT, task)
+        .await
+        .expect("ends")
+        .expect("no panic");
+}
+
+#[tokio::test]
 async fn dead_or_hanging_receiver_does_not_block_others() {
     let rec = Receiver::default();
     let base = receiver(rec.clone()).await;

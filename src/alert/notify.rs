@@ -626,6 +626,8 @@ async fn deliver(
                     || status == reqwest::StatusCode::REQUEST_TIMEOUT;
                 (retryable, format!("HTTP {status}"))
             }
+            // A URL that cannot be requested will not get better by retrying.
+            Err(e) if e.is_builder() => (false, format!("invalid request: {e}")),
             Err(e) => (true, format!("request error: {e}")),
         };
         if !retryable {
