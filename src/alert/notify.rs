@@ -330,6 +330,9 @@ impl NotifierHandle {
 /// targets are configured, from the dispatcher task, so it must be quick and must not block on
 /// anything that waits for the notifier.
 ///
+/// # Panics
+/// When called outside a tokio runtime (like `tokio::spawn`).
+///
 /// Returns the handle and the dispatcher's join handle, which completes after
 /// [`NotifierHandle::shutdown`] (or once every handle is dropped) when all target tasks have
 /// ended.
