@@ -3,7 +3,7 @@
 //! Shape of the machinery started by [`spawn_notifier`]:
 //!
 //! ```text
-//!  NotifyHandle::notify(events)        (never blocks: try_send, drop + count when full)
+//!  NotifierHandle::notify(events)      (never blocks: try_send, drop + count when full)
 //!        |  bounded mpsc, capacity = queue_capacity
 //!        v
 //!   dispatcher task ---- every resend_interval: engine_snapshot() -> firing alerts
