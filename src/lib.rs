@@ -18,9 +18,13 @@
 //! - [`analysis`]: the early-warning analysis of a window: damping figures and a verdict.
 //! - [`bench`]: `gatewatch bench seed-cases`: the chapter's protocol and its comparison table.
 //!
+//! Service:
+//! - [`alert`]: per-gate alert state machine (negative damping, stale data), delivery to Alertmanager.
+//!
 //! Front ends:
 //! - [`cli`]: the command-line interface behind `src/main.rs`.
 
+pub mod alert;
 pub mod analysis;
 pub mod bench;
 pub mod cases;
