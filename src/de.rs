@@ -611,6 +611,7 @@ mod tests {
         s.restart = Some(Restart {
             stall_generations: 10,
             tolerance: 1e-9,
+            converged_below: 0.0,
         });
         let r = minimize(&Flat, &s, &[], |_, _| {}).unwrap();
         assert_eq!(
@@ -618,6 +619,15 @@ mod tests {
             "60 generations / 10 stalled each (the last one not restarted)"
         );
         assert_eq!(r.best_cost, 1.0);
+        assert_eq!(r.evaluations, 8 + 60 * 9 + 5 * 8);
+        // Stalled at or below the convergence threshold: stops instead.
+        s.restart = Some(Restart {
+            stall_generations: 10,
+            tolerance: 1e-9,
+            converged_below: 1.0,
+        });
+        let r = minimize(&Flat, &s, &[], |_, _| {}).unwrap();
+        assert_eq!((r.restarts, r.generations), (0, 10));
     }
 
     #[test]
