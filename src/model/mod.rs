@@ -13,6 +13,29 @@
 //!
 //! A [`Model`] evaluates without allocation or name lookups, takes `&self` only, and is
 //! `Send + Sync`, so one compiled model serves every thread of a parallel search.
+//!
+//! # Language details
+//!
+//! - `^` binds tighter than unary minus and is right-associative: `-y^2 = -(y^2)`,
+//!   `2^3^2 = 2^9`; unary minus binds tighter than `*` and `/`.
+//! - Numbers: `2`, `2.5`, `.5`, `3.`, `1e-3`, `2.5E+4`. `pi` is a constant.
+//! - `step(x)` is 1 for `x >= 0` (so `step(0) = 1`), `sign(0) = 0`; `min`/`max` return NaN when
+//!   either argument is NaN rather than silently picking the other one.
+//! - Nesting (parentheses, calls, unary signs, exponents) is limited to [`MAX_DEPTH`] levels,
+//!   the number of coefficients to [`MAX_COEFFS`].
+//!
+//! # Errors
+//!
+//! Every [`ModelError`] with a place carries its 1-based character column, also written in the
+//! message. For linearity errors (`sin(ydd)`, `ydd*ydd`, `y/ydd`, `ydd^2`) the column is that of
+//! the offending `ydd` token (for a product, the `ydd` of the second factor that has one).
+//!
+//! # Evaluation
+//!
+//! `M` and `R` are compiled to flat accumulator programs (submodule `program`) after folding
+//! params, `pi` and constant subexpressions; integer powers become multiplications or `powi`,
+//! and the operand stack is a fixed-size array sized at compile time. When `M` is the constant
+//! 1, `accel` skips it entirely.
 
 mod lexer;
 mod linear;

@@ -61,6 +61,107 @@ pub(crate) enum Op {
     Step,
 }
 
+/// The executed form of an [`Op`]: the leaf operand's kind is folded into the opcode
+/// (`K` constant, `C` coefficient, `V` variable index 0 = t, 1 = y, 2 = yd), so each
+/// instruction costs one dispatch instead of two.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Instr {
+    LoadK(f64),
+    LoadC(u32),
+    LoadV(u8),
+    PushK(f64),
+    PushC(u32),
+    PushV(u8),
+    AddK(f64),
+    AddC(u32),
+    AddV(u8),
+    SubK(f64),
+    SubC(u32),
+    SubV(u8),
+    RSubK(f64),
+    RSubC(u32),
+    RSubV(u8),
+    MulK(f64),
+    MulC(u32),
+    MulV(u8),
+    DivK(f64),
+    DivC(u32),
+    DivV(u8),
+    RDivK(f64),
+    RDivC(u32),
+    RDivV(u8),
+    PowK(f64),
+    PowC(u32),
+    PowV(u8),
+    AddS,
+    SubS,
+    MulS,
+    DivS,
+    PowS,
+    MinS,
+    MaxS,
+    Neg,
+    Square,
+    Cube,
+    Powi(i32),
+    Sin,
+    Cos,
+    Tan,
+    Exp,
+    Ln,
+    Sqrt,
+    Abs,
+    Sign,
+    Tanh,
+    Step,
+}
+
+fn lower(op: Op) -> Instr {
+    macro_rules! by_leaf {
+        ($l:expr, $k:ident, $c:ident, $v:ident) => {
+            match $l {
+                Leaf::Const(x) => Instr::$k(x),
+                Leaf::Coef(i) => Instr::$c(i),
+                Leaf::T => Instr::$v(0),
+                Leaf::Y => Instr::$v(1),
+                Leaf::Yd => Instr::$v(2),
+            }
+        };
+    }
+    match op {
+        Op::Load(l) => by_leaf!(l, LoadK, LoadC, LoadV),
+        Op::Push(l) => by_leaf!(l, PushK, PushC, PushV),
+        Op::AddL(l) => by_leaf!(l, AddK, AddC, AddV),
+        Op::SubL(l) => by_leaf!(l, SubK, SubC, SubV),
+        Op::RSubL(l) => by_leaf!(l, RSubK, RSubC, RSubV),
+        Op::MulL(l) => by_leaf!(l, MulK, MulC, MulV),
+        Op::DivL(l) => by_leaf!(l, DivK, DivC, DivV),
+        Op::RDivL(l) => by_leaf!(l, RDivK, RDivC, RDivV),
+        Op::PowL(l) => by_leaf!(l, PowK, PowC, PowV),
+        Op::AddS => Instr::AddS,
+        Op::SubS => Instr::SubS,
+        Op::MulS => Instr::MulS,
+        Op::DivS => Instr::DivS,
+        Op::PowS => Instr::PowS,
+        Op::MinS => Instr::MinS,
+        Op::MaxS => Instr::MaxS,
+        Op::Neg => Instr::Neg,
+        Op::Square => Instr::Square,
+        Op::Cube => Instr::Cube,
+        Op::Powi(n) => Instr::Powi(n),
+        Op::Sin => Instr::Sin,
+        Op::Cos => Instr::Cos,
+        Op::Tan => Instr::Tan,
+        Op::Exp => Instr::Exp,
+        Op::Ln => Instr::Ln,
+        Op::Sqrt => Instr::Sqrt,
+        Op::Abs => Instr::Abs,
+        Op::Sign => Instr::Sign,
+        Op::Tanh => Instr::Tanh,
+        Op::Step => Instr::Step,
+    }
+}
+
 /// Binary operations as the compiler sees them.
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum Bin {
@@ -79,7 +180,10 @@ pub(crate) const STACK_CAP: usize = 256;
 /// A compiled expression of `t`, `y`, `yd` and the coefficients.
 #[derive(Debug, Clone)]
 pub(crate) struct Program {
+    /// Readable form, kept for inspection.
     ops: Box<[Op]>,
+    /// Executed form.
+    code: Box<[Instr]>,
     /// Stack slots needed.
     depth: usize,
 }
@@ -268,6 +372,7 @@ impl Program {
             None => c.load(Leaf::Const(0.0)),
         }
         (c.max <= STACK_CAP).then(|| Program {
+            code: c.ops.iter().map(|&op| lower(op)).collect(),
             ops: c.ops.into_boxed_slice(),
             depth: c.max,
         })
@@ -292,33 +397,42 @@ impl Program {
     pub fn eval(&self, t: f64, y: f64, yd: f64, c: &[f64]) -> f64 {
         // Fixed stack sizes keep the zeroing of the array trivial for ordinary models.
         if self.depth <= 4 {
-            run::<4>(&self.ops, t, y, yd, c)
+            run::<4>(&self.code, t, y, yd, c)
         } else if self.depth <= 32 {
-            run::<32>(&self.ops, t, y, yd, c)
+            run::<32>(&self.code, t, y, yd, c)
         } else {
-            run::<STACK_CAP>(&self.ops, t, y, yd, c)
+            run::<STACK_CAP>(&self.code, t, y, yd, c)
         }
     }
 }
 
 #[inline(always)]
-fn run<const N: usize>(ops: &[Op], t: f64, y: f64, yd: f64, c: &[f64]) -> f64 {
+fn run<const N: usize>(code: &[Instr], t: f64, y: f64, yd: f64, c: &[f64]) -> f64 {
+    let vars = [t, y, yd, 0.0];
     let mut st = [0.0f64; N];
     let mut sp = 0usize;
     let mut acc = 0.0f64;
-    macro_rules! leaf {
-        ($l:expr) => {
-            match $l {
-                Leaf::Const(v) => v,
-                Leaf::Coef(i) => match c.get(i as usize) {
-                    Some(v) => *v,
-                    None => f64::NAN,
-                },
-                Leaf::T => t,
-                Leaf::Y => y,
-                Leaf::Yd => yd,
+    macro_rules! var {
+        ($i:expr) => {
+            vars[($i & 3) as usize]
+        };
+    }
+    macro_rules! coef {
+        ($i:expr) => {
+            match c.get($i as usize) {
+                Some(v) => *v,
+                None => f64::NAN,
             }
         };
+    }
+    macro_rules! push {
+        ($v:expr) => {{
+            if let Some(s) = st.get_mut(sp) {
+                *s = acc;
+            }
+            sp += 1;
+            acc = $v;
+        }};
     }
     macro_rules! pop {
         () => {{
@@ -329,44 +443,57 @@ fn run<const N: usize>(ops: &[Op], t: f64, y: f64, yd: f64, c: &[f64]) -> f64 {
             }
         }};
     }
-    for op in ops {
-        match *op {
-            Op::Load(l) => acc = leaf!(l),
-            Op::Push(l) => {
-                if let Some(s) = st.get_mut(sp) {
-                    *s = acc;
-                }
-                sp += 1;
-                acc = leaf!(l);
-            }
-            Op::AddL(l) => acc += leaf!(l),
-            Op::SubL(l) => acc -= leaf!(l),
-            Op::RSubL(l) => acc = leaf!(l) - acc,
-            Op::MulL(l) => acc *= leaf!(l),
-            Op::DivL(l) => acc /= leaf!(l),
-            Op::RDivL(l) => acc = leaf!(l) / acc,
-            Op::PowL(l) => acc = super::linear::pow(acc, leaf!(l)),
-            Op::AddS => acc += pop!(),
-            Op::SubS => acc = pop!() - acc,
-            Op::MulS => acc *= pop!(),
-            Op::DivS => acc = pop!() / acc,
-            Op::PowS => acc = super::linear::pow(pop!(), acc),
-            Op::MinS => acc = min(pop!(), acc),
-            Op::MaxS => acc = max(pop!(), acc),
-            Op::Neg => acc = -acc,
-            Op::Square => acc *= acc,
-            Op::Cube => acc = acc * acc * acc,
-            Op::Powi(n) => acc = acc.powi(n),
-            Op::Sin => acc = acc.sin(),
-            Op::Cos => acc = acc.cos(),
-            Op::Tan => acc = acc.tan(),
-            Op::Exp => acc = acc.exp(),
-            Op::Ln => acc = acc.ln(),
-            Op::Sqrt => acc = acc.sqrt(),
-            Op::Abs => acc = acc.abs(),
-            Op::Sign => acc = sign(acc),
-            Op::Tanh => acc = acc.tanh(),
-            Op::Step => acc = step(acc),
+    use super::linear::pow;
+    for ins in code {
+        match *ins {
+            Instr::LoadK(x) => acc = x,
+            Instr::LoadC(i) => acc = coef!(i),
+            Instr::LoadV(i) => acc = var!(i),
+            Instr::PushK(x) => push!(x),
+            Instr::PushC(i) => push!(coef!(i)),
+            Instr::PushV(i) => push!(var!(i)),
+            Instr::AddK(x) => acc += x,
+            Instr::AddC(i) => acc += coef!(i),
+            Instr::AddV(i) => acc += var!(i),
+            Instr::SubK(x) => acc -= x,
+            Instr::SubC(i) => acc -= coef!(i),
+            Instr::SubV(i) => acc -= var!(i),
+            Instr::RSubK(x) => acc = x - acc,
+            Instr::RSubC(i) => acc = coef!(i) - acc,
+            Instr::RSubV(i) => acc = var!(i) - acc,
+            Instr::MulK(x) => acc *= x,
+            Instr::MulC(i) => acc *= coef!(i),
+            Instr::MulV(i) => acc *= var!(i),
+            Instr::DivK(x) => acc /= x,
+            Instr::DivC(i) => acc /= coef!(i),
+            Instr::DivV(i) => acc /= var!(i),
+            Instr::RDivK(x) => acc = x / acc,
+            Instr::RDivC(i) => acc = coef!(i) / acc,
+            Instr::RDivV(i) => acc = var!(i) / acc,
+            Instr::PowK(x) => acc = pow(acc, x),
+            Instr::PowC(i) => acc = pow(acc, coef!(i)),
+            Instr::PowV(i) => acc = pow(acc, var!(i)),
+            Instr::AddS => acc += pop!(),
+            Instr::SubS => acc = pop!() - acc,
+            Instr::MulS => acc *= pop!(),
+            Instr::DivS => acc = pop!() / acc,
+            Instr::PowS => acc = pow(pop!(), acc),
+            Instr::MinS => acc = min(pop!(), acc),
+            Instr::MaxS => acc = max(pop!(), acc),
+            Instr::Neg => acc = -acc,
+            Instr::Square => acc *= acc,
+            Instr::Cube => acc = acc * acc * acc,
+            Instr::Powi(n) => acc = acc.powi(n),
+            Instr::Sin => acc = acc.sin(),
+            Instr::Cos => acc = acc.cos(),
+            Instr::Tan => acc = acc.tan(),
+            Instr::Exp => acc = acc.exp(),
+            Instr::Ln => acc = acc.ln(),
+            Instr::Sqrt => acc = acc.sqrt(),
+            Instr::Abs => acc = acc.abs(),
+            Instr::Sign => acc = sign(acc),
+            Instr::Tanh => acc = acc.tanh(),
+            Instr::Step => acc = step(acc),
         }
     }
     acc
