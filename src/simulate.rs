@@ -612,6 +612,20 @@ mod tests {
     }
 
     #[test]
+    fn stable_scenario_ar_damping_is_near_one_percent() {
+        use crate::spectral::{ambient_damping, ArOptions};
+        let mut sim = GateSimulator::scenario(GateParams::default(), Scenario::Stable, 11);
+        let mut x = vec![0.0; 200 * 140];
+        sim.fill(&mut x);
+        // Two 60 s windows after a 20 s burn-in.
+        for w in x[200 * 20..].chunks(200 * 60) {
+            let a = ambient_damping(w, 200.0, &ArOptions::default()).unwrap();
+            assert!((a.zeta - 0.01).abs() < 0.003, "zeta {a:?}");
+            assert!(a.zeta_low > 0.0);
+        }
+    }
+
+    #[test]
     fn onset_true_zeta_crosses_minus_one_percent_when_expected() {
         let sim = GateSimulator::scenario(GateParams::default(), Scenario::ONSET_DEFAULT, 1);
         // From +2 % at 60 s to -2 % at 360 s: -1 % is three quarters of the way, at 285 s.
