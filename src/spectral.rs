@@ -12,6 +12,7 @@
 //!   [`SpectralAnalyzer::envelope`] (analytic signal by FFT) and
 //!   [`SpectralAnalyzer::growth_rate`] (least-squares slope of the log envelope).
 //! - [`ambient_damping`]: AR(p) least squares, pole to damping ratio, delta-method interval.
+//! - [`random_decrement`], [`random_decrement_damping`]: the random decrement technique.
 //! - [`classify`] and [`SpectralAnalyzer::analyze_window`]: the building blocks put together.
 
 use nalgebra::{DMatrix, DVector};
@@ -578,8 +579,9 @@ impl SpectralAnalyzer {
 pub struct ArOptions {
     /// AR order `p` (2 to 12). Default 4: a sampled, noise-forced oscillator is ARMA(2,1), and
     /// an OLS AR(2) fit of it underestimates the damping badly (about half the true `zeta` for
-    /// the lab gate at 200 Hz, see the tests), while AR(4) absorbs the MA part. Raise it (6-10)
-    /// with measurement noise or several modes, at the price of a wider interval.
+    /// the lab gate at 200 Hz, see the tests), while AR(4) absorbs the MA part. Raise it to 8
+    /// with measurement noise above a few percent of the signal std or with several modes: on
+    /// the simulator with 20 % noise AR(4) gave `zeta ~ 0.12` for a true 0.02, AR(8) 0.024.
     pub order: usize,
     /// Pick the complex pole whose frequency is nearest this (Hz); `None`: the least-damped
     /// oscillatory pole (largest `|z|`) above 0.
@@ -844,6 +846,81 @@ pub fn normal_quantile(prob: f64) -> f64 {
     } else {
         -normal_quantile(1.0 - p)
     }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Random decrement
+// ---------------------------------------------------------------------------------------------
+
+/// Random decrement signature of `x` (mean removed): the average of the `out.len()`-sample
+/// segments that start where `x - mean` crosses `trigger` upwards (level up-crossing). For a
+/// linear system driven by stationary Gaussian noise this average is proportional to the
+/// auto-correlation function, i.e. to a free decay from an initial displacement `trigger`, so the
+/// damping can be read from it like from a free decay. Returns the number of segments averaged
+/// (0 leaves `out` zeroed). No allocation.
+///
+/// A trigger around `sqrt(2)` standard deviations is the usual compromise between the number of
+/// segments and their signal-to-noise ratio.
+pub fn random_decrement(x: &[f64], trigger: f64, out: &mut [f64]) -> usize {
+    out.iter_mut().for_each(|v| *v = 0.0);
+    let len = out.len();
+    if len == 0 || x.len() < len + 1 {
+        return 0;
+    }
+    let mean = x.iter().sum::<f64>() / x.len() as f64;
+    let mut count = 0usize;
+    for i in 1..=x.len() - len {
+        if x[i - 1] - mean < trigger && x[i] - mean >= trigger {
+            for (o, &v) in out.iter_mut().zip(&x[i..i + len]) {
+                *o += v - mean;
+            }
+            count += 1;
+        }
+    }
+    if count > 0 {
+        let c = 1.0 / count as f64;
+        out.iter_mut().for_each(|v| *v *= c);
+    }
+    count
+}
+
+/// Damping from the random decrement signature: [`random_decrement`] with a trigger of
+/// `sqrt(2)` standard deviations over `periods` periods of `frequency_hz`, then an AR(2) fit of
+/// the signature (a free decay, so AR(2) is exact up to the averaging noise) and the pole nearest
+/// `frequency_hz`. Returns `(natural frequency Hz, zeta, segments averaged)`; no interval (the
+/// signature's errors are strongly correlated; use [`ambient_damping`] for one).
+pub fn random_decrement_damping(
+    x: &[f64],
+    rate_hz: f64,
+    frequency_hz: f64,
+    periods: f64,
+) -> Result<(f64, f64, usize), SpectralError> {
+    check_finite(x)?;
+    let len = (periods / frequency_hz * rate_hz).round() as usize;
+    if len < 40 || len > x.len() / 4 {
+        return Err(SpectralError::TooShort(format!(
+            "signature of {len} samples from {} samples",
+            x.len()
+        )));
+    }
+    let n = x.len() as f64;
+    let mean = x.iter().sum::<f64>() / n;
+    let std = (x.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n).sqrt();
+    let mut sig = vec![0.0; len];
+    let count = random_decrement(x, std::f64::consts::SQRT_2 * std, &mut sig);
+    if count < 10 {
+        return Err(SpectralError::NoResult(format!("{count} trigger points")));
+    }
+    let a = ambient_damping(
+        &sig,
+        rate_hz,
+        &ArOptions {
+            order: 2,
+            frequency_hint_hz: Some(frequency_hz),
+            confidence: 0.95,
+        },
+    )?;
+    Ok((a.frequency_hz, a.zeta, count))
 }
 
 // ---------------------------------------------------------------------------------------------
