@@ -514,7 +514,8 @@ pub const EX_V0: f64 = 5.8e-3;
 /// `v0 = 5.8e-3 m/s`, output `F = 81360*y` at `rate_hz`, plus Gaussian noise of
 /// `noise_fraction` times the clean signal's standard deviation and an optional linear drift.
 ///
-/// Note (checked in the tests): by harmonic balance the limit-cycle displacement amplitude of this
+/// Note (checked in the tests): the force falls from ~27 N to ~1 N within the first 0.1 s and
+/// then stays on a ~0.75 N limit cycle. By harmonic balance the limit-cycle displacement amplitude of this
 /// equation is `sqrt(4*12.18/(3*4.473e7*omega^2)) ~ 9.2e-6 m` (force ~0.75 N), well below the
 /// initial amplitude ~3.5e-4 m, so the motion starts above the limit cycle and the strong cubic
 /// damping pulls it down onto it quickly; only from below the limit cycle would it grow.
@@ -640,6 +641,31 @@ mod tests {
     }
 
     #[test]
+    fn onset_grows_into_a_clearly_larger_limit_cycle() {
+        let p = GateParams::default();
+        let lc = p.limit_cycle_force_amplitude(-0.02).unwrap();
+        let stable = p.stationary_force_std(0.02);
+        let scenario = Scenario::Onset {
+            hold_s: 20.0,
+            ramp_s: 60.0,
+        };
+        let mut sim = GateSimulator::scenario(p, scenario, 21);
+        let mut x = vec![0.0; 200 * 110];
+        sim.fill(&mut x);
+        // Stable phase (10-20 s): the response std of the +2 % gate, within 35 % (a 10 s
+        // window holds only ~13 correlation times).
+        let s = rms(&x[200 * 10..200 * 20]);
+        assert!(
+            (s / stable - 1.0).abs() < 0.35,
+            "stable std {s} vs {stable}"
+        );
+        // 20 s after the ramp ended: the -2 % limit cycle.
+        let amp = rms(&x[200 * 100..]) * std::f64::consts::SQRT_2;
+        assert!((amp / lc - 1.0).abs() < 0.1, "amplitude {amp} vs {lc}");
+        assert!(amp > 10.0 * s);
+    }
+
+    #[test]
     fn table_schedule_interpolates() {
         let s = ZetaSchedule::Table(vec![(0.0, 0.01), (10.0, -0.01), (20.0, -0.01)]);
         assert!((s.at(-1.0) - 0.01).abs() < 1e-15);
@@ -730,6 +756,9 @@ mod tests {
         let predicted = p
             .limit_cycle_force_amplitude(EX_C1 / p.critical_damping())
             .unwrap();
+        // The strong cubic damping collapses the initial ~27 N motion within 0.1 s.
+        assert!(ex.clean[0] > 25.0);
+        assert!(ex.clean[20..].iter().all(|f| f.abs() < 3.0));
         let tail = &ex.clean[ex.clean.len() - 400..];
         let amp = rms(tail) * std::f64::consts::SQRT_2;
         assert!(
