@@ -16,6 +16,8 @@
 //! - [`identify`]: fitness, train/test split, DE + local refinement + restarts: the identification.
 //! - [`cases`]: the chapter's seed cases (Table 8.1), generated in code.
 //! - [`analysis`]: the early-warning analysis of a window: damping figures and a verdict.
+//! - [`spectral`]: model-free analysis: dominant frequency, Hilbert envelope growth, ambient AR damping.
+//! - [`simulate`]: synthetic gate signals: noise-driven gate with a damping scenario, worked example.
 //! - [`bench`]: `gatewatch bench seed-cases`: the chapter's protocol and its comparison table.
 //!
 //! Service:
@@ -35,3 +37,5 @@ pub mod identify;
 pub mod model;
 pub mod nelder_mead;
 pub mod ode;
+pub mod simulate;
+pub mod spectral;
