@@ -31,13 +31,7 @@ fn times() -> Vec<f64> {
 fn settings() -> [(Method, Options); 3] {
     let base = Options::default();
     [
-        (
-            Method::Dopri5,
-            Options {
-                rtol: 1e-3,
-                ..base
-            },
-        ),
+        (Method::Dopri5, Options { rtol: 1e-3, ..base }),
         (
             Method::Rk4,
             Options {
@@ -45,13 +39,7 @@ fn settings() -> [(Method, Options); 3] {
                 ..base
             },
         ),
-        (
-            Method::Rosenbrock,
-            Options {
-                rtol: 1e-3,
-                ..base
-            },
-        ),
+        (Method::Rosenbrock, Options { rtol: 1e-3, ..base }),
     ]
 }
 

@@ -18,7 +18,10 @@ fn tolerance_proportionality(method: Method) {
         let mut previous = f64::INFINITY;
         for &tol in &[1e-3, 1e-6, 1e-9] {
             let (outcome, got) = run(method, &sys, [1.0, 0.0], &times, &opts(tol, tol * 1e-3));
-            assert!(outcome.is_complete(), "{method} w={w} tol={tol}: {outcome:?}");
+            assert!(
+                outcome.is_complete(),
+                "{method} w={w} tol={tol}: {outcome:?}"
+            );
             let err = max_error(&times, &got, |t| sys.exact(t, 1.0, 0.0));
             assert!(
                 err < 5.0 * tol,
@@ -103,7 +106,10 @@ fn rk4_with_substeps_beats_loose_dopri5_on_the_sample_grid() {
     let exact = |t| sys.exact(t, 1.0, 0.0);
     let (_, rk4) = run(Method::Rk4, &sys, [1.0, 0.0], &times, &Options::default());
     let (_, dp) = run(Method::Dopri5, &sys, [1.0, 0.0], &times, &opts(1e-3, 1e-6));
-    let (e_rk4, e_dp) = (max_error(&times, &rk4, exact), max_error(&times, &dp, exact));
+    let (e_rk4, e_dp) = (
+        max_error(&times, &rk4, exact),
+        max_error(&times, &dp, exact),
+    );
     assert!(e_rk4 < e_dp, "rk4 {e_rk4:e} vs dopri5 {e_dp:e}");
     assert!(e_rk4 < 1e-6, "rk4 error {e_rk4:e}");
 }
@@ -156,7 +162,10 @@ fn output_at_irregular_times() {
         for (&t, y) in times.iter().zip(&got) {
             let exact = sys.exact(t, 1.0, 0.0);
             let (e0, e1) = ((y[0] - exact[0]).abs(), (y[1] - exact[1]).abs());
-            assert!(e0 < tol && e1 < 3.0 * tol, "{method} t={t}: errors {e0:e} {e1:e}");
+            assert!(
+                e0 < tol && e1 < 3.0 * tol,
+                "{method} t={t}: errors {e0:e} {e1:e}"
+            );
         }
     }
 }
@@ -207,7 +216,10 @@ fn van_der_pol_stiff() {
         }
         other => panic!("expected StepLimit, got {other:?}"),
     }
-    assert_eq!(explicit.stats.accepted + explicit.stats.rejected, 50 * steps);
+    assert_eq!(
+        explicit.stats.accepted + explicit.stats.rejected,
+        50 * steps
+    );
 }
 
 /// Every method reports exactly the right-hand-side evaluations it made, and the documented
@@ -241,7 +253,10 @@ fn stats_accounting() {
                 }
                 Method::Rosenbrock => {
                     // default finite-difference Jacobian: N + 1 = 3; non-autonomous: f_t, 1.
-                    assert_eq!(s.rhs_evals, hinit + s.jacobian_evals * (1 + 3 + 1) + 5 * steps);
+                    assert_eq!(
+                        s.rhs_evals,
+                        hinit + s.jacobian_evals * (1 + 3 + 1) + 5 * steps
+                    );
                     assert_eq!(s.jacobian_evals, s.accepted);
                     assert_eq!(s.lu_decompositions, steps);
                 }
@@ -272,11 +287,20 @@ fn rosenbrock_with_analytic_jacobian() {
     }
     let sys = Analytic(Oscillator::new(0.05, 2.0));
     let times = linspace(0.0, 20.0, 200);
-    let (outcome, got) = run(Method::Rosenbrock, &sys, [1.0, 0.0], &times, &opts(1e-7, 1e-10));
+    let (outcome, got) = run(
+        Method::Rosenbrock,
+        &sys,
+        [1.0, 0.0],
+        &times,
+        &opts(1e-7, 1e-10),
+    );
     assert!(outcome.is_complete());
     let s = outcome.stats;
     assert_eq!(s.rhs_evals, sys.0.calls.get());
-    assert_eq!(s.rhs_evals, 1 + s.jacobian_evals + 5 * (s.accepted + s.rejected));
+    assert_eq!(
+        s.rhs_evals,
+        1 + s.jacobian_evals + 5 * (s.accepted + s.rejected)
+    );
     let err = max_error(&times, &got, |t| sys.0.exact(t, 1.0, 0.0));
     assert!(err < 5e-7, "error {err:e}");
 }
@@ -287,10 +311,17 @@ fn empty_and_single_time() {
     let sys = Oscillator::new(0.05, 2.0);
     for method in METHODS {
         let mut calls = 0;
-        let outcome: Outcome = integrate(method, &sys, [1.0, 0.0], &[], &Options::default(), |_, _| {
-            calls += 1;
-            ControlFlow::Continue(())
-        });
+        let outcome: Outcome = integrate(
+            method,
+            &sys,
+            [1.0, 0.0],
+            &[],
+            &Options::default(),
+            |_, _| {
+                calls += 1;
+                ControlFlow::Continue(())
+            },
+        );
         assert_eq!((outcome.reached, calls), (0, 0));
         assert!(outcome.is_complete());
         let (outcome, got) = run(method, &sys, [1.0, 0.0], &[3.0], &Options::default());

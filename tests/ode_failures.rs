@@ -57,7 +57,10 @@ fn blow_up_is_reported_near_the_singularity() {
         assert_abs_diff_eq!(t, 1.0, epsilon = 1e-6);
         // 0.0, 0.1, ..., 0.9 delivered; the numerical pole lags the exact one by ~1e-7, so
         // t = 1.0 itself may still be delivered (with a huge value), 1.1 never.
-        assert!((10..=11).contains(&outcome.reached), "{method}: {outcome:?}");
+        assert!(
+            (10..=11).contains(&outcome.reached),
+            "{method}: {outcome:?}"
+        );
     }
     // RK4 has no error control: it overshoots the pole but must stop shortly after it.
     let o = Options {
@@ -107,7 +110,10 @@ fn nan_is_reported_as_non_finite_where_it_starts() {
             other => panic!("{method}: expected NonFinite, got {other:?}"),
         }
         // 0.0 .. 1.4 certainly, 1.5 only if a step ended exactly there.
-        assert!((15..=16).contains(&outcome.reached), "{method}: {outcome:?}");
+        assert!(
+            (15..=16).contains(&outcome.reached),
+            "{method}: {outcome:?}"
+        );
         assert!(outcome.stats.rejected > 0);
     }
     let outcome = run1(Method::Rk4, &NanAfter, 1.0, &times, &Options::default());
@@ -135,21 +141,33 @@ fn observer_can_stop() {
     let times = linspace(0.0, 10.0, 50);
     for method in METHODS {
         let mut seen = Vec::new();
-        let outcome = integrate(method, &sys, [1.0, 0.0], &times, &Options::default(), |i, _| {
-            seen.push(i);
-            if i == 5 {
-                ControlFlow::Break(())
-            } else {
-                ControlFlow::Continue(())
-            }
-        });
+        let outcome = integrate(
+            method,
+            &sys,
+            [1.0, 0.0],
+            &times,
+            &Options::default(),
+            |i, _| {
+                seen.push(i);
+                if i == 5 {
+                    ControlFlow::Break(())
+                } else {
+                    ControlFlow::Continue(())
+                }
+            },
+        );
         assert_eq!(outcome.failure, Some(Failure::Stopped { t: times[5] }));
         assert_eq!(outcome.reached, 6);
         assert_eq!(seen, vec![0, 1, 2, 3, 4, 5]);
         // Stopping at the initial state costs nothing.
-        let outcome = integrate(method, &sys, [1.0, 0.0], &times, &Options::default(), |_, _| {
-            ControlFlow::Break(())
-        });
+        let outcome = integrate(
+            method,
+            &sys,
+            [1.0, 0.0],
+            &times,
+            &Options::default(),
+            |_, _| ControlFlow::Break(()),
+        );
         assert_eq!(outcome.failure, Some(Failure::Stopped { t: 0.0 }));
         assert_eq!((outcome.reached, outcome.stats.rhs_evals), (1, 0));
     }

@@ -131,7 +131,11 @@ pub fn run<S: System<2>>(
         out.push(*y);
         ControlFlow::Continue(())
     });
-    assert_eq!(outcome.reached, out.len(), "reached must count delivered states");
+    assert_eq!(
+        outcome.reached,
+        out.len(),
+        "reached must count delivered states"
+    );
     (outcome, out)
 }
 
