@@ -286,3 +286,17 @@ fn options_validate() {
         assert!(o.validate().is_err(), "{o:?}");
     }
 }
+
+/// A NaN last time (a caller bug) must not make the adaptive methods loop on NaN steps.
+#[test]
+fn nan_time_stops_at_once() {
+    let times = [0.0, 0.5, f64::NAN];
+    for method in [Method::Dopri5, Method::Rosenbrock] {
+        let outcome = run1(method, &NanAfter, 1.0, &times, &Options::default());
+        assert!(
+            matches!(outcome.failure, Some(Failure::StepSizeUnderflow { t, .. }) if t == 0.0),
+            "{method}: {outcome:?}"
+        );
+        assert_eq!(outcome.stats.accepted + outcome.stats.rejected, 0);
+    }
+}

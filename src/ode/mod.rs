@@ -30,7 +30,9 @@
 //!   step that could not be completed). The adaptive methods first treat a non-finite trial
 //!   step as a rejection and shrink `h` by 5; they report `NonFinite` only if that persists
 //!   down to the step-size floor.
-//! - `StepSizeUnderflow { t, h }`: `h` fell below `16 * eps * max(|times[0]|, |t_end|)`.
+//! - `StepSizeUnderflow { t, h }`: `h` fell below `16 * eps * max(|times[0]|, |t_end|)`. The
+//!   adaptive methods also report it at `times[0]` when `t_end - times[0]` is not positive and
+//!   finite (a caller bug such as a NaN time), instead of stepping on NaN.
 //! - `StepLimit { t }`: the next step would exceed `Options::max_steps` (accepted + rejected),
 //!   so `accepted + rejected == max_steps` on return.
 //! - `WorkLimit { t }`: the next step would exceed `Options::max_rhs_evals`, so

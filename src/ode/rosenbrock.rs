@@ -202,6 +202,10 @@ where
     }
     let t_end = times[n_out - 1];
     let hmax = t_end - t0;
+    if hmax.is_nan() || hmax <= 0.0 || hmax.is_infinite() {
+        // Not an increasing finite time span (a caller bug): no step is possible.
+        return stop(1, stats, Failure::StepSizeUnderflow { t: t0, h: hmax });
+    }
     let hmin = min_step(t0, t_end);
     let autonomous = sys.is_autonomous();
     let jac_block = 1 + sys.jacobian_cost() + usize::from(!autonomous);
@@ -256,7 +260,7 @@ where
         if stats.rhs_evals + block + 5 > opts.max_rhs_evals {
             return stop(next, stats, Failure::WorkLimit { t });
         }
-        if h < hmin {
+        if h.is_nan() || h < hmin {
             let f = if nonfinite {
                 Failure::NonFinite { t }
             } else {
