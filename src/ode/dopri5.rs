@@ -79,6 +79,8 @@ const EXPO1: f64 = 0.2 - BETA * 0.75;
 const FACC1: f64 = 1.0 / 0.2;
 /// `1 / (largest hnew/h)`.
 const FACC2: f64 = 1.0 / 10.0;
+/// `ln(1e-4)`: the smallest error the PI controller remembers.
+const LN_ERR_MIN: f64 = -9.210340371976182;
 
 pub(super) fn integrate<const N: usize, S, F>(
     sys: &S,
@@ -116,6 +118,10 @@ where
     }
     let t_end = times[n_out - 1];
     let hmax = t_end - t0;
+    if hmax.is_nan() || hmax <= 0.0 || hmax.is_infinite() {
+        // Not an increasing finite time span (a caller bug): no step is possible.
+        return stop(1, stats, Failure::StepSizeUnderflow { t: t0, h: hmax });
+    }
     let hmin = min_step(t0, t_end);
 
     let mut t = t0;
@@ -141,7 +147,9 @@ where
     };
 
     let mut next = 1; // index of the next output time
-    let mut facold: f64 = 1e-4;
+                      // ln of the previous accepted error (Hairer's FACOLD, initially 1e-4); the controller works
+                      // with logarithms so that a step costs one `ln` and one `exp` instead of two `powf`.
+    let mut ln_facold: f64 = LN_ERR_MIN;
     let mut reject = false;
     let mut nonfinite = false; // the last rejection was a non-finite trial
     let (mut k2, mut k3, mut k4, mut k5, mut k6, mut k7) =
@@ -156,7 +164,7 @@ where
         if stats.rhs_evals + 6 > opts.max_rhs_evals {
             return stop(next, stats, Failure::WorkLimit { t });
         }
-        if h < hmin {
+        if h.is_nan() || h < hmin {
             let f = if nonfinite {
                 Failure::NonFinite { t }
             } else {
@@ -218,13 +226,14 @@ where
             continue;
         }
 
-        let fac11 = err.powf(EXPO1);
+        let ln_err = err.ln(); // -inf for err == 0, which the clamps below handle
         if err <= 1.0 {
             // --- accepted ---
             stats.accepted += 1;
-            let fac = (fac11 / facold.powf(BETA) / SAFE).clamp(FACC2, FACC1);
+            // fac = err^EXPO1 / facold^BETA / SAFE
+            let fac = ((EXPO1 * ln_err - BETA * ln_facold).exp() / SAFE).clamp(FACC2, FACC1);
             let mut hnew = h / fac;
-            facold = err.max(1e-4);
+            ln_facold = ln_err.max(LN_ERR_MIN);
             let m = norm_inf(&ynew);
             if m > opts.bound {
                 return stop(next, stats, Failure::BlowUp { t: tnew, value: m });
@@ -294,7 +303,7 @@ where
             stats.rejected += 1;
             reject = true;
             nonfinite = false;
-            h /= (fac11 / SAFE).min(FACC1);
+            h /= ((EXPO1 * ln_err).exp() / SAFE).min(FACC1);
         }
     }
 }

@@ -202,6 +202,10 @@ where
     }
     let t_end = times[n_out - 1];
     let hmax = t_end - t0;
+    if hmax.is_nan() || hmax <= 0.0 || hmax.is_infinite() {
+        // Not an increasing finite time span (a caller bug): no step is possible.
+        return stop(1, stats, Failure::StepSizeUnderflow { t: t0, h: hmax });
+    }
     let hmin = min_step(t0, t_end);
     let autonomous = sys.is_autonomous();
     let jac_block = 1 + sys.jacobian_cost() + usize::from(!autonomous);
@@ -256,7 +260,7 @@ where
         if stats.rhs_evals + block + 5 > opts.max_rhs_evals {
             return stop(next, stats, Failure::WorkLimit { t });
         }
-        if h < hmin {
+        if h.is_nan() || h < hmin {
             let f = if nonfinite {
                 Failure::NonFinite { t }
             } else {
@@ -450,5 +454,42 @@ where
             nonfinite = false;
             h /= fac;
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Lu;
+    use approx::assert_relative_eq;
+
+    /// `(fac I - J) x = b` solved by the in-place LU agrees with the product, including a
+    /// matrix that needs row exchanges (zero leading pivot).
+    #[test]
+    fn lu_solves_with_pivoting() {
+        let jac = [[1.0, 2.0, -1.0], [4.0, 0.5, 3.0], [-2.0, 1.0, 7.0]];
+        for fac in [1.0, 1e-3, 1e3] {
+            let lu = Lu::new(&jac, fac).unwrap();
+            let b = [1.0, -2.0, 0.5];
+            let mut x = b;
+            lu.solve(&mut x);
+            for i in 0..3 {
+                let mut ax = fac * x[i];
+                for j in 0..3 {
+                    ax -= jac[i][j] * x[j];
+                }
+                assert_relative_eq!(ax, b[i], max_relative = 1e-12, epsilon = 1e-12);
+            }
+        }
+        // fac I - J = [[0, 1], [1, 0]]: the first pivot is zero.
+        let lu = Lu::new(&[[1.0, -1.0], [-1.0, 1.0]], 1.0).unwrap();
+        let mut x = [3.0, 5.0];
+        lu.solve(&mut x);
+        assert_eq!(x, [5.0, 3.0]);
+    }
+
+    #[test]
+    fn lu_reports_singular_and_non_finite() {
+        assert!(Lu::new(&[[1.0, 0.0], [0.0, 2.0]], 1.0).is_none());
+        assert!(Lu::new(&[[f64::NAN, 0.0], [0.0, 2.0]], 1.0).is_none());
     }
 }

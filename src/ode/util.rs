@@ -127,3 +127,46 @@ pub(super) fn hinit<const N: usize, S: System<N> + ?Sized>(
         hmax.min(1e-6)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    struct Decay;
+    impl System<1> for Decay {
+        fn rhs(&self, _t: f64, y: &[f64; 1], dy: &mut [f64; 1]) {
+            dy[0] = -y[0];
+        }
+    }
+
+    #[test]
+    fn state_checks() {
+        assert_eq!(check_state(&[1.0, -2.0], 0.5, 10.0), None);
+        assert_eq!(
+            check_state(&[1.0, -20.0], 0.5, 10.0),
+            Some(Failure::BlowUp {
+                t: 0.5,
+                value: 20.0
+            })
+        );
+        assert_eq!(
+            check_state(&[f64::NAN, 0.0], 0.5, 10.0),
+            Some(Failure::NonFinite { t: 0.5 })
+        );
+        assert!(min_step(0.0, 30.0) > 0.0 && min_step(0.0, 30.0) < 1e-12);
+    }
+
+    /// For y' = -y, HINIT gives a step of the order of (0.01)^(1/5) ~ 0.4 at order 5, positive
+    /// and clipped to hmax.
+    #[test]
+    fn hinit_is_sane() {
+        let o = Options::default();
+        let h = hinit(&Decay, 0.0, &[1.0], &[-1.0], 10.0, 5, &o);
+        assert!(h > 0.05 && h < 1.0, "h = {h}");
+        let h = hinit(&Decay, 0.0, &[1.0], &[-1.0], 1e-3, 5, &o);
+        assert_eq!(h, 1e-3);
+        // A zero derivative falls back on the safe defaults.
+        let h = hinit(&Decay, 0.0, &[0.0], &[0.0], 10.0, 5, &o);
+        assert!(h > 0.0 && h.is_finite());
+    }
+}
