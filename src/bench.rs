@@ -22,7 +22,7 @@ pub struct BenchOptions {
     pub solver: Method,
     /// Fitness tolerance (chapter: 1e-3).
     pub rtol: f64,
-    /// Nelder-Mead polish on or off.
+    /// Levenberg-Marquardt polish on or off.
     pub refine: bool,
     /// DE restart on stagnation on or off.
     pub restart: bool,

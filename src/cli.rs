@@ -119,7 +119,7 @@ pub struct IdentifyArgs {
     /// RK4 steps per sample interval.
     #[arg(long, default_value_t = 2)]
     substeps: usize,
-    /// Skip the Nelder-Mead polish of the DE winner.
+    /// Skip the Levenberg-Marquardt polish of the DE winner.
     #[arg(long)]
     no_refine: bool,
     /// Never restart a stagnating DE population.
@@ -151,7 +151,7 @@ pub struct SeedCasesArgs {
     /// Relative tolerance of the fitness solver.
     #[arg(long, default_value_t = 1e-3)]
     rtol: f64,
-    /// Skip the Nelder-Mead polish (the chapter's protocol).
+    /// Skip the Levenberg-Marquardt polish (the chapter's protocol).
     #[arg(long)]
     no_refine: bool,
     /// Never restart a stagnating population (the chapter's protocol).

@@ -11,7 +11,6 @@
 //! - [`model`]: the model language: parse an equation, check it is linear in `ydd`, compile it.
 //! - [`ode`]: integrators (Dormand-Prince 5(4), fixed-step RK4, Rosenbrock) with failure reports.
 //! - [`de`]: the Cauchy differential evolution, generic over any objective, parallel and seeded.
-//! - [`nelder_mead`]: the simplex polish of the DE winner.
 //! - [`data`]: time series and their CSV loading, with errors that name line and column.
 //! - [`identify`]: fitness, train/test split, DE + local refinement + restarts: the identification.
 //! - [`cases`]: the chapter's seed cases (Table 8.1), generated in code.
@@ -35,7 +34,6 @@ pub mod data;
 pub mod de;
 pub mod identify;
 pub mod model;
-pub mod nelder_mead;
 pub mod ode;
 pub mod simulate;
 pub mod spectral;
