@@ -19,6 +19,12 @@
 //!
 //! Front ends:
 //! - [`cli`]: the command-line interface behind `src/main.rs`.
+//!
+//! Service (tokio, axum, prometheus; nothing in the numerical core depends on it):
+//! - [`service`]: the monitoring daemon (`gatewatch serve`): configuration, ingestion (JSON,
+//!   InfluxDB line protocol over HTTP and TCP), per-gate windows, the identification worker pool,
+//!   Prometheus metrics, alert wiring, HTTP API, graceful shutdown, and the `check-config` and
+//!   `simulate` commands.
 
 pub mod analysis;
 pub mod bench;
@@ -29,3 +35,4 @@ pub mod de;
 pub mod identify;
 pub mod model;
 pub mod ode;
+pub mod service;

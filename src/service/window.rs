@@ -1,0 +1,169 @@
+//! The sliding window of one gate: a preallocated ring buffer of the last `window_seconds` of
+//! samples, with the identification cadence counted in SAMPLE time.
+//!
+//! Memory: the buffer keeps values only (8 bytes per sample; the time of every sample follows
+//! from the time of the first and the rate since the window is uniform and contiguous), so a
+//! gate costs `8 * window_seconds * rate_hz` bytes, 16 KB at 10 s and 200 Hz.
+//!
+//! Rules for each incoming sample at time `t`, with `p = 1 / rate_hz` and `last` the newest
+//! sample kept:
+//! - `|t - last| < p/2`: duplicate, dropped (counted `duplicate`);
+//! - `t - last <= -p/2`: older than the head, dropped (counted `out_of_order`);
+//! - `t - last > 1.5 p`: gap: the window restarts at `t`, so no window spans a gap; identification
+//!   resumes once a contiguous stretch of a full window has been collected after the gap;
+//! - otherwise appended (timing jitter within half a period is tolerated).
+//!
+//! A window is due when it is full and `every` samples have arrived since the last due window
+//! (or since the first full window after a gap). Since this depends only on the samples, a
+//! stream replayed at any speed, in any chunking, yields the same windows.
+
+use std::collections::VecDeque;
+
+/// Outcome counts of one push.
+#[derive(Debug, Default, Clone, Copy, PartialEq, Eq)]
+pub struct PushStats {
+    /// Samples appended.
+    pub accepted: u64,
+    /// Duplicates dropped.
+    pub duplicate: u64,
+    /// Out-of-order samples dropped.
+    pub out_of_order: u64,
+    /// Gaps that restarted the window.
+    pub gaps: u64,
+}
+
+/// A full window ready for identification.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DueWindow {
+    /// Time of the first sample.
+    pub t0: f64,
+    /// The samples.
+    pub values: Vec<f64>,
+    /// Index (over all samples ever accepted for the gate, from 0) of the sample after the last.
+    pub end_index: u64,
+}
+
+/// The window of one gate.
+#[derive(Debug, Clone)]
+pub struct Window {
+    rate_hz: f64,
+    capacity: usize,
+    every: usize,
+    values: VecDeque<f64>,
+    /// Time of `values[0]`.
+    t_first: f64,
+    /// Time of the newest sample.
+    t_last: Option<f64>,
+    /// Samples accepted ever.
+    accepted: u64,
+    /// Samples accepted since the last due window (or since the gap).
+    since_due: usize,
+    /// Whether a window was due since the last gap.
+    due_once: bool,
+}
+
+impl Window {
+    /// A window of `capacity` samples at `rate_hz`, due every `every` new samples.
+    pub fn new(rate_hz: f64, capacity: usize, every: usize) -> Window {
+        Window {
+            rate_hz,
+            capacity: capacity.max(1),
+            every: every.max(1),
+            values: VecDeque::with_capacity(capacity.max(1)),
+            t_first: 0.0,
+            t_last: None,
+            accepted: 0,
+            since_due: 0,
+            due_once: false,
+        }
+    }
+
+    /// Pushes samples `(t, v)` in order; returns the counts and the windows that became due
+    /// (the caller usually keeps only the last: newer windows replace older ones).
+    pub fn push(
+        &mut self,
+        samples: impl IntoIterator<Item = (f64, f64)>,
+    ) -> (PushStats, Vec<DueWindow>) {
+        let period = 1.0 / self.rate_hz;
+        let mut stats = PushStats::default();
+        let mut due = Vec::new();
+        for (t, v) in samples {
+            if let Some(last) = self.t_last {
+                let dt = t - last;
+                if dt.abs() < 0.5 * period {
+                    stats.duplicate += 1;
+                    continue;
+                }
+                if dt <= -0.5 * period {
+                    stats.out_of_order += 1;
+                    continue;
+                }
+                if dt > 1.5 * period {
+                    stats.gaps += 1;
+                    self.values.clear();
+                    self.since_due = 0;
+                    self.due_once = false;
+                }
+            }
+            if self.values.is_empty() {
+                self.t_first = t;
+            }
+            if self.values.len() == self.capacity {
+                self.values.pop_front();
+                self.t_first += period;
+            }
+            self.values.push_back(v);
+            self.t_last = Some(t);
+            self.accepted += 1;
+            self.since_due += 1;
+            stats.accepted += 1;
+            if self.values.len() == self.capacity
+                && (!self.due_once || self.since_due >= self.every)
+            {
+                self.due_once = true;
+                self.since_due = 0;
+                due.push(DueWindow {
+                    t0: self.t_first,
+                    values: self.values.iter().copied().collect(),
+                    end_index: self.accepted,
+                });
+            }
+        }
+        (stats, due)
+    }
+
+    /// Samples held.
+    pub fn len(&self) -> usize {
+        self.values.len()
+    }
+
+    /// Whether no sample is held.
+    pub fn is_empty(&self) -> bool {
+        self.values.is_empty()
+    }
+
+    /// Capacity in samples.
+    pub fn capacity(&self) -> usize {
+        self.capacity
+    }
+
+    /// Held fraction of a full window.
+    pub fn fill_ratio(&self) -> f64 {
+        self.values.len() as f64 / self.capacity as f64
+    }
+
+    /// Seconds spanned by the held samples.
+    pub fn span_seconds(&self) -> f64 {
+        self.values.len().saturating_sub(1) as f64 / self.rate_hz
+    }
+
+    /// Time of the newest sample.
+    pub fn last_time(&self) -> Option<f64> {
+        self.t_last
+    }
+
+    /// Samples accepted ever.
+    pub fn accepted_total(&self) -> u64 {
+        self.accepted
+    }
+}
