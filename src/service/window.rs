@@ -167,3 +167,99 @@ impl Window {
         self.accepted
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn stream(n: usize, rate: f64) -> Vec<(f64, f64)> {
+        (0..n)
+            .map(|i| (1000.0 + i as f64 / rate, (i as f64 * 0.1).sin()))
+            .collect()
+    }
+
+    #[test]
+    fn same_windows_whatever_the_chunking() {
+        let data = stream(5_000, 100.0);
+        let run = |chunk: usize| {
+            let mut w = Window::new(100.0, 300, 50);
+            let mut due = Vec::new();
+            for c in data.chunks(chunk) {
+                due.extend(w.push(c.iter().copied()).1);
+            }
+            due
+        };
+        let one = run(1);
+        assert_eq!(one.len(), 1 + (5_000 - 300) / 50);
+        assert_eq!(one[0].end_index, 300);
+        assert_eq!(one[1].end_index, 350);
+        for chunk in [7, 100, 1234, 5_000] {
+            assert_eq!(run(chunk), one, "chunk {chunk}");
+        }
+    }
+
+    #[test]
+    fn duplicates_and_out_of_order_are_dropped() {
+        let mut w = Window::new(100.0, 10, 5);
+        let (s, _) = w.push([
+            (0.0, 1.0),
+            (0.01, 2.0),
+            (0.01, 9.0),
+            (0.005 + 0.001, 3.0),
+            (0.0, 4.0),
+            (0.02, 5.0),
+        ]);
+        assert_eq!(s.accepted, 3);
+        assert_eq!(s.duplicate, 2); // 0.01 again, and 0.006 (within half a period of 0.01)
+        assert_eq!(s.out_of_order, 1);
+        assert_eq!(w.len(), 3);
+    }
+
+    #[test]
+    fn a_gap_restarts_the_window_and_no_window_spans_it() {
+        let rate = 100.0;
+        let mut w = Window::new(rate, 100, 20);
+        let mut data = stream(150, rate);
+        // a gap of 2 periods
+        data.extend((0..250).map(|i| (1000.0 + (151 + i) as f64 / rate, 0.0)));
+        let mut due = Vec::new();
+        let mut gaps = 0;
+        for s in data.chunks(13) {
+            let (st, d) = w.push(s.iter().copied());
+            gaps += st.gaps;
+            due.extend(d);
+        }
+        assert_eq!(gaps, 1);
+        let gap_t = 1000.0 + 149.0 / rate;
+        for d in &due {
+            let t_end = d.t0 + (d.values.len() - 1) as f64 / rate;
+            assert!(
+                t_end <= gap_t + 1e-9 || d.t0 > gap_t,
+                "window {}..{} spans the gap at {gap_t}",
+                d.t0,
+                t_end
+            );
+        }
+        // before the gap: full at 100, then 120, 140; after it: first full at 150 + 100
+        let ends: Vec<u64> = due.iter().map(|d| d.end_index).collect();
+        assert_eq!(
+            ends,
+            vec![100, 120, 140, 250, 270, 290, 310, 330, 350, 370, 390]
+        );
+        // a small jitter is not a gap
+        let mut w = Window::new(rate, 100, 20);
+        let (s, _) = w.push([(0.0, 0.0), (0.0149, 0.0), (0.0249, 0.0)]);
+        assert_eq!((s.accepted, s.gaps), (3, 0));
+    }
+
+    #[test]
+    fn ring_buffer_is_bounded() {
+        let mut w = Window::new(100.0, 50, 10);
+        w.push(stream(1000, 100.0));
+        assert_eq!(w.len(), 50);
+        assert!(w.values.capacity() >= 50);
+        assert!((w.fill_ratio() - 1.0).abs() < 1e-12);
+        assert!((w.span_seconds() - 0.49).abs() < 1e-9);
+        assert_eq!(w.accepted_total(), 1000);
+    }
+}

@@ -356,3 +356,121 @@ pub fn to_batches(lines: &[(usize, Line)], m: &Mapping<'_>) -> Result<Vec<Batch>
     }
     Ok(batches)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn one(s: &str) -> Line {
+        parse_line(s, 1).unwrap().unwrap()
+    }
+
+    #[test]
+    fn parses_tags_fields_timestamp() {
+        let l =
+            one("gate,gate=g1,site=north force=1.5,n=3i,u=4u,ok=t,s=\"a b\" 1700000000000000000");
+        assert_eq!(l.measurement, "gate");
+        assert_eq!(
+            l.tags,
+            vec![
+                ("gate".into(), "g1".into()),
+                ("site".into(), "north".into())
+            ]
+        );
+        assert_eq!(l.fields[0], ("force".into(), FieldValue::Float(1.5)));
+        assert_eq!(l.fields[1].1, FieldValue::Int(3));
+        assert_eq!(l.fields[2].1, FieldValue::UInt(4));
+        assert_eq!(l.fields[3].1, FieldValue::Bool(true));
+        assert_eq!(l.fields[4].1, FieldValue::Str("a b".into()));
+        assert_eq!(l.timestamp, Some(1_700_000_000_000_000_000));
+    }
+
+    #[test]
+    fn escapes() {
+        let l = one(r#"my\ meas\,x,ta\=g=v\ 1\,2 f\ k=-2e3,s="q\"uote\\" -5"#);
+        assert_eq!(l.measurement, "my meas,x");
+        assert_eq!(l.tags, vec![("ta=g".into(), "v 1,2".into())]);
+        assert_eq!(l.fields[0], ("f k".into(), FieldValue::Float(-2000.0)));
+        assert_eq!(l.fields[1].1, FieldValue::Str("q\"uote\\".into()));
+        assert_eq!(l.timestamp, Some(-5));
+    }
+
+    #[test]
+    fn no_timestamp_comments_blank() {
+        assert_eq!(one("m force=1").timestamp, None);
+        assert_eq!(parse_line("# comment", 1).unwrap(), None);
+        assert_eq!(parse_line("   ", 1).unwrap(), None);
+        assert_eq!(
+            parse("m,gate=a force=1\n\n# c\nm,gate=a force=2 5\n")
+                .unwrap()
+                .len(),
+            2
+        );
+    }
+
+    #[test]
+    fn errors_name_line_and_column() {
+        let e = parse("m force=1\nm,gate=a force=abc 1\n").unwrap_err();
+        assert_eq!((e.line, e.column), (2, 16));
+        assert!(e.message.contains("force"), "{e}");
+        let e = parse_line("m,gate force=1", 3).unwrap_err();
+        assert_eq!((e.line, e.column), (3, 7));
+        let e = parse_line("m", 1).unwrap_err();
+        assert!(e.message.contains("space"));
+        let e = parse_line("m f=\"open", 1).unwrap_err();
+        assert!(e.message.contains("unterminated"));
+        let e = parse_line("m f=1 12x", 1).unwrap_err();
+        assert!(e.message.contains("timestamp"));
+        let e = parse_line("m f=1,", 1).unwrap_err();
+        assert!(e.message.contains("field key"));
+        let e = parse_line(",gate=a f=1", 1).unwrap_err();
+        assert!(e.message.contains("measurement"));
+        assert!(parse_line("m f=", 1).is_err());
+        assert!(parse_line("m f=1i2", 1).is_err());
+    }
+
+    #[test]
+    fn mapping_to_batches() {
+        let lines =
+            parse("m,gate=a force=1 1000\nm,gate=b value=2i 2000\nm,gate=a force=3 3000").unwrap();
+        let fields = vec!["force".to_string(), "value".to_string()];
+        let m = Mapping {
+            gate_tag: "gate",
+            value_fields: &fields,
+            precision: Precision::Ms,
+            now: 0.0,
+        };
+        let b = to_batches(&lines, &m).unwrap();
+        assert_eq!(b.len(), 2);
+        assert_eq!(b[0].samples, vec![(1.0, 1.0), (3.0, 3.0)]);
+        assert_eq!(b[0].lines, Some(vec![1, 3]));
+        assert_eq!(b[1].samples, vec![(2.0, 2.0)]);
+        let lines = parse("m force=1 1").unwrap();
+        assert_eq!(
+            to_batches(&lines, &m).unwrap_err().field.as_deref(),
+            Some("gate")
+        );
+        let lines = parse("m,gate=a force=\"x\" 1").unwrap();
+        assert_eq!(
+            to_batches(&lines, &m).unwrap_err().field.as_deref(),
+            Some("force")
+        );
+    }
+
+    #[test]
+    fn never_panics_on_junk() {
+        for s in [
+            "\\",
+            "m\\",
+            "m,\\",
+            "m,a=\\",
+            "m a=\"\\",
+            "m a=1 \\",
+            "é,é=é é=1",
+            "m,a=b a=1    ",
+            "m  a=1",
+        ] {
+            let _ = parse_line(s, 1);
+        }
+    }
+}
