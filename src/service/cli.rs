@@ -92,6 +92,16 @@ pub const SIMULATE_MAX_RETRIES: u32 = 5;
 /// Longest `Retry-After` honoured, seconds.
 pub const SIMULATE_MAX_RETRY_AFTER: u64 = 30;
 
+/// Installs rustls' ring crypto provider once (reqwest is built with `rustls-no-provider`);
+/// call before building a `reqwest::Client`. Idempotent.
+pub fn ensure_crypto_provider() {
+    static ONCE: std::sync::Once = std::sync::Once::new();
+    ONCE.call_once(|| {
+        // Err means another provider was installed first: fine.
+        let _ = rustls::crypto::ring::default_provider().install_default();
+    });
+}
+
 /// Sets up tracing (text or JSON; `RUST_LOG` overrides the configured level).
 pub fn init_tracing(config: &Config) {
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
@@ -295,6 +305,7 @@ pub async fn simulate_with_source(
     });
     let total = (args.duration * args.rate).round() as u64;
     let chunk = ((args.chunk_seconds * args.rate).round() as usize).max(1);
+    ensure_crypto_provider();
     let client = reqwest::Client::builder()
         .timeout(Duration::from_secs(30))
         .build()?;

@@ -623,8 +623,7 @@ mod tests {
     #[test]
     fn embedded_config_is_valid_and_has_the_defaults() {
         let c = Config::from_toml(EMBEDDED_CONFIG).unwrap();
-        let mut d = Config::default();
-        d.defaults = GateConfig::default();
+        let d = Config::default();
         assert_eq!(c.server, d.server);
         assert_eq!(c.log, d.log);
         assert_eq!(c.ingest, d.ingest);
