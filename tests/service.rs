@@ -1179,6 +1179,32 @@ async fn overload_is_503_with_retry_after() {
     })
     .await
     .expect("serving again");
+    // a request that never completes does not hold the shutdown beyond the grace period
+    let mut hold = tokio::net::TcpStream::connect(r.http).await.unwrap();
+    hold.write_all(b"POST /api/v1/samples HTTP/1.1\r\nhost: x\r\ncontent-length: 1000\r\n\r\n{")
+        .await
+        .unwrap();
+    tokio::time::sleep(Duration::from_millis(50)).await;
+    stop(r).await;
+    drop(hold);
+}
+
+#[tokio::test]
+async fn slow_request_times_out_with_408() {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let r = start("request_timeout_seconds = 0.2", Arc::new(Fake::default())).await;
+    let mut s = tokio::net::TcpStream::connect(r.http).await.unwrap();
+    s.write_all(b"POST /api/v1/samples HTTP/1.1\r\nhost: x\r\ncontent-length: 1000\r\n\r\n{")
+        .await
+        .unwrap();
+    let mut buf = vec![0u8; 256];
+    let n = tokio::time::timeout(Duration::from_secs(10), s.read(&mut buf))
+        .await
+        .expect("answered")
+        .unwrap();
+    let head = String::from_utf8_lossy(&buf[..n]);
+    assert!(head.starts_with("HTTP/1.1 408"), "{head}");
+    assert_eq!(get(r.http, "/healthz").await.0, 200);
     stop(r).await;
 }
 

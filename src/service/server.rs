@@ -4,7 +4,7 @@
 //! identification jobs and give in-flight ones `server.shutdown_grace_seconds`, then flush the
 //! notifier within the rest of the grace period.
 
-use std::future::Future;
+use std::future::{Future, IntoFuture};
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
 use std::time::{Duration, Instant, SystemTime};
@@ -102,11 +102,27 @@ pub async fn run_with_analyzer(
     }
     state.listeners_up.store(true, Ordering::SeqCst);
     let mut stop = stop_rx.clone();
-    let served = axum::serve(listeners.http, router.into_make_service())
-        .with_graceful_shutdown(async move {
+    let mut serve_task = tokio::spawn(
+        axum::serve(listeners.http, router.into_make_service())
+            .with_graceful_shutdown(async move {
+                let _ = stop.wait_for(|s| *s).await;
+            })
+            .into_future(),
+    );
+    // In-flight requests get the grace period; a client that never finishes its request must
+    // not hold the shutdown forever.
+    let mut stop = stop_rx.clone();
+    let served: std::io::Result<()> = tokio::select! {
+        r = &mut serve_task => r.unwrap_or_else(|e| Err(std::io::Error::other(e))),
+        _ = async {
             let _ = stop.wait_for(|s| *s).await;
-        })
-        .await;
+            tokio::time::sleep(grace).await;
+        } => {
+            tracing::warn!("HTTP connections still open after the grace period, closing them");
+            serve_task.abort();
+            Ok(())
+        }
+    };
     state.listeners_up.store(false, Ordering::SeqCst);
     let deadline = Instant::now() + grace;
     if let Some(t) = tcp_task {

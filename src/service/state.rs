@@ -258,17 +258,9 @@ impl AppState {
     /// Validates every batch, then applies them all (or none).
     pub fn ingest(&self, batches: Vec<Batch>) -> Result<IngestSummary, IngestError> {
         let total: u64 = batches.iter().map(|b| b.samples.len() as u64).sum();
-        let result = self.validate(&batches);
-        if let Err(e) = &result {
-            let reason = match e {
-                IngestError::BadRequest(b) if b.error.contains("finite") => "non_finite",
-                IngestError::BadRequest(b) if b.error.contains("rate") => "rate_mismatch",
-                IngestError::BadRequest(_) => "invalid",
-                IngestError::UnknownGate(_) => "unknown_gate",
-                IngestError::TooManyGates(_) => "too_many_gates",
-            };
+        if let Err((reason, e)) = self.validate(&batches) {
             self.reject(reason, total);
-            return Err(result.unwrap_err());
+            return Err(e);
         }
         let now = SystemTime::now();
         let mut summary = IngestSummary::default();
@@ -348,41 +340,42 @@ impl AppState {
         }
     }
 
-    fn validate(&self, batches: &[Batch]) -> Result<(), IngestError> {
+    /// Checks every batch; on error also gives the `samples_rejected_total` reason.
+    fn validate(&self, batches: &[Batch]) -> Result<(), (&'static str, IngestError)> {
         let inner = lock(&self.inner);
         let mut new_gates: Vec<&str> = Vec::new();
         for b in batches {
             let Some(cfg) = self.config.gate(&b.gate) else {
-                return Err(IngestError::UnknownGate(b.gate.clone()));
+                return Err(("unknown_gate", IngestError::UnknownGate(b.gate.clone())));
             };
             if !inner.gates.contains_key(&b.gate) && !new_gates.contains(&b.gate.as_str()) {
                 new_gates.push(&b.gate);
                 if inner.gates.len() + new_gates.len() > self.config.server.max_gates {
-                    return Err(IngestError::TooManyGates(b.gate.clone()));
+                    return Err(("too_many_gates", IngestError::TooManyGates(b.gate.clone())));
                 }
             }
             for (i, (t, v)) in b.samples.iter().enumerate() {
                 if !v.is_finite() || !t.is_finite() {
-                    let mut e = BadRequest::new(format!(
-                        "sample value must be finite, got {}",
-                        if v.is_finite() { *t } else { *v }
-                    ))
-                    .field(b.values_field.clone());
+                    let what = if v.is_finite() { "time" } else { "value" };
+                    let got = if v.is_finite() { *t } else { *v };
+                    let mut e = BadRequest::new(format!("sample {what} must be finite, got {got}"))
+                        .field(b.values_field.clone());
                     match &b.lines {
                         Some(lines) => e.line = lines.get(i).copied(),
                         None => e.index = Some(i),
                     }
-                    return Err(IngestError::BadRequest(e));
+                    return Err(("non_finite", IngestError::BadRequest(e)));
                 }
             }
             if let Some((rate, field)) = &b.rate {
                 if ((rate - cfg.rate_hz) / cfg.rate_hz).abs() > RATE_TOLERANCE {
-                    return Err(IngestError::BadRequest(
-                        BadRequest::new(format!(
+                    return Err((
+                        "rate_mismatch",
+                        IngestError::BadRequest(BadRequest::new(format!(
                             "sample rate {rate} Hz disagrees with the configured {} Hz of gate `{}` by more than 1 %",
                             cfg.rate_hz, b.gate
                         ))
-                        .field(field.clone()),
+                        .field(field.clone())),
                     ));
                 }
             }
