@@ -1190,6 +1190,40 @@ async fn overload_is_503_with_retry_after() {
 }
 
 #[tokio::test]
+async fn full_ingest_slots_are_503_while_the_api_still_answers() {
+    use tokio::io::AsyncWriteExt;
+    let r = start("max_concurrent_ingest = 1", Arc::new(Fake::default())).await;
+    let mut hold = tokio::net::TcpStream::connect(r.http).await.unwrap();
+    hold.write_all(
+        b"POST /api/v2/write HTTP/1.1\r\nhost: x\r\ncontent-length: 1000\r\n\r\nm,gate=",
+    )
+    .await
+    .unwrap();
+    let addr = r.http;
+    let c = reqwest::Client::new();
+    let resp = tokio::time::timeout(Duration::from_secs(10), async {
+        loop {
+            let resp = c
+                .post(format!("http://{addr}/api/v1/samples"))
+                .body(uniform("g1", 0.0, 3).to_string())
+                .send()
+                .await
+                .unwrap();
+            if resp.status() == 503 {
+                break resp;
+            }
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    })
+    .await
+    .expect("503 while the ingest slot is held");
+    assert_eq!(resp.headers()["retry-after"], "1");
+    assert_eq!(get(addr, "/api/v1/gates").await.0, 200);
+    drop(hold);
+    stop(r).await;
+}
+
+#[tokio::test]
 async fn slow_request_times_out_with_408() {
     use tokio::io::{AsyncReadExt, AsyncWriteExt};
     let r = start("request_timeout_seconds = 0.2", Arc::new(Fake::default())).await;

@@ -109,21 +109,55 @@ fn body(state: &AppState, b: Result<Bytes, BytesRejection>) -> Result<Bytes, Htt
     })
 }
 
+/// Runs parsing and ingestion (CPU work proportional to the body, up to the body limit) on the
+/// blocking pool, off the async runtime's threads; their number is bounded by
+/// `server.max_concurrent_ingest`.
+async fn blocking(
+    f: impl FnOnce() -> Result<StatusCode, HttpError> + Send + 'static,
+) -> Result<StatusCode, HttpError> {
+    tokio::task::spawn_blocking(f)
+        .await
+        .unwrap_or_else(|e| Err(HttpError::Internal(format!("ingestion task failed: {e}"))))
+}
+
+/// Bounds the ingestion requests in progress (each holds a body and its parsed form in memory):
+/// beyond `server.max_concurrent_ingest` they get 503 with Retry-After.
+async fn ingest_limit(State(state): State<Arc<AppState>>, req: Request, next: Next) -> Response {
+    match state.ingest_permits.clone().try_acquire_owned() {
+        Ok(permit) => {
+            let resp = next.run(req).await;
+            drop(permit);
+            resp
+        }
+        Err(_) => {
+            state
+                .metrics
+                .samples_rejected
+                .with_label_values(&["overloaded"])
+                .inc();
+            HttpError::Overloaded.into_response()
+        }
+    }
+}
+
 async fn post_samples(
     State(state): State<Arc<AppState>>,
     b: Result<Bytes, BytesRejection>,
 ) -> Result<StatusCode, HttpError> {
     let bytes = body(&state, b)?;
-    let batches = json::parse(&bytes).map_err(|e| {
-        state
-            .metrics
-            .samples_rejected
-            .with_label_values(&["invalid"])
-            .inc();
-        HttpError::BadRequest(e)
-    })?;
-    state.ingest(batches)?;
-    Ok(StatusCode::NO_CONTENT)
+    blocking(move || {
+        let batches = json::parse(&bytes).map_err(|e| {
+            state
+                .metrics
+                .samples_rejected
+                .with_label_values(&["invalid"])
+                .inc();
+            HttpError::BadRequest(e)
+        })?;
+        state.ingest(batches)?;
+        Ok(StatusCode::NO_CONTENT)
+    })
+    .await
 }
 
 #[derive(Debug, Deserialize)]
@@ -150,34 +184,37 @@ async fn post_write(
         })?,
     };
     let bytes = body(&state, b)?;
-    let invalid = |e: BadRequest| {
-        state
-            .metrics
-            .samples_rejected
-            .with_label_values(&["invalid"])
-            .inc();
-        HttpError::BadRequest(e)
-    };
-    let text = std::str::from_utf8(&bytes)
-        .map_err(|e| invalid(BadRequest::new(format!("body is not UTF-8: {e}"))))?;
-    let lines = line_protocol::parse(text).map_err(|e| invalid(e.into()))?;
-    let cfg = &state.config.ingest;
-    let now = SystemTime::now()
-        .duration_since(UNIX_EPOCH)
-        .map(|d| d.as_secs_f64())
-        .unwrap_or(0.0);
-    let batches = line_protocol::to_batches(
-        &lines,
-        &line_protocol::Mapping {
-            gate_tag: &cfg.gate_tag,
-            value_fields: &cfg.value_fields,
-            precision,
-            now,
-        },
-    )
-    .map_err(invalid)?;
-    state.ingest(batches)?;
-    Ok(StatusCode::NO_CONTENT)
+    blocking(move || {
+        let invalid = |e: BadRequest| {
+            state
+                .metrics
+                .samples_rejected
+                .with_label_values(&["invalid"])
+                .inc();
+            HttpError::BadRequest(e)
+        };
+        let text = std::str::from_utf8(&bytes)
+            .map_err(|e| invalid(BadRequest::new(format!("body is not UTF-8: {e}"))))?;
+        let lines = line_protocol::parse(text).map_err(|e| invalid(e.into()))?;
+        let cfg = &state.config.ingest;
+        let now = SystemTime::now()
+            .duration_since(UNIX_EPOCH)
+            .map(|d| d.as_secs_f64())
+            .unwrap_or(0.0);
+        let batches = line_protocol::to_batches(
+            &lines,
+            &line_protocol::Mapping {
+                gate_tag: &cfg.gate_tag,
+                value_fields: &cfg.value_fields,
+                precision,
+                now,
+            },
+        )
+        .map_err(invalid)?;
+        state.ingest(batches)?;
+        Ok(StatusCode::NO_CONTENT)
+    })
+    .await
 }
 
 async fn list_gates(State(state): State<Arc<AppState>>) -> Response {
@@ -279,6 +316,7 @@ pub fn router(state: Arc<AppState>) -> Router {
         .route("/api/v1/samples", post(post_samples))
         .route("/api/v2/write", post(post_write))
         .route("/write", post(post_write))
+        .route_layer(middleware::from_fn_with_state(state.clone(), ingest_limit))
         .route("/api/v1/gates", get(list_gates))
         .route("/api/v1/gates/{id}", get(get_gate))
         .route_layer(middleware::from_fn_with_state(state.clone(), auth));

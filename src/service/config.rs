@@ -23,6 +23,10 @@ pub const DEFAULT_LISTEN: &str = "0.0.0.0:9464";
 pub const DEFAULT_BODY_LIMIT_BYTES: usize = 4 * 1024 * 1024;
 /// Default number of HTTP requests handled at once; more are shed with 503 + Retry-After.
 pub const DEFAULT_MAX_CONCURRENT_REQUESTS: usize = 256;
+/// Default number of ingestion requests in progress at once. Each holds its body and parsed
+/// form (about 5x the body for JSON), so memory is bounded by about
+/// `max_concurrent_ingest * body_limit_bytes * 5` (16 * 4 MiB * 5 = 320 MiB at worst).
+pub const DEFAULT_MAX_CONCURRENT_INGEST: usize = 16;
 /// Default per-request timeout in seconds (408 after it).
 pub const DEFAULT_REQUEST_TIMEOUT_SECONDS: f64 = 30.0;
 /// Default bound on the number of gates (bounds memory and metric label cardinality).
@@ -76,6 +80,8 @@ pub struct ServerConfig {
     pub body_limit_bytes: usize,
     /// Requests handled at once.
     pub max_concurrent_requests: usize,
+    /// Ingestion requests handled at once (bounds their memory).
+    pub max_concurrent_ingest: usize,
     /// Per-request timeout, seconds.
     pub request_timeout_seconds: f64,
     /// Identification worker threads; 0: cores - 1, at least 1.
@@ -101,6 +107,7 @@ impl Default for ServerConfig {
             metrics_auth: false,
             body_limit_bytes: DEFAULT_BODY_LIMIT_BYTES,
             max_concurrent_requests: DEFAULT_MAX_CONCURRENT_REQUESTS,
+            max_concurrent_ingest: DEFAULT_MAX_CONCURRENT_INGEST,
             request_timeout_seconds: DEFAULT_REQUEST_TIMEOUT_SECONDS,
             worker_threads: 0,
             max_gates: DEFAULT_MAX_GATES,
@@ -574,6 +581,9 @@ impl Config {
         }
         if s.max_concurrent_requests == 0 {
             return err("max_concurrent_requests", "must be > 0");
+        }
+        if s.max_concurrent_ingest == 0 {
+            return err("max_concurrent_ingest", "must be > 0");
         }
         if !(s.request_timeout_seconds.is_finite() && s.request_timeout_seconds > 0.0) {
             return err("request_timeout_seconds", "must be > 0");

@@ -68,6 +68,8 @@ pub struct AppState {
     notifier: NotifierHandle,
     /// Listeners up.
     pub listeners_up: AtomicBool,
+    /// Permits of ingestion requests in progress (`server.max_concurrent_ingest`).
+    pub ingest_permits: Arc<tokio::sync::Semaphore>,
 }
 
 impl std::fmt::Debug for AppState {
@@ -172,6 +174,9 @@ impl AppState {
                 pool: OnceLock::new(),
                 notifier,
                 listeners_up: AtomicBool::new(false),
+                ingest_permits: Arc::new(tokio::sync::Semaphore::new(
+                    config.server.max_concurrent_ingest,
+                )),
             }
         });
         let weak = Arc::downgrade(&state);
