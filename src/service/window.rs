@@ -13,6 +13,11 @@
 //!   resumes once a contiguous stretch of a full window has been collected after the gap;
 //! - otherwise appended (timing jitter within half a period is tolerated).
 //!
+//! Clock jumps: after a full window's worth of CONSECUTIVE out-of-order samples, the source's
+//! clock is taken to have jumped backwards (or one sample came from far in the future) and the
+//! window restarts at the current sample (counted as a gap), so one bad timestamp cannot block a
+//! gate for good.
+//!
 //! A window is due when it is full and `every` samples have arrived since the last due window
 //! (or since the first full window after a gap). Since this depends only on the samples, a
 //! stream replayed at any speed, in any chunking, yields the same windows.
@@ -60,6 +65,8 @@ pub struct Window {
     since_due: usize,
     /// Whether a window was due since the last gap.
     due_once: bool,
+    /// Consecutive out-of-order samples.
+    consecutive_old: usize,
 }
 
 impl Window {
@@ -75,6 +82,7 @@ impl Window {
             accepted: 0,
             since_due: 0,
             due_once: false,
+            consecutive_old: 0,
         }
     }
 
@@ -94,11 +102,13 @@ impl Window {
                     stats.duplicate += 1;
                     continue;
                 }
-                if dt <= -0.5 * period {
+                let clock_jump = dt <= -0.5 * period && self.consecutive_old + 1 >= self.capacity;
+                if dt <= -0.5 * period && !clock_jump {
                     stats.out_of_order += 1;
+                    self.consecutive_old += 1;
                     continue;
                 }
-                if dt > 1.5 * period {
+                if dt > 1.5 * period || clock_jump {
                     stats.gaps += 1;
                     self.values.clear();
                     self.since_due = 0;
@@ -113,6 +123,7 @@ impl Window {
                 self.t_first += period;
             }
             self.values.push_back(v);
+            self.consecutive_old = 0;
             self.t_last = Some(t);
             self.accepted += 1;
             self.since_due += 1;
@@ -253,6 +264,21 @@ mod tests {
     }
 
     #[test]
+    fn a_clock_jump_heals_after_a_window() {
+        let mut w = Window::new(100.0, 50, 10);
+        w.push(stream(60, 100.0));
+        // one sample from the far future, then the normal stream goes on
+        let (s, _) = w.push([(1e12, 0.0)]);
+        assert_eq!(s.gaps, 1);
+        let later: Vec<(f64, f64)> = stream(200, 100.0).into_iter().skip(60).collect();
+        let (s, due) = w.push(later);
+        assert_eq!(s.out_of_order, 49);
+        assert_eq!(s.gaps, 1);
+        assert!(!due.is_empty(), "the window fills again after the jump");
+        assert_eq!(w.len(), 50);
+    }
+
+    #[test]
     fn ring_buffer_is_bounded() {
         let mut w = Window::new(100.0, 50, 10);
         w.push(stream(1000, 100.0));
@@ -261,5 +287,19 @@ mod tests {
         assert!((w.fill_ratio() - 1.0).abs() < 1e-12);
         assert!((w.span_seconds() - 0.49).abs() < 1e-9);
         assert_eq!(w.accepted_total(), 1000);
+    }
+
+    proptest::proptest! {
+        #[test]
+        fn never_exceeds_capacity_and_windows_are_full(
+            ts in proptest::collection::vec(-5.0f64..5.0, 0..400),
+        ) {
+            let mut w = Window::new(10.0, 20, 5);
+            let (_, due) = w.push(ts.iter().map(|t| (*t, 1.0)));
+            proptest::prop_assert!(w.len() <= 20);
+            for d in due {
+                proptest::prop_assert_eq!(d.values.len(), 20);
+            }
+        }
     }
 }

@@ -201,3 +201,27 @@ fn parse_object(o: &Map<String, Value>, p: &str) -> Result<Batch, BadRequest> {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    proptest::proptest! {
+        #[test]
+        fn never_panics(body in proptest::collection::vec(proptest::prelude::any::<u8>(), 0..200)) {
+            let _ = parse(&body);
+        }
+
+        #[test]
+        fn never_panics_on_json_shapes(s in "[\\[\\]{}\":,0-9a-z.eE+-]{0,60}") {
+            let _ = parse(s.as_bytes());
+        }
+    }
+
+    #[test]
+    fn uniform_times() {
+        let b = parse(br#"{"gate":"g","start":10,"rate_hz":4,"values":[1,2,3]}"#).unwrap();
+        assert_eq!(b[0].samples, vec![(10.0, 1.0), (10.25, 2.0), (10.5, 3.0)]);
+        assert_eq!(b[0].rate, Some((4.0, "rate_hz".to_string())));
+    }
+}

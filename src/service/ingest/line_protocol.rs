@@ -457,6 +457,22 @@ mod tests {
         );
     }
 
+    proptest::proptest! {
+        #[test]
+        fn never_panics(s in "[a-z,= \\\"0-9.ie#-]{0,40}") {
+            let _ = parse(&s);
+        }
+
+        #[test]
+        fn escaped_names_round_trip(tag in "[a-z ,=]{1,12}", value in "[a-z ,=]{1,12}") {
+            let esc = |x: &str| x.replace(',', "\\,").replace('=', "\\=").replace(' ', "\\ ");
+            let line = format!("m,{}={} f=1 1", esc(&tag), esc(&value));
+            let l = parse_line(&line, 1).unwrap().unwrap();
+            proptest::prop_assert_eq!(&l.tags[0].0, &tag);
+            proptest::prop_assert_eq!(&l.tags[0].1, &value);
+        }
+    }
+
     #[test]
     fn never_panics_on_junk() {
         for s in [
