@@ -1361,3 +1361,59 @@ fn local_source_scenarios_are_finite_and_reproducible() {
         assert!(a.iter().all(|v| v.is_finite()));
     }
 }
+
+#[tokio::test]
+async fn real_analyzers_never_take_the_daemon_down() {
+    // `server::run` with the real per-gate analyzers: whatever the numerics do (succeed, refuse,
+    // or panic while unfinished), the daemon keeps serving and reports the outcome.
+    gatewatch::service::cli::ensure_crypto_provider();
+    let cfg = Config::from_toml(
+        "[server]\nworker_threads = 1\nlisten = \"127.0.0.1:0\"\nshutdown_grace_seconds = 1.0\n\
+         [defaults]\nrate_hz = 100.0\nwindow_seconds = 1.0\npopulation = 8\ngenerations = 5\n",
+    )
+    .unwrap();
+    let http = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let addr = http.local_addr().unwrap();
+    let (tx, rx) = tokio::sync::oneshot::channel::<()>();
+    let task = tokio::spawn(gatewatch::service::server::run(
+        cfg,
+        Listeners { http, tcp: None },
+        async move {
+            let _ = rx.await;
+        },
+    ));
+    let c = reqwest::Client::new();
+    let values: Vec<f64> = (0..150)
+        .map(|i| 81_360.0 * 0.001 * (i as f64 * 0.094).sin() * (-0.01 * i as f64).exp())
+        .collect();
+    let resp = c
+        .post(format!("http://{addr}/api/v1/samples"))
+        .body(
+            json!({"gate": "g1", "start": 1000.0, "rate_hz": 100.0, "values": values}).to_string(),
+        )
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(resp.status(), 204);
+    tokio::time::timeout(Duration::from_secs(60), async {
+        loop {
+            let m = get(addr, "/metrics").await.1;
+            if m.contains("gatewatch_identification_failures_total{")
+                || m.contains("gatewatch_last_identification_timestamp_seconds{")
+            {
+                break;
+            }
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+    })
+    .await
+    .expect("the identification finished or failed");
+    assert_eq!(get(addr, "/healthz").await.0, 200);
+    assert_eq!(get(addr, "/api/v1/gates/g1").await.0, 200);
+    let _ = tx.send(());
+    tokio::time::timeout(Duration::from_secs(15), task)
+        .await
+        .unwrap()
+        .unwrap()
+        .unwrap();
+}
