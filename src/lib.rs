@@ -19,8 +19,13 @@
 //! - [`simulate`]: synthetic gate signals: noise-driven gate with a damping scenario, worked example.
 //! - [`bench`]: `gatewatch bench seed-cases`: the chapter's protocol and its comparison table.
 //!
-//! Service:
-//! - [`alert`]: per-gate alert state machine (negative damping, stale data), delivery to Alertmanager.
+//! Service (tokio, axum, prometheus; nothing in the numerical core depends on it):
+//! - [`alert`]: per-gate alert state machine (negative damping, stale data), delivery to
+//!   webhooks in Alertmanager's format and to Alertmanager's API.
+//! - [`service`]: the monitoring daemon (`gatewatch serve`): configuration, ingestion (JSON,
+//!   InfluxDB line protocol over HTTP and TCP), per-gate windows, the identification worker pool,
+//!   Prometheus metrics, alert wiring, HTTP API, graceful shutdown, and the `check-config` and
+//!   `simulate` commands.
 //!
 //! Front ends:
 //! - [`cli`]: the command-line interface behind `src/main.rs`.
@@ -35,5 +40,6 @@ pub mod de;
 pub mod identify;
 pub mod model;
 pub mod ode;
+pub mod service;
 pub mod simulate;
 pub mod spectral;

@@ -1,0 +1,28 @@
+# Multi-stage build of the gatewatch daemon.
+#   docker build -t gatewatch .
+#   docker run -p 9464:9464 -p 8094:8094 -e GATEWATCH_TCP_LISTEN=0.0.0.0:8094 gatewatch
+#
+# HEALTHCHECK: debian:bookworm-slim has no curl or wget, so none is declared here; use the
+# orchestrator's HTTP probes on /healthz (liveness) and /readyz (readiness) instead (see
+# deploy/kubernetes/gatewatch.yaml), or install curl and add
+#   HEALTHCHECK CMD curl -fsS http://127.0.0.1:9464/healthz || exit 1
+
+FROM rust:1-bookworm AS builder
+WORKDIR /src
+# the whole context (see .dockerignore), so every target Cargo.toml declares is present
+COPY . .
+RUN cargo build --release --locked --bin gatewatch
+
+FROM debian:bookworm-slim
+RUN apt-get update \
+    && apt-get install -y --no-install-recommends ca-certificates \
+    && rm -rf /var/lib/apt/lists/* \
+    && useradd --system --uid 10001 --no-create-home --shell /usr/sbin/nologin gatewatch
+COPY --from=builder /src/target/release/gatewatch /usr/local/bin/gatewatch
+COPY config/gatewatch.toml /etc/gatewatch/gatewatch.toml
+USER gatewatch
+# 9464: HTTP API, ingestion and /metrics; 8094: raw TCP line protocol (when tcp_listen is set)
+EXPOSE 9464 8094
+ENV GATEWATCH_LOG_FORMAT=json
+ENTRYPOINT ["/usr/local/bin/gatewatch"]
+CMD ["serve", "--config", "/etc/gatewatch/gatewatch.toml"]

@@ -1,0 +1,354 @@
+//! HTTP routes, bearer-token authentication, request metrics and the one error type.
+
+use std::sync::Arc;
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+
+use axum::body::Bytes;
+use axum::error_handling::HandleErrorLayer;
+use axum::extract::rejection::BytesRejection;
+use axum::extract::{DefaultBodyLimit, MatchedPath, Path, Query, Request, State};
+use axum::http::{header, HeaderValue, StatusCode};
+use axum::middleware::{self, Next};
+use axum::response::{IntoResponse, Response};
+use axum::routing::{get, post};
+use axum::{Json, Router};
+use serde::Deserialize;
+use tower::ServiceBuilder;
+
+use super::config::{Precision, DEFAULT_RETRY_AFTER_SECONDS};
+use super::ingest::{json, line_protocol, BadRequest};
+use super::state::{AppState, IngestError};
+
+/// The one error type of the HTTP API: 4xx precise, 5xx generic (detail logged).
+#[derive(Debug)]
+pub enum HttpError {
+    /// 400 with details.
+    BadRequest(BadRequest),
+    /// 401: missing or wrong bearer token.
+    Unauthorized,
+    /// 404 naming what is missing.
+    NotFound(String),
+    /// 413.
+    PayloadTooLarge(usize),
+    /// 503 + Retry-After: overloaded.
+    Overloaded,
+    /// 500: detail logged, not shown.
+    Internal(String),
+}
+
+impl From<IngestError> for HttpError {
+    fn from(e: IngestError) -> Self {
+        match e {
+            IngestError::BadRequest(b) => HttpError::BadRequest(b),
+            IngestError::UnknownGate(g) => HttpError::NotFound(format!("unknown gate `{g}`")),
+            IngestError::TooManyGates(g) => HttpError::BadRequest(
+                BadRequest::new(format!(
+                    "gate limit (server.max_gates) reached: gate `{g}` refused"
+                ))
+                .field("gate"),
+            ),
+        }
+    }
+}
+
+impl IntoResponse for HttpError {
+    fn into_response(self) -> Response {
+        let (status, body) = match self {
+            HttpError::BadRequest(b) => (StatusCode::BAD_REQUEST, b),
+            HttpError::Unauthorized => {
+                let mut r = (
+                    StatusCode::UNAUTHORIZED,
+                    Json(BadRequest::new("missing or invalid bearer token")),
+                )
+                    .into_response();
+                r.headers_mut()
+                    .insert(header::WWW_AUTHENTICATE, HeaderValue::from_static("Bearer"));
+                return r;
+            }
+            HttpError::NotFound(m) => (StatusCode::NOT_FOUND, BadRequest::new(m)),
+            HttpError::PayloadTooLarge(limit) => (
+                StatusCode::PAYLOAD_TOO_LARGE,
+                BadRequest::new(format!("request body larger than {limit} bytes")),
+            ),
+            HttpError::Overloaded => {
+                let mut r = (
+                    StatusCode::SERVICE_UNAVAILABLE,
+                    Json(BadRequest::new("overloaded, retry later")),
+                )
+                    .into_response();
+                r.headers_mut().insert(
+                    header::RETRY_AFTER,
+                    HeaderValue::from(DEFAULT_RETRY_AFTER_SECONDS),
+                );
+                return r;
+            }
+            HttpError::Internal(detail) => {
+                tracing::error!(%detail, "internal error");
+                (
+                    StatusCode::INTERNAL_SERVER_ERROR,
+                    BadRequest::new("internal error"),
+                )
+            }
+        };
+        (status, Json(body)).into_response()
+    }
+}
+
+fn body(state: &AppState, b: Result<Bytes, BytesRejection>) -> Result<Bytes, HttpError> {
+    b.map_err(|r| {
+        if r.status() == StatusCode::PAYLOAD_TOO_LARGE {
+            state
+                .metrics
+                .samples_rejected
+                .with_label_values(&["body_too_large"])
+                .inc();
+            HttpError::PayloadTooLarge(state.config.server.body_limit_bytes)
+        } else {
+            HttpError::BadRequest(BadRequest::new(format!("cannot read body: {r}")))
+        }
+    })
+}
+
+/// Runs parsing and ingestion (CPU work proportional to the body, up to the body limit) on the
+/// blocking pool, off the async runtime's threads; their number is bounded by
+/// `server.max_concurrent_ingest`.
+async fn blocking(
+    f: impl FnOnce() -> Result<StatusCode, HttpError> + Send + 'static,
+) -> Result<StatusCode, HttpError> {
+    tokio::task::spawn_blocking(f)
+        .await
+        .unwrap_or_else(|e| Err(HttpError::Internal(format!("ingestion task failed: {e}"))))
+}
+
+/// Bounds the ingestion requests in progress (each holds a body and its parsed form in memory):
+/// beyond `server.max_concurrent_ingest` they get 503 with Retry-After.
+async fn ingest_limit(State(state): State<Arc<AppState>>, req: Request, next: Next) -> Response {
+    match state.ingest_permits.clone().try_acquire_owned() {
+        Ok(permit) => {
+            let resp = next.run(req).await;
+            drop(permit);
+            resp
+        }
+        Err(_) => {
+            state
+                .metrics
+                .samples_rejected
+                .with_label_values(&["overloaded"])
+                .inc();
+            HttpError::Overloaded.into_response()
+        }
+    }
+}
+
+async fn post_samples(
+    State(state): State<Arc<AppState>>,
+    b: Result<Bytes, BytesRejection>,
+) -> Result<StatusCode, HttpError> {
+    let bytes = body(&state, b)?;
+    blocking(move || {
+        let batches = json::parse(&bytes).map_err(|e| {
+            state
+                .metrics
+                .samples_rejected
+                .with_label_values(&["invalid"])
+                .inc();
+            HttpError::BadRequest(e)
+        })?;
+        state.ingest(batches)?;
+        Ok(StatusCode::NO_CONTENT)
+    })
+    .await
+}
+
+#[derive(Debug, Deserialize)]
+struct WriteParams {
+    precision: Option<String>,
+}
+
+async fn post_write(
+    State(state): State<Arc<AppState>>,
+    Query(params): Query<std::collections::HashMap<String, String>>,
+    b: Result<Bytes, BytesRejection>,
+) -> Result<StatusCode, HttpError> {
+    // other InfluxDB parameters (db, org, bucket, rp) are accepted and ignored
+    let p = WriteParams {
+        precision: params.get("precision").cloned(),
+    };
+    let precision = match p.precision.as_deref() {
+        None => Precision::Ns,
+        Some(s) => Precision::parse(s).ok_or_else(|| {
+            HttpError::BadRequest(
+                BadRequest::new(format!("invalid precision `{s}`, expected ns, us, ms or s"))
+                    .field("precision"),
+            )
+        })?,
+    };
+    let bytes = body(&state, b)?;
+    blocking(move || {
+        let invalid = |e: BadRequest| {
+            state
+                .metrics
+                .samples_rejected
+                .with_label_values(&["invalid"])
+                .inc();
+            HttpError::BadRequest(e)
+        };
+        let text = std::str::from_utf8(&bytes)
+            .map_err(|e| invalid(BadRequest::new(format!("body is not UTF-8: {e}"))))?;
+        let lines = line_protocol::parse(text).map_err(|e| invalid(e.into()))?;
+        let cfg = &state.config.ingest;
+        let now = SystemTime::now()
+            .duration_since(UNIX_EPOCH)
+            .map(|d| d.as_secs_f64())
+            .unwrap_or(0.0);
+        let batches = line_protocol::to_batches(
+            &lines,
+            &line_protocol::Mapping {
+                gate_tag: &cfg.gate_tag,
+                value_fields: &cfg.value_fields,
+                precision,
+                now,
+            },
+        )
+        .map_err(invalid)?;
+        state.ingest(batches)?;
+        Ok(StatusCode::NO_CONTENT)
+    })
+    .await
+}
+
+async fn list_gates(State(state): State<Arc<AppState>>) -> Response {
+    let gates: Vec<_> = state
+        .gate_ids()
+        .into_iter()
+        .filter_map(|id| state.gate_view(&id))
+        .collect();
+    Json(serde_json::json!({ "gates": gates })).into_response()
+}
+
+async fn get_gate(
+    State(state): State<Arc<AppState>>,
+    Path(id): Path<String>,
+) -> Result<Response, HttpError> {
+    state
+        .gate_view(&id)
+        .map(|v| Json(v).into_response())
+        .ok_or_else(|| HttpError::NotFound(format!("unknown gate `{id}`")))
+}
+
+async fn healthz() -> &'static str {
+    "ok\n"
+}
+
+async fn readyz(State(state): State<Arc<AppState>>) -> Response {
+    if state.ready() {
+        (StatusCode::OK, "ready\n").into_response()
+    } else {
+        (StatusCode::SERVICE_UNAVAILABLE, "not ready\n").into_response()
+    }
+}
+
+async fn metrics(State(state): State<Arc<AppState>>) -> Response {
+    (
+        [(header::CONTENT_TYPE, state.metrics.content_type())],
+        state.metrics.render(),
+    )
+        .into_response()
+}
+
+/// Constant-time comparison (no early exit on the first differing byte).
+fn ct_eq(a: &[u8], b: &[u8]) -> bool {
+    if a.len() != b.len() {
+        return false;
+    }
+    a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
+}
+
+async fn auth(State(state): State<Arc<AppState>>, req: Request, next: Next) -> Response {
+    let tokens = &state.config.server.auth_tokens;
+    if tokens.is_empty() {
+        return next.run(req).await;
+    }
+    let given = req
+        .headers()
+        .get(header::AUTHORIZATION)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.strip_prefix("Bearer "))
+        .map(str::trim);
+    let ok = given.is_some_and(|g| {
+        tokens
+            .iter()
+            .fold(false, |acc, t| acc | ct_eq(t.as_bytes(), g.as_bytes()))
+    });
+    if ok {
+        next.run(req).await
+    } else {
+        HttpError::Unauthorized.into_response()
+    }
+}
+
+async fn track(State(state): State<Arc<AppState>>, req: Request, next: Next) -> Response {
+    let route = req
+        .extensions()
+        .get::<MatchedPath>()
+        .map(|p| p.as_str().to_string())
+        .unwrap_or_else(|| "unmatched".into());
+    let start = Instant::now();
+    let resp = next.run(req).await;
+    let m = &state.metrics;
+    m.http_requests
+        .with_label_values(&[route.as_str(), resp.status().as_str()])
+        .inc();
+    m.http_duration
+        .with_label_values(&[route.as_str()])
+        .observe(start.elapsed().as_secs_f64());
+    resp
+}
+
+async fn fallback() -> HttpError {
+    HttpError::NotFound("no such route".into())
+}
+
+/// The router with every layer.
+pub fn router(state: Arc<AppState>) -> Router {
+    let s = &state.config.server;
+    let protected = Router::new()
+        .route("/api/v1/samples", post(post_samples))
+        .route("/api/v2/write", post(post_write))
+        .route("/write", post(post_write))
+        .route_layer(middleware::from_fn_with_state(state.clone(), ingest_limit))
+        .route("/api/v1/gates", get(list_gates))
+        .route("/api/v1/gates/{id}", get(get_gate))
+        .route_layer(middleware::from_fn_with_state(state.clone(), auth));
+    let metrics_route = if s.metrics_auth {
+        Router::new()
+            .route("/metrics", get(metrics))
+            .route_layer(middleware::from_fn_with_state(state.clone(), auth))
+    } else {
+        Router::new().route("/metrics", get(metrics))
+    };
+    let timeout = Duration::from_secs_f64(s.request_timeout_seconds);
+    Router::new()
+        .merge(protected)
+        .merge(metrics_route)
+        .route("/healthz", get(healthz))
+        .route("/readyz", get(readyz))
+        .fallback(fallback)
+        .layer(DefaultBodyLimit::max(s.body_limit_bytes))
+        .layer(
+            ServiceBuilder::new()
+                .layer(HandleErrorLayer::new(|_: tower::BoxError| async {
+                    HttpError::Overloaded
+                }))
+                .load_shed()
+                .layer(tower::limit::GlobalConcurrencyLimitLayer::new(
+                    s.max_concurrent_requests,
+                )),
+        )
+        .layer(tower_http::timeout::TimeoutLayer::with_status_code(
+            StatusCode::REQUEST_TIMEOUT,
+            timeout,
+        ))
+        .layer(middleware::from_fn_with_state(state.clone(), track))
+        .with_state(state)
+}

@@ -1,0 +1,371 @@
+//! Command-line front ends of the daemon: `serve`, `check-config`, `simulate`.
+//!
+//! The integrator wires [`ServeArgs`], [`CheckConfigArgs`] and [`SimulateArgs`] into the main
+//! clap enum and calls [`serve`], [`check_config`] and [`simulate`].
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Duration;
+
+use super::config::{Config, LogFormat};
+
+/// `gatewatch serve`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct ServeArgs {
+    /// Configuration file (TOML); without it the embedded example configuration is used.
+    #[arg(long, env = "GATEWATCH_CONFIG")]
+    pub config: Option<PathBuf>,
+}
+
+/// `gatewatch check-config FILE`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct CheckConfigArgs {
+    /// Configuration file to validate.
+    pub file: PathBuf,
+}
+
+/// Scenario of the simulated gate.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Scenario {
+    /// Positive damping throughout.
+    Stable,
+    /// Damping drifts from positive to negative.
+    Onset,
+    /// Negative damping at rest, saturating at a limit cycle.
+    LimitCycle,
+}
+
+/// Protocol the simulator sends with.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Protocol {
+    /// `POST /api/v1/samples`.
+    Json,
+    /// `POST /api/v2/write` line protocol.
+    Line,
+    /// Raw TCP line protocol.
+    Tcp,
+}
+
+/// `gatewatch simulate`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct SimulateArgs {
+    /// Base URL of the daemon.
+    #[arg(long, default_value = "http://127.0.0.1:9464")]
+    pub url: String,
+    /// Address of the raw TCP listener (`--protocol tcp`).
+    #[arg(long, default_value = "127.0.0.1:8094")]
+    pub tcp_addr: String,
+    /// Gate id.
+    #[arg(long, default_value = "g1")]
+    pub gate: String,
+    /// Scenario.
+    #[arg(long, value_enum, default_value = "stable")]
+    pub scenario: Scenario,
+    /// Replay speed (10: ten seconds of samples per second).
+    #[arg(long, default_value_t = 1.0)]
+    pub speed: f64,
+    /// Seconds of sample time to send.
+    #[arg(long, default_value_t = 600.0)]
+    pub duration: f64,
+    /// Random seed.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Protocol.
+    #[arg(long, value_enum, default_value = "json")]
+    pub protocol: Protocol,
+    /// Sample rate, Hz.
+    #[arg(long, default_value_t = 200.0)]
+    pub rate: f64,
+    /// Bearer token.
+    #[arg(long, env = "GATEWATCH_TOKEN")]
+    pub token: Option<String>,
+    /// Seconds of samples per request.
+    #[arg(long, default_value_t = 0.1)]
+    pub chunk_seconds: f64,
+    /// Start time, Unix seconds (default: now).
+    #[arg(long)]
+    pub start: Option<f64>,
+}
+
+/// Retries of one request answered 429/503 or failing to connect.
+pub const SIMULATE_MAX_RETRIES: u32 = 5;
+/// Longest `Retry-After` honoured, seconds.
+pub const SIMULATE_MAX_RETRY_AFTER: u64 = 30;
+
+/// Installs rustls' ring crypto provider once (reqwest is built with `rustls-no-provider`);
+/// call before building a `reqwest::Client`. Idempotent.
+pub fn ensure_crypto_provider() {
+    static ONCE: std::sync::Once = std::sync::Once::new();
+    ONCE.call_once(|| {
+        // Err means another provider was installed first: fine.
+        let _ = rustls::crypto::ring::default_provider().install_default();
+    });
+}
+
+/// Sets up tracing (text or JSON; `RUST_LOG` overrides the configured level).
+pub fn init_tracing(config: &Config) {
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(&config.log.level));
+    let builder = tracing_subscriber::fmt().with_env_filter(filter);
+    let _ = match config.log.format {
+        LogFormat::Json => builder.json().try_init(),
+        LogFormat::Text => builder.try_init(),
+    };
+}
+
+/// Loads the configuration `serve` uses: the file or the embedded one, then the environment.
+pub fn load_config(path: Option<&std::path::Path>) -> Result<Config, super::config::ConfigError> {
+    let mut config = match path {
+        Some(p) => Config::from_file(p)?,
+        None => Config::from_toml(super::config::EMBEDDED_CONFIG)?,
+    };
+    config.apply_env(|k| std::env::var(k).ok())?;
+    Ok(config)
+}
+
+/// `gatewatch serve`: exit 0 after a clean shutdown, 2 on a configuration error, 1 otherwise.
+pub fn serve(args: ServeArgs) -> ExitCode {
+    let config = match load_config(args.config.as_deref()) {
+        Ok(c) => c,
+        Err(e) => {
+            eprintln!("gatewatch: {e}");
+            return ExitCode::from(2);
+        }
+    };
+    init_tracing(&config);
+    let rt = match tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()
+    {
+        Ok(rt) => rt,
+        Err(e) => {
+            eprintln!("gatewatch: cannot start the runtime: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
+    let result = rt.block_on(async move {
+        let listeners = super::server::Listeners::bind(&config).await?;
+        super::server::run(config, listeners, super::shutdown::signal()).await
+    });
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            tracing::error!(error = %e, "gatewatch failed");
+            eprintln!("gatewatch: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// `gatewatch check-config FILE`: exit 0 when valid, 2 with a one-line message naming the key.
+pub fn check_config(args: CheckConfigArgs) -> ExitCode {
+    match Config::from_file(&args.file) {
+        Ok(_) => {
+            println!("{}: ok", args.file.display());
+            ExitCode::SUCCESS
+        }
+        Err(e) => {
+            eprintln!("{}: {e}", args.file.display());
+            ExitCode::from(2)
+        }
+    }
+}
+
+/// `gatewatch simulate` with the built-in generator (see [`local_source`]).
+pub fn simulate(args: SimulateArgs) -> ExitCode {
+    let source = local_source(args.scenario, args.rate, args.duration, args.seed);
+    let rt = match tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+    {
+        Ok(rt) => rt,
+        Err(e) => {
+            eprintln!("gatewatch: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
+    match rt.block_on(simulate_with_source(&args, source)) {
+        Ok(n) => {
+            println!("sent {n} samples");
+            ExitCode::SUCCESS
+        }
+        Err(e) => {
+            eprintln!("gatewatch simulate: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// A simple local generator: a lightly damped oscillator (1.5 Hz) driven by random forcing,
+/// whose damping ratio follows the scenario, as a force (N) at stiffness 81 360 N/m.
+/// The integrator may replace it by `crate::simulate::GateSimulator`.
+pub fn local_source(
+    scenario: Scenario,
+    rate: f64,
+    duration: f64,
+    seed: u64,
+) -> impl FnMut(&mut [f64]) {
+    let dt = 1.0 / rate;
+    let w = 2.0 * std::f64::consts::PI * 1.5;
+    let mut state = seed ^ 0x9e37_79b9_7f4a_7c15;
+    let (mut x, mut v, mut t) = (0.001_f64, 0.0_f64, 0.0_f64);
+    let mut noise = move || {
+        // xorshift64*, mapped to [-1, 1)
+        state ^= state >> 12;
+        state ^= state << 25;
+        state ^= state >> 27;
+        let r = state.wrapping_mul(0x2545_f491_4f6c_dd1d);
+        (r >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+    };
+    move |out: &mut [f64]| {
+        for o in out.iter_mut() {
+            let zeta = match scenario {
+                Scenario::Stable => 0.03,
+                Scenario::Onset => 0.03 - 0.05 * (t / duration.max(1.0)).min(1.0),
+                // van der Pol-like: negative at rest, positive above 5 mm
+                Scenario::LimitCycle => -0.02 + 0.02 * (x * x + (v / w) * (v / w)) / 25e-6,
+            };
+            let a = -2.0 * zeta * w * v - w * w * x + 0.5 * noise();
+            v += a * dt;
+            x += v * dt;
+            t += dt;
+            *o = 81_360.0 * x;
+        }
+    }
+}
+
+async fn send_http(
+    client: &reqwest::Client,
+    url: &str,
+    token: Option<&str>,
+    content_type: &str,
+    body: String,
+) -> anyhow::Result<()> {
+    let mut attempt = 0;
+    loop {
+        let mut req = client
+            .post(url)
+            .header("content-type", content_type)
+            .body(body.clone());
+        if let Some(t) = token {
+            req = req.bearer_auth(t);
+        }
+        let wait = match req.send().await {
+            Ok(r) if r.status().is_success() => return Ok(()),
+            Ok(r) if r.status().as_u16() == 429 || r.status().as_u16() == 503 => {
+                let secs = r
+                    .headers()
+                    .get("retry-after")
+                    .and_then(|v| v.to_str().ok())
+                    .and_then(|v| v.parse::<u64>().ok())
+                    .unwrap_or(1)
+                    .min(SIMULATE_MAX_RETRY_AFTER);
+                Duration::from_secs(secs)
+            }
+            Ok(r) => {
+                let status = r.status();
+                let text = r.text().await.unwrap_or_default();
+                anyhow::bail!("{url}: {status}: {text}");
+            }
+            Err(e) if attempt < SIMULATE_MAX_RETRIES => {
+                tracing::warn!(error = %e, "request failed, retrying");
+                Duration::from_millis(500)
+            }
+            Err(e) => return Err(e.into()),
+        };
+        attempt += 1;
+        if attempt > SIMULATE_MAX_RETRIES {
+            anyhow::bail!("{url}: still overloaded after {SIMULATE_MAX_RETRIES} retries");
+        }
+        tokio::time::sleep(wait).await;
+    }
+}
+
+/// Streams `args.duration` seconds of samples from `source` in chunks of `args.chunk_seconds`,
+/// paced at real time / `args.speed` (`speed <= 0`: as fast as possible). Returns the number of
+/// samples sent.
+pub async fn simulate_with_source(
+    args: &SimulateArgs,
+    mut source: impl FnMut(&mut [f64]),
+) -> anyhow::Result<u64> {
+    anyhow::ensure!(
+        args.rate > 0.0 && args.rate.is_finite(),
+        "--rate must be > 0"
+    );
+    anyhow::ensure!(
+        args.duration > 0.0 && args.duration.is_finite(),
+        "--duration must be > 0"
+    );
+    anyhow::ensure!(args.chunk_seconds > 0.0, "--chunk-seconds must be > 0");
+    let start = args.start.unwrap_or_else(|| {
+        std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map(|d| d.as_secs_f64())
+            .unwrap_or(0.0)
+    });
+    let total = (args.duration * args.rate).round() as u64;
+    let chunk = ((args.chunk_seconds * args.rate).round() as usize).max(1);
+    ensure_crypto_provider();
+    let client = reqwest::Client::builder()
+        .timeout(Duration::from_secs(30))
+        .build()?;
+    let base = args.url.trim_end_matches('/');
+    let mut tcp = if args.protocol == Protocol::Tcp {
+        Some(tokio::net::TcpStream::connect(&args.tcp_addr).await?)
+    } else {
+        None
+    };
+    let began = tokio::time::Instant::now();
+    let mut sent = 0u64;
+    let mut buf = vec![0.0; chunk];
+    while sent < total {
+        let n = chunk.min((total - sent) as usize);
+        source(&mut buf[..n]);
+        let t0 = start + sent as f64 / args.rate;
+        match args.protocol {
+            Protocol::Json => {
+                let body = serde_json::json!({
+                    "gate": args.gate, "start": t0, "rate_hz": args.rate, "values": &buf[..n],
+                });
+                send_http(
+                    &client,
+                    &format!("{base}/api/v1/samples"),
+                    args.token.as_deref(),
+                    "application/json",
+                    body.to_string(),
+                )
+                .await?;
+            }
+            Protocol::Line | Protocol::Tcp => {
+                let mut body = String::with_capacity(n * 48);
+                for (i, v) in buf[..n].iter().enumerate() {
+                    let ns = ((start + (sent + i as u64) as f64 / args.rate) * 1e9).round() as i64;
+                    body.push_str(&format!("gate,gate={} force={v} {ns}\n", args.gate));
+                }
+                if let Some(s) = tcp.as_mut() {
+                    use tokio::io::AsyncWriteExt;
+                    s.write_all(body.as_bytes()).await?;
+                } else {
+                    send_http(
+                        &client,
+                        &format!("{base}/api/v2/write?precision=ns"),
+                        args.token.as_deref(),
+                        "text/plain",
+                        body,
+                    )
+                    .await?;
+                }
+            }
+        }
+        sent += n as u64;
+        if args.speed > 0.0 {
+            let due = Duration::from_secs_f64(sent as f64 / args.rate / args.speed);
+            tokio::time::sleep_until(began + due).await;
+        }
+    }
+    if let Some(mut s) = tcp {
+        use tokio::io::AsyncWriteExt;
+        s.shutdown().await?;
+    }
+    Ok(sent)
+}

@@ -1,0 +1,719 @@
+//! Daemon configuration: a TOML file, environment overrides, validation naming the key at fault.
+//!
+//! Per-gate settings are `[defaults]` merged key by key (tables recursively) with `[gates.ID]`.
+//! Every table denies unknown keys. See `config/gatewatch.toml` for the documented example.
+
+use std::collections::BTreeMap;
+use std::net::SocketAddr;
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use super::alert_impl::notify::NotifyConfig;
+use super::alert_impl::AlertRules;
+use crate::analysis::{AnalysisSettings, Signal};
+
+/// The embedded default configuration (the documented example), used by `serve` without
+/// `--config` and by the demo.
+pub const EMBEDDED_CONFIG: &str = include_str!("../../config/gatewatch.toml");
+
+/// Default HTTP listen address (the port is gatewatch's, next to node_exporter's 9100 range).
+pub const DEFAULT_LISTEN: &str = "0.0.0.0:9464";
+/// Default request body limit: 4 MiB, about 500 000 JSON samples; larger bodies get 413.
+pub const DEFAULT_BODY_LIMIT_BYTES: usize = 4 * 1024 * 1024;
+/// Default number of HTTP requests handled at once; more are shed with 503 + Retry-After.
+pub const DEFAULT_MAX_CONCURRENT_REQUESTS: usize = 256;
+/// Default number of ingestion requests in progress at once. Each holds its body and parsed
+/// form (about 5x the body for JSON), so memory is bounded by about
+/// `max_concurrent_ingest * body_limit_bytes * 5` (16 * 4 MiB * 5 = 320 MiB at worst).
+pub const DEFAULT_MAX_CONCURRENT_INGEST: usize = 16;
+/// Default per-request timeout in seconds (408 after it).
+pub const DEFAULT_REQUEST_TIMEOUT_SECONDS: f64 = 30.0;
+/// Default bound on the number of gates (bounds memory and metric label cardinality).
+pub const DEFAULT_MAX_GATES: usize = 64;
+/// Hard upper bound on `max_gates`.
+pub const MAX_GATES_LIMIT: usize = 10_000;
+/// Default bound on simultaneous raw TCP connections.
+pub const DEFAULT_MAX_TCP_CONNECTIONS: usize = 64;
+/// Default seconds given to in-flight jobs and notifications at shutdown.
+pub const DEFAULT_SHUTDOWN_GRACE_SECONDS: f64 = 10.0;
+/// Default `Retry-After` seconds sent with 429/503.
+pub const DEFAULT_RETRY_AFTER_SECONDS: u64 = 1;
+/// Largest window accepted: bounds the memory of one gate (`window_seconds * rate_hz` samples).
+pub const MAX_WINDOW_SAMPLES: usize = 10_000_000;
+/// Default equation of motion: van der Pol-like damping, known installed stiffness `k`.
+pub const DEFAULT_MODEL: &str = "m*ydd + (c1 + c2*yd^2)*yd + k*y = 0";
+
+/// The whole configuration.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct Config {
+    /// Listeners and limits.
+    pub server: ServerConfig,
+    /// Logging.
+    pub log: LogConfig,
+    /// Ingestion mapping.
+    pub ingest: IngestConfig,
+    /// Where alerts go.
+    pub notify: NotifyConfig,
+    /// Settings for every gate (resolved; the raw table is merged into each gate).
+    #[serde(skip)]
+    pub defaults: GateConfig,
+    /// Configured gates, resolved.
+    #[serde(skip)]
+    pub gates: BTreeMap<String, GateConfig>,
+}
+
+/// `[server]`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ServerConfig {
+    /// HTTP listen address.
+    pub listen: String,
+    /// Raw TCP line-protocol listen address; empty: off.
+    pub tcp_listen: String,
+    /// Bearer tokens; empty: no authentication.
+    pub auth_tokens: Vec<String>,
+    /// Whether /metrics also needs a token (when tokens are configured).
+    pub metrics_auth: bool,
+    /// Request body limit in bytes.
+    pub body_limit_bytes: usize,
+    /// Requests handled at once.
+    pub max_concurrent_requests: usize,
+    /// Ingestion requests handled at once (bounds their memory).
+    pub max_concurrent_ingest: usize,
+    /// Per-request timeout, seconds.
+    pub request_timeout_seconds: f64,
+    /// Identification worker threads; 0: cores - 1, at least 1.
+    pub worker_threads: usize,
+    /// Most gates tracked at once.
+    pub max_gates: usize,
+    /// Most identification jobs waiting (one per gate at most); 0: `max_gates`.
+    pub job_queue: usize,
+    /// Most simultaneous raw TCP connections.
+    pub max_tcp_connections: usize,
+    /// Seconds given to in-flight jobs and pending notifications at shutdown.
+    pub shutdown_grace_seconds: f64,
+    /// Unknown gates get `[defaults]` (true) or are refused with 404 (false).
+    pub accept_unknown_gates: bool,
+}
+
+impl Default for ServerConfig {
+    fn default() -> Self {
+        ServerConfig {
+            listen: DEFAULT_LISTEN.into(),
+            tcp_listen: String::new(),
+            auth_tokens: Vec::new(),
+            metrics_auth: false,
+            body_limit_bytes: DEFAULT_BODY_LIMIT_BYTES,
+            max_concurrent_requests: DEFAULT_MAX_CONCURRENT_REQUESTS,
+            max_concurrent_ingest: DEFAULT_MAX_CONCURRENT_INGEST,
+            request_timeout_seconds: DEFAULT_REQUEST_TIMEOUT_SECONDS,
+            worker_threads: 0,
+            max_gates: DEFAULT_MAX_GATES,
+            job_queue: 0,
+            max_tcp_connections: DEFAULT_MAX_TCP_CONNECTIONS,
+            shutdown_grace_seconds: DEFAULT_SHUTDOWN_GRACE_SECONDS,
+            accept_unknown_gates: true,
+        }
+    }
+}
+
+impl ServerConfig {
+    /// Worker threads to start: configured, or cores - 1 (at least 1).
+    pub fn effective_worker_threads(&self) -> usize {
+        if self.worker_threads > 0 {
+            self.worker_threads
+        } else {
+            std::thread::available_parallelism()
+                .map(|n| n.get().saturating_sub(1))
+                .unwrap_or(1)
+                .max(1)
+        }
+    }
+
+    /// Bound on waiting jobs.
+    pub fn effective_job_queue(&self) -> usize {
+        if self.job_queue > 0 {
+            self.job_queue
+        } else {
+            self.max_gates
+        }
+    }
+}
+
+/// Log output format.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum LogFormat {
+    /// Human-readable lines.
+    #[default]
+    Text,
+    /// One JSON object per line.
+    Json,
+}
+
+/// `[log]`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LogConfig {
+    /// text | json.
+    pub format: LogFormat,
+    /// An `EnvFilter` directive (`RUST_LOG` wins when set).
+    pub level: String,
+}
+
+impl Default for LogConfig {
+    fn default() -> Self {
+        LogConfig {
+            format: LogFormat::Text,
+            level: "info".into(),
+        }
+    }
+}
+
+/// Timestamp precision of line protocol.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum Precision {
+    /// Nanoseconds.
+    #[default]
+    Ns,
+    /// Microseconds.
+    Us,
+    /// Milliseconds.
+    Ms,
+    /// Seconds.
+    S,
+}
+
+impl Precision {
+    /// Parses `ns|us|ms|s` (also `n`, `u` as InfluxDB 1.x accepts).
+    pub fn parse(s: &str) -> Option<Precision> {
+        match s {
+            "ns" | "n" => Some(Precision::Ns),
+            "us" | "u" => Some(Precision::Us),
+            "ms" => Some(Precision::Ms),
+            "s" => Some(Precision::S),
+            _ => None,
+        }
+    }
+
+    /// Seconds per unit.
+    pub fn seconds_per_unit(self) -> f64 {
+        match self {
+            Precision::Ns => 1e-9,
+            Precision::Us => 1e-6,
+            Precision::Ms => 1e-3,
+            Precision::S => 1.0,
+        }
+    }
+}
+
+/// `[ingest]`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct IngestConfig {
+    /// Line protocol tag that names the gate.
+    pub gate_tag: String,
+    /// Line protocol fields holding the sample, first present wins.
+    pub value_fields: Vec<String>,
+    /// Timestamp precision of the raw TCP listener.
+    pub tcp_precision: Precision,
+    /// Longest line accepted on the TCP listener, bytes.
+    pub tcp_max_line_bytes: usize,
+}
+
+impl Default for IngestConfig {
+    fn default() -> Self {
+        IngestConfig {
+            gate_tag: "gate".into(),
+            value_fields: vec!["force".into(), "value".into()],
+            tcp_precision: Precision::Ns,
+            tcp_max_line_bytes: 64 * 1024,
+        }
+    }
+}
+
+/// Settings of one gate (`[defaults]` merged with `[gates.ID]`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct GateConfig {
+    /// force | displacement.
+    pub signal: Signal,
+    /// Sample rate, Hz.
+    pub rate_hz: f64,
+    /// Installed stiffness, N/m (needed for `signal = "force"`).
+    pub stiffness: Option<f64>,
+    /// Equation of motion.
+    pub model: String,
+    /// Known constants of the equation.
+    pub params: BTreeMap<String, f64>,
+    /// DE population.
+    pub population: usize,
+    /// DE generations.
+    pub generations: usize,
+    /// Amplitude whose time of reach is predicted.
+    pub amplitude_limit: Option<f64>,
+    /// Windows fitting worse than this NMAE are not trusted.
+    pub max_fit_nmae: f64,
+    /// Window length, seconds of sample time.
+    pub window_seconds: f64,
+    /// Identification cadence, seconds of new sample time.
+    pub identify_every_seconds: f64,
+    /// Alert rules.
+    pub alert: AlertRules,
+}
+
+impl Default for GateConfig {
+    fn default() -> Self {
+        GateConfig {
+            signal: Signal::Force,
+            rate_hz: 200.0,
+            stiffness: Some(81_360.0),
+            model: DEFAULT_MODEL.into(),
+            params: BTreeMap::from([("m".to_string(), 1_000.0)]),
+            population: 40,
+            generations: 200,
+            amplitude_limit: None,
+            max_fit_nmae: 0.2,
+            window_seconds: 10.0,
+            identify_every_seconds: 5.0,
+            alert: AlertRules::default(),
+        }
+    }
+}
+
+impl GateConfig {
+    /// Samples in a full window.
+    pub fn window_samples(&self) -> usize {
+        (self.window_seconds * self.rate_hz).round() as usize
+    }
+
+    /// New samples between identifications.
+    pub fn every_samples(&self) -> usize {
+        ((self.identify_every_seconds * self.rate_hz).round() as usize).max(1)
+    }
+
+    /// The analysis settings of this gate. The known stiffness is passed as constant `k`.
+    pub fn analysis_settings(&self) -> AnalysisSettings {
+        let mut params: Vec<(String, f64)> =
+            self.params.iter().map(|(k, v)| (k.clone(), *v)).collect();
+        if let Some(k) = self.stiffness {
+            if !self.params.contains_key("k") {
+                params.push(("k".into(), k));
+            }
+        }
+        AnalysisSettings {
+            signal: self.signal,
+            stiffness: self.stiffness,
+            model: self.model.clone(),
+            params,
+            population: self.population,
+            generations: self.generations,
+            amplitude_limit: self.amplitude_limit,
+            max_fit_nmae: self.max_fit_nmae,
+        }
+    }
+
+    fn validate(&self, prefix: &str) -> Result<(), ConfigError> {
+        let err = |key: &str, msg: &str| Err(ConfigError::new(format!("{prefix}.{key}: {msg}")));
+        if !(self.rate_hz.is_finite() && self.rate_hz > 0.0) {
+            return err("rate_hz", "must be > 0");
+        }
+        if let Some(k) = self.stiffness {
+            if !(k.is_finite() && k > 0.0) {
+                return err("stiffness", "must be > 0");
+            }
+        } else if self.signal == Signal::Force {
+            return err("stiffness", "required when signal = \"force\"");
+        }
+        if self.model.trim().is_empty() {
+            return err("model", "must not be empty");
+        }
+        for (name, v) in &self.params {
+            if !v.is_finite() {
+                return err(&format!("params.{name}"), "must be a finite number");
+            }
+        }
+        if self.population < 4 {
+            return err("population", "must be >= 4");
+        }
+        if self.generations == 0 {
+            return err("generations", "must be > 0");
+        }
+        if let Some(a) = self.amplitude_limit {
+            if !(a.is_finite() && a > 0.0) {
+                return err("amplitude_limit", "must be > 0");
+            }
+        }
+        if !(self.max_fit_nmae.is_finite() && self.max_fit_nmae > 0.0) {
+            return err("max_fit_nmae", "must be > 0");
+        }
+        if !(self.window_seconds.is_finite() && self.window_seconds > 0.0) {
+            return err("window_seconds", "must be > 0");
+        }
+        if self.window_samples() < 16 {
+            return err(
+                "window_seconds",
+                "window_seconds * rate_hz must be >= 16 samples",
+            );
+        }
+        if self.window_samples() > MAX_WINDOW_SAMPLES {
+            return err(
+                "window_seconds",
+                &format!("window_seconds * rate_hz must be <= {MAX_WINDOW_SAMPLES} samples"),
+            );
+        }
+        if !(self.identify_every_seconds.is_finite() && self.identify_every_seconds > 0.0) {
+            return err("identify_every_seconds", "must be > 0");
+        }
+        let a = &self.alert;
+        if !a.fire_below.is_finite() {
+            return err("alert.fire_below", "must be a finite number");
+        }
+        if !(a.clear_above.is_finite() && a.clear_above >= a.fire_below) {
+            return err("alert.clear_above", "must be >= alert.fire_below");
+        }
+        if a.for_windows == 0 {
+            return err("alert.for_windows", "must be >= 1");
+        }
+        if a.resolve_windows == 0 {
+            return err("alert.resolve_windows", "must be >= 1");
+        }
+        if !(a.stale_after_seconds.is_finite() && a.stale_after_seconds > 0.0) {
+            return err("alert.stale_after_seconds", "must be > 0");
+        }
+        Ok(())
+    }
+}
+
+/// A configuration error; the message names the key (`gates.g1.rate_hz: must be > 0`).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{message}")]
+pub struct ConfigError {
+    /// One line.
+    pub message: String,
+}
+
+impl ConfigError {
+    fn new(message: impl Into<String>) -> Self {
+        ConfigError {
+            message: message.into().replace('\n', " "),
+        }
+    }
+}
+
+/// Environment variables that override the file (documented in `config/gatewatch.toml`).
+pub const ENV_OVERRIDES: &[&str] = &[
+    "GATEWATCH_LISTEN",
+    "GATEWATCH_TCP_LISTEN",
+    "GATEWATCH_AUTH_TOKENS",
+    "GATEWATCH_LOG_FORMAT",
+    "GATEWATCH_LOG_LEVEL",
+    "GATEWATCH_WORKER_THREADS",
+    "GATEWATCH_MAX_GATES",
+    "GATEWATCH_ACCEPT_UNKNOWN_GATES",
+];
+
+fn toml_error(prefix: &str, e: toml::de::Error) -> ConfigError {
+    let msg = e.message().trim().to_string();
+    if prefix.is_empty() {
+        ConfigError::new(msg)
+    } else {
+        ConfigError::new(format!("{prefix}: {msg}"))
+    }
+}
+
+fn merge(base: &mut toml::Table, over: toml::Table) {
+    for (k, v) in over {
+        match (base.get_mut(&k), v) {
+            (Some(toml::Value::Table(b)), toml::Value::Table(o)) => merge(b, o),
+            (_, v) => {
+                base.insert(k, v);
+            }
+        }
+    }
+}
+
+fn gate_from_table(prefix: &str, table: toml::Table) -> Result<GateConfig, ConfigError> {
+    let gate: GateConfig = toml::Value::Table(table)
+        .try_into()
+        .map_err(|e| toml_error(prefix, e))?;
+    gate.validate(prefix)?;
+    Ok(gate)
+}
+
+/// A valid gate id: 1..=64 characters of `[A-Za-z0-9_.-]` (bounded metric labels, safe paths).
+pub fn valid_gate_id(id: &str) -> bool {
+    !id.is_empty()
+        && id.len() <= 64
+        && id
+            .bytes()
+            .all(|b| b.is_ascii_alphanumeric() || matches!(b, b'_' | b'-' | b'.'))
+}
+
+impl Config {
+    /// Parses and validates TOML text (no environment overrides).
+    pub fn from_toml(text: &str) -> Result<Config, ConfigError> {
+        let mut doc: toml::Table = text.parse::<toml::Table>().map_err(|e| toml_error("", e))?;
+        let defaults = match doc.remove("defaults") {
+            None => toml::Table::new(),
+            Some(toml::Value::Table(t)) => t,
+            Some(_) => return Err(ConfigError::new("defaults: must be a table")),
+        };
+        let gates = match doc.remove("gates") {
+            None => toml::Table::new(),
+            Some(toml::Value::Table(t)) => t,
+            Some(_) => return Err(ConfigError::new("gates: must be a table")),
+        };
+        let mut config: Config = toml::Value::Table(doc)
+            .try_into()
+            .map_err(|e| toml_error("", e))?;
+        config.defaults = gate_from_table("defaults", defaults.clone())?;
+        for (id, table) in gates {
+            let prefix = format!("gates.{id}");
+            if !valid_gate_id(&id) {
+                return Err(ConfigError::new(format!(
+                    "{prefix}: gate id must be 1..=64 characters of A-Z a-z 0-9 _ - ."
+                )));
+            }
+            let toml::Value::Table(table) = table else {
+                return Err(ConfigError::new(format!("{prefix}: must be a table")));
+            };
+            let mut merged = defaults.clone();
+            merge(&mut merged, table);
+            let gate = gate_from_table(&prefix, merged)?;
+            config.gates.insert(id, gate);
+        }
+        config.validate()?;
+        Ok(config)
+    }
+
+    /// Reads, parses and validates a file.
+    pub fn from_file(path: &Path) -> Result<Config, ConfigError> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| ConfigError::new(format!("{}: {e}", path.display())))?;
+        Config::from_toml(&text)
+    }
+
+    /// The embedded example configuration.
+    pub fn embedded() -> Config {
+        Config::from_toml(EMBEDDED_CONFIG).expect("embedded config is valid (tested)")
+    }
+
+    /// Applies `GATEWATCH_*` overrides read through `get` (`std::env::var` in production).
+    pub fn apply_env(&mut self, get: impl Fn(&str) -> Option<String>) -> Result<(), ConfigError> {
+        if let Some(v) = get("GATEWATCH_LISTEN") {
+            self.server.listen = v;
+        }
+        if let Some(v) = get("GATEWATCH_TCP_LISTEN") {
+            self.server.tcp_listen = v;
+        }
+        if let Some(v) = get("GATEWATCH_AUTH_TOKENS") {
+            self.server.auth_tokens = v
+                .split(',')
+                .map(str::trim)
+                .filter(|s| !s.is_empty())
+                .map(String::from)
+                .collect();
+        }
+        if let Some(v) = get("GATEWATCH_LOG_FORMAT") {
+            self.log.format = match v.as_str() {
+                "text" => LogFormat::Text,
+                "json" => LogFormat::Json,
+                _ => {
+                    return Err(ConfigError::new(
+                        "GATEWATCH_LOG_FORMAT: must be \"text\" or \"json\"",
+                    ))
+                }
+            };
+        }
+        if let Some(v) = get("GATEWATCH_LOG_LEVEL") {
+            self.log.level = v;
+        }
+        let parse_usize = |name: &str, v: String| {
+            v.trim()
+                .parse::<usize>()
+                .map_err(|_| ConfigError::new(format!("{name}: must be a non-negative integer")))
+        };
+        if let Some(v) = get("GATEWATCH_WORKER_THREADS") {
+            self.server.worker_threads = parse_usize("GATEWATCH_WORKER_THREADS", v)?;
+        }
+        if let Some(v) = get("GATEWATCH_MAX_GATES") {
+            self.server.max_gates = parse_usize("GATEWATCH_MAX_GATES", v)?;
+        }
+        if let Some(v) = get("GATEWATCH_ACCEPT_UNKNOWN_GATES") {
+            self.server.accept_unknown_gates = match v.as_str() {
+                "true" | "1" => true,
+                "false" | "0" => false,
+                _ => {
+                    return Err(ConfigError::new(
+                        "GATEWATCH_ACCEPT_UNKNOWN_GATES: must be true or false",
+                    ))
+                }
+            };
+        }
+        self.validate()
+    }
+
+    /// Checks the server-wide values.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        let s = &self.server;
+        let err = |key: &str, msg: &str| Err(ConfigError::new(format!("server.{key}: {msg}")));
+        if s.listen.parse::<SocketAddr>().is_err() {
+            return err("listen", "must be an address like 0.0.0.0:9464");
+        }
+        if !s.tcp_listen.is_empty() && s.tcp_listen.parse::<SocketAddr>().is_err() {
+            return err(
+                "tcp_listen",
+                "must be empty or an address like 0.0.0.0:8094",
+            );
+        }
+        if s.auth_tokens.iter().any(|t| t.len() < 16) {
+            return err(
+                "auth_tokens",
+                "every token must have at least 16 characters",
+            );
+        }
+        if s.body_limit_bytes < 1024 {
+            return err("body_limit_bytes", "must be >= 1024");
+        }
+        if s.max_concurrent_requests == 0 {
+            return err("max_concurrent_requests", "must be > 0");
+        }
+        if s.max_concurrent_ingest == 0 {
+            return err("max_concurrent_ingest", "must be > 0");
+        }
+        if !(s.request_timeout_seconds.is_finite() && s.request_timeout_seconds > 0.0) {
+            return err("request_timeout_seconds", "must be > 0");
+        }
+        if s.max_gates == 0 || s.max_gates > MAX_GATES_LIMIT {
+            return err("max_gates", &format!("must be in 1..={MAX_GATES_LIMIT}"));
+        }
+        if self.gates.len() > s.max_gates {
+            return err(
+                "max_gates",
+                "is smaller than the number of [gates.*] tables",
+            );
+        }
+        if s.max_tcp_connections == 0 {
+            return err("max_tcp_connections", "must be > 0");
+        }
+        if !(s.shutdown_grace_seconds.is_finite() && s.shutdown_grace_seconds >= 0.0) {
+            return err("shutdown_grace_seconds", "must be >= 0");
+        }
+        if self.ingest.gate_tag.is_empty() {
+            return Err(ConfigError::new("ingest.gate_tag: must not be empty"));
+        }
+        if self.ingest.value_fields.is_empty() {
+            return Err(ConfigError::new("ingest.value_fields: must not be empty"));
+        }
+        if self.ingest.tcp_max_line_bytes < 64 {
+            return Err(ConfigError::new("ingest.tcp_max_line_bytes: must be >= 64"));
+        }
+        Ok(())
+    }
+
+    /// The settings of `gate`: its own table, or the defaults (`None` when unknown gates are
+    /// refused and `gate` is not configured).
+    pub fn gate(&self, gate: &str) -> Option<&GateConfig> {
+        match self.gates.get(gate) {
+            Some(g) => Some(g),
+            None if self.server.accept_unknown_gates => Some(&self.defaults),
+            None => None,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn embedded_config_is_valid_and_has_the_defaults() {
+        let c = Config::from_toml(EMBEDDED_CONFIG).unwrap();
+        let d = Config::default();
+        assert_eq!(c.server, d.server);
+        assert_eq!(c.log, d.log);
+        assert_eq!(c.ingest, d.ingest);
+        assert_eq!(c.defaults, d.defaults);
+        assert!(c.gates.is_empty());
+    }
+
+    #[test]
+    fn gates_merge_defaults_key_by_key() {
+        let c = Config::from_toml(
+            "[defaults]\nrate_hz = 100.0\n[defaults.alert]\nfire_below = -0.01\n\
+             [gates.g1]\nwindow_seconds = 4.0\n[gates.g1.alert]\nfor_windows = 5\n",
+        )
+        .unwrap();
+        let g = &c.gates["g1"];
+        assert_eq!(g.rate_hz, 100.0);
+        assert_eq!(g.window_seconds, 4.0);
+        assert_eq!(g.alert.fire_below, -0.01);
+        assert_eq!(g.alert.for_windows, 5);
+        assert_eq!(c.gate("g1").unwrap().window_samples(), 400);
+        assert_eq!(c.gate("other").unwrap(), &c.defaults);
+    }
+
+    fn err(text: &str) -> String {
+        Config::from_toml(text).unwrap_err().message
+    }
+
+    #[test]
+    fn errors_name_the_key() {
+        assert_eq!(
+            err("[gates.g1]\nrate_hz = 0.0\n"),
+            "gates.g1.rate_hz: must be > 0"
+        );
+        assert_eq!(
+            err("[defaults]\nwindow_seconds = -1.0\n"),
+            "defaults.window_seconds: must be > 0"
+        );
+        assert!(err("[gates.g1]\nrte_hz = 1.0\n").starts_with("gates.g1: unknown field `rte_hz`"));
+        assert!(err("[server]\nlisten_addr = \"x\"\n").contains("unknown field `listen_addr`"));
+        assert!(err("[bogus]\n").contains("unknown field `bogus`"));
+        assert!(
+            err("[gates.g1.alert]\nfor_windows = 0\n").starts_with("gates.g1.alert.for_windows")
+        );
+        assert!(err("[gates.g1.alert]\nsevrity = \"x\"\n").contains("sevrity"));
+        assert!(err("[server]\nlisten = \"nope\"\n").starts_with("server.listen:"));
+        assert!(err("[server]\nmax_gates = 0\n").starts_with("server.max_gates:"));
+        assert!(err("[server]\nauth_tokens = [\"short\"]\n").starts_with("server.auth_tokens:"));
+        assert!(err("[defaults]\nsignal = \"pressure\"\n").starts_with("defaults:"));
+        assert!(err("[gates.\"bad id!\"]\n").starts_with("gates.bad id!:"));
+        assert!(err("[server\n").contains("invalid") || !err("[server\n").is_empty());
+        assert!(!err("[gates.g1]\nrate_hz = 0.0\n").contains('\n'));
+    }
+
+    #[test]
+    fn environment_overrides() {
+        let mut c = Config::from_toml(EMBEDDED_CONFIG).unwrap();
+        let env = |k: &str| match k {
+            "GATEWATCH_LISTEN" => Some("127.0.0.1:1234".to_string()),
+            "GATEWATCH_TCP_LISTEN" => Some("127.0.0.1:8094".to_string()),
+            "GATEWATCH_AUTH_TOKENS" => Some("aaaaaaaaaaaaaaaa, bbbbbbbbbbbbbbbb".to_string()),
+            "GATEWATCH_LOG_FORMAT" => Some("json".to_string()),
+            "GATEWATCH_WORKER_THREADS" => Some("3".to_string()),
+            "GATEWATCH_ACCEPT_UNKNOWN_GATES" => Some("false".to_string()),
+            _ => None,
+        };
+        c.apply_env(env).unwrap();
+        assert_eq!(c.server.listen, "127.0.0.1:1234");
+        assert_eq!(c.server.tcp_listen, "127.0.0.1:8094");
+        assert_eq!(c.server.auth_tokens.len(), 2);
+        assert_eq!(c.log.format, LogFormat::Json);
+        assert_eq!(c.server.effective_worker_threads(), 3);
+        assert!(!c.server.accept_unknown_gates);
+        let e = c
+            .apply_env(|k| (k == "GATEWATCH_LOG_FORMAT").then(|| "xml".to_string()))
+            .unwrap_err();
+        assert!(e.message.starts_with("GATEWATCH_LOG_FORMAT"));
+    }
+
+    #[test]
+    fn worker_threads_default_is_at_least_one() {
+        assert!(ServerConfig::default().effective_worker_threads() >= 1);
+    }
+}

@@ -1,0 +1,492 @@
+//! InfluxDB line protocol (`POST /api/v2/write`, `POST /write`, raw TCP).
+//!
+//! ```text
+//! measurement[,tag=value...] field=value[,field=value...] [timestamp]
+//! ```
+//!
+//! Hand-written: the maintained crate `influxdb-line-protocol` (2.0, by InfluxData, nom-based)
+//! exists, but adding a dependency is not possible on this branch (Cargo.toml is fixed); this
+//! parser is small, allocation-light and names the line and column of every error. The
+//! integrator may switch to the crate.
+//!
+//! Escapes: in the measurement `\,` and `\ `; in tag keys, tag values and field keys `\,`, `\=`
+//! and `\ `; in string field values `\"` and `\\`. A backslash before any other character is
+//! literal. Field values: floats (`1.5`, `-2e3`), integers `12i`, unsigned `12u`, strings
+//! `"..."`, booleans `t T true True TRUE f F false False FALSE`. Lines starting with `#` and
+//! blank lines are skipped.
+
+use std::fmt;
+
+use super::{BadRequest, Batch};
+use crate::service::config::{valid_gate_id, Precision};
+
+/// A field value.
+#[derive(Debug, Clone, PartialEq)]
+pub enum FieldValue {
+    /// Float.
+    Float(f64),
+    /// `i` suffix.
+    Int(i64),
+    /// `u` suffix.
+    UInt(u64),
+    /// Quoted string.
+    Str(String),
+    /// Boolean.
+    Bool(bool),
+}
+
+/// One parsed line.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Line {
+    /// Measurement name.
+    pub measurement: String,
+    /// Tags in order.
+    pub tags: Vec<(String, String)>,
+    /// Fields in order (at least one).
+    pub fields: Vec<(String, FieldValue)>,
+    /// Timestamp in the request's precision.
+    pub timestamp: Option<i64>,
+}
+
+/// A syntax error at a 1-based line and byte column.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct LineError {
+    /// 1-based line.
+    pub line: usize,
+    /// 1-based byte column.
+    pub column: usize,
+    /// What is wrong.
+    pub message: String,
+}
+
+impl fmt::Display for LineError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(
+            f,
+            "line {} column {}: {}",
+            self.line, self.column, self.message
+        )
+    }
+}
+
+impl std::error::Error for LineError {}
+
+impl From<LineError> for BadRequest {
+    fn from(e: LineError) -> Self {
+        BadRequest {
+            error: e.message,
+            line: Some(e.line),
+            column: Some(e.column),
+            field: None,
+            index: None,
+        }
+    }
+}
+
+struct Cursor<'a> {
+    b: &'a [u8],
+    pos: usize,
+    line: usize,
+}
+
+impl Cursor<'_> {
+    fn err(&self, pos: usize, message: impl Into<String>) -> LineError {
+        LineError {
+            line: self.line,
+            column: pos + 1,
+            message: message.into(),
+        }
+    }
+
+    fn peek(&self) -> Option<u8> {
+        self.b.get(self.pos).copied()
+    }
+
+    /// Reads up to an unescaped byte of `stops` (not consumed); `escapable` are the bytes a
+    /// backslash escapes.
+    fn read_escaped(&mut self, stops: &[u8], escapable: &[u8]) -> Result<String, LineError> {
+        let mut out = Vec::new();
+        while let Some(c) = self.peek() {
+            if c == b'\\' {
+                if let Some(n) = self.b.get(self.pos + 1).copied() {
+                    if escapable.contains(&n) {
+                        out.push(n);
+                        self.pos += 2;
+                        continue;
+                    }
+                }
+                out.push(c);
+                self.pos += 1;
+                continue;
+            }
+            if stops.contains(&c) {
+                break;
+            }
+            out.push(c);
+            self.pos += 1;
+        }
+        String::from_utf8(out).map_err(|_| self.err(self.pos, "invalid UTF-8"))
+    }
+}
+
+/// Parses one line (`line_no` is 1-based); `Ok(None)` for blank and comment lines.
+pub fn parse_line(text: &str, line_no: usize) -> Result<Option<Line>, LineError> {
+    let text = text.strip_suffix('\r').unwrap_or(text);
+    let trimmed = text.trim_start();
+    if trimmed.is_empty() || trimmed.starts_with('#') {
+        return Ok(None);
+    }
+    let mut c = Cursor {
+        b: text.as_bytes(),
+        pos: text.len() - trimmed.len(),
+        line: line_no,
+    };
+    let start = c.pos;
+    let measurement = c.read_escaped(b", ", b", ")?;
+    if measurement.is_empty() {
+        return Err(c.err(start, "missing measurement"));
+    }
+    let mut tags = Vec::new();
+    while c.peek() == Some(b',') {
+        c.pos += 1;
+        let kpos = c.pos;
+        let key = c.read_escaped(b",= ", b",= ")?;
+        if key.is_empty() {
+            return Err(c.err(kpos, "missing tag key"));
+        }
+        if c.peek() != Some(b'=') {
+            return Err(c.err(c.pos, format!("expected '=' after tag key `{key}`")));
+        }
+        c.pos += 1;
+        let vpos = c.pos;
+        let value = c.read_escaped(b", ", b",= ")?;
+        if value.is_empty() {
+            return Err(c.err(vpos, format!("missing value of tag `{key}`")));
+        }
+        tags.push((key, value));
+    }
+    if c.peek() != Some(b' ') {
+        return Err(c.err(c.pos, "expected a space before the fields"));
+    }
+    while c.peek() == Some(b' ') {
+        c.pos += 1;
+    }
+    let mut fields = Vec::new();
+    loop {
+        let kpos = c.pos;
+        let key = c.read_escaped(b",= ", b",= ")?;
+        if key.is_empty() {
+            return Err(c.err(kpos, "missing field key"));
+        }
+        if c.peek() != Some(b'=') {
+            return Err(c.err(c.pos, format!("expected '=' after field key `{key}`")));
+        }
+        c.pos += 1;
+        let vpos = c.pos;
+        let value = if c.peek() == Some(b'"') {
+            c.pos += 1;
+            let mut out = Vec::new();
+            loop {
+                match c.peek() {
+                    None => {
+                        return Err(c.err(vpos, format!("unterminated string in field `{key}`")))
+                    }
+                    Some(b'\\') if matches!(c.b.get(c.pos + 1), Some(b'"') | Some(b'\\')) => {
+                        out.push(c.b[c.pos + 1]);
+                        c.pos += 2;
+                    }
+                    Some(b'"') => {
+                        c.pos += 1;
+                        break;
+                    }
+                    Some(ch) => {
+                        out.push(ch);
+                        c.pos += 1;
+                    }
+                }
+            }
+            FieldValue::Str(String::from_utf8(out).map_err(|_| c.err(vpos, "invalid UTF-8"))?)
+        } else {
+            let raw = c.read_escaped(b", ", b"")?;
+            parse_scalar(&raw)
+                .ok_or_else(|| c.err(vpos, format!("invalid value `{raw}` of field `{key}`")))?
+        };
+        fields.push((key, value));
+        match c.peek() {
+            Some(b',') => c.pos += 1,
+            _ => break,
+        }
+    }
+    let mut timestamp = None;
+    if c.peek() == Some(b' ') {
+        while c.peek() == Some(b' ') {
+            c.pos += 1;
+        }
+        let tpos = c.pos;
+        let rest = &text[tpos..];
+        let rest_trim = rest.trim_end();
+        if !rest_trim.is_empty() {
+            timestamp = Some(
+                rest_trim
+                    .parse::<i64>()
+                    .map_err(|_| c.err(tpos, format!("invalid timestamp `{rest_trim}`")))?,
+            );
+        }
+        c.pos = text.len();
+    }
+    if c.pos != text.len() {
+        return Err(c.err(c.pos, "unexpected character after the fields"));
+    }
+    Ok(Some(Line {
+        measurement,
+        tags,
+        fields,
+        timestamp,
+    }))
+}
+
+fn parse_scalar(raw: &str) -> Option<FieldValue> {
+    match raw {
+        "t" | "T" | "true" | "True" | "TRUE" => return Some(FieldValue::Bool(true)),
+        "f" | "F" | "false" | "False" | "FALSE" => return Some(FieldValue::Bool(false)),
+        "" => return None,
+        _ => {}
+    }
+    if let Some(i) = raw.strip_suffix('i') {
+        return i.parse().ok().map(FieldValue::Int);
+    }
+    if let Some(u) = raw.strip_suffix('u') {
+        return u.parse().ok().map(FieldValue::UInt);
+    }
+    // Rust also reads `NaN`, `inf`: kept so that the batch is rejected naming the sample.
+    raw.parse::<f64>().ok().map(FieldValue::Float)
+}
+
+/// Parses every line; the first error stops.
+pub fn parse(text: &str) -> Result<Vec<(usize, Line)>, LineError> {
+    let mut out = Vec::new();
+    for (i, l) in text.split('\n').enumerate() {
+        if let Some(line) = parse_line(l, i + 1)? {
+            out.push((i + 1, line));
+        }
+    }
+    Ok(out)
+}
+
+/// How lines map to gate samples.
+#[derive(Debug, Clone)]
+pub struct Mapping<'a> {
+    /// Tag naming the gate.
+    pub gate_tag: &'a str,
+    /// Fields holding the value, first present wins.
+    pub value_fields: &'a [String],
+    /// Timestamp unit.
+    pub precision: Precision,
+    /// Time of lines without timestamp (unix seconds, the receive time).
+    pub now: f64,
+}
+
+/// Turns parsed lines into per-gate batches (in order of first appearance).
+pub fn to_batches(lines: &[(usize, Line)], m: &Mapping<'_>) -> Result<Vec<Batch>, BadRequest> {
+    let mut batches: Vec<Batch> = Vec::new();
+    for (line_no, line) in lines {
+        let gate = line
+            .tags
+            .iter()
+            .find(|(k, _)| k == m.gate_tag)
+            .map(|(_, v)| v.as_str())
+            .ok_or_else(|| {
+                BadRequest::new(format!("missing tag `{}`", m.gate_tag))
+                    .line(*line_no)
+                    .field(m.gate_tag)
+            })?;
+        if !valid_gate_id(gate) {
+            return Err(
+                BadRequest::new("gate id must be 1..=64 characters of A-Z a-z 0-9 _ - .")
+                    .line(*line_no)
+                    .field(m.gate_tag),
+            );
+        }
+        let (name, value) = m
+            .value_fields
+            .iter()
+            .find_map(|f| line.fields.iter().find(|(k, _)| k == f))
+            .ok_or_else(|| {
+                BadRequest::new(format!(
+                    "missing field, expected one of {:?}",
+                    m.value_fields
+                ))
+                .line(*line_no)
+                .field(m.value_fields[0].clone())
+            })?;
+        let v = match value {
+            FieldValue::Float(x) => *x,
+            FieldValue::Int(i) => *i as f64,
+            FieldValue::UInt(u) => *u as f64,
+            FieldValue::Str(_) | FieldValue::Bool(_) => {
+                return Err(BadRequest::new("expected a numeric field")
+                    .line(*line_no)
+                    .field(name.clone()))
+            }
+        };
+        let t = match line.timestamp {
+            Some(ts) => ts as f64 * m.precision.seconds_per_unit(),
+            None => m.now,
+        };
+        let batch = match batches.iter_mut().position(|b| b.gate == gate) {
+            Some(i) => &mut batches[i],
+            None => {
+                batches.push(Batch {
+                    gate: gate.to_string(),
+                    samples: Vec::new(),
+                    rate: None,
+                    values_field: name.clone(),
+                    lines: Some(Vec::new()),
+                });
+                batches.last_mut().expect("just pushed")
+            }
+        };
+        batch.samples.push((t, v));
+        if let Some(l) = batch.lines.as_mut() {
+            l.push(*line_no);
+        }
+    }
+    if batches.is_empty() {
+        return Err(BadRequest::new("no lines"));
+    }
+    Ok(batches)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn one(s: &str) -> Line {
+        parse_line(s, 1).unwrap().unwrap()
+    }
+
+    #[test]
+    fn parses_tags_fields_timestamp() {
+        let l =
+            one("gate,gate=g1,site=north force=1.5,n=3i,u=4u,ok=t,s=\"a b\" 1700000000000000000");
+        assert_eq!(l.measurement, "gate");
+        assert_eq!(
+            l.tags,
+            vec![
+                ("gate".into(), "g1".into()),
+                ("site".into(), "north".into())
+            ]
+        );
+        assert_eq!(l.fields[0], ("force".into(), FieldValue::Float(1.5)));
+        assert_eq!(l.fields[1].1, FieldValue::Int(3));
+        assert_eq!(l.fields[2].1, FieldValue::UInt(4));
+        assert_eq!(l.fields[3].1, FieldValue::Bool(true));
+        assert_eq!(l.fields[4].1, FieldValue::Str("a b".into()));
+        assert_eq!(l.timestamp, Some(1_700_000_000_000_000_000));
+    }
+
+    #[test]
+    fn escapes() {
+        let l = one(r#"my\ meas\,x,ta\=g=v\ 1\,2 f\ k=-2e3,s="q\"uote\\" -5"#);
+        assert_eq!(l.measurement, "my meas,x");
+        assert_eq!(l.tags, vec![("ta=g".into(), "v 1,2".into())]);
+        assert_eq!(l.fields[0], ("f k".into(), FieldValue::Float(-2000.0)));
+        assert_eq!(l.fields[1].1, FieldValue::Str("q\"uote\\".into()));
+        assert_eq!(l.timestamp, Some(-5));
+    }
+
+    #[test]
+    fn no_timestamp_comments_blank() {
+        assert_eq!(one("m force=1").timestamp, None);
+        assert_eq!(parse_line("# comment", 1).unwrap(), None);
+        assert_eq!(parse_line("   ", 1).unwrap(), None);
+        assert_eq!(
+            parse("m,gate=a force=1\n\n# c\nm,gate=a force=2 5\n")
+                .unwrap()
+                .len(),
+            2
+        );
+    }
+
+    #[test]
+    fn errors_name_line_and_column() {
+        let e = parse("m force=1\nm,gate=a force=abc 1\n").unwrap_err();
+        assert_eq!((e.line, e.column), (2, 16));
+        assert!(e.message.contains("force"), "{e}");
+        let e = parse_line("m,gate force=1", 3).unwrap_err();
+        assert_eq!((e.line, e.column), (3, 7));
+        let e = parse_line("m", 1).unwrap_err();
+        assert!(e.message.contains("space"));
+        let e = parse_line("m f=\"open", 1).unwrap_err();
+        assert!(e.message.contains("unterminated"));
+        let e = parse_line("m f=1 12x", 1).unwrap_err();
+        assert!(e.message.contains("timestamp"));
+        let e = parse_line("m f=1,", 1).unwrap_err();
+        assert!(e.message.contains("field key"));
+        let e = parse_line(",gate=a f=1", 1).unwrap_err();
+        assert!(e.message.contains("measurement"));
+        assert!(parse_line("m f=", 1).is_err());
+        assert!(parse_line("m f=1i2", 1).is_err());
+    }
+
+    #[test]
+    fn mapping_to_batches() {
+        let lines =
+            parse("m,gate=a force=1 1000\nm,gate=b value=2i 2000\nm,gate=a force=3 3000").unwrap();
+        let fields = vec!["force".to_string(), "value".to_string()];
+        let m = Mapping {
+            gate_tag: "gate",
+            value_fields: &fields,
+            precision: Precision::Ms,
+            now: 0.0,
+        };
+        let b = to_batches(&lines, &m).unwrap();
+        assert_eq!(b.len(), 2);
+        assert_eq!(b[0].samples, vec![(1.0, 1.0), (3.0, 3.0)]);
+        assert_eq!(b[0].lines, Some(vec![1, 3]));
+        assert_eq!(b[1].samples, vec![(2.0, 2.0)]);
+        let lines = parse("m force=1 1").unwrap();
+        assert_eq!(
+            to_batches(&lines, &m).unwrap_err().field.as_deref(),
+            Some("gate")
+        );
+        let lines = parse("m,gate=a force=\"x\" 1").unwrap();
+        assert_eq!(
+            to_batches(&lines, &m).unwrap_err().field.as_deref(),
+            Some("force")
+        );
+    }
+
+    proptest::proptest! {
+        #[test]
+        fn never_panics(s in "[a-z,= \\\"0-9.ie#-]{0,40}") {
+            let _ = parse(&s);
+        }
+
+        #[test]
+        fn escaped_names_round_trip(tag in "[a-z ,=]{1,12}", value in "[a-z ,=]{1,12}") {
+            let esc = |x: &str| x.replace(',', "\\,").replace('=', "\\=").replace(' ', "\\ ");
+            let line = format!("m,{}={} f=1 1", esc(&tag), esc(&value));
+            let l = parse_line(&line, 1).unwrap().unwrap();
+            proptest::prop_assert_eq!(&l.tags[0].0, &tag);
+            proptest::prop_assert_eq!(&l.tags[0].1, &value);
+        }
+    }
+
+    #[test]
+    fn never_panics_on_junk() {
+        for s in [
+            "\\",
+            "m\\",
+            "m,\\",
+            "m,a=\\",
+            "m a=\"\\",
+            "m a=1 \\",
+            "é,é=é é=1",
+            "m,a=b a=1    ",
+            "m  a=1",
+        ] {
+            let _ = parse_line(s, 1);
+        }
+    }
+}

@@ -1,0 +1,525 @@
+//! Shared daemon state: the gates (windows, latest identification), the alert engine, the worker
+//! pool and the notifier. This is the ONE module that talks to the alert engine.
+
+use std::collections::BTreeMap;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex, OnceLock, Weak};
+use std::time::{Duration, SystemTime, UNIX_EPOCH};
+
+use serde::Serialize;
+
+use super::alert_impl::notify::{spawn_notifier, NotifierHandle};
+use super::alert_impl::{AlertEngine, AlertEvent, GateState, Observation};
+use super::config::{Config, GateConfig};
+use super::ingest::{BadRequest, Batch};
+use super::metrics::Metrics;
+use super::window::Window;
+use super::worker::{Job, JobOutcome, Submitted, WindowAnalyzer, WorkerPool};
+use crate::analysis::{AnalysisError, WindowAnalysis};
+
+/// Relative disagreement of a declared or implied sample rate with `rate_hz` that is refused.
+pub const RATE_TOLERANCE: f64 = 0.01;
+
+/// Why a request's samples were refused (nothing was applied).
+#[derive(Debug, Clone, PartialEq)]
+pub enum IngestError {
+    /// 400 with details.
+    BadRequest(BadRequest),
+    /// 404: the gate is not configured and `accept_unknown_gates = false`.
+    UnknownGate(String),
+    /// 400: accepting the gate would exceed `server.max_gates`.
+    TooManyGates(String),
+}
+
+/// What an accepted request did.
+#[derive(Debug, Default, Clone, Copy, PartialEq, Eq)]
+pub struct IngestSummary {
+    /// Samples appended.
+    pub accepted: u64,
+    /// Duplicates dropped.
+    pub duplicate: u64,
+    /// Out-of-order samples dropped.
+    pub out_of_order: u64,
+    /// Windows submitted for identification.
+    pub jobs: u64,
+}
+
+struct GateEntry {
+    config: GateConfig,
+    window: Window,
+    latest: Option<WindowAnalysis>,
+    last_identification: Option<SystemTime>,
+    last_error: Option<String>,
+}
+
+struct Inner {
+    gates: BTreeMap<String, GateEntry>,
+    alerts: AlertEngine,
+}
+
+/// The state shared by handlers, listeners and workers.
+pub struct AppState {
+    /// The configuration in force.
+    pub config: Arc<Config>,
+    /// Metrics.
+    pub metrics: Metrics,
+    inner: Mutex<Inner>,
+    pool: OnceLock<WorkerPool>,
+    notifier: NotifierHandle,
+    /// Listeners up.
+    pub listeners_up: AtomicBool,
+    /// Permits of ingestion requests in progress (`server.max_concurrent_ingest`).
+    pub ingest_permits: Arc<tokio::sync::Semaphore>,
+}
+
+impl std::fmt::Debug for AppState {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("AppState").finish_non_exhaustive()
+    }
+}
+
+fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+fn unix(t: SystemTime) -> f64 {
+    t.duration_since(UNIX_EPOCH)
+        .map(|d| d.as_secs_f64())
+        .unwrap_or(0.0)
+}
+
+/// Lower-case name of an alert state (label value of `gatewatch_alert_state`).
+pub fn state_name(s: GateState) -> &'static str {
+    match s {
+        GateState::Ok => "ok",
+        GateState::Pending => "pending",
+        GateState::Firing => "firing",
+        GateState::Resolved => "resolved",
+        GateState::Unknown => "unknown",
+    }
+}
+
+/// A gate as `GET /api/v1/gates/{id}` shows it.
+#[derive(Debug, Clone, Serialize)]
+pub struct GateView {
+    /// Gate id.
+    pub gate: String,
+    /// Alert state.
+    pub alert_state: &'static str,
+    /// Window statistics.
+    pub window: WindowView,
+    /// Latest identification (absent before the first).
+    pub identification: Option<IdentificationView>,
+    /// Message of the last failed identification, if the last one failed.
+    pub last_error: Option<String>,
+}
+
+/// Window statistics.
+#[derive(Debug, Clone, Serialize)]
+pub struct WindowView {
+    /// Samples held.
+    pub samples: usize,
+    /// Capacity.
+    pub capacity: usize,
+    /// Seconds spanned.
+    pub span_seconds: f64,
+    /// Held fraction.
+    pub fill: f64,
+    /// Time of the newest sample, Unix seconds.
+    pub last_sample_time: Option<f64>,
+    /// Samples accepted ever.
+    pub samples_total: u64,
+    /// Configured rate.
+    pub rate_hz: f64,
+}
+
+/// The latest identification.
+#[derive(Debug, Clone, Serialize)]
+pub struct IdentificationView {
+    /// Time of the identification, Unix seconds.
+    pub time: f64,
+    /// Equation with numbers.
+    pub equation: String,
+    /// Coefficients.
+    pub coefficients: BTreeMap<String, f64>,
+    /// Damping figures.
+    pub damping: crate::analysis::DampingReport,
+    /// Wall time, seconds.
+    pub seconds: f64,
+}
+
+impl AppState {
+    /// Creates the state, the notifier task and the worker pool. Needs a tokio runtime.
+    pub fn new(
+        config: Config,
+        analyzer: Arc<dyn WindowAnalyzer>,
+    ) -> std::io::Result<Arc<AppState>> {
+        let config = Arc::new(config);
+        let threads = config.server.effective_worker_threads();
+        let queue = config.server.effective_job_queue();
+        let state = Arc::new_cyclic(|weak: &Weak<AppState>| {
+            let w = weak.clone();
+            let (notifier, _task) = spawn_notifier(config.notify.clone(), move || {
+                w.upgrade()
+                    .map(|s| lock(&s.inner).alerts.firing())
+                    .unwrap_or_default()
+            });
+            AppState {
+                config: config.clone(),
+                metrics: Metrics::new(),
+                inner: Mutex::new(Inner {
+                    gates: BTreeMap::new(),
+                    alerts: AlertEngine::new(config.defaults.alert.clone()),
+                }),
+                pool: OnceLock::new(),
+                notifier,
+                listeners_up: AtomicBool::new(false),
+                ingest_permits: Arc::new(tokio::sync::Semaphore::new(
+                    config.server.max_concurrent_ingest,
+                )),
+            }
+        });
+        let weak = Arc::downgrade(&state);
+        let pool = WorkerPool::start(
+            threads,
+            queue,
+            analyzer,
+            Arc::new(move |job: &Job, outcome: JobOutcome, elapsed: Duration| {
+                if let Some(s) = weak.upgrade() {
+                    s.on_result(job, outcome, elapsed);
+                }
+            }),
+        )?;
+        let _ = state.pool.set(pool);
+        // configured gates exist from the start, so a silent sensor goes stale
+        {
+            let now = SystemTime::now();
+            let mut inner = lock(&state.inner);
+            for id in config.gates.keys() {
+                state.ensure_gate(&mut inner, id, now);
+            }
+        }
+        Ok(state)
+    }
+
+    /// The worker pool.
+    pub fn pool(&self) -> &WorkerPool {
+        self.pool.get().expect("pool is set in new")
+    }
+
+    /// Ready: listeners up and every worker running.
+    pub fn ready(&self) -> bool {
+        self.listeners_up.load(Ordering::SeqCst)
+            && self.pool().running_workers() == self.config.server.effective_worker_threads()
+    }
+
+    fn ensure_gate<'a>(
+        &self,
+        inner: &'a mut Inner,
+        id: &str,
+        now: SystemTime,
+    ) -> Option<&'a mut GateEntry> {
+        if !inner.gates.contains_key(id) {
+            let cfg = self.config.gate(id)?.clone();
+            inner.alerts.set_rules(id, cfg.alert.clone());
+            // the sensor counts as seen at creation, so a gate that never sends goes stale
+            let events = inner.alerts.data_seen(id, now);
+            let state = inner.alerts.state(id).unwrap_or(GateState::Unknown);
+            self.metrics.set_alert_state(id, state_name(state));
+            self.notify(events);
+            inner.gates.insert(
+                id.to_string(),
+                GateEntry {
+                    window: Window::new(cfg.rate_hz, cfg.window_samples(), cfg.every_samples()),
+                    config: cfg,
+                    latest: None,
+                    last_identification: None,
+                    last_error: None,
+                },
+            );
+        }
+        inner.gates.get_mut(id)
+    }
+
+    fn notify(&self, events: Vec<AlertEvent>) {
+        if !events.is_empty() {
+            self.metrics
+                .notifications
+                .with_label_values(&["queued"])
+                .inc_by(events.len() as u64);
+            self.notifier.notify(events);
+        }
+    }
+
+    fn reject(&self, reason: &str, n: u64) {
+        if n > 0 {
+            self.metrics
+                .samples_rejected
+                .with_label_values(&[reason])
+                .inc_by(n);
+        }
+    }
+
+    /// Validates every batch, then applies them all (or none).
+    pub fn ingest(&self, batches: Vec<Batch>) -> Result<IngestSummary, IngestError> {
+        let total: u64 = batches.iter().map(|b| b.samples.len() as u64).sum();
+        if let Err((reason, e)) = self.validate(&batches) {
+            self.reject(reason, total);
+            return Err(e);
+        }
+        let now = SystemTime::now();
+        let mut summary = IngestSummary::default();
+        let mut jobs = Vec::new();
+        {
+            let mut inner = lock(&self.inner);
+            for batch in batches {
+                let Some(entry) = self.ensure_gate(&mut inner, &batch.gate, now) else {
+                    continue; // validated above
+                };
+                let (stats, due) = entry.window.push(batch.samples.iter().copied());
+                let fill = entry.window.fill_ratio();
+                let rate = entry.config.rate_hz;
+                summary.accepted += stats.accepted;
+                summary.duplicate += stats.duplicate;
+                summary.out_of_order += stats.out_of_order;
+                let g = batch.gate.as_str();
+                self.metrics
+                    .samples_ingested
+                    .with_label_values(&[g])
+                    .inc_by(stats.accepted);
+                self.metrics
+                    .window_fill_ratio
+                    .with_label_values(&[g])
+                    .set(fill);
+                if stats.gaps > 0 {
+                    self.metrics
+                        .window_gaps
+                        .with_label_values(&[g])
+                        .inc_by(stats.gaps);
+                }
+                self.reject("duplicate", stats.duplicate);
+                self.reject("out_of_order", stats.out_of_order);
+                // only the newest due window matters: older ones are replaced before queueing
+                let n_due = due.len() as u64;
+                if let Some(w) = due.into_iter().last() {
+                    if n_due > 1 {
+                        self.metrics.jobs_replaced.inc_by(n_due - 1);
+                    }
+                    jobs.push(Job {
+                        gate: batch.gate.clone(),
+                        t0: w.t0,
+                        rate_hz: rate,
+                        values: w.values,
+                        end_index: w.end_index,
+                    });
+                }
+                let events = inner.alerts.data_seen(g, now);
+                if !events.is_empty() {
+                    let state = inner.alerts.state(g).unwrap_or(GateState::Unknown);
+                    self.metrics.set_alert_state(g, state_name(state));
+                }
+                self.notify(events);
+            }
+        }
+        for job in jobs {
+            summary.jobs += 1;
+            self.submit(job);
+        }
+        Ok(summary)
+    }
+
+    /// Submits a job to the pool, counting replacements and drops.
+    pub fn submit(&self, job: Job) {
+        let gate = job.gate.clone();
+        match self.pool().submit(job) {
+            Submitted::Queued => {}
+            Submitted::Replaced => self.metrics.jobs_replaced.inc(),
+            Submitted::QueueFull => {
+                tracing::warn!(%gate, "identification queue full, window dropped");
+                self.metrics
+                    .identification_failures
+                    .with_label_values(&["queue_full"])
+                    .inc();
+            }
+            Submitted::Closed => {}
+        }
+    }
+
+    /// Checks every batch; on error also gives the `samples_rejected_total` reason.
+    fn validate(&self, batches: &[Batch]) -> Result<(), (&'static str, IngestError)> {
+        let inner = lock(&self.inner);
+        let mut new_gates: Vec<&str> = Vec::new();
+        for b in batches {
+            let Some(cfg) = self.config.gate(&b.gate) else {
+                return Err(("unknown_gate", IngestError::UnknownGate(b.gate.clone())));
+            };
+            if !inner.gates.contains_key(&b.gate) && !new_gates.contains(&b.gate.as_str()) {
+                new_gates.push(&b.gate);
+                if inner.gates.len() + new_gates.len() > self.config.server.max_gates {
+                    return Err(("too_many_gates", IngestError::TooManyGates(b.gate.clone())));
+                }
+            }
+            for (i, (t, v)) in b.samples.iter().enumerate() {
+                if !v.is_finite() || !t.is_finite() {
+                    let what = if v.is_finite() { "time" } else { "value" };
+                    let got = if v.is_finite() { *t } else { *v };
+                    let mut e = BadRequest::new(format!("sample {what} must be finite, got {got}"))
+                        .field(b.values_field.clone());
+                    match &b.lines {
+                        Some(lines) => e.line = lines.get(i).copied(),
+                        None => e.index = Some(i),
+                    }
+                    return Err(("non_finite", IngestError::BadRequest(e)));
+                }
+            }
+            if let Some((rate, field)) = &b.rate {
+                if ((rate - cfg.rate_hz) / cfg.rate_hz).abs() > RATE_TOLERANCE {
+                    return Err((
+                        "rate_mismatch",
+                        IngestError::BadRequest(BadRequest::new(format!(
+                            "sample rate {rate} Hz disagrees with the configured {} Hz of gate `{}` by more than 1 %",
+                            cfg.rate_hz, b.gate
+                        ))
+                        .field(field.clone())),
+                    ));
+                }
+            }
+        }
+        Ok(())
+    }
+
+    fn on_result(&self, job: &Job, outcome: JobOutcome, elapsed: Duration) {
+        self.metrics
+            .identification_duration
+            .observe(elapsed.as_secs_f64());
+        let g = job.gate.as_str();
+        let now = SystemTime::now();
+        let mut inner = lock(&self.inner);
+        match outcome {
+            JobOutcome::Done(a) => {
+                let d = &a.damping;
+                let set = |gv: &prometheus::GaugeVec, v: Option<f64>| {
+                    if let Some(v) = v.filter(|v| v.is_finite()) {
+                        gv.with_label_values(&[g]).set(v);
+                    }
+                };
+                set(&self.metrics.damping_ratio, d.zeta0);
+                set(&self.metrics.equivalent_damping_ratio, d.zeta_eq);
+                set(&self.metrics.frequency_hertz, d.frequency_hz);
+                set(&self.metrics.fit_nmae, Some(d.fit_nmae));
+                for (name, v) in &a.coefficients {
+                    if v.is_finite() {
+                        self.metrics
+                            .model_coefficient
+                            .with_label_values(&[g, name])
+                            .set(*v);
+                    }
+                }
+                self.metrics
+                    .last_identification
+                    .with_label_values(&[g])
+                    .set(unix(now));
+                let events = inner.alerts.observe(
+                    g,
+                    &Observation {
+                        zeta0: d.zeta0,
+                        trusted: d.trusted,
+                        frequency_hz: d.frequency_hz,
+                        limit_cycle_amplitude: d.limit_cycle_amplitude,
+                        time_to_limit: d.time_to_limit,
+                        equation: &a.equation,
+                    },
+                    now,
+                );
+                let state = inner.alerts.state(g).unwrap_or(GateState::Unknown);
+                self.metrics.set_alert_state(g, state_name(state));
+                if let Some(e) = inner.gates.get_mut(g) {
+                    e.latest = Some(*a);
+                    e.last_identification = Some(now);
+                    e.last_error = None;
+                }
+                drop(inner);
+                self.notify(events);
+            }
+            JobOutcome::Failed(err) => {
+                let reason = match err {
+                    AnalysisError::Settings(_) => "settings",
+                    AnalysisError::Window(_) => "window",
+                };
+                tracing::warn!(gate = g, error = %err, "identification failed");
+                self.metrics
+                    .identification_failures
+                    .with_label_values(&[reason])
+                    .inc();
+                if let Some(e) = inner.gates.get_mut(g) {
+                    e.last_error = Some(err.to_string());
+                }
+            }
+            JobOutcome::Panicked(msg) => {
+                tracing::error!(gate = g, panic = %msg, "identification panicked");
+                self.metrics
+                    .identification_failures
+                    .with_label_values(&["panic"])
+                    .inc();
+                if let Some(e) = inner.gates.get_mut(g) {
+                    e.last_error = Some("internal error in the identification".into());
+                }
+            }
+        }
+    }
+
+    /// Once a second: raises GateDataStale for silent gates.
+    pub fn tick(&self, now: SystemTime) {
+        let mut inner = lock(&self.inner);
+        let events = inner.alerts.check_stale(now);
+        for e in &events {
+            let state = inner.alerts.state(&e.gate).unwrap_or(GateState::Unknown);
+            self.metrics.set_alert_state(&e.gate, state_name(state));
+        }
+        drop(inner);
+        self.notify(events);
+    }
+
+    /// Alert state of a gate.
+    pub fn alert_state(&self, gate: &str) -> Option<&'static str> {
+        lock(&self.inner).alerts.state(gate).map(state_name)
+    }
+
+    /// Known gate ids.
+    pub fn gate_ids(&self) -> Vec<String> {
+        lock(&self.inner).gates.keys().cloned().collect()
+    }
+
+    /// One gate's view.
+    pub fn gate_view(&self, id: &str) -> Option<GateView> {
+        let inner = lock(&self.inner);
+        let e = inner.gates.get(id)?;
+        let w = &e.window;
+        Some(GateView {
+            gate: id.to_string(),
+            alert_state: state_name(inner.alerts.state(id).unwrap_or(GateState::Unknown)),
+            window: WindowView {
+                samples: w.len(),
+                capacity: w.capacity(),
+                span_seconds: w.span_seconds(),
+                fill: w.fill_ratio(),
+                last_sample_time: w.last_time(),
+                samples_total: w.accepted_total(),
+                rate_hz: e.config.rate_hz,
+            },
+            identification: e.latest.as_ref().map(|a| IdentificationView {
+                time: e.last_identification.map(unix).unwrap_or(0.0),
+                equation: a.equation.clone(),
+                coefficients: a.coefficients.iter().cloned().collect(),
+                damping: a.damping.clone(),
+                seconds: a.seconds,
+            }),
+            last_error: e.last_error.clone(),
+        })
+    }
+
+    /// The notifier handle (for shutdown).
+    pub fn notifier(&self) -> NotifierHandle {
+        self.notifier.clone()
+    }
+}

@@ -1,0 +1,305 @@
+//! The sliding window of one gate: a preallocated ring buffer of the last `window_seconds` of
+//! samples, with the identification cadence counted in SAMPLE time.
+//!
+//! Memory: the buffer keeps values only (8 bytes per sample; the time of every sample follows
+//! from the time of the first and the rate since the window is uniform and contiguous), so a
+//! gate costs `8 * window_seconds * rate_hz` bytes, 16 KB at 10 s and 200 Hz.
+//!
+//! Rules for each incoming sample at time `t`, with `p = 1 / rate_hz` and `last` the newest
+//! sample kept:
+//! - `|t - last| < p/2`: duplicate, dropped (counted `duplicate`);
+//! - `t - last <= -p/2`: older than the head, dropped (counted `out_of_order`);
+//! - `t - last > 1.5 p`: gap: the window restarts at `t`, so no window spans a gap; identification
+//!   resumes once a contiguous stretch of a full window has been collected after the gap;
+//! - otherwise appended (timing jitter within half a period is tolerated).
+//!
+//! Clock jumps: after a full window's worth of CONSECUTIVE out-of-order samples, the source's
+//! clock is taken to have jumped backwards (or one sample came from far in the future) and the
+//! window restarts at the current sample (counted as a gap), so one bad timestamp cannot block a
+//! gate for good.
+//!
+//! A window is due when it is full and `every` samples have arrived since the last due window
+//! (or since the first full window after a gap). Since this depends only on the samples, a
+//! stream replayed at any speed, in any chunking, yields the same windows.
+
+use std::collections::VecDeque;
+
+/// Outcome counts of one push.
+#[derive(Debug, Default, Clone, Copy, PartialEq, Eq)]
+pub struct PushStats {
+    /// Samples appended.
+    pub accepted: u64,
+    /// Duplicates dropped.
+    pub duplicate: u64,
+    /// Out-of-order samples dropped.
+    pub out_of_order: u64,
+    /// Gaps that restarted the window.
+    pub gaps: u64,
+}
+
+/// A full window ready for identification.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DueWindow {
+    /// Time of the first sample.
+    pub t0: f64,
+    /// The samples.
+    pub values: Vec<f64>,
+    /// Index (over all samples ever accepted for the gate, from 0) of the sample after the last.
+    pub end_index: u64,
+}
+
+/// The window of one gate.
+#[derive(Debug, Clone)]
+pub struct Window {
+    rate_hz: f64,
+    capacity: usize,
+    every: usize,
+    values: VecDeque<f64>,
+    /// Time of `values[0]`.
+    t_first: f64,
+    /// Time of the newest sample.
+    t_last: Option<f64>,
+    /// Samples accepted ever.
+    accepted: u64,
+    /// Samples accepted since the last due window (or since the gap).
+    since_due: usize,
+    /// Whether a window was due since the last gap.
+    due_once: bool,
+    /// Consecutive out-of-order samples.
+    consecutive_old: usize,
+}
+
+impl Window {
+    /// A window of `capacity` samples at `rate_hz`, due every `every` new samples.
+    pub fn new(rate_hz: f64, capacity: usize, every: usize) -> Window {
+        Window {
+            rate_hz,
+            capacity: capacity.max(1),
+            every: every.max(1),
+            values: VecDeque::with_capacity(capacity.max(1)),
+            t_first: 0.0,
+            t_last: None,
+            accepted: 0,
+            since_due: 0,
+            due_once: false,
+            consecutive_old: 0,
+        }
+    }
+
+    /// Pushes samples `(t, v)` in order; returns the counts and the windows that became due
+    /// (the caller usually keeps only the last: newer windows replace older ones).
+    pub fn push(
+        &mut self,
+        samples: impl IntoIterator<Item = (f64, f64)>,
+    ) -> (PushStats, Vec<DueWindow>) {
+        let period = 1.0 / self.rate_hz;
+        let mut stats = PushStats::default();
+        let mut due = Vec::new();
+        for (t, v) in samples {
+            if let Some(last) = self.t_last {
+                let dt = t - last;
+                if dt.abs() < 0.5 * period {
+                    stats.duplicate += 1;
+                    continue;
+                }
+                let clock_jump = dt <= -0.5 * period && self.consecutive_old + 1 >= self.capacity;
+                if dt <= -0.5 * period && !clock_jump {
+                    stats.out_of_order += 1;
+                    self.consecutive_old += 1;
+                    continue;
+                }
+                if dt > 1.5 * period || clock_jump {
+                    stats.gaps += 1;
+                    self.values.clear();
+                    self.since_due = 0;
+                    self.due_once = false;
+                }
+            }
+            if self.values.is_empty() {
+                self.t_first = t;
+            }
+            if self.values.len() == self.capacity {
+                self.values.pop_front();
+                self.t_first += period;
+            }
+            self.values.push_back(v);
+            self.consecutive_old = 0;
+            self.t_last = Some(t);
+            self.accepted += 1;
+            self.since_due += 1;
+            stats.accepted += 1;
+            if self.values.len() == self.capacity
+                && (!self.due_once || self.since_due >= self.every)
+            {
+                self.due_once = true;
+                self.since_due = 0;
+                due.push(DueWindow {
+                    t0: self.t_first,
+                    values: self.values.iter().copied().collect(),
+                    end_index: self.accepted,
+                });
+            }
+        }
+        (stats, due)
+    }
+
+    /// Samples held.
+    pub fn len(&self) -> usize {
+        self.values.len()
+    }
+
+    /// Whether no sample is held.
+    pub fn is_empty(&self) -> bool {
+        self.values.is_empty()
+    }
+
+    /// Capacity in samples.
+    pub fn capacity(&self) -> usize {
+        self.capacity
+    }
+
+    /// Held fraction of a full window.
+    pub fn fill_ratio(&self) -> f64 {
+        self.values.len() as f64 / self.capacity as f64
+    }
+
+    /// Seconds spanned by the held samples.
+    pub fn span_seconds(&self) -> f64 {
+        self.values.len().saturating_sub(1) as f64 / self.rate_hz
+    }
+
+    /// Time of the newest sample.
+    pub fn last_time(&self) -> Option<f64> {
+        self.t_last
+    }
+
+    /// Samples accepted ever.
+    pub fn accepted_total(&self) -> u64 {
+        self.accepted
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn stream(n: usize, rate: f64) -> Vec<(f64, f64)> {
+        (0..n)
+            .map(|i| (1000.0 + i as f64 / rate, (i as f64 * 0.1).sin()))
+            .collect()
+    }
+
+    #[test]
+    fn same_windows_whatever_the_chunking() {
+        let data = stream(5_000, 100.0);
+        let run = |chunk: usize| {
+            let mut w = Window::new(100.0, 300, 50);
+            let mut due = Vec::new();
+            for c in data.chunks(chunk) {
+                due.extend(w.push(c.iter().copied()).1);
+            }
+            due
+        };
+        let one = run(1);
+        assert_eq!(one.len(), 1 + (5_000 - 300) / 50);
+        assert_eq!(one[0].end_index, 300);
+        assert_eq!(one[1].end_index, 350);
+        for chunk in [7, 100, 1234, 5_000] {
+            assert_eq!(run(chunk), one, "chunk {chunk}");
+        }
+    }
+
+    #[test]
+    fn duplicates_and_out_of_order_are_dropped() {
+        let mut w = Window::new(100.0, 10, 5);
+        let (s, _) = w.push([
+            (0.0, 1.0),
+            (0.01, 2.0),
+            (0.01, 9.0),
+            (0.005 + 0.001, 3.0),
+            (0.0, 4.0),
+            (0.02, 5.0),
+        ]);
+        assert_eq!(s.accepted, 3);
+        assert_eq!(s.duplicate, 2); // 0.01 again, and 0.006 (within half a period of 0.01)
+        assert_eq!(s.out_of_order, 1);
+        assert_eq!(w.len(), 3);
+    }
+
+    #[test]
+    fn a_gap_restarts_the_window_and_no_window_spans_it() {
+        let rate = 100.0;
+        let mut w = Window::new(rate, 100, 20);
+        let mut data = stream(150, rate);
+        // a gap of 2 periods
+        data.extend((0..250).map(|i| (1000.0 + (151 + i) as f64 / rate, 0.0)));
+        let mut due = Vec::new();
+        let mut gaps = 0;
+        for s in data.chunks(13) {
+            let (st, d) = w.push(s.iter().copied());
+            gaps += st.gaps;
+            due.extend(d);
+        }
+        assert_eq!(gaps, 1);
+        let gap_t = 1000.0 + 149.0 / rate;
+        for d in &due {
+            let t_end = d.t0 + (d.values.len() - 1) as f64 / rate;
+            assert!(
+                t_end <= gap_t + 1e-9 || d.t0 > gap_t,
+                "window {}..{} spans the gap at {gap_t}",
+                d.t0,
+                t_end
+            );
+        }
+        // before the gap: full at 100, then 120, 140; after it: first full at 150 + 100
+        let ends: Vec<u64> = due.iter().map(|d| d.end_index).collect();
+        assert_eq!(
+            ends,
+            vec![100, 120, 140, 250, 270, 290, 310, 330, 350, 370, 390]
+        );
+        // a small jitter is not a gap
+        let mut w = Window::new(rate, 100, 20);
+        let (s, _) = w.push([(0.0, 0.0), (0.0149, 0.0), (0.0249, 0.0)]);
+        assert_eq!((s.accepted, s.gaps), (3, 0));
+    }
+
+    #[test]
+    fn a_clock_jump_heals_after_a_window() {
+        let mut w = Window::new(100.0, 50, 10);
+        w.push(stream(60, 100.0));
+        // one sample from the far future, then the normal stream goes on
+        let (s, _) = w.push([(1e12, 0.0)]);
+        assert_eq!(s.gaps, 1);
+        let later: Vec<(f64, f64)> = stream(200, 100.0).into_iter().skip(60).collect();
+        let (s, due) = w.push(later);
+        assert_eq!(s.out_of_order, 49);
+        assert_eq!(s.gaps, 1);
+        assert!(!due.is_empty(), "the window fills again after the jump");
+        assert_eq!(w.len(), 50);
+    }
+
+    #[test]
+    fn ring_buffer_is_bounded() {
+        let mut w = Window::new(100.0, 50, 10);
+        w.push(stream(1000, 100.0));
+        assert_eq!(w.len(), 50);
+        assert!(w.values.capacity() >= 50);
+        assert!((w.fill_ratio() - 1.0).abs() < 1e-12);
+        assert!((w.span_seconds() - 0.49).abs() < 1e-9);
+        assert_eq!(w.accepted_total(), 1000);
+    }
+
+    proptest::proptest! {
+        #[test]
+        fn never_exceeds_capacity_and_windows_are_full(
+            ts in proptest::collection::vec(-5.0f64..5.0, 0..400),
+        ) {
+            let mut w = Window::new(10.0, 20, 5);
+            let (_, due) = w.push(ts.iter().map(|t| (*t, 1.0)));
+            proptest::prop_assert!(w.len() <= 20);
+            for d in due {
+                proptest::prop_assert_eq!(d.values.len(), 20);
+            }
+        }
+    }
+}

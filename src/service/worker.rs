@@ -1,0 +1,318 @@
+//! The identification worker pool and its scheduler.
+//!
+//! Identification is CPU-bound and runs on dedicated std threads, never on the async runtime.
+//! The scheduler keeps at most ONE pending job per gate: a newer window of the same gate replaces
+//! the pending one (counted in `gatewatch_identification_jobs_replaced_total`), so the queue is
+//! bounded by the number of gates whatever the ingestion rate. At most one job per gate is in
+//! flight, so the warm start of a gate's next job is always its previous result. Every job runs
+//! under `catch_unwind`: a panic in the numerics is logged and counted as a failed job.
+
+use std::collections::{HashMap, HashSet, VecDeque};
+use std::panic::{catch_unwind, AssertUnwindSafe};
+use std::sync::{Arc, Condvar, Mutex};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+
+use crate::analysis::{AnalysisError, Analyzer, WindowAnalysis, WindowInput};
+
+/// What the pool needs from the numerics; implemented for [`AnalyzerMap`] and by test fakes.
+pub trait WindowAnalyzer: Send + Sync + 'static {
+    /// Analyses one window of `gate`.
+    fn analyze(
+        &self,
+        gate: &str,
+        input: WindowInput<'_>,
+        warm: Option<&[f64]>,
+        seed: u64,
+    ) -> Result<WindowAnalysis, AnalysisError>;
+}
+
+/// One [`Analyzer`] per configured gate, and the defaults' analyzer for the others.
+#[derive(Debug)]
+pub struct AnalyzerMap {
+    gates: HashMap<String, Analyzer>,
+    default: Analyzer,
+}
+
+impl AnalyzerMap {
+    /// Builds the analyzers from the configuration (compiles each model once).
+    pub fn from_config(config: &super::config::Config) -> Result<AnalyzerMap, AnalysisError> {
+        let default = Analyzer::new(config.defaults.analysis_settings())?;
+        let mut gates = HashMap::new();
+        for (id, g) in &config.gates {
+            let a = Analyzer::new(g.analysis_settings())
+                .map_err(|e| AnalysisError::Settings(format!("gates.{id}: {e}")))?;
+            gates.insert(id.clone(), a);
+        }
+        Ok(AnalyzerMap { gates, default })
+    }
+}
+
+impl WindowAnalyzer for AnalyzerMap {
+    fn analyze(
+        &self,
+        gate: &str,
+        input: WindowInput<'_>,
+        warm: Option<&[f64]>,
+        seed: u64,
+    ) -> Result<WindowAnalysis, AnalysisError> {
+        self.gates
+            .get(gate)
+            .unwrap_or(&self.default)
+            .analyze(input, warm, seed)
+    }
+}
+
+/// Reproducible seed of a window: FNV-1a of the gate id, mixed with the window's end index.
+pub fn window_seed(gate: &str, end_index: u64) -> u64 {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for b in gate.bytes() {
+        h ^= u64::from(b);
+        h = h.wrapping_mul(0x0100_0000_01b3);
+    }
+    // splitmix64 finaliser of the combination
+    let mut z = h ^ end_index.wrapping_mul(0x9e37_79b9_7f4a_7c15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    z ^ (z >> 31)
+}
+
+/// One identification job.
+#[derive(Debug, Clone)]
+pub struct Job {
+    /// Gate id.
+    pub gate: String,
+    /// Time of the first sample.
+    pub t0: f64,
+    /// Sample rate.
+    pub rate_hz: f64,
+    /// Samples.
+    pub values: Vec<f64>,
+    /// Index of the sample after the window's last (seeds the job).
+    pub end_index: u64,
+}
+
+/// How a job ended.
+#[derive(Debug)]
+pub enum JobOutcome {
+    /// Analysed.
+    Done(Box<WindowAnalysis>),
+    /// The analyzer refused the window or settings.
+    Failed(AnalysisError),
+    /// The analyzer panicked (message).
+    Panicked(String),
+}
+
+/// Called on the worker thread with each finished job and its wall time.
+pub type ResultSink = Arc<dyn Fn(&Job, JobOutcome, Duration) + Send + Sync>;
+
+/// What `submit` did.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Submitted {
+    /// Queued.
+    Queued,
+    /// Replaced the gate's pending job.
+    Replaced,
+    /// The queue is full (more gates waiting than `job_queue`): dropped.
+    QueueFull,
+    /// The pool is shutting down: dropped.
+    Closed,
+}
+
+#[derive(Default)]
+struct Sched {
+    pending: HashMap<String, Job>,
+    order: VecDeque<String>,
+    in_flight: HashSet<String>,
+    warm: HashMap<String, Vec<f64>>,
+    closed: bool,
+    running_workers: usize,
+}
+
+struct Shared {
+    sched: Mutex<Sched>,
+    cv: Condvar,
+    queue_bound: usize,
+    analyzer: Arc<dyn WindowAnalyzer>,
+    sink: ResultSink,
+}
+
+/// The worker pool.
+pub struct WorkerPool {
+    shared: Arc<Shared>,
+    threads: Mutex<Vec<JoinHandle<()>>>,
+}
+
+impl std::fmt::Debug for WorkerPool {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("WorkerPool").finish_non_exhaustive()
+    }
+}
+
+fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+impl WorkerPool {
+    /// Starts `threads` workers; at most `queue_bound` gates wait at once.
+    pub fn start(
+        threads: usize,
+        queue_bound: usize,
+        analyzer: Arc<dyn WindowAnalyzer>,
+        sink: ResultSink,
+    ) -> std::io::Result<WorkerPool> {
+        let shared = Arc::new(Shared {
+            sched: Mutex::new(Sched::default()),
+            cv: Condvar::new(),
+            queue_bound: queue_bound.max(1),
+            analyzer,
+            sink,
+        });
+        let mut handles = Vec::new();
+        for i in 0..threads.max(1) {
+            let s = shared.clone();
+            lock(&shared.sched).running_workers += 1;
+            let h = std::thread::Builder::new()
+                .name(format!("gatewatch-worker-{i}"))
+                .spawn(move || worker_loop(s));
+            match h {
+                Ok(h) => handles.push(h),
+                Err(e) => {
+                    lock(&shared.sched).running_workers -= 1;
+                    return Err(e);
+                }
+            }
+        }
+        Ok(WorkerPool {
+            shared,
+            threads: Mutex::new(handles),
+        })
+    }
+
+    /// Submits a job; replaces the gate's pending job if there is one.
+    pub fn submit(&self, job: Job) -> Submitted {
+        let mut s = lock(&self.shared.sched);
+        if s.closed {
+            return Submitted::Closed;
+        }
+        let outcome = if let Some(slot) = s.pending.get_mut(&job.gate) {
+            *slot = job;
+            Submitted::Replaced
+        } else if s.pending.len() >= self.shared.queue_bound {
+            return Submitted::QueueFull;
+        } else {
+            s.order.push_back(job.gate.clone());
+            s.pending.insert(job.gate.clone(), job);
+            Submitted::Queued
+        };
+        drop(s);
+        self.shared.cv.notify_one();
+        outcome
+    }
+
+    /// Workers still running.
+    pub fn running_workers(&self) -> usize {
+        lock(&self.shared.sched).running_workers
+    }
+
+    /// Jobs waiting.
+    pub fn pending(&self) -> usize {
+        lock(&self.shared.sched).pending.len()
+    }
+
+    /// Jobs in flight.
+    pub fn in_flight(&self) -> usize {
+        lock(&self.shared.sched).in_flight.len()
+    }
+
+    /// Stops taking jobs, abandons pending ones and waits up to `grace` for the jobs in flight.
+    /// Returns the number of pending jobs abandoned and whether every worker stopped in time
+    /// (a worker still computing after the deadline is detached; the process exit ends it).
+    pub async fn shutdown(&self, grace: Duration) -> (usize, bool) {
+        let abandoned = {
+            let mut s = lock(&self.shared.sched);
+            s.closed = true;
+            let n = s.pending.len();
+            s.pending.clear();
+            s.order.clear();
+            n
+        };
+        self.shared.cv.notify_all();
+        let deadline = Instant::now() + grace;
+        loop {
+            if self.running_workers() == 0 {
+                for h in lock(&self.threads).drain(..) {
+                    let _ = h.join();
+                }
+                return (abandoned, true);
+            }
+            if Instant::now() >= deadline {
+                return (abandoned, false);
+            }
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    }
+}
+
+fn worker_loop(shared: Arc<Shared>) {
+    loop {
+        let (job, warm) = {
+            let mut s = lock(&shared.sched);
+            loop {
+                if s.closed {
+                    s.running_workers -= 1;
+                    return;
+                }
+                // the oldest waiting gate that is not in flight
+                let pos = s.order.iter().position(|g| !s.in_flight.contains(g));
+                if let Some(pos) = pos {
+                    let gate = s.order.remove(pos).expect("position is in range");
+                    let job = s.pending.remove(&gate).expect("order and pending agree");
+                    s.in_flight.insert(gate.clone());
+                    let warm = s.warm.get(&gate).cloned();
+                    break (job, warm);
+                }
+                s = shared.cv.wait(s).unwrap_or_else(|p| p.into_inner());
+            }
+        };
+        let started = Instant::now();
+        let seed = window_seed(&job.gate, job.end_index);
+        let result = catch_unwind(AssertUnwindSafe(|| {
+            shared.analyzer.analyze(
+                &job.gate,
+                WindowInput {
+                    t0: job.t0,
+                    rate_hz: job.rate_hz,
+                    values: &job.values,
+                },
+                warm.as_deref(),
+                seed,
+            )
+        }));
+        let elapsed = started.elapsed();
+        let outcome = match result {
+            Ok(Ok(a)) => {
+                lock(&shared.sched)
+                    .warm
+                    .insert(job.gate.clone(), a.warm_start.clone());
+                JobOutcome::Done(Box::new(a))
+            }
+            Ok(Err(e)) => JobOutcome::Failed(e),
+            Err(panic) => {
+                let msg = panic
+                    .downcast_ref::<&str>()
+                    .map(|s| s.to_string())
+                    .or_else(|| panic.downcast_ref::<String>().cloned())
+                    .unwrap_or_else(|| "non-string panic payload".into());
+                JobOutcome::Panicked(msg)
+            }
+        };
+        // the sink must not take the worker down either
+        let sink = shared.sink.clone();
+        if catch_unwind(AssertUnwindSafe(|| sink(&job, outcome, elapsed))).is_err() {
+            tracing::error!(gate = %job.gate, "result handler panicked");
+        }
+        lock(&shared.sched).in_flight.remove(&job.gate);
+        shared.cv.notify_all();
+    }
+}
