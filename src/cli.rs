@@ -31,6 +31,12 @@ enum Command {
     /// Benchmarks.
     #[command(subcommand)]
     Bench(BenchCommand),
+    /// Run the monitoring daemon.
+    Serve(crate::service::cli::ServeArgs),
+    /// Validate a configuration file without starting the daemon.
+    CheckConfig(crate::service::cli::CheckConfigArgs),
+    /// Stream a simulated gate's support force to a running daemon.
+    Simulate(crate::service::cli::SimulateArgs),
 }
 
 #[derive(Debug, Subcommand)]
@@ -226,6 +232,9 @@ pub fn main() -> ExitCode {
         }
     };
     let result = match cli.command {
+        Command::Serve(args) => return crate::service::cli::serve(args),
+        Command::CheckConfig(args) => return crate::service::cli::check_config(args),
+        Command::Simulate(args) => return crate::service::cli::simulate(args),
         Command::Identify(args) => run_identify(args),
         Command::Bench(BenchCommand::SeedCases(args)) => run_seed_cases(args),
         Command::Bench(BenchCommand::Generate(args)) => run_generate(args),
