@@ -275,7 +275,7 @@ fn too_few_samples_for_the_split() {
     let f = d.write("few.csv", "t,y\n0,1\n0.1,2\n0.2,3\n0.3,1\n0.4,1\n");
     bad(
         &["identify", "--input", &f, "--model", VDP],
-        &["5 samples", "too few", "at least 8"],
+        &["5 samples", "too few", "at least"],
     );
     // 10 samples are enough at 0.5 but not at 0.9 (9 train, 1 test).
     let rows: String = (0..10).map(|i| format!("{},{}\n", i, i % 3)).collect();
@@ -736,4 +736,60 @@ fn seed_cases_bench_runs_one_case() {
     assert_eq!(cases.len(), 1);
     assert_eq!(cases[0]["id"].as_str(), Some("negative_damping_1"));
     assert_eq!(cases[0]["successes"].as_u64(), Some(1));
+}
+
+#[test]
+fn seven_samples_are_enough_for_a_half_split() {
+    // round(7 * 0.5) = 4 training samples and 3 test samples: the minimum the split accepts.
+    let d = Dir::new();
+    let rows = read_csv(&d.case("negative_damping_1"));
+    let body: String = rows[..7]
+        .iter()
+        .map(|(t, y)| format!("{t},{y}\n"))
+        .collect();
+    let f = d.write("seven.csv", &format!("t,y\n{body}"));
+    ok(&[
+        "identify",
+        "--input",
+        &f,
+        "--model",
+        "ydd + c1*yd + y = 0",
+        "--generations",
+        "5",
+    ]);
+}
+
+/// Engine bug (src/identify.rs, `split`, the `needed` computation): the "needs at least N"
+/// figure ignores that the training count is rounded, and overflows for tiny fractions.
+/// Run with `cargo test --test cli_identify -- --ignored`.
+#[test]
+#[ignore = "engine bug in identify::split's message, reported; not fixed on the tests branch"]
+fn too_few_samples_message_gives_the_true_minimum() {
+    let d = Dir::new();
+    let rows = read_csv(&d.case("negative_damping_1"));
+    let body: String = rows[..6]
+        .iter()
+        .map(|(t, y)| format!("{t},{y}\n"))
+        .collect();
+    let f = d.write("six.csv", &format!("t,y\n{body}"));
+    // 7 samples suffice at 0.5 (see seven_samples_are_enough_for_a_half_split); it says 8.
+    bad(
+        &["identify", "--input", &f, "--model", "ydd + c1*yd + y = 0"],
+        &["6 samples", "at least 7"],
+    );
+    // A tiny fraction: the minimum is astronomically large, not usize::MAX from a saturating
+    // cast (the message says "at least 18446744073709551615").
+    let line = bad(
+        &[
+            "identify",
+            "--input",
+            &f,
+            "--model",
+            "ydd + c1*yd + y = 0",
+            "--train-fraction",
+            "1e-300",
+        ],
+        &["too few"],
+    );
+    assert!(!line.contains(&usize::MAX.to_string()), "{line}");
 }
