@@ -258,10 +258,20 @@ pub fn main() -> ExitCode {
                     ExitCode::SUCCESS
                 };
             }
-            // One line: clap's first line, without its usage block.
+            // One line: clap's first line, without its usage block. Clap lists missing required
+            // arguments on indented lines after the first; fold them in so the line names them.
             let text = e.render().to_string();
-            let line = text.lines().next().unwrap_or("error: invalid arguments");
-            eprintln!("gatewatch: {}", line.trim_start_matches("error: "));
+            let mut lines = text.lines();
+            let mut line = lines
+                .next()
+                .unwrap_or("error: invalid arguments")
+                .trim_start_matches("error: ")
+                .to_string();
+            for more in lines.take_while(|l| l.starts_with("  ") && !l.trim().is_empty()) {
+                line.push(' ');
+                line.push_str(more.trim());
+            }
+            eprintln!("gatewatch: {line}");
             return ExitCode::from(2);
         }
     };
