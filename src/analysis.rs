@@ -516,10 +516,8 @@ pub fn analyze_series(
 ) -> Result<SeriesAnalysis, AnalysisError> {
     use crate::spectral::{SpectralAnalyzer, WindowOptions};
     let n = series.len();
-    if n < 16 {
-        return Err(AnalysisError::Window(format!(
-            "{n} samples are too few (at least 16)"
-        )));
+    if n < 2 {
+        return Err(AnalysisError::Window(format!("{n} samples are too few")));
     }
     let fs = series.uniform_step().map(|h| 1.0 / h);
     let t0 = series.t[0];

@@ -528,10 +528,17 @@ pub fn split(
     const MIN_TRAIN: usize = 4;
     const MIN_TEST: usize = 2;
     let n_train = ((n as f64) * fraction).round() as usize;
-    if n_train < MIN_TRAIN || n - n_train.min(n) < MIN_TEST {
-        let needed = (MIN_TRAIN as f64 / fraction)
-            .max(MIN_TEST as f64 / (1.0 - fraction))
-            .ceil() as usize;
+    let fits = |n: usize| {
+        let n_train = ((n as f64) * fraction).round() as usize;
+        n_train >= MIN_TRAIN && n.saturating_sub(n_train) >= MIN_TEST
+    };
+    if !fits(n) {
+        // The smallest sample count that works (the training count is rounded); searched, since
+        // rounding makes a closed form fiddly, and bounded for absurd fractions.
+        const SEARCH_LIMIT: usize = 10_000_000;
+        let needed = (n + 1..=SEARCH_LIMIT)
+            .find(|&m| fits(m))
+            .unwrap_or(SEARCH_LIMIT);
         return Err(IdentifyError::TooFewSamples {
             samples: n,
             needed,
@@ -539,6 +546,7 @@ pub fn split(
             test: MIN_TEST,
         });
     }
+    let n_train = ((n as f64) * fraction).round() as usize;
     let mut idx: Vec<usize> = (0..n).collect();
     idx.shuffle(&mut ChaCha8Rng::seed_from_u64(seed));
     let mut train = idx[..n_train].to_vec();

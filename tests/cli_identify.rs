@@ -763,7 +763,6 @@ fn seven_samples_are_enough_for_a_half_split() {
 /// figure ignores that the training count is rounded, and overflows for tiny fractions.
 /// Run with `cargo test --test cli_identify -- --ignored`.
 #[test]
-#[ignore = "engine bug in identify::split's message, reported; not fixed on the tests branch"]
 fn too_few_samples_message_gives_the_true_minimum() {
     let d = Dir::new();
     let rows = read_csv(&d.case("negative_damping_1"));

@@ -7,7 +7,7 @@
 use gatewatch::cases::{self, SeedCase};
 use gatewatch::data::TimeSeries;
 use gatewatch::de::Objective;
-use gatewatch::identify::{self, Config, Fitness, Identification, Initial};
+use gatewatch::identify::{self, Config, Fitness, Identification, Initial, Output};
 use gatewatch::model::Model;
 use gatewatch::ode::Method;
 use rand::SeedableRng;
@@ -125,11 +125,15 @@ fn setup(equation: &str, data_case: &str) -> Setup {
 
 impl Setup {
     fn fitness(&self, initial: Initial, method: Method) -> Fitness<'_> {
+        let y_scale = self.data.y.iter().fold(0.0f64, |m, v| m.max(v.abs()));
         Fitness::new(
             &self.model,
             &self.data,
             self.is_train.clone(),
             initial,
+            Output::Displacement,
+            Vec::new(),
+            y_scale,
             method,
             1e-3,
             2,
@@ -145,7 +149,7 @@ fn a_blow_up_never_beats_a_completing_candidate() {
     let s = setup("ydd + c1*yd + y = 0", "van_der_pol_2");
     for method in [Method::Dopri5, Method::Rk4, Method::Rosenbrock] {
         let f = s.fitness(KNOWN_VDP, method);
-        let cost = |c1: f64| f.cost(&[c1], f64::INFINITY, &mut ());
+        let cost = |c1: f64| f.cost(&[c1], f64::INFINITY, &mut f.workspace());
         // Completing, and poor: heavily overdamped (decays to 0, misses every oscillation), or
         // undamped with the wrong amplitude, or the best constant-amplitude fit.
         let completing = [cost(50.0), cost(5.0), cost(0.0), cost(-0.05)];
@@ -172,9 +176,9 @@ fn a_nan_producing_candidate_never_beats_a_completing_one() {
     let s = setup("ydd + c1*yd + sqrt(c2)*y = 0", "van_der_pol_2");
     for method in [Method::Dopri5, Method::Rk4, Method::Rosenbrock] {
         let f = s.fitness(KNOWN_VDP, method);
-        let nan = f.cost(&[0.0, -1.0], f64::INFINITY, &mut ());
-        let poor = f.cost(&[20.0, 100.0], f64::INFINITY, &mut ());
-        let decent = f.cost(&[0.0, 1.0], f64::INFINITY, &mut ());
+        let nan = f.cost(&[0.0, -1.0], f64::INFINITY, &mut f.workspace());
+        let poor = f.cost(&[20.0, 100.0], f64::INFINITY, &mut f.workspace());
+        let decent = f.cost(&[0.0, 1.0], f64::INFINITY, &mut f.workspace());
         assert!(!nan.is_nan(), "{method}: NaN cost");
         assert!(poor.is_finite() && decent.is_finite(), "{method}");
         assert!(
@@ -192,8 +196,8 @@ fn a_vanishing_mass_fails_and_never_wins() {
     // M = c1 + y: with c1 = -0.5 and y0 = 0.5 the mass is zero at t0 (ydd infinite).
     let s = setup("(c1 + y)*ydd + c2*yd + y = 0", "van_der_pol_2");
     let f = s.fitness(KNOWN_VDP, Method::Dopri5);
-    let singular = f.cost(&[-0.5, 0.0], f64::INFINITY, &mut ());
-    let poor = f.cost(&[10.0, 10.0], f64::INFINITY, &mut ());
+    let singular = f.cost(&[-0.5, 0.0], f64::INFINITY, &mut f.workspace());
+    let poor = f.cost(&[10.0, 10.0], f64::INFINITY, &mut f.workspace());
     assert!(poor.is_finite());
     assert!(singular > poor, "singular {singular:e} vs poor {poor:e}");
 }
@@ -203,9 +207,21 @@ fn fitted_initial_conditions_out_of_bounds_fail_and_lose() {
     let s = setup("ydd + (c1 + c2*y^2)*yd + y = 0", "van_der_pol_2");
     let f = s.fitness(Initial::Fit, Method::Dopri5);
     assert_eq!(f.dimension(), 4);
-    let huge = f.cost(&[-1.2218, 1.2218, 1e12, 0.0], f64::INFINITY, &mut ());
-    let wrong_start = f.cost(&[-1.2218, 1.2218, -3.0, 3.0], f64::INFINITY, &mut ());
-    let truth = f.cost(&[-1.2218, 1.2218, 0.5, 0.0], f64::INFINITY, &mut ());
+    let huge = f.cost(
+        &[-1.2218, 1.2218, 1e12, 0.0],
+        f64::INFINITY,
+        &mut f.workspace(),
+    );
+    let wrong_start = f.cost(
+        &[-1.2218, 1.2218, -3.0, 3.0],
+        f64::INFINITY,
+        &mut f.workspace(),
+    );
+    let truth = f.cost(
+        &[-1.2218, 1.2218, 0.5, 0.0],
+        f64::INFINITY,
+        &mut f.workspace(),
+    );
     // At the fitness tolerance (rtol 1e-3) the truth itself costs about 6e-3.
     assert!(truth < 2e-2, "truth {truth:e}");
     assert!(wrong_start.is_finite() && wrong_start > truth);
@@ -216,18 +232,18 @@ fn fitted_initial_conditions_out_of_bounds_fail_and_lose() {
 fn the_bound_lets_the_fitness_stop_early_but_never_lie_below_it() {
     let s = setup("ydd + (c1 + c2*y^2)*yd + y = 0", "van_der_pol_2");
     let f = s.fitness(KNOWN_VDP, Method::Dopri5);
-    let full = f.cost(&[0.5, 0.5], f64::INFINITY, &mut ());
+    let full = f.cost(&[0.5, 0.5], f64::INFINITY, &mut f.workspace());
     assert!(full.is_finite());
     // Any bound below the true cost: the answer is above the bound.
     for bound in [0.0, 1e-6, 0.5 * full, 0.999 * full] {
-        let c = f.cost(&[0.5, 0.5], bound, &mut ());
+        let c = f.cost(&[0.5, 0.5], bound, &mut f.workspace());
         assert!(c > bound, "bound {bound:e}: got {c:e}");
     }
     // A bound above the true cost: the exact cost.
-    assert_eq!(f.cost(&[0.5, 0.5], 2.0 * full, &mut ()), full);
+    assert_eq!(f.cost(&[0.5, 0.5], 2.0 * full, &mut f.workspace()), full);
     // Failing candidates too.
-    let fail = f.cost(&[-60.0, 0.0], f64::INFINITY, &mut ());
-    assert!(f.cost(&[-60.0, 0.0], full, &mut ()) > full);
+    let fail = f.cost(&[-60.0, 0.0], f64::INFINITY, &mut f.workspace());
+    assert!(f.cost(&[-60.0, 0.0], full, &mut f.workspace()) > full);
     assert!(fail > full);
 }
 
