@@ -302,22 +302,28 @@ pub fn biased_population(
     let d = model.n_coeffs();
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ 0x00fb_1a5);
     let w = target.omega;
-    let residuals = |x: &[f64]| -> Option<[f64; 2]> {
+    // Written as M0 w^2 - K0 and C0 + 2 sigma M0 rather than ratios: linear in the coefficients
+    // of every model whose M0, C0 and K0 are, so that the minimum-norm step lands on the set in
+    // one iteration (a ratio's 1/M0 makes Gauss-Newton overshoot from random starts).
+    let residuals = |x: &[f64]| -> Option<([f64; 2], f64)> {
         let c: Vec<f64> = x.iter().zip(scales).map(|(x, s)| x * s).collect();
         let lin = Linearization::of(model, &c, t0, y_scale, v_scale);
-        let r1 = (lin.k0 / lin.m0) / (w * w) - 1.0;
+        let r1 = lin.m0 * w * w - lin.k0;
         let r2 = match target.sigma {
-            Some(sigma) => (lin.c0 / lin.m0 + 2.0 * sigma) / w,
+            Some(sigma) => (lin.c0 + 2.0 * sigma * lin.m0) * w,
             None => 0.0,
         };
-        (r1.is_finite() && r2.is_finite()).then_some([r1, r2])
+        let size = lin.m0.abs() * w * w + lin.k0.abs();
+        (r1.is_finite() && r2.is_finite()).then_some(([r1, r2], size))
     };
     (0..n)
         .map(|_| {
             let mut x: Vec<f64> = (0..d).map(|_| rng.random_range(-1.0..=1.0)).collect();
             for _ in 0..8 {
-                let Some(r) = residuals(&x) else { break };
-                if r[0].abs() < 1e-6 && r[1].abs() < 1e-6 {
+                let Some((r, size)) = residuals(&x) else {
+                    break;
+                };
+                if r[0].abs() <= 1e-9 * size && r[1].abs() <= 1e-9 * size {
                     break;
                 }
                 // J (2 x d) by forward differences, then dx = -J^T (J J^T + mu I)^-1 r.
@@ -328,16 +334,15 @@ pub fn biased_population(
                     let mut xp = x.clone();
                     xp[j] += h;
                     match residuals(&xp) {
-                        Some(rp) => jac[j] = [(rp[0] - r[0]) / h, (rp[1] - r[1]) / h],
+                        Some((rp, _)) => jac[j] = [(rp[0] - r[0]) / h, (rp[1] - r[1]) / h],
                         None => ok = false,
                     }
                 }
                 if !ok {
                     break;
                 }
-                let mut a = [[1e-9; 2]; 2];
-                a[0][1] = 0.0;
-                a[1][0] = 0.0;
+                // J J^T, regularised relative to its size (one constraint may be absent: r2 = 0).
+                let mut a = [[0.0; 2]; 2];
                 for col in &jac {
                     for p in 0..2 {
                         for q in 0..2 {
@@ -345,8 +350,11 @@ pub fn biased_population(
                         }
                     }
                 }
+                let eps = 1e-12 * (a[0][0] + a[1][1]) + f64::MIN_POSITIVE;
+                a[0][0] += eps;
+                a[1][1] += eps;
                 let det = a[0][0] * a[1][1] - a[0][1] * a[1][0];
-                if det.abs() < 1e-30 {
+                if !(det.abs() > 0.0 && det.is_finite()) {
                     break;
                 }
                 let lam = [
@@ -884,5 +892,95 @@ impl Analyzer {
             seconds: started.elapsed().as_secs_f64(),
             warm_start: a.coefficients,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use approx::assert_relative_eq;
+
+    fn gate_model() -> Model {
+        Model::parse(
+            "c1*ydd + (c2 + c3*yd^2)*yd + k*y = 0",
+            &[("k".to_string(), 81360.0)],
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn linearization_of_the_gate_model() {
+        let m = gate_model();
+        let lin = Linearization::of(&m, &[19.14, -12.18, 447.3], 0.0, 1e-3, 0.065);
+        assert_relative_eq!(lin.m0, 19.14, max_relative = 1e-12);
+        assert_relative_eq!(lin.c0, -12.18, max_relative = 1e-6);
+        assert_relative_eq!(lin.k0, 81360.0, max_relative = 1e-6);
+        let zeta = -12.18 / (2.0 * (81360.0f64 * 19.14).sqrt());
+        assert_relative_eq!(lin.zeta0().unwrap(), zeta, max_relative = 1e-6);
+        // A rest position without restoring force has no damping ratio.
+        let flat = Linearization {
+            m0: 1.0,
+            c0: 0.1,
+            k0: -1.0,
+        };
+        assert_eq!(flat.zeta0(), None);
+    }
+
+    #[test]
+    fn equivalent_damping_of_cubic_damping_matches_harmonic_balance() {
+        // c_eq(a) = c1 + (3/4) c3 (a w)^2 for (c1 + c3 yd^2) yd.
+        let m = gate_model();
+        let c = [19.14, -12.18, 447.3];
+        let lin = Linearization::of(&m, &c, 0.0, 1e-3, 0.065);
+        let w = lin.omega0().unwrap();
+        for a in [1e-4, 1e-3, 3e-3] {
+            let (z, energy) = equivalent_damping(&m, &c, &lin, a, 0.0).unwrap();
+            let c_eq = -12.18 + 0.75 * 447.3 * (a * w).powi(2);
+            assert_relative_eq!(z, c_eq / (2.0 * 19.14 * w), max_relative = 1e-6);
+            // Energy fed in per cycle: -pi c_eq w a^2.
+            assert_relative_eq!(
+                energy,
+                -std::f64::consts::PI * c_eq * w * a * a,
+                max_relative = 1e-6
+            );
+        }
+        let a_lc = limit_cycle(&m, &c, &lin, 1e-3, 0.0).unwrap();
+        let expected = (4.0f64 * 12.18 / (3.0 * 447.3)).sqrt() / w;
+        assert_relative_eq!(a_lc, expected, max_relative = 1e-6);
+        // Below the limit cycle the amplitude grows towards it but never reaches a limit above it.
+        assert_eq!(
+            time_to_amplitude(&m, &c, &lin, 1e-3, 2.0 * expected, 0.0),
+            None
+        );
+        // Without the cubic term it grows exponentially: t = ln(limit/now) / sigma.
+        let linear = [19.14, -12.18, 0.0];
+        let t = time_to_amplitude(&m, &linear, &lin, 1e-3, 1e-2, 0.0).unwrap();
+        let sigma = 12.18 / (2.0 * 19.14);
+        assert_relative_eq!(t, 10f64.ln() / sigma, max_relative = 1e-3);
+        assert_eq!(limit_cycle(&m, &linear, &lin, 1e-3, 0.0), None);
+    }
+
+    #[test]
+    fn biased_population_satisfies_the_spectral_constraints() {
+        let m = gate_model();
+        let scales = [19.0, 40.0, 1000.0];
+        let w = 2.0 * std::f64::consts::PI * 10.38;
+        let target = SpectralTarget {
+            omega: w,
+            sigma: Some(0.3),
+        };
+        let pop = biased_population(&m, &scales, target, 20, 7, 0.0, 1e-3, 0.065);
+        assert_eq!(pop.len(), 20);
+        for x in &pop {
+            let c: Vec<f64> = x.iter().zip(&scales).map(|(x, s)| x * s).collect();
+            let lin = Linearization::of(&m, &c, 0.0, 1e-3, 0.065);
+            assert_relative_eq!(lin.k0 / lin.m0, w * w, max_relative = 1e-6);
+            assert_relative_eq!(lin.c0 / lin.m0, -0.6, epsilon = 1e-6);
+        }
+        // The coordinates the constraints leave free stay spread out.
+        let c3: Vec<f64> = pop.iter().map(|x| x[2]).collect();
+        let spread = c3.iter().cloned().fold(f64::MIN, f64::max)
+            - c3.iter().cloned().fold(f64::MAX, f64::min);
+        assert!(spread > 0.5, "{c3:?}");
     }
 }

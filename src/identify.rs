@@ -527,7 +527,6 @@ pub fn split(
 ) -> Result<(Vec<usize>, Vec<usize>), IdentifyError> {
     const MIN_TRAIN: usize = 4;
     const MIN_TEST: usize = 2;
-    let n_train = ((n as f64) * fraction).round() as usize;
     let fits = |n: usize| {
         let n_train = ((n as f64) * fraction).round() as usize;
         n_train >= MIN_TRAIN && n.saturating_sub(n_train) >= MIN_TEST
