@@ -480,15 +480,18 @@ impl Figure for ConvergenceFigure<'_> {
         let mut chart = ChartBuilder::on(root)
             .caption(title, (FONT, TITLE_SIZE))
             .margin(20)
+            .margin_right(40)
             .x_label_area_size(55)
             .y_label_area_size(100)
             .build_cartesian_2d(0.0..x1, (lo..hi).log_scale())?;
         let fmt = |v: &f64| format!("{v:.0e}");
+        let generation = |v: &f64| format!("{v:.0}");
         chart
             .configure_mesh()
             .x_desc("generation")
             .y_desc("best training cost (MAE), log scale")
             .y_label_formatter(&fmt)
+            .x_label_formatter(&generation)
             .label_style((FONT, LABEL_SIZE))
             .axis_desc_style((FONT, DESC_SIZE))
             .draw()?;
@@ -499,6 +502,27 @@ impl Figure for ConvergenceFigure<'_> {
             .filter(|(_, c)| !c.is_nan())
             .map(|(g, c)| (g as f64, if *c > 0.0 { c.min(hi) } else { floor }))
             .collect();
+        // A best-so-far cost only rises where the search moved to a longer fitted horizon
+        // (the continuation stages of `identify`): mark those generations.
+        let stages: Vec<f64> = self
+            .history
+            .windows(2)
+            .enumerate()
+            .filter(|(_, w)| w[1] > w[0])
+            .map(|(g, _)| (g + 1) as f64)
+            .collect();
+        if !stages.is_empty() {
+            let dashed = GREY.mix(0.8).stroke_width(1);
+            for &g in &stages {
+                chart.draw_series(DashedLineSeries::new([(g, lo), (g, hi)], 6, 4, dashed))?;
+            }
+            chart
+                .draw_series(std::iter::empty::<Circle<(f64, f64), i32>>())?
+                .label("longer fitted horizon")
+                .legend(move |(x, y)| {
+                    PathElement::new(vec![(x, y), (x + 20, y)], GREY.mix(0.8).stroke_width(1))
+                });
+        }
         chart
             .draw_series(LineSeries::new(pts.iter().copied(), BLUE.stroke_width(2)))?
             .label("best so far")
