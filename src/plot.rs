@@ -105,7 +105,9 @@ impl std::str::FromStr for Format {
         match s.to_ascii_lowercase().as_str() {
             "svg" => Ok(Format::Svg),
             "png" => Ok(Format::Png),
-            other => Err(format!("unknown picture format '{other}': expected svg or png")),
+            other => Err(format!(
+                "unknown picture format '{other}': expected svg or png"
+            )),
         }
     }
 }
@@ -199,6 +201,50 @@ fn span<'a>(values: impl IntoIterator<Item = &'a f64>) -> (f64, f64) {
     (lo - pad, hi + pad)
 }
 
+/// Tick labels with as many decimals as the axis needs (`5000`, `0.25`, `1.5e6`), instead of
+/// plotters' default that prints `5000.0`.
+fn tick_format(lo: f64, hi: f64) -> impl Fn(&f64) -> String {
+    let step = (hi - lo).abs() / 10.0;
+    let decimals = if step > 0.0 {
+        (-step.log10().floor()).clamp(0.0, 12.0) as usize
+    } else {
+        0
+    };
+    let big = lo.abs().max(hi.abs()) >= 1e6 || (hi - lo).abs() < 1e-4;
+    move |v: &f64| {
+        if big {
+            format!("{v:.2e}")
+        } else {
+            let s = format!("{v:.decimals$}");
+            if s.starts_with('-') && s.trim_start_matches(['-', '0', '.']).is_empty() {
+                s[1..].to_string()
+            } else {
+                s
+            }
+        }
+    }
+}
+
+/// Drops points closer than about half a pixel to the last kept one (a bitmap line through
+/// sub-pixel segments comes out dotted); the last point is always kept.
+fn thin(x: &[f64], y: &[f64], (x0, x1): (f64, f64), (y0, y1): (f64, f64)) -> Vec<(f64, f64)> {
+    let (dx, dy) = (
+        0.5 * (x1 - x0) / SIZE.0 as f64,
+        0.5 * (y1 - y0) / SIZE.1 as f64,
+    );
+    let mut out: Vec<(f64, f64)> = Vec::with_capacity(x.len());
+    for (i, (&a, &b)) in x.iter().zip(y).enumerate() {
+        let keep = match out.last() {
+            None => true,
+            Some(&(pa, pb)) => (a - pa).abs() > dx || (b - pb).abs() > dy || i + 1 == x.len(),
+        };
+        if keep {
+            out.push((a, b));
+        }
+    }
+    out
+}
+
 fn no_data(path: &Path, reason: impl Into<String>) -> PlotError {
     PlotError::NoData {
         path: path.to_path_buf(),
@@ -243,7 +289,7 @@ impl Figure for FitFigure<'_> {
         let (x0, x1) = span(self.t.iter().chain(self.model_t));
         let (y0, y1) = span(self.y.iter().chain(self.model_y));
         // Room above the data for the legend.
-        let y1 = y1 + 0.18 * (y1 - y0);
+        let y1 = y1 + 0.25 * (y1 - y0);
         let mut chart = ChartBuilder::on(root)
             .caption(self.title, (FONT, TITLE_SIZE))
             .margin(20)
@@ -254,13 +300,19 @@ impl Figure for FitFigure<'_> {
             .configure_mesh()
             .x_desc(label("time t", self.units.time.as_deref()))
             .y_desc(label("displacement y", self.units.signal.as_deref()))
+            .x_label_formatter(&tick_format(x0, x1))
+            .y_label_formatter(&tick_format(y0, y1))
             .label_style((FONT, LABEL_SIZE))
             .axis_desc_style((FONT, DESC_SIZE))
             .light_line_style(WHITE.mix(0.0))
             .draw()?;
         let at = |i: &usize| (self.t[*i], self.y[*i]);
         chart
-            .draw_series(self.train.iter().map(|i| Circle::new(at(i), 3, BLUE.filled())))?
+            .draw_series(
+                self.train
+                    .iter()
+                    .map(|i| Circle::new(at(i), 3, BLUE.filled())),
+            )?
             .label(format!("training samples ({})", self.train.len()))
             .legend(|(x, y)| Circle::new((x + 10, y), 4, BLUE.filled()));
         chart
@@ -272,13 +324,14 @@ impl Figure for FitFigure<'_> {
             .label(format!("test samples ({})", self.test.len()))
             .legend(|(x, y)| Cross::new((x + 10, y), 5, ORANGE.stroke_width(2)));
         if !self.model_t.is_empty() {
+            let pts = thin(self.model_t, self.model_y, (x0, x1), (y0, y1));
+            chart.draw_series(LineSeries::new(pts.iter().copied(), BLACK))?;
             chart
-                .draw_series(LineSeries::new(
-                    self.model_t.iter().copied().zip(self.model_y.iter().copied()),
-                    BLACK.stroke_width(2),
-                ))?
+                .draw_series(LineSeries::new(pts, BLACK.stroke_width(2)))?
                 .label("identified model")
-                .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLACK.stroke_width(2)));
+                .legend(|(x, y)| {
+                    PathElement::new(vec![(x, y), (x + 20, y)], BLACK.stroke_width(2))
+                });
         }
         legend_box(&mut chart, SeriesLabelPosition::UpperRight)
     }
@@ -299,7 +352,10 @@ pub fn fit(
     units: &Units,
 ) -> Result<(), PlotError> {
     if t.is_empty() || t.len() != y.len() {
-        return Err(no_data(path, "the time series is empty or t and y differ in length"));
+        return Err(no_data(
+            path,
+            "the time series is empty or t and y differ in length",
+        ));
     }
     if train.iter().chain(test).any(|&i| i >= t.len()) {
         return Err(no_data(path, "a sample index is out of range"));
@@ -339,7 +395,7 @@ impl Figure for CurveFigure<'_> {
         root.fill(&WHITE)?;
         let (x0, x1) = span(self.x);
         let (y0, y1) = span(self.y);
-        let y1 = y1 + 0.12 * (y1 - y0);
+        let y1 = y1 + 0.25 * (y1 - y0);
         let mut chart = ChartBuilder::on(root)
             .caption(self.title, (FONT, TITLE_SIZE))
             .margin(20)
@@ -350,6 +406,8 @@ impl Figure for CurveFigure<'_> {
             .configure_mesh()
             .x_desc(self.x_desc.as_str())
             .y_desc(self.y_desc.as_str())
+            .x_label_formatter(&tick_format(x0, x1))
+            .y_label_formatter(&tick_format(y0, y1))
             .label_style((FONT, LABEL_SIZE))
             .axis_desc_style((FONT, DESC_SIZE))
             .light_line_style(WHITE.mix(0.0))
@@ -363,7 +421,10 @@ impl Figure for CurveFigure<'_> {
                 chart.draw_series(LineSeries::new([(x0, 0.0), (x1, 0.0)], axis))?;
             }
         }
-        let pts = self.x.iter().copied().zip(self.y.iter().copied());
+        let pts = thin(self.x, self.y, (x0, x1), (y0, y1));
+        // plotters' bitmap lines wider than 1 px leave gaps on steep segments; a 1 px line
+        // (continuous) underneath fills them.
+        chart.draw_series(LineSeries::new(pts.iter().copied(), BLUE))?;
         chart
             .draw_series(LineSeries::new(pts, BLUE.stroke_width(2)))?
             .label("trajectory")
@@ -384,7 +445,10 @@ impl Figure for CurveFigure<'_> {
 
 fn check_curve(path: &Path, x: &[f64], y: &[f64]) -> Result<(), PlotError> {
     if x.is_empty() || x.len() != y.len() {
-        return Err(no_data(path, "the curve is empty or its coordinates differ in length"));
+        return Err(no_data(
+            path,
+            "the curve is empty or its coordinates differ in length",
+        ));
     }
     Ok(())
 }
@@ -476,7 +540,11 @@ impl Figure for ConvergenceFigure<'_> {
         let floor = min / 10.0;
         let has_zero = self.history.iter().any(|v| *v <= 0.0);
         let lo = if has_zero { floor / 2.0 } else { min / 2.0 };
-        let hi = if max > lo * 10.0 { max * 2.0 } else { lo * 100.0 };
+        let hi = if max > lo * 10.0 {
+            max * 2.0
+        } else {
+            lo * 100.0
+        };
         let mut chart = ChartBuilder::on(root)
             .caption(title, (FONT, TITLE_SIZE))
             .margin(20)
@@ -583,6 +651,8 @@ impl Figure for MapFigure<'_> {
             .configure_mesh()
             .x_desc(self.map.x_name.as_str())
             .y_desc(self.map.y_name.as_str())
+            .x_label_formatter(&tick_format(x0, x1))
+            .y_label_formatter(&tick_format(y0, y1))
             .label_style((FONT, LABEL_SIZE))
             .axis_desc_style((FONT, DESC_SIZE))
             .light_line_style(WHITE.mix(0.0))
@@ -762,10 +832,21 @@ mod tests {
 
     #[test]
     fn format_follows_the_extension() {
-        assert_eq!(Format::from_path(Path::new("a/fit.svg")).unwrap(), Format::Svg);
-        assert_eq!(Format::from_path(Path::new("fit.PNG")).unwrap(), Format::Png);
-        let e = Format::from_path(Path::new("fit.pdf")).unwrap_err().to_string();
-        assert!(e.starts_with("fit.pdf:") && e.contains(".svg or .png"), "{e}");
+        assert_eq!(
+            Format::from_path(Path::new("a/fit.svg")).unwrap(),
+            Format::Svg
+        );
+        assert_eq!(
+            Format::from_path(Path::new("fit.PNG")).unwrap(),
+            Format::Png
+        );
+        let e = Format::from_path(Path::new("fit.pdf"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.starts_with("fit.pdf:") && e.contains(".svg or .png"),
+            "{e}"
+        );
         assert!(Format::from_path(Path::new("fit")).is_err());
     }
 
@@ -796,10 +877,14 @@ mod tests {
         }
         let p = dir.path().join("phase.svg");
         phase(&p, &y, &t, &units).unwrap();
-        assert!(std::fs::read_to_string(&p).unwrap().contains("velocity yd [mm/s]"));
+        assert!(std::fs::read_to_string(&p)
+            .unwrap()
+            .contains("velocity yd [mm/s]"));
         let p = dir.path().join("loop.svg");
         hysteresis(&p, &y, &t, &units).unwrap();
-        assert!(std::fs::read_to_string(&p).unwrap().contains("force F [kN]"));
+        assert!(std::fs::read_to_string(&p)
+            .unwrap()
+            .contains("force F [kN]"));
     }
 
     #[test]
@@ -851,8 +936,17 @@ mod tests {
         let p = dir.path().join("fit.jpg");
         let e = fit(&p, &t, &y, &[0], &[1], &[], &[], &Units::default()).unwrap_err();
         assert!(matches!(e, PlotError::Format { .. }));
-        let e = fit(&dir.path().join("f.svg"), &t, &y, &[99], &[], &[], &[], &Units::default())
-            .unwrap_err();
+        let e = fit(
+            &dir.path().join("f.svg"),
+            &t,
+            &y,
+            &[99],
+            &[],
+            &[],
+            &[],
+            &Units::default(),
+        )
+        .unwrap_err();
         assert!(matches!(e, PlotError::NoData { .. }));
     }
 }

@@ -356,7 +356,7 @@ fn decays(
     let r0 = r(&[y0, v0]);
     let opts = Options {
         rtol: 1e-3,
-        atol: 1e-6 * r0.min(1.0).max(1e-12),
+        atol: 1e-6 * r0.clamp(1e-12, 1.0),
         bound: 1e3 * GROWTH_BOUND * (y0.abs() + v0.abs()),
         ..Options::default()
     };
@@ -364,7 +364,8 @@ fn decays(
     let mut last_max = 0.0f64;
     let outcome = ode::integrate(Method::Dopri5, &sys, [y0, v0], times, &opts, |i, s| {
         let ri = r(s);
-        if !(ri <= GROWTH_BOUND * r0) {
+        // NaN counts as out of bounds.
+        if ri.is_nan() || ri > GROWTH_BOUND * r0 {
             return ControlFlow::Break(());
         }
         if times[i] >= last_period_start {
@@ -400,7 +401,9 @@ impl StabilityMap {
         let text =
             std::fs::read_to_string(path).map_err(|e| err(format!("cannot read the file: {e}")))?;
         let mut lines = text.lines();
-        let header = lines.next().ok_or_else(|| err("the file is empty".into()))?;
+        let header = lines
+            .next()
+            .ok_or_else(|| err("the file is empty".into()))?;
         let cols: Vec<&str> = header.split(',').map(str::trim).collect();
         let [x_name, y_name, "stable"] = cols.as_slice() else {
             return Err(err(format!(
@@ -577,7 +580,10 @@ mod tests {
             ("k=0:1", "'k' is not a coefficient"),
         ] {
             let e = r(text).unwrap_err().to_string();
-            assert!(e.starts_with("--range") && e.contains(needle), "{text}: {e}");
+            assert!(
+                e.starts_with("--range") && e.contains(needle),
+                "{text}: {e}"
+            );
         }
         let mut s = MapSpec::new(r("c1=-3:3").unwrap(), r("c2=-3:3").unwrap());
         let e = map(&model, &s).unwrap_err().to_string();

@@ -145,18 +145,41 @@ fn stability_map_bad_inputs_exit_2_naming_the_option() {
         "ydd + (c1 + c2*y + c3*y^2)*yd + y = 0",
     ];
     let cases: &[(&[&str], &str)] = &[
-        (&["--range", "c1=-3..3", "--range", "c2=-3:3", "--fix", "c3=1"], "--range"),
-        (&["--range", "c1=3:-3", "--range", "c2=-3:3", "--fix", "c3=1"], "minimum"),
-        (&["--range", "c1=-3:3", "--range", "c5=-3:3", "--fix", "c3=1"], "c5"),
+        (
+            &["--range", "c1=-3..3", "--range", "c2=-3:3", "--fix", "c3=1"],
+            "--range",
+        ),
+        (
+            &["--range", "c1=3:-3", "--range", "c2=-3:3", "--fix", "c3=1"],
+            "minimum",
+        ),
+        (
+            &["--range", "c1=-3:3", "--range", "c5=-3:3", "--fix", "c3=1"],
+            "c5",
+        ),
         (&["--range", "c1=-3:3", "--range", "c2=-3:3"], "--fix: c3"),
-        (&["--range", "c1=-3:3", "--range", "c2=-3:3", "--fix", "c9=1"], "--fix"),
+        (
+            &["--range", "c1=-3:3", "--range", "c2=-3:3", "--fix", "c9=1"],
+            "--fix",
+        ),
         (&["--range", "c1=-3:3"], "exactly two"),
         (
-            &["--range", "c1=-3:3", "--range", "c2=-3:3", "--fix", "c3=1", "--samples", "0"],
+            &[
+                "--range",
+                "c1=-3:3",
+                "--range",
+                "c2=-3:3",
+                "--fix",
+                "c3=1",
+                "--samples",
+                "0",
+            ],
             "--samples",
         ),
         (
-            &["--range", "c1=-3:3", "--range", "c2=-3:3", "--fix", "c3=1", "--plot", "m.gif"],
+            &[
+                "--range", "c1=-3:3", "--range", "c2=-3:3", "--fix", "c3=1", "--plot", "m.gif",
+            ],
             "--plot",
         ),
     ];

@@ -14,7 +14,11 @@ pub struct StabilityMapArgs {
     #[arg(long, value_name = "EQUATION")]
     model: String,
     /// A ranged coefficient, NAME=MIN:MAX, e.g. c1=-3:3 (exactly two).
-    #[arg(long = "range", value_name = "NAME=MIN:MAX", allow_hyphen_values = true)]
+    #[arg(
+        long = "range",
+        value_name = "NAME=MIN:MAX",
+        allow_hyphen_values = true
+    )]
     ranges: Vec<String>,
     /// A fixed coefficient, NAME=VALUE (every coefficient not ranged; repeatable).
     #[arg(long = "fix", value_name = "NAME=VALUE", value_parser = parse_param, allow_hyphen_values = true)]
