@@ -17,6 +17,8 @@ use std::io::Write;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
+mod stability_map;
+
 /// gatewatch: early warning of self-excited gate vibrations.
 #[derive(Debug, Parser)]
 #[command(name = "gatewatch", version, about, propagate_version = true)]
@@ -38,6 +40,8 @@ enum Command {
     CheckConfig(crate::service::cli::CheckConfigArgs),
     /// Stream a simulated gate's support force to a running daemon.
     Simulate(crate::service::cli::SimulateArgs),
+    /// Map stable and unstable coefficients of a plane by simulation (Figure 8.13).
+    StabilityMap(stability_map::StabilityMapArgs),
 }
 
 #[derive(Debug, Subcommand)]
@@ -162,6 +166,12 @@ pub struct IdentifyArgs {
     /// Print exactly one JSON object on stdout.
     #[arg(long)]
     json: bool,
+    /// Write pictures of the result into DIR (created if needed): fit, phase, convergence.
+    #[arg(long, value_name = "DIR")]
+    plot: Option<PathBuf>,
+    /// Format of the --plot pictures: svg or png.
+    #[arg(long, default_value = "svg", requires = "plot")]
+    plot_format: crate::plot::Format,
 }
 
 /// What the samples of `identify` are.
@@ -280,6 +290,7 @@ pub fn main() -> ExitCode {
         Command::CheckConfig(args) => return crate::service::cli::check_config(args),
         Command::Simulate(args) => return crate::service::cli::simulate(args),
         Command::Identify(args) => run_identify(args),
+        Command::StabilityMap(args) => stability_map::run(args),
         Command::Bench(BenchCommand::SeedCases(args)) => run_seed_cases(args),
         Command::Bench(BenchCommand::Generate(args)) => run_generate(args),
     };
@@ -401,6 +412,11 @@ fn run_identify(a: IdentifyArgs) -> Result<(), CliError> {
         writeln!(out, "{v}")?;
     } else {
         write_identification(&mut out, &model, &result, &config)?;
+    }
+    if let Some(dir) = &a.plot {
+        let units = crate::plot::Units::default();
+        crate::plot::identification(dir, a.plot_format, &model, &series, &result, &units)
+            .map_err(|e| input(format!("--plot: {e}")))?;
     }
     Ok(())
 }

@@ -18,6 +18,8 @@
 //! - [`spectral`]: model-free analysis: dominant frequency, Hilbert envelope growth, ambient AR damping.
 //! - [`simulate`]: synthetic gate signals: noise-driven gate with a damping scenario, worked example.
 //! - [`bench`]: `gatewatch bench seed-cases`: the chapter's protocol and its comparison table.
+//! - [`stability`]: the stability map (Figure 8.13): Monte Carlo over a plane of two coefficients,
+//!   each point simulated and classified stable (the free vibration decays) or unstable.
 //!
 //! Service (tokio, axum, prometheus; nothing in the numerical core depends on it):
 //! - [`alert`]: per-gate alert state machine (negative damping, stale data), delivery to
@@ -29,6 +31,8 @@
 //!
 //! Front ends:
 //! - [`cli`]: the command-line interface behind `src/main.rs`.
+//! - [`plot`]: engineers' pictures (SVG or PNG): data with the fitted model, phase plane,
+//!   hysteresis loop, DE convergence, stability map.
 
 pub mod alert;
 pub mod analysis;
@@ -40,6 +44,8 @@ pub mod de;
 pub mod identify;
 pub mod model;
 pub mod ode;
+pub mod plot;
 pub mod service;
 pub mod simulate;
 pub mod spectral;
+pub mod stability;

@@ -1,0 +1,121 @@
+//! `gatewatch stability-map`: the stability map of a coefficient plane (see [`crate::stability`]).
+
+use super::{input, parse_param, CliError};
+use crate::model::Model;
+use crate::stability::{self, MapSpec};
+use clap::Args;
+use std::io::Write;
+use std::path::PathBuf;
+
+/// Arguments of `gatewatch stability-map`.
+#[derive(Debug, Args)]
+pub struct StabilityMapArgs {
+    /// The equation, e.g. 'ydd + (c1 + c2*y + c3*y^2)*yd + y = 0'.
+    #[arg(long, value_name = "EQUATION")]
+    model: String,
+    /// A ranged coefficient, NAME=MIN:MAX, e.g. c1=-3:3 (exactly two).
+    #[arg(
+        long = "range",
+        value_name = "NAME=MIN:MAX",
+        allow_hyphen_values = true
+    )]
+    ranges: Vec<String>,
+    /// A fixed coefficient, NAME=VALUE (every coefficient not ranged; repeatable).
+    #[arg(long = "fix", value_name = "NAME=VALUE", value_parser = parse_param, allow_hyphen_values = true)]
+    fixed: Vec<(String, f64)>,
+    /// A known constant of the equation, NAME=VALUE (repeatable).
+    #[arg(long = "param", value_name = "NAME=VALUE", value_parser = parse_param)]
+    params: Vec<(String, f64)>,
+    /// Initial displacement.
+    #[arg(long, default_value_t = 0.1, allow_hyphen_values = true)]
+    y0: f64,
+    /// Initial velocity.
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+    v0: f64,
+    /// Periods of the undamped linearised frequency (at the map's centre) to integrate over.
+    #[arg(long, default_value_t = 10.0)]
+    periods: f64,
+    /// Horizon of every trial, instead of --periods periods.
+    #[arg(long, value_name = "T")]
+    t_end: Option<f64>,
+    /// Monte Carlo samples.
+    #[arg(long, default_value_t = 6000)]
+    samples: usize,
+    /// Seed of the samples.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// CSV output (columns NAME,NAME,stable); stdout when absent.
+    #[arg(long, value_name = "FILE")]
+    output: Option<PathBuf>,
+    /// Picture of the map (.svg or .png).
+    #[arg(long, value_name = "FILE")]
+    plot: Option<PathBuf>,
+}
+
+/// Runs `gatewatch stability-map`.
+pub fn run(a: StabilityMapArgs) -> Result<(), CliError> {
+    let model = Model::parse(&a.model, &a.params).map_err(|e| input(format!("--model: {e}")))?;
+    if a.ranges.len() != 2 {
+        return Err(input(format!(
+            "--range: give exactly two ranged coefficients, e.g. --range c1=-3:3 --range c2=-3:3 (got {})",
+            a.ranges.len()
+        )));
+    }
+    let x = stability::parse_range(&model, &a.ranges[0]).map_err(input)?;
+    let y = stability::parse_range(&model, &a.ranges[1]).map_err(input)?;
+    let mut spec = MapSpec::new(x, y);
+    for (name, value) in &a.fixed {
+        let i = stability::coefficient_index(&model, name, "--fix").map_err(input)?;
+        spec.fixed.push((i, *value));
+    }
+    spec.y0 = a.y0;
+    spec.v0 = a.v0;
+    spec.periods = a.periods;
+    spec.t_end = a.t_end;
+    spec.samples = a.samples;
+    spec.seed = a.seed;
+    if let Some(p) = &a.plot {
+        crate::plot::Format::from_path(p).map_err(|e| input(format!("--plot: {e}")))?;
+    }
+    let map = stability::map(&model, &spec).map_err(input)?;
+    let stable = map.stable_count();
+    match &a.output {
+        Some(path) => {
+            let file = std::fs::File::create(path)
+                .map_err(|e| input(format!("--output: {}: {e}", path.display())))?;
+            let mut w = std::io::BufWriter::new(file);
+            map.write_csv(&mut w)
+                .and_then(|()| w.flush())
+                .map_err(|e| input(format!("--output: {}: {e}", path.display())))?;
+        }
+        None => map.write_csv(&mut std::io::stdout().lock())?,
+    }
+    if let Some(p) = &a.plot {
+        let fixed: Vec<String> = spec
+            .fixed
+            .iter()
+            .map(|(i, v)| format!("c{} = {v}", i + 1))
+            .collect();
+        let mut note = format!(
+            "{}\n\ny0 = {}, v0 = {}\nhorizon t = {:.4}\n",
+            model.equation(),
+            spec.y0,
+            spec.v0,
+            map.t_end
+        );
+        if !fixed.is_empty() {
+            note.push_str(&format!("fixed: {}\n", fixed.join(", ")));
+        }
+        note.push_str("\nunstable: grows, fails, or has not decayed below its initial amplitude");
+        crate::plot::stability_map(p, &map, &note).map_err(|e| input(format!("--plot: {e}")))?;
+    }
+    if a.output.is_some() {
+        println!(
+            "{} trials over t = 0..{:.4}: {stable} stable, {} unstable",
+            map.trials.len(),
+            map.t_end,
+            map.trials.len() - stable
+        );
+    }
+    Ok(())
+}
