@@ -414,8 +414,16 @@ fn run_identify(a: IdentifyArgs) -> Result<(), CliError> {
         write_identification(&mut out, &model, &result, &config)?;
     }
     if let Some(dir) = &a.plot {
-        let units = crate::plot::Units::default();
-        crate::plot::identification(dir, a.plot_format, &model, &series, &result, &units)
+        let units = match signal {
+            Signal::Force => crate::plot::Units {
+                time: Some("s".into()),
+                signal: Some("m".into()),
+                force: Some("N".into()),
+                data: Some("support force F [N]".into()),
+            },
+            Signal::Displacement => crate::plot::Units::default(),
+        };
+        crate::plot::identification(dir, a.plot_format, &model, &result, signal, &units)
             .map_err(|e| input(format!("--plot: {e}")))?;
     }
     Ok(())

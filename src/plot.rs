@@ -13,8 +13,8 @@
 //! (`assets/DejaVuSans.ttf`, Bitstream Vera licence in `assets/DejaVuSans-LICENSE.txt`), so no
 //! system font library is needed. SVG files name the font family `sans-serif`.
 
-use crate::data::TimeSeries;
-use crate::identify::{Identification, InitialValues};
+use crate::analysis::{SeriesAnalysis, Signal};
+use crate::identify::InitialValues;
 use crate::model::{Bound, Model};
 use crate::ode::{self, Method, Options};
 use crate::stability::StabilityMap;
@@ -121,6 +121,9 @@ pub struct Units {
     pub signal: Option<String>,
     /// Unit of force, e.g. `kN`.
     pub force: Option<String>,
+    /// Axis label of the data in the fit plot when they are not the displacement, e.g.
+    /// `support force F [N]`.
+    pub data: Option<String>,
 }
 
 impl Units {
@@ -299,7 +302,10 @@ impl Figure for FitFigure<'_> {
         chart
             .configure_mesh()
             .x_desc(label("time t", self.units.time.as_deref()))
-            .y_desc(label("displacement y", self.units.signal.as_deref()))
+            .y_desc(match &self.units.data {
+                Some(d) => d.clone(),
+                None => label("displacement y", self.units.signal.as_deref()),
+            })
             .x_label_formatter(&tick_format(x0, x1))
             .y_label_formatter(&tick_format(y0, y1))
             .label_style((FONT, LABEL_SIZE))
@@ -774,44 +780,88 @@ pub fn trajectory(
     (t, y, yd)
 }
 
-/// The pictures of an identification, written into `dir` (created if needed): `fit`, `phase`
-/// and `convergence` with `format`'s extension. Returns the files written.
+/// The pictures of an identification, written into `dir` (created if needed): `fit` (data and
+/// model output), `phase` (the model's phase plane), `convergence`, and in force mode
+/// `hysteresis` (the velocity-dependent part of the modelled support force against deflection
+/// over the last cycles: the chapter's Figure 8.15, whose enclosed area is the energy fed in per
+/// cycle), with `format`'s extension. Returns the files written.
 pub fn identification(
     dir: &Path,
     format: Format,
     model: &Model,
-    series: &TimeSeries,
-    result: &Identification,
+    analysis: &SeriesAnalysis,
+    signal: Signal,
     units: &Units,
 ) -> Result<Vec<PathBuf>, PlotError> {
     std::fs::create_dir_all(dir).map_err(|e| PlotError::Write {
         path: dir.to_path_buf(),
         reason: e.to_string(),
     })?;
+    let result = &analysis.identification;
+    let series = &analysis.data;
     let best = result.best_run();
     let (t0, t1) = match (series.t.first(), series.t.last()) {
         (Some(a), Some(b)) => (*a, *b),
         _ => return Err(no_data(dir, "the time series is empty")),
     };
-    let points = (series.len() * 8).clamp(2000, 20_000);
-    let (mt, my, myd) = trajectory(model, &best.coefficients, best.initial, t0, t1, points);
     let file = |name: &str| dir.join(format!("{name}.{}", format.extension()));
     let fit_path = file("fit");
-    fit(
-        &fit_path,
-        &series.t,
-        &series.y,
-        &result.train,
-        &result.test,
-        &mt,
-        &my,
-        units,
-    )?;
-    let mut written = vec![fit_path];
-    if !my.is_empty() {
+    let mut written = Vec::new();
+    match (signal, &analysis.prediction) {
+        // The support force is only known at the samples (it needs the state there).
+        (Signal::Force, Some(p)) => {
+            fit(
+                &fit_path,
+                &series.t,
+                &series.y,
+                &result.train,
+                &result.test,
+                &series.t,
+                p,
+                units,
+            )?;
+        }
+        _ => {
+            let points = (series.len() * 8).clamp(2000, 20_000);
+            let (mt, my, _) = trajectory(model, &best.coefficients, best.initial, t0, t1, points);
+            fit(
+                &fit_path,
+                &series.t,
+                &series.y,
+                &result.train,
+                &result.test,
+                &mt,
+                &my,
+                units,
+            )?;
+        }
+    }
+    written.push(fit_path);
+    if let Some(tr) = &analysis.trajectory {
+        let (y, yd): (Vec<f64>, Vec<f64>) = tr.iter().map(|s| (s[0], s[1])).unzip();
         let p = file("phase");
-        phase(&p, &my, &myd, units)?;
+        phase(&p, &y, &yd, units)?;
         written.push(p);
+        if signal == Signal::Force {
+            if let Some(w) = analysis.linearization.omega0() {
+                let period = 2.0 * std::f64::consts::PI / w;
+                let (defl, force): (Vec<f64>, Vec<f64>) = tr
+                    .iter()
+                    .zip(&series.t)
+                    .filter(|(_, &t)| t >= t1 - 3.0 * period)
+                    .map(|(s, &t)| {
+                        let c = &best.coefficients;
+                        (
+                            s[0],
+                            model.residual(t, s[0], s[1], c) - model.residual(t, s[0], 0.0, c),
+                        )
+                    })
+                    .unzip();
+                let p = file("hysteresis");
+                hysteresis(&p, &defl, &force, units)?;
+                written.push(p);
+            }
+        }
     }
     let p = file("convergence");
     convergence(&p, &best.history)?;
