@@ -5,6 +5,7 @@
 //! with DE seeds `seed, seed + 1, ...` at the chapter's population and generations, one thread.
 
 use crate::cases::{CaseError, SeedCase};
+use crate::data::TimeSeries;
 use crate::identify::{self, Config, IdentifyError, Initial};
 use crate::ode::Method;
 use serde::Serialize;
@@ -26,6 +27,11 @@ pub struct BenchOptions {
     pub refine: bool,
     /// DE restart on stagnation on or off.
     pub restart: bool,
+    /// Gaussian noise added to the data, as a fraction of its standard deviation (0: none).
+    /// Errors are then measured against the noise-free truth.
+    pub noise: f64,
+    /// Bias half of the initial population with the spectrum (through the analysis pipeline).
+    pub fft_bias: bool,
 }
 
 impl Default for BenchOptions {
@@ -38,6 +44,8 @@ impl Default for BenchOptions {
             rtol: 1e-3,
             refine: true,
             restart: true,
+            noise: 0.0,
+            fft_bias: false,
         }
     }
 }
@@ -73,6 +81,8 @@ pub struct CaseReport {
     pub chapter_std: Option<f64>,
     /// The chapter's remark.
     pub chapter_note: &'static str,
+    /// Median over the runs of the largest relative coefficient error against the truth.
+    pub median_coefficient_error: f64,
 }
 
 /// Why a benchmark failed.
@@ -87,6 +97,9 @@ pub enum BenchError {
         id: &'static str,
         source: IdentifyError,
     },
+    /// The analysis pipeline failed.
+    #[error("case {id}: {reason}")]
+    Analysis { id: &'static str, reason: String },
 }
 
 /// Runs one case. `progress(run, generation)` is called after each generation.
@@ -95,8 +108,30 @@ pub fn run_case(
     opts: &BenchOptions,
     mut progress: impl FnMut(usize, usize),
 ) -> Result<CaseReport, BenchError> {
-    let data = case.generate()?;
+    let clean = case.generate()?;
     let model = case.compiled()?;
+    let data = if opts.noise > 0.0 {
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, StandardNormal};
+        let n = clean.len() as f64;
+        let mean = clean.y.iter().sum::<f64>() / n;
+        let std = (clean.y.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n).sqrt();
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(opts.seed ^ 0x6e6f_6973_65);
+        let y = clean
+            .y
+            .iter()
+            .map(|v| {
+                let z: f64 = StandardNormal.sample(&mut rng);
+                v + opts.noise * std * z
+            })
+            .collect();
+        TimeSeries {
+            t: clean.t.clone(),
+            y,
+        }
+    } else {
+        clean.clone()
+    };
     let config = Config {
         initial: if case.fit_initial {
             Initial::Fit
@@ -118,13 +153,66 @@ pub fn run_case(
         parallel: false,
         ..Config::default()
     };
-    let result =
+    let mut result = if opts.fft_bias {
+        let series_options = crate::analysis::SeriesOptions {
+            signal: crate::analysis::Signal::Displacement,
+            identify: config.clone(),
+            fft_bias: true,
+            ..Default::default()
+        };
+        crate::analysis::analyze_series(&model, &data, &series_options, None, |r, g, _| {
+            progress(r, g)
+        })
+        .map_err(|e| BenchError::Analysis {
+            id: case.id,
+            reason: e.to_string(),
+        })?
+        .identification
+    } else {
         identify::identify(&model, &data, &config, |r, g, _| progress(r, g)).map_err(|source| {
             BenchError::Identify {
                 id: case.id,
                 source,
             }
-        })?;
+        })?
+    };
+    // Errors against the noise-free truth (identical to the reported ones without noise).
+    for run in &mut result.runs {
+        run.test_nmae = identify::predict(
+            &model,
+            &clean,
+            &run.coefficients,
+            run.initial,
+            config.test_rtol,
+            identify::Output::Displacement,
+        )
+        .and_then(|p| identify::nmae(result.test.iter().map(|&i| (p[i], clean.y[i]))));
+    }
+    result.summary = identify::summarize(
+        result
+            .runs
+            .iter()
+            .map(|r| r.test_nmae.unwrap_or(f64::INFINITY)),
+    );
+    let mut coefficient_errors: Vec<f64> = result
+        .runs
+        .iter()
+        .map(|r| {
+            r.coefficients
+                .iter()
+                .zip(case.truth)
+                .map(|(c, t)| {
+                    if *t == 0.0 {
+                        c.abs()
+                    } else {
+                        (c / t - 1.0).abs()
+                    }
+                })
+                .fold(0.0, f64::max)
+        })
+        .collect();
+    coefficient_errors.sort_by(f64::total_cmp);
+    let median_coefficient_error = coefficient_errors[coefficient_errors.len() / 2];
     let mut seconds: Vec<f64> = result.runs.iter().map(|r| r.seconds).collect();
     seconds.sort_by(f64::total_cmp);
     let median_seconds = if seconds.len() % 2 == 1 {
@@ -156,14 +244,15 @@ pub fn run_case(
         chapter_mean: case.chapter.mean,
         chapter_std: case.chapter.std,
         chapter_note: case.chapter.note,
+        median_coefficient_error,
     })
 }
 
 /// The comparison table, as Markdown.
 pub fn table(reports: &[CaseReport]) -> String {
     let mut s = String::from(
-        "| case | #C | mean NMAE | std NMAE | min NMAE | median NMAE | runs < 0.01 | median s/run | evals/run | chapter mean (std) |\n\
-         |---|---|---|---|---|---|---|---|---|---|\n",
+        "| case | #C | mean NMAE | std NMAE | min NMAE | median NMAE | runs < 0.01 | median s/run | evals/run | median max coef. error | chapter mean (std) |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|\n",
     );
     for r in reports {
         let chapter = match (r.chapter_mean, r.chapter_std) {
@@ -177,7 +266,7 @@ pub fn table(reports: &[CaseReport]) -> String {
             format!(" {}", r.chapter_note)
         };
         s.push_str(&format!(
-            "| {} | {} | {:.3e} | {:.2e} | {:.2e} | {:.2e} | {}/{} | {:.4} | {:.0} | {}{} |\n",
+            "| {} | {} | {:.3e} | {:.2e} | {:.2e} | {:.2e} | {}/{} | {:.4} | {:.0} | {:.2e} | {}{} |\n",
             r.id,
             r.unknowns,
             r.mean_nmae,
@@ -188,6 +277,7 @@ pub fn table(reports: &[CaseReport]) -> String {
             r.runs,
             r.median_seconds,
             r.evaluations_per_run,
+            r.median_coefficient_error,
             chapter,
             note
         ));

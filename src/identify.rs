@@ -668,7 +668,8 @@ fn magnitude(y: &[f64]) -> f64 {
     }
 }
 
-fn summarize(values: impl Iterator<Item = f64>) -> Summary {
+/// Mean, sample standard deviation, minimum and median of `values`.
+pub fn summarize(values: impl Iterator<Item = f64>) -> Summary {
     let mut v: Vec<f64> = values.collect();
     let n = v.len() as f64;
     let mean = v.iter().sum::<f64>() / n;
