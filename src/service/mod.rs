@@ -7,14 +7,11 @@
 //!   TCP listener ([`ingest::tcp`]).
 //! - [`window`]: the ring buffer of a gate and the sample-time cadence.
 //! - [`worker`]: `WindowAnalyzer`, the worker pool and its replace-don't-queue scheduler.
-//! - [`state`]: the shared state; the only user of the alert engine.
+//! - [`state`]: the shared state; the only user of the alert engine ([`crate::alert`]) and of
+//!   its notifier.
 //! - [`metrics`]: the Prometheus metrics.
 //! - [`api`]: routes, authentication, `HttpError`.
 //! - [`server`]: `run`; [`shutdown`]: signals; [`cli`]: command-line entry points.
-
-mod alert_shim;
-// The ONE switch to the real alert module: replace by `use crate::alert as alert_impl;`.
-use alert_shim as alert_impl;
 
 pub mod api;
 pub mod cli;
@@ -29,6 +26,6 @@ pub mod worker;
 
 /// Alert types as the daemon uses them (re-exported for tests and the integrator).
 pub mod alerts {
-    pub use super::alert_impl::notify::NotifyConfig;
-    pub use super::alert_impl::{AlertRules, GateState};
+    pub use crate::alert::notify::{NotifyConfig, WebhookTarget};
+    pub use crate::alert::{Alert, AlertRules, GateState};
 }
