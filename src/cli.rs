@@ -37,6 +37,9 @@ enum Command {
     CheckConfig(crate::service::cli::CheckConfigArgs),
     /// Stream a simulated gate's support force to a running daemon.
     Simulate(crate::service::cli::SimulateArgs),
+    /// Watch the daemon catch a simulated gate going self-excited (daemon, simulated gate and
+    /// webhook receiver in one process).
+    Demo(crate::service::cli::DemoArgs),
 }
 
 #[derive(Debug, Subcommand)]
@@ -235,6 +238,7 @@ pub fn main() -> ExitCode {
         Command::Serve(args) => return crate::service::cli::serve(args),
         Command::CheckConfig(args) => return crate::service::cli::check_config(args),
         Command::Simulate(args) => return crate::service::cli::simulate(args),
+        Command::Demo(args) => return crate::service::cli::demo(args),
         Command::Identify(args) => run_identify(args),
         Command::Bench(BenchCommand::SeedCases(args)) => run_seed_cases(args),
         Command::Bench(BenchCommand::Generate(args)) => run_generate(args),

@@ -8,6 +8,7 @@ use std::process::ExitCode;
 use std::time::Duration;
 
 use super::config::{Config, LogFormat};
+pub use super::demo::{demo, DemoArgs};
 
 /// `gatewatch serve`.
 #[derive(Debug, Clone, clap::Args)]

@@ -12,10 +12,12 @@
 //! - [`metrics`]: the Prometheus metrics.
 //! - [`api`]: routes, authentication, `HttpError`.
 //! - [`server`]: `run`; [`shutdown`]: signals; [`cli`]: command-line entry points.
+//! - [`demo`]: `gatewatch demo`, daemon + webhook receiver + simulated gate in one process.
 
 pub mod api;
 pub mod cli;
 pub mod config;
+pub mod demo;
 pub mod ingest;
 pub mod metrics;
 pub mod server;
