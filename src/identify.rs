@@ -87,6 +87,15 @@ pub struct Config {
     /// Individuals placed first in the initial population of every run (warm start, bias), in
     /// the DE's coordinates (coefficients, then `y0`, `v0` when fitted).
     pub initial_population: Vec<Vec<f64>>,
+    /// What the data are: displacement, or the support force (section 8.5).
+    pub output: Output,
+    /// Physical value per unit of each DE coordinate (empty: 1). See [`Fitness`].
+    pub scales: Vec<f64>,
+    /// Magnitude of the displacement, for tolerances and bounds (`None`: the data's).
+    pub y_scale: Option<f64>,
+    /// Let the polish adjust known initial conditions too, with these scales for `(y0, v0)`
+    /// (force mode: the pre-run's initial conditions are estimates).
+    pub polish_initial: Option<(f64, f64)>,
 }
 
 impl Default for Config {
@@ -110,6 +119,10 @@ impl Default for Config {
             continuation: true,
             parallel: false,
             initial_population: Vec::new(),
+            output: Output::Displacement,
+            scales: Vec::new(),
+            y_scale: None,
+            polish_initial: None,
         }
     }
 }
@@ -235,11 +248,15 @@ pub fn identify(
         }
         other => other,
     };
+    let y_scale = config.y_scale.unwrap_or_else(|| magnitude(&series.y));
     let fitness = Fitness::new(
         model,
         series,
         is_train,
         initial,
+        config.output,
+        config.scales.clone(),
+        y_scale,
         config.solver,
         config.rtol,
         config.substeps,
@@ -250,29 +267,40 @@ pub fn identify(
         let seed = config.seed.wrapping_add(r as u64);
         let started = Instant::now();
         let found = search(&fitness, config, seed, spread, |g, c| progress(r, g, c))?;
-        let mut x = found.best;
         let mut evaluations = found.evaluations;
         let mut refine_evaluations = 0;
         let fine = fitness.with_tolerance(Method::Dopri5, config.refine_rtol.min(config.rtol));
-        let mut train_cost = fine.cost(&x, f64::INFINITY, &mut ());
+        let mut train_cost = fine.cost(&found.best, f64::INFINITY, &mut fine.workspace());
+        let (mut coefficients, mut init) = fine.unpack(&found.best);
         if config.refine {
-            let (polished, spent) = polish(&fine, &x, config.refine_evaluations);
+            let (target, x0) = match config.polish_initial {
+                Some((_, v_scale)) => fine.with_fitted_initial(&found.best, v_scale),
+                None => (fine.clone(), found.best.clone()),
+            };
+            let (polished, spent) = polish(&target, &x0, config.refine_evaluations);
             refine_evaluations = spent;
             evaluations += spent;
             if let Some(p) = polished {
                 // Least squares and the DE's mean absolute error agree on noise-free data; on
                 // noisy data their optima differ slightly. Accept the polish unless it fits
                 // clearly worse in the DE's own measure (a sign it left the DE's basin).
-                let cost = fine.cost(&p, f64::INFINITY, &mut ());
+                let cost = target.cost(&p, f64::INFINITY, &mut target.workspace());
                 evaluations += 1;
                 if cost <= 1.01 * train_cost {
-                    x = p;
+                    (coefficients, init) = target.unpack(&p);
                     train_cost = cost;
                 }
             }
         }
-        let (coefficients, init) = fitness.unpack(&x);
-        let test_nmae = test_nmae(model, series, &coefficients, init, &test, config.test_rtol);
+        let test_nmae = predict(
+            model,
+            series,
+            &coefficients,
+            init,
+            config.test_rtol,
+            config.output,
+        )
+        .and_then(|p| nmae(test.iter().map(|&i| (p[i], series.y[i]))));
         runs.push(RunResult {
             seed,
             coefficients,
@@ -526,21 +554,8 @@ pub fn initial_from_data(s: &TimeSeries) -> (f64, f64) {
     }
 }
 
-/// Test NMAE: mean |prediction - target| over the test samples divided by the (population)
-/// standard deviation of the test targets. `None` when the integration fails.
-pub fn test_nmae(
-    model: &Model,
-    series: &TimeSeries,
-    coefficients: &[f64],
-    init: InitialValues,
-    test: &[usize],
-    rtol: f64,
-) -> Option<f64> {
-    let prediction = simulate(model, series, coefficients, init, rtol)?;
-    nmae(test.iter().map(|&i| (prediction[i], series.y[i])))
-}
-
-/// NMAE of `(prediction, target)` pairs; `None` when empty or the targets are constant.
+/// NMAE of `(prediction, target)` pairs: mean absolute error over the (population) standard
+/// deviation of the targets. `None` when empty or the targets are constant.
 pub fn nmae(pairs: impl Iterator<Item = (f64, f64)> + Clone) -> Option<f64> {
     let n = pairs.clone().count();
     if n == 0 {
@@ -552,24 +567,25 @@ pub fn nmae(pairs: impl Iterator<Item = (f64, f64)> + Clone) -> Option<f64> {
     (var > 0.0).then(|| mae / var.sqrt())
 }
 
-/// The model's prediction at every sample time (Dormand-Prince at `rtol`), `None` on failure.
-pub fn simulate(
+/// The model's state `[y, yd]` at every sample time (Dormand-Prince at `rtol`), `None` on
+/// failure.
+pub fn trajectory(
     model: &Model,
-    series: &TimeSeries,
+    times: &[f64],
     coefficients: &[f64],
     init: InitialValues,
     rtol: f64,
-) -> Option<Vec<f64>> {
-    let scale = magnitude(&series.y);
+) -> Option<Vec<[f64; 2]>> {
+    let scale = init.y0.abs().max(init.v0.abs()).max(f64::MIN_POSITIVE);
     let opts = Options {
         rtol,
-        atol: rtol * 1e-3 * scale,
-        bound: 1e6 * scale,
+        atol: rtol * 1e-6 * scale,
+        bound: 1e9 * scale,
         max_steps: 1_000_000,
         max_rhs_evals: 10_000_000,
         ..Options::default()
     };
-    let mut out = vec![0.0; series.len()];
+    let mut out = vec![[0.0; 2]; times.len()];
     let sys = Bound {
         model,
         coeffs: coefficients,
@@ -578,14 +594,37 @@ pub fn simulate(
         Method::Dopri5,
         &sys,
         [init.y0, init.v0],
-        &series.t,
+        times,
         &opts,
         |i, s| {
-            out[i] = s[0];
+            out[i] = *s;
             ControlFlow::Continue(())
         },
     );
     o.is_complete().then_some(out)
+}
+
+/// The model's prediction of the data at every sample time: displacement, or support force
+/// `R(t, y, yd)` (Dormand-Prince at `rtol`). `None` when the integration fails.
+pub fn predict(
+    model: &Model,
+    series: &TimeSeries,
+    coefficients: &[f64],
+    init: InitialValues,
+    rtol: f64,
+    output: Output,
+) -> Option<Vec<f64>> {
+    let states = trajectory(model, &series.t, coefficients, init, rtol)?;
+    Some(
+        states
+            .iter()
+            .zip(&series.t)
+            .map(|(s, &t)| match output {
+                Output::Displacement => s[0],
+                Output::Force => model.residual(t, s[0], s[1], coefficients),
+            })
+            .collect(),
+    )
 }
 
 fn std_dev(y: &[f64]) -> f64 {
@@ -626,7 +665,23 @@ fn summarize(values: impl Iterator<Item = f64>) -> Summary {
     }
 }
 
+/// What the fitness compares with the data.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Output {
+    /// The displacement `y` (section 8.4).
+    #[default]
+    Displacement,
+    /// The support force `R(t, y, yd)`: everything in `M*ydd + R = 0` but the inertia term,
+    /// i.e. the damping force plus the stiffness force (section 8.5, equation 8.7).
+    Force,
+}
+
 /// The training objective of section 8.3 with the corrected penalty (see the module docs).
+///
+/// The DE works on `x`; the model's coefficients (and fitted initial conditions) are `x[j] *
+/// scale[j]`, so that a problem in physical units (kg, N s/m, N/m) is searched on numbers of
+/// order one.
 #[derive(Debug, Clone)]
 pub struct Fitness<'a> {
     model: &'a Model,
@@ -637,38 +692,67 @@ pub struct Fitness<'a> {
     /// Only the first `horizon` samples are integrated and compared.
     horizon: usize,
     initial: Initial,
+    output: Output,
+    /// Physical value of each DE coordinate per unit.
+    scales: Vec<f64>,
     method: Method,
     opts: Options,
-    /// Largest magnitude in the data (scales tolerances and bounds).
-    scale: f64,
+    /// Largest magnitude of the displacement (scales tolerances and bounds).
+    y_scale: f64,
     /// Largest per-sample error of a completing candidate: blow-up bound + data magnitude.
     fail_base: f64,
 }
 
 impl<'a> Fitness<'a> {
     /// The objective on the samples flagged in `is_train`. `initial` must be `Known` or `Fit`.
+    /// `y_scale` is the displacement's magnitude (the data's in displacement mode; force over
+    /// stiffness in force mode); `scales` the physical value per unit of each DE coordinate
+    /// (empty: all 1).
+    #[allow(clippy::too_many_arguments)]
     pub fn new(
         model: &'a Model,
         series: &'a TimeSeries,
         is_train: Vec<bool>,
         initial: Initial,
+        output: Output,
+        scales: Vec<f64>,
+        y_scale: f64,
         method: Method,
         rtol: f64,
         substeps: usize,
     ) -> Fitness<'a> {
-        let scale = magnitude(&series.y);
         let n = series.len();
         let n_train = is_train.iter().filter(|b| **b).count().max(1);
-        let bound = 1e6 * scale;
+        let d = model.n_coeffs()
+            + if matches!(initial, Initial::Fit) {
+                2
+            } else {
+                0
+            };
+        let scales = if scales.len() == d {
+            scales
+        } else {
+            vec![1.0; d]
+        };
+        // The blow-up bound applies to displacement and velocity alike; velocities of a fast
+        // oscillator exceed displacements by its angular frequency, hence the generous factor.
+        let bound = 1e6 * y_scale;
         let opts = Options {
             rtol,
-            atol: rtol * 1e-3 * scale,
+            atol: rtol * 1e-3 * y_scale,
             substeps,
             bound,
             // Work caps: about 25 times what a well-behaved candidate needs.
             max_steps: 50 * n + 10_000,
             max_rhs_evals: 100 * substeps.max(2) * n + 50_000,
             initial_step: None,
+        };
+        let data_scale = magnitude(&series.y);
+        let fail_base = match output {
+            Output::Displacement => bound + data_scale,
+            // Forces of a completing candidate are not bounded by the state bound; failures are
+            // made dominant by a base far above any plausible force error instead.
+            Output::Force => 1e12 * data_scale,
         };
         Fitness {
             model,
@@ -678,10 +762,12 @@ impl<'a> Fitness<'a> {
             n_train,
             horizon: n,
             initial,
+            output,
+            scales,
             method,
             opts,
-            scale,
-            fail_base: bound + scale,
+            y_scale,
+            fail_base,
         }
     }
 
@@ -690,7 +776,7 @@ impl<'a> Fitness<'a> {
         let mut f = self.clone();
         f.method = method;
         f.opts.rtol = rtol;
-        f.opts.atol = rtol * 1e-3 * f.scale;
+        f.opts.atol = rtol * 1e-3 * f.y_scale;
         f
     }
 
@@ -706,45 +792,89 @@ impl<'a> Fitness<'a> {
         f
     }
 
-    /// Prediction minus data at each training sample of the horizon; `None` when the
-    /// integration does not complete.
-    pub fn residuals(&self, x: &[f64]) -> Option<Vec<f64>> {
+    /// The same objective with the initial conditions fitted too, starting from the known ones:
+    /// returns it and the DE vector `x` extended by the initial conditions.
+    pub fn with_fitted_initial(&self, x: &[f64], v_scale: f64) -> (Fitness<'a>, Vec<f64>) {
+        let mut f = self.clone();
+        let mut x = x.to_vec();
+        if let Initial::Known { y0, v0 } = self.initial {
+            f.initial = Initial::Fit;
+            f.scales.extend_from_slice(&[self.y_scale, v_scale]);
+            x.extend_from_slice(&[y0 / self.y_scale, v0 / v_scale]);
+        }
+        (f, x)
+    }
+
+    /// The physical coefficients and initial conditions of a DE vector, written into `buf`.
+    fn physical<'b>(&self, x: &[f64], buf: &'b mut [f64]) -> (&'b [f64], f64, f64) {
+        for ((b, xi), s) in buf.iter_mut().zip(x).zip(&self.scales) {
+            *b = xi * s;
+        }
         let nc = self.model.n_coeffs();
         let (y0, v0) = match self.initial {
             Initial::Known { y0, v0 } => (y0, v0),
-            _ => (x[nc], x[nc + 1]),
+            _ => (buf[nc], buf[nc + 1]),
         };
+        (&buf[..nc], y0, v0)
+    }
+
+    /// Integrates the model for `x` over the horizon and hands `(index, output)` to `each`.
+    fn run(
+        &self,
+        x: &[f64],
+        buf: &mut [f64],
+        mut each: impl FnMut(usize, f64) -> ControlFlow<()>,
+    ) -> ode::Outcome {
+        let (coeffs, y0, v0) = self.physical(x, buf);
         let sys = Bound {
             model: self.model,
-            coeffs: &x[..nc],
+            coeffs,
         };
-        let mut out = Vec::with_capacity(self.n_train);
         let times = &self.t[..self.horizon];
-        let o = ode::integrate(self.method, &sys, [y0, v0], times, &self.opts, |i, s| {
+        ode::integrate(self.method, &sys, [y0, v0], times, &self.opts, |i, s| {
+            let value = match self.output {
+                Output::Displacement => s[0],
+                Output::Force => self.model.residual(times[i], s[0], s[1], coeffs),
+            };
+            each(i, value)
+        })
+    }
+
+    /// Prediction minus data at each training sample of the horizon; `None` when the
+    /// integration does not complete.
+    pub fn residuals(&self, x: &[f64]) -> Option<Vec<f64>> {
+        let mut buf = self.workspace();
+        let mut out = Vec::with_capacity(self.n_train);
+        let o = self.run(x, &mut buf, |i, v| {
             if self.is_train[i] {
-                out.push(s[0] - self.y[i]);
+                out.push(v - self.y[i]);
             }
             ControlFlow::Continue(())
         });
         (o.is_complete() && out.iter().all(|v| v.is_finite())).then_some(out)
     }
 
-    /// Splits a DE vector into coefficients and initial conditions.
+    /// Splits a DE vector into physical coefficients and initial conditions.
     pub fn unpack(&self, x: &[f64]) -> (Vec<f64>, InitialValues) {
-        let nc = self.model.n_coeffs();
-        let init = match self.initial {
-            Initial::Known { y0, v0 } => InitialValues { y0, v0 },
-            _ => InitialValues {
-                y0: x[nc],
-                v0: x[nc + 1],
-            },
-        };
-        (x[..nc].to_vec(), init)
+        let mut buf = self.workspace();
+        let (c, y0, v0) = self.physical(x, &mut buf);
+        (c.to_vec(), InitialValues { y0, v0 })
+    }
+
+    /// The DE vector of physical coefficients (the inverse of [`Fitness::unpack`] for the
+    /// coefficients; fitted initial conditions are not included).
+    pub fn pack(&self, coefficients: &[f64]) -> Vec<f64> {
+        coefficients
+            .iter()
+            .zip(&self.scales)
+            .map(|(c, s)| c / s)
+            .collect()
     }
 }
 
 impl Objective for Fitness<'_> {
-    type Workspace = ();
+    /// The physical coefficient vector, reused for every evaluation.
+    type Workspace = Vec<f64>;
 
     fn dimension(&self) -> usize {
         self.model.n_coeffs()
@@ -755,25 +885,17 @@ impl Objective for Fitness<'_> {
             }
     }
 
-    fn workspace(&self) {}
+    fn workspace(&self) -> Vec<f64> {
+        vec![0.0; self.dimension()]
+    }
 
-    fn cost(&self, x: &[f64], bound: f64, _ws: &mut ()) -> f64 {
-        let nc = self.model.n_coeffs();
-        let (y0, v0) = match self.initial {
-            Initial::Known { y0, v0 } => (y0, v0),
-            _ => (x[nc], x[nc + 1]),
-        };
-        let sys = Bound {
-            model: self.model,
-            coeffs: &x[..nc],
-        };
+    fn cost(&self, x: &[f64], bound: f64, ws: &mut Vec<f64>) -> f64 {
         let limit = bound * self.n_train as f64;
         let (mut sum, mut reached) = (0.0, 0usize);
         let mut abandoned = false;
-        let times = &self.t[..self.horizon];
-        let outcome = ode::integrate(self.method, &sys, [y0, v0], times, &self.opts, |i, s| {
+        let outcome = self.run(x, ws, |i, v| {
             if self.is_train[i] {
-                let e = (s[0] - self.y[i]).abs();
+                let e = (v - self.y[i]).abs();
                 if !e.is_finite() {
                     return ControlFlow::Break(());
                 }
