@@ -19,9 +19,7 @@ use serde_json::Value;
 use tokio::net::TcpListener;
 use tokio::sync::mpsc;
 
-use super::cli::{
-    ensure_crypto_provider, simulate_with_source, Protocol, Scenario, SimulateArgs,
-};
+use super::cli::{ensure_crypto_provider, simulate_with_source, Protocol, Scenario, SimulateArgs};
 use super::config::Config;
 use crate::alert::notify::WebhookTarget;
 use crate::simulate::{GateParams, GateSimulator};
@@ -55,7 +53,11 @@ pub struct DemoArgs {
 /// A small webhook receiver: queues every payload it is POSTed (bounded, 503 when full).
 pub async fn webhook_receiver(
     capacity: usize,
-) -> std::io::Result<(SocketAddr, mpsc::Receiver<Value>, tokio::task::JoinHandle<()>)> {
+) -> std::io::Result<(
+    SocketAddr,
+    mpsc::Receiver<Value>,
+    tokio::task::JoinHandle<()>,
+)> {
     let (tx, rx) = mpsc::channel::<Value>(capacity.max(1));
     async fn hook(State(tx): State<mpsc::Sender<Value>>, Json(v): Json<Value>) -> StatusCode {
         match tx.try_send(v) {
