@@ -48,6 +48,8 @@ enum BenchCommand {
     SeedCases(SeedCasesArgs),
     /// Write a seed case's data as CSV (columns t, y) to stdout or a file.
     Generate(GenerateArgs),
+    /// Load measurements of the daemon: ingest throughput, identification latency, gates sustained.
+    Daemon(crate::service::bench::BenchDaemonArgs),
 }
 
 /// Arguments of `gatewatch bench generate`.
@@ -239,6 +241,9 @@ pub fn main() -> ExitCode {
         Command::CheckConfig(args) => return crate::service::cli::check_config(args),
         Command::Simulate(args) => return crate::service::cli::simulate(args),
         Command::Demo(args) => return crate::service::cli::demo(args),
+        Command::Bench(BenchCommand::Daemon(args)) => {
+            return crate::service::bench::bench_daemon(args)
+        }
         Command::Identify(args) => run_identify(args),
         Command::Bench(BenchCommand::SeedCases(args)) => run_seed_cases(args),
         Command::Bench(BenchCommand::Generate(args)) => run_generate(args),

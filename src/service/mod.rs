@@ -12,9 +12,11 @@
 //! - [`metrics`]: the Prometheus metrics.
 //! - [`api`]: routes, authentication, `HttpError`.
 //! - [`server`]: `run`; [`shutdown`]: signals; [`cli`]: command-line entry points.
+//! - [`bench`]: `gatewatch bench daemon`, load measurements.
 //! - [`demo`]: `gatewatch demo`, daemon + webhook receiver + simulated gate in one process.
 
 pub mod api;
+pub mod bench;
 pub mod cli;
 pub mod config;
 pub mod demo;
