@@ -114,7 +114,7 @@ impl Default for Config {
             substeps: 2,
             refine: true,
             refine_rtol: 1e-8,
-            refine_evaluations: 200,
+            refine_evaluations: 300,
             restart: true,
             continuation: true,
             parallel: false,
@@ -420,7 +420,7 @@ fn polish(fine: &Fitness<'_>, x0: &[f64], max_evaluations: usize) -> (Option<Vec
     }
     // The crate bounds residual evaluations by patience * (d + 1); each also costs a Jacobian
     // (d + 1 integrations here), hence the division.
-    let patience = (max_evaluations / ((d + 1) * (d + 2))).max(1);
+    let patience = (max_evaluations / ((d + 1) * (d + 2))).max(4);
     let (problem, report) = LevenbergMarquardt::new()
         .with_patience(patience)
         .with_ftol(1e-12)
@@ -474,12 +474,31 @@ fn search(
             converged_below: 0.01 * spread,
             ..de::Restart::default()
         });
-        let result = de::minimize(&stage, &settings, &population, |gen, c| {
+        let mut result = de::minimize(&stage, &settings, &population, |gen, c| {
             progress(offset + gen, c)
         })?;
         offset += result.generations;
         evaluations += result.evaluations;
         restarts += result.restarts;
+        if config.refine && k + 1 < stages.len() {
+            // Polish the stage's winner on its horizon and hand it to the next stage first: least
+            // squares converges in a few iterations inside the right basin, so each longer
+            // horizon starts from a solution that is already phase-coherent over the shorter
+            // one (over many periods a small frequency error is a large phase error).
+            let fine = stage.with_tolerance(Method::Dopri5, config.refine_rtol.min(config.rtol));
+            let (polished, spent) = polish(&fine, &result.best, config.refine_evaluations);
+            evaluations += spent;
+            if let Some(p) = polished {
+                let cost = stage.cost(&p, f64::INFINITY, &mut stage.workspace());
+                evaluations += 1;
+                if cost <= result.best_cost {
+                    result.population.insert(0, p.clone());
+                    result.population.truncate(config.population);
+                    result.best = p;
+                    result.best_cost = cost;
+                }
+            }
+        }
         // The history of a stage starts with its initial population (index 0); earlier stages'
         // costs are on shorter horizons, so the curve is per stage, concatenated.
         history.extend_from_slice(if k == 0 {

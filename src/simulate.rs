@@ -500,8 +500,16 @@ pub struct WorkedExample {
 pub const EX_MASS: f64 = 19.14;
 /// Linear damping of equation 8.8 (negative: self-excited), N s/m.
 pub const EX_C1: f64 = -12.18;
-/// Cubic damping of equation 8.8, N s^3/m^3.
-pub const EX_C3: f64 = 4.473e7;
+/// Cubic damping of equation 8.8, N s^3/m^3: our reading of the extracted `4.473 * 10^?`.
+///
+/// The chapter calls its 10 s window "a growth phase of regular vibrations" starting at
+/// `y0 = 0.3368 mm`. Taken as `4.473e7`, the limit cycle (harmonic balance:
+/// `A = sqrt(4*12.18 / (3*c3)) / omega`) would be 9.2e-6 m, far below `y0`, and the motion would
+/// collapse within 0.1 s instead of growing. With `4.473e2` the limit cycle is 2.9 mm: the
+/// vibration grows from 0.34 mm at `sigma = 12.18/(2*19.14) = 0.32 1/s` and saturates within the
+/// window, which is what the chapter describes. The exponent's sign or digit was lost in the
+/// text extraction; see `docs/damping.md`.
+pub const EX_C3: f64 = 4.473e2;
 /// Stiffness of equation 8.8, N/m.
 pub const EX_K: f64 = 81360.0;
 /// Initial displacement of the worked example, m.
@@ -510,15 +518,12 @@ pub const EX_Y0: f64 = 0.3368e-3;
 pub const EX_V0: f64 = 5.8e-3;
 
 /// The worked example: free motion of
-/// `19.14*ydd + (-12.18 + 4.473e7*yd^2)*yd + 81360*y = 0` from `y0 = 0.3368e-3 m`,
+/// `19.14*ydd + (-12.18 + 447.3*yd^2)*yd + 81360*y = 0` from `y0 = 0.3368e-3 m`,
 /// `v0 = 5.8e-3 m/s`, output `F = 81360*y` at `rate_hz`, plus Gaussian noise of
 /// `noise_fraction` times the clean signal's standard deviation and an optional linear drift.
 ///
-/// Note (checked in the tests): the force falls from ~27 N to ~1 N within the first 0.1 s and
-/// then stays on a ~0.75 N limit cycle. By harmonic balance the limit-cycle displacement amplitude of this
-/// equation is `sqrt(4*12.18/(3*4.473e7*omega^2)) ~ 9.2e-6 m` (force ~0.75 N), well below the
-/// initial amplitude ~3.5e-4 m, so the motion starts above the limit cycle and the strong cubic
-/// damping pulls it down onto it quickly; only from below the limit cycle would it grow.
+/// The vibration grows from ~27 N of force amplitude towards the ~240 N limit cycle (see
+/// [`EX_C3`] for the reading of the chapter's cubic coefficient).
 pub fn worked_example(opts: &WorkedExampleOptions) -> WorkedExample {
     let params = GateParams {
         mass: EX_MASS,
@@ -756,10 +761,11 @@ mod tests {
         let predicted = p
             .limit_cycle_force_amplitude(EX_C1 / p.critical_damping())
             .unwrap();
-        // The strong cubic damping collapses the initial ~27 N motion within 0.1 s.
-        assert!(ex.clean[0] > 25.0);
-        assert!(ex.clean[20..].iter().all(|f| f.abs() < 3.0));
+        // A growth phase: ~27 N at the start, growing towards the ~240 N limit cycle.
+        assert!(ex.clean[0] > 25.0 && ex.clean[0] < 30.0);
+        let head = rms(&ex.clean[..200]) * std::f64::consts::SQRT_2;
         let tail = &ex.clean[ex.clean.len() - 400..];
+        assert!(rms(tail) * std::f64::consts::SQRT_2 > 5.0 * head);
         let amp = rms(tail) * std::f64::consts::SQRT_2;
         assert!(
             (amp / predicted - 1.0).abs() < 0.1,

@@ -1,0 +1,795 @@
+//! The command line as a user runs it: `gatewatch identify` and `gatewatch bench`.
+//!
+//! Contract (src/cli.rs): exit 0 on success, 2 on bad input with exactly one line on stderr that
+//! names the problem, 1 on anything else. Piped runs print nothing on stderr (no progress bar).
+
+use serde_json::Value;
+use std::path::PathBuf;
+use std::process::{Command, Output, Stdio};
+
+const VDP: &str = "ydd + (c1 + c2*y^2)*yd + y = 0";
+const VDP_TRUTH: [f64; 2] = [-1.2218, 1.2218];
+
+fn gw(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_gatewatch"))
+        .args(args)
+        .stdin(Stdio::null())
+        .output()
+        .expect("gatewatch runs")
+}
+
+fn text(bytes: &[u8]) -> String {
+    String::from_utf8_lossy(bytes).into_owned()
+}
+
+/// Asserts exit 2, nothing on stdout and exactly one stderr line containing every key (case
+/// sensitive); returns the line.
+#[track_caller]
+fn bad(args: &[&str], keys: &[&str]) -> String {
+    let out = gw(args);
+    let err = text(&out.stderr);
+    assert_eq!(
+        out.status.code(),
+        Some(2),
+        "args {args:?}: expected exit 2; stderr: {err}"
+    );
+    assert!(
+        out.stdout.is_empty(),
+        "args {args:?}: stdout not empty: {}",
+        text(&out.stdout)
+    );
+    let lines: Vec<&str> = err.lines().collect();
+    assert_eq!(
+        lines.len(),
+        1,
+        "args {args:?}: expected one stderr line, got {lines:#?}"
+    );
+    for k in keys {
+        assert!(
+            lines[0].contains(k),
+            "args {args:?}: stderr line {:?} lacks {k:?}",
+            lines[0]
+        );
+    }
+    lines[0].to_string()
+}
+
+#[track_caller]
+fn ok(args: &[&str]) -> Output {
+    let out = gw(args);
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "args {args:?}: stderr: {}",
+        text(&out.stderr)
+    );
+    out
+}
+
+struct Dir(tempfile::TempDir);
+
+impl Dir {
+    fn new() -> Dir {
+        Dir(tempfile::tempdir().unwrap())
+    }
+    fn path(&self, name: &str) -> PathBuf {
+        self.0.path().join(name)
+    }
+    fn write(&self, name: &str, content: &str) -> String {
+        let p = self.path(name);
+        std::fs::write(&p, content).unwrap();
+        p.to_str().unwrap().to_string()
+    }
+    /// A seed case's data written by `gatewatch bench generate`.
+    fn case(&self, id: &str) -> String {
+        let p = self.path(&format!("{id}.csv"));
+        let out = ok(&[
+            "bench",
+            "generate",
+            "--case",
+            id,
+            "--output",
+            p.to_str().unwrap(),
+        ]);
+        assert!(out.stdout.is_empty() && out.stderr.is_empty());
+        p.to_str().unwrap().to_string()
+    }
+}
+
+fn read_csv(path: &str) -> Vec<(f64, f64)> {
+    let text = std::fs::read_to_string(path).unwrap();
+    let mut lines = text.lines();
+    assert_eq!(lines.next(), Some("t,y"));
+    lines
+        .map(|l| {
+            let (t, y) = l.split_once(',').unwrap();
+            (t.parse().unwrap(), y.parse().unwrap())
+        })
+        .collect()
+}
+
+fn json(out: &Output) -> Value {
+    let s = text(&out.stdout);
+    assert_eq!(
+        s.trim_end().lines().count(),
+        1,
+        "--json must print one line: {s}"
+    );
+    let v: Value = serde_json::from_str(s.trim_end()).expect("stdout is one JSON value");
+    assert!(v.is_object(), "not an object: {v}");
+    v
+}
+
+fn num(v: &Value, pointer: &str) -> f64 {
+    v.pointer(pointer)
+        .unwrap_or_else(|| panic!("missing {pointer} in {v}"))
+        .as_f64()
+        .unwrap_or_else(|| panic!("{pointer} is not a number in {v}"))
+}
+
+fn coefficients(v: &Value) -> Vec<u64> {
+    let c = v["coefficients"].as_object().expect("coefficients object");
+    (1..=c.len())
+        .map(|k| c[&format!("c{k}")].as_f64().unwrap().to_bits())
+        .collect()
+}
+
+fn vdp_args<'a>(input: &'a str, extra: &[&'a str]) -> Vec<&'a str> {
+    let mut a = vec![
+        "identify", "--input", input, "--model", VDP, "--y0", "0.5", "--v0", "0",
+    ];
+    a.extend_from_slice(extra);
+    a
+}
+
+// ------------------------------------------------------------------------------------------------
+// Bad input: exit 2, one line.
+
+#[test]
+fn file_problems_are_named() {
+    let d = Dir::new();
+    let missing = d.path("missing.csv");
+    let missing = missing.to_str().unwrap();
+    bad(
+        &["identify", "--input", missing, "--model", VDP],
+        &["missing.csv", "cannot read"],
+    );
+    let empty = d.write("empty.csv", "");
+    bad(
+        &["identify", "--input", &empty, "--model", VDP],
+        &["empty.csv", "empty"],
+    );
+    let blank = d.write("blank.csv", "  \n\n");
+    bad(
+        &["identify", "--input", &blank, "--model", VDP],
+        &["blank.csv", "empty"],
+    );
+    let nohdr = d.write("nohdr.csv", "0,1\n0.1,2\n0.2,3\n");
+    bad(
+        &["identify", "--input", &nohdr, "--model", VDP],
+        &["nohdr.csv", "line 1", "header"],
+    );
+    let header_only = d.write("header_only.csv", "t,y\n");
+    bad(
+        &["identify", "--input", &header_only, "--model", VDP],
+        &["no data rows"],
+    );
+    let ragged = d.write("ragged.csv", "t,y\n0,1\n0.1,2,3\n");
+    bad(
+        &["identify", "--input", &ragged, "--model", VDP],
+        &["line 3", "3 fields"],
+    );
+}
+
+#[test]
+fn unknown_columns_list_the_available_ones() {
+    let d = Dir::new();
+    let f = d.write("c.csv", "time,signal,other\n0,1,2\n0.1,2,3\n");
+    // Default columns t, y are absent.
+    bad(
+        &["identify", "--input", &f, "--model", VDP],
+        &["'t'", "time, signal, other"],
+    );
+    bad(
+        &[
+            "identify",
+            "--input",
+            &f,
+            "--model",
+            VDP,
+            "--time-column",
+            "time",
+        ],
+        &["'y'", "time, signal, other"],
+    );
+    bad(
+        &[
+            "identify",
+            "--input",
+            &f,
+            "--model",
+            VDP,
+            "--time-column",
+            "time",
+            "--value-column",
+            "sig",
+        ],
+        &["'sig'", "time, signal, other"],
+    );
+}
+
+#[test]
+fn bad_cells_name_line_and_column() {
+    let d = Dir::new();
+    let f = d.write("nan.csv", "t,y\n0,1\n0.1,2\n0.2,abc\n0.3,1\n");
+    bad(
+        &["identify", "--input", &f, "--model", VDP],
+        &["line 4", "'y'", "'abc'", "not a number"],
+    );
+    let f = d.write("t.csv", "t,y\n0,1\nx0.1,2\n");
+    bad(
+        &["identify", "--input", &f, "--model", VDP],
+        &["line 3", "'t'", "'x0.1'"],
+    );
+    for (name, cell) in [
+        ("NaN", "NaN"),
+        ("inf", "inf"),
+        ("minf", "-inf"),
+        ("big", "1e999"),
+    ] {
+        let f = d.write(
+            &format!("{name}.csv"),
+            &format!("t,y\n0,1\n0.1,2\n0.2,3\n0.3,{cell}\n0.4,1\n"),
+        );
+        bad(
+            &["identify", "--input", &f, "--model", VDP],
+            &["line 5", "'y'", "not finite"],
+        );
+    }
+    // A comment line counts: the error still names the physical line.
+    let f = d.write("comment.csv", "t,y\n# note\n0,1\n0.1,NaN\n");
+    bad(
+        &["identify", "--input", &f, "--model", VDP],
+        &["line 4", "not finite"],
+    );
+}
+
+#[test]
+fn time_must_increase_strictly() {
+    let d = Dir::new();
+    let f = d.write("eq.csv", "t,y\n0,1\n0.1,2\n0.2,3\n0.2,4\n0.3,1\n");
+    bad(
+        &["identify", "--input", &f, "--model", VDP],
+        &["line 5", "'t'", "does not increase"],
+    );
+    let f = d.write("dec.csv", "t,y\n0,1\n0.1,2\n0.05,3\n");
+    bad(
+        &["identify", "--input", &f, "--model", VDP],
+        &["line 4", "does not increase"],
+    );
+}
+
+#[test]
+fn too_few_samples_for_the_split() {
+    let d = Dir::new();
+    let f = d.write("few.csv", "t,y\n0,1\n0.1,2\n0.2,3\n0.3,1\n0.4,1\n");
+    bad(
+        &["identify", "--input", &f, "--model", VDP],
+        &["5 samples", "too few", "at least"],
+    );
+    // 10 samples are enough at 0.5 but not at 0.9 (9 train, 1 test).
+    let rows: String = (0..10).map(|i| format!("{},{}\n", i, i % 3)).collect();
+    let f = d.write("ten.csv", &format!("t,y\n{rows}"));
+    bad(
+        &[
+            "identify",
+            "--input",
+            &f,
+            "--model",
+            VDP,
+            "--train-fraction",
+            "0.9",
+        ],
+        &["10 samples", "too few"],
+    );
+}
+
+#[test]
+fn malformed_models_are_named_with_their_column() {
+    let d = Dir::new();
+    let f = d.case("van_der_pol_2");
+    let m = |model: &str, keys: &[&str]| {
+        let line = bad(&["identify", "--input", &f, "--model", model], keys);
+        assert!(line.contains("model"), "{line}");
+    };
+    m("ydd + z*yd + y = 0", &["unknown symbol", "'z'", "column 7"]);
+    m(
+        "ydd + c1*yd + sin(ydd) = 0",
+        &["linear in ydd", "column 19"],
+    );
+    m("ydd*ydd + c1*y = 0", &["linear in ydd"]);
+    m("ydd + (c1*yd + y = 0", &["parenthesis", "column 7"]);
+    m("ydd + c1*yd) + y = 0", &["parenthes"]);
+    m("ydd + c1*yd + c3*y = 0", &["c2", "missing"]);
+    m("ydd + y = 0", &["no unknown coefficients"]);
+    // The model is checked before the file: a bad model on a missing file names the model.
+    bad(
+        &[
+            "identify",
+            "--input",
+            "/nonexistent.csv",
+            "--model",
+            "ydd +",
+        ],
+        &["model"],
+    );
+}
+
+#[test]
+fn bad_options() {
+    let d = Dir::new();
+    let f = d.case("van_der_pol_2");
+    let b = |extra: &[&str], keys: &[&str]| {
+        let mut a = vec!["identify", "--input", &f, "--model", VDP];
+        a.extend_from_slice(extra);
+        bad(&a, keys)
+    };
+    b(&["--population", "2"], &["--population", "at least 4"]);
+    b(&["--population", "-3"], &["'-3'"]);
+    b(&["--train-fraction", "0"], &["--train-fraction"]);
+    b(&["--train-fraction", "1.5"], &["--train-fraction"]);
+    b(&["--train-fraction", "1"], &["--train-fraction"]);
+    b(&["--train-fraction", "NaN"], &["--train-fraction"]);
+    b(&["--runs", "0"], &["--runs", "at least 1"]);
+    b(&["--rtol", "0"], &["--rtol"]);
+    b(&["--rtol=-1e-3"], &["--rtol", "-0.001"]);
+    // Without '=', clap takes "-1e-3" for a flag and names only "-1" (a clap limitation: the
+    // option lacks allow_hyphen_values); still one line and exit 2.
+    b(&["--rtol", "-1e-3"], &["'-1'"]);
+    b(&["--test-rtol", "2"], &["--test-rtol"]);
+    b(&["--substeps", "0"], &["--substeps"]);
+    b(&["--solver", "foo"], &["--solver", "'foo'", "dopri5"]);
+    b(&["--param", "k"], &["--param", "NAME=VALUE"]);
+    b(&["--param", "k=abc"], &["--param", "'abc'", "not a number"]);
+    b(&["--param", "=3"], &["--param", "name is empty"]);
+    b(&["--param", "k=inf"], &["--param", "finite"]);
+    b(&["--y0", "0.5"], &["--v0"]);
+    b(&["--v0", "0.5"], &["--y0"]);
+    b(
+        &["--y0", "0.5", "--fit-initial"],
+        &["--y0", "--fit-initial"],
+    );
+    b(
+        &["--y0", "0.5", "--v0", "0", "--fit-initial"],
+        &["--fit-initial"],
+    );
+    b(&["--y0", "nan", "--v0", "0"], &["--y0", "finite"]);
+    b(&["--seed", "x"], &["--seed"]);
+}
+
+#[test]
+fn rk4_needs_uniform_times() {
+    let d = Dir::new();
+    let rows: String = (0..40)
+        .map(|i| {
+            let t = i as f64 * 0.1 + if i == 17 { 0.03 } else { 0.0 };
+            format!("{t},{}\n", t.cos())
+        })
+        .collect();
+    let f = d.write("nonuniform.csv", &format!("t,y\n{rows}"));
+    bad(
+        &["identify", "--input", &f, "--model", VDP, "--solver", "rk4"],
+        &["rk4", "uniformly spaced"],
+    );
+}
+
+#[test]
+fn bad_bench_arguments_and_unknown_commands() {
+    bad(
+        &["bench", "seed-cases", "--case", "nope"],
+        &["'nope'", "van_der_pol_2", "nonlinear_damping"],
+    );
+    bad(
+        &[
+            "bench",
+            "seed-cases",
+            "--case",
+            "van_der_pol_2",
+            "--case",
+            "nope",
+        ],
+        &["'nope'"],
+    );
+    bad(&["bench", "seed-cases", "--runs", "0"], &["--runs"]);
+    bad(&["bench", "generate", "--case", "nope"], &["'nope'"]);
+    bad(&["bench", "generate"], &["--case"]);
+    bad(&["frobnicate"], &["'frobnicate'"]);
+    bad(&["bench", "frobnicate"], &["'frobnicate'"]);
+    bad(
+        &["identify", "--input", "x.csv", "--model", VDP, "--frob"],
+        &["'--frob'"],
+    );
+    bad(&["identify", "--model", VDP], &["--input"]);
+}
+
+#[test]
+fn other_failures_exit_1() {
+    // An output file that cannot be created is not bad *input* data: exit 1, one line.
+    let d = Dir::new();
+    let target = d.path("no/such/dir/out.csv");
+    let out = gw(&[
+        "bench",
+        "generate",
+        "--case",
+        "van_der_pol_2",
+        "--output",
+        target.to_str().unwrap(),
+    ]);
+    let err = text(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert_eq!(err.lines().count(), 1, "{err}");
+    assert!(err.contains("error"), "{err}");
+}
+
+#[test]
+fn help_and_version_exit_0() {
+    let out = ok(&["--version"]);
+    assert!(text(&out.stdout).contains("gatewatch"));
+    let out = ok(&["identify", "--help"]);
+    let help = text(&out.stdout);
+    for flag in ["--input", "--model", "--fit-initial", "--solver", "--json"] {
+        assert!(help.contains(flag), "{flag} missing from help");
+    }
+}
+
+// ------------------------------------------------------------------------------------------------
+// Success paths.
+
+#[test]
+fn generate_writes_the_case_to_a_file_and_to_stdout() {
+    let d = Dir::new();
+    let f = d.case("van_der_pol_2");
+    let rows = read_csv(&f);
+    assert_eq!(rows.len(), 500);
+    assert_eq!(rows[0], (0.0, 0.5));
+    assert!((rows[499].0 - 30.0).abs() < 1e-12);
+    let out = ok(&["bench", "generate", "--case", "van_der_pol_2"]);
+    let stdout = text(&out.stdout);
+    let mut lines = stdout.lines();
+    assert_eq!(lines.next(), Some("t,y"));
+    let piped: Vec<(f64, f64)> = lines
+        .map(|l| {
+            let (t, y) = l.split_once(',').unwrap();
+            (t.parse().unwrap(), y.parse().unwrap())
+        })
+        .collect();
+    assert_eq!(piped, rows, "file and stdout differ");
+}
+
+#[test]
+fn json_output_is_one_object_with_the_stable_fields() {
+    let d = Dir::new();
+    let f = d.case("van_der_pol_2");
+    let out = ok(&vdp_args(&f, &["--json"]));
+    assert!(
+        out.stderr.is_empty(),
+        "stderr in a pipe: {}",
+        text(&out.stderr)
+    );
+    let v = json(&out);
+    assert_eq!(v["model"].as_str(), Some(VDP));
+    let c = v["coefficients"].as_object().unwrap();
+    assert_eq!(c.len(), 2);
+    for (k, truth) in ["c1", "c2"].iter().zip(VDP_TRUTH) {
+        let got = c[*k].as_f64().unwrap();
+        assert!((got - truth).abs() < 1e-3, "{k} = {got}, truth {truth}");
+    }
+    assert_eq!(num(&v, "/initial/y0"), 0.5);
+    assert_eq!(num(&v, "/initial/v0"), 0.0);
+    let train_mae = num(&v, "/train_mae");
+    assert!((0.0..1e-3).contains(&train_mae), "train_mae {train_mae}");
+    let nmae = num(&v, "/test_nmae");
+    assert!((0.0..1e-3).contains(&nmae), "test_nmae {nmae}");
+    let evals = v["evaluations"].as_u64().expect("evaluations integer");
+    // At least the initial population and more than one generation.
+    assert!(evals > 100, "evaluations {evals}");
+    assert!(num(&v, "/seconds") >= 0.0);
+    let runs = v["runs"].as_array().expect("runs array");
+    assert_eq!(runs.len(), 1);
+    let r = &runs[0];
+    assert_eq!(r["seed"].as_u64(), Some(1));
+    assert_eq!(coefficients(r), coefficients(&v));
+    assert_eq!(num(r, "/test_nmae"), nmae);
+    assert_eq!(r["evaluations"].as_u64(), Some(evals));
+    assert!(num(r, "/seconds") >= 0.0);
+}
+
+#[test]
+fn several_runs_have_consecutive_seeds_and_a_summary() {
+    let d = Dir::new();
+    let f = d.case("van_der_pol_2");
+    let out = ok(&vdp_args(&f, &["--json", "--runs", "3", "--seed", "41"]));
+    let v = json(&out);
+    let runs = v["runs"].as_array().unwrap();
+    let seeds: Vec<u64> = runs.iter().map(|r| r["seed"].as_u64().unwrap()).collect();
+    assert_eq!(seeds, vec![41, 42, 43]);
+    let nmaes: Vec<f64> = runs.iter().map(|r| num(r, "/test_nmae")).collect();
+    for n in &nmaes {
+        assert!(*n < 1e-3, "{nmaes:?}");
+    }
+    // The best run is chosen by training error; its coefficients are the top-level ones.
+    let best = runs
+        .iter()
+        .min_by(|a, b| num(a, "/train_mae").total_cmp(&num(b, "/train_mae")))
+        .unwrap();
+    assert_eq!(coefficients(best), coefficients(&v));
+    let mean = nmaes.iter().sum::<f64>() / 3.0;
+    let min = nmaes.iter().cloned().fold(f64::INFINITY, f64::min);
+    assert!((num(&v, "/summary/mean_nmae") - mean).abs() <= 1e-12 * mean.abs().max(1e-300));
+    assert_eq!(num(&v, "/summary/min_nmae"), min);
+    assert!(num(&v, "/summary/std_nmae") >= 0.0);
+    let mut sorted = nmaes.clone();
+    sorted.sort_by(f64::total_cmp);
+    assert_eq!(num(&v, "/summary/median_nmae"), sorted[1]);
+
+    // The human report of several runs has the summary line.
+    let out = ok(&vdp_args(&f, &["--runs", "3", "--seed", "41"]));
+    let s = text(&out.stdout);
+    assert!(
+        s.contains("runs:") && s.contains("mean") && s.contains("median"),
+        "{s}"
+    );
+}
+
+#[test]
+fn human_output_shows_the_identified_equation() {
+    let d = Dir::new();
+    let f = d.case("van_der_pol_2");
+    let out = ok(&vdp_args(&f, &[]));
+    assert!(
+        out.stderr.is_empty(),
+        "stderr in a pipe: {}",
+        text(&out.stderr)
+    );
+    let s = text(&out.stdout);
+    assert!(s.contains(VDP), "{s}");
+    let identified = s
+        .lines()
+        .find(|l| l.starts_with("identified:"))
+        .unwrap_or_else(|| panic!("no identified line: {s}"));
+    assert!(
+        identified.contains("ydd + (-1.2218 + 1.2218*y^2)*yd + y = 0"),
+        "{identified}"
+    );
+    assert!(s.contains("test NMAE"), "{s}");
+    assert!(s.contains("c1") && s.contains("c2"), "{s}");
+}
+
+#[test]
+fn other_columns_can_be_chosen() {
+    let d = Dir::new();
+    let rows = read_csv(&d.case("van_der_pol_2"));
+    // Columns in another order, with a distractor that would identify something else.
+    let body: String = rows
+        .iter()
+        .map(|(t, y)| format!("{},{:.17e},{:.17e}\n", -y, y, t))
+        .collect();
+    let f = d.write("cols.csv", &format!("neg,signal,time\n{body}"));
+    let out = ok(&[
+        "identify",
+        "--input",
+        &f,
+        "--model",
+        VDP,
+        "--y0",
+        "0.5",
+        "--v0",
+        "0",
+        "--time-column",
+        "time",
+        "--value-column",
+        "signal",
+        "--json",
+    ]);
+    let v = json(&out);
+    assert!(
+        (num(&v, "/coefficients/c1") - VDP_TRUTH[0]).abs() < 1e-3,
+        "{v}"
+    );
+    assert!(
+        (num(&v, "/coefficients/c2") - VDP_TRUTH[1]).abs() < 1e-3,
+        "{v}"
+    );
+    assert!(num(&v, "/test_nmae") < 1e-3);
+}
+
+#[test]
+fn fit_initial_recovers_the_initial_conditions() {
+    let d = Dir::new();
+    let f = d.case("negative_damping_1");
+    let out = ok(&[
+        "identify",
+        "--input",
+        &f,
+        "--model",
+        "ydd + c1*yd + y = 0",
+        "--fit-initial",
+        "--json",
+    ]);
+    let v = json(&out);
+    assert!((num(&v, "/coefficients/c1") + 0.1434).abs() < 1e-3, "{v}");
+    assert!((num(&v, "/initial/y0") - 0.1).abs() < 1e-4, "{v}");
+    assert!(num(&v, "/initial/v0").abs() < 1e-4, "{v}");
+    assert!(num(&v, "/test_nmae") < 1e-3, "{v}");
+    let out = ok(&[
+        "identify",
+        "--input",
+        &f,
+        "--model",
+        "ydd + c1*yd + y = 0",
+        "--fit-initial",
+    ]);
+    assert!(text(&out.stdout).contains("(identified)"));
+}
+
+#[test]
+fn initial_conditions_from_the_data_by_default() {
+    let d = Dir::new();
+    let f = d.case("van_der_pol_2");
+    let v = json(&ok(&["identify", "--input", &f, "--model", VDP, "--json"]));
+    assert_eq!(num(&v, "/initial/y0"), 0.5);
+    // v0 is the slope of a quadratic through the first 7 samples; the cubic term of the Van der
+    // Pol solution biases it to about 5e-3 (true 0), which costs about 5e-3 in c1 and c2 and a
+    // test NMAE of about 5e-3: the reason to give --y0/--v0 when they are known.
+    assert!(num(&v, "/initial/v0").abs() < 1e-2, "{v}");
+    assert!(
+        (num(&v, "/coefficients/c1") - VDP_TRUTH[0]).abs() < 1e-2,
+        "{v}"
+    );
+    assert!(
+        (num(&v, "/coefficients/c2") - VDP_TRUTH[1]).abs() < 1e-2,
+        "{v}"
+    );
+    assert!(num(&v, "/test_nmae") < 1e-2, "{v}");
+}
+
+#[test]
+fn other_solvers_work() {
+    let d = Dir::new();
+    let f = d.case("van_der_pol_2");
+    for solver in ["rk4", "stiff"] {
+        let v = json(&ok(&vdp_args(&f, &["--json", "--solver", solver])));
+        for (k, truth) in ["c1", "c2"].iter().zip(VDP_TRUTH) {
+            let got = num(&v, &format!("/coefficients/{k}"));
+            assert!((got - truth).abs() < 1e-3, "{solver}: {k} = {got}");
+        }
+        assert!(num(&v, "/test_nmae") < 1e-3, "{solver}: {v}");
+    }
+}
+
+#[test]
+fn known_constants_via_param() {
+    let d = Dir::new();
+    let f = d.case("van_der_pol_2");
+    // k = 1 is the stiffness of the case.
+    let v = json(&ok(&[
+        "identify",
+        "--input",
+        &f,
+        "--model",
+        "ydd + (c1 + c2*y^2)*yd + k*y = 0",
+        "--param",
+        "k=1",
+        "--y0",
+        "0.5",
+        "--v0",
+        "0",
+        "--json",
+    ]));
+    assert!(
+        (num(&v, "/coefficients/c1") - VDP_TRUTH[0]).abs() < 1e-3,
+        "{v}"
+    );
+    // An unused or unknown name in the model is still an unknown symbol.
+    bad(
+        &[
+            "identify",
+            "--input",
+            &f,
+            "--model",
+            "ydd + (c1 + c2*y^2)*yd + m*y = 0",
+            "--param",
+            "k=1",
+        ],
+        &["'m'"],
+    );
+}
+
+#[test]
+fn same_seed_same_coefficients_and_parallel_is_bit_identical() {
+    let d = Dir::new();
+    let f = d.case("van_der_pol_2");
+    let a = json(&ok(&vdp_args(&f, &["--json", "--seed", "5"])));
+    let b = json(&ok(&vdp_args(&f, &["--json", "--seed", "5"])));
+    assert_eq!(coefficients(&a), coefficients(&b));
+    assert_eq!(a["evaluations"], b["evaluations"]);
+    let p = json(&ok(&vdp_args(&f, &["--json", "--seed", "5", "--parallel"])));
+    assert_eq!(coefficients(&a), coefficients(&p));
+    assert_eq!(a["evaluations"], p["evaluations"]);
+    assert_eq!(a["convergence"], p["convergence"]);
+}
+
+#[test]
+fn seed_cases_bench_runs_one_case() {
+    let out = ok(&[
+        "bench",
+        "seed-cases",
+        "--case",
+        "negative_damping_1",
+        "--runs",
+        "1",
+        "--json",
+    ]);
+    assert!(out.stderr.is_empty(), "{}", text(&out.stderr));
+    let v = json(&out);
+    let cases = v["cases"].as_array().unwrap();
+    assert_eq!(cases.len(), 1);
+    assert_eq!(cases[0]["id"].as_str(), Some("negative_damping_1"));
+    assert_eq!(cases[0]["successes"].as_u64(), Some(1));
+}
+
+#[test]
+fn seven_samples_are_enough_for_a_half_split() {
+    // round(7 * 0.5) = 4 training samples and 3 test samples: the minimum the split accepts.
+    let d = Dir::new();
+    let rows = read_csv(&d.case("negative_damping_1"));
+    let body: String = rows[..7]
+        .iter()
+        .map(|(t, y)| format!("{t},{y}\n"))
+        .collect();
+    let f = d.write("seven.csv", &format!("t,y\n{body}"));
+    ok(&[
+        "identify",
+        "--input",
+        &f,
+        "--model",
+        "ydd + c1*yd + y = 0",
+        "--generations",
+        "5",
+    ]);
+}
+
+/// Engine bug (src/identify.rs, `split`, the `needed` computation): the "needs at least N"
+/// figure ignores that the training count is rounded, and overflows for tiny fractions.
+/// Run with `cargo test --test cli_identify -- --ignored`.
+#[test]
+#[ignore = "engine bug in identify::split's message, reported; not fixed on the tests branch"]
+fn too_few_samples_message_gives_the_true_minimum() {
+    let d = Dir::new();
+    let rows = read_csv(&d.case("negative_damping_1"));
+    let body: String = rows[..6]
+        .iter()
+        .map(|(t, y)| format!("{t},{y}\n"))
+        .collect();
+    let f = d.write("six.csv", &format!("t,y\n{body}"));
+    // 7 samples suffice at 0.5 (see seven_samples_are_enough_for_a_half_split); it says 8.
+    bad(
+        &["identify", "--input", &f, "--model", "ydd + c1*yd + y = 0"],
+        &["6 samples", "at least 7"],
+    );
+    // A tiny fraction: the minimum is astronomically large, not usize::MAX from a saturating
+    // cast (the message says "at least 18446744073709551615").
+    let line = bad(
+        &[
+            "identify",
+            "--input",
+            &f,
+            "--model",
+            "ydd + c1*yd + y = 0",
+            "--train-fraction",
+            "1e-300",
+        ],
+        &["too few"],
+    );
+    assert!(!line.contains(&usize::MAX.to_string()), "{line}");
+}
