@@ -245,12 +245,14 @@ async fn lockstep(
         assert_eq!(got, n);
         sent += n;
         let end = START + (sent - 1) as f64 / rate;
+        // sample times are sums of floats near 1.7e9: compare to half a sample period
+        let half = 0.5 / rate;
         let v = tokio::time::timeout(WINDOW_TIMEOUT, async {
             loop {
                 let v = d.gate(gate).await;
                 if v["analysed_until"]
                     .as_f64()
-                    .is_some_and(|t| t >= end - 1e-6)
+                    .is_some_and(|t| t >= end - half)
                 {
                     return v;
                 }
@@ -262,7 +264,7 @@ async fn lockstep(
         let ident = &v["identification"];
         let fresh = ident["window_end"]
             .as_f64()
-            .is_some_and(|t| (t - end).abs() < 1e-6);
+            .is_some_and(|t| (t - end).abs() < half);
         let t = end - START;
         let step = Step {
             end: t,
