@@ -42,6 +42,9 @@ enum Command {
     Simulate(crate::service::cli::SimulateArgs),
     /// Map stable and unstable coefficients of a plane by simulation (Figure 8.13).
     StabilityMap(stability_map::StabilityMapArgs),
+    /// Watch the daemon catch a simulated gate going self-excited (daemon, simulated gate and
+    /// webhook receiver in one process).
+    Demo(crate::service::cli::DemoArgs),
 }
 
 #[derive(Debug, Subcommand)]
@@ -50,6 +53,8 @@ enum BenchCommand {
     SeedCases(SeedCasesArgs),
     /// Write a seed case's data as CSV (columns t, y) to stdout or a file.
     Generate(GenerateArgs),
+    /// Load measurements of the daemon: ingest throughput, identification latency, gates sustained.
+    Daemon(crate::service::bench::BenchDaemonArgs),
 }
 
 /// Arguments of `gatewatch bench generate`.
@@ -289,6 +294,10 @@ pub fn main() -> ExitCode {
         Command::Serve(args) => return crate::service::cli::serve(args),
         Command::CheckConfig(args) => return crate::service::cli::check_config(args),
         Command::Simulate(args) => return crate::service::cli::simulate(args),
+        Command::Demo(args) => return crate::service::cli::demo(args),
+        Command::Bench(BenchCommand::Daemon(args)) => {
+            return crate::service::bench::bench_daemon(args)
+        }
         Command::Identify(args) => run_identify(args),
         Command::StabilityMap(args) => stability_map::run(args),
         Command::Bench(BenchCommand::SeedCases(args)) => run_seed_cases(args),

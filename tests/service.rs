@@ -77,6 +77,10 @@ impl WindowAnalyzer for Fake {
                 frequency_hz: Some(1.5),
                 growth_rate: None,
                 growth_rate_stderr: None,
+                zeta0_source: None,
+                ambient_zeta: None,
+                model_frequency_hz: None,
+                amplitude: None,
                 agrees: true,
                 fit_nmae: 0.01,
                 trusted: true,
@@ -1276,7 +1280,7 @@ async fn readiness_and_graceful_shutdown_with_a_job_in_flight() {
 #[tokio::test]
 async fn simulate_client_streams_through_every_protocol() {
     use gatewatch::service::cli::{
-        local_source, simulate_with_source, Protocol, Scenario, SimulateArgs,
+        simulate_with_source, simulator, Protocol, Scenario, SimulateArgs,
     };
     let fake = Arc::new(Fake::default());
     let r = start(&format!("auth_tokens = [\"{TOKEN}\"]"), fake.clone()).await;
@@ -1298,8 +1302,11 @@ async fn simulate_client_streams_through_every_protocol() {
             token: Some(TOKEN.into()),
             chunk_seconds: 0.1,
             start: Some(1000.0),
+            onset_hold: 1.0,
+            onset_ramp: 1.0,
         };
-        let source = local_source(args.scenario, args.rate, args.duration, args.seed);
+        let mut sim = simulator(&args).unwrap();
+        let source = |b: &mut [f64]| sim.fill(b);
         let n = tokio::time::timeout(Duration::from_secs(20), simulate_with_source(&args, source))
             .await
             .unwrap()
@@ -1341,6 +1348,8 @@ async fn simulate_client_streams_through_every_protocol() {
         token: Some("wrong-token-0123456789".into()),
         chunk_seconds: 0.1,
         start: None,
+        onset_hold: 60.0,
+        onset_ramp: 300.0,
     };
     let e = simulate_with_source(&args, |b: &mut [f64]| b.fill(0.0))
         .await
@@ -1350,16 +1359,46 @@ async fn simulate_client_streams_through_every_protocol() {
 }
 
 #[test]
-fn local_source_scenarios_are_finite_and_reproducible() {
-    use gatewatch::service::cli::{local_source, Scenario};
-    for sc in [Scenario::Stable, Scenario::Onset, Scenario::LimitCycle] {
-        let mut a = vec![0.0; 2000];
-        let mut b = vec![0.0; 2000];
-        local_source(sc, 200.0, 10.0, 3)(&mut a);
-        local_source(sc, 200.0, 10.0, 3)(&mut b);
-        assert_eq!(a, b);
-        assert!(a.iter().all(|v| v.is_finite()));
+fn simulate_scenarios_map_to_the_simulator_and_are_reproducible() {
+    use gatewatch::service::cli::{simulator, Protocol, Scenario, SimulateArgs};
+    let args = |scenario| SimulateArgs {
+        url: String::new(),
+        tcp_addr: String::new(),
+        gate: "g1".into(),
+        scenario,
+        speed: 0.0,
+        duration: 10.0,
+        seed: 3,
+        protocol: Protocol::Json,
+        rate: 200.0,
+        token: None,
+        chunk_seconds: 0.1,
+        start: None,
+        onset_hold: 5.0,
+        onset_ramp: 10.0,
+    };
+    for (sc, z0, z_late) in [
+        (Scenario::Stable, 0.01, 0.01),
+        (Scenario::Onset, 0.02, -0.02),
+        (Scenario::LimitCycle, -0.02, -0.02),
+    ] {
+        let (mut a, mut b) = (simulator(&args(sc)).unwrap(), simulator(&args(sc)).unwrap());
+        assert_eq!(a.true_zeta(0.0), z0);
+        assert_eq!(a.true_zeta(20.0), z_late);
+        let (mut x, mut y) = (vec![0.0; 2000], vec![0.0; 2000]);
+        a.fill(&mut x);
+        b.fill(&mut y);
+        assert_eq!(x, y);
+        assert!(x.iter().all(|v| v.is_finite()));
+        assert!(x.iter().any(|v| *v != 0.0));
     }
+    assert_eq!(
+        simulator(&args(Scenario::Onset)).unwrap().true_zeta(10.0),
+        0.0
+    );
+    let mut bad = args(Scenario::Onset);
+    bad.onset_ramp = -1.0;
+    assert!(simulator(&bad).is_err());
 }
 
 #[tokio::test]

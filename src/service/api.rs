@@ -251,7 +251,7 @@ async fn readyz(State(state): State<Arc<AppState>>) -> Response {
 async fn metrics(State(state): State<Arc<AppState>>) -> Response {
     (
         [(header::CONTENT_TYPE, state.metrics.content_type())],
-        state.metrics.render(),
+        state.render_metrics(),
     )
         .into_response()
 }

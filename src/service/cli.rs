@@ -1,4 +1,4 @@
-//! Command-line front ends of the daemon: `serve`, `check-config`, `simulate`.
+//! Command-line front ends of the daemon: `serve`, `check-config`, `simulate`, `demo`.
 //!
 //! The integrator wires [`ServeArgs`], [`CheckConfigArgs`] and [`SimulateArgs`] into the main
 //! clap enum and calls [`serve`], [`check_config`] and [`simulate`].
@@ -8,6 +8,7 @@ use std::process::ExitCode;
 use std::time::Duration;
 
 use super::config::{Config, LogFormat};
+pub use super::demo::{demo, DemoArgs};
 
 /// `gatewatch serve`.
 #[derive(Debug, Clone, clap::Args)]
@@ -24,14 +25,14 @@ pub struct CheckConfigArgs {
     pub file: PathBuf,
 }
 
-/// Scenario of the simulated gate.
+/// Scenario of the simulated gate (maps to [`crate::simulate::Scenario`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum Scenario {
-    /// Positive damping throughout.
+    /// Damping ratio +1 % throughout, shaken by turbulent forcing.
     Stable,
-    /// Damping drifts from positive to negative.
+    /// +2 % for `--onset-hold` s, then a ramp to -2 % over `--onset-ramp` s, then -2 %.
     Onset,
-    /// Negative damping at rest, saturating at a limit cycle.
+    /// -2 % from the start: growth from the noise into a limit cycle.
     LimitCycle,
 }
 
@@ -85,6 +86,12 @@ pub struct SimulateArgs {
     /// Start time, Unix seconds (default: now).
     #[arg(long)]
     pub start: Option<f64>,
+    /// `onset`: seconds of sample time at +2 % damping before the ramp.
+    #[arg(long, default_value_t = 60.0)]
+    pub onset_hold: f64,
+    /// `onset`: seconds of sample time of the ramp from +2 % to -2 % (then -2 %).
+    #[arg(long, default_value_t = 300.0)]
+    pub onset_ramp: f64,
 }
 
 /// Retries of one request answered 429/503 or failing to connect.
@@ -171,9 +178,15 @@ pub fn check_config(args: CheckConfigArgs) -> ExitCode {
     }
 }
 
-/// `gatewatch simulate` with the built-in generator (see [`local_source`]).
+/// `gatewatch simulate`: streams a [`crate::simulate::GateSimulator`] (see [`simulator`]).
 pub fn simulate(args: SimulateArgs) -> ExitCode {
-    let source = local_source(args.scenario, args.rate, args.duration, args.seed);
+    let mut sim = match simulator(&args) {
+        Ok(s) => s,
+        Err(e) => {
+            eprintln!("gatewatch simulate: {e:#}");
+            return ExitCode::from(2);
+        }
+    };
     let rt = match tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()
@@ -184,7 +197,7 @@ pub fn simulate(args: SimulateArgs) -> ExitCode {
             return ExitCode::FAILURE;
         }
     };
-    match rt.block_on(simulate_with_source(&args, source)) {
+    match rt.block_on(simulate_with_source(&args, |b: &mut [f64]| sim.fill(b))) {
         Ok(n) => {
             println!("sent {n} samples");
             ExitCode::SUCCESS
@@ -196,42 +209,47 @@ pub fn simulate(args: SimulateArgs) -> ExitCode {
     }
 }
 
-/// A simple local generator: a lightly damped oscillator (1.5 Hz) driven by random forcing,
-/// whose damping ratio follows the scenario, as a force (N) at stiffness 81 360 N/m.
-/// The integrator may replace it by `crate::simulate::GateSimulator`.
-pub fn local_source(
-    scenario: Scenario,
-    rate: f64,
-    duration: f64,
-    seed: u64,
-) -> impl FnMut(&mut [f64]) {
-    let dt = 1.0 / rate;
-    let w = 2.0 * std::f64::consts::PI * 1.5;
-    let mut state = seed ^ 0x9e37_79b9_7f4a_7c15;
-    let (mut x, mut v, mut t) = (0.001_f64, 0.0_f64, 0.0_f64);
-    let mut noise = move || {
-        // xorshift64*, mapped to [-1, 1)
-        state ^= state >> 12;
-        state ^= state << 25;
-        state ^= state >> 27;
-        let r = state.wrapping_mul(0x2545_f491_4f6c_dd1d);
-        (r >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
-    };
-    move |out: &mut [f64]| {
-        for o in out.iter_mut() {
-            let zeta = match scenario {
-                Scenario::Stable => 0.03,
-                Scenario::Onset => 0.03 - 0.05 * (t / duration.max(1.0)).min(1.0),
-                // van der Pol-like: negative at rest, positive above 5 mm
-                Scenario::LimitCycle => -0.02 + 0.02 * (x * x + (v / w) * (v / w)) / 25e-6,
-            };
-            let a = -2.0 * zeta * w * v - w * w * x + 0.5 * noise();
-            v += a * dt;
-            x += v * dt;
-            t += dt;
-            *o = 81_360.0 * x;
+impl Scenario {
+    /// The simulator's scenario; `Onset` holds `+2 %` for `onset_hold` seconds, then ramps to
+    /// `-2 %` over `onset_ramp` seconds.
+    pub fn to_simulation(self, onset_hold: f64, onset_ramp: f64) -> crate::simulate::Scenario {
+        match self {
+            Scenario::Stable => crate::simulate::Scenario::Stable,
+            Scenario::Onset => crate::simulate::Scenario::Onset {
+                hold_s: onset_hold,
+                ramp_s: onset_ramp,
+            },
+            Scenario::LimitCycle => crate::simulate::Scenario::LimitCycle,
         }
     }
+}
+
+/// The simulated gate of `args`: the chapter's lab gate ([`crate::simulate::GateParams`]
+/// defaults: 19.14 kg, 81 360 N/m, 10.4 Hz, force output) sampled at `--rate`, whose damping
+/// follows `--scenario`, seeded with `--seed`.
+pub fn simulator(args: &SimulateArgs) -> anyhow::Result<crate::simulate::GateSimulator> {
+    anyhow::ensure!(
+        args.rate > 0.0 && args.rate.is_finite(),
+        "--rate must be > 0"
+    );
+    anyhow::ensure!(
+        args.onset_hold >= 0.0 && args.onset_hold.is_finite(),
+        "--onset-hold must be >= 0"
+    );
+    anyhow::ensure!(
+        args.onset_ramp >= 0.0 && args.onset_ramp.is_finite(),
+        "--onset-ramp must be >= 0"
+    );
+    let params = crate::simulate::GateParams {
+        rate_hz: args.rate,
+        ..Default::default()
+    };
+    Ok(crate::simulate::GateSimulator::scenario(
+        params,
+        args.scenario
+            .to_simulation(args.onset_hold, args.onset_ramp),
+        args.seed,
+    ))
 }
 
 async fn send_http(

@@ -9,8 +9,8 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
-use super::alert_impl::notify::NotifyConfig;
-use super::alert_impl::AlertRules;
+use crate::alert::notify::NotifyConfig;
+use crate::alert::AlertRules;
 use crate::analysis::{AnalysisSettings, Signal};
 
 /// The embedded default configuration (the documented example), used by `serve` without
@@ -42,7 +42,7 @@ pub const DEFAULT_RETRY_AFTER_SECONDS: u64 = 1;
 /// Largest window accepted: bounds the memory of one gate (`window_seconds * rate_hz` samples).
 pub const MAX_WINDOW_SAMPLES: usize = 10_000_000;
 /// Default equation of motion: van der Pol-like damping, known installed stiffness `k`.
-pub const DEFAULT_MODEL: &str = "m*ydd + (c1 + c2*yd^2)*yd + k*y = 0";
+pub const DEFAULT_MODEL: &str = "c1*ydd + (c2 + c3*yd^2)*yd + k*y = 0";
 
 /// The whole configuration.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
@@ -54,7 +54,9 @@ pub struct Config {
     pub log: LogConfig,
     /// Ingestion mapping.
     pub ingest: IngestConfig,
-    /// Where alerts go.
+    /// Where alerts go (webhooks, Alertmanager; see `docs/alerts.md`). Never serialized: it
+    /// holds bearer tokens.
+    #[serde(skip_serializing)]
     pub notify: NotifyConfig,
     /// Settings for every gate (resolved; the raw table is merged into each gate).
     #[serde(skip)]
@@ -272,9 +274,9 @@ impl Default for GateConfig {
             rate_hz: 200.0,
             stiffness: Some(81_360.0),
             model: DEFAULT_MODEL.into(),
-            params: BTreeMap::from([("m".to_string(), 1_000.0)]),
-            population: 40,
-            generations: 200,
+            params: BTreeMap::new(),
+            population: 20,
+            generations: 40,
             amplitude_limit: None,
             max_fit_nmae: 0.2,
             window_seconds: 10.0,
@@ -612,6 +614,9 @@ impl Config {
         if self.ingest.tcp_max_line_bytes < 64 {
             return Err(ConfigError::new("ingest.tcp_max_line_bytes: must be >= 64"));
         }
+        if let Err(e) = self.notify.validate() {
+            return Err(ConfigError::new(format!("notify: {e}")));
+        }
         Ok(())
     }
 
@@ -638,7 +643,22 @@ mod tests {
         assert_eq!(c.log, d.log);
         assert_eq!(c.ingest, d.ingest);
         assert_eq!(c.defaults, d.defaults);
+        assert_eq!(c.notify, NotifyConfig::default());
         assert!(c.gates.is_empty());
+    }
+
+    #[test]
+    fn notify_targets_parse_and_bad_urls_name_the_section() {
+        let c = Config::from_toml(
+            "[notify]\nalertmanager_urls = [\"http://am:9093\"]\n\
+             [[notify.webhooks]]\nurl = \"http://127.0.0.1:5001/hook\"\n",
+        )
+        .unwrap();
+        assert_eq!(c.notify.webhooks.len(), 1);
+        assert_eq!(c.notify.webhooks[0].receiver, "gatewatch");
+        assert_eq!(c.notify.alertmanager_urls, ["http://am:9093"]);
+        assert!(err("[[notify.webhooks]]\nurl = \"ftp://x\"\n").starts_with("notify: "));
+        assert!(err("[notify]\nalertmanager_url = \"http://x\"\n").contains("alertmanager_url"));
     }
 
     #[test]

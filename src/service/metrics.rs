@@ -116,7 +116,7 @@ impl Metrics {
         registry
             .register(Box::new(tcp_connections_rejected.clone()))
             .expect("unique metric");
-        Metrics {
+        let m = Metrics {
             damping_ratio: gauge(
                 "gatewatch_damping_ratio",
                 "Identified damping ratio at rest (zeta0).",
@@ -192,12 +192,17 @@ impl Metrics {
             ),
             notifications: counter(
                 "gatewatch_notifications_total",
-                "Alert notifications by outcome.",
+                "Alert notification batches: queued to the notifier, then delivered, failed or dropped per target.",
                 &["outcome"],
             ),
             tcp_connections_rejected,
             registry,
+        };
+        // every outcome is exported from the start, so rate() works from the first increment
+        for o in NOTIFICATION_OUTCOMES {
+            m.notifications.with_label_values(&[o]);
         }
+        m
     }
 
     /// The text exposition format.
@@ -221,6 +226,35 @@ impl Metrics {
                 .with_label_values(&[gate, s])
                 .set(if *s == state { 1.0 } else { 0.0 });
         }
+    }
+}
+
+/// Outcomes of `gatewatch_notifications_total`: `queued` (batches of alert events handed to the
+/// notifier), then per target and batch `delivered`, `failed` (given up after retries) and
+/// `dropped` (queue full, or abandoned at the shutdown deadline).
+pub const NOTIFICATION_OUTCOMES: &[&str] = &["queued", "delivered", "failed", "dropped"];
+
+/// The notifier's counters as last exported, to turn its totals into counter increments.
+#[derive(Debug, Default)]
+pub struct NotificationCounts {
+    last: std::sync::Mutex<crate::alert::notify::StatsSnapshot>,
+}
+
+impl NotificationCounts {
+    /// Adds what the notifier counted since the last call to `gatewatch_notifications_total`.
+    pub fn sync(&self, metrics: &Metrics, now: crate::alert::notify::StatsSnapshot) {
+        let mut last = self.last.lock().unwrap_or_else(|p| p.into_inner());
+        for (outcome, new, old) in [
+            ("delivered", now.delivered, last.delivered),
+            ("failed", now.failed, last.failed),
+            ("dropped", now.dropped, last.dropped),
+        ] {
+            metrics
+                .notifications
+                .with_label_values(&[outcome])
+                .inc_by(new.saturating_sub(old));
+        }
+        *last = now;
     }
 }
 

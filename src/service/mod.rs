@@ -7,18 +7,19 @@
 //!   TCP listener ([`ingest::tcp`]).
 //! - [`window`]: the ring buffer of a gate and the sample-time cadence.
 //! - [`worker`]: `WindowAnalyzer`, the worker pool and its replace-don't-queue scheduler.
-//! - [`state`]: the shared state; the only user of the alert engine.
+//! - [`state`]: the shared state; the only user of the alert engine ([`crate::alert`]) and of
+//!   its notifier.
 //! - [`metrics`]: the Prometheus metrics.
 //! - [`api`]: routes, authentication, `HttpError`.
 //! - [`server`]: `run`; [`shutdown`]: signals; [`cli`]: command-line entry points.
-
-mod alert_shim;
-// The ONE switch to the real alert module: replace by `use crate::alert as alert_impl;`.
-use alert_shim as alert_impl;
+//! - [`bench`]: `gatewatch bench daemon`, load measurements.
+//! - [`demo`]: `gatewatch demo`, daemon + webhook receiver + simulated gate in one process.
 
 pub mod api;
+pub mod bench;
 pub mod cli;
 pub mod config;
+pub mod demo;
 pub mod ingest;
 pub mod metrics;
 pub mod server;
@@ -29,6 +30,6 @@ pub mod worker;
 
 /// Alert types as the daemon uses them (re-exported for tests and the integrator).
 pub mod alerts {
-    pub use super::alert_impl::notify::NotifyConfig;
-    pub use super::alert_impl::{AlertRules, GateState};
+    pub use crate::alert::notify::{NotifyConfig, WebhookTarget};
+    pub use crate::alert::{Alert, AlertRules, GateState};
 }

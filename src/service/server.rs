@@ -138,9 +138,13 @@ pub async fn run_with_analyzer(
         workers_stopped = clean,
         "worker pool stopped"
     );
-    let rest = deadline.saturating_duration_since(Instant::now());
-    let notifier = state.notifier();
-    let _ = tokio::time::timeout(rest, notifier.shutdown(rest)).await;
+    // pending notifications get the rest of the grace period (and at least a second, so that
+    // an alert raised by the last identification still goes out)
+    let rest = deadline
+        .saturating_duration_since(Instant::now())
+        .max(Duration::from_secs(1).min(grace));
+    let flushed = state.shutdown_notifier(rest).await;
+    tracing::info!(flushed, "alert notifier stopped");
     tracing::info!("shut down");
     served.map_err(|e| anyhow::anyhow!("HTTP server failed: {e}"))
 }

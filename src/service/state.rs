@@ -1,5 +1,12 @@
 //! Shared daemon state: the gates (windows, latest identification), the alert engine, the worker
-//! pool and the notifier. This is the ONE module that talks to the alert engine.
+//! pool and the notifier. This is the ONE module that talks to the alert engine
+//! ([`crate::alert::AlertEngine`]) and its notifier ([`crate::alert::notify`]).
+//!
+//! Alert semantics the daemon relies on: the staleness clock of a gate restarts only on
+//! `data_seen`, called on every accepted ingestion (and once when a gate is created); an
+//! identification never feeds it. `AlertEngine::is_firing` is the truth about
+//! `GateNegativeDamping` (shown as `firing` in the API), while the displayed `state()` may be
+//! `unknown` after an untrusted window or while the data is stale.
 
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -8,13 +15,14 @@ use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use serde::Serialize;
 
-use super::alert_impl::notify::{spawn_notifier, NotifierHandle};
-use super::alert_impl::{AlertEngine, AlertEvent, GateState, Observation};
 use super::config::{Config, GateConfig};
 use super::ingest::{BadRequest, Batch};
 use super::metrics::Metrics;
+use super::metrics::NotificationCounts;
 use super::window::Window;
 use super::worker::{Job, JobOutcome, Submitted, WindowAnalyzer, WorkerPool};
+use crate::alert::notify::{spawn_notifier, NotifierHandle};
+use crate::alert::{Alert, AlertEngine, AlertEvent, GateState, Observation};
 use crate::analysis::{AnalysisError, WindowAnalysis};
 
 /// Relative disagreement of a declared or implied sample rate with `rate_hz` that is refused.
@@ -49,6 +57,10 @@ struct GateEntry {
     window: Window,
     latest: Option<WindowAnalysis>,
     last_identification: Option<SystemTime>,
+    /// `(start, end)` sample times of the window of `latest`.
+    latest_window: Option<(f64, f64)>,
+    /// Sample time of the end of the last window whose job finished (succeeded or failed).
+    analysed_until: Option<f64>,
     last_error: Option<String>,
 }
 
@@ -66,6 +78,8 @@ pub struct AppState {
     inner: Mutex<Inner>,
     pool: OnceLock<WorkerPool>,
     notifier: NotifierHandle,
+    notifier_task: Mutex<Option<tokio::task::JoinHandle<()>>>,
+    notification_counts: NotificationCounts,
     /// Listeners up.
     pub listeners_up: AtomicBool,
     /// Permits of ingestion requests in progress (`server.max_concurrent_ingest`).
@@ -90,13 +104,7 @@ fn unix(t: SystemTime) -> f64 {
 
 /// Lower-case name of an alert state (label value of `gatewatch_alert_state`).
 pub fn state_name(s: GateState) -> &'static str {
-    match s {
-        GateState::Ok => "ok",
-        GateState::Pending => "pending",
-        GateState::Firing => "firing",
-        GateState::Resolved => "resolved",
-        GateState::Unknown => "unknown",
-    }
+    s.as_str()
 }
 
 /// A gate as `GET /api/v1/gates/{id}` shows it.
@@ -104,14 +112,22 @@ pub fn state_name(s: GateState) -> &'static str {
 pub struct GateView {
     /// Gate id.
     pub gate: String,
-    /// Alert state.
+    /// Displayed alert state (`ok`, `pending`, `firing`, `resolved`, `unknown`); may be
+    /// `unknown` while `GateNegativeDamping` still fires (see `firing`).
     pub alert_state: &'static str,
+    /// Whether `GateNegativeDamping` is firing for this gate (the truth, whatever the display).
+    pub firing: bool,
+    /// The gate's firing alerts (`GateNegativeDamping`, `GateDataStale`).
+    pub alerts: Vec<Alert>,
     /// Window statistics.
     pub window: WindowView,
     /// Latest identification (absent before the first).
     pub identification: Option<IdentificationView>,
     /// Message of the last failed identification, if the last one failed.
     pub last_error: Option<String>,
+    /// Sample time (Unix s) of the last sample of the last window whose identification
+    /// finished, successfully or not (absent before the first).
+    pub analysed_until: Option<f64>,
 }
 
 /// Window statistics.
@@ -136,8 +152,12 @@ pub struct WindowView {
 /// The latest identification.
 #[derive(Debug, Clone, Serialize)]
 pub struct IdentificationView {
-    /// Time of the identification, Unix seconds.
+    /// Time of the identification, Unix seconds (wall clock).
     pub time: f64,
+    /// Sample time of the window's first sample, Unix seconds.
+    pub window_start: f64,
+    /// Sample time of the window's last sample, Unix seconds.
+    pub window_end: f64,
     /// Equation with numbers.
     pub equation: String,
     /// Coefficients.
@@ -157,9 +177,11 @@ impl AppState {
         let config = Arc::new(config);
         let threads = config.server.effective_worker_threads();
         let queue = config.server.effective_job_queue();
+        // reqwest (in the notifier) is built with rustls but no provider: install it first.
+        super::cli::ensure_crypto_provider();
         let state = Arc::new_cyclic(|weak: &Weak<AppState>| {
             let w = weak.clone();
-            let (notifier, _task) = spawn_notifier(config.notify.clone(), move || {
+            let (notifier, task) = spawn_notifier(config.notify.clone(), move || {
                 w.upgrade()
                     .map(|s| lock(&s.inner).alerts.firing())
                     .unwrap_or_default()
@@ -173,6 +195,8 @@ impl AppState {
                 }),
                 pool: OnceLock::new(),
                 notifier,
+                notifier_task: Mutex::new(Some(task)),
+                notification_counts: NotificationCounts::default(),
                 listeners_up: AtomicBool::new(false),
                 ingest_permits: Arc::new(tokio::sync::Semaphore::new(
                     config.server.max_concurrent_ingest,
@@ -234,6 +258,8 @@ impl AppState {
                     config: cfg,
                     latest: None,
                     last_identification: None,
+                    latest_window: None,
+                    analysed_until: None,
                     last_error: None,
                 },
             );
@@ -242,13 +268,33 @@ impl AppState {
     }
 
     fn notify(&self, events: Vec<AlertEvent>) {
-        if !events.is_empty() {
+        if events.is_empty() {
+            return;
+        }
+        for e in &events {
+            let a = e.alert();
+            tracing::info!(
+                gate = a.gate(),
+                alert = %a.name,
+                status = e.status(),
+                summary = a.annotations.get("summary").map(String::as_str).unwrap_or(""),
+                "alert"
+            );
+        }
+        // one batch; a full queue drops it and counts it in the notifier's `dropped`
+        if self.notifier.notify(events) {
             self.metrics
                 .notifications
                 .with_label_values(&["queued"])
-                .inc_by(events.len() as u64);
-            self.notifier.notify(events);
+                .inc();
         }
+    }
+
+    /// The Prometheus text exposition, with the notifier's counters brought up to date.
+    pub fn render_metrics(&self) -> String {
+        self.notification_counts
+            .sync(&self.metrics, self.notifier.stats().snapshot());
+        self.metrics.render()
     }
 
     fn reject(&self, reason: &str, n: u64) {
@@ -394,7 +440,14 @@ impl AppState {
             .observe(elapsed.as_secs_f64());
         let g = job.gate.as_str();
         let now = SystemTime::now();
+        let window = (
+            job.t0,
+            job.t0 + job.values.len().saturating_sub(1) as f64 / job.rate_hz,
+        );
         let mut inner = lock(&self.inner);
+        if let Some(e) = inner.gates.get_mut(g) {
+            e.analysed_until = Some(window.1);
+        }
         match outcome {
             JobOutcome::Done(a) => {
                 let d = &a.damping;
@@ -436,6 +489,7 @@ impl AppState {
                 if let Some(e) = inner.gates.get_mut(g) {
                     e.latest = Some(*a);
                     e.last_identification = Some(now);
+                    e.latest_window = Some(window);
                     e.last_error = None;
                 }
                 drop(inner);
@@ -473,8 +527,9 @@ impl AppState {
         let mut inner = lock(&self.inner);
         let events = inner.alerts.check_stale(now);
         for e in &events {
-            let state = inner.alerts.state(&e.gate).unwrap_or(GateState::Unknown);
-            self.metrics.set_alert_state(&e.gate, state_name(state));
+            let g = e.alert().gate();
+            let state = inner.alerts.state(g).unwrap_or(GateState::Unknown);
+            self.metrics.set_alert_state(g, state_name(state));
         }
         drop(inner);
         self.notify(events);
@@ -498,6 +553,13 @@ impl AppState {
         Some(GateView {
             gate: id.to_string(),
             alert_state: state_name(inner.alerts.state(id).unwrap_or(GateState::Unknown)),
+            firing: inner.alerts.is_firing(id),
+            alerts: inner
+                .alerts
+                .firing()
+                .into_iter()
+                .filter(|a| a.gate() == id)
+                .collect(),
             window: WindowView {
                 samples: w.len(),
                 capacity: w.capacity(),
@@ -509,17 +571,46 @@ impl AppState {
             },
             identification: e.latest.as_ref().map(|a| IdentificationView {
                 time: e.last_identification.map(unix).unwrap_or(0.0),
+                window_start: e.latest_window.map(|w| w.0).unwrap_or(0.0),
+                window_end: e.latest_window.map(|w| w.1).unwrap_or(0.0),
                 equation: a.equation.clone(),
                 coefficients: a.coefficients.iter().cloned().collect(),
                 damping: a.damping.clone(),
                 seconds: a.seconds,
             }),
             last_error: e.last_error.clone(),
+            analysed_until: e.analysed_until,
         })
+    }
+
+    /// Whether `GateNegativeDamping` fires for `gate`.
+    pub fn is_firing(&self, gate: &str) -> bool {
+        lock(&self.inner).alerts.is_firing(gate)
+    }
+
+    /// Every firing alert.
+    pub fn firing_alerts(&self) -> Vec<Alert> {
+        lock(&self.inner).alerts.firing()
     }
 
     /// The notifier handle (for shutdown).
     pub fn notifier(&self) -> NotifierHandle {
         self.notifier.clone()
+    }
+
+    /// Stops the notifier: delivers what is queued (with retries) until `deadline`, then
+    /// abandons the rest (counted as dropped). Returns whether everything was handled in time.
+    pub async fn shutdown_notifier(&self, deadline: Duration) -> bool {
+        let started = std::time::Instant::now();
+        let clean = self.notifier.shutdown(deadline).await;
+        let task = lock(&self.notifier_task).take();
+        if let Some(task) = task {
+            // after `shutdown` the dispatcher ends promptly (flushed or aborted)
+            let rest = deadline.saturating_sub(started.elapsed()) + Duration::from_secs(1);
+            let _ = tokio::time::timeout(rest, task).await;
+        }
+        self.notification_counts
+            .sync(&self.metrics, self.notifier.stats().snapshot());
+        clean
     }
 }

@@ -1,0 +1,365 @@
+//! `gatewatch demo`: the whole chain in one process, for a newcomer.
+//!
+//! 1. the daemon on the embedded default configuration, on loopback (the configured port, or an
+//!    ephemeral one when it is busy);
+//! 2. a webhook receiver (axum on `127.0.0.1:0`) registered as the daemon's webhook target;
+//! 3. a simulated gate `g1` (the lab gate, `onset` scenario: +2 % damping, then a ramp to -2 %)
+//!    streamed `--speed` times faster than real time through `POST /api/v1/samples`;
+//! 4. stdout: every identification of `g1` (read from `GET /api/v1/gates/g1`) and every alert
+//!    the webhook receives, as they happen; after `--duration` seconds or Ctrl-C, a summary.
+
+use std::net::{Ipv4Addr, SocketAddr};
+use std::process::ExitCode;
+use std::time::{Duration, Instant};
+
+use axum::extract::State;
+use axum::http::StatusCode;
+use axum::Json;
+use serde_json::Value;
+use tokio::net::TcpListener;
+use tokio::sync::mpsc;
+
+use super::cli::{ensure_crypto_provider, simulate_with_source, Protocol, Scenario, SimulateArgs};
+use super::config::Config;
+use crate::alert::notify::WebhookTarget;
+use crate::simulate::{GateParams, GateSimulator};
+
+/// Gate id of the simulated gate.
+pub const DEMO_GATE: &str = "g1";
+/// Capacity of the webhook receiver's queue (payloads); more are answered 503 (the notifier
+/// retries them).
+pub const WEBHOOK_QUEUE: usize = 256;
+
+/// `gatewatch demo`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct DemoArgs {
+    /// Wall-clock seconds to run before the summary (Ctrl-C ends earlier).
+    #[arg(long, default_value_t = 90.0)]
+    pub duration: f64,
+    /// Replay speed of the simulated gate (15: fifteen seconds of samples per second).
+    #[arg(long, default_value_t = 15.0)]
+    pub speed: f64,
+    /// Seconds of sample time at +2 % damping before the ramp to -2 %.
+    #[arg(long, default_value_t = 60.0)]
+    pub onset_hold: f64,
+    /// Seconds of sample time of the ramp from +2 % to -2 %.
+    #[arg(long, default_value_t = 300.0)]
+    pub onset_ramp: f64,
+    /// Random seed of the simulated turbulence.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+}
+
+/// A small webhook receiver: queues every payload it is POSTed (bounded, 503 when full).
+pub async fn webhook_receiver(
+    capacity: usize,
+) -> std::io::Result<(
+    SocketAddr,
+    mpsc::Receiver<Value>,
+    tokio::task::JoinHandle<()>,
+)> {
+    let (tx, rx) = mpsc::channel::<Value>(capacity.max(1));
+    async fn hook(State(tx): State<mpsc::Sender<Value>>, Json(v): Json<Value>) -> StatusCode {
+        match tx.try_send(v) {
+            Ok(()) => StatusCode::OK,
+            Err(_) => StatusCode::SERVICE_UNAVAILABLE,
+        }
+    }
+    let app = axum::Router::new()
+        .route("/hook", axum::routing::post(hook))
+        .with_state(tx);
+    let listener = TcpListener::bind((Ipv4Addr::LOCALHOST, 0)).await?;
+    let addr = listener.local_addr()?;
+    let task = tokio::spawn(async move {
+        if let Err(e) = axum::serve(listener, app).await {
+            eprintln!("demo webhook receiver failed: {e}");
+        }
+    });
+    Ok((addr, rx, task))
+}
+
+/// Binds the loopback address with the port of `listen`, or an ephemeral port when it is busy.
+async fn bind_loopback(listen: &str) -> std::io::Result<TcpListener> {
+    let port = listen.parse::<SocketAddr>().map(|a| a.port()).unwrap_or(0);
+    match TcpListener::bind((Ipv4Addr::LOCALHOST, port)).await {
+        Ok(l) => Ok(l),
+        Err(e) => {
+            eprintln!("port {port} is busy ({e}); using an ephemeral port");
+            TcpListener::bind((Ipv4Addr::LOCALHOST, 0)).await
+        }
+    }
+}
+
+fn pct(v: Option<f64>) -> String {
+    v.map(|z| format!("{:+.2} %", 100.0 * z))
+        .unwrap_or_else(|| "n/a".into())
+}
+
+/// One line per alert of a webhook payload (Alertmanager webhook format, version 4).
+fn alert_lines(payload: &Value) -> Vec<String> {
+    let empty = Vec::new();
+    payload["alerts"]
+        .as_array()
+        .unwrap_or(&empty)
+        .iter()
+        .map(|a| {
+            format!(
+                "{} {} (gate {}): {}",
+                a["status"].as_str().unwrap_or("?").to_uppercase(),
+                a["labels"]["alertname"].as_str().unwrap_or("?"),
+                a["labels"]["gate"].as_str().unwrap_or("?"),
+                a["annotations"]["summary"].as_str().unwrap_or(""),
+            )
+        })
+        .collect()
+}
+
+/// `gatewatch demo`: exit 0 after `--duration` or Ctrl-C, 1 when something cannot start.
+pub fn demo(args: DemoArgs) -> ExitCode {
+    if !(args.duration > 0.0 && args.duration.is_finite()) {
+        eprintln!("gatewatch demo: --duration must be > 0");
+        return ExitCode::from(2);
+    }
+    if !(args.speed > 0.0 && args.speed.is_finite()) {
+        eprintln!("gatewatch demo: --speed must be > 0");
+        return ExitCode::from(2);
+    }
+    // Daemon logs (warnings only, unless RUST_LOG says otherwise) go to stderr; stdout is the
+    // demo's narrative.
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn"));
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .try_init();
+    let rt = match tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()
+    {
+        Ok(rt) => rt,
+        Err(e) => {
+            eprintln!("gatewatch demo: cannot start the runtime: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
+    match rt.block_on(run_demo(args, super::shutdown::signal())) {
+        Ok(_) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("gatewatch demo: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// Counts of a finished demo.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct DemoSummary {
+    /// Identifications of the gate seen.
+    pub identifications: u64,
+    /// Alerts received by the webhook (firing and resolved).
+    pub alerts: u64,
+    /// `GateNegativeDamping` firing alerts received.
+    pub negative_damping_fired: u64,
+    /// `gatewatch_damping_ratio` lines of the final metrics.
+    pub damping_metric_lines: Vec<String>,
+}
+
+/// The demo, until `--duration` has passed or `interrupt` resolves.
+pub async fn run_demo(
+    args: DemoArgs,
+    interrupt: impl std::future::Future<Output = ()>,
+) -> anyhow::Result<DemoSummary> {
+    ensure_crypto_provider();
+    let began = Instant::now();
+    let mut config = Config::embedded();
+    let http = bind_loopback(&config.server.listen).await?;
+    let daemon_addr = http.local_addr()?;
+    let (hook_addr, mut hooks, hook_task) = webhook_receiver(WEBHOOK_QUEUE).await?;
+    config.server.listen = daemon_addr.to_string();
+    config.notify.webhooks.push(WebhookTarget {
+        url: format!("http://{hook_addr}/hook"),
+        bearer_token: None,
+        receiver: "gatewatch-demo".into(),
+    });
+    config.notify.external_url = format!("http://{daemon_addr}");
+    config.notify.initial_backoff_ms = 100;
+    let rules = config.defaults.alert.clone();
+    let base = format!("http://{daemon_addr}");
+
+    println!("gatewatch demo: daemon on {base} (embedded default configuration)");
+    println!("  metrics:  {base}/metrics      gate: {base}/api/v1/gates/{DEMO_GATE}");
+    println!("  webhook receiver: http://{hook_addr}/hook");
+    println!(
+        "  simulated gate `{DEMO_GATE}`: lab gate (10.4 Hz), damping +2 % for {} s, then a ramp to \
+         -2 % over {} s (sample time), streamed at {}x through POST /api/v1/samples",
+        args.onset_hold, args.onset_ramp, args.speed
+    );
+    println!(
+        "  alert rule: GateNegativeDamping fires after {} consecutive windows with zeta0 < {:.1} %",
+        rules.for_windows,
+        100.0 * rules.fire_below
+    );
+    println!("  running for {} s (Ctrl-C ends earlier)", args.duration);
+    println!();
+
+    let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
+    let daemon = tokio::spawn(super::server::run(
+        config,
+        super::server::Listeners { http, tcp: None },
+        async move {
+            let _ = stop_rx.await;
+        },
+    ));
+
+    // the simulated gate, through the real ingestion path
+    let start = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_secs_f64())
+        .unwrap_or(0.0);
+    let rate = 200.0;
+    let sim_args = SimulateArgs {
+        url: base.clone(),
+        tcp_addr: String::new(),
+        gate: DEMO_GATE.into(),
+        scenario: Scenario::Onset,
+        speed: args.speed,
+        duration: args.speed * args.duration + 60.0,
+        seed: args.seed,
+        protocol: Protocol::Json,
+        rate,
+        token: None,
+        chunk_seconds: 0.1,
+        start: Some(start),
+        onset_hold: args.onset_hold,
+        onset_ramp: args.onset_ramp,
+    };
+    let truth = GateSimulator::scenario(
+        GateParams::default(),
+        Scenario::Onset.to_simulation(args.onset_hold, args.onset_ramp),
+        args.seed,
+    );
+    let streamer = tokio::spawn(async move {
+        let mut sim = GateSimulator::scenario(
+            GateParams {
+                rate_hz: sim_args.rate,
+                ..Default::default()
+            },
+            Scenario::Onset.to_simulation(sim_args.onset_hold, sim_args.onset_ramp),
+            sim_args.seed,
+        );
+        simulate_with_source(&sim_args, |b: &mut [f64]| sim.fill(b)).await
+    });
+
+    let client = reqwest::Client::builder()
+        .timeout(Duration::from_secs(5))
+        .build()?;
+    let gate_url = format!("{base}/api/v1/gates/{DEMO_GATE}");
+    let mut summary = DemoSummary::default();
+    let mut last_seen: Option<f64> = None;
+    let mut poll = tokio::time::interval(Duration::from_millis(200));
+    poll.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    let deadline = tokio::time::sleep(Duration::from_secs_f64(args.duration));
+    tokio::pin!(deadline);
+    tokio::pin!(interrupt);
+    let mut streamer = Some(streamer);
+    loop {
+        tokio::select! {
+            _ = &mut deadline => break,
+            _ = &mut interrupt => {
+                println!("\ninterrupted");
+                break;
+            }
+            Some(payload) = hooks.recv() => {
+                for line in alert_lines(&payload) {
+                    summary.alerts += 1;
+                    if line.starts_with("FIRING GateNegativeDamping") {
+                        summary.negative_damping_fired += 1;
+                    }
+                    println!("[{:6.1} s] webhook: {line}", began.elapsed().as_secs_f64());
+                }
+            }
+            r = async { streamer.as_mut().expect("checked by the guard").await }, if streamer.is_some() => {
+                streamer = None;
+                match r {
+                    Ok(Ok(n)) => println!("[{:6.1} s] simulated stream ended after {n} samples", began.elapsed().as_secs_f64()),
+                    Ok(Err(e)) => eprintln!("simulated stream failed: {e:#}"),
+                    Err(e) => eprintln!("simulated stream task failed: {e}"),
+                }
+            }
+            _ = poll.tick() => {
+                let Ok(resp) = client.get(&gate_url).send().await else { continue };
+                let Ok(v) = resp.json::<Value>().await else { continue };
+                let ident = &v["identification"];
+                let Some(t) = ident["time"].as_f64() else { continue };
+                if last_seen == Some(t) {
+                    continue;
+                }
+                last_seen = Some(t);
+                summary.identifications += 1;
+                let d = &ident["damping"];
+                let end = ident["window_end"].as_f64().unwrap_or(start) - start;
+                let state = if v["firing"].as_bool() == Some(true) {
+                    "firing".to_string()
+                } else {
+                    v["alert_state"].as_str().unwrap_or("?").to_string()
+                };
+                println!(
+                    "[{:6.1} s] identification of {DEMO_GATE} (window ending at t = {:6.1} s): \
+                     zeta0 {} (true {}), f {} Hz, fit NMAE {}, trusted {}, state {}",
+                    began.elapsed().as_secs_f64(),
+                    end,
+                    pct(d["zeta0"].as_f64()),
+                    pct(Some(truth.true_zeta(end))),
+                    d["frequency_hz"].as_f64().map(|f| format!("{f:.2}")).unwrap_or_else(|| "n/a".into()),
+                    d["fit_nmae"].as_f64().map(|f| format!("{f:.3}")).unwrap_or_else(|| "n/a".into()),
+                    d["trusted"].as_bool().unwrap_or(false),
+                    state,
+                );
+            }
+        }
+    }
+
+    if let Some(s) = streamer.take() {
+        s.abort();
+    }
+    let metrics = match client.get(format!("{base}/metrics")).send().await {
+        Ok(r) => r.text().await.unwrap_or_default(),
+        Err(_) => String::new(),
+    };
+    summary.damping_metric_lines = metrics
+        .lines()
+        .filter(|l| l.starts_with("gatewatch_damping_ratio"))
+        .map(String::from)
+        .collect();
+    let _ = stop_tx.send(());
+    match tokio::time::timeout(Duration::from_secs(15), daemon).await {
+        Ok(Ok(Ok(()))) => {}
+        Ok(Ok(Err(e))) => eprintln!("daemon: {e:#}"),
+        Ok(Err(e)) => eprintln!("daemon task: {e}"),
+        Err(_) => eprintln!("daemon did not stop within 15 s"),
+    }
+    // alerts flushed by the daemon's shutdown
+    while let Ok(payload) = hooks.try_recv() {
+        for line in alert_lines(&payload) {
+            summary.alerts += 1;
+            println!("[{:6.1} s] webhook: {line}", began.elapsed().as_secs_f64());
+        }
+    }
+    hook_task.abort();
+
+    println!();
+    println!(
+        "summary after {:.0} s: {} identifications, {} alerts received by the webhook ({} GateNegativeDamping firing)",
+        began.elapsed().as_secs_f64(),
+        summary.identifications,
+        summary.alerts,
+        summary.negative_damping_fired
+    );
+    if summary.damping_metric_lines.is_empty() {
+        println!("no gatewatch_damping_ratio yet (no successful identification)");
+    }
+    for l in &summary.damping_metric_lines {
+        println!("  {l}");
+    }
+    Ok(summary)
+}

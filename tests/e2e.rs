@@ -1,0 +1,446 @@
+//! End to end: the REAL daemon (`server::run`, real analyzers) on a loopback port 0, a simulated
+//! gate streamed through `POST /api/v1/samples` (the `simulate` client), and a REAL webhook
+//! receiver (a small axum server in the test) registered as the notifier's target.
+//!
+//! The stream runs as fast as possible, in lockstep with the daemon: identification windows are
+//! cut in sample time, so after each `identify_every_seconds` of samples the test waits until the
+//! daemon has finished that window (`analysed_until` of `GET /api/v1/gates/{id}`). No window is
+//! skipped, whatever the machine's speed, and the results are in stream time. Every wait is
+//! bounded by a timeout; nothing asserts on wall-clock durations.
+
+use std::net::SocketAddr;
+use std::time::Duration;
+
+use gatewatch::service::cli::{simulate_with_source, Protocol, Scenario, SimulateArgs};
+use gatewatch::service::config::Config;
+use gatewatch::service::server::{run, Listeners};
+use gatewatch::simulate::{GateParams, GateSimulator, ZetaSchedule};
+use serde_json::Value;
+use tokio::sync::mpsc;
+
+/// Longest wait for one window's identification.
+const WINDOW_TIMEOUT: Duration = Duration::from_secs(180);
+/// Longest wait for a webhook delivery.
+const HOOK_TIMEOUT: Duration = Duration::from_secs(30);
+/// Start of the streams, Unix seconds.
+const START: f64 = 1_700_000_000.0;
+
+/// The webhook receiver: every payload POSTed to /hook, through a bounded queue.
+struct Hook {
+    addr: SocketAddr,
+    rx: mpsc::Receiver<Value>,
+    task: tokio::task::JoinHandle<()>,
+}
+
+async fn hook() -> Hook {
+    let (tx, rx) = mpsc::channel::<Value>(1024);
+    let app = axum::Router::new()
+        .route(
+            "/hook",
+            axum::routing::post(
+                |axum::extract::State(tx): axum::extract::State<mpsc::Sender<Value>>,
+                 axum::Json(v): axum::Json<Value>| async move {
+                    match tx.try_send(v) {
+                        Ok(()) => axum::http::StatusCode::OK,
+                        Err(_) => axum::http::StatusCode::SERVICE_UNAVAILABLE,
+                    }
+                },
+            ),
+        )
+        .with_state(tx);
+    let l = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let addr = l.local_addr().unwrap();
+    let task = tokio::spawn(async move {
+        axum::serve(l, app).await.unwrap();
+    });
+    Hook { addr, rx, task }
+}
+
+/// `(status, alertname, gate)` of every alert in a webhook payload.
+fn alerts_of(payload: &Value) -> Vec<(String, String, String)> {
+    payload["alerts"]
+        .as_array()
+        .map(|a| {
+            a.iter()
+                .map(|a| {
+                    (
+                        a["status"].as_str().unwrap_or("").to_string(),
+                        a["labels"]["alertname"].as_str().unwrap_or("").to_string(),
+                        a["labels"]["gate"].as_str().unwrap_or("").to_string(),
+                    )
+                })
+                .collect()
+        })
+        .unwrap_or_default()
+}
+
+impl Hook {
+    /// Waits (bounded) for an alert `(status, alertname)` of `gate`; returns every alert seen.
+    async fn wait_for(
+        &mut self,
+        status: &str,
+        name: &str,
+        gate: &str,
+    ) -> Vec<(String, String, String)> {
+        let mut seen = Vec::new();
+        let found = tokio::time::timeout(HOOK_TIMEOUT, async {
+            while let Some(p) = self.rx.recv().await {
+                assert_eq!(p["version"], "4", "Alertmanager webhook format: {p}");
+                for a in alerts_of(&p) {
+                    let hit = a.0 == status && a.1 == name && a.2 == gate;
+                    seen.push(a);
+                    if hit {
+                        return;
+                    }
+                }
+            }
+        })
+        .await;
+        assert!(
+            found.is_ok(),
+            "no {status} {name} for {gate} within {HOOK_TIMEOUT:?}; got {seen:?}"
+        );
+        seen
+    }
+
+    /// Everything received so far, without waiting.
+    fn drain(&mut self) -> Vec<(String, String, String)> {
+        let mut out = Vec::new();
+        while let Ok(p) = self.rx.try_recv() {
+            out.extend(alerts_of(&p));
+        }
+        out
+    }
+}
+
+struct Daemon {
+    addr: SocketAddr,
+    stop: tokio::sync::oneshot::Sender<()>,
+    task: tokio::task::JoinHandle<anyhow::Result<()>>,
+    client: reqwest::Client,
+}
+
+async fn daemon(hook: SocketAddr, gate_toml: &str) -> Daemon {
+    gatewatch::service::cli::ensure_crypto_provider();
+    let cfg = Config::from_toml(&format!(
+        "[server]\nlisten = \"127.0.0.1:0\"\nworker_threads = 1\nshutdown_grace_seconds = 5.0\n\
+         [notify]\ninitial_backoff_ms = 50\nmax_backoff_ms = 500\n\
+         [[notify.webhooks]]\nurl = \"http://{hook}/hook\"\n\
+         {gate_toml}\n"
+    ))
+    .unwrap();
+    let http = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let addr = http.local_addr().unwrap();
+    let (stop, rx) = tokio::sync::oneshot::channel::<()>();
+    let task = tokio::spawn(run(cfg, Listeners { http, tcp: None }, async move {
+        let _ = rx.await;
+    }));
+    Daemon {
+        addr,
+        stop,
+        task,
+        client: reqwest::Client::new(),
+    }
+}
+
+impl Daemon {
+    async fn gate(&self, gate: &str) -> Value {
+        self.client
+            .get(format!("http://{}/api/v1/gates/{gate}", self.addr))
+            .send()
+            .await
+            .unwrap()
+            .json()
+            .await
+            .unwrap_or(Value::Null)
+    }
+
+    async fn metrics(&self) -> String {
+        self.client
+            .get(format!("http://{}/metrics", self.addr))
+            .send()
+            .await
+            .unwrap()
+            .text()
+            .await
+            .unwrap()
+    }
+
+    /// Sends `seconds` of samples of `sim` from sample `first` on (one request).
+    async fn send(&self, gate: &str, sim: &mut GateSimulator, first: u64, seconds: f64) -> u64 {
+        let rate = sim.params().rate_hz;
+        let args = SimulateArgs {
+            url: format!("http://{}", self.addr),
+            tcp_addr: String::new(),
+            gate: gate.into(),
+            scenario: Scenario::Stable, // unused: the source is `sim`
+            speed: 0.0,
+            duration: seconds,
+            seed: 0,
+            protocol: Protocol::Json,
+            rate,
+            token: None,
+            chunk_seconds: seconds,
+            start: Some(START + first as f64 / rate),
+            onset_hold: 0.0,
+            onset_ramp: 0.0,
+        };
+        tokio::time::timeout(
+            Duration::from_secs(60),
+            simulate_with_source(&args, |b: &mut [f64]| sim.fill(b)),
+        )
+        .await
+        .expect("samples accepted in time")
+        .expect("samples accepted")
+    }
+
+    async fn stop(self) {
+        let _ = self.stop.send(());
+        tokio::time::timeout(Duration::from_secs(30), self.task)
+            .await
+            .expect("shutdown within the deadline")
+            .unwrap()
+            .unwrap();
+    }
+}
+
+/// What the daemon said about one window.
+#[derive(Debug, Clone)]
+struct Step {
+    /// Stream time of the window's last sample, s.
+    end: f64,
+    /// True damping ratio at `end`.
+    true_zeta: f64,
+    zeta0: Option<f64>,
+    trusted: bool,
+    /// `GateNegativeDamping` firing after this window.
+    firing: bool,
+    state: String,
+}
+
+/// Streams `sim` for `duration` seconds of sample time in steps of `every` seconds, waiting after
+/// each step until the daemon has finished the window it made due. `window` is the window length.
+async fn lockstep(
+    d: &Daemon,
+    gate: &str,
+    sim: &mut GateSimulator,
+    duration: f64,
+    window: f64,
+    every: f64,
+) -> Vec<Step> {
+    let rate = sim.params().rate_hz;
+    let window_n = (window * rate).round() as u64;
+    let every_n = (every * rate).round() as u64;
+    let total = (duration * rate).round() as u64;
+    let mut sent = 0u64;
+    let mut steps = Vec::new();
+    while sent < total {
+        // first the whole window, then one cadence step at a time
+        let n = if sent < window_n {
+            window_n - sent
+        } else {
+            every_n
+        };
+        let got = d.send(gate, sim, sent, n as f64 / rate).await;
+        assert_eq!(got, n);
+        sent += n;
+        let end = START + (sent - 1) as f64 / rate;
+        // sample times are sums of floats near 1.7e9: compare to half a sample period
+        let half = 0.5 / rate;
+        let v = tokio::time::timeout(WINDOW_TIMEOUT, async {
+            loop {
+                let v = d.gate(gate).await;
+                if v["analysed_until"]
+                    .as_f64()
+                    .is_some_and(|t| t >= end - half)
+                {
+                    return v;
+                }
+                tokio::time::sleep(Duration::from_millis(20)).await;
+            }
+        })
+        .await
+        .unwrap_or_else(|_| panic!("window ending at {} s not analysed", end - START));
+        let ident = &v["identification"];
+        let fresh = ident["window_end"]
+            .as_f64()
+            .is_some_and(|t| (t - end).abs() < half);
+        let t = end - START;
+        let step = Step {
+            end: t,
+            true_zeta: sim.true_zeta(t),
+            zeta0: fresh.then(|| ident["damping"]["zeta0"].as_f64()).flatten(),
+            trusted: fresh && ident["damping"]["trusted"].as_bool() == Some(true),
+            firing: v["firing"].as_bool().unwrap(),
+            state: v["alert_state"].as_str().unwrap_or("").to_string(),
+        };
+        eprintln!(
+            "t {:7.1} s  true {:+.4}  zeta0 {:?}  trusted {}  firing {}  state {}  error {}",
+            step.end,
+            step.true_zeta,
+            step.zeta0,
+            step.trusted,
+            step.firing,
+            step.state,
+            v["last_error"]
+        );
+        steps.push(step);
+    }
+    steps
+}
+
+fn replaced(metrics: &str) -> f64 {
+    metrics
+        .lines()
+        .find(|l| l.starts_with("gatewatch_identification_jobs_replaced_total"))
+        .and_then(|l| l.split_whitespace().last())
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(f64::NAN)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn onset_fires_negative_damping_and_recovery_resolves_it() {
+    let mut hook = hook().await;
+    let (window, every) = (10.0, 5.0);
+    let d = daemon(
+        hook.addr,
+        &format!(
+            "[defaults]\nrate_hz = 200.0\nwindow_seconds = {window}\nidentify_every_seconds = {every}\n\
+             [defaults.alert]\nstale_after_seconds = 600.0\n"
+        ),
+    )
+    .await;
+    // onset: +2 % for 40 s, ramp to -2 % at 140 s, hold, back to +2 % at 240 s
+    let table = vec![
+        (0.0, 0.02),
+        (40.0, 0.02),
+        (140.0, -0.02),
+        (200.0, -0.02),
+        (240.0, 0.02),
+        (360.0, 0.02),
+    ];
+    let mut sim = GateSimulator::new(GateParams::default(), ZetaSchedule::Table(table), 11);
+    let t_minus_1 = sim
+        .schedule()
+        .first_time_at_or_below(-0.01, 0.0, 360.0, 0.5)
+        .unwrap();
+    let t_still_1 = sim
+        .schedule()
+        .first_time_at_or_below(0.01, 0.0, 360.0, 0.5)
+        .unwrap();
+    let steps = lockstep(&d, "g1", &mut sim, 360.0, window, every).await;
+
+    // never fires while the true damping is at least +1 % over the whole window
+    for s in steps.iter().filter(|s| s.end <= t_still_1) {
+        assert!(!s.firing, "false alarm at {} s: {s:?}", s.end);
+    }
+    let fired = steps
+        .iter()
+        .find(|s| s.firing)
+        .expect("GateNegativeDamping fired");
+    assert!(
+        fired.end <= t_minus_1 + 15.0,
+        "fired at {} s of stream time, more than 15 s after zeta reached -1 % at {t_minus_1} s",
+        fired.end
+    );
+    let resolved = steps
+        .iter()
+        .find(|s| s.end > fired.end && !s.firing)
+        .expect("GateNegativeDamping resolved after the damping recovered");
+    assert!(
+        resolved.true_zeta > 0.0,
+        "resolved while still self-excited: {resolved:?}"
+    );
+    let seen = hook.wait_for("firing", "GateNegativeDamping", "g1").await;
+    assert!(
+        !seen.iter().any(|a| a.1 == "GateDataStale"),
+        "no stale alert while streaming: {seen:?}"
+    );
+    hook.wait_for("resolved", "GateNegativeDamping", "g1").await;
+    assert_eq!(
+        replaced(&d.metrics().await),
+        0.0,
+        "lockstep: no job replaced"
+    );
+    d.stop().await;
+    hook.task.abort();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn stable_gate_for_30_minutes_fires_nothing() {
+    let mut hook = hook().await;
+    let (window, every) = (10.0, 10.0);
+    let d = daemon(
+        hook.addr,
+        &format!(
+            "[defaults]\nrate_hz = 100.0\nwindow_seconds = {window}\nidentify_every_seconds = {every}\n\
+             [defaults.alert]\nstale_after_seconds = 600.0\n"
+        ),
+    )
+    .await;
+    let params = GateParams {
+        rate_hz: 100.0,
+        ..Default::default()
+    };
+    let mut sim = GateSimulator::scenario(params, gatewatch::simulate::Scenario::Stable, 5);
+    let steps = lockstep(&d, "g1", &mut sim, 1800.0, window, every).await;
+    assert!(steps.iter().all(|s| !s.firing), "fired on a stable gate");
+    // the identification ran and saw positive damping (the test is not vacuous)
+    let mut zetas: Vec<f64> = steps
+        .iter()
+        .filter(|s| s.trusted)
+        .filter_map(|s| s.zeta0)
+        .collect();
+    assert!(
+        zetas.len() * 10 >= steps.len() * 9,
+        "only {} of {} windows identified and trusted",
+        zetas.len(),
+        steps.len()
+    );
+    zetas.sort_by(f64::total_cmp);
+    assert!(
+        zetas[zetas.len() / 2] > 0.0,
+        "median zeta0 {}",
+        zetas[zetas.len() / 2]
+    );
+    // shutdown flushes the notifier: whatever was sent has arrived
+    d.stop().await;
+    let got = hook.drain();
+    assert!(got.is_empty(), "alerts on a stable gate: {got:?}");
+    hook.task.abort();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_stopped_stream_fires_data_stale_and_new_data_resolves_it() {
+    let mut hook = hook().await;
+    let d = daemon(
+        hook.addr,
+        "[defaults]\nrate_hz = 200.0\n[defaults.alert]\nstale_after_seconds = 1.0\n",
+    )
+    .await;
+    let mut sim = GateSimulator::scenario(
+        GateParams::default(),
+        gatewatch::simulate::Scenario::Stable,
+        3,
+    );
+    d.send("quiet", &mut sim, 0, 1.0).await;
+    // the stream stops: the stale check (every second) fires after 1 s of silence
+    let seen = hook.wait_for("firing", "GateDataStale", "quiet").await;
+    assert!(!seen.iter().any(|a| a.1 == "GateNegativeDamping"));
+    let v = d.gate("quiet").await;
+    assert_eq!(v["alert_state"], "unknown", "stale data: state unknown");
+    assert_eq!(v["alerts"][0]["name"], "GateDataStale");
+    // data again: resolved
+    d.send("quiet", &mut sim, 200, 1.0).await;
+    hook.wait_for("resolved", "GateDataStale", "quiet").await;
+    let m = d.metrics().await;
+    let delivered = m
+        .lines()
+        .find(|l| l.starts_with("gatewatch_notifications_total{outcome=\"delivered\"}"))
+        .and_then(|l| l.split_whitespace().last())
+        .and_then(|v| v.parse::<f64>().ok())
+        .unwrap_or(0.0);
+    assert!(delivered >= 1.0, "delivered counter exported:\n{m}");
+    d.stop().await;
+    hook.task.abort();
+}
