@@ -13,7 +13,7 @@
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use gatewatch::cases;
 use gatewatch::de::Objective;
-use gatewatch::identify::{self, Fitness, Initial};
+use gatewatch::identify::{self, Fitness, Initial, Output};
 use gatewatch::model::Bound;
 use gatewatch::ode::{integrate, Method, Options};
 use std::hint::black_box;
@@ -26,6 +26,7 @@ const SUBSTEPS: usize = 2;
 fn bench(c: &mut Criterion) {
     let case = cases::find("van_der_pol_2").expect("case van_der_pol_2");
     let data = case.generate().expect("case data");
+    let y_scale = data.y.iter().fold(0.0f64, |m, v| m.max(v.abs()));
     let model = case.compiled().expect("case model");
     let (train, _) = identify::split(data.len(), 0.5, 1).expect("split");
     assert_eq!(train.len(), 250);
@@ -71,16 +72,20 @@ fn bench(c: &mut Criterion) {
             &data,
             is_train.clone(),
             initial,
+            Output::Displacement,
+            Vec::new(),
+            y_scale,
             method,
             RTOL,
             SUBSTEPS,
         );
-        let cost = f.cost(&x, f64::INFINITY, &mut ());
+        let mut ws = f.workspace();
+        let cost = f.cost(&x, f64::INFINITY, &mut ws);
         assert!(cost.is_finite() && cost > 0.0, "{method}: cost {cost}");
         let runs = 2_000;
         let start = Instant::now();
         for _ in 0..runs {
-            black_box(f.cost(black_box(&x), f64::INFINITY, &mut ()));
+            black_box(f.cost(black_box(&x), f64::INFINITY, &mut ws));
         }
         let ns = start.elapsed().as_nanos() as f64 / runs as f64;
         println!(
@@ -99,14 +104,18 @@ fn bench(c: &mut Criterion) {
             &data,
             is_train.clone(),
             initial,
+            Output::Displacement,
+            Vec::new(),
+            y_scale,
             method,
             RTOL,
             SUBSTEPS,
         );
+        let mut ws = f.workspace();
         // Criterion's throughput then reads as right-hand-side evaluations per second.
         group.throughput(Throughput::Elements(evals as u64));
         group.bench_function(method.name(), |b| {
-            b.iter(|| f.cost(black_box(&x), f64::INFINITY, &mut ()))
+            b.iter(|| f.cost(black_box(&x), f64::INFINITY, &mut ws))
         });
     }
     group.finish();

@@ -300,7 +300,7 @@ pub fn biased_population(
 ) -> Vec<Vec<f64>> {
     use rand::{RngExt, SeedableRng};
     let d = model.n_coeffs();
-    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ 0x00fb_1a5);
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ 0x000f_b1a5);
     let w = target.omega;
     // Written as M0 w^2 - K0 and C0 + 2 sigma M0 rather than ratios: linear in the coefficients
     // of every model whose M0, C0 and K0 are, so that the minimum-norm step lands on the set in
@@ -580,7 +580,7 @@ pub fn analyze_series(
                 AnalysisError::Window("the pre-run for the initial conditions failed".into())
             })?;
             let f_rms = rms(&data.y);
-            if !(f_rms > 0.0) {
+            if f_rms.is_nan() || f_rms <= 0.0 {
                 return Err(AnalysisError::Window("the signal is constant".into()));
             }
             let y_scale = std::f64::consts::SQRT_2 * f_rms / k;

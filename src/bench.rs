@@ -116,7 +116,7 @@ pub fn run_case(
         let n = clean.len() as f64;
         let mean = clean.y.iter().sum::<f64>() / n;
         let std = (clean.y.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n).sqrt();
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(opts.seed ^ 0x6e6f_6973_65);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(opts.seed ^ 0x006e_6f69_7365);
         let y = clean
             .y
             .iter()

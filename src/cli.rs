@@ -355,7 +355,7 @@ fn run_identify(a: IdentifyArgs) -> Result<(), CliError> {
     if !(a.moving_average >= 0.0 && a.moving_average.is_finite()) {
         return Err(input("--moving-average must be >= 0 seconds"));
     }
-    if !(a.max_fit_nmae > 0.0) {
+    if a.max_fit_nmae.is_nan() || a.max_fit_nmae <= 0.0 {
         return Err(input("--max-fit-nmae must be > 0"));
     }
     if a.amplitude_limit

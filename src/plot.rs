@@ -910,6 +910,7 @@ mod tests {
             time: Some("s".into()),
             signal: Some("mm".into()),
             force: Some("kN".into()),
+            data: None,
         };
         for ext in ["svg", "png"] {
             let p = dir.path().join(format!("fit.{ext}"));
