@@ -842,6 +842,26 @@ impl Analyzer {
         warm: Option<&[f64]>,
         seed: u64,
     ) -> Result<WindowAnalysis, AnalysisError> {
+        self.analyze_with(input, warm, seed, true)
+    }
+
+    /// [`Analyzer::analyze`] without the FFT-biased initial population (for the benchmark that
+    /// shows what the bias buys).
+    pub fn analyze_unbiased(
+        &self,
+        input: WindowInput<'_>,
+        seed: u64,
+    ) -> Result<WindowAnalysis, AnalysisError> {
+        self.analyze_with(input, None, seed, false)
+    }
+
+    fn analyze_with(
+        &self,
+        input: WindowInput<'_>,
+        warm: Option<&[f64]>,
+        seed: u64,
+        fft_bias: bool,
+    ) -> Result<WindowAnalysis, AnalysisError> {
         let started = std::time::Instant::now();
         if !(input.rate_hz.is_finite() && input.rate_hz > 0.0) {
             return Err(AnalysisError::Window(
@@ -875,6 +895,7 @@ impl Analyzer {
             },
             amplitude_limit: s.amplitude_limit,
             max_fit_nmae: s.max_fit_nmae,
+            fft_bias,
             ..SeriesOptions::default()
         };
         let a = analyze_series(&self.model, &series, &opts, warm, |_, _, _| {})?;

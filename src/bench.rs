@@ -284,3 +284,113 @@ pub fn table(reports: &[CaseReport]) -> String {
     }
     s
 }
+
+/// Options of `gatewatch bench gate-example`.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct GateExampleOptions {
+    /// Runs; run `r` uses noise seed and DE seed `seed + r`.
+    pub runs: usize,
+    /// Seed of the first run.
+    pub seed: u64,
+    /// Measurement noise, fraction of the signal's standard deviation (chapter: 1 %).
+    pub noise: f64,
+    /// Linear drift of the force, N/s.
+    pub drift: f64,
+    /// DE population (the daemon's default).
+    pub population: usize,
+    /// DE generations (the daemon's default).
+    pub generations: usize,
+    /// FFT-biased initial population.
+    pub fft_bias: bool,
+}
+
+/// One run of the gate example.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct GateExampleRun {
+    /// Seed of the noise and the DE.
+    pub seed: u64,
+    /// Identified mass, kg (truth 19.14).
+    pub mass: f64,
+    /// Identified linear damping, N s/m (truth -12.18).
+    pub damping: f64,
+    /// Identified cubic damping, N s^3/m^3 (truth 447.3).
+    pub cubic: f64,
+    /// Damping ratio at rest.
+    pub zeta0: Option<f64>,
+    /// The analysis's verdict.
+    pub verdict: crate::analysis::Verdict,
+    /// Whether mass and damping are within 2 % and zeta0 < 0.
+    pub success: bool,
+    /// Objective evaluations.
+    pub evaluations: usize,
+    /// Wall time of the analysis, seconds (one thread).
+    pub seconds: f64,
+}
+
+/// The chapter's gate example (section 8.5) through the daemon's per-window analysis:
+/// `19.14*ydd + (-12.18 + 447.3*yd^2)*yd + 81360*y = 0`, support force at 200 Hz for 10 s with
+/// noise and drift, identified with `c1*ydd + (c2 + c3*yd^2)*yd + k*y = 0`.
+pub fn run_gate_example(opts: &GateExampleOptions) -> Result<Vec<GateExampleRun>, BenchError> {
+    use crate::analysis::{AnalysisSettings, Analyzer, Signal, Verdict, WindowInput};
+    use crate::simulate::{self, WorkedExampleOptions};
+    let analyzer = Analyzer::new(AnalysisSettings {
+        signal: Signal::Force,
+        stiffness: Some(simulate::EX_K),
+        model: "c1*ydd + (c2 + c3*yd^2)*yd + k*y = 0".to_string(),
+        params: vec![("k".to_string(), simulate::EX_K)],
+        population: opts.population,
+        generations: opts.generations,
+        amplitude_limit: None,
+        max_fit_nmae: 0.2,
+    })
+    .map_err(|e| BenchError::Analysis {
+        id: "gate_example",
+        reason: e.to_string(),
+    })?;
+    (0..opts.runs)
+        .map(|r| {
+            let seed = opts.seed + r as u64;
+            let ex = simulate::worked_example(&WorkedExampleOptions {
+                noise_fraction: opts.noise,
+                drift_per_s: opts.drift,
+                seed,
+                ..WorkedExampleOptions::default()
+            });
+            let input = WindowInput {
+                t0: 0.0,
+                rate_hz: ex.rate_hz,
+                values: &ex.force,
+            };
+            let a = if opts.fft_bias {
+                analyzer.analyze(input, None, seed)
+            } else {
+                analyzer.analyze_unbiased(input, seed)
+            }
+            .map_err(|e| BenchError::Analysis {
+                id: "gate_example",
+                reason: e.to_string(),
+            })?;
+            let c = |i: usize| a.coefficients.get(i).map_or(f64::NAN, |c| c.1);
+            let (mass, damping, cubic) = (c(0), c(1), c(2));
+            let zeta0 = a.damping.zeta0;
+            let success = (mass / simulate::EX_MASS - 1.0).abs() < 0.02
+                && (damping / simulate::EX_C1 - 1.0).abs() < 0.02
+                && zeta0.is_some_and(|z| z < 0.0);
+            Ok(GateExampleRun {
+                seed,
+                mass,
+                damping,
+                cubic,
+                zeta0,
+                verdict: if a.damping.trusted {
+                    a.damping.verdict
+                } else {
+                    Verdict::Unknown
+                },
+                success,
+                evaluations: a.evaluations,
+                seconds: a.seconds,
+            })
+        })
+        .collect()
+}

@@ -53,8 +53,39 @@ enum BenchCommand {
     SeedCases(SeedCasesArgs),
     /// Write a seed case's data as CSV (columns t, y) to stdout or a file.
     Generate(GenerateArgs),
+    /// The chapter's gate example (section 8.5) through the daemon's window analysis.
+    GateExample(GateExampleArgs),
     /// Load measurements of the daemon: ingest throughput, identification latency, gates sustained.
     Daemon(crate::service::bench::BenchDaemonArgs),
+}
+
+/// Arguments of `gatewatch bench gate-example`.
+#[derive(Debug, Args)]
+pub struct GateExampleArgs {
+    /// Runs (noise and DE seeds seed, seed + 1, ...).
+    #[arg(long, default_value_t = 25)]
+    runs: usize,
+    /// Seed of the first run.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Measurement noise, fraction of the signal's standard deviation.
+    #[arg(long, default_value_t = 0.01)]
+    noise: f64,
+    /// Drift of the force, N/s.
+    #[arg(long, default_value_t = 0.2)]
+    drift: f64,
+    /// DE population.
+    #[arg(long, default_value_t = 20)]
+    population: usize,
+    /// DE generations.
+    #[arg(long, default_value_t = 40)]
+    generations: usize,
+    /// Without the FFT-biased initial population.
+    #[arg(long)]
+    no_fft_bias: bool,
+    /// Print the runs as JSON.
+    #[arg(long)]
+    json: bool,
 }
 
 /// Arguments of `gatewatch bench generate`.
@@ -212,6 +243,13 @@ pub struct SeedCasesArgs {
     /// Never restart a stagnating population (the chapter's protocol).
     #[arg(long)]
     no_restart: bool,
+    /// Gaussian noise added to the data, fraction of its standard deviation (errors are then
+    /// measured against the noise-free truth).
+    #[arg(long, default_value_t = 0.0)]
+    noise: f64,
+    /// Bias half of the initial population with the spectrum's frequency and growth.
+    #[arg(long)]
+    fft_bias: bool,
     /// Print the results as JSON.
     #[arg(long)]
     json: bool,
@@ -302,6 +340,7 @@ pub fn main() -> ExitCode {
         Command::StabilityMap(args) => stability_map::run(args),
         Command::Bench(BenchCommand::SeedCases(args)) => run_seed_cases(args),
         Command::Bench(BenchCommand::Generate(args)) => run_generate(args),
+        Command::Bench(BenchCommand::GateExample(args)) => run_gate_example(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -622,6 +661,61 @@ fn write_damping(out: &mut impl Write, d: &analysis::DampingReport) -> std::io::
     writeln!(out, "  verdict:                {verdict}")
 }
 
+fn run_gate_example(a: GateExampleArgs) -> Result<(), CliError> {
+    if a.runs == 0 {
+        return Err(input("--runs must be at least 1"));
+    }
+    if !(0.0..1.0).contains(&a.noise) {
+        return Err(input("--noise must be in [0, 1)"));
+    }
+    if a.population < 4 {
+        return Err(input("--population must be at least 4"));
+    }
+    let opts = bench::GateExampleOptions {
+        runs: a.runs,
+        seed: a.seed,
+        noise: a.noise,
+        drift: a.drift,
+        population: a.population,
+        generations: a.generations,
+        fft_bias: !a.no_fft_bias,
+    };
+    let runs = bench::run_gate_example(&opts)?;
+    let mut out = std::io::stdout().lock();
+    if a.json {
+        writeln!(out, "{}", json!({"options": opts, "runs": runs}))?;
+        return Ok(());
+    }
+    writeln!(out, "| seed | mass kg | damping N s/m | cubic N s^3/m^3 | zeta0 % | verdict | ok | evaluations | seconds |")?;
+    writeln!(out, "|---|---|---|---|---|---|---|---|---|")?;
+    for r in &runs {
+        writeln!(
+            out,
+            "| {} | {:.3} | {:.3} | {:.1} | {} | {:?} | {} | {} | {:.3} |",
+            r.seed,
+            r.mass,
+            r.damping,
+            r.cubic,
+            opt(r.zeta0, |z| format!("{:.4}", 100.0 * z)),
+            r.verdict,
+            if r.success { "yes" } else { "no" },
+            r.evaluations,
+            r.seconds
+        )?;
+    }
+    let mut secs: Vec<f64> = runs.iter().map(|r| r.seconds).collect();
+    secs.sort_by(f64::total_cmp);
+    writeln!(
+        out,
+        "\n{} of {} runs: mass and damping within 2 % and zeta0 < 0; median {:.3} s per run, max {:.3} s",
+        runs.iter().filter(|r| r.success).count(),
+        runs.len(),
+        secs[secs.len() / 2],
+        secs[secs.len() - 1]
+    )?;
+    Ok(())
+}
+
 fn find_case(id: &str) -> Result<&'static cases::SeedCase, CliError> {
     cases::find(id).ok_or_else(|| {
         let known: Vec<&str> = cases::CASES.iter().map(|c| c.id).collect();
@@ -663,6 +757,9 @@ fn run_seed_cases(a: SeedCasesArgs) -> Result<(), CliError> {
     if a.runs == 0 {
         return Err(input("--runs must be at least 1"));
     }
+    if !(0.0..1.0).contains(&a.noise) {
+        return Err(input("--noise must be in [0, 1)"));
+    }
     let selected: Vec<&cases::SeedCase> = if a.cases.is_empty() {
         cases::CASES.iter().collect()
     } else {
@@ -686,6 +783,8 @@ fn run_seed_cases(a: SeedCasesArgs) -> Result<(), CliError> {
         rtol: a.rtol,
         refine: !a.no_refine,
         restart: !a.no_restart,
+        noise: a.noise,
+        fft_bias: a.fft_bias,
         ..BenchOptions::default()
     };
     let mut reports = Vec::new();
@@ -709,11 +808,13 @@ fn run_seed_cases(a: SeedCasesArgs) -> Result<(), CliError> {
     } else {
         writeln!(
             out,
-            "solver {} rtol {:e}, polish {}, restart {}, {} runs per case, one thread",
+            "solver {} rtol {:e}, polish {}, restart {}, FFT bias {}, noise {} %, {} runs per case, one thread",
             opts.solver,
             opts.rtol,
             if opts.refine { "on" } else { "off" },
             if opts.restart { "on" } else { "off" },
+            if opts.fft_bias { "on" } else { "off" },
+            100.0 * opts.noise,
             opts.runs
         )?;
         write!(out, "{}", bench::table(&reports))?;
