@@ -617,7 +617,10 @@ pub fn analyze_series(
         }
         initial_population.push(x);
     }
-    if opts.fft_bias {
+    // The bias assumes the window's dominant frequency is the natural one, which holds for free
+    // and self-excited vibration but not for a forced or parametrically excited model (one that
+    // depends on t): there it would pull the search to the forcing frequency.
+    if opts.fft_bias && !model.uses_time() {
         if let Some(w) = omega_meas {
             let target = SpectralTarget {
                 omega: w,

@@ -263,35 +263,45 @@ pub fn identify(
     );
     let spread = std_dev(&series.y);
     let mut runs = Vec::with_capacity(config.runs);
+    // Budget of a run: twice the chapter's NP + G (NP + 1) evaluations. A run whose fit is poor
+    // (above 1 % of the data's spread) tries again from a fresh seed while this allows.
+    let budget = 2 * (config.population + config.generations * (config.population + 1));
     for r in 0..config.runs {
         let seed = config.seed.wrapping_add(r as u64);
         let started = Instant::now();
-        let found = search(&fitness, config, seed, spread, |g, c| progress(r, g, c))?;
-        let mut evaluations = found.evaluations;
-        let mut refine_evaluations = 0;
-        let fine = fitness.with_tolerance(Method::Dopri5, config.refine_rtol.min(config.rtol));
-        let mut train_cost = fine.cost(&found.best, f64::INFINITY, &mut fine.workspace());
-        let (mut coefficients, mut init) = fine.unpack(&found.best);
-        if config.refine {
-            let (target, x0) = match config.polish_initial {
-                Some((_, v_scale)) => fine.with_fitted_initial(&found.best, v_scale),
-                None => (fine.clone(), found.best.clone()),
-            };
-            let (polished, spent) = polish(&target, &x0, config.refine_evaluations);
-            refine_evaluations = spent;
-            evaluations += spent;
-            if let Some(p) = polished {
-                // Least squares and the DE's mean absolute error agree on noise-free data; on
-                // noisy data their optima differ slightly. Accept the polish unless it fits
-                // clearly worse in the DE's own measure (a sign it left the DE's basin).
-                let cost = target.cost(&p, f64::INFINITY, &mut target.workspace());
-                evaluations += 1;
-                if cost <= 1.01 * train_cost {
-                    (coefficients, init) = target.unpack(&p);
-                    train_cost = cost;
-                }
+        let mut best: Option<Attempt> = None;
+        let (mut evaluations, mut refine_evaluations, mut restarts) = (0, 0, 0);
+        let mut attempt_config = config.clone();
+        for k in 0..MAX_ATTEMPTS {
+            // Attempt 0 uses the run's seed; retries use other streams of it.
+            let attempt_seed = seed ^ ((k as u64) << 48);
+            let a = attempt(&fitness, &attempt_config, attempt_seed, spread, |g, c| {
+                progress(r, g, c)
+            })?;
+            evaluations += a.evaluations;
+            refine_evaluations += a.refine_evaluations;
+            restarts += a.restarts + usize::from(k > 0);
+            let good = a.train_cost <= 0.01 * spread;
+            if best.as_ref().is_none_or(|b| a.train_cost < b.train_cost) {
+                best = Some(a);
             }
+            // A retry gets the generations the remaining budget pays for (keeping room for its
+            // polish), and is not worth starting below a quarter of the configured ones.
+            let left = budget.saturating_sub(evaluations + config.refine_evaluations);
+            let generations = (left / (config.population + 1)).min(config.generations);
+            if good || !config.restart || generations < config.generations / 4 {
+                break;
+            }
+            attempt_config.generations = generations;
         }
+        // MAX_ATTEMPTS >= 1, so at least one attempt was made.
+        let Attempt {
+            coefficients,
+            init,
+            train_cost,
+            history,
+            ..
+        } = best.expect("at least one attempt");
         let test_nmae = predict(
             model,
             series,
@@ -309,9 +319,9 @@ pub fn identify(
             test_nmae,
             evaluations,
             refine_evaluations,
-            restarts: found.restarts,
+            restarts,
             seconds: started.elapsed().as_secs_f64(),
-            history: found.history,
+            history,
         });
     }
     let best = (0..runs.len())
@@ -431,6 +441,70 @@ fn polish(fine: &Fitness<'_>, x0: &[f64], max_evaluations: usize) -> (Option<Vec
     (ok.then(|| problem.x.as_slice().to_vec()), spent)
 }
 
+/// Attempts of one run: a run whose fit stays poor tries again from another seed (within the
+/// evaluation budget).
+pub const MAX_ATTEMPTS: usize = 3;
+
+/// One search and polish.
+struct Attempt {
+    coefficients: Vec<f64>,
+    init: InitialValues,
+    train_cost: f64,
+    evaluations: usize,
+    refine_evaluations: usize,
+    restarts: usize,
+    history: Vec<f64>,
+}
+
+/// The DE search (with continuation) and the polish of the winner, from `seed`.
+fn attempt(
+    fitness: &Fitness<'_>,
+    config: &Config,
+    seed: u64,
+    spread: f64,
+    progress: impl FnMut(usize, f64),
+) -> Result<Attempt, IdentifyError> {
+    let found = search(fitness, config, seed, spread, progress)?;
+    let mut evaluations = found.evaluations;
+    let mut refine_evaluations = 0;
+    let fine = fitness.with_tolerance(Method::Dopri5, config.refine_rtol.min(config.rtol));
+    let mut train_cost = fine.cost(&found.best, f64::INFINITY, &mut fine.workspace());
+    let (mut coefficients, mut init) = fine.unpack(&found.best);
+    if config.refine {
+        let (target, x0) = match config.polish_initial {
+            Some((_, v_scale)) => fine.with_fitted_initial(&found.best, v_scale),
+            None => (fine.clone(), found.best.clone()),
+        };
+        let (polished, spent) = polish(&target, &x0, config.refine_evaluations);
+        refine_evaluations = spent;
+        evaluations += spent;
+        if let Some(p) = polished {
+            // Least squares and the DE's mean absolute error agree on noise-free data; on noisy
+            // data their optima differ slightly. Accept the polish unless it fits clearly worse
+            // in the DE's own measure (a sign it left the DE's basin).
+            let cost = target.cost(&p, f64::INFINITY, &mut target.workspace());
+            evaluations += 1;
+            if cost <= 1.01 * train_cost {
+                (coefficients, init) = target.unpack(&p);
+                train_cost = cost;
+            }
+        }
+    }
+    Ok(Attempt {
+        coefficients,
+        init,
+        train_cost,
+        evaluations,
+        refine_evaluations,
+        restarts: found.restarts,
+        history: found.history,
+    })
+}
+
+/// Generations without progress, per unknown, before a stage restarts (at least four unknowns'
+/// worth).
+pub const STALL_GENERATIONS_PER_UNKNOWN: usize = 5;
+
 /// The DE search of one run: with continuation, three stages on the first third, the first two
 /// thirds and all of the samples (30 %, 30 % and 40 % of the generations), each stage starting
 /// from the previous stage's final population; without, one stage on everything.
@@ -470,8 +544,11 @@ fn search(
         // A stalled stage whose training MAE is below 1 % of the data's spread has converged (the
         // benchmark's success criterion is a test NMAE below 0.01); any other stalled stage
         // restarts.
+        // The stall window grows with the number of unknowns: a larger search needs more
+        // generations per try before a restart is worth its fresh start.
         settings.restart = config.restart.then(|| de::Restart {
             converged_below: 0.01 * spread,
+            stall_generations: STALL_GENERATIONS_PER_UNKNOWN * stage.dimension().max(4),
             ..de::Restart::default()
         });
         let mut result = de::minimize(&stage, &settings, &population, |gen, c| {
