@@ -894,6 +894,8 @@ impl Analyzer {
                 // the polish (dopri5 at 1e-8) sets the final accuracy.
                 solver: crate::ode::Method::Rk4,
                 substeps: 1,
+                // The daemon's work per window must stay bounded: no retries.
+                max_attempts: 1,
                 ..identify::Config::default()
             },
             amplitude_limit: s.amplitude_limit,

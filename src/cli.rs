@@ -502,6 +502,12 @@ pub fn identification_json(model: &Model, a: &SeriesAnalysis) -> serde_json::Val
         "evaluations": best.evaluations,
         "seconds": best.seconds,
         "convergence": best.history,
+        "coefficient_intervals": coefficient_intervals(r).map(|iv| {
+            iv.iter()
+                .enumerate()
+                .map(|(i, (lo, hi))| (format!("c{}", i + 1), json!([lo, hi])))
+                .collect::<serde_json::Map<String, serde_json::Value>>()
+        }),
         "summary": {
             "mean_nmae": finite_or_null(r.summary.mean),
             "std_nmae": finite_or_null(r.summary.std),
@@ -519,6 +525,26 @@ pub fn identification_json(model: &Model, a: &SeriesAnalysis) -> serde_json::Val
             "seconds": run.seconds,
         })).collect::<Vec<_>>(),
     })
+}
+
+/// With several runs, each coefficient's range over the runs (its spread: the uncertainty of
+/// the identification itself).
+fn coefficient_intervals(r: &crate::identify::Identification) -> Option<Vec<(f64, f64)>> {
+    if r.runs.len() < 2 {
+        return None;
+    }
+    let n = r.best_run().coefficients.len();
+    Some(
+        (0..n)
+            .map(|j| {
+                let v = r.runs.iter().map(|run| run.coefficients[j]);
+                (
+                    v.clone().fold(f64::INFINITY, f64::min),
+                    v.fold(f64::NEG_INFINITY, f64::max),
+                )
+            })
+            .collect(),
+    )
 }
 
 fn finite_or_null(v: f64) -> serde_json::Value {
@@ -543,8 +569,16 @@ fn write_identification(
         "identified:   {}",
         model.substitute(&best.coefficients)
     )?;
+    let intervals = coefficient_intervals(r);
     for (i, c) in best.coefficients.iter().enumerate() {
-        writeln!(out, "  c{:<3} = {c:.8e}", i + 1)?;
+        match intervals.as_ref().map(|iv| iv[i]) {
+            Some((lo, hi)) => writeln!(
+                out,
+                "  c{:<3} = {c:.8e}   (runs: {lo:.6e} .. {hi:.6e})",
+                i + 1
+            )?,
+            None => writeln!(out, "  c{:<3} = {c:.8e}", i + 1)?,
+        }
     }
     let how = match config.initial {
         Initial::Known { .. } => "given",

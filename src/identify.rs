@@ -82,6 +82,9 @@ pub struct Config {
     pub restart: bool,
     /// Grow the fitted horizon in three stages (not in the chapter; see [`identify`]).
     pub continuation: bool,
+    /// Attempts of one run: a run whose fit stays poor tries again from another seed, with the
+    /// generations left in twice the chapter's evaluation budget (1: never).
+    pub max_attempts: usize,
     /// Evaluate each generation's trials in parallel (results are identical either way).
     pub parallel: bool,
     /// Individuals placed first in the initial population of every run (warm start, bias), in
@@ -117,6 +120,7 @@ impl Default for Config {
             refine_evaluations: 300,
             restart: true,
             continuation: true,
+            max_attempts: 3,
             parallel: false,
             initial_population: Vec::new(),
             output: Output::Displacement,
@@ -266,13 +270,17 @@ pub fn identify(
     // Budget of a run: twice the chapter's NP + G (NP + 1) evaluations. A run whose fit is poor
     // (above 1 % of the data's spread) tries again from a fresh seed while this allows.
     let budget = 2 * (config.population + config.generations * (config.population + 1));
+    // A fit is good when its training MAE is within 1 % of the data's spread, or within 1.5
+    // times the mean absolute measurement noise when that is larger (noisy data cannot fit
+    // better; without this, every run on noisy data would retry).
+    let good_fit = (0.01 * spread).max(1.5 * noise_mae(&series.y));
     for r in 0..config.runs {
         let seed = config.seed.wrapping_add(r as u64);
         let started = Instant::now();
         let mut best: Option<Attempt> = None;
         let (mut evaluations, mut refine_evaluations, mut restarts) = (0, 0, 0);
         let mut attempt_config = config.clone();
-        for k in 0..MAX_ATTEMPTS {
+        for k in 0..config.max_attempts.max(1) {
             // Attempt 0 uses the run's seed; retries use other streams of it.
             let attempt_seed = seed ^ ((k as u64) << 48);
             let a = attempt(&fitness, &attempt_config, attempt_seed, spread, |g, c| {
@@ -281,7 +289,7 @@ pub fn identify(
             evaluations += a.evaluations;
             refine_evaluations += a.refine_evaluations;
             restarts += a.restarts + usize::from(k > 0);
-            let good = a.train_cost <= 0.01 * spread;
+            let good = a.train_cost <= good_fit;
             if best.as_ref().is_none_or(|b| a.train_cost < b.train_cost) {
                 best = Some(a);
             }
@@ -294,7 +302,7 @@ pub fn identify(
             }
             attempt_config.generations = generations;
         }
-        // MAX_ATTEMPTS >= 1, so at least one attempt was made.
+        // max_attempts is at least 1, so at least one attempt was made.
         let Attempt {
             coefficients,
             init,
@@ -441,9 +449,20 @@ fn polish(fine: &Fitness<'_>, x0: &[f64], max_evaluations: usize) -> (Option<Vec
     (ok.then(|| problem.x.as_slice().to_vec()), spent)
 }
 
-/// Attempts of one run: a run whose fit stays poor tries again from another seed (within the
-/// evaluation budget).
-pub const MAX_ATTEMPTS: usize = 3;
+/// Mean absolute measurement noise of a finely sampled smooth signal, estimated from fourth
+/// differences: for white noise of deviation `s`, `std(d4 y) = s sqrt(70)`, and a smooth signal
+/// sampled at `h` contributes only about `(w h)^4` of its amplitude. Mean absolute value of
+/// Gaussian noise: `s sqrt(2/pi)`.
+fn noise_mae(y: &[f64]) -> f64 {
+    if y.len() < 5 {
+        return 0.0;
+    }
+    let d4: Vec<f64> = y
+        .windows(5)
+        .map(|w| w[4] - 4.0 * w[3] + 6.0 * w[2] - 4.0 * w[1] + w[0])
+        .collect();
+    std_dev(&d4) / 70f64.sqrt() * (2.0 / std::f64::consts::PI).sqrt()
+}
 
 /// One search and polish.
 struct Attempt {

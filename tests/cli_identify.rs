@@ -792,3 +792,111 @@ fn too_few_samples_message_gives_the_true_minimum() {
     );
     assert!(!line.contains(&usize::MAX.to_string()), "{line}");
 }
+
+#[test]
+fn force_signal_options_are_checked() {
+    let d = Dir::new();
+    let f = d.write(
+        "force.csv",
+        "t,force\n0,1\n0.005,2\n0.01,1\n0.015,0\n0.02,-1\n0.025,-2\n0.03,-1\n0.035,0\n",
+    );
+    let model = "c1*ydd + (c2 + c3*yd^2)*yd + k*y = 0";
+    let base = [
+        "identify",
+        "--input",
+        &f,
+        "--value-column",
+        "force",
+        "--model",
+        model,
+        "--signal",
+        "force",
+    ];
+    bad(&base, &["--signal force needs --stiffness"]);
+    let with = |extra: &[&'static str]| -> Vec<String> {
+        base.iter()
+            .map(|s| s.to_string())
+            .chain(extra.iter().map(|s| s.to_string()))
+            .collect()
+    };
+    let run = |args: Vec<String>, keys: &[&str]| {
+        let refs: Vec<&str> = args.iter().map(String::as_str).collect();
+        bad(&refs, keys);
+    };
+    run(
+        with(&["--stiffness", "0"]),
+        &["--stiffness must be a positive number"],
+    );
+    run(
+        with(&["--stiffness", "81360", "--y0", "1", "--v0", "0"]),
+        &["pre-run", "--y0"],
+    );
+    run(
+        with(&["--stiffness", "81360", "--fit-initial"]),
+        &["pre-run"],
+    );
+    run(
+        with(&["--stiffness", "81360", "--moving-average", "-1"]),
+        &["--moving-average"],
+    );
+    run(
+        with(&["--stiffness", "81360", "--max-fit-nmae", "0"]),
+        &["--max-fit-nmae"],
+    );
+    run(
+        with(&["--stiffness", "81360", "--amplitude-limit", "-5"]),
+        &["--amplitude-limit"],
+    );
+    run(
+        with(&["--stiffness", "81360", "--solver", "euler"]),
+        &["--solver", "euler"],
+    );
+    run(
+        with(&["--stiffness", "81360", "--signal", "velocity"]),
+        &["velocity"],
+    );
+}
+
+#[test]
+fn force_signal_of_the_gate_example_gives_the_damping_report() {
+    let d = Dir::new();
+    let f = d.path("gate.csv");
+    let f = f.to_str().unwrap();
+    ok(&["bench", "generate", "--case", "gate_example", "--output", f]);
+    let out = ok(&[
+        "identify",
+        "--input",
+        f,
+        "--signal",
+        "force",
+        "--stiffness",
+        "81360",
+        "--model",
+        "c1*ydd + (c2 + c3*yd^2)*yd + k*y = 0",
+        "--population",
+        "20",
+        "--generations",
+        "40",
+        "--json",
+    ]);
+    let v = json(&out);
+    assert!((num(&v, "/coefficients/c1") / 19.14 - 1.0).abs() < 0.02);
+    assert!((num(&v, "/coefficients/c2") / -12.18 - 1.0).abs() < 0.02);
+    assert!(num(&v, "/damping/zeta0") < 0.0);
+    assert_eq!(
+        v.pointer("/damping/verdict").and_then(Value::as_str),
+        Some("self_excited")
+    );
+    assert!(num(&v, "/damping/limit_cycle_amplitude") > 100.0);
+}
+
+#[test]
+fn gate_example_bench_rejects_bad_options() {
+    bad(&["bench", "gate-example", "--runs", "0"], &["--runs"]);
+    bad(&["bench", "gate-example", "--noise", "1.5"], &["--noise"]);
+    bad(
+        &["bench", "gate-example", "--population", "2"],
+        &["--population"],
+    );
+    bad(&["bench", "seed-cases", "--noise", "-0.1"], &["--noise"]);
+}
