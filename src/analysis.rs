@@ -552,9 +552,20 @@ pub fn analyze_series(
     let spec = spectral
         .as_mut()
         .and_then(|sa| sa.analyze_window(&data.y, &window_options).ok());
-    let omega_meas = spec
-        .as_ref()
-        .map(|s| 2.0 * std::f64::consts::PI * s.peak.frequency_hz);
+    // A short record (a few periods) cannot give an envelope growth, but its dominant frequency
+    // still constrains the search.
+    let peak_hz = spec.as_ref().map(|s| s.peak.frequency_hz).or_else(|| {
+        let mut detrended = data.y.clone();
+        crate::spectral::detrend_linear(&mut detrended);
+        spectral
+            .as_mut()
+            .and_then(|sa| {
+                sa.dominant_frequency(&detrended, window_options.min_freq_hz)
+                    .ok()
+            })
+            .map(|p| p.frequency_hz)
+    });
+    let omega_meas = peak_hz.map(|f| 2.0 * std::f64::consts::PI * f);
     // The growth constrains the linearisation only when the envelope is a clean exponential.
     let sigma_clean = spec.as_ref().and_then(|s| {
         let g = &s.growth;
