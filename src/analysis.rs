@@ -522,6 +522,20 @@ pub fn analyze_series(
     warm: Option<&[f64]>,
     progress: impl FnMut(usize, usize, f64),
 ) -> Result<SeriesAnalysis, AnalysisError> {
+    analyze_series_with(model, series, opts, warm, &mut None, progress)
+}
+
+/// [`analyze_series`] with a reusable spectral analyzer: `spectral` is used when it fits the
+/// series' length and rate, and replaced by a new one (FFT plans and buffers) otherwise, so a
+/// caller that analyses windows of one length plans its FFTs once.
+pub fn analyze_series_with(
+    model: &Model,
+    series: &TimeSeries,
+    opts: &SeriesOptions,
+    warm: Option<&[f64]>,
+    spectral: &mut Option<crate::spectral::SpectralAnalyzer>,
+    progress: impl FnMut(usize, usize, f64),
+) -> Result<SeriesAnalysis, AnalysisError> {
     use crate::spectral::{SpectralAnalyzer, WindowOptions};
     let n = series.len();
     if n < 2 {
@@ -548,7 +562,12 @@ pub fn analyze_series(
         min_freq_hz: 3.0 / duration.max(f64::MIN_POSITIVE),
         ..WindowOptions::default()
     };
-    let mut spectral = fs.and_then(|fs| SpectralAnalyzer::new(n, fs).ok());
+    let fits = |sa: &SpectralAnalyzer| {
+        fs.is_some_and(|fs| sa.len() == n && (sa.rate_hz() - fs).abs() <= 1e-9 * fs)
+    };
+    if !spectral.as_ref().is_some_and(fits) {
+        *spectral = fs.and_then(|fs| SpectralAnalyzer::new(n, fs).ok());
+    }
     let spec = spectral
         .as_mut()
         .and_then(|sa| sa.analyze_window(&data.y, &window_options).ok());
@@ -816,6 +835,10 @@ pub fn analyze_series(
 pub struct Analyzer {
     settings: AnalysisSettings,
     model: Model,
+    /// Spectral analyzers (FFT plans and buffers) of past windows, borrowed by one analysis at
+    /// a time and returned, so FFTs are planned once per window length and worker, not per
+    /// window. Bounded by the number of concurrent analyses.
+    spectral_pool: std::sync::Arc<std::sync::Mutex<Vec<crate::spectral::SpectralAnalyzer>>>,
 }
 
 impl Analyzer {
@@ -840,7 +863,11 @@ impl Analyzer {
                 "population must be at least 4".into(),
             ));
         }
-        Ok(Analyzer { settings, model })
+        Ok(Analyzer {
+            settings,
+            model,
+            spectral_pool: Default::default(),
+        })
     }
 
     /// The settings this analyzer was made with.
@@ -914,7 +941,21 @@ impl Analyzer {
             fft_bias,
             ..SeriesOptions::default()
         };
-        let a = analyze_series(&self.model, &series, &opts, warm, |_, _, _| {})?;
+        // Borrow a spectral analyzer (the lock is held only to pop and push, never during the
+        // analysis; a poisoned pool just means planning afresh).
+        let mut spectral = self.spectral_pool.lock().ok().and_then(|mut p| p.pop());
+        let result = analyze_series_with(
+            &self.model,
+            &series,
+            &opts,
+            warm,
+            &mut spectral,
+            |_, _, _| {},
+        );
+        if let (Some(sa), Ok(mut pool)) = (spectral, self.spectral_pool.lock()) {
+            pool.push(sa);
+        }
+        let a = result?;
         let run = a.identification.best_run();
         Ok(WindowAnalysis {
             equation: self.model.substitute(&a.coefficients),

@@ -69,10 +69,10 @@ pub struct GateExampleArgs {
     #[arg(long, default_value_t = 1)]
     seed: u64,
     /// Measurement noise, fraction of the signal's standard deviation.
-    #[arg(long, default_value_t = 0.01)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0.01)]
     noise: f64,
     /// Drift of the force, N/s.
-    #[arg(long, default_value_t = 0.2)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0.2)]
     drift: f64,
     /// DE population.
     #[arg(long, default_value_t = 20)]
@@ -140,7 +140,7 @@ pub struct IdentifyArgs {
     #[arg(long, default_value = "y")]
     value_column: String,
     /// Fraction of the samples used for training.
-    #[arg(long, default_value_t = 0.5)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0.5)]
     train_fraction: f64,
     /// Seed of the train/test split.
     #[arg(long, default_value_t = 1)]
@@ -158,10 +158,10 @@ pub struct IdentifyArgs {
     #[arg(long, default_value_t = 1)]
     seed: u64,
     /// Relative tolerance of the fitness solver.
-    #[arg(long, default_value_t = 1e-3)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1e-3)]
     rtol: f64,
     /// Relative tolerance of the test solver.
-    #[arg(long, default_value_t = 1e-5)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1e-5)]
     test_rtol: f64,
     /// Fitness solver: auto, dopri5, rk4 or stiff. Auto: dopri5 (the chapter's ode45) for
     /// displacement data; rk4 on the sample grid, one step per sample, for uniformly sampled
@@ -185,19 +185,19 @@ pub struct IdentifyArgs {
     #[arg(long, value_enum, default_value = "displacement")]
     signal: SignalArg,
     /// Installed stiffness in N/m (force signals; also usable as the constant `k`).
-    #[arg(long, value_name = "N/m")]
+    #[arg(long, allow_negative_numbers = true, value_name = "N/m")]
     stiffness: Option<f64>,
     /// Do not bias the initial population with the spectrum's frequency and growth.
     #[arg(long)]
     no_fft_bias: bool,
     /// Force signals: seconds of the centred moving average removed first (0: none).
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1.0)]
     moving_average: f64,
     /// Amplitude (unit of the signal) whose time of reach is predicted.
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     amplitude_limit: Option<f64>,
     /// Above this fit NMAE the model is not trusted.
-    #[arg(long, default_value_t = 0.2)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0.2)]
     max_fit_nmae: f64,
     /// Print exactly one JSON object on stdout.
     #[arg(long)]
@@ -235,7 +235,7 @@ pub struct SeedCasesArgs {
     #[arg(long, default_value = "dopri5")]
     solver: Method,
     /// Relative tolerance of the fitness solver.
-    #[arg(long, default_value_t = 1e-3)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1e-3)]
     rtol: f64,
     /// Skip the Levenberg-Marquardt polish (the chapter's protocol).
     #[arg(long)]
@@ -245,7 +245,7 @@ pub struct SeedCasesArgs {
     no_restart: bool,
     /// Gaussian noise added to the data, fraction of its standard deviation (errors are then
     /// measured against the noise-free truth).
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0.0)]
     noise: f64,
     /// Bias half of the initial population with the spectrum's frequency and growth.
     #[arg(long)]

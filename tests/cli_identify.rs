@@ -851,8 +851,10 @@ fn force_signal_options_are_checked() {
         with(&["--stiffness", "81360", "--solver", "euler"]),
         &["--solver", "euler"],
     );
-    run(
-        with(&["--stiffness", "81360", "--signal", "velocity"]),
+    bad(
+        &[
+            "identify", "--input", &f, "--model", model, "--signal", "velocity",
+        ],
         &["velocity"],
     );
 }
