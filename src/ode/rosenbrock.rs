@@ -37,9 +37,7 @@
 
 #![allow(clippy::needless_range_loop)] // indexed loops over N mirror the formulas
 
-use super::util::{
-    all_finite, check_state, hinit, min_step, norm_inf, stop, user_initial_step, NONFINITE_SHRINK,
-};
+use super::util::{all_finite, begin, hinit, norm_inf, stop, user_initial_step, NONFINITE_SHRINK};
 use super::{Failure, Options, Outcome, Stats, System};
 use nalgebra::SMatrix;
 use std::ops::ControlFlow;
@@ -179,34 +177,10 @@ where
 {
     let mut stats = Stats::default();
     let n_out = times.len();
-    if n_out == 0 {
-        return Outcome {
-            reached: 0,
-            stats,
-            failure: None,
-        };
-    }
-    let t0 = times[0];
-    if let Some(f) = check_state(&y0, t0, opts.bound) {
-        return stop(0, stats, f);
-    }
-    if observe(0, &y0).is_break() {
-        return stop(1, stats, Failure::Stopped { t: t0 });
-    }
-    if n_out == 1 {
-        return Outcome {
-            reached: 1,
-            stats,
-            failure: None,
-        };
-    }
-    let t_end = times[n_out - 1];
-    let hmax = t_end - t0;
-    if hmax.is_nan() || hmax <= 0.0 || hmax.is_infinite() {
-        // Not an increasing finite time span (a caller bug): no step is possible.
-        return stop(1, stats, Failure::StepSizeUnderflow { t: t0, h: hmax });
-    }
-    let hmin = min_step(t0, t_end);
+    let (t0, t_end, hmax, hmin) = match begin(times, &y0, opts, &mut observe) {
+        Ok(span) => span,
+        Err(done) => return done,
+    };
     let autonomous = sys.is_autonomous();
     let jac_block = 1 + sys.jacobian_cost() + usize::from(!autonomous);
 

@@ -5,6 +5,7 @@
 #![allow(clippy::needless_range_loop)] // indexed loops over N mirror the formulas
 
 use super::{Failure, Options, Outcome, Stats, System};
+use std::ops::ControlFlow;
 
 /// Relative step-size floor: a step below `UNDERFLOW * max(|t0|, |t_end|)` cannot move `t` by
 /// more than a few ulps and is reported as [`Failure::StepSizeUnderflow`].
@@ -126,6 +127,54 @@ pub(super) fn hinit<const N: usize, S: System<N> + ?Sized>(
     } else {
         hmax.min(1e-6)
     }
+}
+
+/// The common start of the adaptive methods: an empty `times` returns at once; the initial state
+/// is checked and delivered (index 0); a single time ends there; the span must be an increasing
+/// finite interval. Returns `(t0, t_end, hmax, hmin)`, or the finished outcome.
+pub(super) fn begin<const N: usize, F>(
+    times: &[f64],
+    y0: &[f64; N],
+    opts: &Options,
+    observe: &mut F,
+) -> Result<(f64, f64, f64, f64), Outcome>
+where
+    F: FnMut(usize, &[f64; N]) -> ControlFlow<()>,
+{
+    let stats = Stats::default();
+    let n_out = times.len();
+    if n_out == 0 {
+        return Err(Outcome {
+            reached: 0,
+            stats,
+            failure: None,
+        });
+    }
+    let t0 = times[0];
+    if let Some(f) = check_state(y0, t0, opts.bound) {
+        return Err(stop(0, stats, f));
+    }
+    if observe(0, y0).is_break() {
+        return Err(stop(1, stats, Failure::Stopped { t: t0 }));
+    }
+    if n_out == 1 {
+        return Err(Outcome {
+            reached: 1,
+            stats,
+            failure: None,
+        });
+    }
+    let t_end = times[n_out - 1];
+    let hmax = t_end - t0;
+    if hmax.is_nan() || hmax <= 0.0 || hmax.is_infinite() {
+        // Not an increasing finite time span (a caller bug): no step is possible.
+        return Err(stop(
+            1,
+            stats,
+            Failure::StepSizeUnderflow { t: t0, h: hmax },
+        ));
+    }
+    Ok((t0, t_end, hmax, min_step(t0, t_end)))
 }
 
 #[cfg(test)]
