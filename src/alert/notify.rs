@@ -991,4 +991,77 @@ mod tests {
         };
         assert_eq!(c.resend_interval(), None);
     }
+
+    /// Two alerts with short annotations: one firing, one resolved.
+    fn pin_events() -> Vec<AlertEvent> {
+        let alert = |gate: &str, ends: Option<u64>| {
+            let labels: BTreeMap<String, String> = [
+                ("alertname", "GateDataStale"),
+                ("gate", gate),
+                ("severity", "critical"),
+            ]
+            .iter()
+            .map(|(k, v)| (k.to_string(), v.to_string()))
+            .collect();
+            let annotations: BTreeMap<String, String> =
+                [("summary", "s \"q\""), ("last_seen", "x")]
+                    .iter()
+                    .map(|(k, v)| (k.to_string(), v.to_string()))
+                    .collect();
+            Alert {
+                name: "GateDataStale".into(),
+                fingerprint: crate::alert::fingerprint(&labels),
+                labels,
+                annotations,
+                starts_at: t(0),
+                ends_at: ends.map(t),
+            }
+        };
+        vec![
+            AlertEvent::Firing(alert("g1", None)),
+            AlertEvent::Resolved(alert("g2", Some(70))),
+        ]
+    }
+
+    const PINNED_WEBHOOK: &str = concat!(
+        r#"{"alerts":[{"annotations":{"last_seen":"x","summary":"s \"q\""},"#,
+        r#""endsAt":"0001-01-01T00:00:00Z","fingerprint":"FP1","generatorURL":"http://gw:9184","#,
+        r#""labels":{"alertname":"GateDataStale","gate":"g1","severity":"critical"},"#,
+        r#""startsAt":"2023-11-14T22:13:20.000Z","status":"firing"},"#,
+        r#"{"annotations":{"last_seen":"x","summary":"s \"q\""},"#,
+        r#""endsAt":"2023-11-14T22:14:30.000Z","fingerprint":"FP2","generatorURL":"http://gw:9184","#,
+        r#""labels":{"alertname":"GateDataStale","gate":"g2","severity":"critical"},"#,
+        r#""startsAt":"2023-11-14T22:13:20.000Z","status":"resolved"}],"#,
+        r#""commonAnnotations":{"last_seen":"x","summary":"s \"q\""},"#,
+        r#""commonLabels":{"alertname":"GateDataStale","severity":"critical"},"#,
+        r#""externalURL":"http://gw:9184","groupKey":"{}:{alertname=\"GateDataStale\"}","#,
+        r#""groupLabels":{"alertname":"GateDataStale"},"receiver":"team","status":"firing","#,
+        r#""truncatedAlerts":0,"version":"4"}"#,
+    );
+
+    const PINNED_ALERTMANAGER: &str = concat!(
+        r#"[{"annotations":{"last_seen":"x","summary":"s \"q\""},"generatorURL":"http://gw:9184","#,
+        r#""labels":{"alertname":"GateDataStale","gate":"g1","severity":"critical"},"#,
+        r#""startsAt":"2023-11-14T22:13:20.000Z"},"#,
+        r#"{"annotations":{"last_seen":"x","summary":"s \"q\""},"endsAt":"2023-11-14T22:14:30.000Z","#,
+        r#""generatorURL":"http://gw:9184","#,
+        r#""labels":{"alertname":"GateDataStale","gate":"g2","severity":"critical"},"#,
+        r#""startsAt":"2023-11-14T22:13:20.000Z"}]"#,
+    );
+
+    /// The exact bytes POSTed (keys in byte order, compact), so a refactoring of the payload
+    /// code cannot change what receivers get.
+    #[test]
+    fn wire_bytes_are_pinned() {
+        let events = pin_events();
+        let fp = |i: usize| events[i].alert().fingerprint.clone();
+        let expected_webhook = PINNED_WEBHOOK.replace("FP1", &fp(0)).replace("FP2", &fp(1));
+        let webhook = serde_json::to_string(&webhook_payload("team", "http://gw:9184", &events))
+            .expect("serialise");
+        assert_eq!(webhook, expected_webhook);
+        let alerts: Vec<Alert> = events.iter().map(|e| e.alert().clone()).collect();
+        let am = serde_json::to_string(&alertmanager_payload(&alerts, "http://gw:9184"))
+            .expect("serialise");
+        assert_eq!(am, PINNED_ALERTMANAGER);
+    }
 }
