@@ -1,0 +1,266 @@
+//! What the notifier is told: targets, timeouts, retry and queue bounds (`[notify]` in the
+//! daemon's configuration).
+
+use std::time::Duration;
+
+use serde::Deserialize;
+
+/// Default capacity of the notifier's queues (the handle's and each target's).
+pub const DEFAULT_QUEUE_CAPACITY: usize = 1024;
+
+/// One webhook receiver (anything that understands Alertmanager's webhook format).
+#[derive(Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct WebhookTarget {
+    /// Full URL the payload is POSTed to.
+    pub url: String,
+    /// Sent as `Authorization: Bearer <token>` when set.
+    #[serde(default)]
+    pub bearer_token: Option<String>,
+    /// The `receiver` field of the payload (default "gatewatch").
+    #[serde(default = "default_receiver")]
+    pub receiver: String,
+}
+
+fn default_receiver() -> String {
+    "gatewatch".to_string()
+}
+
+impl std::fmt::Debug for WebhookTarget {
+    // The token must not end up in logs.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("WebhookTarget")
+            .field("url", &self.url)
+            .field(
+                "bearer_token",
+                &self.bearer_token.as_ref().map(|_| "<redacted>"),
+            )
+            .field("receiver", &self.receiver)
+            .finish()
+    }
+}
+
+/// Where and how to deliver alerts.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct NotifyConfig {
+    /// Webhook receivers (Alertmanager webhook format, version 4).
+    pub webhooks: Vec<WebhookTarget>,
+    /// Alertmanager base URLs (e.g. `http://alertmanager:9093`); alerts are POSTed to
+    /// `{base}/api/v2/alerts`.
+    pub alertmanager_urls: Vec<String>,
+    /// Re-send firing alerts to Alertmanager this often (default 60). Alertmanager resolves an
+    /// alert that is not re-sent within its `resolve_timeout`. 0 (or not finite) disables.
+    pub resend_interval_seconds: f64,
+    /// Timeout of one HTTP request (default 10).
+    pub timeout_seconds: f64,
+    /// Attempts per delivery, the first included (default 6; 0 acts as 1).
+    pub max_attempts: u32,
+    /// Wait before the first retry (default 500 ms), doubling at each retry...
+    pub initial_backoff_ms: u64,
+    /// ...up to this (default 30000 ms).
+    pub max_backoff_ms: u64,
+    /// Capacity of the handle's queue and of each target's queue, in batches (default 1024;
+    /// 0 acts as 1).
+    pub queue_capacity: usize,
+    /// This daemon's URL: `externalURL` of webhook payloads and `generatorURL` of every alert.
+    pub external_url: String,
+}
+
+impl Default for NotifyConfig {
+    fn default() -> Self {
+        NotifyConfig {
+            webhooks: Vec::new(),
+            alertmanager_urls: Vec::new(),
+            resend_interval_seconds: 60.0,
+            timeout_seconds: 10.0,
+            max_attempts: 6,
+            initial_backoff_ms: 500,
+            max_backoff_ms: 30_000,
+            queue_capacity: DEFAULT_QUEUE_CAPACITY,
+            external_url: String::new(),
+        }
+    }
+}
+
+/// A configuration that cannot work (see [`NotifyConfig::validate`]).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum NotifyConfigError {
+    /// A target URL does not parse or is not http(s).
+    #[error("invalid {what} URL {url:?}: {reason}")]
+    BadUrl {
+        what: &'static str,
+        url: String,
+        reason: String,
+    },
+    /// `timeout_seconds` is not a positive finite number.
+    #[error("timeout_seconds must be a positive finite number, got {0}")]
+    BadTimeout(f64),
+    /// `resend_interval_seconds` is negative or NaN.
+    #[error("resend_interval_seconds must be >= 0, got {0}")]
+    BadResendInterval(f64),
+}
+
+impl NotifyConfig {
+    /// Check URLs and durations. [`spawn_notifier`](super::spawn_notifier) never panics on a
+    /// bad config (a bad URL makes every delivery to it fail), but a daemon should reject one
+    /// at load time.
+    pub fn validate(&self) -> Result<(), NotifyConfigError> {
+        let check = |what: &'static str, url: &str| -> Result<(), NotifyConfigError> {
+            let bad = |reason: String| NotifyConfigError::BadUrl {
+                what,
+                url: url.to_string(),
+                reason,
+            };
+            let parsed = reqwest::Url::parse(url).map_err(|e| bad(e.to_string()))?;
+            match parsed.scheme() {
+                "http" | "https" => Ok(()),
+                s => Err(bad(format!("scheme {s:?} is not http or https"))),
+            }
+        };
+        for w in &self.webhooks {
+            check("webhook", &w.url)?;
+        }
+        for u in &self.alertmanager_urls {
+            check("alertmanager", u)?;
+        }
+        if !(self.timeout_seconds.is_finite() && self.timeout_seconds > 0.0) {
+            return Err(NotifyConfigError::BadTimeout(self.timeout_seconds));
+        }
+        if self.resend_interval_seconds.is_nan() || self.resend_interval_seconds < 0.0 {
+            return Err(NotifyConfigError::BadResendInterval(
+                self.resend_interval_seconds,
+            ));
+        }
+        Ok(())
+    }
+
+    /// Timeout of one request; an unusable value (not validated) falls back to the default.
+    pub(super) fn timeout(&self) -> Duration {
+        Duration::try_from_secs_f64(self.timeout_seconds)
+            .ok()
+            .filter(|d| !d.is_zero())
+            .unwrap_or(Duration::from_secs(10))
+    }
+
+    /// `None`: no periodic re-sends.
+    pub(super) fn resend_interval(&self) -> Option<Duration> {
+        Duration::try_from_secs_f64(self.resend_interval_seconds)
+            .ok()
+            .filter(|d| !d.is_zero())
+    }
+
+    /// Capacity of every queue; tokio's bounded channel needs at least 1.
+    pub(super) fn capacity(&self) -> usize {
+        self.queue_capacity.max(1)
+    }
+
+    /// Wait before retry number `retry` (1 = first retry): `initial * 2^(retry-1)`, capped.
+    pub fn backoff(&self, retry: u32) -> Duration {
+        let factor = 1u64
+            .checked_shl(retry.saturating_sub(1))
+            .unwrap_or(u64::MAX);
+        let ms = self
+            .initial_backoff_ms
+            .saturating_mul(factor)
+            .min(self.max_backoff_ms);
+        Duration::from_millis(ms)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn config_defaults_and_validation() {
+        let c: NotifyConfig = serde_json::from_str("{}").expect("defaults");
+        assert_eq!(c, NotifyConfig::default());
+        assert_eq!(c.resend_interval_seconds, 60.0);
+        assert_eq!(c.timeout_seconds, 10.0);
+        assert_eq!(c.max_attempts, 6);
+        assert_eq!(c.initial_backoff_ms, 500);
+        assert_eq!(c.max_backoff_ms, 30_000);
+        assert_eq!(c.queue_capacity, DEFAULT_QUEUE_CAPACITY);
+        assert!(c.validate().is_ok());
+        assert!(serde_json::from_str::<NotifyConfig>(r#"{"webhook": []}"#).is_err());
+        assert!(serde_json::from_str::<NotifyConfig>(
+            r#"{"webhooks": [{"url": "http://x", "token": "t"}]}"#
+        )
+        .is_err());
+        let c: NotifyConfig = serde_json::from_str(
+            r#"{"webhooks": [{"url": "https://hooks.example/a", "bearer_token": "s3cret"}],
+                "alertmanager_urls": ["http://am:9093"]}"#,
+        )
+        .expect("parse");
+        assert_eq!(c.webhooks[0].receiver, "gatewatch");
+        assert!(c.validate().is_ok());
+        assert!(
+            !format!("{c:?}").contains("s3cret"),
+            "token redacted in Debug"
+        );
+        let bad = NotifyConfig {
+            alertmanager_urls: vec!["ftp://am".into()],
+            ..NotifyConfig::default()
+        };
+        assert!(matches!(
+            bad.validate(),
+            Err(NotifyConfigError::BadUrl { .. })
+        ));
+        let bad = NotifyConfig {
+            webhooks: vec![WebhookTarget {
+                url: "not a url".into(),
+                bearer_token: None,
+                receiver: "r".into(),
+            }],
+            ..NotifyConfig::default()
+        };
+        assert!(matches!(
+            bad.validate(),
+            Err(NotifyConfigError::BadUrl { .. })
+        ));
+        let bad = NotifyConfig {
+            timeout_seconds: 0.0,
+            ..NotifyConfig::default()
+        };
+        assert_eq!(bad.validate(), Err(NotifyConfigError::BadTimeout(0.0)));
+        let bad = NotifyConfig {
+            resend_interval_seconds: f64::NAN,
+            ..NotifyConfig::default()
+        };
+        assert!(bad.validate().is_err());
+    }
+
+    #[test]
+    fn backoff_doubles_and_caps() {
+        let c = NotifyConfig::default();
+        let ms: Vec<u128> = (1..=8).map(|r| c.backoff(r).as_millis()).collect();
+        assert_eq!(ms, vec![500, 1000, 2000, 4000, 8000, 16000, 30000, 30000]);
+        assert_eq!(c.backoff(0).as_millis(), 500);
+        assert_eq!(c.backoff(200).as_millis(), 30000, "no overflow");
+        let c = NotifyConfig {
+            initial_backoff_ms: u64::MAX,
+            max_backoff_ms: u64::MAX,
+            ..NotifyConfig::default()
+        };
+        assert_eq!(c.backoff(64).as_millis(), u128::from(u64::MAX));
+    }
+
+    #[test]
+    fn degenerate_durations() {
+        let c = NotifyConfig {
+            timeout_seconds: f64::NAN,
+            resend_interval_seconds: 0.0,
+            queue_capacity: 0,
+            ..NotifyConfig::default()
+        };
+        assert_eq!(c.timeout(), Duration::from_secs(10));
+        assert_eq!(c.resend_interval(), None);
+        assert_eq!(c.capacity(), 1);
+        let c = NotifyConfig {
+            resend_interval_seconds: -3.0,
+            ..NotifyConfig::default()
+        };
+        assert_eq!(c.resend_interval(), None);
+    }
+}

@@ -1,0 +1,391 @@
+//! One target task: takes jobs from its own bounded queue, formats them for its receiver and
+//! POSTs them with retries and exponential backoff. A dead or hanging receiver only delays its
+//! own queue.
+
+use std::fmt;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use serde::Serialize;
+use tokio::sync::{mpsc, watch};
+
+use super::dispatch::{aborted, Job};
+use super::payload::{PostableAlert, WebhookPayload};
+use super::stats::{DropReason, NotifierStats};
+use super::NotifyConfig;
+use crate::alert::engine::{Alert, AlertEvent};
+
+/// How often a failing target may log a warning; failures in between are logged at debug level
+/// and counted in the next warning.
+const WARN_EVERY: Duration = Duration::from_secs(60);
+
+/// Where one target task posts, and in which format.
+#[derive(Debug)]
+pub(super) struct Target {
+    pub url: String,
+    pub kind: TargetKind,
+}
+
+#[derive(Debug)]
+pub(super) enum TargetKind {
+    /// Alertmanager's webhook format; transitions only.
+    Webhook {
+        receiver: String,
+        bearer_token: Option<String>,
+    },
+    /// `POST /api/v2/alerts`; transitions and re-sends.
+    Alertmanager,
+}
+
+/// Everything one target task owns.
+pub(super) struct TargetTask {
+    pub target: Target,
+    pub jobs: mpsc::Receiver<Job>,
+    /// Shared by all targets; `None` if it could not be built (every delivery fails).
+    pub client: Option<reqwest::Client>,
+    pub config: Arc<NotifyConfig>,
+    pub stats: Arc<NotifierStats>,
+    /// Set at the shutdown deadline.
+    pub abort: watch::Receiver<bool>,
+}
+
+impl TargetTask {
+    /// Delivers jobs until its queue is closed and empty, or until the shutdown deadline (then
+    /// the job in flight and the queued ones are counted as dropped).
+    pub async fn run(self) {
+        let TargetTask {
+            target,
+            mut jobs,
+            client,
+            config,
+            stats,
+            mut abort,
+        } = self;
+        let mut limiter = WarnLimiter {
+            last: None,
+            suppressed: 0,
+        };
+        loop {
+            let job = tokio::select! {
+                biased;
+                _ = aborted(&mut abort) => break,
+                job = jobs.recv() => match job {
+                    Some(job) => job,
+                    None => return,
+                },
+            };
+            let Some(body) = body(&target.kind, &job, &config.external_url) else {
+                continue; // Webhooks get transitions only.
+            };
+            let result = tokio::select! {
+                biased;
+                _ = aborted(&mut abort) => {
+                    stats.drop_one(DropReason::ShutdownDeadline);
+                    break;
+                }
+                r = deliver(&target, client.as_ref(), &config, body) => r,
+            };
+            match result {
+                Ok(()) => stats.delivered_one(),
+                Err(e) => {
+                    stats.failed_one();
+                    limiter.failure(&target.url, &e);
+                }
+            }
+        }
+        // Aborted: whatever is still queued is abandoned.
+        jobs.close();
+        while jobs.try_recv().is_ok() {
+            stats.drop_one(DropReason::ShutdownDeadline);
+        }
+    }
+}
+
+/// The serialised body of `job` for a target of `kind`, or `None` if such a target does not
+/// take this job. Serialised once per job, not per attempt.
+fn body(kind: &TargetKind, job: &Job, external_url: &str) -> Option<Result<Vec<u8>, String>> {
+    match (kind, job) {
+        (TargetKind::Webhook { receiver, .. }, Job::Events(events)) => Some(to_json(
+            &WebhookPayload::new(receiver, external_url, events),
+        )),
+        (TargetKind::Webhook { .. }, Job::Resend(_)) => None,
+        (TargetKind::Alertmanager, Job::Events(events)) => Some(postable_alerts(
+            events.iter().map(AlertEvent::alert),
+            external_url,
+        )),
+        (TargetKind::Alertmanager, Job::Resend(alerts)) => {
+            Some(postable_alerts(alerts.iter(), external_url))
+        }
+    }
+}
+
+/// The body of Alertmanager's `POST /api/v2/alerts`.
+fn postable_alerts<'a>(
+    alerts: impl Iterator<Item = &'a Alert>,
+    generator_url: &str,
+) -> Result<Vec<u8>, String> {
+    let body: Vec<PostableAlert> = alerts
+        .map(|a| PostableAlert::new(a, generator_url))
+        .collect();
+    to_json(&body)
+}
+
+fn to_json(body: &impl Serialize) -> Result<Vec<u8>, String> {
+    serde_json::to_vec(body).map_err(|e| format!("cannot serialise the payload: {e}"))
+}
+
+/// Why one attempt failed.
+#[derive(Debug)]
+enum AttemptError {
+    /// The receiver answered with a status other than 2xx.
+    Status(reqwest::StatusCode),
+    /// The request could not be built (e.g. an invalid URL).
+    InvalidRequest(reqwest::Error),
+    /// Connecting, sending or waiting for the answer failed (timeouts included).
+    Transport(reqwest::Error),
+}
+
+impl AttemptError {
+    /// Server errors, 408, 429 and transport errors may pass; the rest will not get better.
+    fn retryable(&self) -> bool {
+        match self {
+            AttemptError::Status(s) => {
+                s.is_server_error()
+                    || *s == reqwest::StatusCode::TOO_MANY_REQUESTS
+                    || *s == reqwest::StatusCode::REQUEST_TIMEOUT
+            }
+            AttemptError::InvalidRequest(_) => false,
+            AttemptError::Transport(_) => true,
+        }
+    }
+}
+
+impl fmt::Display for AttemptError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            AttemptError::Status(s) => write!(f, "HTTP {s}"),
+            AttemptError::InvalidRequest(e) => write!(f, "invalid request: {e}"),
+            AttemptError::Transport(e) => write!(f, "request error: {e}"),
+        }
+    }
+}
+
+/// Why a delivery (all its attempts) failed.
+#[derive(Debug, thiserror::Error)]
+enum DeliveryError {
+    #[error("no HTTP client")]
+    NoClient,
+    #[error("{0}")]
+    Payload(String),
+    #[error("{0} (not retried)")]
+    NotRetried(AttemptError),
+    #[error("{last} after {attempts} attempts")]
+    GaveUp { last: AttemptError, attempts: u32 },
+}
+
+/// One delivery with retries.
+async fn deliver(
+    target: &Target,
+    client: Option<&reqwest::Client>,
+    config: &NotifyConfig,
+    body: Result<Vec<u8>, String>,
+) -> Result<(), DeliveryError> {
+    let Some(client) = client else {
+        return Err(DeliveryError::NoClient);
+    };
+    let body = body.map_err(DeliveryError::Payload)?;
+    let attempts = config.max_attempts.max(1);
+    let mut attempt = 1;
+    loop {
+        let mut req = client
+            .post(&target.url)
+            .header(reqwest::header::CONTENT_TYPE, "application/json")
+            .body(body.clone());
+        if let TargetKind::Webhook {
+            bearer_token: Some(token),
+            ..
+        } = &target.kind
+        {
+            req = req.bearer_auth(token);
+        }
+        let error = match req.send().await {
+            Ok(resp) if resp.status().is_success() => return Ok(()),
+            Ok(resp) => AttemptError::Status(resp.status()),
+            Err(e) if e.is_builder() => AttemptError::InvalidRequest(e),
+            Err(e) => AttemptError::Transport(e),
+        };
+        if !error.retryable() {
+            return Err(DeliveryError::NotRetried(error));
+        }
+        if attempt >= attempts {
+            return Err(DeliveryError::GaveUp {
+                last: error,
+                attempts: attempt,
+            });
+        }
+        let wait = config.backoff(attempt);
+        tracing::debug!(target_url = %target.url, attempt, ?wait, "alert delivery: {error}, retrying");
+        tokio::time::sleep(wait).await;
+        attempt += 1;
+    }
+}
+
+/// Per-target warning rate limiter.
+struct WarnLimiter {
+    last: Option<Instant>,
+    suppressed: u64,
+}
+
+impl WarnLimiter {
+    fn failure(&mut self, url: &str, error: &DeliveryError) {
+        let now = Instant::now();
+        if self
+            .last
+            .is_none_or(|t| now.duration_since(t) >= WARN_EVERY)
+        {
+            tracing::warn!(
+                target_url = url,
+                suppressed_since_last_warning = self.suppressed,
+                "alert delivery failed: {error}"
+            );
+            self.last = Some(now);
+            self.suppressed = 0;
+        } else {
+            self.suppressed += 1;
+            tracing::debug!(target_url = url, "alert delivery failed: {error}");
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use reqwest::StatusCode;
+    use std::collections::BTreeMap;
+    use std::time::{SystemTime, UNIX_EPOCH};
+
+    fn t(secs: u64) -> SystemTime {
+        UNIX_EPOCH + Duration::from_secs(1_700_000_000 + secs)
+    }
+
+    /// Two alerts with short annotations: one firing, one resolved.
+    fn pin_events() -> Vec<AlertEvent> {
+        let alert = |gate: &str, ends: Option<u64>| {
+            let labels: BTreeMap<String, String> = [
+                ("alertname", "GateDataStale"),
+                ("gate", gate),
+                ("severity", "critical"),
+            ]
+            .iter()
+            .map(|(k, v)| (k.to_string(), v.to_string()))
+            .collect();
+            let annotations: BTreeMap<String, String> =
+                [("summary", "s \"q\""), ("last_seen", "x")]
+                    .iter()
+                    .map(|(k, v)| (k.to_string(), v.to_string()))
+                    .collect();
+            Alert {
+                name: "GateDataStale".into(),
+                fingerprint: crate::alert::fingerprint(&labels),
+                labels,
+                annotations,
+                starts_at: t(0),
+                ends_at: ends.map(t),
+            }
+        };
+        vec![
+            AlertEvent::Firing(alert("g1", None)),
+            AlertEvent::Resolved(alert("g2", Some(70))),
+        ]
+    }
+
+    const PINNED_WEBHOOK: &str = concat!(
+        r#"{"alerts":[{"annotations":{"last_seen":"x","summary":"s \"q\""},"#,
+        r#""endsAt":"0001-01-01T00:00:00Z","fingerprint":"FP1","generatorURL":"http://gw:9184","#,
+        r#""labels":{"alertname":"GateDataStale","gate":"g1","severity":"critical"},"#,
+        r#""startsAt":"2023-11-14T22:13:20.000Z","status":"firing"},"#,
+        r#"{"annotations":{"last_seen":"x","summary":"s \"q\""},"#,
+        r#""endsAt":"2023-11-14T22:14:30.000Z","fingerprint":"FP2","generatorURL":"http://gw:9184","#,
+        r#""labels":{"alertname":"GateDataStale","gate":"g2","severity":"critical"},"#,
+        r#""startsAt":"2023-11-14T22:13:20.000Z","status":"resolved"}],"#,
+        r#""commonAnnotations":{"last_seen":"x","summary":"s \"q\""},"#,
+        r#""commonLabels":{"alertname":"GateDataStale","severity":"critical"},"#,
+        r#""externalURL":"http://gw:9184","groupKey":"{}:{alertname=\"GateDataStale\"}","#,
+        r#""groupLabels":{"alertname":"GateDataStale"},"receiver":"team","status":"firing","#,
+        r#""truncatedAlerts":0,"version":"4"}"#,
+    );
+
+    const PINNED_ALERTMANAGER: &str = concat!(
+        r#"[{"annotations":{"last_seen":"x","summary":"s \"q\""},"generatorURL":"http://gw:9184","#,
+        r#""labels":{"alertname":"GateDataStale","gate":"g1","severity":"critical"},"#,
+        r#""startsAt":"2023-11-14T22:13:20.000Z"},"#,
+        r#"{"annotations":{"last_seen":"x","summary":"s \"q\""},"endsAt":"2023-11-14T22:14:30.000Z","#,
+        r#""generatorURL":"http://gw:9184","#,
+        r#""labels":{"alertname":"GateDataStale","gate":"g2","severity":"critical"},"#,
+        r#""startsAt":"2023-11-14T22:13:20.000Z"}]"#,
+    );
+
+    /// The exact bytes POSTed (keys in byte order, compact), so a refactoring of the payload
+    /// code cannot change what receivers get.
+    #[test]
+    fn wire_bytes_are_pinned() {
+        let events = Arc::new(pin_events());
+        let fp = |i: usize| events[i].alert().fingerprint.clone();
+        let expected_webhook = PINNED_WEBHOOK.replace("FP1", &fp(0)).replace("FP2", &fp(1));
+        let webhook = TargetKind::Webhook {
+            receiver: "team".into(),
+            bearer_token: Some("secret".into()),
+        };
+        let wire = |kind: &TargetKind, job: &Job| {
+            let bytes = body(kind, job, "http://gw:9184")
+                .expect("this target takes this job")
+                .expect("serialise");
+            String::from_utf8(bytes).expect("utf-8")
+        };
+        let events_job = Job::Events(events.clone());
+        assert_eq!(wire(&webhook, &events_job), expected_webhook);
+        assert_eq!(
+            wire(&TargetKind::Alertmanager, &events_job),
+            PINNED_ALERTMANAGER
+        );
+        // A re-send of the same alerts is the same body; webhooks do not take re-sends.
+        let alerts: Vec<Alert> = events.iter().map(|e| e.alert().clone()).collect();
+        let resend = Job::Resend(Arc::new(alerts));
+        assert_eq!(
+            wire(&TargetKind::Alertmanager, &resend),
+            PINNED_ALERTMANAGER
+        );
+        assert!(body(&webhook, &resend, "").is_none());
+    }
+
+    #[test]
+    fn which_answers_are_retried() {
+        let retried = |code: u16| {
+            AttemptError::Status(StatusCode::from_u16(code).expect("valid status")).retryable()
+        };
+        for code in [500, 502, 503, 504, 408, 429] {
+            assert!(retried(code), "{code} is retried");
+        }
+        for code in [400, 401, 403, 404, 409, 422] {
+            assert!(!retried(code), "{code} is not retried");
+        }
+    }
+
+    #[test]
+    fn failure_messages() {
+        let s = |code: u16| AttemptError::Status(StatusCode::from_u16(code).expect("status"));
+        assert_eq!(
+            DeliveryError::NotRetried(s(400)).to_string(),
+            "HTTP 400 Bad Request (not retried)"
+        );
+        assert_eq!(
+            DeliveryError::GaveUp {
+                last: s(503),
+                attempts: 6
+            }
+            .to_string(),
+            "HTTP 503 Service Unavailable after 6 attempts"
+        );
+        assert_eq!(DeliveryError::NoClient.to_string(), "no HTTP client");
+    }
+}
