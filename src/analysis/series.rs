@@ -445,7 +445,7 @@ struct Fitted<'a> {
 
 impl Fitted<'_> {
     /// Displacement amplitude to the signal's unit (force mode: `K0 * a`).
-    fn to_signal(&self, a: f64) -> f64 {
+    fn signal_of(&self, a: f64) -> f64 {
         if self.signal == Signal::Force {
             self.lin.k0.abs() * a
         } else {
@@ -454,7 +454,7 @@ impl Fitted<'_> {
     }
 
     /// The signal's unit to displacement amplitude.
-    fn from_signal(&self, s: f64) -> f64 {
+    fn displacement_of(&self, s: f64) -> f64 {
         if self.signal == Signal::Force {
             s / self.lin.k0.abs()
         } else {
@@ -487,12 +487,12 @@ fn damping_figures(
     });
     let eq = amplitude.and_then(|a| equivalent_damping(model, c, lin, a, t0));
     let limit_cycle_amplitude = match (lin.zeta0(), amplitude) {
-        (Some(z), Some(a)) if z < 0.0 => limit_cycle(model, c, lin, a, t0).map(|a| f.to_signal(a)),
+        (Some(z), Some(a)) if z < 0.0 => limit_cycle(model, c, lin, a, t0).map(|a| f.signal_of(a)),
         _ => None,
     };
     let time_to_limit = match (opts.amplitude_limit, amplitude) {
         (Some(limit), Some(a)) if limit > 0.0 => {
-            time_to_amplitude(model, c, lin, a, f.from_signal(limit), t0)
+            time_to_amplitude(model, c, lin, a, f.displacement_of(limit), t0)
         }
         _ => None,
     };
@@ -502,7 +502,7 @@ fn damping_figures(
         limit_cycle_amplitude,
         time_to_limit,
         model_frequency_hz: lin.omega0().map(|w| w / (2.0 * PI)),
-        amplitude: amplitude.map(|a| f.to_signal(a)),
+        amplitude: amplitude.map(|a| f.signal_of(a)),
         ..DampingReport::unknown()
     }
 }
