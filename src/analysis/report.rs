@@ -71,8 +71,8 @@ pub struct DampingReport {
     /// Damping ratio at rest from the linearisation, `C0 / (2 sqrt(K0 M0))`.
     pub zeta0: Option<f64>,
     /// Interval (low, high) for `zeta0`: the AR estimate's 95 % interval when `zeta0` comes
-    /// from it, the spread of the runs when several were made, else a linearised 95 % interval
-    /// from the polish's Jacobian.
+    /// from it, the spread of the runs when several were made, else `None` (as
+    /// `docs/damping.md` says; no interval is derived from the polish's Jacobian).
     pub zeta0_interval: Option<(f64, f64)>,
     /// Where `zeta0` comes from (`None` when there is no `zeta0`).
     pub zeta0_source: Option<Zeta0Source>,
