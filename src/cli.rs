@@ -630,7 +630,7 @@ fn write_damping(out: &mut impl Write, d: &analysis::DampingReport) -> std::io::
         out,
         "  zeta0 (at rest):        {}{interval} ({})",
         opt(d.zeta0, |z| format!("{:.3} %", 100.0 * z)),
-        d.zeta0_source.as_deref().unwrap_or("-")
+        d.zeta0_source.map_or("-", |s| s.as_str())
     )?;
     writeln!(
         out,
@@ -671,7 +671,7 @@ fn write_damping(out: &mut impl Write, d: &analysis::DampingReport) -> std::io::
             _ => "n/a".to_string(),
         }
     )?;
-    if let Some((z, lo, hi)) = d.ambient_zeta {
+    if let Some((z, lo, hi)) = d.ambient_zeta.map(<(f64, f64, f64)>::from) {
         writeln!(
             out,
             "  ambient zeta (AR):      {:.3} % [{:.3} %, {:.3} %]",

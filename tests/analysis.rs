@@ -141,3 +141,37 @@ fn stable_gate_has_positive_damping_with_an_interval_above_zero() {
         );
     }
 }
+
+#[test]
+fn saturated_limit_cycle_is_never_called_damped() {
+    // A gate on its limit cycle (zeta = -2 %, saturated by the cubic damping) vibrates by itself:
+    // whatever the model makes of it, the verdict may be self-excited or unknown, never damped,
+    // and a trusted report never shows a non-negative zeta0 (docs/damping.md, "Why a limit-cycle
+    // window is never damped").
+    let a = analyzer();
+    for seed in [9u64, 10, 11] {
+        let mut sim = GateSimulator::scenario(GateParams::default(), Scenario::LimitCycle, seed);
+        let mut burn = vec![0.0; 200 * 20];
+        sim.fill(&mut burn);
+        for window in 0..2 {
+            let mut x = vec![0.0; 200 * 30];
+            sim.fill(&mut x);
+            let r = a
+                .analyze(
+                    WindowInput {
+                        t0: 0.0,
+                        rate_hz: 200.0,
+                        values: &x,
+                    },
+                    None,
+                    seed,
+                )
+                .unwrap();
+            let d = &r.damping;
+            assert_ne!(d.verdict, Verdict::Damped, "seed {seed}/{window}: {d:?}");
+            if d.trusted {
+                assert!(d.zeta0.unwrap() < 0.0, "seed {seed}/{window}: {d:?}");
+            }
+        }
+    }
+}

@@ -1,0 +1,152 @@
+//! The daemon's per-window analyzer: the model compiled and the settings checked once per gate,
+//! then [`Analyzer::analyze`] for every window.
+
+use super::series::{analyze_series_with, SeriesOptions};
+use super::{AnalysisError, AnalysisSettings, Signal, WindowAnalysis, WindowInput};
+use crate::data::TimeSeries;
+use crate::identify;
+use crate::model::Model;
+
+/// A gate's analysis, prepared once (model compiled, settings checked), used for every window.
+/// `Send + Sync`: the daemon shares one per gate across its worker threads.
+#[derive(Debug, Clone)]
+pub struct Analyzer {
+    settings: AnalysisSettings,
+    model: Model,
+    /// Spectral analyzers (FFT plans and buffers) of past windows, borrowed by one analysis at
+    /// a time and returned, so FFTs are planned once per window length and worker, not per
+    /// window. Bounded by the number of concurrent analyses.
+    spectral_pool: std::sync::Arc<std::sync::Mutex<Vec<crate::spectral::SpectralAnalyzer>>>,
+}
+
+impl Analyzer {
+    /// Checks the settings and compiles the model.
+    pub fn new(settings: AnalysisSettings) -> Result<Analyzer, AnalysisError> {
+        let model = Model::parse(&settings.model, &settings.params)
+            .map_err(|e| AnalysisError::Settings(format!("model: {e}")))?;
+        if model.n_coeffs() == 0 {
+            return Err(AnalysisError::Settings(
+                "model: no unknown coefficients c1, c2, ...".into(),
+            ));
+        }
+        if settings.signal == Signal::Force
+            && !settings.stiffness.is_some_and(|k| k.is_finite() && k > 0.0)
+        {
+            return Err(AnalysisError::Settings(
+                "force signals need the installed stiffness (> 0)".into(),
+            ));
+        }
+        if settings.population < 4 {
+            return Err(AnalysisError::Settings(
+                "population must be at least 4".into(),
+            ));
+        }
+        Ok(Analyzer {
+            settings,
+            model,
+            spectral_pool: Default::default(),
+        })
+    }
+
+    /// The settings this analyzer was made with.
+    pub fn settings(&self) -> &AnalysisSettings {
+        &self.settings
+    }
+
+    /// Identifies the model on `input` and reports its damping. `warm` is the previous window's
+    /// [`WindowAnalysis::warm_start`] of the same gate; `seed` makes the result reproducible.
+    pub fn analyze(
+        &self,
+        input: WindowInput<'_>,
+        warm: Option<&[f64]>,
+        seed: u64,
+    ) -> Result<WindowAnalysis, AnalysisError> {
+        self.analyze_with(input, warm, seed, true)
+    }
+
+    /// [`Analyzer::analyze`] without the FFT-biased initial population (for the benchmark that
+    /// shows what the bias buys).
+    pub fn analyze_unbiased(
+        &self,
+        input: WindowInput<'_>,
+        seed: u64,
+    ) -> Result<WindowAnalysis, AnalysisError> {
+        self.analyze_with(input, None, seed, false)
+    }
+
+    fn analyze_with(
+        &self,
+        input: WindowInput<'_>,
+        warm: Option<&[f64]>,
+        seed: u64,
+        fft_bias: bool,
+    ) -> Result<WindowAnalysis, AnalysisError> {
+        let started = std::time::Instant::now();
+        if !(input.rate_hz.is_finite() && input.rate_hz > 0.0) {
+            return Err(AnalysisError::Window(
+                "the sample rate must be positive".into(),
+            ));
+        }
+        if let Some(i) = input.values.iter().position(|v| !v.is_finite()) {
+            return Err(AnalysisError::Window(format!("sample {i} is not finite")));
+        }
+        // Window-relative time keeps the numbers small; time-dependent models see t = 0 at the
+        // window's start.
+        let t: Vec<f64> = (0..input.values.len())
+            .map(|i| i as f64 / input.rate_hz)
+            .collect();
+        let series = TimeSeries::new(t, input.values.to_vec())
+            .map_err(|e| AnalysisError::Window(e.to_string()))?;
+        let s = &self.settings;
+        let opts = SeriesOptions {
+            signal: s.signal,
+            stiffness: s.stiffness,
+            identify: identify::Config {
+                population: s.population,
+                generations: s.generations,
+                seed,
+                split_seed: seed,
+                // One RK4 step per sample: three times cheaper than dopri5 over a long window;
+                // the polish (dopri5 at 1e-8) sets the final accuracy.
+                solver: crate::ode::Method::Rk4,
+                substeps: 1,
+                // The daemon's work per window must stay bounded: no retries.
+                max_attempts: 1,
+                ..identify::Config::default()
+            },
+            amplitude_limit: s.amplitude_limit,
+            max_fit_nmae: s.max_fit_nmae,
+            fft_bias,
+            ..SeriesOptions::default()
+        };
+        // Borrow a spectral analyzer (the lock is held only to pop and push, never during the
+        // analysis; a poisoned pool just means planning afresh).
+        let mut spectral = self.spectral_pool.lock().ok().and_then(|mut p| p.pop());
+        let result = analyze_series_with(
+            &self.model,
+            &series,
+            &opts,
+            warm,
+            &mut spectral,
+            |_, _, _| {},
+        );
+        if let (Some(sa), Ok(mut pool)) = (spectral, self.spectral_pool.lock()) {
+            pool.push(sa);
+        }
+        let a = result?;
+        let run = a.identification.best_run();
+        Ok(WindowAnalysis {
+            equation: self.model.substitute(&a.coefficients),
+            coefficients: a
+                .coefficients
+                .iter()
+                .enumerate()
+                .map(|(i, v)| (format!("c{}", i + 1), *v))
+                .collect(),
+            damping: a.damping,
+            evaluations: run.evaluations,
+            seconds: started.elapsed().as_secs_f64(),
+            warm_start: a.coefficients,
+        })
+    }
+}

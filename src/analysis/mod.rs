@@ -1,0 +1,106 @@
+//! Early-warning analysis of one window: identify the model, then say what its damping means.
+//!
+//! This is the interface the daemon consumes. [`Analyzer::new`] compiles the model and checks the
+//! settings once per gate; [`Analyzer::analyze`] runs on a worker thread for each window.
+//!
+//! # Layout
+//! - `linearisation`: the model at rest (zeta0) and its energy balance at an amplitude
+//!   (zeta_eq, limit cycle, time to a limit).
+//! - `population`: the DE's initial population biased towards the measured spectrum.
+//! - `series`: the analysis of one series, phase by phase: pre-processing, model-free
+//!   analysis, force-mode scaling, initial population, identification, damping figures.
+//! - `verdict`: agreement with the spectrum and the verdict table of `docs/damping.md`.
+//! - `report`: the damping report and its parts.
+//! - `analyzer`: the daemon's per-gate [`Analyzer`].
+
+mod analyzer;
+mod linearisation;
+mod population;
+mod report;
+mod series;
+#[cfg(test)]
+mod tests;
+mod verdict;
+
+pub use analyzer::Analyzer;
+pub use linearisation::{equivalent_damping, limit_cycle, time_to_amplitude, Linearization};
+pub use population::{biased_population, SpectralTarget};
+pub use report::{AmbientZeta, DampingReport, Zeta0Source};
+pub use series::{
+    analyze_series, analyze_series_with, pre_run, term_scales, SeriesAnalysis, SeriesOptions,
+    DAMPING_FORCE_FRACTION,
+};
+pub use verdict::{decide, Decision, Verdict, VerdictFacts};
+
+use serde::{Deserialize, Serialize};
+
+/// What the samples measure.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum Signal {
+    /// Support force in N; the installed stiffness converts it to displacement (section 8.5).
+    #[default]
+    Force,
+    /// Displacement in m.
+    Displacement,
+}
+
+/// Settings of the analysis of one gate.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct AnalysisSettings {
+    /// What the samples are.
+    pub signal: Signal,
+    /// Installed stiffness in N/m (force mode: converts force to displacement; known constant `k`).
+    pub stiffness: Option<f64>,
+    /// The equation of motion, in the model language (see [`crate::model`]).
+    pub model: String,
+    /// Known named constants of the equation.
+    pub params: Vec<(String, f64)>,
+    /// DE population size.
+    pub population: usize,
+    /// DE generations (cold start).
+    pub generations: usize,
+    /// Amplitude (same unit as the signal) whose time of reach is predicted (`time_to_limit`).
+    pub amplitude_limit: Option<f64>,
+    /// A window whose fit NMAE exceeds this is not trusted (never raises an alarm).
+    pub max_fit_nmae: f64,
+}
+
+/// One uniformly sampled window.
+#[derive(Debug, Clone, Copy)]
+pub struct WindowInput<'a> {
+    /// Time of the first sample, Unix seconds.
+    pub t0: f64,
+    /// Sample rate in Hz.
+    pub rate_hz: f64,
+    /// The samples, oldest first.
+    pub values: &'a [f64],
+}
+
+/// The result of analysing one window.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct WindowAnalysis {
+    /// The identified equation with the numbers put in.
+    pub equation: String,
+    /// Identified coefficients by name (`c1`, ...), in physical units.
+    pub coefficients: Vec<(String, f64)>,
+    /// Damping figures.
+    pub damping: DampingReport,
+    /// Objective evaluations spent.
+    pub evaluations: usize,
+    /// Wall time, seconds.
+    pub seconds: f64,
+    /// Internal state to warm-start the next window of the same gate.
+    pub warm_start: Vec<f64>,
+}
+
+/// Why a window could not be analysed.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum AnalysisError {
+    /// The settings are inconsistent (bad model, missing stiffness in force mode, ...).
+    #[error("invalid analysis settings: {0}")]
+    Settings(String),
+    /// The window cannot be analysed (too short, constant, non-finite).
+    #[error("window not analysable: {0}")]
+    Window(String),
+}

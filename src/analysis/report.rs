@@ -1,0 +1,152 @@
+//! The damping report of a window and its parts (definitions in `docs/damping.md`).
+
+use super::verdict::Verdict;
+use serde::{Deserialize, Serialize};
+
+/// Where a report's `zeta0` comes from. Serialised as `"model"` / `"ambient"`, the strings of the
+/// API and the CLI's JSON.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Zeta0Source {
+    /// The linearised identified model (for information only when the report is untrusted).
+    Model,
+    /// The AR fit of a noise-driven window whose free-vibration model does not fit.
+    Ambient,
+}
+
+impl Zeta0Source {
+    /// The name used in the JSON and the text report.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Zeta0Source::Model => "model",
+            Zeta0Source::Ambient => "ambient",
+        }
+    }
+}
+
+impl std::fmt::Display for Zeta0Source {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+/// The model-free damping ratio of a noise-driven window (AR fit) with its 95 % interval.
+/// Serialised as the array `[zeta, low, high]`, as the API has always shown it.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(from = "(f64, f64, f64)", into = "(f64, f64, f64)")]
+pub struct AmbientZeta {
+    /// Damping ratio of the dominant pole pair.
+    pub zeta: f64,
+    /// Lower end of the 95 % interval.
+    pub low: f64,
+    /// Upper end of the 95 % interval.
+    pub high: f64,
+}
+
+impl From<(f64, f64, f64)> for AmbientZeta {
+    fn from((zeta, low, high): (f64, f64, f64)) -> Self {
+        AmbientZeta { zeta, low, high }
+    }
+}
+
+impl From<AmbientZeta> for (f64, f64, f64) {
+    fn from(a: AmbientZeta) -> Self {
+        (a.zeta, a.low, a.high)
+    }
+}
+
+impl From<&crate::spectral::AmbientDamping> for AmbientZeta {
+    fn from(a: &crate::spectral::AmbientDamping) -> Self {
+        AmbientZeta {
+            zeta: a.zeta,
+            low: a.zeta_low,
+            high: a.zeta_high,
+        }
+    }
+}
+
+/// Damping figures of an identified model (definitions in `docs/damping.md`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct DampingReport {
+    /// Damping ratio at rest from the linearisation, `C0 / (2 sqrt(K0 M0))`.
+    pub zeta0: Option<f64>,
+    /// Interval (low, high) for `zeta0`: the AR estimate's 95 % interval when `zeta0` comes
+    /// from it, the spread of the runs when several were made, else `None` (as
+    /// `docs/damping.md` says; no interval is derived from the polish's Jacobian).
+    pub zeta0_interval: Option<(f64, f64)>,
+    /// Where `zeta0` comes from (`None` when there is no `zeta0`).
+    pub zeta0_source: Option<Zeta0Source>,
+    /// Equivalent damping ratio at the amplitude seen in the window.
+    pub zeta_eq: Option<f64>,
+    /// Net energy fed into the structure per cycle (J in force mode).
+    pub energy_per_cycle: Option<f64>,
+    /// Amplitude where `zeta_eq` crosses zero, in the signal's unit (force amplitude `K0 * a` in
+    /// force mode); `None` when the model grows without bound or is stable at rest.
+    pub limit_cycle_amplitude: Option<f64>,
+    /// Seconds until the amplitude reaches the configured limit at the current growth.
+    pub time_to_limit: Option<f64>,
+    /// Dominant frequency of the window, Hz.
+    pub frequency_hz: Option<f64>,
+    /// Model-free envelope growth rate sigma, 1/s (negative: decaying).
+    pub growth_rate: Option<f64>,
+    /// Standard error of `growth_rate`.
+    pub growth_rate_stderr: Option<f64>,
+    /// Model-free damping ratio of a noise-driven window (AR fit) and its 95 % interval.
+    pub ambient_zeta: Option<AmbientZeta>,
+    /// The model's own frequency at rest, Hz (`sqrt(K0/M0) / 2 pi`).
+    pub model_frequency_hz: Option<f64>,
+    /// Displacement amplitude at the end of the window (model), m or the data's unit.
+    pub amplitude: Option<f64>,
+    /// Whether the model's frequency and growth agree with the model-free estimates.
+    pub agrees: bool,
+    /// NMAE of the model on the window.
+    pub fit_nmae: f64,
+    /// Whether the model can be trusted (fits, agrees); an untrusted model never raises an alarm.
+    pub trusted: bool,
+    /// The conclusion.
+    pub verdict: Verdict,
+}
+
+impl DampingReport {
+    /// A report that knows nothing: no figures, no fit (`fit_nmae` infinite), untrusted,
+    /// verdict `Unknown`. Callers (and test doubles) set only the fields they know:
+    ///
+    /// ```
+    /// use gatewatch::analysis::{DampingReport, Verdict};
+    /// let r = DampingReport {
+    ///     zeta0: Some(0.01),
+    ///     trusted: true,
+    ///     verdict: Verdict::Damped,
+    ///     ..DampingReport::unknown()
+    /// };
+    /// assert_eq!(r.zeta_eq, None);
+    /// ```
+    pub fn unknown() -> DampingReport {
+        DampingReport {
+            zeta0: None,
+            zeta0_interval: None,
+            zeta0_source: None,
+            zeta_eq: None,
+            energy_per_cycle: None,
+            limit_cycle_amplitude: None,
+            time_to_limit: None,
+            frequency_hz: None,
+            growth_rate: None,
+            growth_rate_stderr: None,
+            ambient_zeta: None,
+            model_frequency_hz: None,
+            amplitude: None,
+            agrees: false,
+            fit_nmae: f64::INFINITY,
+            trusted: false,
+            verdict: Verdict::Unknown,
+        }
+    }
+}
+
+impl Default for DampingReport {
+    /// [`DampingReport::unknown`].
+    fn default() -> Self {
+        DampingReport::unknown()
+    }
+}

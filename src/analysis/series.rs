@@ -1,0 +1,547 @@
+//! The analysis of one series, phase by phase: pre-processing, model-free analysis, force-mode
+//! scaling (pre-run for the initial conditions, coefficient scales), the initial population,
+//! the identification, the damping figures and the verdict.
+
+use super::linearisation::{equivalent_damping, limit_cycle, time_to_amplitude, Linearization};
+use super::population::{initial_population, PopulationInputs, SpectralTarget};
+use super::report::{AmbientZeta, DampingReport, Zeta0Source};
+use super::verdict::{agrees, decide, VerdictFacts};
+use super::{AnalysisError, Signal};
+use crate::data::TimeSeries;
+use crate::identify::{self, Identification, InitialValues};
+use crate::model::Model;
+use crate::spectral::{SpectralAnalyzer, WindowOptions, WindowSpectral};
+use std::f64::consts::PI;
+
+/// The dominant frequency must have at least this many periods in the window (the spectral
+/// floor is `MIN_PERIODS / duration`). Value: below three periods a drift or an edge effect
+/// fills the lowest bins, and the Hilbert envelope (whose edges are discarded) has nothing left.
+pub const MIN_PERIODS: f64 = 3.0;
+
+/// The envelope growth constrains the biased population only when it is a clean exponential:
+/// its standard error below this fraction of `|sigma|` (plus [`CLEAN_GROWTH_FLOOR`]). Value: a
+/// 10 % error in sigma is a 10 % error in the damping the projection imposes, which the DE
+/// corrects cheaply; a noisier slope would pull half the population to a wrong damping.
+pub const CLEAN_GROWTH_RELATIVE_ERROR: f64 = 0.1;
+
+/// Absolute floor of the clean-growth test, 1/s: lets an exactly exponential (noise-free)
+/// envelope with `sigma` near zero pass. Value: far below any physical growth rate.
+pub const CLEAN_GROWTH_FLOOR: f64 = 1e-9;
+
+/// Options of [`analyze_series`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct SeriesOptions {
+    /// What the samples are.
+    pub signal: Signal,
+    /// Installed stiffness, N/m (force mode).
+    pub stiffness: Option<f64>,
+    /// The identification's settings (population, generations, runs, seeds, solver, ...). In
+    /// force mode its `initial`, `output`, `scales`, `y_scale` and `polish_initial` are set here.
+    pub identify: identify::Config,
+    /// Bias half of the initial population towards the measured frequency and growth.
+    pub fft_bias: bool,
+    /// Force mode: a centred moving average over this many seconds is subtracted first (the
+    /// chapter's only pre-processing; removes drift). 0: none.
+    pub moving_average_seconds: f64,
+    /// Amplitude in the signal's unit whose time of reach is predicted.
+    pub amplitude_limit: Option<f64>,
+    /// Above this fit NMAE the model is not trusted.
+    pub max_fit_nmae: f64,
+}
+
+impl Default for SeriesOptions {
+    fn default() -> Self {
+        SeriesOptions {
+            signal: Signal::Displacement,
+            stiffness: None,
+            identify: identify::Config::default(),
+            fft_bias: true,
+            moving_average_seconds: 1.0,
+            amplitude_limit: None,
+            max_fit_nmae: 0.2,
+        }
+    }
+}
+
+/// Everything [`analyze_series`] found.
+#[derive(Debug, Clone)]
+pub struct SeriesAnalysis {
+    /// The identification (runs, summary, split).
+    pub identification: Identification,
+    /// The chosen coefficients, physical units.
+    pub coefficients: Vec<f64>,
+    /// The initial conditions used (force mode: from the pre-run, polished).
+    pub initial: InitialValues,
+    /// Damping figures and verdict.
+    pub damping: DampingReport,
+    /// The data as identified (after pre-processing).
+    pub data: TimeSeries,
+    /// The model's output at every sample (displacement or support force).
+    pub prediction: Option<Vec<f64>>,
+    /// The model's state `[y, yd]` at every sample.
+    pub trajectory: Option<Vec<[f64; 2]>>,
+    /// The linearisation at rest.
+    pub linearization: Linearization,
+}
+
+fn rms(x: &[f64]) -> f64 {
+    let n = x.len().max(1) as f64;
+    let mean = x.iter().sum::<f64>() / n;
+    (x.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n).sqrt()
+}
+
+/// Section 8.5's pre-run: fits `F ~ exp(sigma t) (a cos wt + b sin wt) + d` by linear least
+/// squares on the first three periods (the chapter fits `C1 sin(C2 t + C3)` by DE; with `w` from
+/// the spectrum the problem is linear) and returns `y0 = F(0)/k`, `v0 = F'(0)/k`.
+pub fn pre_run(data: &TimeSeries, w: f64, sigma: f64, k: f64) -> Option<(f64, f64)> {
+    let t0 = *data.t.first()?;
+    let span = 3.0 * 2.0 * std::f64::consts::PI / w;
+    let m = data
+        .t
+        .iter()
+        .take_while(|&&t| t - t0 <= span)
+        .count()
+        .max(8)
+        .min(data.len());
+    let mut a = nalgebra::Matrix3::<f64>::zeros();
+    let mut rhs = nalgebra::Vector3::<f64>::zeros();
+    for i in 0..m {
+        let tau = data.t[i] - t0;
+        let e = (sigma * tau).exp();
+        let row = nalgebra::Vector3::new(e * (w * tau).cos(), e * (w * tau).sin(), 1.0);
+        a += row * row.transpose();
+        rhs += row * data.y[i];
+    }
+    let sol = a.lu().solve(&rhs)?;
+    let (ca, cb) = (sol[0], sol[1]);
+    let (y0, v0) = (ca / k, (sigma * ca + w * cb) / k);
+    (y0.is_finite() && v0.is_finite()).then_some((y0, v0))
+}
+
+/// Force mode: the physical value per unit DE coordinate of each coefficient, so that the DE
+/// searches numbers of order one. Coefficient `j` gets `F_rms / g_j`, where `g_j` is the RMS over
+/// a harmonic cycle of amplitude `a` at `w` of `d(M*ydd + R)/dc_j`: one unit is a term as large as
+/// the measured force. Terms odd in the velocity (damping) get [`DAMPING_FORCE_FRACTION`] of
+/// that: a gate's damping force is a few percent of the total (twice the damping ratio), so its
+/// coefficients land in [-1, 1] where the DE starts.
+pub fn term_scales(model: &Model, t0: f64, a: f64, w: f64, f_rms: f64) -> Vec<f64> {
+    let d = model.n_coeffs();
+    const N: usize = 64;
+    let base = vec![1.0; d];
+    (0..d)
+        .map(|j| {
+            let (mut g2, mut odd2) = (0.0, 0.0);
+            let mut cp = base.clone();
+            let mut cm = base.clone();
+            cp[j] += 1e-3;
+            cm[j] -= 1e-3;
+            let e = |c: &[f64], y: f64, yd: f64, ydd: f64| {
+                model.mass(t0, y, yd, c) * ydd + model.residual(t0, y, yd, c)
+            };
+            for k in 0..N {
+                let th = 2.0 * std::f64::consts::PI * k as f64 / N as f64;
+                let (y, yd, ydd) = (a * th.cos(), -a * w * th.sin(), -a * w * w * th.cos());
+                let dj = (e(&cp, y, yd, ydd) - e(&cm, y, yd, ydd)) / 2e-3;
+                let dj_flip = (e(&cp, y, -yd, ydd) - e(&cm, y, -yd, ydd)) / 2e-3;
+                g2 += dj * dj;
+                odd2 += (0.5 * (dj - dj_flip)).powi(2);
+            }
+            let g = (g2 / N as f64).sqrt();
+            let damping_like = odd2 > 0.5 * g2;
+            let s = f_rms / g
+                * if damping_like {
+                    DAMPING_FORCE_FRACTION
+                } else {
+                    1.0
+                };
+            if s.is_finite() && s > 0.0 {
+                s
+            } else {
+                1.0
+            }
+        })
+        .collect()
+}
+
+/// Fraction of the measured force that one DE unit of a damping-like coefficient represents.
+/// Value: a gate's damping force is about twice its damping ratio times the total force, a few
+/// percent for the chapter's gates (|zeta| of 1-2 %), so 3 % puts their damping coefficients at
+/// order one, inside the DE's starting box [-1, 1].
+pub const DAMPING_FORCE_FRACTION: f64 = 0.03;
+
+/// Identifies `model` on `series` and reports what its damping means (see `docs/damping.md`).
+/// `warm` are physical coefficients of a previous identification of the same gate, placed in
+/// the initial population.
+pub fn analyze_series(
+    model: &Model,
+    series: &TimeSeries,
+    opts: &SeriesOptions,
+    warm: Option<&[f64]>,
+    progress: impl FnMut(usize, usize, f64),
+) -> Result<SeriesAnalysis, AnalysisError> {
+    analyze_series_with(model, series, opts, warm, &mut None, progress)
+}
+
+/// [`analyze_series`] with a reusable spectral analyzer: `spectral` is used when it fits the
+/// series' length and rate, and replaced by a new one (FFT plans and buffers) otherwise, so a
+/// caller that analyses windows of one length plans its FFTs once.
+pub fn analyze_series_with(
+    model: &Model,
+    series: &TimeSeries,
+    opts: &SeriesOptions,
+    warm: Option<&[f64]>,
+    spectral: &mut Option<SpectralAnalyzer>,
+    progress: impl FnMut(usize, usize, f64),
+) -> Result<SeriesAnalysis, AnalysisError> {
+    let n = series.len();
+    if n < 2 {
+        return Err(AnalysisError::Window(format!("{n} samples are too few")));
+    }
+    let t0 = series.t[0];
+    let data = preprocess(series, opts);
+    let free = model_free(&data, spectral);
+
+    let mut config = opts.identify.clone();
+    let scale = scale_problem(model, &data, opts, &free, &mut config)?;
+    let scales = if config.scales.len() == model.n_coeffs() {
+        config.scales.clone()
+    } else {
+        vec![1.0; model.n_coeffs()]
+    };
+    let initial_population = initial_population(
+        model,
+        warm,
+        &PopulationInputs {
+            scales: &scales,
+            population: config.population,
+            seed: config.seed,
+            fit_initial_conditions: matches!(config.initial, identify::Initial::Fit),
+            fft_bias: opts.fft_bias,
+            target: free.omega.map(|omega| SpectralTarget {
+                omega,
+                sigma: free.sigma_clean,
+            }),
+            t0,
+            y_scale: scale.y,
+            v_scale: scale.v,
+        },
+    );
+    config.initial_population = initial_population;
+
+    let identification =
+        identify::identify(model, &data, &config, progress).map_err(|e| match e {
+            identify::IdentifyError::De(e) => AnalysisError::Settings(e.to_string()),
+            other => AnalysisError::Settings(other.to_string()),
+        })?;
+    let best = identification.best_run().clone();
+    let c = best.coefficients.clone();
+    let lin = Linearization::of(model, &c, t0, scale.y, scale.v);
+    let trajectory = identify::trajectory(model, &data.t, &c, best.initial, config.test_rtol);
+    let prediction = identify::predict(
+        model,
+        &data,
+        &c,
+        best.initial,
+        config.test_rtol,
+        config.output,
+    );
+    let fit_nmae = prediction
+        .as_ref()
+        .and_then(|p| identify::nmae(p.iter().copied().zip(data.y.iter().copied())))
+        .unwrap_or(f64::INFINITY);
+
+    let fitted = Fitted {
+        model,
+        c: &c,
+        lin: &lin,
+        t0,
+        signal: opts.signal,
+    };
+    let mut damping = damping_figures(&fitted, &data, trajectory.as_deref(), free.omega, opts);
+    damping.fit_nmae = fit_nmae;
+    // Agreement with the model-free estimates: the same spectral analysis of the prediction.
+    let model_spec = match (spectral.as_mut(), prediction.as_ref()) {
+        (Some(sa), Some(p)) => sa.analyze_window(p, &free.window_options).ok(),
+        _ => None,
+    };
+    damping.agrees = agrees(free.spec.as_ref(), model_spec.as_ref());
+    if let Some(s) = &free.spec {
+        damping.frequency_hz = Some(s.peak.frequency_hz);
+        damping.growth_rate = Some(s.growth.sigma);
+        damping.growth_rate_stderr = Some(s.growth.stderr);
+        damping.ambient_zeta = s.ambient.as_ref().map(AmbientZeta::from);
+    }
+    let runs_zeta = identification
+        .runs
+        .iter()
+        .filter_map(|r| Linearization::of(model, &r.coefficients, t0, scale.y, scale.v).zeta0());
+    conclude(
+        &mut damping,
+        lin.zeta0(),
+        run_spread(runs_zeta),
+        free.spec.map(|s| s.regime),
+        opts.max_fit_nmae,
+    );
+    Ok(SeriesAnalysis {
+        identification,
+        coefficients: c,
+        initial: best.initial,
+        damping,
+        data,
+        prediction,
+        trajectory,
+        linearization: lin,
+    })
+}
+
+/// Pre-processing: force signals lose their centred moving average (drift), when the series is
+/// uniformly sampled and the average is shorter than the series.
+fn preprocess(series: &TimeSeries, opts: &SeriesOptions) -> TimeSeries {
+    let mut data = series.clone();
+    let n = series.len();
+    if opts.signal == Signal::Force && opts.moving_average_seconds > 0.0 {
+        if let Some(fs) = series.uniform_step().map(|h| 1.0 / h) {
+            let w = ((opts.moving_average_seconds * fs).round() as usize) | 1;
+            if w > 1 && w < n {
+                crate::spectral::remove_moving_average(&series.y, w, &mut data.y);
+            }
+        }
+    }
+    data
+}
+
+/// What the model-free analysis of the (pre-processed) window found.
+struct ModelFree {
+    /// The options the window was analysed with (the prediction is analysed the same way).
+    window_options: WindowOptions,
+    /// The full analysis (uniform sampling and a long enough record only).
+    spec: Option<WindowSpectral>,
+    /// Measured dominant angular frequency, rad/s.
+    omega: Option<f64>,
+    /// Envelope growth rate when it is a clean exponential, 1/s.
+    sigma_clean: Option<f64>,
+}
+
+/// The model-free analysis (uniform sampling only), with the analyzer replaced when it does not
+/// fit the window's length and rate.
+fn model_free(data: &TimeSeries, spectral: &mut Option<SpectralAnalyzer>) -> ModelFree {
+    let n = data.len();
+    let fs = data.uniform_step().map(|h| 1.0 / h);
+    let duration = data.t[n - 1] - data.t[0];
+    let window_options = WindowOptions {
+        moving_average: 0,
+        min_freq_hz: MIN_PERIODS / duration.max(f64::MIN_POSITIVE),
+        ..WindowOptions::default()
+    };
+    let fits = |sa: &SpectralAnalyzer| {
+        fs.is_some_and(|fs| sa.len() == n && (sa.rate_hz() - fs).abs() <= 1e-9 * fs)
+    };
+    if !spectral.as_ref().is_some_and(fits) {
+        *spectral = fs.and_then(|fs| SpectralAnalyzer::new(n, fs).ok());
+    }
+    let spec = spectral
+        .as_mut()
+        .and_then(|sa| sa.analyze_window(&data.y, &window_options).ok());
+    // A short record (a few periods) cannot give an envelope growth, but its dominant frequency
+    // still constrains the search.
+    let peak_hz = spec.as_ref().map(|s| s.peak.frequency_hz).or_else(|| {
+        let mut detrended = data.y.clone();
+        crate::spectral::detrend_linear(&mut detrended);
+        spectral
+            .as_mut()
+            .and_then(|sa| {
+                sa.dominant_frequency(&detrended, window_options.min_freq_hz)
+                    .ok()
+            })
+            .map(|p| p.frequency_hz)
+    });
+    let sigma_clean = spec.as_ref().and_then(|s| {
+        let g = &s.growth;
+        (g.stderr < CLEAN_GROWTH_RELATIVE_ERROR * g.sigma.abs() + CLEAN_GROWTH_FLOOR)
+            .then_some(g.sigma)
+    });
+    ModelFree {
+        window_options,
+        spec,
+        omega: peak_hz.map(|f| 2.0 * PI * f),
+        sigma_clean,
+    }
+}
+
+/// Displacement and velocity scales of the problem (steps of the linearisation, bias targets).
+#[derive(Debug, Clone, Copy)]
+struct ProblemScales {
+    /// Displacement, m or the data's unit.
+    y: f64,
+    /// Velocity.
+    v: f64,
+}
+
+/// Scales the problem. Force mode (section 8.5): the pre-run gives the initial conditions, the
+/// identification fits the support force with coefficients scaled by [`term_scales`].
+/// Displacement mode: the data's largest magnitude and the measured frequency.
+fn scale_problem(
+    model: &Model,
+    data: &TimeSeries,
+    opts: &SeriesOptions,
+    free: &ModelFree,
+    config: &mut identify::Config,
+) -> Result<ProblemScales, AnalysisError> {
+    let t0 = data.t[0];
+    match opts.signal {
+        Signal::Force => {
+            let k = opts
+                .stiffness
+                .filter(|k| k.is_finite() && *k > 0.0)
+                .ok_or_else(|| {
+                    AnalysisError::Settings(
+                        "force signals need the installed stiffness (> 0)".into(),
+                    )
+                })?;
+            let w = free.omega.ok_or_else(|| {
+                AnalysisError::Window("no dominant frequency in the window".into())
+            })?;
+            let sigma = free.spec.as_ref().map_or(0.0, |s| s.growth.sigma);
+            let (y0, v0) = pre_run(data, w, sigma, k).ok_or_else(|| {
+                AnalysisError::Window("the pre-run for the initial conditions failed".into())
+            })?;
+            let f_rms = rms(&data.y);
+            if f_rms.is_nan() || f_rms <= 0.0 {
+                return Err(AnalysisError::Window("the signal is constant".into()));
+            }
+            let y_scale = std::f64::consts::SQRT_2 * f_rms / k;
+            config.initial = identify::Initial::Known { y0, v0 };
+            config.output = identify::Output::Force;
+            config.scales = term_scales(model, t0, y_scale, w, f_rms);
+            config.y_scale = Some(y_scale);
+            config.polish_initial = Some((y_scale, y_scale * w));
+            Ok(ProblemScales {
+                y: y_scale,
+                v: y_scale * w,
+            })
+        }
+        Signal::Displacement => {
+            let y_scale = data
+                .y
+                .iter()
+                .fold(0.0f64, |m, v| m.max(v.abs()))
+                .max(f64::MIN_POSITIVE);
+            Ok(ProblemScales {
+                y: y_scale,
+                v: y_scale * free.omega.unwrap_or(1.0),
+            })
+        }
+    }
+}
+
+/// The identified model and where its linearisation was taken.
+struct Fitted<'a> {
+    model: &'a Model,
+    c: &'a [f64],
+    lin: &'a Linearization,
+    t0: f64,
+    signal: Signal,
+}
+
+impl Fitted<'_> {
+    /// Displacement amplitude to the signal's unit (force mode: `K0 * a`).
+    fn signal_of(&self, a: f64) -> f64 {
+        if self.signal == Signal::Force {
+            self.lin.k0.abs() * a
+        } else {
+            a
+        }
+    }
+
+    /// The signal's unit to displacement amplitude.
+    fn displacement_of(&self, s: f64) -> f64 {
+        if self.signal == Signal::Force {
+            s / self.lin.k0.abs()
+        } else {
+            s
+        }
+    }
+}
+
+/// The model's damping figures at the window's amplitude: `zeta_eq`, energy per cycle, limit
+/// cycle, time to the configured limit, the model's frequency. The rest of the report (spectrum,
+/// agreement, verdict) is filled in by the caller.
+fn damping_figures(
+    f: &Fitted<'_>,
+    data: &TimeSeries,
+    trajectory: Option<&[[f64; 2]]>,
+    omega_meas: Option<f64>,
+    opts: &SeriesOptions,
+) -> DampingReport {
+    let (model, c, lin, t0) = (f.model, f.c, f.lin, f.t0);
+    // Amplitude now: the model's largest |y| over its last period.
+    let amplitude = trajectory.and_then(|tr| {
+        let period = 2.0 * PI / lin.omega0().or(omega_meas)?;
+        let t_end = data.t[data.len() - 1];
+        let a = tr
+            .iter()
+            .zip(&data.t)
+            .filter(|(_, &t)| t >= t_end - period)
+            .fold(0.0f64, |m, (s, _)| m.max(s[0].abs()));
+        (a > 0.0).then_some(a)
+    });
+    let eq = amplitude.and_then(|a| equivalent_damping(model, c, lin, a, t0));
+    let limit_cycle_amplitude = match (lin.zeta0(), amplitude) {
+        (Some(z), Some(a)) if z < 0.0 => limit_cycle(model, c, lin, a, t0).map(|a| f.signal_of(a)),
+        _ => None,
+    };
+    let time_to_limit = match (opts.amplitude_limit, amplitude) {
+        (Some(limit), Some(a)) if limit > 0.0 => {
+            time_to_amplitude(model, c, lin, a, f.displacement_of(limit), t0)
+        }
+        _ => None,
+    };
+    DampingReport {
+        zeta_eq: eq.map(|e| e.0),
+        energy_per_cycle: eq.map(|e| e.1),
+        limit_cycle_amplitude,
+        time_to_limit,
+        model_frequency_hz: lin.omega0().map(|w| w / (2.0 * PI)),
+        amplitude: amplitude.map(|a| f.signal_of(a)),
+        ..DampingReport::unknown()
+    }
+}
+
+/// Range of zeta0 over the runs, when there were several.
+fn run_spread(zetas: impl Iterator<Item = f64>) -> Option<(f64, f64)> {
+    let (mut count, mut lo, mut hi) = (0usize, f64::INFINITY, f64::NEG_INFINITY);
+    for z in zetas {
+        count += 1;
+        lo = lo.min(z);
+        hi = hi.max(z);
+    }
+    (count > 1).then_some((lo, hi))
+}
+
+/// Fills in the verdict, `trusted` and `zeta0` with its interval and source from the report's
+/// fit, agreement and ambient estimate ([`decide`]).
+fn conclude(
+    damping: &mut DampingReport,
+    zeta0_model: Option<f64>,
+    model_interval: Option<(f64, f64)>,
+    regime: Option<crate::spectral::Regime>,
+    max_fit_nmae: f64,
+) {
+    let decision = decide(&VerdictFacts {
+        fit_nmae: damping.fit_nmae,
+        max_fit_nmae,
+        agrees: damping.agrees,
+        zeta0_model,
+        ambient: damping.ambient_zeta,
+        regime,
+    });
+    let (zeta0, interval) = match (decision.source, damping.ambient_zeta) {
+        (Zeta0Source::Ambient, Some(a)) => (Some(a.zeta), Some((a.low, a.high))),
+        _ => (zeta0_model, model_interval),
+    };
+    damping.zeta0 = zeta0;
+    damping.zeta0_interval = interval;
+    damping.zeta0_source = zeta0.map(|_| decision.source);
+    damping.trusted = decision.trusted;
+    damping.verdict = decision.verdict;
+}

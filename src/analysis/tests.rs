@@ -1,0 +1,132 @@
+//! Unit tests of the linearisation, the energy balance and the biased population.
+
+use super::*;
+use crate::model::Model;
+use approx::assert_relative_eq;
+
+fn gate_model() -> Model {
+    Model::parse(
+        "c1*ydd + (c2 + c3*yd^2)*yd + k*y = 0",
+        &[("k".to_string(), 81360.0)],
+    )
+    .unwrap()
+}
+
+#[test]
+fn linearization_of_the_gate_model() {
+    let m = gate_model();
+    let lin = Linearization::of(&m, &[19.14, -12.18, 447.3], 0.0, 1e-3, 0.065);
+    assert_relative_eq!(lin.m0, 19.14, max_relative = 1e-12);
+    assert_relative_eq!(lin.c0, -12.18, max_relative = 1e-6);
+    assert_relative_eq!(lin.k0, 81360.0, max_relative = 1e-6);
+    let zeta = -12.18 / (2.0 * (81360.0f64 * 19.14).sqrt());
+    assert_relative_eq!(lin.zeta0().unwrap(), zeta, max_relative = 1e-6);
+    // A rest position without restoring force has no damping ratio.
+    let flat = Linearization {
+        m0: 1.0,
+        c0: 0.1,
+        k0: -1.0,
+    };
+    assert_eq!(flat.zeta0(), None);
+}
+
+#[test]
+fn equivalent_damping_of_cubic_damping_matches_harmonic_balance() {
+    // c_eq(a) = c1 + (3/4) c3 (a w)^2 for (c1 + c3 yd^2) yd.
+    let m = gate_model();
+    let c = [19.14, -12.18, 447.3];
+    let lin = Linearization::of(&m, &c, 0.0, 1e-3, 0.065);
+    let w = lin.omega0().unwrap();
+    for a in [1e-4, 1e-3, 3e-3] {
+        let (z, energy) = equivalent_damping(&m, &c, &lin, a, 0.0).unwrap();
+        let c_eq = -12.18 + 0.75 * 447.3 * (a * w).powi(2);
+        assert_relative_eq!(z, c_eq / (2.0 * 19.14 * w), max_relative = 1e-6);
+        // Energy fed in per cycle: -pi c_eq w a^2.
+        assert_relative_eq!(
+            energy,
+            -std::f64::consts::PI * c_eq * w * a * a,
+            max_relative = 1e-6
+        );
+    }
+    let a_lc = limit_cycle(&m, &c, &lin, 1e-3, 0.0).unwrap();
+    let expected = (4.0f64 * 12.18 / (3.0 * 447.3)).sqrt() / w;
+    assert_relative_eq!(a_lc, expected, max_relative = 1e-6);
+    // Below the limit cycle the amplitude grows towards it but never reaches a limit above it.
+    assert_eq!(
+        time_to_amplitude(&m, &c, &lin, 1e-3, 2.0 * expected, 0.0),
+        None
+    );
+    // Without the cubic term it grows exponentially: t = ln(limit/now) / sigma.
+    let linear = [19.14, -12.18, 0.0];
+    let t = time_to_amplitude(&m, &linear, &lin, 1e-3, 1e-2, 0.0).unwrap();
+    let sigma = 12.18 / (2.0 * 19.14);
+    assert_relative_eq!(t, 10f64.ln() / sigma, max_relative = 1e-3);
+    assert_eq!(limit_cycle(&m, &linear, &lin, 1e-3, 0.0), None);
+}
+
+#[test]
+fn biased_population_satisfies_the_spectral_constraints() {
+    let m = gate_model();
+    let scales = [19.0, 40.0, 1000.0];
+    let w = 2.0 * std::f64::consts::PI * 10.38;
+    let target = SpectralTarget {
+        omega: w,
+        sigma: Some(0.3),
+    };
+    let pop = biased_population(&m, &scales, target, 20, 7, 0.0, 1e-3, 0.065);
+    assert_eq!(pop.len(), 20);
+    for x in &pop {
+        let c: Vec<f64> = x.iter().zip(&scales).map(|(x, s)| x * s).collect();
+        let lin = Linearization::of(&m, &c, 0.0, 1e-3, 0.065);
+        assert_relative_eq!(lin.k0 / lin.m0, w * w, max_relative = 1e-6);
+        assert_relative_eq!(lin.c0 / lin.m0, -0.6, epsilon = 1e-6);
+    }
+    // The coordinates the constraints leave free stay spread out.
+    let c3: Vec<f64> = pop.iter().map(|x| x[2]).collect();
+    let spread =
+        c3.iter().cloned().fold(f64::MIN, f64::max) - c3.iter().cloned().fold(f64::MAX, f64::min);
+    assert!(spread > 0.5, "{c3:?}");
+}
+
+#[test]
+fn zeta0_source_and_ambient_zeta_serialise_as_before() {
+    // The API and `identify --json` showed `zeta0_source` as a string (or null) and
+    // `ambient_zeta` as an array `[zeta, low, high]` when they were `Option<String>` and a tuple.
+    let report = DampingReport {
+        zeta0: Some(0.01),
+        zeta0_source: Some(Zeta0Source::Ambient),
+        ambient_zeta: Some(AmbientZeta {
+            zeta: 0.01,
+            low: 0.005,
+            high: 0.015,
+        }),
+        // `unknown()`'s infinite NMAE serialises as null, which does not read back as an f64.
+        fit_nmae: 0.5,
+        ..DampingReport::unknown()
+    };
+    let json = serde_json::to_value(&report).unwrap();
+    assert_eq!(json["zeta0_source"], serde_json::json!("ambient"));
+    assert_eq!(
+        json["ambient_zeta"],
+        serde_json::json!([0.01, 0.005, 0.015])
+    );
+    assert_eq!(json["verdict"], serde_json::json!("unknown"));
+    let back: DampingReport = serde_json::from_value(json).unwrap();
+    assert_eq!(back.ambient_zeta, report.ambient_zeta);
+    assert_eq!(back.zeta0_source, report.zeta0_source);
+
+    for (source, name) in [
+        (Zeta0Source::Model, "model"),
+        (Zeta0Source::Ambient, "ambient"),
+    ] {
+        assert_eq!(
+            serde_json::to_value(source).unwrap(),
+            serde_json::json!(name)
+        );
+        assert_eq!(source.as_str(), name);
+        assert_eq!(source.to_string(), name);
+    }
+    let none = serde_json::to_value(DampingReport::unknown()).unwrap();
+    assert!(none["zeta0_source"].is_null());
+    assert!(none["ambient_zeta"].is_null());
+}

@@ -1,0 +1,121 @@
+//! The model-free regime of a window (self-excited, limit cycle, damped, undecided) and the
+//! options and result of the whole window analysis.
+
+use super::{AmbientDamping, ArOptions, GrowthOptions, GrowthRate, Peak};
+
+/// Model-free regime of a window.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Regime {
+    /// The envelope grows significantly, or the ambient damping is significantly negative.
+    SelfExcited,
+    /// Self-excited and saturated: a nearly constant envelope (CV far below the Rayleigh value of
+    /// a noise-driven response) with an ambient damping interval reaching zero or below.
+    LimitCycle,
+    /// The ambient damping is significantly positive, the envelope neither grows nor looks like a
+    /// limit cycle.
+    Damped,
+    /// None of the above: too little evidence either way.
+    Undecided,
+}
+
+/// Thresholds of [`classify`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ClassifyOptions {
+    /// The envelope grows significantly when `sigma - k * stderr > min_growth_rate`; this is `k`.
+    pub growth_sigmas: f64,
+    /// Minimum growth rate to call self-excitation, 1/s (guards against tiny, irrelevant growth).
+    pub min_growth_rate: f64,
+    /// Damped requires `zeta_low` above this (a small positive margin keeps a limit cycle, whose
+    /// damping estimate sits near zero, out of `Damped`).
+    pub min_damped_zeta: f64,
+    /// A limit cycle has an envelope CV below this (Rayleigh: 0.52).
+    pub max_limit_cycle_cv: f64,
+    /// ... and an ambient `zeta_low` below this (its equivalent damping is zero).
+    pub max_limit_cycle_zeta: f64,
+}
+
+impl Default for ClassifyOptions {
+    fn default() -> Self {
+        ClassifyOptions {
+            growth_sigmas: 3.0,
+            min_growth_rate: 0.02,
+            min_damped_zeta: 0.001,
+            max_limit_cycle_cv: 0.3,
+            max_limit_cycle_zeta: 0.002,
+        }
+    }
+}
+
+/// Classifies a window from its envelope growth and (optional) ambient damping, in this order:
+/// self-excited if the envelope grows significantly (`sigma - k se > min_growth_rate`) or the
+/// whole ambient interval is below zero; limit cycle if the envelope CV is below
+/// `max_limit_cycle_cv` and the ambient `zeta_low` below `max_limit_cycle_zeta` (a noise-driven
+/// response near zero damping also has a large, slowly varying envelope, but a Rayleigh-like CV);
+/// damped if the ambient interval lies above `min_damped_zeta`; otherwise undecided.
+///
+/// Limits: growth is only seen while it happens (seconds at `zeta = -1 %`); a window that saw
+/// nothing but a steady limit cycle relies on the CV test, which needs several envelope
+/// correlation times `1/(|zeta| omega)` in the window and fails near the bifurcation where the
+/// limit cycle is small against the noise.
+pub fn classify(
+    growth: &GrowthRate,
+    ambient: Option<&AmbientDamping>,
+    opts: &ClassifyOptions,
+) -> Regime {
+    let grows = growth.sigma - opts.growth_sigmas * growth.stderr > opts.min_growth_rate;
+    if grows {
+        return Regime::SelfExcited;
+    }
+    match ambient {
+        Some(a) if a.zeta_high < 0.0 => Regime::SelfExcited,
+        Some(a)
+            if growth.envelope_cv < opts.max_limit_cycle_cv
+                && a.zeta_low < opts.max_limit_cycle_zeta =>
+        {
+            Regime::LimitCycle
+        }
+        Some(a) if a.zeta_low > opts.min_damped_zeta => Regime::Damped,
+        _ => Regime::Undecided,
+    }
+}
+
+/// Options of [`SpectralAnalyzer::analyze_window`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WindowOptions {
+    /// Centred moving-average window, samples (`<= 1`: linear detrending instead).
+    pub moving_average: usize,
+    /// Lowest frequency considered for the dominant peak, Hz.
+    pub min_freq_hz: f64,
+    /// Envelope growth options.
+    pub growth: GrowthOptions,
+    /// AR options (the hint is replaced by the dominant frequency).
+    pub ar: ArOptions,
+    /// Classification thresholds.
+    pub classify: ClassifyOptions,
+}
+
+impl Default for WindowOptions {
+    /// 1 s moving average at 200 Hz (~10 periods of the lab gate), 1 Hz floor.
+    fn default() -> Self {
+        WindowOptions {
+            moving_average: 201,
+            min_freq_hz: 1.0,
+            growth: GrowthOptions::default(),
+            ar: ArOptions::default(),
+            classify: ClassifyOptions::default(),
+        }
+    }
+}
+
+/// The model-free analysis of one window.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WindowSpectral {
+    /// Dominant spectral peak.
+    pub peak: Peak,
+    /// Envelope growth.
+    pub growth: GrowthRate,
+    /// Ambient damping (`None` if the AR fit failed).
+    pub ambient: Option<AmbientDamping>,
+    /// The regime.
+    pub regime: Regime,
+}
