@@ -73,8 +73,17 @@ async fn alerts_follow_identifications_and_staleness() {
 async fn configured_gate_without_data_goes_stale() {
     let cfg = Config::from_toml("[server]\nworker_threads = 1\n[gates.silent]\n").unwrap();
     let (_app, state) = app_with(cfg, Arc::new(Fake::default()));
+    // every new gate shows "unknown" anyway: the alert itself is what staleness adds
+    let before = state.gate_view("silent").unwrap();
+    assert!(before.alerts.is_empty(), "{:?}", before.alerts);
     state.tick(std::time::SystemTime::now() + Duration::from_secs(3600));
-    assert_eq!(state.alert_state("silent"), Some("unknown"));
+    let v = state.gate_view("silent").unwrap();
+    assert!(
+        v.alerts.iter().any(|a| a.name == "GateDataStale"),
+        "GateDataStale fires for a configured gate that never sent: {:?}",
+        v.alerts
+    );
+    assert_eq!(v.alert_state, "unknown");
 }
 
 #[tokio::test]

@@ -3,10 +3,13 @@
 
 mod service_common;
 
-use std::sync::Arc;
+use std::sync::{Arc, Barrier};
 
 use axum::body::Body;
 use axum::http::StatusCode;
+use gatewatch::service::config::Config;
+use gatewatch::service::ingest::Batch;
+use gatewatch::service::state::IngestError;
 use serde_json::json;
 
 use service_common::*;
@@ -313,6 +316,48 @@ async fn max_gates_is_enforced() {
         post_json(&app, uniform("a", 1.0, 3)).await.0,
         StatusCode::NO_CONTENT
     );
+}
+
+#[tokio::test]
+async fn max_gates_holds_under_concurrent_new_gates() {
+    // Many requests at once, each creating a new gate: validation and application share one
+    // lock, so exactly `max_gates` are accepted and the others get `TooManyGates`.
+    const MAX: usize = 4;
+    const SENDERS: usize = 32;
+    for round in 0..10 {
+        let (_app, state) = make_app(&format!("max_gates = {MAX}"));
+        let start = Arc::new(Barrier::new(SENDERS));
+        let senders: Vec<_> = (0..SENDERS)
+            .map(|i| {
+                let (state, start) = (state.clone(), start.clone());
+                std::thread::spawn(move || {
+                    let batch = Batch {
+                        gate: format!("c{i}"),
+                        samples: vec![(1000.0, 1.0)],
+                        rate: None,
+                        values_field: "values".into(),
+                        lines: None,
+                    };
+                    start.wait();
+                    state.ingest(vec![batch])
+                })
+            })
+            .collect();
+        let results: Vec<_> = senders.into_iter().map(|h| h.join().unwrap()).collect();
+        let gates = state.gate_ids().len();
+        assert!(gates <= MAX, "round {round}: {gates} gates, bound {MAX}");
+        assert_eq!(results.iter().filter(|r| r.is_ok()).count(), MAX);
+        for r in results.iter().filter_map(|r| r.as_ref().err()) {
+            assert!(matches!(r, IngestError::TooManyGates(_)), "{r:?}");
+        }
+        assert_eq!(
+            metric(
+                &state,
+                "gatewatch_samples_rejected_total{reason=\"too_many_gates\"}"
+            ),
+            (SENDERS - MAX) as f64
+        );
+    }
 }
 
 #[tokio::test]

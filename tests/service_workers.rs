@@ -9,6 +9,8 @@ use std::time::Duration;
 
 use axum::body::Body;
 use axum::http::StatusCode;
+use gatewatch::service::config::Config;
+use gatewatch::service::ingest::Batch;
 use gatewatch::service::worker::{Job, Submitted, WorkerPool};
 
 use service_common::*;
@@ -163,3 +165,59 @@ async fn cadence_is_in_sample_time_whatever_the_replay_speed() {
     assert_eq!(a.len(), 7, "full at 1 s, then every 0.5 s until 4 s");
     assert_eq!(a, b);
 }
+
+#[tokio::test]
+async fn a_day_of_samples_keeps_the_reported_times_true() {
+    // 2026-11-23 00:00 UTC at 200 Hz for a day; the true time of sample i is T0 + i / 200.
+    // Window times derived by adding the period drifted ~82 ms an hour into window_start,
+    // window_end and analysed_until.
+    const T0: f64 = 1_795_392_000.0;
+    const RATE: f64 = 200.0;
+    let cfg = Config::from_toml(
+        "[server]\nworker_threads = 1\nlisten = \"127.0.0.1:0\"\n\
+         [defaults]\nrate_hz = 200.0\nwindow_seconds = 1.0\nidentify_every_seconds = 3600.0\n",
+    )
+    .unwrap();
+    let fake = Arc::new(Fake::default());
+    let (_app, state) = app_with(cfg, fake.clone());
+    let day = 86_400 * 200u64;
+    let chunk = 900 * 200u64; // a quarter of an hour per request
+    let mut i = 0u64;
+    while i < day {
+        let samples = (i..i + chunk).map(|k| (T0 + k as f64 / RATE, 0.0)).collect();
+        let batch = Batch {
+            gate: "g1".into(),
+            samples,
+            rate: None,
+            values_field: "values".into(),
+            lines: None,
+        };
+        state.ingest(vec![batch]).unwrap();
+        i += chunk;
+    }
+    // windows end at sample 200, then every 720 000 samples: the last ends at 200 + 23 * 720 000
+    let last = 200 + 23 * 720_000u64 - 1;
+    let (start, end) = (T0 + (last - 199) as f64 / RATE, T0 + last as f64 / RATE);
+    let tolerance = 0.01 / RATE; // a hundredth of a period
+    wait_until(|| {
+        state
+            .gate_view("g1")
+            .and_then(|v| v.analysed_until)
+            .is_some_and(|t| t > end - 1.0)
+    })
+    .await;
+    let v = state.gate_view("g1").unwrap();
+    let id = v.identification.expect("identified");
+    for (what, got, want) in [
+        ("window_start", id.window_start, start),
+        ("window_end", id.window_end, end),
+        ("analysed_until", v.analysed_until.unwrap(), end),
+    ] {
+        assert!(
+            (got - want).abs() < tolerance,
+            "{what}: {got} instead of {want} ({} s off)",
+            got - want
+        );
+    }
+}
+
