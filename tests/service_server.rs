@@ -207,8 +207,43 @@ async fn readiness_and_graceful_shutdown_with_a_job_in_flight() {
 }
 
 #[tokio::test]
+async fn shutdown_with_everything_stuck_takes_one_grace_period() {
+    // A worker stuck in the numerics and an HTTP request that never completes: every drain
+    // shares one deadline, so the shutdown takes one grace period (2 s), not one per drain
+    // (which took 4 s and more). The bound is generous: one grace period plus 1 s of slack.
+    use tokio::io::AsyncWriteExt;
+    let fake = Arc::new(Fake {
+        sleep: Duration::from_secs(30),
+        ..Default::default()
+    });
+    let r = start("", fake.clone()).await;
+    let c = reqwest::Client::new();
+    let resp = c
+        .post(format!("http://{}/api/v1/samples", r.http))
+        .body(uniform("g1", 0.0, 100).to_string())
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(resp.status(), 204);
+    wait_until(|| !fake.calls.lock().unwrap().is_empty()).await;
+    let mut hold = tokio::net::TcpStream::connect(r.http).await.unwrap();
+    hold.write_all(b"POST /api/v1/samples HTTP/1.1\r\nhost: x\r\ncontent-length: 1000\r\n\r\n{")
+        .await
+        .unwrap();
+    tokio::time::sleep(Duration::from_millis(50)).await;
+    let began = std::time::Instant::now();
+    stop(r).await;
+    let took = began.elapsed();
+    assert!(
+        took < Duration::from_secs(3),
+        "shutdown took {took:?}, more than one grace period (2 s) plus slack"
+    );
+    drop(hold);
+}
+
+#[tokio::test]
 async fn simulate_client_streams_through_every_protocol() {
-    use gatewatch::service::cli::{
+    use gatewatch::service::client::{
         simulate_with_source, simulator, Protocol, Scenario, SimulateArgs,
     };
     let fake = Arc::new(Fake::default());
@@ -289,7 +324,7 @@ async fn simulate_client_streams_through_every_protocol() {
 
 #[test]
 fn simulate_scenarios_map_to_the_simulator_and_are_reproducible() {
-    use gatewatch::service::cli::{simulator, Protocol, Scenario, SimulateArgs};
+    use gatewatch::service::client::{simulator, Protocol, Scenario, SimulateArgs};
     let args = |scenario| SimulateArgs {
         url: String::new(),
         tcp_addr: String::new(),
@@ -334,7 +369,7 @@ fn simulate_scenarios_map_to_the_simulator_and_are_reproducible() {
 async fn real_analyzers_never_take_the_daemon_down() {
     // `server::run` with the real per-gate analyzers: whatever the numerics do (succeed, refuse,
     // or panic while unfinished), the daemon keeps serving and reports the outcome.
-    gatewatch::service::cli::ensure_crypto_provider();
+    gatewatch::service::client::ensure_crypto_provider();
     let cfg = Config::from_toml(
         "[server]\nworker_threads = 1\nlisten = \"127.0.0.1:0\"\nshutdown_grace_seconds = 1.0\n\
          [defaults]\nrate_hz = 100.0\nwindow_seconds = 1.0\npopulation = 8\ngenerations = 5\n",

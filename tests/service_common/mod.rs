@@ -183,7 +183,7 @@ pub struct Running {
 }
 
 pub async fn start(extra: &str, fake: Arc<Fake>) -> Running {
-    gatewatch::service::cli::ensure_crypto_provider();
+    gatewatch::service::client::ensure_crypto_provider();
     let cfg = config(&format!(
         "tcp_listen = \"127.0.0.1:0\"\nshutdown_grace_seconds = 2.0\n{extra}"
     ));
