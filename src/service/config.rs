@@ -94,7 +94,8 @@ pub struct ServerConfig {
     pub job_queue: usize,
     /// Most simultaneous raw TCP connections.
     pub max_tcp_connections: usize,
-    /// Seconds given to in-flight jobs and pending notifications at shutdown.
+    /// Seconds from the stop signal to the end of the shutdown: open requests, in-flight jobs and
+    /// pending notifications share this one deadline (see `server.rs`).
     pub shutdown_grace_seconds: f64,
     /// Unknown gates get `[defaults]` (true) or are refused with 404 (false).
     pub accept_unknown_gates: bool,
