@@ -184,7 +184,9 @@ async fn a_day_of_samples_keeps_the_reported_times_true() {
     let chunk = 900 * 200u64; // a quarter of an hour per request
     let mut i = 0u64;
     while i < day {
-        let samples = (i..i + chunk).map(|k| (T0 + k as f64 / RATE, 0.0)).collect();
+        let samples = (i..i + chunk)
+            .map(|k| (T0 + k as f64 / RATE, 0.0))
+            .collect();
         let batch = Batch {
             gate: "g1".into(),
             samples,
@@ -220,4 +222,3 @@ async fn a_day_of_samples_keeps_the_reported_times_true() {
         );
     }
 }
-

@@ -19,7 +19,9 @@ use serde_json::Value;
 use tokio::net::TcpListener;
 use tokio::sync::mpsc;
 
-use super::client::{ensure_crypto_provider, simulate_with_source, Protocol, Scenario, SimulateArgs};
+use super::client::{
+    ensure_crypto_provider, simulate_with_source, Protocol, Scenario, SimulateArgs,
+};
 use super::clock::now_unix;
 use super::config::Config;
 use crate::alert::notify::WebhookTarget;

@@ -328,7 +328,8 @@ impl AppState {
                         .with_label_values(&[g])
                         .inc_by(stats.gaps);
                 }
-                self.metrics.reject(RejectReason::Duplicate, stats.duplicate);
+                self.metrics
+                    .reject(RejectReason::Duplicate, stats.duplicate);
                 self.metrics
                     .reject(RejectReason::OutOfOrder, stats.out_of_order);
                 // only the newest due window matters: older ones are replaced before queueing
@@ -387,12 +388,18 @@ impl AppState {
         let mut new_gates: Vec<&str> = Vec::new();
         for b in batches {
             let Some(cfg) = self.config.gate(&b.gate) else {
-                return Err((RejectReason::UnknownGate, IngestError::UnknownGate(b.gate.clone())));
+                return Err((
+                    RejectReason::UnknownGate,
+                    IngestError::UnknownGate(b.gate.clone()),
+                ));
             };
             if !inner.gates.contains_key(&b.gate) && !new_gates.contains(&b.gate.as_str()) {
                 new_gates.push(&b.gate);
                 if inner.gates.len() + new_gates.len() > self.config.server.max_gates {
-                    return Err((RejectReason::TooManyGates, IngestError::TooManyGates(b.gate.clone())));
+                    return Err((
+                        RejectReason::TooManyGates,
+                        IngestError::TooManyGates(b.gate.clone()),
+                    ));
                 }
             }
             for (i, (t, v)) in b.samples.iter().enumerate() {

@@ -80,7 +80,10 @@ struct BadLines {
 impl BadLines {
     fn record(&mut self, line: usize, msg: &str) {
         self.count += 1;
-        if self.last_log.is_none_or(|t| t.elapsed() >= BAD_LINE_LOG_INTERVAL) {
+        if self
+            .last_log
+            .is_none_or(|t| t.elapsed() >= BAD_LINE_LOG_INTERVAL)
+        {
             tracing::warn!(peer = ?self.peer, line, bad_lines = self.count, error = %msg, "bad line on tcp listener");
             self.last_log = Some(Instant::now());
         }
@@ -152,7 +155,11 @@ async fn skip_line(reader: &mut BufReader<TcpStream>) {
     let mut sink = Vec::new();
     loop {
         sink.clear();
-        match (&mut *reader).take(64 * 1024).read_until(b'\n', &mut sink).await {
+        match (&mut *reader)
+            .take(64 * 1024)
+            .read_until(b'\n', &mut sink)
+            .await
+        {
             Ok(0) => break,
             Ok(_) if sink.ends_with(b"\n") => break,
             Ok(_) => continue,
@@ -207,11 +214,7 @@ fn process_lines(state: &AppState, bytes: &[u8], first_line: usize) -> Vec<(usiz
 
 /// Parses and applies one line; `Some((reason, message))` when it is refused (`reason` is
 /// `None` when `AppState::ingest` already counted it).
-fn process(
-    state: &AppState,
-    raw: &[u8],
-    line_no: usize,
-) -> Option<(Option<RejectReason>, String)> {
+fn process(state: &AppState, raw: &[u8], line_no: usize) -> Option<(Option<RejectReason>, String)> {
     let bad_line = |msg: String| Some((Some(RejectReason::BadLine), msg));
     let Ok(text) = std::str::from_utf8(raw) else {
         return bad_line("invalid UTF-8".into());

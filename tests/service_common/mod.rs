@@ -240,4 +240,3 @@ pub fn promtool() -> Option<std::path::PathBuf> {
     }
     found
 }
-

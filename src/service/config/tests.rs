@@ -61,9 +61,7 @@ fn errors_name_the_key() {
     assert!(err("[gates.g1]\nrte_hz = 1.0\n").starts_with("gates.g1: unknown field `rte_hz`"));
     assert!(err("[server]\nlisten_addr = \"x\"\n").contains("unknown field `listen_addr`"));
     assert!(err("[bogus]\n").contains("unknown field `bogus`"));
-    assert!(
-        err("[gates.g1.alert]\nfor_windows = 0\n").starts_with("gates.g1.alert.for_windows")
-    );
+    assert!(err("[gates.g1.alert]\nfor_windows = 0\n").starts_with("gates.g1.alert.for_windows"));
     assert!(err("[gates.g1.alert]\nsevrity = \"x\"\n").contains("sevrity"));
     assert!(err("[server]\nlisten = \"nope\"\n").starts_with("server.listen:"));
     assert!(err("[server]\nmax_gates = 0\n").starts_with("server.max_gates:"));
