@@ -18,10 +18,11 @@
 //! - [`demo`]: `gatewatch demo`, daemon + webhook receiver + simulated gate in one process.
 //! - [`clock`], [`sync`]: Unix seconds and the poison-tolerant lock, shared by the above.
 //!
-//! Imports go one way (no circle): `cli` -> `server`, `demo`, `client`; `demo`, `bench` ->
-//! `server`, `client`; `server` -> `api`, `tcp`, `state`, `worker`; `api`, `tcp` -> `state`,
-//! `ingest`, `metrics`; `state` -> `worker`, `window`, `ingest`, `metrics`, `config`;
-//! `ingest`, `worker` -> `config`; and `clock`, `sync` import nothing of the service.
+//! Imports go one way (no circle): `cli` -> `server`, `demo`, `client`, `shutdown`; `demo`,
+//! `bench` -> `server`, `client`; `server` -> `api`, `tcp`, `state`, `worker`; `api`, `tcp` ->
+//! `state`, `ingest`, `metrics`; `state` -> `worker`, `window`, `ingest`, `metrics`, `config`;
+//! `ingest`, `worker` -> `config`; and `config`, `window`, `clock`, `sync` import nothing of
+//! the service.
 
 pub mod api;
 pub mod bench;
