@@ -49,6 +49,40 @@ async fn tcp_listener_keeps_the_connection_after_bad_lines() {
 }
 
 #[tokio::test]
+async fn a_tcp_burst_is_applied_whole_and_in_order() {
+    // 10 000 lines (about 400 KB, over MAX_BATCH_BYTES) in one write: they reach the blocking pool in
+    // one or more batches, each line applied on its own and in order (none out of order).
+    use tokio::io::AsyncWriteExt;
+    let r = start("", Arc::new(Fake::default())).await;
+    let mut s = tokio::net::TcpStream::connect(r.tcp).await.unwrap();
+    let mut burst = String::new();
+    for i in 0..10_000u64 {
+        burst.push_str(&format!(
+            "m,gate=burst force={i} {}\n",
+            1_000_000_000_000u64 + i * 10_000_000
+        ));
+    }
+    s.write_all(burst.as_bytes()).await.unwrap();
+    s.flush().await.unwrap();
+    let addr = r.http;
+    tokio::time::timeout(Duration::from_secs(20), async {
+        while !get(addr, "/api/v1/gates/burst")
+            .await
+            .1
+            .contains("\"samples_total\":10000")
+        {
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    })
+    .await
+    .expect("every line ingested");
+    let (_, m) = get(addr, "/metrics").await;
+    assert!(!m.contains("gatewatch_samples_rejected_total{"), "{m}");
+    drop(s);
+    stop(r).await;
+}
+
+#[tokio::test]
 async fn tcp_connection_limit() {
     use tokio::io::{AsyncReadExt, AsyncWriteExt};
     let r = start("max_tcp_connections = 1", Arc::new(Fake::default())).await;
