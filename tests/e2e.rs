@@ -11,7 +11,7 @@
 use std::net::SocketAddr;
 use std::time::Duration;
 
-use gatewatch::service::cli::{simulate_with_source, Protocol, Scenario, SimulateArgs};
+use gatewatch::service::client::{simulate_with_source, Protocol, Scenario, SimulateArgs};
 use gatewatch::service::config::Config;
 use gatewatch::service::server::{run, Listeners};
 use gatewatch::simulate::{GateParams, GateSimulator, ZetaSchedule};
@@ -121,7 +121,7 @@ struct Daemon {
 }
 
 async fn daemon(hook: SocketAddr, gate_toml: &str) -> Daemon {
-    gatewatch::service::cli::ensure_crypto_provider();
+    gatewatch::service::client::ensure_crypto_provider();
     let cfg = Config::from_toml(&format!(
         "[server]\nlisten = \"127.0.0.1:0\"\nworker_threads = 1\nshutdown_grace_seconds = 5.0\n\
          [notify]\ninitial_backoff_ms = 50\nmax_backoff_ms = 500\n\

@@ -1,7 +1,7 @@
 //! HTTP routes, bearer-token authentication, request metrics and the one error type.
 
 use std::sync::Arc;
-use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+use std::time::{Duration, Instant};
 
 use axum::body::Bytes;
 use axum::error_handling::HandleErrorLayer;
@@ -12,11 +12,12 @@ use axum::middleware::{self, Next};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use axum::{Json, Router};
-use serde::Deserialize;
 use tower::ServiceBuilder;
 
+use super::clock::now_unix;
 use super::config::{Precision, DEFAULT_RETRY_AFTER_SECONDS};
 use super::ingest::{json, line_protocol, BadRequest};
+use super::metrics::RejectReason;
 use super::state::{AppState, IngestError};
 
 /// The one error type of the HTTP API: 4xx precise, 5xx generic (detail logged).
@@ -97,16 +98,18 @@ impl IntoResponse for HttpError {
 fn body(state: &AppState, b: Result<Bytes, BytesRejection>) -> Result<Bytes, HttpError> {
     b.map_err(|r| {
         if r.status() == StatusCode::PAYLOAD_TOO_LARGE {
-            state
-                .metrics
-                .samples_rejected
-                .with_label_values(&["body_too_large"])
-                .inc();
+            state.metrics.reject(RejectReason::BodyTooLarge, 1);
             HttpError::PayloadTooLarge(state.config.server.body_limit_bytes)
         } else {
             HttpError::BadRequest(BadRequest::new(format!("cannot read body: {r}")))
         }
     })
+}
+
+/// A request body that cannot be parsed: counted once (no sample could be read), answered 400.
+fn invalid(state: &AppState, e: BadRequest) -> HttpError {
+    state.metrics.reject(RejectReason::Invalid, 1);
+    HttpError::BadRequest(e)
 }
 
 /// Runs parsing and ingestion (CPU work proportional to the body, up to the body limit) on the
@@ -130,11 +133,7 @@ async fn ingest_limit(State(state): State<Arc<AppState>>, req: Request, next: Ne
             resp
         }
         Err(_) => {
-            state
-                .metrics
-                .samples_rejected
-                .with_label_values(&["overloaded"])
-                .inc();
+            state.metrics.reject(RejectReason::Overloaded, 1);
             HttpError::Overloaded.into_response()
         }
     }
@@ -146,23 +145,11 @@ async fn post_samples(
 ) -> Result<StatusCode, HttpError> {
     let bytes = body(&state, b)?;
     blocking(move || {
-        let batches = json::parse(&bytes).map_err(|e| {
-            state
-                .metrics
-                .samples_rejected
-                .with_label_values(&["invalid"])
-                .inc();
-            HttpError::BadRequest(e)
-        })?;
+        let batches = json::parse(&bytes).map_err(|e| invalid(&state, e))?;
         state.ingest(batches)?;
         Ok(StatusCode::NO_CONTENT)
     })
     .await
-}
-
-#[derive(Debug, Deserialize)]
-struct WriteParams {
-    precision: Option<String>,
 }
 
 async fn post_write(
@@ -171,10 +158,7 @@ async fn post_write(
     b: Result<Bytes, BytesRejection>,
 ) -> Result<StatusCode, HttpError> {
     // other InfluxDB parameters (db, org, bucket, rp) are accepted and ignored
-    let p = WriteParams {
-        precision: params.get("precision").cloned(),
-    };
-    let precision = match p.precision.as_deref() {
+    let precision = match params.get("precision").map(String::as_str) {
         None => Precision::Ns,
         Some(s) => Precision::parse(s).ok_or_else(|| {
             HttpError::BadRequest(
@@ -185,22 +169,11 @@ async fn post_write(
     };
     let bytes = body(&state, b)?;
     blocking(move || {
-        let invalid = |e: BadRequest| {
-            state
-                .metrics
-                .samples_rejected
-                .with_label_values(&["invalid"])
-                .inc();
-            HttpError::BadRequest(e)
-        };
         let text = std::str::from_utf8(&bytes)
-            .map_err(|e| invalid(BadRequest::new(format!("body is not UTF-8: {e}"))))?;
-        let lines = line_protocol::parse(text).map_err(|e| invalid(e.into()))?;
+            .map_err(|e| invalid(&state, BadRequest::new(format!("body is not UTF-8: {e}"))))?;
+        let lines = line_protocol::parse(text).map_err(|e| invalid(&state, e.into()))?;
         let cfg = &state.config.ingest;
-        let now = SystemTime::now()
-            .duration_since(UNIX_EPOCH)
-            .map(|d| d.as_secs_f64())
-            .unwrap_or(0.0);
+        let now = now_unix();
         let batches = line_protocol::to_batches(
             &lines,
             &line_protocol::Mapping {
@@ -210,7 +183,7 @@ async fn post_write(
                 now,
             },
         )
-        .map_err(invalid)?;
+        .map_err(|e| invalid(&state, e))?;
         state.ingest(batches)?;
         Ok(StatusCode::NO_CONTENT)
     })

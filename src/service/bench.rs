@@ -366,7 +366,7 @@ async fn capacity_run(
 }
 
 async fn bench(args: BenchDaemonArgs) -> anyhow::Result<()> {
-    super::cli::ensure_crypto_provider();
+    super::client::ensure_crypto_provider();
     let skip = |what: &str| args.skip.iter().any(|s| s == what);
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
     println!("gatewatch bench daemon ({cores} cores)");

@@ -19,7 +19,10 @@ use serde_json::Value;
 use tokio::net::TcpListener;
 use tokio::sync::mpsc;
 
-use super::cli::{ensure_crypto_provider, simulate_with_source, Protocol, Scenario, SimulateArgs};
+use super::client::{
+    ensure_crypto_provider, simulate_with_source, Protocol, Scenario, SimulateArgs,
+};
+use super::clock::now_unix;
 use super::config::Config;
 use crate::alert::notify::WebhookTarget;
 use crate::simulate::{GateParams, GateSimulator};
@@ -212,10 +215,7 @@ pub async fn run_demo(
     ));
 
     // the simulated gate, through the real ingestion path
-    let start = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map(|d| d.as_secs_f64())
-        .unwrap_or(0.0);
+    let start = now_unix();
     let rate = 200.0;
     let sim_args = SimulateArgs {
         url: base.clone(),

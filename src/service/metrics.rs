@@ -57,6 +57,51 @@ pub struct Metrics {
     pub tcp_connections_rejected: IntCounter,
 }
 
+/// Why samples were rejected or dropped: the `reason` label of
+/// `gatewatch_samples_rejected_total`. An enum, so the label values are bounded by code and
+/// every place that rejects counts the same way ([`Metrics::reject`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RejectReason {
+    /// Unparseable request body (JSON, line protocol, not UTF-8).
+    Invalid,
+    /// Body over `server.body_limit_bytes`.
+    BodyTooLarge,
+    /// More than `server.max_concurrent_ingest` ingestion requests at once.
+    Overloaded,
+    /// Gate not configured while `accept_unknown_gates = false`.
+    UnknownGate,
+    /// A new gate beyond `server.max_gates`.
+    TooManyGates,
+    /// A non-finite time or value.
+    NonFinite,
+    /// Declared or implied rate more than 1 % off the gate's `rate_hz`.
+    RateMismatch,
+    /// Within half a period of the newest sample.
+    Duplicate,
+    /// Older than the newest sample.
+    OutOfOrder,
+    /// A raw TCP line that cannot be parsed or is too long.
+    BadLine,
+}
+
+impl RejectReason {
+    /// The label value.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            RejectReason::Invalid => "invalid",
+            RejectReason::BodyTooLarge => "body_too_large",
+            RejectReason::Overloaded => "overloaded",
+            RejectReason::UnknownGate => "unknown_gate",
+            RejectReason::TooManyGates => "too_many_gates",
+            RejectReason::NonFinite => "non_finite",
+            RejectReason::RateMismatch => "rate_mismatch",
+            RejectReason::Duplicate => "duplicate",
+            RejectReason::OutOfOrder => "out_of_order",
+            RejectReason::BadLine => "bad_line",
+        }
+    }
+}
+
 /// Alert states exported in `gatewatch_alert_state`.
 pub const ALERT_STATES: &[&str] = &["ok", "pending", "firing", "resolved", "unknown"];
 
@@ -219,6 +264,16 @@ impl Metrics {
         TextEncoder::new().format_type().to_string()
     }
 
+    /// Counts `n` samples (or requests, where no sample could be read) rejected for `reason`
+    /// in `gatewatch_samples_rejected_total`; nothing when `n` is 0.
+    pub fn reject(&self, reason: RejectReason, n: u64) {
+        if n > 0 {
+            self.samples_rejected
+                .with_label_values(&[reason.as_str()])
+                .inc_by(n);
+        }
+    }
+
     /// Sets `gatewatch_alert_state{gate,*}`: 1 for `state`, 0 for the others.
     pub fn set_alert_state(&self, gate: &str, state: &str) {
         for s in ALERT_STATES {
@@ -243,7 +298,7 @@ pub struct NotificationCounts {
 impl NotificationCounts {
     /// Adds what the notifier counted since the last call to `gatewatch_notifications_total`.
     pub fn sync(&self, metrics: &Metrics, now: crate::alert::notify::StatsSnapshot) {
-        let mut last = self.last.lock().unwrap_or_else(|p| p.into_inner());
+        let mut last = super::sync::lock(&self.last);
         for (outcome, new, old) in [
             ("delivered", now.delivered, last.delivered),
             ("failed", now.failed, last.failed),

@@ -3,21 +3,32 @@
 //! alerts, and the `serve`, `check-config` and `simulate` commands.
 //!
 //! - [`config`]: TOML configuration, environment overrides, validation naming the key.
-//! - [`ingest`]: request formats ([`ingest::json`], [`ingest::line_protocol`]) and the raw
-//!   TCP listener ([`ingest::tcp`]).
+//! - [`ingest`]: request formats ([`ingest::json`], [`ingest::line_protocol`]), pure parsing.
 //! - [`window`]: the ring buffer of a gate and the sample-time cadence.
 //! - [`worker`]: `WindowAnalyzer`, the worker pool and its replace-don't-queue scheduler.
 //! - [`state`]: the shared state; the only user of the alert engine ([`crate::alert`]) and of
 //!   its notifier.
-//! - [`metrics`]: the Prometheus metrics.
+//! - [`metrics`]: the Prometheus metrics and the rejection reasons.
 //! - [`api`]: routes, authentication, `HttpError`.
-//! - [`server`]: `run`; [`shutdown`]: signals; [`cli`]: command-line entry points.
+//! - [`server`]: `run`, the HTTP listener and the one-deadline shutdown; [`tcp`]: the raw TCP
+//!   listener; [`shutdown`]: signals.
+//! - [`cli`]: command-line entry points; [`client`]: the simulate client (talks to a daemon
+//!   over the network only, and installs the TLS crypto provider its HTTP client needs).
 //! - [`bench`]: `gatewatch bench daemon`, load measurements.
 //! - [`demo`]: `gatewatch demo`, daemon + webhook receiver + simulated gate in one process.
+//! - [`clock`], [`sync`]: Unix seconds and the poison-tolerant lock, shared by the above.
+//!
+//! Imports go one way (no circle): `cli` -> `server`, `demo`, `client`, `shutdown`; `demo`,
+//! `bench` -> `server`, `client`; `server` -> `api`, `tcp`, `state`, `worker`; `api`, `tcp` ->
+//! `state`, `ingest`, `metrics`; `state` -> `worker`, `window`, `ingest`, `metrics`, `config`;
+//! `ingest`, `worker` -> `config`; and `config`, `window`, `clock`, `sync` import nothing of
+//! the service.
 
 pub mod api;
 pub mod bench;
 pub mod cli;
+pub mod client;
+pub mod clock;
 pub mod config;
 pub mod demo;
 pub mod ingest;
@@ -25,6 +36,8 @@ pub mod metrics;
 pub mod server;
 pub mod shutdown;
 pub mod state;
+pub mod sync;
+pub mod tcp;
 pub mod window;
 pub mod worker;
 

@@ -1,25 +1,33 @@
 //! The daemon: HTTP server, raw TCP listener, stale-data ticker, worker pool; graceful shutdown.
 //!
-//! Shutdown order: stop accepting (HTTP and TCP), let in-flight requests finish, abandon pending
-//! identification jobs and give in-flight ones `server.shutdown_grace_seconds`, then flush the
-//! notifier within the rest of the grace period.
+//! Shutdown: ONE deadline, `server.shutdown_grace_seconds` after the stop signal, bounds the
+//! whole drain. Stop accepting (HTTP and TCP); in-flight requests and TCP connections finish
+//! until the deadline; pending identification jobs are abandoned and in-flight ones get until
+//! [`NOTIFY_RESERVE`] before the deadline; the notifier flushes until the deadline. Each drain
+//! takes what is left, never a grace period of its own, so the process exits one grace period
+//! after SIGTERM whatever is stuck (the systemd unit's `TimeoutStopSec` relies on it).
 
 use std::future::{Future, IntoFuture};
 use std::sync::atomic::Ordering;
-use std::sync::Arc;
-use std::time::{Duration, Instant, SystemTime};
+use std::sync::{Arc, OnceLock};
+use std::time::{Duration, SystemTime};
 
 use tokio::net::TcpListener;
 use tokio::sync::watch;
+use tokio::time::Instant;
 
 use super::api;
 use super::config::Config;
-use super::ingest::tcp;
 use super::state::AppState;
+use super::tcp;
 use super::worker::{AnalyzerMap, WindowAnalyzer};
 
 /// Interval of the stale-data check.
 pub const STALE_CHECK_INTERVAL: Duration = Duration::from_secs(1);
+
+/// Part of the grace period (at most a quarter of it) the workers leave to the notifier, so an
+/// alert raised by the last identification still goes out before the deadline.
+pub const NOTIFY_RESERVE: Duration = Duration::from_secs(1);
 
 /// Bound listeners (bound by the caller, so tests can use port 0).
 #[derive(Debug)]
@@ -72,10 +80,16 @@ pub async fn run_with_analyzer(
     let grace = Duration::from_secs_f64(config.server.shutdown_grace_seconds);
     let (router, state) = build_app(config, analyzer)?;
     let (stop_tx, stop_rx) = watch::channel(false);
-    tokio::spawn(async move {
-        shutdown.await;
-        let _ = stop_tx.send(true);
-    });
+    // when the stop signal came: the one shutdown deadline is counted from it
+    let stopped_at = Arc::new(OnceLock::new());
+    {
+        let stopped_at = stopped_at.clone();
+        tokio::spawn(async move {
+            shutdown.await;
+            let _ = stopped_at.set(Instant::now());
+            let _ = stop_tx.send(true);
+        });
+    }
 
     let ticker = {
         let state = state.clone();
@@ -109,41 +123,47 @@ pub async fn run_with_analyzer(
             })
             .into_future(),
     );
-    // In-flight requests get the grace period; a client that never finishes its request must
+    // In-flight requests get until the deadline; a client that never finishes its request must
     // not hold the shutdown forever.
     let mut stop = stop_rx.clone();
-    let served: std::io::Result<()> = tokio::select! {
-        r = &mut serve_task => r.unwrap_or_else(|e| Err(std::io::Error::other(e))),
-        _ = async {
-            let _ = stop.wait_for(|s| *s).await;
-            tokio::time::sleep(grace).await;
-        } => {
-            tracing::warn!("HTTP connections still open after the grace period, closing them");
-            serve_task.abort();
-            Ok(())
+    let joined = |r: Result<std::io::Result<()>, tokio::task::JoinError>| {
+        r.unwrap_or_else(|e| Err(std::io::Error::other(e)))
+    };
+    let deadline = || stopped_at.get().copied().unwrap_or_else(Instant::now) + grace;
+    let served = tokio::select! {
+        // drained quickly after the stop signal, or failed before any
+        r = &mut serve_task => joined(r),
+        // (the watch guard is dropped at once: it must not live across the awaits below)
+        _ = async { let _ = stop.wait_for(|s| *s).await; } => {
+            match tokio::time::timeout_at(deadline(), &mut serve_task).await {
+                Ok(r) => joined(r),
+                Err(_) => {
+                    tracing::warn!("HTTP connections still open at the shutdown deadline, closing them");
+                    serve_task.abort();
+                    Ok(())
+                }
+            }
         }
     };
+    let deadline = deadline();
     state.listeners_up.store(false, Ordering::SeqCst);
-    let deadline = Instant::now() + grace;
     if let Some(t) = tcp_task {
-        let _ = tokio::time::timeout(grace, t).await;
+        let _ = tokio::time::timeout_at(deadline, t).await;
     }
     let _ = ticker.await;
+    let workers_until = deadline - NOTIFY_RESERVE.min(grace / 4);
     let (abandoned, clean) = state
         .pool()
-        .shutdown(deadline.saturating_duration_since(Instant::now()))
+        .shutdown(workers_until.saturating_duration_since(Instant::now()))
         .await;
     tracing::info!(
         abandoned_jobs = abandoned,
         workers_stopped = clean,
         "worker pool stopped"
     );
-    // pending notifications get the rest of the grace period (and at least a second, so that
-    // an alert raised by the last identification still goes out)
-    let rest = deadline
-        .saturating_duration_since(Instant::now())
-        .max(Duration::from_secs(1).min(grace));
-    let flushed = state.shutdown_notifier(rest).await;
+    let flushed = state
+        .shutdown_notifier(deadline.saturating_duration_since(Instant::now()))
+        .await;
     tracing::info!(flushed, "alert notifier stopped");
     tracing::info!("shut down");
     served.map_err(|e| anyhow::anyhow!("HTTP server failed: {e}"))

@@ -10,15 +10,16 @@
 
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::{Arc, Mutex, OnceLock, Weak};
-use std::time::{Duration, SystemTime, UNIX_EPOCH};
+use std::sync::{Arc, Mutex, MutexGuard, OnceLock, Weak};
+use std::time::{Duration, SystemTime};
 
 use serde::Serialize;
 
+use super::clock::unix_seconds;
 use super::config::{Config, GateConfig};
 use super::ingest::{BadRequest, Batch};
-use super::metrics::Metrics;
-use super::metrics::NotificationCounts;
+use super::metrics::{Metrics, NotificationCounts, RejectReason};
+use super::sync::lock;
 use super::window::Window;
 use super::worker::{Job, JobOutcome, Submitted, WindowAnalyzer, WorkerPool};
 use crate::alert::notify::{spawn_notifier, NotifierHandle};
@@ -90,16 +91,6 @@ impl std::fmt::Debug for AppState {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("AppState").finish_non_exhaustive()
     }
-}
-
-fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
-    m.lock().unwrap_or_else(|p| p.into_inner())
-}
-
-fn unix(t: SystemTime) -> f64 {
-    t.duration_since(UNIX_EPOCH)
-        .map(|d| d.as_secs_f64())
-        .unwrap_or(0.0)
 }
 
 /// Lower-case name of an alert state (label value of `gatewatch_alert_state`).
@@ -177,8 +168,6 @@ impl AppState {
         let config = Arc::new(config);
         let threads = config.server.effective_worker_threads();
         let queue = config.server.effective_job_queue();
-        // reqwest (in the notifier) is built with rustls but no provider: install it first.
-        super::cli::ensure_crypto_provider();
         let state = Arc::new_cyclic(|weak: &Weak<AppState>| {
             let w = weak.clone();
             let (notifier, task) = spawn_notifier(config.notify.clone(), move || {
@@ -297,27 +286,23 @@ impl AppState {
         self.metrics.render()
     }
 
-    fn reject(&self, reason: &str, n: u64) {
-        if n > 0 {
-            self.metrics
-                .samples_rejected
-                .with_label_values(&[reason])
-                .inc_by(n);
-        }
-    }
-
     /// Validates every batch, then applies them all (or none).
+    ///
+    /// Validation and application happen under ONE lock: the gate bound (`server.max_gates`)
+    /// is checked against the gates that exist when the batches are applied, so concurrent
+    /// requests creating new gates cannot together pass it.
     pub fn ingest(&self, batches: Vec<Batch>) -> Result<IngestSummary, IngestError> {
         let total: u64 = batches.iter().map(|b| b.samples.len() as u64).sum();
-        if let Err((reason, e)) = self.validate(&batches) {
-            self.reject(reason, total);
-            return Err(e);
-        }
         let now = SystemTime::now();
         let mut summary = IngestSummary::default();
         let mut jobs = Vec::new();
         {
             let mut inner = lock(&self.inner);
+            if let Err((reason, e)) = self.validate(&inner, &batches) {
+                drop(inner);
+                self.metrics.reject(reason, total);
+                return Err(e);
+            }
             for batch in batches {
                 let Some(entry) = self.ensure_gate(&mut inner, &batch.gate, now) else {
                     continue; // validated above
@@ -343,8 +328,10 @@ impl AppState {
                         .with_label_values(&[g])
                         .inc_by(stats.gaps);
                 }
-                self.reject("duplicate", stats.duplicate);
-                self.reject("out_of_order", stats.out_of_order);
+                self.metrics
+                    .reject(RejectReason::Duplicate, stats.duplicate);
+                self.metrics
+                    .reject(RejectReason::OutOfOrder, stats.out_of_order);
                 // only the newest due window matters: older ones are replaced before queueing
                 let n_due = due.len() as u64;
                 if let Some(w) = due.into_iter().last() {
@@ -391,18 +378,28 @@ impl AppState {
         }
     }
 
-    /// Checks every batch; on error also gives the `samples_rejected_total` reason.
-    fn validate(&self, batches: &[Batch]) -> Result<(), (&'static str, IngestError)> {
-        let inner = lock(&self.inner);
+    /// Checks every batch against `inner` (the caller holds its lock and applies under the same
+    /// lock); on error also gives the `samples_rejected_total` reason.
+    fn validate(
+        &self,
+        inner: &MutexGuard<'_, Inner>,
+        batches: &[Batch],
+    ) -> Result<(), (RejectReason, IngestError)> {
         let mut new_gates: Vec<&str> = Vec::new();
         for b in batches {
             let Some(cfg) = self.config.gate(&b.gate) else {
-                return Err(("unknown_gate", IngestError::UnknownGate(b.gate.clone())));
+                return Err((
+                    RejectReason::UnknownGate,
+                    IngestError::UnknownGate(b.gate.clone()),
+                ));
             };
             if !inner.gates.contains_key(&b.gate) && !new_gates.contains(&b.gate.as_str()) {
                 new_gates.push(&b.gate);
                 if inner.gates.len() + new_gates.len() > self.config.server.max_gates {
-                    return Err(("too_many_gates", IngestError::TooManyGates(b.gate.clone())));
+                    return Err((
+                        RejectReason::TooManyGates,
+                        IngestError::TooManyGates(b.gate.clone()),
+                    ));
                 }
             }
             for (i, (t, v)) in b.samples.iter().enumerate() {
@@ -415,13 +412,13 @@ impl AppState {
                         Some(lines) => e.line = lines.get(i).copied(),
                         None => e.index = Some(i),
                     }
-                    return Err(("non_finite", IngestError::BadRequest(e)));
+                    return Err((RejectReason::NonFinite, IngestError::BadRequest(e)));
                 }
             }
             if let Some((rate, field)) = &b.rate {
                 if ((rate - cfg.rate_hz) / cfg.rate_hz).abs() > RATE_TOLERANCE {
                     return Err((
-                        "rate_mismatch",
+                        RejectReason::RateMismatch,
                         IngestError::BadRequest(BadRequest::new(format!(
                             "sample rate {rate} Hz disagrees with the configured {} Hz of gate `{}` by more than 1 %",
                             cfg.rate_hz, b.gate
@@ -471,7 +468,7 @@ impl AppState {
                 self.metrics
                     .last_identification
                     .with_label_values(&[g])
-                    .set(unix(now));
+                    .set(unix_seconds(now));
                 let events = inner.alerts.observe(
                     g,
                     &Observation {
@@ -570,7 +567,7 @@ impl AppState {
                 rate_hz: e.config.rate_hz,
             },
             identification: e.latest.as_ref().map(|a| IdentificationView {
-                time: e.last_identification.map(unix).unwrap_or(0.0),
+                time: e.last_identification.map(unix_seconds).unwrap_or(0.0),
                 window_start: e.latest_window.map(|w| w.0).unwrap_or(0.0),
                 window_end: e.latest_window.map(|w| w.1).unwrap_or(0.0),
                 equation: a.equation.clone(),
@@ -583,31 +580,17 @@ impl AppState {
         })
     }
 
-    /// Whether `GateNegativeDamping` fires for `gate`.
-    pub fn is_firing(&self, gate: &str) -> bool {
-        lock(&self.inner).alerts.is_firing(gate)
-    }
-
-    /// Every firing alert.
-    pub fn firing_alerts(&self) -> Vec<Alert> {
-        lock(&self.inner).alerts.firing()
-    }
-
-    /// The notifier handle (for shutdown).
-    pub fn notifier(&self) -> NotifierHandle {
-        self.notifier.clone()
-    }
-
-    /// Stops the notifier: delivers what is queued (with retries) until `deadline`, then
+    /// Stops the notifier: delivers what is queued (with retries) for at most `within`, then
     /// abandons the rest (counted as dropped). Returns whether everything was handled in time.
-    pub async fn shutdown_notifier(&self, deadline: Duration) -> bool {
-        let started = std::time::Instant::now();
-        let clean = self.notifier.shutdown(deadline).await;
+    /// Returns within `within` (plus scheduling): the dispatcher task is awaited only for what
+    /// is left of it, and one that has not ended by then is left to the process exit.
+    pub async fn shutdown_notifier(&self, within: Duration) -> bool {
+        let deadline = tokio::time::Instant::now() + within;
+        let clean = self.notifier.shutdown(within).await;
         let task = lock(&self.notifier_task).take();
         if let Some(task) = task {
             // after `shutdown` the dispatcher ends promptly (flushed or aborted)
-            let rest = deadline.saturating_sub(started.elapsed()) + Duration::from_secs(1);
-            let _ = tokio::time::timeout(rest, task).await;
+            let _ = tokio::time::timeout_at(deadline, task).await;
         }
         self.notification_counts
             .sync(&self.metrics, self.notifier.stats().snapshot());

@@ -1,0 +1,268 @@
+//! The simulate client: streams a simulated gate to a running daemon over JSON, HTTP line
+//! protocol or raw TCP, honouring `Retry-After`. It talks to the daemon only over the network,
+//! never through its modules (as mini-redis keeps `clients/` apart from `server.rs`), so the
+//! server side can change without it and it can run against any daemon.
+//!
+//! The crypto set-up sits here, next to the HTTP client that needs it.
+
+use std::time::Duration;
+
+use super::clock::now_unix;
+
+/// Scenario of the simulated gate (maps to [`crate::simulate::Scenario`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Scenario {
+    /// Damping ratio +1 % throughout, shaken by turbulent forcing.
+    Stable,
+    /// +2 % for `--onset-hold` s, then a ramp to -2 % over `--onset-ramp` s, then -2 %.
+    Onset,
+    /// -2 % from the start: growth from the noise into a limit cycle.
+    LimitCycle,
+}
+
+/// Protocol the simulator sends with.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Protocol {
+    /// `POST /api/v1/samples`.
+    Json,
+    /// `POST /api/v2/write` line protocol.
+    Line,
+    /// Raw TCP line protocol.
+    Tcp,
+}
+
+/// `gatewatch simulate`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct SimulateArgs {
+    /// Base URL of the daemon.
+    #[arg(long, default_value = "http://127.0.0.1:9464")]
+    pub url: String,
+    /// Address of the raw TCP listener (`--protocol tcp`).
+    #[arg(long, default_value = "127.0.0.1:8094")]
+    pub tcp_addr: String,
+    /// Gate id.
+    #[arg(long, default_value = "g1")]
+    pub gate: String,
+    /// Scenario.
+    #[arg(long, value_enum, default_value = "stable")]
+    pub scenario: Scenario,
+    /// Replay speed (10: ten seconds of samples per second).
+    #[arg(long, default_value_t = 1.0)]
+    pub speed: f64,
+    /// Seconds of sample time to send.
+    #[arg(long, default_value_t = 600.0)]
+    pub duration: f64,
+    /// Random seed.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Protocol.
+    #[arg(long, value_enum, default_value = "json")]
+    pub protocol: Protocol,
+    /// Sample rate, Hz.
+    #[arg(long, default_value_t = 200.0)]
+    pub rate: f64,
+    /// Bearer token.
+    #[arg(long, env = "GATEWATCH_TOKEN")]
+    pub token: Option<String>,
+    /// Seconds of samples per request.
+    #[arg(long, default_value_t = 0.1)]
+    pub chunk_seconds: f64,
+    /// Start time, Unix seconds (default: now).
+    #[arg(long)]
+    pub start: Option<f64>,
+    /// `onset`: seconds of sample time at +2 % damping before the ramp.
+    #[arg(long, default_value_t = 60.0)]
+    pub onset_hold: f64,
+    /// `onset`: seconds of sample time of the ramp from +2 % to -2 % (then -2 %).
+    #[arg(long, default_value_t = 300.0)]
+    pub onset_ramp: f64,
+}
+
+/// Retries of one request answered 429/503 or failing to connect.
+pub const SIMULATE_MAX_RETRIES: u32 = 5;
+/// Longest `Retry-After` honoured, seconds.
+pub const SIMULATE_MAX_RETRY_AFTER: u64 = 30;
+
+/// Installs rustls' ring crypto provider once (reqwest is built with `rustls-no-provider`);
+/// call before building a `reqwest::Client`. Idempotent.
+pub fn ensure_crypto_provider() {
+    static ONCE: std::sync::Once = std::sync::Once::new();
+    ONCE.call_once(|| {
+        // Err means another provider was installed first: fine.
+        let _ = rustls::crypto::ring::default_provider().install_default();
+    });
+}
+
+impl Scenario {
+    /// The simulator's scenario; `Onset` holds `+2 %` for `onset_hold` seconds, then ramps to
+    /// `-2 %` over `onset_ramp` seconds.
+    pub fn to_simulation(self, onset_hold: f64, onset_ramp: f64) -> crate::simulate::Scenario {
+        match self {
+            Scenario::Stable => crate::simulate::Scenario::Stable,
+            Scenario::Onset => crate::simulate::Scenario::Onset {
+                hold_s: onset_hold,
+                ramp_s: onset_ramp,
+            },
+            Scenario::LimitCycle => crate::simulate::Scenario::LimitCycle,
+        }
+    }
+}
+
+/// The simulated gate of `args`: the chapter's lab gate ([`crate::simulate::GateParams`]
+/// defaults: 19.14 kg, 81 360 N/m, 10.4 Hz, force output) sampled at `--rate`, whose damping
+/// follows `--scenario`, seeded with `--seed`.
+pub fn simulator(args: &SimulateArgs) -> anyhow::Result<crate::simulate::GateSimulator> {
+    anyhow::ensure!(
+        args.rate > 0.0 && args.rate.is_finite(),
+        "--rate must be > 0"
+    );
+    anyhow::ensure!(
+        args.onset_hold >= 0.0 && args.onset_hold.is_finite(),
+        "--onset-hold must be >= 0"
+    );
+    anyhow::ensure!(
+        args.onset_ramp >= 0.0 && args.onset_ramp.is_finite(),
+        "--onset-ramp must be >= 0"
+    );
+    let params = crate::simulate::GateParams {
+        rate_hz: args.rate,
+        ..Default::default()
+    };
+    Ok(crate::simulate::GateSimulator::scenario(
+        params,
+        args.scenario
+            .to_simulation(args.onset_hold, args.onset_ramp),
+        args.seed,
+    ))
+}
+
+async fn send_http(
+    client: &reqwest::Client,
+    url: &str,
+    token: Option<&str>,
+    content_type: &str,
+    body: String,
+) -> anyhow::Result<()> {
+    let mut attempt = 0;
+    loop {
+        let mut req = client
+            .post(url)
+            .header("content-type", content_type)
+            .body(body.clone());
+        if let Some(t) = token {
+            req = req.bearer_auth(t);
+        }
+        let wait = match req.send().await {
+            Ok(r) if r.status().is_success() => return Ok(()),
+            Ok(r) if r.status().as_u16() == 429 || r.status().as_u16() == 503 => {
+                let secs = r
+                    .headers()
+                    .get("retry-after")
+                    .and_then(|v| v.to_str().ok())
+                    .and_then(|v| v.parse::<u64>().ok())
+                    .unwrap_or(1)
+                    .min(SIMULATE_MAX_RETRY_AFTER);
+                Duration::from_secs(secs)
+            }
+            Ok(r) => {
+                let status = r.status();
+                let text = r.text().await.unwrap_or_default();
+                anyhow::bail!("{url}: {status}: {text}");
+            }
+            Err(e) if attempt < SIMULATE_MAX_RETRIES => {
+                tracing::warn!(error = %e, "request failed, retrying");
+                Duration::from_millis(500)
+            }
+            Err(e) => return Err(e.into()),
+        };
+        attempt += 1;
+        if attempt > SIMULATE_MAX_RETRIES {
+            anyhow::bail!("{url}: still overloaded after {SIMULATE_MAX_RETRIES} retries");
+        }
+        tokio::time::sleep(wait).await;
+    }
+}
+
+/// Streams `args.duration` seconds of samples from `source` in chunks of `args.chunk_seconds`,
+/// paced at real time / `args.speed` (`speed <= 0`: as fast as possible). Returns the number of
+/// samples sent.
+pub async fn simulate_with_source(
+    args: &SimulateArgs,
+    mut source: impl FnMut(&mut [f64]),
+) -> anyhow::Result<u64> {
+    anyhow::ensure!(
+        args.rate > 0.0 && args.rate.is_finite(),
+        "--rate must be > 0"
+    );
+    anyhow::ensure!(
+        args.duration > 0.0 && args.duration.is_finite(),
+        "--duration must be > 0"
+    );
+    anyhow::ensure!(args.chunk_seconds > 0.0, "--chunk-seconds must be > 0");
+    let start = args.start.unwrap_or_else(now_unix);
+    let total = (args.duration * args.rate).round() as u64;
+    let chunk = ((args.chunk_seconds * args.rate).round() as usize).max(1);
+    ensure_crypto_provider();
+    let client = reqwest::Client::builder()
+        .timeout(Duration::from_secs(30))
+        .build()?;
+    let base = args.url.trim_end_matches('/');
+    let mut tcp = if args.protocol == Protocol::Tcp {
+        Some(tokio::net::TcpStream::connect(&args.tcp_addr).await?)
+    } else {
+        None
+    };
+    let began = tokio::time::Instant::now();
+    let mut sent = 0u64;
+    let mut buf = vec![0.0; chunk];
+    while sent < total {
+        let n = chunk.min((total - sent) as usize);
+        source(&mut buf[..n]);
+        let t0 = start + sent as f64 / args.rate;
+        match args.protocol {
+            Protocol::Json => {
+                let body = serde_json::json!({
+                    "gate": args.gate, "start": t0, "rate_hz": args.rate, "values": &buf[..n],
+                });
+                send_http(
+                    &client,
+                    &format!("{base}/api/v1/samples"),
+                    args.token.as_deref(),
+                    "application/json",
+                    body.to_string(),
+                )
+                .await?;
+            }
+            Protocol::Line | Protocol::Tcp => {
+                let mut body = String::with_capacity(n * 48);
+                for (i, v) in buf[..n].iter().enumerate() {
+                    let ns = ((start + (sent + i as u64) as f64 / args.rate) * 1e9).round() as i64;
+                    body.push_str(&format!("gate,gate={} force={v} {ns}\n", args.gate));
+                }
+                if let Some(s) = tcp.as_mut() {
+                    use tokio::io::AsyncWriteExt;
+                    s.write_all(body.as_bytes()).await?;
+                } else {
+                    send_http(
+                        &client,
+                        &format!("{base}/api/v2/write?precision=ns"),
+                        args.token.as_deref(),
+                        "text/plain",
+                        body,
+                    )
+                    .await?;
+                }
+            }
+        }
+        sent += n as u64;
+        if args.speed > 0.0 {
+            let due = Duration::from_secs_f64(sent as f64 / args.rate / args.speed);
+            tokio::time::sleep_until(began + due).await;
+        }
+    }
+    if let Some(mut s) = tcp {
+        use tokio::io::AsyncWriteExt;
+        s.shutdown().await?;
+    }
+    Ok(sent)
+}

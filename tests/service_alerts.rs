@@ -1,0 +1,192 @@
+//! Alerts, metrics and the read API: alert states from identifications and staleness, the
+//! Prometheus exposition and rules (checked with promtool when present), configuration files.
+
+mod service_common;
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use axum::body::Body;
+use axum::http::StatusCode;
+use gatewatch::service::config::Config;
+use serde_json::json;
+
+use service_common::*;
+
+#[tokio::test]
+async fn alerts_follow_identifications_and_staleness() {
+    let fake = Arc::new(Fake {
+        zeta: vec![0.05, -0.02, -0.03, -0.03],
+        ..Default::default()
+    });
+    let (app, state) = app_with(config(""), fake.clone());
+    let mut sent = 0usize;
+    for k in 0..4 {
+        let n = if k == 0 { 100 } else { 50 };
+        post_json(&app, uniform("g1", sent as f64 / 100.0, n)).await;
+        sent += n;
+        wait_until(|| fake.calls.lock().unwrap().len() == k + 1 && state.pool().in_flight() == 0)
+            .await;
+    }
+    wait_until(|| state.alert_state("g1") == Some("firing")).await;
+    assert_eq!(
+        metric(
+            &state,
+            "gatewatch_alert_state{gate=\"g1\",state=\"firing\"}"
+        ),
+        1.0
+    );
+    assert_eq!(
+        metric(&state, "gatewatch_alert_state{gate=\"g1\",state=\"ok\"}"),
+        0.0
+    );
+    assert!((metric(&state, "gatewatch_damping_ratio{gate=\"g1\"}") + 0.03).abs() < 1e-12);
+    assert!(metric(&state, "gatewatch_notifications_total") >= 1.0);
+    // a dead sensor: stale after stale_after_seconds (default 30 s) without data
+    state.tick(std::time::SystemTime::now() + Duration::from_secs(120));
+    assert_eq!(state.alert_state("g1"), Some("unknown"));
+    assert_eq!(
+        metric(
+            &state,
+            "gatewatch_alert_state{gate=\"g1\",state=\"unknown\"}"
+        ),
+        1.0
+    );
+
+    let (s, v, _) = send(&app, "GET", "/api/v1/gates/g1", Body::empty(), None).await;
+    assert_eq!(s, StatusCode::OK);
+    assert_eq!(v["gate"], "g1");
+    assert_eq!(v["window"]["samples"], 100);
+    assert_eq!(v["window"]["capacity"], 100);
+    assert!(v["identification"]["equation"]
+        .as_str()
+        .unwrap()
+        .contains("ydd"));
+    assert_eq!(v["identification"]["coefficients"]["c2"], 1.0);
+    assert!(v["identification"]["damping"]["zeta0"].as_f64().unwrap() < 0.0);
+    let (s, v, _) = send(&app, "GET", "/api/v1/gates", Body::empty(), None).await;
+    assert_eq!(s, StatusCode::OK);
+    assert_eq!(v["gates"].as_array().unwrap().len(), 1);
+}
+
+#[tokio::test]
+async fn configured_gate_without_data_goes_stale() {
+    let cfg = Config::from_toml("[server]\nworker_threads = 1\n[gates.silent]\n").unwrap();
+    let (_app, state) = app_with(cfg, Arc::new(Fake::default()));
+    // every new gate shows "unknown" anyway: the alert itself is what staleness adds
+    let before = state.gate_view("silent").unwrap();
+    assert!(before.alerts.is_empty(), "{:?}", before.alerts);
+    state.tick(std::time::SystemTime::now() + Duration::from_secs(3600));
+    let v = state.gate_view("silent").unwrap();
+    assert!(
+        v.alerts.iter().any(|a| a.name == "GateDataStale"),
+        "GateDataStale fires for a configured gate that never sent: {:?}",
+        v.alerts
+    );
+    assert_eq!(v.alert_state, "unknown");
+}
+
+#[tokio::test]
+async fn metrics_exposition_is_valid() {
+    let fake = Arc::new(Fake::default());
+    let (app, state) = app_with(config(""), fake.clone());
+    post_json(&app, uniform("g1", 0.0, 100)).await;
+    post_json(
+        &app,
+        json!({"gate": "g1", "start": 0, "rate_hz": 50, "values": [1]}),
+    )
+    .await;
+    wait_until(|| fake.calls.lock().unwrap().len() == 1 && state.pool().in_flight() == 0).await;
+    let (s, v, h) = send(&app, "GET", "/metrics", Body::empty(), None).await;
+    assert_eq!(s, StatusCode::OK);
+    assert!(h["content-type"]
+        .to_str()
+        .unwrap()
+        .starts_with("text/plain"));
+    let text = v.as_str().unwrap().to_string();
+    for name in [
+        "gatewatch_damping_ratio",
+        "gatewatch_equivalent_damping_ratio",
+        "gatewatch_frequency_hertz",
+        "gatewatch_fit_nmae",
+        "gatewatch_model_coefficient",
+        "gatewatch_alert_state",
+        "gatewatch_last_identification_timestamp_seconds",
+        "gatewatch_samples_ingested_total",
+        "gatewatch_window_fill_ratio",
+        "gatewatch_samples_rejected_total",
+        "gatewatch_identification_duration_seconds",
+        "gatewatch_http_requests_total",
+        "gatewatch_http_request_duration_seconds",
+    ] {
+        assert!(text.contains(&format!("# TYPE {name} ")), "missing {name}");
+    }
+    assert!(text.contains("route=\"/api/v1/samples\""));
+    if let Some(p) = promtool() {
+        let dir = tempfile::tempdir().unwrap();
+        let f = dir.path().join("metrics.txt");
+        std::fs::write(&f, &text).unwrap();
+        let out = std::process::Command::new(p)
+            .arg("check")
+            .arg("metrics")
+            .stdin(std::fs::File::open(&f).unwrap())
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "promtool: {}{}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+}
+
+#[test]
+fn prometheus_rules_are_valid() {
+    let rules = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/deploy/prometheus/gatewatch-rules.yml"
+    );
+    assert!(std::path::Path::new(rules).is_file());
+    if let Some(p) = promtool() {
+        let out = std::process::Command::new(p)
+            .args(["check", "rules", rules])
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "promtool: {}{}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+}
+
+#[test]
+fn check_config_files() {
+    use gatewatch::service::cli::{check_config, CheckConfigArgs};
+    let example = concat!(env!("CARGO_MANIFEST_DIR"), "/config/gatewatch.toml");
+    assert_eq!(
+        check_config(CheckConfigArgs {
+            file: example.into()
+        }),
+        std::process::ExitCode::SUCCESS
+    );
+    let dir = tempfile::tempdir().unwrap();
+    let bad = dir.path().join("bad.toml");
+    std::fs::write(&bad, "[gates.g1]\nrate_hz = -5.0\n").unwrap();
+    assert_eq!(
+        check_config(CheckConfigArgs { file: bad.clone() }),
+        std::process::ExitCode::from(2)
+    );
+    assert_eq!(
+        Config::from_file(&bad).unwrap_err().message,
+        "gates.g1.rate_hz: must be > 0"
+    );
+    assert_eq!(
+        check_config(CheckConfigArgs {
+            file: dir.path().join("missing.toml")
+        }),
+        std::process::ExitCode::from(2)
+    );
+}

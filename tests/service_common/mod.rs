@@ -1,0 +1,242 @@
+//! Helpers shared by the `service_*` daemon tests: a scripted analyzer, the test
+//! configuration, `oneshot` requests without a socket, and a real server on port 0.
+//! Every wait is bounded by a timeout.
+#![allow(dead_code)]
+
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use axum::body::Body;
+use axum::http::{Request, StatusCode};
+use axum::Router;
+use gatewatch::analysis::{AnalysisError, DampingReport, Verdict, WindowAnalysis, WindowInput};
+use gatewatch::service::config::Config;
+use gatewatch::service::server::{build_app, run_with_analyzer, Listeners};
+use gatewatch::service::state::AppState;
+use gatewatch::service::worker::WindowAnalyzer;
+use serde_json::{json, Value};
+use tower::ServiceExt;
+
+pub const TOKEN: &str = "test-token-0123456789";
+
+/// What the fake analyzer saw.
+#[derive(Debug, Clone)]
+pub struct Call {
+    pub gate: String,
+    pub t0: f64,
+    pub len: usize,
+    pub warm: Option<Vec<f64>>,
+    pub seed: u64,
+}
+
+/// Scripted analyzer: zeta0 from a schedule, optional sleep, optional panic on a call number.
+#[derive(Default)]
+pub struct Fake {
+    pub zeta: Vec<f64>,
+    pub sleep: Duration,
+    pub panic_on: Option<usize>,
+    pub calls: Mutex<Vec<Call>>,
+    pub n: AtomicUsize,
+}
+
+impl WindowAnalyzer for Fake {
+    fn analyze(
+        &self,
+        gate: &str,
+        input: WindowInput<'_>,
+        warm: Option<&[f64]>,
+        seed: u64,
+    ) -> Result<WindowAnalysis, AnalysisError> {
+        let n = self.n.fetch_add(1, Ordering::SeqCst);
+        self.calls.lock().unwrap().push(Call {
+            gate: gate.into(),
+            t0: input.t0,
+            len: input.values.len(),
+            warm: warm.map(<[f64]>::to_vec),
+            seed,
+        });
+        std::thread::sleep(self.sleep);
+        if self.panic_on == Some(n) {
+            panic!("scripted numerical bug");
+        }
+        let zeta0 = self
+            .zeta
+            .get(n)
+            .or(self.zeta.last())
+            .copied()
+            .unwrap_or(0.05);
+        Ok(WindowAnalysis {
+            equation: format!("ydd + {zeta0}*yd + y = 0"),
+            coefficients: vec![("c1".into(), zeta0), ("c2".into(), 1.0)],
+            damping: DampingReport {
+                zeta0: Some(zeta0),
+                zeta0_interval: None,
+                zeta_eq: Some(zeta0),
+                energy_per_cycle: None,
+                limit_cycle_amplitude: None,
+                time_to_limit: None,
+                frequency_hz: Some(1.5),
+                growth_rate: None,
+                growth_rate_stderr: None,
+                zeta0_source: None,
+                ambient_zeta: None,
+                model_frequency_hz: None,
+                amplitude: None,
+                agrees: true,
+                fit_nmae: 0.01,
+                trusted: true,
+                verdict: if zeta0 < 0.0 {
+                    Verdict::SelfExcited
+                } else {
+                    Verdict::Damped
+                },
+            },
+            evaluations: 1,
+            seconds: 0.0,
+            warm_start: vec![n as f64],
+        })
+    }
+}
+
+pub fn config(extra: &str) -> Config {
+    Config::from_toml(&format!(
+        "[server]\nworker_threads = 1\nlisten = \"127.0.0.1:0\"\n{extra}\n\
+         [defaults]\nrate_hz = 100.0\nwindow_seconds = 1.0\nidentify_every_seconds = 0.5\n"
+    ))
+    .unwrap()
+}
+
+pub fn app_with(cfg: Config, fake: Arc<Fake>) -> (Router, Arc<AppState>) {
+    build_app(cfg, fake).unwrap()
+}
+
+pub fn make_app(extra: &str) -> (Router, Arc<AppState>) {
+    app_with(config(extra), Arc::new(Fake::default()))
+}
+
+pub async fn send(
+    app: &Router,
+    method: &str,
+    uri: &str,
+    body: impl Into<Body>,
+    token: Option<&str>,
+) -> (StatusCode, Value, axum::http::HeaderMap) {
+    let mut req = Request::builder().method(method).uri(uri);
+    if let Some(t) = token {
+        req = req.header("authorization", format!("Bearer {t}"));
+    }
+    let resp = tokio::time::timeout(
+        Duration::from_secs(10),
+        app.clone().oneshot(req.body(body.into()).unwrap()),
+    )
+    .await
+    .expect("request timed out")
+    .unwrap();
+    let status = resp.status();
+    let headers = resp.headers().clone();
+    let bytes = axum::body::to_bytes(resp.into_body(), usize::MAX)
+        .await
+        .unwrap();
+    let v = serde_json::from_slice(&bytes)
+        .unwrap_or(Value::String(String::from_utf8_lossy(&bytes).into()));
+    (status, v, headers)
+}
+
+pub async fn post_json(app: &Router, body: Value) -> (StatusCode, Value) {
+    let (s, v, _) = send(app, "POST", "/api/v1/samples", body.to_string(), None).await;
+    (s, v)
+}
+
+pub fn uniform(gate: &str, start: f64, n: usize) -> Value {
+    let values: Vec<f64> = (0..n).map(|i| (i as f64 * 0.3).sin()).collect();
+    json!({"gate": gate, "start": start, "rate_hz": 100.0, "values": values})
+}
+
+pub async fn wait_until(mut f: impl FnMut() -> bool) {
+    tokio::time::timeout(Duration::from_secs(10), async {
+        while !f() {
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+    })
+    .await
+    .expect("condition not reached within 10 s");
+}
+
+pub fn metric(state: &AppState, prefix: &str) -> f64 {
+    state
+        .metrics
+        .render()
+        .lines()
+        .filter(|l| l.starts_with(prefix))
+        .map(|l| l.rsplit(' ').next().unwrap().parse::<f64>().unwrap())
+        .sum()
+}
+
+// ---------------------------------------------------------------- a real server on port 0
+
+pub struct Running {
+    pub http: std::net::SocketAddr,
+    pub tcp: std::net::SocketAddr,
+    pub stop: tokio::sync::oneshot::Sender<()>,
+    pub task: tokio::task::JoinHandle<anyhow::Result<()>>,
+}
+
+pub async fn start(extra: &str, fake: Arc<Fake>) -> Running {
+    gatewatch::service::client::ensure_crypto_provider();
+    let cfg = config(&format!(
+        "tcp_listen = \"127.0.0.1:0\"\nshutdown_grace_seconds = 2.0\n{extra}"
+    ));
+    let http = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let tcp = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let (ha, ta) = (http.local_addr().unwrap(), tcp.local_addr().unwrap());
+    let (stop, rx) = tokio::sync::oneshot::channel::<()>();
+    let task = tokio::spawn(run_with_analyzer(
+        cfg,
+        Listeners {
+            http,
+            tcp: Some(tcp),
+        },
+        fake,
+        async move {
+            let _ = rx.await;
+        },
+    ));
+    Running {
+        http: ha,
+        tcp: ta,
+        stop,
+        task,
+    }
+}
+
+pub async fn get(addr: std::net::SocketAddr, path: &str) -> (u16, String) {
+    let r = reqwest::get(format!("http://{addr}{path}")).await.unwrap();
+    (r.status().as_u16(), r.text().await.unwrap())
+}
+
+pub async fn stop(r: Running) {
+    let _ = r.stop.send(());
+    tokio::time::timeout(Duration::from_secs(15), r.task)
+        .await
+        .expect("shutdown within the deadline")
+        .unwrap()
+        .unwrap();
+}
+
+/// `promtool` on PATH (required in CI).
+pub fn promtool() -> Option<std::path::PathBuf> {
+    let found = std::env::var_os("PATH").and_then(|p| {
+        std::env::split_paths(&p)
+            .map(|d| d.join("promtool"))
+            .find(|f| f.is_file())
+    });
+    if found.is_none() {
+        assert!(
+            std::env::var_os("CI").is_none(),
+            "promtool is required in CI (Debian package `prometheus`)"
+        );
+        eprintln!("SKIP: promtool not on PATH");
+    }
+    found
+}

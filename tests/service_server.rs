@@ -1,0 +1,456 @@
+//! A real server on port 0: the raw TCP listener, overload and timeouts, readiness and the
+//! graceful shutdown, the simulate client, and the real analyzers.
+
+mod service_common;
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use gatewatch::service::config::Config;
+use gatewatch::service::server::Listeners;
+use serde_json::{json, Value};
+
+use service_common::*;
+
+#[tokio::test]
+async fn tcp_listener_keeps_the_connection_after_bad_lines() {
+    use tokio::io::AsyncWriteExt;
+    let r = start("", Arc::new(Fake::default())).await;
+    let mut s = tokio::net::TcpStream::connect(r.tcp).await.unwrap();
+    s.write_all(b"m,gate=t1 force=1 1000000000000\nthis is not line protocol\nm,gate=t1 force=NaN 1000010000000\n").await.unwrap();
+    s.write_all(b"m,gate=t1 force=2 1000020000000\r\n")
+        .await
+        .unwrap();
+    s.write_all(&vec![b'x'; 70_000]).await.unwrap();
+    s.write_all(b"\nm,gate=t1 force=3 1000030000000\n")
+        .await
+        .unwrap();
+    s.flush().await.unwrap();
+    let addr = r.http;
+    tokio::time::timeout(Duration::from_secs(10), async {
+        loop {
+            let (_, text) = get(addr, "/api/v1/gates/t1").await;
+            if text.contains("\"samples_total\":3") {
+                break;
+            }
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    })
+    .await
+    .expect("three good lines ingested");
+    let (_, m) = get(addr, "/metrics").await;
+    assert!(
+        m.contains("gatewatch_samples_rejected_total{reason=\"bad_line\"} 2"),
+        "{m}"
+    );
+    assert!(m.contains("gatewatch_samples_rejected_total{reason=\"non_finite\"} 1"));
+    drop(s);
+    stop(r).await;
+}
+
+#[tokio::test]
+async fn a_tcp_burst_is_applied_whole_and_in_order() {
+    // 10 000 lines (about 400 KB, over MAX_BATCH_BYTES) in one write: they reach the blocking pool in
+    // one or more batches, each line applied on its own and in order (none out of order).
+    use tokio::io::AsyncWriteExt;
+    let r = start("", Arc::new(Fake::default())).await;
+    let mut s = tokio::net::TcpStream::connect(r.tcp).await.unwrap();
+    let mut burst = String::new();
+    for i in 0..10_000u64 {
+        burst.push_str(&format!(
+            "m,gate=burst force={i} {}\n",
+            1_000_000_000_000u64 + i * 10_000_000
+        ));
+    }
+    s.write_all(burst.as_bytes()).await.unwrap();
+    s.flush().await.unwrap();
+    let addr = r.http;
+    tokio::time::timeout(Duration::from_secs(20), async {
+        while !get(addr, "/api/v1/gates/burst")
+            .await
+            .1
+            .contains("\"samples_total\":10000")
+        {
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    })
+    .await
+    .expect("every line ingested");
+    let (_, m) = get(addr, "/metrics").await;
+    assert!(!m.contains("gatewatch_samples_rejected_total{"), "{m}");
+    drop(s);
+    stop(r).await;
+}
+
+#[tokio::test]
+async fn tcp_connection_limit() {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let r = start("max_tcp_connections = 1", Arc::new(Fake::default())).await;
+    let mut first = tokio::net::TcpStream::connect(r.tcp).await.unwrap();
+    first
+        .write_all(b"m,gate=t2 force=1 1000000000000\n")
+        .await
+        .unwrap();
+    let addr = r.http;
+    tokio::time::timeout(Duration::from_secs(10), async {
+        while !get(addr, "/api/v1/gates/t2")
+            .await
+            .1
+            .contains("samples_total\":1")
+        {
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    })
+    .await
+    .unwrap();
+    let mut second = tokio::net::TcpStream::connect(r.tcp).await.unwrap();
+    let mut buf = [0u8; 1];
+    let n = tokio::time::timeout(Duration::from_secs(10), second.read(&mut buf))
+        .await
+        .unwrap()
+        .unwrap_or(0);
+    assert_eq!(n, 0, "the second connection is closed");
+    let (_, m) = get(addr, "/metrics").await;
+    assert!(m.contains("gatewatch_tcp_connections_rejected_total 1"));
+    drop(first);
+    stop(r).await;
+}
+
+#[tokio::test]
+async fn overload_is_503_with_retry_after() {
+    use tokio::io::AsyncWriteExt;
+    let r = start("max_concurrent_requests = 1", Arc::new(Fake::default())).await;
+    // hold the only slot: a request whose body never completes
+    let mut hold = tokio::net::TcpStream::connect(r.http).await.unwrap();
+    hold.write_all(b"POST /api/v1/samples HTTP/1.1\r\nhost: x\r\ncontent-type: application/json\r\ncontent-length: 1000\r\n\r\n{\"gate\"").await.unwrap();
+    let addr = r.http;
+    let resp = tokio::time::timeout(Duration::from_secs(10), async {
+        loop {
+            let resp = reqwest::get(format!("http://{addr}/healthz"))
+                .await
+                .unwrap();
+            if resp.status() == 503 {
+                break resp;
+            }
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    })
+    .await
+    .expect("503 while the slot is held");
+    assert_eq!(resp.headers()["retry-after"], "1");
+    drop(hold);
+    tokio::time::timeout(Duration::from_secs(10), async {
+        while get(addr, "/healthz").await.0 != 200 {
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    })
+    .await
+    .expect("serving again");
+    // a request that never completes does not hold the shutdown beyond the grace period
+    let mut hold = tokio::net::TcpStream::connect(r.http).await.unwrap();
+    hold.write_all(b"POST /api/v1/samples HTTP/1.1\r\nhost: x\r\ncontent-length: 1000\r\n\r\n{")
+        .await
+        .unwrap();
+    tokio::time::sleep(Duration::from_millis(50)).await;
+    stop(r).await;
+    drop(hold);
+}
+
+#[tokio::test]
+async fn full_ingest_slots_are_503_while_the_api_still_answers() {
+    use tokio::io::AsyncWriteExt;
+    let r = start("max_concurrent_ingest = 1", Arc::new(Fake::default())).await;
+    let mut hold = tokio::net::TcpStream::connect(r.http).await.unwrap();
+    hold.write_all(
+        b"POST /api/v2/write HTTP/1.1\r\nhost: x\r\ncontent-length: 1000\r\n\r\nm,gate=",
+    )
+    .await
+    .unwrap();
+    let addr = r.http;
+    let c = reqwest::Client::new();
+    let resp = tokio::time::timeout(Duration::from_secs(10), async {
+        loop {
+            let resp = c
+                .post(format!("http://{addr}/api/v1/samples"))
+                .body(uniform("g1", 0.0, 3).to_string())
+                .send()
+                .await
+                .unwrap();
+            if resp.status() == 503 {
+                break resp;
+            }
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    })
+    .await
+    .expect("503 while the ingest slot is held");
+    assert_eq!(resp.headers()["retry-after"], "1");
+    assert_eq!(get(addr, "/api/v1/gates").await.0, 200);
+    drop(hold);
+    stop(r).await;
+}
+
+#[tokio::test]
+async fn slow_request_times_out_with_408() {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let r = start("request_timeout_seconds = 0.2", Arc::new(Fake::default())).await;
+    let mut s = tokio::net::TcpStream::connect(r.http).await.unwrap();
+    s.write_all(b"POST /api/v1/samples HTTP/1.1\r\nhost: x\r\ncontent-length: 1000\r\n\r\n{")
+        .await
+        .unwrap();
+    let mut buf = vec![0u8; 256];
+    let n = tokio::time::timeout(Duration::from_secs(10), s.read(&mut buf))
+        .await
+        .expect("answered")
+        .unwrap();
+    let head = String::from_utf8_lossy(&buf[..n]);
+    assert!(head.starts_with("HTTP/1.1 408"), "{head}");
+    assert_eq!(get(r.http, "/healthz").await.0, 200);
+    stop(r).await;
+}
+
+#[tokio::test]
+async fn readiness_and_graceful_shutdown_with_a_job_in_flight() {
+    let fake = Arc::new(Fake {
+        sleep: Duration::from_millis(500),
+        ..Default::default()
+    });
+    let r = start("", fake.clone()).await;
+    let addr = r.http;
+    tokio::time::timeout(Duration::from_secs(10), async {
+        while get(addr, "/readyz").await.0 != 200 {
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    })
+    .await
+    .expect("ready");
+    let c = reqwest::Client::new();
+    let resp = c
+        .post(format!("http://{addr}/api/v1/samples"))
+        .body(uniform("g1", 0.0, 100).to_string())
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(resp.status(), 204);
+    wait_until(|| !fake.calls.lock().unwrap().is_empty()).await;
+    stop(r).await; // returns within shutdown_grace_seconds even with the job in flight
+    assert!(
+        tokio::net::TcpStream::connect(addr).await.is_err(),
+        "no longer accepting"
+    );
+}
+
+#[tokio::test]
+async fn shutdown_with_everything_stuck_takes_one_grace_period() {
+    // A worker stuck in the numerics and an HTTP request that never completes: every drain
+    // shares one deadline, so the shutdown takes one grace period (2 s), not one per drain
+    // (which took 4 s and more). The bound is generous: one grace period plus 1 s of slack.
+    use tokio::io::AsyncWriteExt;
+    let fake = Arc::new(Fake {
+        sleep: Duration::from_secs(30),
+        ..Default::default()
+    });
+    let r = start("", fake.clone()).await;
+    let c = reqwest::Client::new();
+    let resp = c
+        .post(format!("http://{}/api/v1/samples", r.http))
+        .body(uniform("g1", 0.0, 100).to_string())
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(resp.status(), 204);
+    wait_until(|| !fake.calls.lock().unwrap().is_empty()).await;
+    let mut hold = tokio::net::TcpStream::connect(r.http).await.unwrap();
+    hold.write_all(b"POST /api/v1/samples HTTP/1.1\r\nhost: x\r\ncontent-length: 1000\r\n\r\n{")
+        .await
+        .unwrap();
+    tokio::time::sleep(Duration::from_millis(50)).await;
+    let began = std::time::Instant::now();
+    stop(r).await;
+    let took = began.elapsed();
+    assert!(
+        took < Duration::from_secs(3),
+        "shutdown took {took:?}, more than one grace period (2 s) plus slack"
+    );
+    drop(hold);
+}
+
+#[tokio::test]
+async fn simulate_client_streams_through_every_protocol() {
+    use gatewatch::service::client::{
+        simulate_with_source, simulator, Protocol, Scenario, SimulateArgs,
+    };
+    let fake = Arc::new(Fake::default());
+    let r = start(&format!("auth_tokens = [\"{TOKEN}\"]"), fake.clone()).await;
+    for (gate, protocol) in [
+        ("sj", Protocol::Json),
+        ("sl", Protocol::Line),
+        ("st", Protocol::Tcp),
+    ] {
+        let args = SimulateArgs {
+            url: format!("http://{}", r.http),
+            tcp_addr: r.tcp.to_string(),
+            gate: gate.into(),
+            scenario: Scenario::Onset,
+            speed: 0.0,
+            duration: 2.0,
+            seed: 7,
+            protocol,
+            rate: 100.0,
+            token: Some(TOKEN.into()),
+            chunk_seconds: 0.1,
+            start: Some(1000.0),
+            onset_hold: 1.0,
+            onset_ramp: 1.0,
+        };
+        let mut sim = simulator(&args).unwrap();
+        let source = |b: &mut [f64]| sim.fill(b);
+        let n = tokio::time::timeout(Duration::from_secs(20), simulate_with_source(&args, source))
+            .await
+            .unwrap()
+            .unwrap();
+        assert_eq!(n, 200);
+        let c = reqwest::Client::new();
+        let url = format!("http://{}/api/v1/gates/{gate}", r.http);
+        tokio::time::timeout(Duration::from_secs(10), async {
+            loop {
+                let v: Value = c
+                    .get(&url)
+                    .bearer_auth(TOKEN)
+                    .send()
+                    .await
+                    .unwrap()
+                    .json()
+                    .await
+                    .unwrap_or(Value::Null);
+                if v["window"]["samples_total"] == 200 {
+                    break;
+                }
+                tokio::time::sleep(Duration::from_millis(20)).await;
+            }
+        })
+        .await
+        .unwrap_or_else(|_| panic!("{gate}: 200 samples arrive"));
+    }
+    // a wrong token is an error, not a hang
+    let args = SimulateArgs {
+        url: format!("http://{}", r.http),
+        tcp_addr: r.tcp.to_string(),
+        gate: "x".into(),
+        scenario: Scenario::Stable,
+        speed: 0.0,
+        duration: 0.5,
+        seed: 1,
+        protocol: Protocol::Json,
+        rate: 100.0,
+        token: Some("wrong-token-0123456789".into()),
+        chunk_seconds: 0.1,
+        start: None,
+        onset_hold: 60.0,
+        onset_ramp: 300.0,
+    };
+    let e = simulate_with_source(&args, |b: &mut [f64]| b.fill(0.0))
+        .await
+        .unwrap_err();
+    assert!(e.to_string().contains("401"), "{e}");
+    stop(r).await;
+}
+
+#[test]
+fn simulate_scenarios_map_to_the_simulator_and_are_reproducible() {
+    use gatewatch::service::client::{simulator, Protocol, Scenario, SimulateArgs};
+    let args = |scenario| SimulateArgs {
+        url: String::new(),
+        tcp_addr: String::new(),
+        gate: "g1".into(),
+        scenario,
+        speed: 0.0,
+        duration: 10.0,
+        seed: 3,
+        protocol: Protocol::Json,
+        rate: 200.0,
+        token: None,
+        chunk_seconds: 0.1,
+        start: None,
+        onset_hold: 5.0,
+        onset_ramp: 10.0,
+    };
+    for (sc, z0, z_late) in [
+        (Scenario::Stable, 0.01, 0.01),
+        (Scenario::Onset, 0.02, -0.02),
+        (Scenario::LimitCycle, -0.02, -0.02),
+    ] {
+        let (mut a, mut b) = (simulator(&args(sc)).unwrap(), simulator(&args(sc)).unwrap());
+        assert_eq!(a.true_zeta(0.0), z0);
+        assert_eq!(a.true_zeta(20.0), z_late);
+        let (mut x, mut y) = (vec![0.0; 2000], vec![0.0; 2000]);
+        a.fill(&mut x);
+        b.fill(&mut y);
+        assert_eq!(x, y);
+        assert!(x.iter().all(|v| v.is_finite()));
+        assert!(x.iter().any(|v| *v != 0.0));
+    }
+    assert_eq!(
+        simulator(&args(Scenario::Onset)).unwrap().true_zeta(10.0),
+        0.0
+    );
+    let mut bad = args(Scenario::Onset);
+    bad.onset_ramp = -1.0;
+    assert!(simulator(&bad).is_err());
+}
+
+#[tokio::test]
+async fn real_analyzers_never_take_the_daemon_down() {
+    // `server::run` with the real per-gate analyzers: whatever the numerics do (succeed, refuse,
+    // or panic while unfinished), the daemon keeps serving and reports the outcome.
+    gatewatch::service::client::ensure_crypto_provider();
+    let cfg = Config::from_toml(
+        "[server]\nworker_threads = 1\nlisten = \"127.0.0.1:0\"\nshutdown_grace_seconds = 1.0\n\
+         [defaults]\nrate_hz = 100.0\nwindow_seconds = 1.0\npopulation = 8\ngenerations = 5\n",
+    )
+    .unwrap();
+    let http = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let addr = http.local_addr().unwrap();
+    let (tx, rx) = tokio::sync::oneshot::channel::<()>();
+    let task = tokio::spawn(gatewatch::service::server::run(
+        cfg,
+        Listeners { http, tcp: None },
+        async move {
+            let _ = rx.await;
+        },
+    ));
+    let c = reqwest::Client::new();
+    let values: Vec<f64> = (0..150)
+        .map(|i| 81_360.0 * 0.001 * (i as f64 * 0.094).sin() * (-0.01 * i as f64).exp())
+        .collect();
+    let resp = c
+        .post(format!("http://{addr}/api/v1/samples"))
+        .body(
+            json!({"gate": "g1", "start": 1000.0, "rate_hz": 100.0, "values": values}).to_string(),
+        )
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(resp.status(), 204);
+    tokio::time::timeout(Duration::from_secs(60), async {
+        loop {
+            let m = get(addr, "/metrics").await.1;
+            if m.contains("gatewatch_identification_failures_total{")
+                || m.contains("gatewatch_last_identification_timestamp_seconds{")
+            {
+                break;
+            }
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+    })
+    .await
+    .expect("the identification finished or failed");
+    assert_eq!(get(addr, "/healthz").await.0, 200);
+    assert_eq!(get(addr, "/api/v1/gates/g1").await.0, 200);
+    let _ = tx.send(());
+    tokio::time::timeout(Duration::from_secs(15), task)
+        .await
+        .unwrap()
+        .unwrap()
+        .unwrap();
+}

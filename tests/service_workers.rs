@@ -1,0 +1,224 @@
+//! The identification worker pool: replace-don't-queue, the queue bound, one job in flight per
+//! gate, warm starts, seeds, panics, and the cadence in sample time.
+
+mod service_common;
+
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::Arc;
+use std::time::Duration;
+
+use axum::body::Body;
+use axum::http::StatusCode;
+use gatewatch::service::config::Config;
+use gatewatch::service::ingest::Batch;
+use gatewatch::service::worker::{Job, Submitted, WorkerPool};
+
+use service_common::*;
+
+#[tokio::test]
+async fn slow_workers_replace_pending_jobs_instead_of_queueing() {
+    let fake = Arc::new(Fake {
+        sleep: Duration::from_millis(200),
+        ..Default::default()
+    });
+    let done = Arc::new(AtomicUsize::new(0));
+    let d = done.clone();
+    let pool = WorkerPool::start(
+        1,
+        8,
+        fake.clone(),
+        Arc::new(move |_: &Job, _, _| {
+            d.fetch_add(1, Ordering::SeqCst);
+        }),
+    )
+    .unwrap();
+    let job = |i: u64| Job {
+        gate: "g1".into(),
+        t0: i as f64,
+        rate_hz: 100.0,
+        values: vec![0.0; 10],
+        end_index: i,
+    };
+    let mut replaced = 0;
+    let mut queued = 0;
+    for i in 0..20 {
+        match pool.submit(job(i)) {
+            Submitted::Replaced => replaced += 1,
+            Submitted::Queued => queued += 1,
+            other => panic!("{other:?}"),
+        }
+        assert!(
+            pool.pending() <= 1,
+            "never more than one pending job per gate"
+        );
+    }
+    assert!(
+        replaced > 0,
+        "a slow worker makes newer windows replace pending ones"
+    );
+    assert_eq!(replaced + queued, 20);
+    wait_until(|| done.load(Ordering::SeqCst) == queued).await;
+    let calls = fake.calls.lock().unwrap().clone();
+    assert_eq!(calls.len(), queued);
+    // the newest window is the one analysed last
+    assert_eq!(calls.last().unwrap().t0, 19.0);
+    let (abandoned, clean) = pool.shutdown(Duration::from_secs(5)).await;
+    assert_eq!((abandoned, clean), (0, true));
+    assert_eq!(pool.submit(job(99)), Submitted::Closed);
+}
+
+#[tokio::test]
+async fn queue_bound_and_one_in_flight_per_gate() {
+    let fake = Arc::new(Fake {
+        sleep: Duration::from_millis(100),
+        ..Default::default()
+    });
+    let pool = WorkerPool::start(2, 2, fake.clone(), Arc::new(|_: &Job, _, _| {})).unwrap();
+    let job = |g: &str| Job {
+        gate: g.into(),
+        t0: 0.0,
+        rate_hz: 100.0,
+        values: vec![0.0; 4],
+        end_index: 1,
+    };
+    let mut full = 0;
+    for g in ["a", "b", "c", "d", "e", "f"] {
+        if pool.submit(job(g)) == Submitted::QueueFull {
+            full += 1;
+        }
+        assert!(pool.pending() <= 2);
+    }
+    assert!(full >= 1);
+    pool.shutdown(Duration::from_secs(5)).await;
+}
+
+#[tokio::test]
+async fn warm_start_seed_and_panics() {
+    let fake = Arc::new(Fake {
+        panic_on: Some(1),
+        ..Default::default()
+    });
+    let (app, state) = app_with(config(""), fake.clone());
+    for k in 0..4 {
+        // each post makes one window due (1 s window, 0.5 s cadence)
+        let n = if k == 0 { 100 } else { 50 };
+        let start = if k == 0 {
+            0.0
+        } else {
+            1.0 + 0.5 * (k - 1) as f64
+        };
+        assert_eq!(
+            post_json(&app, uniform("g1", start, n)).await.0,
+            StatusCode::NO_CONTENT
+        );
+        wait_until(|| fake.calls.lock().unwrap().len() == k + 1 && state.pool().in_flight() == 0)
+            .await;
+    }
+    let calls = fake.calls.lock().unwrap().clone();
+    assert_eq!(calls[0].warm, None);
+    assert_eq!(calls[1].warm, Some(vec![0.0]));
+    // call 1 panicked: call 2 still warm-starts from the last success
+    assert_eq!(calls[2].warm, Some(vec![0.0]));
+    assert_eq!(calls[3].warm, Some(vec![2.0]));
+    assert_eq!(
+        calls[0].seed,
+        gatewatch::service::worker::window_seed("g1", 100)
+    );
+    assert_ne!(calls[0].seed, calls[1].seed);
+    assert!(calls.iter().all(|c| c.gate == "g1"));
+    assert_eq!(
+        metric(
+            &state,
+            "gatewatch_identification_failures_total{reason=\"panic\"}"
+        ),
+        1.0
+    );
+    // still serving
+    assert_eq!(
+        send(&app, "GET", "/healthz", Body::empty(), None).await.0,
+        StatusCode::OK
+    );
+}
+
+#[tokio::test]
+async fn cadence_is_in_sample_time_whatever_the_replay_speed() {
+    // the same stream posted in 0.1 s chunks and in 0.05 s chunks, waiting for each job:
+    // identical windows and seeds
+    async fn windows(chunk: usize) -> Vec<(u64, usize, i64)> {
+        let fake = Arc::new(Fake::default());
+        let (app, state) = app_with(config(""), fake.clone());
+        let mut sent = 0;
+        while sent < 400 {
+            let (s, _) = post_json(&app, uniform("g1", 50.0 + sent as f64 / 100.0, chunk)).await;
+            assert_eq!(s, StatusCode::NO_CONTENT);
+            sent += chunk;
+            wait_until(|| state.pool().pending() == 0 && state.pool().in_flight() == 0).await;
+        }
+        let calls = fake.calls.lock().unwrap().clone();
+        calls
+            .iter()
+            .map(|c| (c.seed, c.len, (c.t0 * 1000.0).round() as i64))
+            .collect()
+    }
+    let a = windows(10).await;
+    let b = windows(5).await;
+    assert_eq!(a.len(), 7, "full at 1 s, then every 0.5 s until 4 s");
+    assert_eq!(a, b);
+}
+
+#[tokio::test]
+async fn a_day_of_samples_keeps_the_reported_times_true() {
+    // 2026-11-23 00:00 UTC at 200 Hz for a day; the true time of sample i is T0 + i / 200.
+    // Window times derived by adding the period drifted ~82 ms an hour into window_start,
+    // window_end and analysed_until.
+    const T0: f64 = 1_795_392_000.0;
+    const RATE: f64 = 200.0;
+    let cfg = Config::from_toml(
+        "[server]\nworker_threads = 1\nlisten = \"127.0.0.1:0\"\n\
+         [defaults]\nrate_hz = 200.0\nwindow_seconds = 1.0\nidentify_every_seconds = 3600.0\n",
+    )
+    .unwrap();
+    let fake = Arc::new(Fake::default());
+    let (_app, state) = app_with(cfg, fake.clone());
+    let day = 86_400 * 200u64;
+    let chunk = 900 * 200u64; // a quarter of an hour per request
+    let mut i = 0u64;
+    while i < day {
+        let samples = (i..i + chunk)
+            .map(|k| (T0 + k as f64 / RATE, 0.0))
+            .collect();
+        let batch = Batch {
+            gate: "g1".into(),
+            samples,
+            rate: None,
+            values_field: "values".into(),
+            lines: None,
+        };
+        state.ingest(vec![batch]).unwrap();
+        i += chunk;
+    }
+    // windows end at sample 200, then every 720 000 samples: the last ends at 200 + 23 * 720 000
+    let last = 200 + 23 * 720_000u64 - 1;
+    let (start, end) = (T0 + (last - 199) as f64 / RATE, T0 + last as f64 / RATE);
+    let tolerance = 0.01 / RATE; // a hundredth of a period
+    wait_until(|| {
+        state
+            .gate_view("g1")
+            .and_then(|v| v.analysed_until)
+            .is_some_and(|t| t > end - 1.0)
+    })
+    .await;
+    let v = state.gate_view("g1").unwrap();
+    let id = v.identification.expect("identified");
+    for (what, got, want) in [
+        ("window_start", id.window_start, start),
+        ("window_end", id.window_end, end),
+        ("analysed_until", v.analysed_until.unwrap(), end),
+    ] {
+        assert!(
+            (got - want).abs() < tolerance,
+            "{what}: {got} instead of {want} ({} s off)",
+            got - want
+        );
+    }
+}
