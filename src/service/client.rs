@@ -83,15 +83,9 @@ pub const SIMULATE_MAX_RETRIES: u32 = 5;
 /// Longest `Retry-After` honoured, seconds.
 pub const SIMULATE_MAX_RETRY_AFTER: u64 = 30;
 
-/// Installs rustls' ring crypto provider once (reqwest is built with `rustls-no-provider`);
-/// call before building a `reqwest::Client`. Idempotent.
-pub fn ensure_crypto_provider() {
-    static ONCE: std::sync::Once = std::sync::Once::new();
-    ONCE.call_once(|| {
-        // Err means another provider was installed first: fine.
-        let _ = rustls::crypto::ring::default_provider().install_default();
-    });
-}
+/// The crate's one rustls set-up lives next to the notifier's HTTP client; the simulate client
+/// builds a `reqwest::Client` too, so it calls the same function.
+pub use crate::alert::notify::ensure_crypto_provider;
 
 impl Scenario {
     /// The simulator's scenario; `Onset` holds `+2 %` for `onset_hold` seconds, then ramps to
