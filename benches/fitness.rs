@@ -39,7 +39,7 @@ fn bench(c: &mut Criterion) {
         y0: case.y0,
         v0: case.v0,
     };
-    // The options `Fitness::new` uses (src/identify.rs), to count the work of one integration.
+    // The options `Fitness::new` uses (src/identify/fitness.rs), to count the work of one integration.
     let n = data.len();
     let scale = data.y.iter().fold(0.0f64, |m, v| m.max(v.abs()));
     let opts = Options {

@@ -1,6 +1,6 @@
 //! The command line as a user runs it: `gatewatch identify` and `gatewatch bench`.
 //!
-//! Contract (src/cli.rs): exit 0 on success, 2 on bad input with exactly one line on stderr that
+//! Contract (src/cli/mod.rs): exit 0 on success, 2 on bad input with exactly one line on stderr that
 //! names the problem, 1 on anything else. Piped runs print nothing on stderr (no progress bar).
 
 use serde_json::Value;
@@ -759,7 +759,7 @@ fn seven_samples_are_enough_for_a_half_split() {
     ]);
 }
 
-/// Engine bug (src/identify.rs, `split`, the `needed` computation): the "needs at least N"
+/// Engine bug (src/identify/split.rs, `split`, the `needed` computation): the "needs at least N"
 /// figure ignores that the training count is rounded, and overflows for tiny fractions.
 /// Run with `cargo test --test cli_identify -- --ignored`.
 #[test]
