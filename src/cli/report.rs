@@ -20,12 +20,22 @@ fn coefficients_json(c: &[f64]) -> serde_json::Value {
 pub fn identification_json(model: &Model, a: &SeriesAnalysis) -> serde_json::Value {
     let r = &a.identification;
     let best = r.best_run();
+    // Reported coefficients are normalised when the structure is scale-free (the search's own
+    // values, one arbitrary point of a line, stay in `raw_coefficients`).
+    let coefficients = r.normalized(&best.coefficients);
     json!({
         "damping": a.damping,
         "linearization": a.linearization,
         "model": model.equation(),
-        "equation": model.substitute(&best.coefficients),
-        "coefficients": coefficients_json(&best.coefficients),
+        "equation": model.substitute(&coefficients),
+        "coefficients": coefficients_json(&coefficients),
+        "raw_coefficients": coefficients_json(&best.coefficients),
+        "scale_groups": r.scale_groups.iter().map(|g| json!({
+            "coefficients": g.members.iter().map(|j| format!("c{}", j + 1)).collect::<Vec<_>>(),
+            "fixed": format!("c{}", g.fixed + 1),
+            "fixed_value": if g.sign_free { 1.0 } else { coefficients[g.fixed].signum() },
+            "normalized": g.normalize(&best.coefficients).is_some(),
+        })).collect::<Vec<_>>(),
         "initial": {"y0": best.initial.y0, "v0": best.initial.v0},
         "train_mae": best.train_mae,
         "test_nmae": best.test_nmae,
@@ -46,7 +56,8 @@ pub fn identification_json(model: &Model, a: &SeriesAnalysis) -> serde_json::Val
         },
         "runs": r.runs.iter().map(|run| json!({
             "seed": run.seed,
-            "coefficients": coefficients_json(&run.coefficients),
+            "coefficients": coefficients_json(&r.normalized(&run.coefficients)),
+            "raw_coefficients": coefficients_json(&run.coefficients),
             "initial": {"y0": run.initial.y0, "v0": run.initial.v0},
             "train_mae": run.train_mae,
             "test_nmae": run.test_nmae,
@@ -57,8 +68,8 @@ pub fn identification_json(model: &Model, a: &SeriesAnalysis) -> serde_json::Val
     })
 }
 
-/// With several runs, each coefficient's range over the runs (its spread: the uncertainty of
-/// the identification itself).
+/// With several runs, each (normalised) coefficient's range over the runs (its spread: the
+/// uncertainty of the identification itself).
 fn coefficient_intervals(r: &crate::identify::Identification) -> Option<Vec<(f64, f64)>> {
     if r.runs.len() < 2 {
         return None;
@@ -67,7 +78,7 @@ fn coefficient_intervals(r: &crate::identify::Identification) -> Option<Vec<(f64
     Some(
         (0..n)
             .map(|j| {
-                let v = r.runs.iter().map(|run| run.coefficients[j]);
+                let v = r.runs.iter().map(|run| r.normalized(&run.coefficients)[j]);
                 (
                     v.clone().fold(f64::INFINITY, f64::min),
                     v.fold(f64::NEG_INFINITY, f64::max),
@@ -94,13 +105,38 @@ pub(super) fn write_identification(
     let r = &a.identification;
     let best = r.best_run();
     writeln!(out, "model:        {}", model.equation())?;
-    writeln!(
-        out,
-        "identified:   {}",
-        model.substitute(&best.coefficients)
-    )?;
+    let coefficients = r.normalized(&best.coefficients);
+    writeln!(out, "identified:   {}", model.substitute(&coefficients))?;
+    let mut fixed = Vec::new();
+    for g in &r.scale_groups {
+        let names: Vec<String> = g.members.iter().map(|j| format!("c{}", j + 1)).collect();
+        let c = format!("c{}", g.fixed + 1);
+        if g.normalize(&best.coefficients).is_some() {
+            fixed.push(g.fixed);
+            let one = if g.sign_free { "1" } else { "+-1" };
+            writeln!(
+                out,
+                "scale:        {} are determined only up to a common factor: normalised to {c} = {one}",
+                names.join(", ")
+            )?;
+        } else {
+            writeln!(
+                out,
+                "scale:        {} are determined only up to a common factor ({c} = 0: not normalised)",
+                names.join(", ")
+            )?;
+        }
+    }
     let intervals = coefficient_intervals(r);
-    for (i, c) in best.coefficients.iter().enumerate() {
+    for (i, c) in coefficients.iter().enumerate() {
+        if fixed.contains(&i) {
+            writeln!(
+                out,
+                "  c{:<3} = {c:.8e}   (fixed by the normalisation)",
+                i + 1
+            )?;
+            continue;
+        }
         match intervals.as_ref().map(|iv| iv[i]) {
             Some((lo, hi)) => writeln!(
                 out,

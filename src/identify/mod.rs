@@ -28,7 +28,7 @@
 
 use crate::data::TimeSeries;
 use crate::de;
-use crate::model::Model;
+use crate::model::{Model, ScaleGroup};
 use crate::ode::Method;
 use serde::Serialize;
 use std::time::Instant;
@@ -137,6 +137,10 @@ pub struct Identification {
     pub train: Vec<usize>,
     /// Indices of the test samples.
     pub test: Vec<usize>,
+    /// Groups of coefficients the data determine only up to a common factor (see
+    /// [`Model::scale_groups`]; only for displacement data: a measured force fixes the scale).
+    /// The runs keep the search's values; reports show [`Identification::normalized`] ones.
+    pub scale_groups: Vec<ScaleGroup>,
 }
 
 impl Identification {
@@ -144,6 +148,23 @@ impl Identification {
     pub fn best_run(&self) -> &RunResult {
         &self.runs[self.best]
     }
+
+    /// `coefficients` normalised by every scale group (see [`normalize`]).
+    pub fn normalized(&self, coefficients: &[f64]) -> Vec<f64> {
+        normalize(&self.scale_groups, coefficients)
+    }
+}
+
+/// `coefficients` with each of `groups` divided by its fixed member; a group whose fixed member
+/// is 0 or not finite is left as it is.
+pub fn normalize(groups: &[ScaleGroup], coefficients: &[f64]) -> Vec<f64> {
+    let mut c = coefficients.to_vec();
+    for g in groups {
+        if let Some(n) = g.normalize(&c) {
+            c = n;
+        }
+    }
+    c
 }
 
 /// Identifies `model`'s coefficients from `series`. `progress(run, generation, best_cost)` is
@@ -161,6 +182,11 @@ pub fn identify(
     if config.solver == Method::Rk4 && series.uniform_step().is_none() {
         return Err(IdentifyError::NotUniform);
     }
+    // Only the displacement is blind to a common factor of M and R; a force output is R itself.
+    let scale_groups = match config.output {
+        Output::Displacement => model.scale_groups(),
+        Output::Force => Vec::new(),
+    };
     let (train, test) = split(series.len(), config.train_fraction, config.split_seed)?;
     let mut is_train = vec![false; series.len()];
     for &i in &train {
@@ -263,5 +289,6 @@ pub fn identify(
         summary,
         train,
         test,
+        scale_groups,
     })
 }
