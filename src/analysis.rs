@@ -656,14 +656,14 @@ pub fn analyze_series_with(
                 omega: w,
                 sigma: sigma_clean,
             };
-            let half = config.population / 2;
-            let mut rng_ic = config.seed;
+            let half = config.search.population / 2;
+            let mut rng_ic = config.protocol.seed;
             for mut x in biased_population(
                 model,
                 &scales,
                 target,
                 half,
-                config.seed,
+                config.protocol.seed,
                 t0,
                 y_scale,
                 v_scale,
@@ -680,7 +680,7 @@ pub fn analyze_series_with(
             }
         }
     }
-    config.initial_population = initial_population;
+    config.search.initial_population = initial_population;
 
     let identification =
         identify::identify(model, &data, &config, progress).map_err(|e| match e {
@@ -690,13 +690,14 @@ pub fn analyze_series_with(
     let best = identification.best_run().clone();
     let c = best.coefficients.clone();
     let lin = Linearization::of(model, &c, t0, y_scale, v_scale);
-    let trajectory = identify::trajectory(model, &data.t, &c, best.initial, config.test_rtol);
+    let trajectory =
+        identify::trajectory(model, &data.t, &c, best.initial, config.protocol.test_rtol);
     let prediction = identify::predict(
         model,
         &data,
         &c,
         best.initial,
-        config.test_rtol,
+        config.protocol.test_rtol,
         config.output,
     );
     let fit_nmae = prediction
@@ -924,16 +925,22 @@ impl Analyzer {
             signal: s.signal,
             stiffness: s.stiffness,
             identify: identify::Config {
-                population: s.population,
-                generations: s.generations,
-                seed,
-                split_seed: seed,
-                // One RK4 step per sample: three times cheaper than dopri5 over a long window;
-                // the polish (dopri5 at 1e-8) sets the final accuracy.
-                solver: crate::ode::Method::Rk4,
-                substeps: 1,
-                // The daemon's work per window must stay bounded: no retries.
-                max_attempts: 1,
+                search: identify::Search {
+                    population: s.population,
+                    generations: s.generations,
+                    // One RK4 step per sample: three times cheaper than dopri5 over a long
+                    // window; the polish (dopri5 at 1e-8) sets the final accuracy.
+                    solver: crate::ode::Method::Rk4,
+                    substeps: 1,
+                    ..identify::Search::default()
+                },
+                protocol: identify::Protocol {
+                    seed,
+                    split_seed: seed,
+                    // The daemon's work per window must stay bounded: no retries.
+                    max_attempts: 1,
+                    ..identify::Protocol::default()
+                },
                 ..identify::Config::default()
             },
             amplitude_limit: s.amplitude_limit,

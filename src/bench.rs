@@ -6,7 +6,7 @@
 
 use crate::cases::{CaseError, SeedCase};
 use crate::data::TimeSeries;
-use crate::identify::{self, Config, IdentifyError, Initial};
+use crate::identify::{self, Config, IdentifyError, Initial, Protocol, Search};
 use crate::ode::Method;
 use serde::Serialize;
 
@@ -142,16 +142,22 @@ pub fn run_case(
                 v0: case.v0,
             }
         },
-        split_seed: opts.split_seed,
-        population: case.population,
-        generations: case.generations,
-        runs: opts.runs,
-        seed: opts.seed,
-        solver: opts.solver,
-        rtol: opts.rtol,
-        refine: opts.refine,
-        restart: opts.restart,
-        parallel: false,
+        search: Search {
+            population: case.population,
+            generations: case.generations,
+            solver: opts.solver,
+            rtol: opts.rtol,
+            refine: opts.refine,
+            parallel: false,
+            ..Search::default()
+        },
+        protocol: Protocol {
+            runs: opts.runs,
+            seed: opts.seed,
+            split_seed: opts.split_seed,
+            restart: opts.restart,
+            ..Protocol::default()
+        },
         ..Config::default()
     };
     let mut result = if opts.fft_bias {
@@ -184,7 +190,7 @@ pub fn run_case(
             &clean,
             &run.coefficients,
             run.initial,
-            config.test_rtol,
+            config.protocol.test_rtol,
             identify::Output::Displacement,
         )
         .and_then(|p| identify::nmae(result.test.iter().map(|&i| (p[i], clean.y[i]))));

@@ -7,7 +7,9 @@
 use gatewatch::cases::{self, SeedCase};
 use gatewatch::data::TimeSeries;
 use gatewatch::de::Objective;
-use gatewatch::identify::{self, Config, Fitness, Identification, Initial, Output};
+use gatewatch::identify::{
+    self, Config, Fitness, Identification, Initial, Output, Problem, Protocol, Search,
+};
 use gatewatch::model::Model;
 use gatewatch::ode::Method;
 use rand::SeedableRng;
@@ -27,10 +29,16 @@ fn chapter_config(c: &SeedCase, runs: usize, seed: u64) -> Config {
         } else {
             Initial::Known { y0: c.y0, v0: c.v0 }
         },
-        population: c.population,
-        generations: c.generations,
-        runs,
-        seed,
+        search: Search {
+            population: c.population,
+            generations: c.generations,
+            ..Search::default()
+        },
+        protocol: Protocol {
+            runs,
+            seed,
+            ..Protocol::default()
+        },
         ..Config::default()
     }
 }
@@ -126,18 +134,15 @@ fn setup(equation: &str, data_case: &str) -> Setup {
 impl Setup {
     fn fitness(&self, initial: Initial, method: Method) -> Fitness<'_> {
         let y_scale = self.data.y.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-        Fitness::new(
-            &self.model,
-            &self.data,
-            self.is_train.clone(),
-            initial,
-            Output::Displacement,
-            Vec::new(),
-            y_scale,
-            method,
-            1e-3,
-            2,
-        )
+        let problem = Problem::new(&self.model, &self.data)
+            .unwrap()
+            .with_initial(initial)
+            .unwrap()
+            .with_output(Output::Displacement)
+            .with_y_scale(y_scale)
+            .unwrap();
+        let search = Search::default().with_solver(method, 1e-3).unwrap();
+        Fitness::new(&problem, self.is_train.clone(), &search)
     }
 }
 
@@ -276,15 +281,11 @@ fn parallel_is_bit_identical_to_serial_for_any_thread_count() {
     let data = c.generate().unwrap();
     let model = c.compiled().unwrap();
     // Fewer generations than the chapter to keep it quick; restarts still happen on some seeds.
-    let config = Config {
-        generations: 60,
-        ..chapter_config(c, 2, 3)
-    };
+    let mut config = chapter_config(c, 2, 3);
+    config.search.generations = 60;
     let serial = identify::identify(&model, &data, &config, |_, _, _| {}).unwrap();
-    let parallel_config = Config {
-        parallel: true,
-        ..config.clone()
-    };
+    let mut parallel_config = config.clone();
+    parallel_config.search.parallel = true;
     for threads in [1, 2, 3] {
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(threads)
@@ -306,11 +307,11 @@ fn parallel_is_bit_identical_to_serial_for_any_thread_count() {
     let c = case("van_der_pol_2");
     let data = c.generate().unwrap();
     let model = c.compiled().unwrap();
-    let config = Config {
+    let mut config = Config {
         initial: Initial::Fit,
-        generations: 40,
         ..chapter_config(c, 1, 9)
     };
+    config.search.generations = 40;
     let serial = identify::identify(&model, &data, &config, |_, _, _| {}).unwrap();
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(3)
@@ -322,7 +323,10 @@ fn parallel_is_bit_identical_to_serial_for_any_thread_count() {
                 &model,
                 &data,
                 &Config {
-                    parallel: true,
+                    search: Search {
+                        parallel: true,
+                        ..config.search.clone()
+                    },
                     ..config.clone()
                 },
                 |_, _, _| {},
@@ -364,12 +368,10 @@ fn switches_still_run_and_report() {
         ("all off (chapter)", false, false, false),
     ];
     for (name, refine, restart, continuation) in variants {
-        let config = Config {
-            refine,
-            restart,
-            continuation,
-            ..base.clone()
-        };
+        let mut config = base.clone();
+        config.search.refine = refine;
+        config.search.continuation = continuation;
+        config.protocol.restart = restart;
         let r = identify::identify(&model, &data, &config, |_, _, _| {}).unwrap();
         assert_eq!(r.runs.len(), 2, "{name}");
         for run in &r.runs {

@@ -4,7 +4,7 @@ use super::report::{identification_json, write_identification};
 use super::{input, parse_param, progress_bar, CliError};
 use crate::analysis::{self, SeriesOptions, Signal};
 use crate::data::TimeSeries;
-use crate::identify::{Config, Initial};
+use crate::identify::{Config, IdentifyError, Initial, Protocol, Search};
 use crate::model::Model;
 use crate::ode::Method;
 use clap::Args;
@@ -184,21 +184,28 @@ pub(super) fn run(a: IdentifyArgs) -> Result<(), CliError> {
     };
     let config = Config {
         initial,
-        train_fraction: a.train_fraction,
-        split_seed: a.split_seed,
-        population: a.population,
-        generations: a.generations,
-        runs: a.runs,
-        seed: a.seed,
-        solver,
-        rtol: a.rtol,
-        test_rtol: a.test_rtol,
-        substeps,
-        refine: !a.no_refine,
-        restart: !a.no_restart,
-        parallel: a.parallel,
+        search: Search {
+            population: a.population,
+            generations: a.generations,
+            solver,
+            rtol: a.rtol,
+            substeps,
+            refine: !a.no_refine,
+            parallel: a.parallel,
+            ..Search::default()
+        },
+        protocol: Protocol {
+            runs: a.runs,
+            seed: a.seed,
+            train_fraction: a.train_fraction,
+            split_seed: a.split_seed,
+            test_rtol: a.test_rtol,
+            restart: !a.no_restart,
+            ..Protocol::default()
+        },
         ..Config::default()
     };
+    config.validate().map_err(|e| input(in_flags(e)))?;
     let opts = SeriesOptions {
         signal,
         stiffness: a.stiffness,
@@ -236,4 +243,23 @@ pub(super) fn run(a: IdentifyArgs) -> Result<(), CliError> {
             .map_err(|e| input(format!("--plot: {e}")))?;
     }
     Ok(())
+}
+
+/// The core's error about a setting, told in this command's flags (the core names its fields).
+fn in_flags(e: IdentifyError) -> String {
+    let IdentifyError::Invalid { field, reason } = &e else {
+        return e.to_string();
+    };
+    let flag = match *field {
+        "initial" => return "--y0 and --v0 must be finite numbers".to_string(),
+        "train_fraction" => "--train-fraction",
+        "population" => "--population",
+        "runs" => "--runs",
+        "rtol" => "--rtol",
+        "test_rtol" => "--test-rtol",
+        "substeps" => "--substeps",
+        // Not options of this command: the core's own name is the most precise one.
+        _ => return e.to_string(),
+    };
+    format!("{flag} {reason}")
 }

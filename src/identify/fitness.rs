@@ -1,9 +1,10 @@
 //! The training objective.
 
-use super::config::{Initial, Output};
+use super::config::{Initial, Output, Search};
+use super::problem::Problem;
+use super::split::initial_from_data;
 use super::stats::magnitude;
 use super::InitialValues;
-use crate::data::TimeSeries;
 use crate::de::Objective;
 use crate::model::{Bound, Model};
 use crate::ode::{self, Method, Options};
@@ -36,35 +37,29 @@ pub struct Fitness<'a> {
 }
 
 impl<'a> Fitness<'a> {
-    /// The objective on the samples flagged in `is_train`. `initial` must be `Known` or `Fit`.
-    /// `y_scale` is the displacement's magnitude (the data's in displacement mode; force over
-    /// stiffness in force mode); `scales` the physical value per unit of each DE coordinate
-    /// (empty: all 1).
-    #[allow(clippy::too_many_arguments)]
-    pub fn new(
-        model: &'a Model,
-        series: &'a TimeSeries,
-        is_train: Vec<bool>,
-        initial: Initial,
-        output: Output,
-        scales: Vec<f64>,
-        y_scale: f64,
-        method: Method,
-        rtol: f64,
-        substeps: usize,
-    ) -> Fitness<'a> {
+    /// The objective of `problem` on the samples flagged in `is_train`, integrated with the
+    /// search's solver, tolerance and substeps. Initial conditions from the data are taken
+    /// here ([`super::initial_from_data`]); the displacement's magnitude is the problem's, or
+    /// the data's largest magnitude.
+    pub fn new(problem: &Problem<'a>, is_train: Vec<bool>, search: &Search) -> Fitness<'a> {
+        let (model, series, output) = (problem.model, problem.series, problem.output);
+        let initial = match problem.initial {
+            Initial::FromData => {
+                let (y0, v0) = initial_from_data(series);
+                Initial::Known { y0, v0 }
+            }
+            other => other,
+        };
+        let y_scale = problem.y_scale.unwrap_or_else(|| magnitude(&series.y));
+        let (method, rtol, substeps) = (search.solver, search.rtol, search.substeps);
+        let scales = problem.scales.clone();
         let n = series.len();
         let n_train = is_train.iter().filter(|b| **b).count().max(1);
-        let d = model.n_coeffs()
-            + if matches!(initial, Initial::Fit) {
-                2
-            } else {
-                0
-            };
-        let scales = if scales.len() == d {
-            scales
+        // The problem checked the scales' length; empty means all 1.
+        let scales = if scales.is_empty() {
+            vec![1.0; problem.dimension()]
         } else {
-            vec![1.0; d]
+            scales
         };
         // The blow-up bound applies to displacement and velocity alike; velocities of a fast
         // oscillator exceed displacements by its angular frequency, hence the generous factor.

@@ -18,7 +18,10 @@
 //! costs a bounded time and counts as failed.
 //!
 //! # Layout
-//! - `config`: the settings ([`Config`], [`Initial`], [`Output`]) and their validation;
+//! - `problem`: what is identified from what ([`Problem`]: model, data, output, initial
+//!   conditions, scales);
+//! - `config`: how ([`Search`]: one DE run; [`Protocol`]: runs, seeds, retries, split, test;
+//!   [`Config`]: both with the problem's settings, for callers without the data yet);
 //! - `fitness`: the training objective ([`Fitness`]);
 //! - `search`: one attempt of a run, the DE with continuation and restarts, then the polish;
 //! - `polish`: the Levenberg-Marquardt polish of a DE winner;
@@ -37,27 +40,34 @@ mod config;
 mod fitness;
 mod polish;
 mod predict;
+mod problem;
 mod search;
 mod split;
 mod stats;
 
-pub use config::{Config, Initial, Output};
+pub use config::{Config, Initial, Output, Protocol, Search};
 pub use fitness::Fitness;
 pub use predict::{predict, trajectory};
+pub use problem::Problem;
 pub use search::STALL_GENERATIONS_PER_UNKNOWN;
 pub use split::{initial_from_data, split};
 pub use stats::{nmae, summarize};
 
-use config::validate;
 use search::{attempt, Attempt};
-use stats::{magnitude, noise_mae, std_dev};
+use stats::{noise_mae, std_dev};
 
 /// Why an identification could not run.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum IdentifyError {
-    /// An option is out of range.
-    #[error("{0}")]
-    Option(String),
+    /// A setting is out of range: `field` names it as in [`Search`], [`Protocol`] or
+    /// [`Problem`] (the CLI translates it into its flag).
+    #[error("{field} {reason}")]
+    Invalid {
+        /// The field, e.g. `train_fraction`.
+        field: &'static str,
+        /// What is wrong, e.g. `must be strictly between 0 and 1`.
+        reason: String,
+    },
     /// Too few samples for the split.
     #[error("{samples} samples are too few: the split needs at least {needed} ({train} train, {test} test)")]
     TooFewSamples {
@@ -70,7 +80,7 @@ pub enum IdentifyError {
     #[error("the model has no unknown coefficients (c1, c2, ...) to identify")]
     NoUnknowns,
     /// RK4 needs uniformly spaced samples.
-    #[error("the rk4 solver needs uniformly spaced samples; use --solver dopri5 for this file")]
+    #[error("the rk4 solver needs uniformly spaced samples; use dopri5 for this series")]
     NotUniform,
     /// The DE refused its settings.
     #[error(transparent)]
@@ -167,72 +177,71 @@ pub fn normalize(groups: &[ScaleGroup], coefficients: &[f64]) -> Vec<f64> {
     c
 }
 
-/// Identifies `model`'s coefficients from `series`. `progress(run, generation, best_cost)` is
-/// called after every generation.
+/// Identifies `model`'s coefficients from `series` with the settings of `config` (see
+/// [`run`]). `progress(run, generation, best_cost)` is called after every generation.
 pub fn identify(
     model: &Model,
     series: &TimeSeries,
     config: &Config,
+    progress: impl FnMut(usize, usize, f64),
+) -> Result<Identification, IdentifyError> {
+    config.validate()?;
+    let problem = config.problem(model, series)?;
+    run(&problem, &config.search, &config.protocol, progress)
+}
+
+/// Solves `problem`: `protocol.runs` runs of `search`, each with its retries, each judged on
+/// the test samples. `progress(run, generation, best_cost)` is called after every generation.
+pub fn run(
+    problem: &Problem<'_>,
+    search: &Search,
+    protocol: &Protocol,
     mut progress: impl FnMut(usize, usize, f64),
 ) -> Result<Identification, IdentifyError> {
-    validate(config)?;
-    if model.n_coeffs() == 0 {
-        return Err(IdentifyError::NoUnknowns);
-    }
-    if config.solver == Method::Rk4 && series.uniform_step().is_none() {
+    protocol.validate()?;
+    search.validate()?;
+    let (model, series) = (problem.model, problem.series);
+    if search.solver == Method::Rk4 && series.uniform_step().is_none() {
         return Err(IdentifyError::NotUniform);
     }
     // Only the displacement is blind to a common factor of M and R; a force output is R itself.
-    let scale_groups = match config.output {
+    let scale_groups = match problem.output {
         Output::Displacement => model.scale_groups(),
         Output::Force => Vec::new(),
     };
-    let (train, test) = split(series.len(), config.train_fraction, config.split_seed)?;
+    let (train, test) = split(series.len(), protocol.train_fraction, protocol.split_seed)?;
     let mut is_train = vec![false; series.len()];
     for &i in &train {
         is_train[i] = true;
     }
-    let initial = match config.initial {
-        Initial::FromData => {
-            let (y0, v0) = initial_from_data(series);
-            Initial::Known { y0, v0 }
-        }
-        other => other,
-    };
-    let y_scale = config.y_scale.unwrap_or_else(|| magnitude(&series.y));
-    let fitness = Fitness::new(
-        model,
-        series,
-        is_train,
-        initial,
-        config.output,
-        config.scales.clone(),
-        y_scale,
-        config.solver,
-        config.rtol,
-        config.substeps,
-    );
+    let fitness = Fitness::new(problem, is_train, search);
     let spread = std_dev(&series.y);
-    let mut runs = Vec::with_capacity(config.runs);
+    let mut runs = Vec::with_capacity(protocol.runs);
     // Budget of a run: twice the chapter's NP + G (NP + 1) evaluations. A run whose fit is poor
     // (above 1 % of the data's spread) tries again from a fresh seed while this allows.
-    let budget = 2 * (config.population + config.generations * (config.population + 1));
+    let budget = 2 * (search.population + search.generations * (search.population + 1));
     // A fit is good when its training MAE is within 1 % of the data's spread, or within 1.5
     // times the mean absolute measurement noise when that is larger (noisy data cannot fit
     // better; without this, every run on noisy data would retry).
     let good_fit = (0.01 * spread).max(1.5 * noise_mae(&series.y));
-    for r in 0..config.runs {
-        let seed = config.seed.wrapping_add(r as u64);
+    for r in 0..protocol.runs {
+        let seed = protocol.seed.wrapping_add(r as u64);
         let started = Instant::now();
         let mut best: Option<Attempt> = None;
         let (mut evaluations, mut refine_evaluations, mut restarts) = (0, 0, 0);
-        let mut attempt_config = config.clone();
-        for k in 0..config.max_attempts.max(1) {
+        let mut attempt_search = search.clone();
+        for k in 0..protocol.max_attempts.max(1) {
             // Attempt 0 uses the run's seed; retries use other streams of it.
             let attempt_seed = seed ^ ((k as u64) << 48);
-            let a = attempt(&fitness, &attempt_config, attempt_seed, spread, |g, c| {
-                progress(r, g, c)
-            })?;
+            let a = attempt(
+                &fitness,
+                &attempt_search,
+                protocol.restart,
+                problem.polish_initial,
+                attempt_seed,
+                spread,
+                |g, c| progress(r, g, c),
+            )?;
             evaluations += a.evaluations;
             refine_evaluations += a.refine_evaluations;
             restarts += a.restarts + usize::from(k > 0);
@@ -242,12 +251,12 @@ pub fn identify(
             }
             // A retry gets the generations the remaining budget pays for (keeping room for its
             // polish), and is not worth starting below a quarter of the configured ones.
-            let left = budget.saturating_sub(evaluations + config.refine_evaluations);
-            let generations = (left / (config.population + 1)).min(config.generations);
-            if good || !config.restart || generations < config.generations / 4 {
+            let left = budget.saturating_sub(evaluations + search.refine_evaluations);
+            let generations = (left / (search.population + 1)).min(search.generations);
+            if good || !protocol.restart || generations < search.generations / 4 {
                 break;
             }
-            attempt_config.generations = generations;
+            attempt_search.generations = generations;
         }
         // max_attempts is at least 1, so at least one attempt was made.
         let Attempt {
@@ -262,8 +271,8 @@ pub fn identify(
             series,
             &coefficients,
             init,
-            config.test_rtol,
-            config.output,
+            protocol.test_rtol,
+            problem.output,
         )
         .and_then(|p| nmae(test.iter().map(|&i| (p[i], series.y[i]))));
         runs.push(RunResult {

@@ -1,6 +1,6 @@
 //! One attempt of a run: the DE search (with continuation and restarts) and the polish.
 
-use super::config::Config;
+use super::config::Search;
 use super::fitness::Fitness;
 use super::polish::polish;
 use super::{IdentifyError, InitialValues};
@@ -18,22 +18,26 @@ pub(super) struct Attempt {
     pub(super) history: Vec<f64>,
 }
 
-/// The DE search (with continuation) and the polish of the winner, from `seed`.
+/// The DE search (with continuation; stagnating stages restart when `restart`) and the polish
+/// of the winner, from `seed`. `polish_initial`: the problem's scales of `(y0, v0)` when the
+/// polish may adjust known initial conditions.
 pub(super) fn attempt(
     fitness: &Fitness<'_>,
-    config: &Config,
+    config: &Search,
+    restart: bool,
+    polish_initial: Option<(f64, f64)>,
     seed: u64,
     spread: f64,
     progress: impl FnMut(usize, f64),
 ) -> Result<Attempt, IdentifyError> {
-    let found = search(fitness, config, seed, spread, progress)?;
+    let found = search(fitness, config, restart, seed, spread, progress)?;
     let mut evaluations = found.evaluations;
     let mut refine_evaluations = 0;
     let fine = fitness.with_tolerance(Method::Dopri5, config.refine_rtol.min(config.rtol));
     let mut train_cost = fine.cost(&found.best, f64::INFINITY, &mut fine.workspace());
     let (mut coefficients, mut init) = fine.unpack(&found.best);
     if config.refine {
-        let (target, x0) = match config.polish_initial {
+        let (target, x0) = match polish_initial {
             Some((_, v_scale)) => fine.with_fitted_initial(&found.best, v_scale),
             None => (fine.clone(), found.best.clone()),
         };
@@ -77,7 +81,8 @@ pub const STALL_GENERATIONS_PER_UNKNOWN: usize = 5;
 /// longer horizon then starts from a population already in the right basin.
 fn search(
     fitness: &Fitness<'_>,
-    config: &Config,
+    config: &Search,
+    restart: bool,
     seed: u64,
     spread: f64,
     mut progress: impl FnMut(usize, f64),
@@ -108,7 +113,7 @@ fn search(
         // restarts.
         // The stall window grows with the number of unknowns: a larger search needs more
         // generations per try before a restart is worth its fresh start.
-        settings.restart = config.restart.then(|| de::Restart {
+        settings.restart = restart.then(|| de::Restart {
             converged_below: 0.01 * spread,
             stall_generations: STALL_GENERATIONS_PER_UNKNOWN * stage.dimension().max(4),
             ..de::Restart::default()
