@@ -500,3 +500,87 @@ fn forced_linear_normalised_coefficients_match_the_truth_ratios() {
         assert!((g / w - 1.0).abs() < 1e-4, "{got:?} vs {want:?}");
     }
 }
+
+// ------------------------------------------------------------------------------------------------
+// The settings: problem, search and protocol validate themselves and name their fields.
+
+#[test]
+fn defaults_are_the_chapters_protocol_with_the_improvements_on() {
+    let c = Config::default();
+    assert_eq!(c.initial, Initial::FromData);
+    assert_eq!(c.output, Output::Displacement);
+    let s = &c.search;
+    assert_eq!(
+        (s.population, s.generations, s.solver),
+        (50, 120, Method::Dopri5)
+    );
+    assert_eq!((s.rtol, s.substeps, s.refine_evaluations), (1e-3, 2, 300));
+    assert!(s.refine && s.continuation && !s.parallel);
+    let p = &c.protocol;
+    assert_eq!((p.runs, p.seed, p.split_seed, p.max_attempts), (1, 1, 1, 3));
+    assert_eq!((p.train_fraction, p.test_rtol), (0.5, 1e-5));
+    assert!(p.restart);
+    assert!(c.validate().is_ok());
+}
+
+#[test]
+fn bad_settings_are_errors_naming_the_field_not_a_flag() {
+    let message = |e: identify::IdentifyError| {
+        let m = e.to_string();
+        assert!(!m.contains("--"), "a CLI flag in a core error: {m}");
+        m
+    };
+    let p = Protocol {
+        train_fraction: 1.0,
+        ..Protocol::default()
+    };
+    assert_eq!(
+        message(p.validate().unwrap_err()),
+        "train_fraction must be strictly between 0 and 1"
+    );
+    let m = message(Protocol::default().with_runs(0, 1).unwrap_err());
+    assert!(m.starts_with("runs "), "{m}");
+    let m = message(Search::default().with_population(3).unwrap_err());
+    assert_eq!(m, "population must be at least 4");
+    let m = message(
+        Search::default()
+            .with_solver(Method::Rk4, -1e-3)
+            .unwrap_err(),
+    );
+    assert_eq!(m, "rtol must be in (0, 1), got -0.001");
+    let m = message(Search::default().with_substeps(0).unwrap_err());
+    assert!(m.starts_with("substeps "), "{m}");
+    assert!(Search::default().with_population(4).is_ok());
+
+    let c = case("van_der_pol_2");
+    let (model, data) = (c.compiled().unwrap(), c.generate().unwrap());
+    let problem = || Problem::new(&model, &data).unwrap();
+    let m = message(
+        problem()
+            .with_initial(Initial::Known {
+                y0: f64::NAN,
+                v0: 0.0,
+            })
+            .unwrap_err(),
+    );
+    assert!(m.starts_with("initial ") && m.contains("finite"), "{m}");
+    let m = message(problem().with_scales(vec![1.0; 3]).unwrap_err());
+    assert!(m.starts_with("scales ") && m.contains("(2)"), "{m}");
+    // Fitted initial conditions add two unknowns, so two more scales.
+    assert!(problem()
+        .with_initial(Initial::Fit)
+        .and_then(|p| p.with_scales(vec![1.0; 4]))
+        .is_ok());
+    assert!(problem().with_y_scale(0.0).is_err());
+    assert!(problem().with_polish_initial((1.0, f64::INFINITY)).is_err());
+    let constant = Model::parse("ydd + 2*yd + y = 0", &[]).unwrap();
+    assert_eq!(
+        Problem::new(&constant, &data).unwrap_err(),
+        identify::IdentifyError::NoUnknowns
+    );
+    // The whole identification refuses a bad setting before any work.
+    let mut config = chapter_config(c, 1, 1);
+    config.search.population = 2;
+    let e = identify::identify(&model, &data, &config, |_, _, _| {}).unwrap_err();
+    assert_eq!(message(e), "population must be at least 4");
+}
