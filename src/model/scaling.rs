@@ -121,7 +121,9 @@ fn invariant(
             // (ms, rs) parallel to (m, r): the 2x2 determinant vanishes.
             let det = (ms * r - rs * m).abs();
             let size = (ms * r).abs() + (rs * m).abs();
-            if !(det <= TOLERANCE * size) || (ms == 0.0 && rs == 0.0) {
+            // A NaN determinant (an overflow) counts as a change too.
+            let proportional = det <= TOLERANCE * size;
+            if !proportional || (ms == 0.0 && rs == 0.0) {
                 return Some(false);
             }
         }
