@@ -13,7 +13,7 @@
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use gatewatch::cases;
 use gatewatch::de::Objective;
-use gatewatch::identify::{self, Fitness, Initial, Output};
+use gatewatch::identify::{self, Fitness, Initial, Output, Problem, Search};
 use gatewatch::model::Bound;
 use gatewatch::ode::{integrate, Method, Options};
 use std::hint::black_box;
@@ -39,7 +39,7 @@ fn bench(c: &mut Criterion) {
         y0: case.y0,
         v0: case.v0,
     };
-    // The options `Fitness::new` uses (src/identify.rs), to count the work of one integration.
+    // The options `Fitness::new` uses (src/identify/fitness.rs), to count the work of one integration.
     let n = data.len();
     let scale = data.y.iter().fold(0.0f64, |m, v| m.max(v.abs()));
     let opts = Options {
@@ -52,6 +52,17 @@ fn bench(c: &mut Criterion) {
         initial_step: None,
     };
     let methods = [Method::Dopri5, Method::Rk4, Method::Rosenbrock];
+    let problem = Problem::new(&model, &data)
+        .and_then(|p| p.with_initial(initial))
+        .and_then(|p| p.with_y_scale(y_scale))
+        .expect("problem")
+        .with_output(Output::Displacement);
+    let search = |method| {
+        Search::default()
+            .with_solver(method, RTOL)
+            .and_then(|s| s.with_substeps(SUBSTEPS))
+            .expect("search settings")
+    };
 
     println!("fitness of van_der_pol_2, 250 training samples of 500, coefficients +1 %");
     println!("solver   rhs_evals  ns/evaluation  ns/rhs_eval   (plain loop, 2000 evaluations)");
@@ -67,18 +78,7 @@ fn bench(c: &mut Criterion) {
         assert!(outcome.is_complete(), "{method}: {:?}", outcome.failure);
         let evals = outcome.stats.rhs_evals;
         counts.push(evals);
-        let f = Fitness::new(
-            &model,
-            &data,
-            is_train.clone(),
-            initial,
-            Output::Displacement,
-            Vec::new(),
-            y_scale,
-            method,
-            RTOL,
-            SUBSTEPS,
-        );
+        let f = Fitness::new(&problem, is_train.clone(), &search(method));
         let mut ws = f.workspace();
         let cost = f.cost(&x, f64::INFINITY, &mut ws);
         assert!(cost.is_finite() && cost > 0.0, "{method}: cost {cost}");
@@ -99,18 +99,7 @@ fn bench(c: &mut Criterion) {
 
     let mut group = c.benchmark_group("fitness_vdp2_250_train");
     for (method, evals) in methods.into_iter().zip(counts) {
-        let f = Fitness::new(
-            &model,
-            &data,
-            is_train.clone(),
-            initial,
-            Output::Displacement,
-            Vec::new(),
-            y_scale,
-            method,
-            RTOL,
-            SUBSTEPS,
-        );
+        let f = Fitness::new(&problem, is_train.clone(), &search(method));
         let mut ws = f.workspace();
         // Criterion's throughput then reads as right-hand-side evaluations per second.
         group.throughput(Throughput::Elements(evals as u64));

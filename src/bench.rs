@@ -6,7 +6,7 @@
 
 use crate::cases::{CaseError, SeedCase};
 use crate::data::TimeSeries;
-use crate::identify::{self, Config, IdentifyError, Initial};
+use crate::identify::{self, Config, IdentifyError, Initial, Protocol, Search};
 use crate::ode::Method;
 use serde::Serialize;
 
@@ -81,7 +81,8 @@ pub struct CaseReport {
     pub chapter_std: Option<f64>,
     /// The chapter's remark.
     pub chapter_note: &'static str,
-    /// Median over the runs of the largest relative coefficient error against the truth.
+    /// Median over the runs of the largest relative coefficient error against the truth (both
+    /// normalised when the structure is scale-free, see [`identify::Identification::scale_groups`]).
     pub median_coefficient_error: f64,
 }
 
@@ -141,16 +142,22 @@ pub fn run_case(
                 v0: case.v0,
             }
         },
-        split_seed: opts.split_seed,
-        population: case.population,
-        generations: case.generations,
-        runs: opts.runs,
-        seed: opts.seed,
-        solver: opts.solver,
-        rtol: opts.rtol,
-        refine: opts.refine,
-        restart: opts.restart,
-        parallel: false,
+        search: Search {
+            population: case.population,
+            generations: case.generations,
+            solver: opts.solver,
+            rtol: opts.rtol,
+            refine: opts.refine,
+            parallel: false,
+            ..Search::default()
+        },
+        protocol: Protocol {
+            runs: opts.runs,
+            seed: opts.seed,
+            split_seed: opts.split_seed,
+            restart: opts.restart,
+            ..Protocol::default()
+        },
         ..Config::default()
     };
     let mut result = if opts.fft_bias {
@@ -183,7 +190,7 @@ pub fn run_case(
             &clean,
             &run.coefficients,
             run.initial,
-            config.test_rtol,
+            config.protocol.test_rtol,
             identify::Output::Displacement,
         )
         .and_then(|p| identify::nmae(result.test.iter().map(|&i| (p[i], clean.y[i]))));
@@ -194,13 +201,17 @@ pub fn run_case(
             .iter()
             .map(|r| r.test_nmae.unwrap_or(f64::INFINITY)),
     );
+    // A scale-free structure (forced_linear) is compared after normalising both sides the same
+    // way: its raw coefficients are one arbitrary point of a line through the truth.
+    let truth = identify::normalize(&result.scale_groups, case.truth);
     let mut coefficient_errors: Vec<f64> = result
         .runs
         .iter()
         .map(|r| {
-            r.coefficients
+            result
+                .normalized(&r.coefficients)
                 .iter()
-                .zip(case.truth)
+                .zip(&truth)
                 .map(|(c, t)| {
                     if *t == 0.0 {
                         c.abs()

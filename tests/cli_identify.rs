@@ -1,6 +1,6 @@
 //! The command line as a user runs it: `gatewatch identify` and `gatewatch bench`.
 //!
-//! Contract (src/cli.rs): exit 0 on success, 2 on bad input with exactly one line on stderr that
+//! Contract (src/cli/mod.rs): exit 0 on success, 2 on bad input with exactly one line on stderr that
 //! names the problem, 1 on anything else. Piped runs print nothing on stderr (no progress bar).
 
 use serde_json::Value;
@@ -759,7 +759,7 @@ fn seven_samples_are_enough_for_a_half_split() {
     ]);
 }
 
-/// Engine bug (src/identify.rs, `split`, the `needed` computation): the "needs at least N"
+/// Engine bug (src/identify/split.rs, `split`, the `needed` computation): the "needs at least N"
 /// figure ignores that the training count is rounded, and overflows for tiny fractions.
 /// Run with `cargo test --test cli_identify -- --ignored`.
 #[test]
@@ -901,4 +901,110 @@ fn gate_example_bench_rejects_bad_options() {
         &["--population"],
     );
     bad(&["bench", "seed-cases", "--noise", "-0.1"], &["--noise"]);
+}
+
+// ------------------------------------------------------------------------------------------------
+// Scale-free structures (issue 7, defect 6): `c1*ydd + c2*yd + c3*y = c4*sin(c5*t)` is defined
+// only up to a common factor of c1..c4; the search's numbers are one arbitrary point of a line.
+
+const FORCED: &str = "c1*ydd + c2*yd + c3*y = c4*sin(c5*t)";
+
+fn forced_args<'a>(input: &'a str, extra: &[&'a str]) -> Vec<&'a str> {
+    let mut a = vec![
+        "identify",
+        "--input",
+        input,
+        "--model",
+        FORCED,
+        "--y0",
+        "0",
+        "--v0",
+        "0.25",
+        "--population",
+        "80",
+        "--generations",
+        "250",
+    ];
+    a.extend_from_slice(extra);
+    a
+}
+
+#[test]
+fn a_scale_free_structure_is_reported_normalised() {
+    let d = Dir::new();
+    let f = d.case("forced_linear");
+    let v = json(&ok(&forced_args(&f, &["--json"])));
+    // The group and the coefficient fixed to 1 are named.
+    let groups = v["scale_groups"].as_array().expect("scale_groups array");
+    assert_eq!(groups.len(), 1, "{v}");
+    let names: Vec<&str> = groups[0]["coefficients"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|n| n.as_str().unwrap())
+        .collect();
+    assert_eq!(names, ["c1", "c2", "c3", "c4"]);
+    assert_eq!(groups[0]["fixed"].as_str(), Some("c1"));
+    assert_eq!(groups[0]["fixed_value"].as_f64(), Some(1.0));
+    assert_eq!(groups[0]["normalized"].as_bool(), Some(true));
+    // The truth 2.5, 0.35, 0.3, 3.0, 2.2 divided by c1 = 2.5.
+    assert_eq!(num(&v, "/coefficients/c1"), 1.0);
+    for (k, want) in [("c2", 0.14), ("c3", 0.12), ("c4", 1.2), ("c5", 2.2)] {
+        let got = num(&v, &format!("/coefficients/{k}"));
+        assert!((got / want - 1.0).abs() < 1e-3, "{k} = {got}, want {want}");
+    }
+    // The search's own values keep their ratios.
+    let raw = |k: &str| num(&v, &format!("/raw_coefficients/{k}"));
+    assert!((raw("c4") / raw("c1") / 1.2 - 1.0).abs() < 1e-3, "{v}");
+    assert_eq!(
+        num(&v, "/runs/0/coefficients/c1"),
+        1.0,
+        "runs are normalised too"
+    );
+
+    let s = text(&ok(&forced_args(&f, &[])).stdout);
+    let scale = s
+        .lines()
+        .find(|l| l.starts_with("scale:"))
+        .unwrap_or_else(|| panic!("no scale line: {s}"));
+    assert!(
+        scale.contains("c1, c2, c3, c4") && scale.contains("c1 = 1"),
+        "{scale}"
+    );
+    let identified = s.lines().find(|l| l.starts_with("identified:")).unwrap();
+    assert!(
+        identified.contains("1*ydd + 0.14*yd + 0.12*y = 1.2*sin(2.2*t)"),
+        "{identified}"
+    );
+    assert!(s.contains("(fixed by the normalisation)"), "{s}");
+}
+
+#[test]
+fn an_identifiable_structure_has_no_scale_group() {
+    let d = Dir::new();
+    let f = d.case("van_der_pol_2");
+    let v = json(&ok(&vdp_args(&f, &["--json"])));
+    assert_eq!(v["scale_groups"].as_array().map(Vec::len), Some(0), "{v}");
+    assert_eq!(v["coefficients"], v["raw_coefficients"]);
+    let s = text(&ok(&vdp_args(&f, &[])).stdout);
+    assert!(!s.contains("scale:"), "{s}");
+}
+
+#[test]
+fn seed_cases_bench_compares_normalised_coefficients() {
+    let out = ok(&[
+        "bench",
+        "seed-cases",
+        "--case",
+        "forced_linear",
+        "--runs",
+        "1",
+        "--json",
+    ]);
+    let v = json(&out);
+    let case = &v["cases"][0];
+    assert_eq!(case["successes"].as_u64(), Some(1));
+    // Before the normalisation this was about 1e10 (the raw c1 was -3.1e10 against 2.5).
+    let err = num(case, "/median_coefficient_error");
+    assert!(err < 1e-3, "median coefficient error {err}");
 }

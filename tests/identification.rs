@@ -7,7 +7,9 @@
 use gatewatch::cases::{self, SeedCase};
 use gatewatch::data::TimeSeries;
 use gatewatch::de::Objective;
-use gatewatch::identify::{self, Config, Fitness, Identification, Initial, Output};
+use gatewatch::identify::{
+    self, Config, Fitness, Identification, Initial, Output, Problem, Protocol, Search,
+};
 use gatewatch::model::Model;
 use gatewatch::ode::Method;
 use rand::SeedableRng;
@@ -27,10 +29,16 @@ fn chapter_config(c: &SeedCase, runs: usize, seed: u64) -> Config {
         } else {
             Initial::Known { y0: c.y0, v0: c.v0 }
         },
-        population: c.population,
-        generations: c.generations,
-        runs,
-        seed,
+        search: Search {
+            population: c.population,
+            generations: c.generations,
+            ..Search::default()
+        },
+        protocol: Protocol {
+            runs,
+            seed,
+            ..Protocol::default()
+        },
         ..Config::default()
     }
 }
@@ -126,18 +134,15 @@ fn setup(equation: &str, data_case: &str) -> Setup {
 impl Setup {
     fn fitness(&self, initial: Initial, method: Method) -> Fitness<'_> {
         let y_scale = self.data.y.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-        Fitness::new(
-            &self.model,
-            &self.data,
-            self.is_train.clone(),
-            initial,
-            Output::Displacement,
-            Vec::new(),
-            y_scale,
-            method,
-            1e-3,
-            2,
-        )
+        let problem = Problem::new(&self.model, &self.data)
+            .unwrap()
+            .with_initial(initial)
+            .unwrap()
+            .with_output(Output::Displacement)
+            .with_y_scale(y_scale)
+            .unwrap();
+        let search = Search::default().with_solver(method, 1e-3).unwrap();
+        Fitness::new(&problem, self.is_train.clone(), &search)
     }
 }
 
@@ -276,15 +281,11 @@ fn parallel_is_bit_identical_to_serial_for_any_thread_count() {
     let data = c.generate().unwrap();
     let model = c.compiled().unwrap();
     // Fewer generations than the chapter to keep it quick; restarts still happen on some seeds.
-    let config = Config {
-        generations: 60,
-        ..chapter_config(c, 2, 3)
-    };
+    let mut config = chapter_config(c, 2, 3);
+    config.search.generations = 60;
     let serial = identify::identify(&model, &data, &config, |_, _, _| {}).unwrap();
-    let parallel_config = Config {
-        parallel: true,
-        ..config.clone()
-    };
+    let mut parallel_config = config.clone();
+    parallel_config.search.parallel = true;
     for threads in [1, 2, 3] {
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(threads)
@@ -306,11 +307,11 @@ fn parallel_is_bit_identical_to_serial_for_any_thread_count() {
     let c = case("van_der_pol_2");
     let data = c.generate().unwrap();
     let model = c.compiled().unwrap();
-    let config = Config {
+    let mut config = Config {
         initial: Initial::Fit,
-        generations: 40,
         ..chapter_config(c, 1, 9)
     };
+    config.search.generations = 40;
     let serial = identify::identify(&model, &data, &config, |_, _, _| {}).unwrap();
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(3)
@@ -322,7 +323,10 @@ fn parallel_is_bit_identical_to_serial_for_any_thread_count() {
                 &model,
                 &data,
                 &Config {
-                    parallel: true,
+                    search: Search {
+                        parallel: true,
+                        ..config.search.clone()
+                    },
                     ..config.clone()
                 },
                 |_, _, _| {},
@@ -364,12 +368,10 @@ fn switches_still_run_and_report() {
         ("all off (chapter)", false, false, false),
     ];
     for (name, refine, restart, continuation) in variants {
-        let config = Config {
-            refine,
-            restart,
-            continuation,
-            ..base.clone()
-        };
+        let mut config = base.clone();
+        config.search.refine = refine;
+        config.search.continuation = continuation;
+        config.protocol.restart = restart;
         let r = identify::identify(&model, &data, &config, |_, _, _| {}).unwrap();
         assert_eq!(r.runs.len(), 2, "{name}");
         for run in &r.runs {
@@ -448,4 +450,137 @@ fn one_percent_noise_on_van_der_pol_still_identifies_within_two_percent() {
         let nmae = run.test_nmae.unwrap();
         assert!(nmae < 0.02, "seed {}: test NMAE {nmae:e}", run.seed);
     }
+}
+
+// ------------------------------------------------------------------------------------------------
+// Scale-free structures (issue 7, defect 6).
+
+/// Only the forced linear structure is defined up to a common factor (of c1..c4); none of the
+/// other seed cases' models or the gate models is flagged.
+#[test]
+fn scale_groups_are_found_only_where_the_equation_is_scale_free() {
+    for c in cases::CASES {
+        let groups = c.compiled().unwrap().scale_groups();
+        if c.id.starts_with("forced_linear") {
+            assert_eq!(groups.len(), 1, "{}", c.id);
+            assert_eq!(groups[0].members, vec![0, 1, 2, 3], "{}", c.id);
+            assert_eq!(groups[0].fixed, 0, "{}: c1 multiplies ydd", c.id);
+        } else {
+            assert!(groups.is_empty(), "{}: {groups:?}", c.id);
+        }
+    }
+    let k = [("k".to_string(), 81360.0)];
+    for eq in [
+        "c1*ydd + (c2 + c3*yd^2)*yd + k*y = 0",
+        "ydd + (c1 + c2*yd^2)*yd + c3*y = 0",
+        "c1*ydd + c2*yd + k*y = 0",
+    ] {
+        let m = Model::parse(eq, &k).unwrap();
+        assert!(m.scale_groups().is_empty(), "{eq}");
+    }
+}
+
+/// The search returns an arbitrary multiple of the truth (the fit is right either way); the
+/// normalised coefficients are the truth's ratios.
+#[test]
+fn forced_linear_normalised_coefficients_match_the_truth_ratios() {
+    let c = case("forced_linear");
+    let r = run(c, &chapter_config(c, 1, 1));
+    let best = r.best_run();
+    assert!(best.test_nmae.unwrap() < 1e-3);
+    let got = r.normalized(&best.coefficients);
+    let want = identify::normalize(&r.scale_groups, c.truth);
+    approx::assert_relative_eq!(
+        want[..],
+        [1.0, 0.14, 0.12, 1.2, 2.2][..],
+        max_relative = 1e-12
+    );
+    assert_eq!(got[0], 1.0);
+    for (g, w) in got.iter().zip(&want) {
+        assert!((g / w - 1.0).abs() < 1e-4, "{got:?} vs {want:?}");
+    }
+}
+
+// ------------------------------------------------------------------------------------------------
+// The settings: problem, search and protocol validate themselves and name their fields.
+
+#[test]
+fn defaults_are_the_chapters_protocol_with_the_improvements_on() {
+    let c = Config::default();
+    assert_eq!(c.initial, Initial::FromData);
+    assert_eq!(c.output, Output::Displacement);
+    let s = &c.search;
+    assert_eq!(
+        (s.population, s.generations, s.solver),
+        (50, 120, Method::Dopri5)
+    );
+    assert_eq!((s.rtol, s.substeps, s.refine_evaluations), (1e-3, 2, 300));
+    assert!(s.refine && s.continuation && !s.parallel);
+    let p = &c.protocol;
+    assert_eq!((p.runs, p.seed, p.split_seed, p.max_attempts), (1, 1, 1, 3));
+    assert_eq!((p.train_fraction, p.test_rtol), (0.5, 1e-5));
+    assert!(p.restart);
+    assert!(c.validate().is_ok());
+}
+
+#[test]
+fn bad_settings_are_errors_naming_the_field_not_a_flag() {
+    let message = |e: identify::IdentifyError| {
+        let m = e.to_string();
+        assert!(!m.contains("--"), "a CLI flag in a core error: {m}");
+        m
+    };
+    let p = Protocol {
+        train_fraction: 1.0,
+        ..Protocol::default()
+    };
+    assert_eq!(
+        message(p.validate().unwrap_err()),
+        "train_fraction must be strictly between 0 and 1"
+    );
+    let m = message(Protocol::default().with_runs(0, 1).unwrap_err());
+    assert!(m.starts_with("runs "), "{m}");
+    let m = message(Search::default().with_population(3).unwrap_err());
+    assert_eq!(m, "population must be at least 4");
+    let m = message(
+        Search::default()
+            .with_solver(Method::Rk4, -1e-3)
+            .unwrap_err(),
+    );
+    assert_eq!(m, "rtol must be in (0, 1), got -0.001");
+    let m = message(Search::default().with_substeps(0).unwrap_err());
+    assert!(m.starts_with("substeps "), "{m}");
+    assert!(Search::default().with_population(4).is_ok());
+
+    let c = case("van_der_pol_2");
+    let (model, data) = (c.compiled().unwrap(), c.generate().unwrap());
+    let problem = || Problem::new(&model, &data).unwrap();
+    let m = message(
+        problem()
+            .with_initial(Initial::Known {
+                y0: f64::NAN,
+                v0: 0.0,
+            })
+            .unwrap_err(),
+    );
+    assert!(m.starts_with("initial ") && m.contains("finite"), "{m}");
+    let m = message(problem().with_scales(vec![1.0; 3]).unwrap_err());
+    assert!(m.starts_with("scales ") && m.contains("(2)"), "{m}");
+    // Fitted initial conditions add two unknowns, so two more scales.
+    assert!(problem()
+        .with_initial(Initial::Fit)
+        .and_then(|p| p.with_scales(vec![1.0; 4]))
+        .is_ok());
+    assert!(problem().with_y_scale(0.0).is_err());
+    assert!(problem().with_polish_initial((1.0, f64::INFINITY)).is_err());
+    let constant = Model::parse("ydd + 2*yd + y = 0", &[]).unwrap();
+    assert_eq!(
+        Problem::new(&constant, &data).unwrap_err(),
+        identify::IdentifyError::NoUnknowns
+    );
+    // The whole identification refuses a bad setting before any work.
+    let mut config = chapter_config(c, 1, 1);
+    config.search.population = 2;
+    let e = identify::identify(&model, &data, &config, |_, _, _| {}).unwrap_err();
+    assert_eq!(message(e), "population must be at least 4");
 }

@@ -102,16 +102,22 @@ impl Analyzer {
             signal: s.signal,
             stiffness: s.stiffness,
             identify: identify::Config {
-                population: s.population,
-                generations: s.generations,
-                seed,
-                split_seed: seed,
-                // One RK4 step per sample: three times cheaper than dopri5 over a long window;
-                // the polish (dopri5 at 1e-8) sets the final accuracy.
-                solver: crate::ode::Method::Rk4,
-                substeps: 1,
-                // The daemon's work per window must stay bounded: no retries.
-                max_attempts: 1,
+                search: identify::Search {
+                    population: s.population,
+                    generations: s.generations,
+                    // One RK4 step per sample: three times cheaper than dopri5 over a long
+                    // window; the polish (dopri5 at 1e-8) sets the final accuracy.
+                    solver: crate::ode::Method::Rk4,
+                    substeps: 1,
+                    ..identify::Search::default()
+                },
+                protocol: identify::Protocol {
+                    seed,
+                    split_seed: seed,
+                    // The daemon's work per window must stay bounded: no retries.
+                    max_attempts: 1,
+                    ..identify::Protocol::default()
+                },
                 ..identify::Config::default()
             },
             amplitude_limit: s.amplitude_limit,

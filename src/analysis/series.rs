@@ -84,12 +84,6 @@ pub struct SeriesAnalysis {
     pub linearization: Linearization,
 }
 
-fn rms(x: &[f64]) -> f64 {
-    let n = x.len().max(1) as f64;
-    let mean = x.iter().sum::<f64>() / n;
-    (x.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n).sqrt()
-}
-
 /// Section 8.5's pre-run: fits `F ~ exp(sigma t) (a cos wt + b sin wt) + d` by linear least
 /// squares on the first three periods (the chapter fits `C1 sin(C2 t + C3)` by DE; with `w` from
 /// the spectrum the problem is linear) and returns `y0 = F(0)/k`, `v0 = F'(0)/k`.
@@ -213,8 +207,8 @@ pub fn analyze_series_with(
         warm,
         &PopulationInputs {
             scales: &scales,
-            population: config.population,
-            seed: config.seed,
+            population: config.search.population,
+            seed: config.protocol.seed,
             fit_initial_conditions: matches!(config.initial, identify::Initial::Fit),
             fft_bias: opts.fft_bias,
             target: free.omega.map(|omega| SpectralTarget {
@@ -226,7 +220,7 @@ pub fn analyze_series_with(
             v_scale: scale.v,
         },
     );
-    config.initial_population = initial_population;
+    config.search.initial_population = initial_population;
 
     let identification =
         identify::identify(model, &data, &config, progress).map_err(|e| match e {
@@ -236,13 +230,13 @@ pub fn analyze_series_with(
     let best = identification.best_run().clone();
     let c = best.coefficients.clone();
     let lin = Linearization::of(model, &c, t0, scale.y, scale.v);
-    let trajectory = identify::trajectory(model, &data.t, &c, best.initial, config.test_rtol);
+    let trajectory = identify::trajectory(model, &data.t, &c, best.initial, config.protocol.test_rtol);
     let prediction = identify::predict(
         model,
         &data,
         &c,
         best.initial,
-        config.test_rtol,
+        config.protocol.test_rtol,
         config.output,
     );
     let fit_nmae = prediction
@@ -405,7 +399,7 @@ fn scale_problem(
             let (y0, v0) = pre_run(data, w, sigma, k).ok_or_else(|| {
                 AnalysisError::Window("the pre-run for the initial conditions failed".into())
             })?;
-            let f_rms = rms(&data.y);
+            let f_rms = identify::std_dev(&data.y);
             if f_rms.is_nan() || f_rms <= 0.0 {
                 return Err(AnalysisError::Window("the signal is constant".into()));
             }

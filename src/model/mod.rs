@@ -41,6 +41,7 @@ mod lexer;
 mod linear;
 mod parser;
 mod program;
+mod scaling;
 #[cfg(test)]
 mod tests;
 
@@ -48,6 +49,8 @@ use crate::ode::System;
 use lexer::{Tok, Token};
 use parser::{CoefSite, Expr, Facts, Parser};
 use program::Program;
+
+pub use scaling::{ScaleGroup, MAX_SCALE_SEARCH};
 
 /// A parse or compile error, with the 1-based column where it was found when there is one.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]

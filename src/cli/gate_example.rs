@@ -1,0 +1,91 @@
+//! `gatewatch bench gate-example`: the chapter's gate example through the daemon's analysis.
+
+use super::{input, opt, CliError};
+use crate::bench;
+use clap::Args;
+use serde_json::json;
+use std::io::Write;
+
+/// Arguments of `gatewatch bench gate-example`.
+#[derive(Debug, Args)]
+pub struct GateExampleArgs {
+    /// Runs (noise and DE seeds seed, seed + 1, ...).
+    #[arg(long, default_value_t = 25)]
+    runs: usize,
+    /// Seed of the first run.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Measurement noise, fraction of the signal's standard deviation.
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0.01)]
+    noise: f64,
+    /// Drift of the force, N/s.
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0.2)]
+    drift: f64,
+    /// DE population.
+    #[arg(long, default_value_t = 20)]
+    population: usize,
+    /// DE generations.
+    #[arg(long, default_value_t = 40)]
+    generations: usize,
+    /// Without the FFT-biased initial population.
+    #[arg(long)]
+    no_fft_bias: bool,
+    /// Print the runs as JSON.
+    #[arg(long)]
+    json: bool,
+}
+
+pub(super) fn run(a: GateExampleArgs) -> Result<(), CliError> {
+    if a.runs == 0 {
+        return Err(input("--runs must be at least 1"));
+    }
+    if !(0.0..1.0).contains(&a.noise) {
+        return Err(input("--noise must be in [0, 1)"));
+    }
+    if a.population < 4 {
+        return Err(input("--population must be at least 4"));
+    }
+    let opts = bench::GateExampleOptions {
+        runs: a.runs,
+        seed: a.seed,
+        noise: a.noise,
+        drift: a.drift,
+        population: a.population,
+        generations: a.generations,
+        fft_bias: !a.no_fft_bias,
+    };
+    let runs = bench::run_gate_example(&opts)?;
+    let mut out = std::io::stdout().lock();
+    if a.json {
+        writeln!(out, "{}", json!({"options": opts, "runs": runs}))?;
+        return Ok(());
+    }
+    writeln!(out, "| seed | mass kg | damping N s/m | cubic N s^3/m^3 | zeta0 % | verdict | ok | evaluations | seconds |")?;
+    writeln!(out, "|---|---|---|---|---|---|---|---|---|")?;
+    for r in &runs {
+        writeln!(
+            out,
+            "| {} | {:.3} | {:.3} | {:.1} | {} | {:?} | {} | {} | {:.3} |",
+            r.seed,
+            r.mass,
+            r.damping,
+            r.cubic,
+            opt(r.zeta0, |z| format!("{:.4}", 100.0 * z)),
+            r.verdict,
+            if r.success { "yes" } else { "no" },
+            r.evaluations,
+            r.seconds
+        )?;
+    }
+    let mut secs: Vec<f64> = runs.iter().map(|r| r.seconds).collect();
+    secs.sort_by(f64::total_cmp);
+    writeln!(
+        out,
+        "\n{} of {} runs: mass and damping within 2 % and zeta0 < 0; median {:.3} s per run, max {:.3} s",
+        runs.iter().filter(|r| r.success).count(),
+        runs.len(),
+        secs[secs.len() / 2],
+        secs[secs.len() - 1]
+    )?;
+    Ok(())
+}

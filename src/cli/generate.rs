@@ -1,0 +1,48 @@
+//! `gatewatch bench generate`: a seed case's data (or the gate example's force) as CSV.
+
+use super::{find_case, CliError};
+use crate::data::TimeSeries;
+use clap::Args;
+use std::io::Write;
+use std::path::PathBuf;
+
+/// Arguments of `gatewatch bench generate`.
+#[derive(Debug, Args)]
+pub struct GenerateArgs {
+    /// The case id, e.g. van_der_pol_2, or gate_example (the chapter's section 8.5 support force).
+    #[arg(long = "case", value_name = "ID")]
+    case: String,
+    /// Seed of the noise (gate_example).
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Output file (stdout when absent).
+    #[arg(long, value_name = "FILE")]
+    output: Option<PathBuf>,
+}
+
+pub(super) fn run(a: GenerateArgs) -> Result<(), CliError> {
+    let data = if a.case == "gate_example" {
+        // The chapter's worked example (section 8.5): support force, 200 Hz, 10 s, 1 % noise,
+        // a slow drift of 0.2 N/s.
+        let ex = crate::simulate::worked_example(&crate::simulate::WorkedExampleOptions {
+            drift_per_s: 0.2,
+            seed: a.seed,
+            ..Default::default()
+        });
+        let t = (0..ex.force.len()).map(|i| i as f64 / ex.rate_hz).collect();
+        TimeSeries::new(t, ex.force).map_err(|e| CliError::Other(e.into()))?
+    } else {
+        find_case(&a.case)?.generate()?
+    };
+    match a.output {
+        Some(path) => data.to_csv(&path, "t", "y")?,
+        None => {
+            let mut out = std::io::stdout().lock();
+            writeln!(out, "t,y")?;
+            for (t, y) in data.t.iter().zip(&data.y) {
+                writeln!(out, "{t:.17e},{y:.17e}")?;
+            }
+        }
+    }
+    Ok(())
+}

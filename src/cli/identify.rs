@@ -1,0 +1,265 @@
+//! `gatewatch identify`: the coefficients of an equation of motion from a CSV time series.
+
+use super::report::{identification_json, write_identification};
+use super::{input, parse_param, progress_bar, CliError};
+use crate::analysis::{self, SeriesOptions, Signal};
+use crate::data::TimeSeries;
+use crate::identify::{Config, IdentifyError, Initial, Protocol, Search};
+use crate::model::Model;
+use crate::ode::Method;
+use clap::Args;
+use std::io::Write;
+use std::path::PathBuf;
+
+/// Arguments of `gatewatch identify`.
+#[derive(Debug, Args)]
+pub struct IdentifyArgs {
+    /// CSV file with a header row.
+    #[arg(long, value_name = "FILE")]
+    input: PathBuf,
+    /// The equation, e.g. 'ydd + (c1 + c2*y^2)*yd + y = 0'.
+    #[arg(long, value_name = "EQUATION")]
+    model: String,
+    /// Known initial displacement y(t0) (with --v0).
+    #[arg(
+        long,
+        requires = "v0",
+        conflicts_with = "fit_initial",
+        allow_hyphen_values = true
+    )]
+    y0: Option<f64>,
+    /// Known initial velocity yd(t0) (with --y0).
+    #[arg(
+        long,
+        requires = "y0",
+        conflicts_with = "fit_initial",
+        allow_hyphen_values = true
+    )]
+    v0: Option<f64>,
+    /// Identify y(t0) and yd(t0) as two extra unknowns.
+    #[arg(long)]
+    fit_initial: bool,
+    /// A known constant of the equation, NAME=VALUE (repeatable).
+    #[arg(long = "param", value_name = "NAME=VALUE", value_parser = parse_param)]
+    params: Vec<(String, f64)>,
+    /// Column holding time.
+    #[arg(long, default_value = "t")]
+    time_column: String,
+    /// Column holding the signal.
+    #[arg(long, default_value = "y")]
+    value_column: String,
+    /// Fraction of the samples used for training.
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0.5)]
+    train_fraction: f64,
+    /// Seed of the train/test split.
+    #[arg(long, default_value_t = 1)]
+    split_seed: u64,
+    /// DE population size.
+    #[arg(long, default_value_t = 50)]
+    population: usize,
+    /// DE generations.
+    #[arg(long, default_value_t = 120)]
+    generations: usize,
+    /// Independent runs.
+    #[arg(long, default_value_t = 1)]
+    runs: usize,
+    /// Seed of the first run.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Relative tolerance of the fitness solver.
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1e-3)]
+    rtol: f64,
+    /// Relative tolerance of the test solver.
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1e-5)]
+    test_rtol: f64,
+    /// Fitness solver: auto, dopri5, rk4 or stiff. Auto: dopri5 (the chapter's ode45) for
+    /// displacement data; rk4 on the sample grid, one step per sample, for uniformly sampled
+    /// force signals, whose long windows it integrates three times cheaper (the polish and the
+    /// test always use dopri5 at tight tolerance).
+    #[arg(long, default_value = "auto")]
+    solver: String,
+    /// RK4 steps per sample interval (default 2; 1 with the automatic choice for force signals).
+    #[arg(long)]
+    substeps: Option<usize>,
+    /// Skip the Levenberg-Marquardt polish of the DE winner.
+    #[arg(long)]
+    no_refine: bool,
+    /// Never restart a stagnating DE population.
+    #[arg(long)]
+    no_restart: bool,
+    /// Evaluate each generation on all cores (same result as serial).
+    #[arg(long)]
+    parallel: bool,
+    /// What the values are: displacement, or the support force (section 8.5).
+    #[arg(long, value_enum, default_value = "displacement")]
+    signal: SignalArg,
+    /// Installed stiffness in N/m (force signals; also usable as the constant `k`).
+    #[arg(long, allow_negative_numbers = true, value_name = "N/m")]
+    stiffness: Option<f64>,
+    /// Do not bias the initial population with the spectrum's frequency and growth.
+    #[arg(long)]
+    no_fft_bias: bool,
+    /// Force signals: seconds of the centred moving average removed first (0: none).
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1.0)]
+    moving_average: f64,
+    /// Amplitude (unit of the signal) whose time of reach is predicted.
+    #[arg(long, allow_negative_numbers = true)]
+    amplitude_limit: Option<f64>,
+    /// Above this fit NMAE the model is not trusted.
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0.2)]
+    max_fit_nmae: f64,
+    /// Print exactly one JSON object on stdout.
+    #[arg(long)]
+    json: bool,
+    /// Write pictures of the result into DIR (created if needed): fit, phase, convergence.
+    #[arg(long, value_name = "DIR")]
+    plot: Option<PathBuf>,
+    /// Format of the --plot pictures: svg or png.
+    #[arg(long, default_value = "svg", requires = "plot")]
+    plot_format: crate::plot::Format,
+}
+
+/// What the samples of `identify` are.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum SignalArg {
+    /// Displacement y.
+    Displacement,
+    /// Support force (damping plus stiffness force).
+    Force,
+}
+
+pub(super) fn run(a: IdentifyArgs) -> Result<(), CliError> {
+    let mut params = a.params.clone();
+    if let Some(k) = a.stiffness {
+        if !(k.is_finite() && k > 0.0) {
+            return Err(input("--stiffness must be a positive number"));
+        }
+        if !params.iter().any(|(n, _)| n == "k") && a.model.contains('k') {
+            params.push(("k".to_string(), k));
+        }
+    }
+    let signal = match a.signal {
+        SignalArg::Displacement => Signal::Displacement,
+        SignalArg::Force => Signal::Force,
+    };
+    if signal == Signal::Force {
+        if a.stiffness.is_none() {
+            return Err(input(
+                "--signal force needs --stiffness (the installed stiffness in N/m)",
+            ));
+        }
+        if a.y0.is_some() || a.fit_initial {
+            return Err(input("--signal force takes its initial conditions from the pre-run: drop --y0/--v0/--fit-initial"));
+        }
+    }
+    if !(a.moving_average >= 0.0 && a.moving_average.is_finite()) {
+        return Err(input("--moving-average must be >= 0 seconds"));
+    }
+    if a.max_fit_nmae.is_nan() || a.max_fit_nmae <= 0.0 {
+        return Err(input("--max-fit-nmae must be > 0"));
+    }
+    if a.amplitude_limit
+        .is_some_and(|v| !(v > 0.0 && v.is_finite()))
+    {
+        return Err(input("--amplitude-limit must be a positive number"));
+    }
+    let model = Model::parse(&a.model, &params).map_err(|e| input(format!("model: {e}")))?;
+    let series = TimeSeries::from_csv(&a.input, &a.time_column, &a.value_column).map_err(input)?;
+    let (solver, substeps) = match a.solver.as_str() {
+        "auto" if signal == Signal::Force && series.uniform_step().is_some() => {
+            (Method::Rk4, a.substeps.unwrap_or(1))
+        }
+        "auto" => (Method::Dopri5, a.substeps.unwrap_or(2)),
+        other => (
+            other
+                .parse::<Method>()
+                .map_err(|e| input(format!("--solver: {e}")))?,
+            a.substeps.unwrap_or(2),
+        ),
+    };
+    let initial = match (a.y0, a.v0, a.fit_initial) {
+        (Some(y0), Some(v0), _) => Initial::Known { y0, v0 },
+        (_, _, true) => Initial::Fit,
+        _ => Initial::FromData,
+    };
+    let config = Config {
+        initial,
+        search: Search {
+            population: a.population,
+            generations: a.generations,
+            solver,
+            rtol: a.rtol,
+            substeps,
+            refine: !a.no_refine,
+            parallel: a.parallel,
+            ..Search::default()
+        },
+        protocol: Protocol {
+            runs: a.runs,
+            seed: a.seed,
+            train_fraction: a.train_fraction,
+            split_seed: a.split_seed,
+            test_rtol: a.test_rtol,
+            restart: !a.no_restart,
+            ..Protocol::default()
+        },
+        ..Config::default()
+    };
+    config.validate().map_err(|e| input(in_flags(e)))?;
+    let opts = SeriesOptions {
+        signal,
+        stiffness: a.stiffness,
+        identify: config.clone(),
+        fft_bias: !a.no_fft_bias,
+        moving_average_seconds: a.moving_average,
+        amplitude_limit: a.amplitude_limit,
+        max_fit_nmae: a.max_fit_nmae,
+    };
+    let total = (a.runs * a.generations) as u64;
+    let bar = progress_bar(total, "identify");
+    let result = analysis::analyze_series(&model, &series, &opts, None, |r, g, _| {
+        bar.set_position((r * a.generations + g) as u64)
+    })
+    .map_err(input)?;
+    bar.finish_and_clear();
+    let mut out = std::io::stdout().lock();
+    if a.json {
+        let v = identification_json(&model, &result);
+        writeln!(out, "{v}")?;
+    } else {
+        write_identification(&mut out, &model, &result, &config)?;
+    }
+    if let Some(dir) = &a.plot {
+        let units = match signal {
+            Signal::Force => crate::plot::Units {
+                time: Some("s".into()),
+                signal: Some("m".into()),
+                force: Some("N".into()),
+                data: Some("support force F [N]".into()),
+            },
+            Signal::Displacement => crate::plot::Units::default(),
+        };
+        crate::plot::identification(dir, a.plot_format, &model, &result, signal, &units)
+            .map_err(|e| input(format!("--plot: {e}")))?;
+    }
+    Ok(())
+}
+
+/// The core's error about a setting, told in this command's flags (the core names its fields).
+fn in_flags(e: IdentifyError) -> String {
+    let IdentifyError::Invalid { field, reason } = &e else {
+        return e.to_string();
+    };
+    let flag = match *field {
+        "initial" => return "--y0 and --v0 must be finite numbers".to_string(),
+        "train_fraction" => "--train-fraction",
+        "population" => "--population",
+        "runs" => "--runs",
+        "rtol" => "--rtol",
+        "test_rtol" => "--test-rtol",
+        "substeps" => "--substeps",
+        // Not options of this command: the core's own name is the most precise one.
+        _ => return e.to_string(),
+    };
+    format!("{flag} {reason}")
+}

@@ -1,0 +1,258 @@
+//! The output of `gatewatch identify`: the `--json` object and the text report.
+
+use super::opt;
+use crate::analysis::{self, SeriesAnalysis};
+use crate::identify::{Config, Initial};
+use crate::model::Model;
+use serde_json::json;
+use std::io::Write;
+
+fn coefficients_json(c: &[f64]) -> serde_json::Value {
+    let map: serde_json::Map<String, serde_json::Value> = c
+        .iter()
+        .enumerate()
+        .map(|(i, v)| (format!("c{}", i + 1), json!(v)))
+        .collect();
+    serde_json::Value::Object(map)
+}
+
+/// The `--json` object of `gatewatch identify` (field names are a stable interface).
+pub fn identification_json(model: &Model, a: &SeriesAnalysis) -> serde_json::Value {
+    let r = &a.identification;
+    let best = r.best_run();
+    // Reported coefficients are normalised when the structure is scale-free (the search's own
+    // values, one arbitrary point of a line, stay in `raw_coefficients`).
+    let coefficients = r.normalized(&best.coefficients);
+    json!({
+        "damping": a.damping,
+        "linearization": a.linearization,
+        "model": model.equation(),
+        "equation": model.substitute(&coefficients),
+        "coefficients": coefficients_json(&coefficients),
+        "raw_coefficients": coefficients_json(&best.coefficients),
+        "scale_groups": r.scale_groups.iter().map(|g| json!({
+            "coefficients": g.members.iter().map(|j| format!("c{}", j + 1)).collect::<Vec<_>>(),
+            "fixed": format!("c{}", g.fixed + 1),
+            "fixed_value": if g.sign_free { 1.0 } else { coefficients[g.fixed].signum() },
+            "normalized": g.normalize(&best.coefficients).is_some(),
+        })).collect::<Vec<_>>(),
+        "initial": {"y0": best.initial.y0, "v0": best.initial.v0},
+        "train_mae": best.train_mae,
+        "test_nmae": best.test_nmae,
+        "evaluations": best.evaluations,
+        "seconds": best.seconds,
+        "convergence": best.history,
+        "coefficient_intervals": coefficient_intervals(r).map(|iv| {
+            iv.iter()
+                .enumerate()
+                .map(|(i, (lo, hi))| (format!("c{}", i + 1), json!([lo, hi])))
+                .collect::<serde_json::Map<String, serde_json::Value>>()
+        }),
+        "summary": {
+            "mean_nmae": finite_or_null(r.summary.mean),
+            "std_nmae": finite_or_null(r.summary.std),
+            "min_nmae": finite_or_null(r.summary.min),
+            "median_nmae": finite_or_null(r.summary.median),
+        },
+        "runs": r.runs.iter().map(|run| json!({
+            "seed": run.seed,
+            "coefficients": coefficients_json(&r.normalized(&run.coefficients)),
+            "raw_coefficients": coefficients_json(&run.coefficients),
+            "initial": {"y0": run.initial.y0, "v0": run.initial.v0},
+            "train_mae": run.train_mae,
+            "test_nmae": run.test_nmae,
+            "evaluations": run.evaluations,
+            "restarts": run.restarts,
+            "seconds": run.seconds,
+        })).collect::<Vec<_>>(),
+    })
+}
+
+/// With several runs, each (normalised) coefficient's range over the runs (its spread: the
+/// uncertainty of the identification itself).
+fn coefficient_intervals(r: &crate::identify::Identification) -> Option<Vec<(f64, f64)>> {
+    if r.runs.len() < 2 {
+        return None;
+    }
+    let n = r.best_run().coefficients.len();
+    Some(
+        (0..n)
+            .map(|j| {
+                let v = r.runs.iter().map(|run| r.normalized(&run.coefficients)[j]);
+                (
+                    v.clone().fold(f64::INFINITY, f64::min),
+                    v.fold(f64::NEG_INFINITY, f64::max),
+                )
+            })
+            .collect(),
+    )
+}
+
+fn finite_or_null(v: f64) -> serde_json::Value {
+    if v.is_finite() {
+        json!(v)
+    } else {
+        serde_json::Value::Null
+    }
+}
+
+pub(super) fn write_identification(
+    out: &mut impl Write,
+    model: &Model,
+    a: &SeriesAnalysis,
+    config: &Config,
+) -> std::io::Result<()> {
+    let r = &a.identification;
+    let best = r.best_run();
+    writeln!(out, "model:        {}", model.equation())?;
+    let coefficients = r.normalized(&best.coefficients);
+    writeln!(out, "identified:   {}", model.substitute(&coefficients))?;
+    let mut fixed = Vec::new();
+    for g in &r.scale_groups {
+        let names: Vec<String> = g.members.iter().map(|j| format!("c{}", j + 1)).collect();
+        let c = format!("c{}", g.fixed + 1);
+        if g.normalize(&best.coefficients).is_some() {
+            fixed.push(g.fixed);
+            let one = if g.sign_free { "1" } else { "+-1" };
+            writeln!(
+                out,
+                "scale:        {} are determined only up to a common factor: normalised to {c} = {one}",
+                names.join(", ")
+            )?;
+        } else {
+            writeln!(
+                out,
+                "scale:        {} are determined only up to a common factor ({c} = 0: not normalised)",
+                names.join(", ")
+            )?;
+        }
+    }
+    let intervals = coefficient_intervals(r);
+    for (i, c) in coefficients.iter().enumerate() {
+        if fixed.contains(&i) {
+            writeln!(
+                out,
+                "  c{:<3} = {c:.8e}   (fixed by the normalisation)",
+                i + 1
+            )?;
+            continue;
+        }
+        match intervals.as_ref().map(|iv| iv[i]) {
+            Some((lo, hi)) => writeln!(
+                out,
+                "  c{:<3} = {c:.8e}   (runs: {lo:.6e} .. {hi:.6e})",
+                i + 1
+            )?,
+            None => writeln!(out, "  c{:<3} = {c:.8e}", i + 1)?,
+        }
+    }
+    let how = match config.initial {
+        Initial::Known { .. } => "given",
+        Initial::FromData => "from the data",
+        Initial::Fit => "identified",
+    };
+    writeln!(
+        out,
+        "initial:      y0 = {:.6e}, v0 = {:.6e} ({how})",
+        best.initial.y0, best.initial.v0
+    )?;
+    writeln!(out, "train MAE:    {:.3e}", best.train_mae)?;
+    match best.test_nmae {
+        Some(v) => writeln!(out, "test NMAE:    {v:.3e}")?,
+        None => writeln!(out, "test NMAE:    n/a (the test integration failed)")?,
+    }
+    writeln!(
+        out,
+        "evaluations:  {} (of which {} in the polish)",
+        best.evaluations, best.refine_evaluations
+    )?;
+    writeln!(out, "time:         {:.3} s", best.seconds)?;
+    if r.runs.len() > 1 {
+        writeln!(
+            out,
+            "runs:         {} (best by training error: seed {})",
+            r.runs.len(),
+            best.seed
+        )?;
+        writeln!(
+            out,
+            "test NMAE:    mean {:.3e}, std {:.3e}, min {:.3e}, median {:.3e}",
+            r.summary.mean, r.summary.std, r.summary.min, r.summary.median
+        )?;
+    }
+    write_damping(out, &a.damping)
+}
+
+fn write_damping(out: &mut impl Write, d: &analysis::DampingReport) -> std::io::Result<()> {
+    writeln!(out, "damping:")?;
+    let interval = d.zeta0_interval.map_or(String::new(), |(lo, hi)| {
+        format!(" [{:.3} %, {:.3} %]", 100.0 * lo, 100.0 * hi)
+    });
+    writeln!(
+        out,
+        "  zeta0 (at rest):        {}{interval} ({})",
+        opt(d.zeta0, |z| format!("{:.3} %", 100.0 * z)),
+        d.zeta0_source.map_or("-", |s| s.as_str())
+    )?;
+    writeln!(
+        out,
+        "  zeta_eq (at amplitude): {}",
+        opt(d.zeta_eq, |z| format!("{:.3} %", 100.0 * z))
+    )?;
+    writeln!(
+        out,
+        "  amplitude now:          {}",
+        opt(d.amplitude, |v| format!("{v:.4e}"))
+    )?;
+    writeln!(
+        out,
+        "  energy fed per cycle:   {}",
+        opt(d.energy_per_cycle, |v| format!("{v:.4e}"))
+    )?;
+    writeln!(
+        out,
+        "  limit-cycle amplitude:  {}",
+        opt(d.limit_cycle_amplitude, |v| format!("{v:.4e}"))
+    )?;
+    writeln!(
+        out,
+        "  time to limit:          {}",
+        opt(d.time_to_limit, |v| format!("{v:.1} s"))
+    )?;
+    writeln!(
+        out,
+        "  frequency:              {} (model {})",
+        opt(d.frequency_hz, |v| format!("{v:.4} Hz")),
+        opt(d.model_frequency_hz, |v| format!("{v:.4} Hz"))
+    )?;
+    writeln!(
+        out,
+        "  envelope growth:        {}",
+        match (d.growth_rate, d.growth_rate_stderr) {
+            (Some(g), Some(se)) => format!("{g:.4} 1/s (+- {se:.4})"),
+            _ => "n/a".to_string(),
+        }
+    )?;
+    if let Some((z, lo, hi)) = d.ambient_zeta.map(<(f64, f64, f64)>::from) {
+        writeln!(
+            out,
+            "  ambient zeta (AR):      {:.3} % [{:.3} %, {:.3} %]",
+            100.0 * z,
+            100.0 * lo,
+            100.0 * hi
+        )?;
+    }
+    writeln!(
+        out,
+        "  fit NMAE:               {:.3e}; agrees with the spectrum: {}; trusted: {}",
+        d.fit_nmae,
+        if d.agrees { "yes" } else { "no" },
+        if d.trusted { "yes" } else { "no" }
+    )?;
+    let verdict = match d.verdict {
+        analysis::Verdict::Damped => "damped",
+        analysis::Verdict::SelfExcited => "SELF-EXCITED (negative damping at rest)",
+        analysis::Verdict::Unknown => "unknown (the model cannot be trusted)",
+    };
+    writeln!(out, "  verdict:                {verdict}")
+}

@@ -1,0 +1,230 @@
+//! Curves over samples: the data with the fitted model, the phase plane, the hysteresis loop.
+
+use super::*;
+use std::path::Path;
+
+struct FitFigure<'a> {
+    t: &'a [f64],
+    y: &'a [f64],
+    train: &'a [usize],
+    test: &'a [usize],
+    model_t: &'a [f64],
+    model_y: &'a [f64],
+    units: &'a Units,
+    title: &'a str,
+}
+
+impl Figure for FitFigure<'_> {
+    fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> DrawResult
+    where
+        DB::ErrorType: 'static,
+    {
+        root.fill(&WHITE)?;
+        let (x0, x1) = span(self.t.iter().chain(self.model_t));
+        let (y0, y1) = span(self.y.iter().chain(self.model_y));
+        // Room above the data for the legend.
+        let y1 = y1 + 0.25 * (y1 - y0);
+        let mut chart = ChartBuilder::on(root)
+            .caption(self.title, (FONT, TITLE_SIZE))
+            .margin(20)
+            .x_label_area_size(55)
+            .y_label_area_size(80)
+            .build_cartesian_2d(x0..x1, y0..y1)?;
+        chart
+            .configure_mesh()
+            .x_desc(label("time t", self.units.time.as_deref()))
+            .y_desc(match &self.units.data {
+                Some(d) => d.clone(),
+                None => label("displacement y", self.units.signal.as_deref()),
+            })
+            .x_label_formatter(&tick_format(x0, x1))
+            .y_label_formatter(&tick_format(y0, y1))
+            .label_style((FONT, LABEL_SIZE))
+            .axis_desc_style((FONT, DESC_SIZE))
+            .light_line_style(WHITE.mix(0.0))
+            .draw()?;
+        let at = |i: &usize| (self.t[*i], self.y[*i]);
+        chart
+            .draw_series(
+                self.train
+                    .iter()
+                    .map(|i| Circle::new(at(i), 3, BLUE.filled())),
+            )?
+            .label(format!("training samples ({})", self.train.len()))
+            .legend(|(x, y)| Circle::new((x + 10, y), 4, BLUE.filled()));
+        chart
+            .draw_series(
+                self.test
+                    .iter()
+                    .map(|i| Cross::new(at(i), 4, ORANGE.stroke_width(2))),
+            )?
+            .label(format!("test samples ({})", self.test.len()))
+            .legend(|(x, y)| Cross::new((x + 10, y), 5, ORANGE.stroke_width(2)));
+        if !self.model_t.is_empty() {
+            let pts = thin(self.model_t, self.model_y, (x0, x1), (y0, y1));
+            chart.draw_series(LineSeries::new(pts.iter().copied(), BLACK))?;
+            chart
+                .draw_series(LineSeries::new(pts, BLACK.stroke_width(2)))?
+                .label("identified model")
+                .legend(|(x, y)| {
+                    PathElement::new(vec![(x, y), (x + 20, y)], BLACK.stroke_width(2))
+                });
+        }
+        legend_box(&mut chart, SeriesLabelPosition::UpperRight)
+    }
+}
+
+/// The data with the fitted model: training samples `train` (indices into `t`, `y`) as dots,
+/// test samples `test` as crosses, the model curve `(model_t, model_y)` as a line (empty when
+/// the model could not be simulated).
+#[allow(clippy::too_many_arguments)]
+pub fn fit(
+    path: &Path,
+    t: &[f64],
+    y: &[f64],
+    train: &[usize],
+    test: &[usize],
+    model_t: &[f64],
+    model_y: &[f64],
+    units: &Units,
+) -> Result<(), PlotError> {
+    if t.is_empty() || t.len() != y.len() {
+        return Err(no_data(
+            path,
+            "the time series is empty or t and y differ in length",
+        ));
+    }
+    if train.iter().chain(test).any(|&i| i >= t.len()) {
+        return Err(no_data(path, "a sample index is out of range"));
+    }
+    if model_t.len() != model_y.len() {
+        return Err(no_data(path, "the model's t and y differ in length"));
+    }
+    render(
+        path,
+        &FitFigure {
+            t,
+            y,
+            train,
+            test,
+            model_t,
+            model_y,
+            units,
+            title: "Measured signal and identified model",
+        },
+    )
+}
+
+struct CurveFigure<'a> {
+    x: &'a [f64],
+    y: &'a [f64],
+    x_desc: String,
+    y_desc: String,
+    title: &'a str,
+    equal_zero_lines: bool,
+}
+
+impl Figure for CurveFigure<'_> {
+    fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> DrawResult
+    where
+        DB::ErrorType: 'static,
+    {
+        root.fill(&WHITE)?;
+        let (x0, x1) = span(self.x);
+        let (y0, y1) = span(self.y);
+        let y1 = y1 + 0.25 * (y1 - y0);
+        let mut chart = ChartBuilder::on(root)
+            .caption(self.title, (FONT, TITLE_SIZE))
+            .margin(20)
+            .x_label_area_size(55)
+            .y_label_area_size(90)
+            .build_cartesian_2d(x0..x1, y0..y1)?;
+        chart
+            .configure_mesh()
+            .x_desc(self.x_desc.as_str())
+            .y_desc(self.y_desc.as_str())
+            .x_label_formatter(&tick_format(x0, x1))
+            .y_label_formatter(&tick_format(y0, y1))
+            .label_style((FONT, LABEL_SIZE))
+            .axis_desc_style((FONT, DESC_SIZE))
+            .light_line_style(WHITE.mix(0.0))
+            .draw()?;
+        if self.equal_zero_lines {
+            let axis = GREY.mix(0.6);
+            if x0 < 0.0 && x1 > 0.0 {
+                chart.draw_series(LineSeries::new([(0.0, y0), (0.0, y1)], axis))?;
+            }
+            if y0 < 0.0 && y1 > 0.0 {
+                chart.draw_series(LineSeries::new([(x0, 0.0), (x1, 0.0)], axis))?;
+            }
+        }
+        let pts = thin(self.x, self.y, (x0, x1), (y0, y1));
+        // plotters' bitmap lines wider than 1 px leave gaps on steep segments; a 1 px line
+        // (continuous) underneath fills them.
+        chart.draw_series(LineSeries::new(pts.iter().copied(), BLUE))?;
+        chart
+            .draw_series(LineSeries::new(pts, BLUE.stroke_width(2)))?
+            .label("trajectory")
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLUE.stroke_width(2)));
+        let start = (self.x[0], self.y[0]);
+        chart
+            .draw_series([Circle::new(start, 6, GREEN.filled())])?
+            .label("start")
+            .legend(|(x, y)| Circle::new((x + 10, y), 5, GREEN.filled()));
+        let end = (self.x[self.x.len() - 1], self.y[self.y.len() - 1]);
+        chart
+            .draw_series([TriangleMarker::new(end, 7, ORANGE.filled())])?
+            .label("end")
+            .legend(|(x, y)| TriangleMarker::new((x + 10, y), 6, ORANGE.filled()));
+        legend_box(&mut chart, SeriesLabelPosition::UpperRight)
+    }
+}
+
+fn check_curve(path: &Path, x: &[f64], y: &[f64]) -> Result<(), PlotError> {
+    if x.is_empty() || x.len() != y.len() {
+        return Err(no_data(
+            path,
+            "the curve is empty or its coordinates differ in length",
+        ));
+    }
+    Ok(())
+}
+
+/// The model's phase plane: velocity `yd` against displacement `y` along a trajectory, with its
+/// start and end marked.
+pub fn phase(path: &Path, y: &[f64], yd: &[f64], units: &Units) -> Result<(), PlotError> {
+    check_curve(path, y, yd)?;
+    render(
+        path,
+        &CurveFigure {
+            x: y,
+            y: yd,
+            x_desc: label("displacement y", units.signal.as_deref()),
+            y_desc: label("velocity yd", units.velocity().as_deref()),
+            title: "Phase plane of the identified model",
+            equal_zero_lines: true,
+        },
+    )
+}
+
+/// The hysteresis loop (the chapter's Figure 8.15): `force` against `deflection`, start and
+/// end marked. The loop's area is the work the force does per cycle.
+pub fn hysteresis(
+    path: &Path,
+    deflection: &[f64],
+    force: &[f64],
+    units: &Units,
+) -> Result<(), PlotError> {
+    check_curve(path, deflection, force)?;
+    render(
+        path,
+        &CurveFigure {
+            x: deflection,
+            y: force,
+            x_desc: label("deflection y", units.signal.as_deref()),
+            y_desc: label("force F", units.force.as_deref()),
+            title: "Hysteresis loop: force against deflection",
+            equal_zero_lines: true,
+        },
+    )
+}
