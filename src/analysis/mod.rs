@@ -25,12 +25,12 @@ mod verdict;
 pub use analyzer::Analyzer;
 pub use linearisation::{equivalent_damping, limit_cycle, time_to_amplitude, Linearization};
 pub use population::{biased_population, SpectralTarget};
-pub use report::{AmbientZeta, DampingReport, Zeta0Source};
+pub use report::{AmbientZeta, DampingReport, Verdict, Zeta0Source};
 pub use series::{
     analyze_series, analyze_series_with, pre_run, term_scales, SeriesAnalysis, SeriesOptions,
     DAMPING_FORCE_FRACTION,
 };
-pub use verdict::{decide, Decision, Verdict, VerdictFacts};
+pub use verdict::{decide, Decision, VerdictFacts};
 
 use serde::{Deserialize, Serialize};
 

@@ -1,6 +1,5 @@
 //! The damping report of a window and its parts (definitions in `docs/damping.md`).
 
-use super::verdict::Verdict;
 use serde::{Deserialize, Serialize};
 
 /// Where a report's `zeta0` comes from. Serialised as `"model"` / `"ambient"`, the strings of the
@@ -149,4 +148,16 @@ impl Default for DampingReport {
     fn default() -> Self {
         DampingReport::unknown()
     }
+}
+
+/// What the analysis concludes about the gate.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Verdict {
+    /// Positive damping at rest; the motion is a damped (possibly noise-driven) response.
+    Damped,
+    /// Negative damping at rest: vibration starts by itself.
+    SelfExcited,
+    /// The model does not fit or disagrees with the model-free estimate: no conclusion.
+    Unknown,
 }

@@ -4,21 +4,8 @@
 //! [`decide`] is a pure function of [`VerdictFacts`]; it is the table "fit_nmae, trusted, verdict"
 //! of `docs/damping.md`, row by row, and the unit tests below test every row.
 
-use super::report::{AmbientZeta, Zeta0Source};
+use super::report::{AmbientZeta, Verdict, Zeta0Source};
 use crate::spectral::{Regime, WindowSpectral};
-use serde::{Deserialize, Serialize};
-
-/// What the analysis concludes about the gate.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Verdict {
-    /// Positive damping at rest; the motion is a damped (possibly noise-driven) response.
-    Damped,
-    /// Negative damping at rest: vibration starts by itself.
-    SelfExcited,
-    /// The model does not fit or disagrees with the model-free estimate: no conclusion.
-    Unknown,
-}
 
 /// The model's frequency must lie within this fraction of the window's dominant frequency.
 /// Value: `docs/damping.md` ("agreement"). It is about three FFT bins of a 10 s window at the lab

@@ -8,31 +8,12 @@
 //! benchmarks' ablations), and each part is validated on its own with errors that name its
 //! fields; the CLI translates field names into its flags.
 
-use super::problem::Problem;
+use super::problem::{Initial, Output, Problem};
 use super::IdentifyError;
 use crate::data::TimeSeries;
 use crate::model::Model;
 use crate::ode::Method;
 use serde::Serialize;
-
-/// Where the initial conditions `y(t0)`, `yd(t0)` come from.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Default)]
-#[serde(rename_all = "snake_case")]
-pub enum Initial {
-    /// Given by the caller (finite).
-    Known {
-        /// `y(t0)`.
-        y0: f64,
-        /// `yd(t0)`.
-        v0: f64,
-    },
-    /// `y0` is the first sample; `v0` the slope at `t0` of a least-squares quadratic through the
-    /// first samples (up to 7).
-    #[default]
-    FromData,
-    /// Identified as two extra unknowns after the coefficients.
-    Fit,
-}
 
 /// How one DE run searches: population, generations, the fitness solver, the polish, the
 /// continuation. [`Search::default`] is the chapter's settings with the improvements on.
@@ -259,16 +240,4 @@ impl Config {
         self.search.validate()?;
         super::problem::check_initial(self.initial)
     }
-}
-
-/// What the fitness compares with the data.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, serde::Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Output {
-    /// The displacement `y` (section 8.4).
-    #[default]
-    Displacement,
-    /// The support force `R(t, y, yd)`: everything in `M*ydd + R = 0` but the inertia term,
-    /// i.e. the damping force plus the stiffness force (section 8.5, equation 8.7).
-    Force,
 }

@@ -1,7 +1,8 @@
 //! The training objective.
 
-use super::config::{Initial, Output, Search};
+use super::config::Search;
 use super::problem::Problem;
+use super::problem::{Initial, Output};
 use super::split::initial_from_data;
 use super::stats::magnitude;
 use super::InitialValues;

@@ -45,10 +45,11 @@ mod search;
 mod split;
 mod stats;
 
-pub use config::{Config, Initial, Output, Protocol, Search};
+pub use config::{Config, Protocol, Search};
 pub use fitness::Fitness;
 pub use predict::{predict, trajectory};
 pub use problem::Problem;
+pub use problem::{Initial, Output};
 pub use search::STALL_GENERATIONS_PER_UNKNOWN;
 pub use split::{initial_from_data, split};
 pub use stats::{nmae, std_dev, summarize};

@@ -1,6 +1,6 @@
 //! The identified model's trajectory and prediction at the sample times.
 
-use super::config::Output;
+use super::problem::Output;
 use super::InitialValues;
 use crate::data::TimeSeries;
 use crate::model::{Bound, Model};

@@ -1,10 +1,10 @@
 //! The identification problem: a model, the data, what the data are, the initial conditions and
 //! the scales of the unknowns.
 
-use super::config::{Initial, Output};
 use super::IdentifyError;
 use crate::data::TimeSeries;
 use crate::model::Model;
+use serde::Serialize;
 
 /// What is identified from what. Built with [`Problem::new`] and the `with_*` methods, each of
 /// which checks its value, so a `Problem` is always valid.
@@ -165,4 +165,35 @@ impl<'a> Problem<'a> {
                 0
             }
     }
+}
+
+/// Where the initial conditions `y(t0)`, `yd(t0)` come from.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum Initial {
+    /// Given by the caller (finite).
+    Known {
+        /// `y(t0)`.
+        y0: f64,
+        /// `yd(t0)`.
+        v0: f64,
+    },
+    /// `y0` is the first sample; `v0` the slope at `t0` of a least-squares quadratic through the
+    /// first samples (up to 7).
+    #[default]
+    FromData,
+    /// Identified as two extra unknowns after the coefficients.
+    Fit,
+}
+
+/// What the fitness compares with the data.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Output {
+    /// The displacement `y` (section 8.4).
+    #[default]
+    Displacement,
+    /// The support force `R(t, y, yd)`: everything in `M*ydd + R = 0` but the inertia term,
+    /// i.e. the damping force plus the stiffness force (section 8.5, equation 8.7).
+    Force,
 }
