@@ -24,7 +24,8 @@ const SEEDS: u64 = 40;
 /// Records a failed target instead of stopping, so the whole table is printed first.
 macro_rules! check {
     ($failures:ident, $ok:expr, $($msg:tt)+) => {
-        if !$ok {
+        let ok: bool = $ok;
+        if !ok {
             $failures.push(format!($($msg)+));
         }
     };
