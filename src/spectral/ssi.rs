@@ -596,4 +596,41 @@ mod tests {
             Err(SsiError::Invalid(_))
         ));
     }
+
+    /// A second mode 20 % above the first, inside the band: the pole nearest the peak is taken,
+    /// not a blend of the two.
+    #[test]
+    fn picks_the_mode_at_the_peak_next_to_a_close_one() {
+        let p1 = GateParams {
+            c3: 0.0,
+            forcing_std: 2.8,
+            noise_std: 0.7,
+            ..GateParams::default()
+        };
+        let p2 = GateParams {
+            c3: 0.0,
+            forcing_std: 1.4,
+            stiffness: p1.stiffness * 1.44,
+            ..GateParams::default()
+        };
+        let mut s1 = GateSimulator::new(p1, ZetaSchedule::Constant(0.02), 11);
+        let mut s2 = GateSimulator::new(p2, ZetaSchedule::Constant(0.03), 12);
+        let n = 200 * 40;
+        let x: Vec<f64> = (0..n)
+            .map(|_| s1.next_sample() + s2.next_sample())
+            .skip(2000)
+            .collect();
+        let e = ssi_cov_damping(&x, 200.0, 10.4, &SsiOptions::default()).unwrap();
+        assert!((e.frequency_hz - 10.37).abs() < 0.1, "{e:?}");
+        assert!(
+            e.zeta_interval.0 < 0.02 && 0.02 < e.zeta_interval.1,
+            "{e:?}"
+        );
+        let e2 = ssi_cov_damping(&x, 200.0, 12.4, &SsiOptions::default()).unwrap();
+        assert!((e2.frequency_hz - 12.45).abs() < 0.15, "{e2:?}");
+        assert!(
+            e2.zeta_interval.0 < 0.03 && 0.03 < e2.zeta_interval.1,
+            "{e2:?}"
+        );
+    }
 }
