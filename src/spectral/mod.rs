@@ -19,6 +19,7 @@ mod ambient;
 mod analyzer;
 mod classify;
 mod preprocess;
+mod ssi;
 #[cfg(test)]
 mod tests;
 
@@ -26,6 +27,7 @@ pub use ambient::{ambient_damping, normal_quantile, AmbientDamping, ArOptions};
 pub use analyzer::{GrowthOptions, GrowthRate, Peak, SpectralAnalyzer};
 pub use classify::{classify, ClassifyOptions, Regime, WindowOptions, WindowSpectral};
 pub use preprocess::{damping_from_growth, detrend_linear, hann, hann_into, remove_moving_average};
+pub use ssi::{ssi_cov_damping, t_quantile, SsiError, SsiEstimate, SsiOptions};
 
 /// Why a spectral computation could not be done.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
