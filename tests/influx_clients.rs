@@ -198,9 +198,8 @@ fn python_clients_write_plain_and_gzip_ping_health_and_create_database() {
 
 #[test]
 fn influx_cli_1x_inserts_a_point() {
-    let found = std::env::var_os("PATH").is_some_and(|p| {
-        std::env::split_paths(&p).any(|d| d.join("influx").is_file())
-    });
+    let found = std::env::var_os("PATH")
+        .is_some_and(|p| std::env::split_paths(&p).any(|d| d.join("influx").is_file()));
     if !found {
         missing("the `influx` CLI (Debian package influxdb-client)");
         return;

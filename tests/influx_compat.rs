@@ -176,7 +176,12 @@ async fn precisions_m_and_h_of_influxdb_1x() {
     )
     .await;
     assert_eq!(s, StatusCode::NO_CONTENT, "{v}");
-    let t = state.gate_view("min").unwrap().window.last_sample_time.unwrap();
+    let t = state
+        .gate_view("min")
+        .unwrap()
+        .window
+        .last_sample_time
+        .unwrap();
     assert!((t - 28_333_334.0 * 60.0).abs() < 1e-3, "{t}");
     let (s, v, _) = request(
         &app,
@@ -187,9 +192,21 @@ async fn precisions_m_and_h_of_influxdb_1x() {
     )
     .await;
     assert_eq!(s, StatusCode::NO_CONTENT, "{v}");
-    let t = state.gate_view("hour").unwrap().window.last_sample_time.unwrap();
+    let t = state
+        .gate_view("hour")
+        .unwrap()
+        .window
+        .last_sample_time
+        .unwrap();
     assert!((t - 472_222.0 * 3600.0).abs() < 1e-3, "{t}");
-    let (s, v, _) = request(&app, "POST", "/write?precision=d", &[], "m,gate=x force=1 1\n").await;
+    let (s, v, _) = request(
+        &app,
+        "POST",
+        "/write?precision=d",
+        &[],
+        "m,gate=x force=1 1\n",
+    )
+    .await;
     assert_eq!(s, StatusCode::BAD_REQUEST);
     assert_eq!(v["field"], "precision");
     assert!(v["message"].as_str().unwrap().contains("m, h"), "{v}");
@@ -209,7 +226,10 @@ async fn ping_health_and_query() {
     // no listener in a oneshot test: not ready, in InfluxDB's shape
     let (s, v, _) = request(&app, "GET", "/health", &[], Body::empty()).await;
     assert_eq!(s, StatusCode::SERVICE_UNAVAILABLE);
-    assert_eq!((v["name"].as_str(), v["status"].as_str()), (Some("gatewatch"), Some("fail")));
+    assert_eq!(
+        (v["name"].as_str(), v["status"].as_str()),
+        (Some("gatewatch"), Some("fail"))
+    );
     let auth = format!("Bearer {TOKEN}");
     let bearer = ("authorization", auth.as_str());
     let (s, v, _) = request(
@@ -227,7 +247,10 @@ async fn ping_health_and_query() {
         &app,
         "POST",
         "/query",
-        &[bearer, ("content-type", "application/x-www-form-urlencoded")],
+        &[
+            bearer,
+            ("content-type", "application/x-www-form-urlencoded"),
+        ],
         "q=CREATE+DATABASE+db1",
     )
     .await;
@@ -243,7 +266,10 @@ async fn ping_health_and_query() {
     assert_eq!(s, StatusCode::BAD_REQUEST);
     assert_eq!(v["code"], "invalid");
     assert_eq!(h["x-platform-error-code"], "invalid");
-    assert!(v["message"].as_str().unwrap().contains("no databases"), "{v}");
+    assert!(
+        v["message"].as_str().unwrap().contains("no databases"),
+        "{v}"
+    );
     // writes and queries need the token like every ingestion route
     let (s, v, h) = request(&app, "POST", "/write", &[], "m,gate=g force=1\n").await;
     assert_eq!(s, StatusCode::UNAUTHORIZED);
@@ -268,7 +294,10 @@ async fn influx_errors_in_v2_shape_and_gatewatch_errors_unchanged() {
     assert!(msg.starts_with("line 2 column 17: "), "{msg}");
     // the 1.x member and the location stay
     assert!(v["error"].is_string());
-    assert_eq!((v["line"].as_u64(), v["column"].as_u64()), (Some(2), Some(17)));
+    assert_eq!(
+        (v["line"].as_u64(), v["column"].as_u64()),
+        (Some(2), Some(17))
+    );
     let (s, v, _) = request(&app, "POST", "/api/v1/samples", &[], "{").await;
     assert_eq!(s, StatusCode::BAD_REQUEST);
     assert!(v["error"].is_string() && v.get("code").is_none(), "{v}");

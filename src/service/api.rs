@@ -181,7 +181,7 @@ async fn post_write(
                 BadRequest::new(format!(
                     "invalid precision `{s}`, expected ns, us, ms, s (or n, u, m, h)"
                 ))
-                    .field("precision"),
+                .field("precision"),
             )
         })?,
     };

@@ -256,7 +256,13 @@ mod tests {
             create_database_statements("create  database x; CREATE DATABASE y;"),
             Ok(vec![0, 1])
         );
-        for bad in ["", ";", "SHOW DATABASES", "CREATE DATABASE", "DROP DATABASE x"] {
+        for bad in [
+            "",
+            ";",
+            "SHOW DATABASES",
+            "CREATE DATABASE",
+            "DROP DATABASE x",
+        ] {
             let e = create_database_statements(bad).unwrap_err();
             assert_eq!(e.field.as_deref(), Some("q"), "{bad}");
         }
@@ -267,6 +273,9 @@ mod tests {
         assert_eq!(code_for(StatusCode::BAD_REQUEST), "invalid");
         assert_eq!(code_for(StatusCode::PAYLOAD_TOO_LARGE), "request too large");
         assert_eq!(code_for(StatusCode::SERVICE_UNAVAILABLE), "unavailable");
-        assert_eq!(code_for(StatusCode::INTERNAL_SERVER_ERROR), "internal error");
+        assert_eq!(
+            code_for(StatusCode::INTERNAL_SERVER_ERROR),
+            "internal error"
+        );
     }
 }
