@@ -16,7 +16,7 @@ use tower::ServiceBuilder;
 
 use super::clock::now_unix;
 use super::config::{Precision, DEFAULT_RETRY_AFTER_SECONDS};
-use super::ingest::{json, line_protocol, BadRequest};
+use super::ingest::{influx, json, line_protocol, BadRequest};
 use super::metrics::RejectReason;
 use super::state::{AppState, IngestError};
 
@@ -31,6 +31,8 @@ pub enum HttpError {
     NotFound(String),
     /// 413.
     PayloadTooLarge(usize),
+    /// 415: a request body in a `Content-Encoding` other than gzip or identity (named).
+    UnsupportedEncoding(String),
     /// 503 + Retry-After: overloaded.
     Overloaded,
     /// 500: detail logged, not shown.
@@ -71,6 +73,19 @@ impl IntoResponse for HttpError {
                 StatusCode::PAYLOAD_TOO_LARGE,
                 BadRequest::new(format!("request body larger than {limit} bytes")),
             ),
+            HttpError::UnsupportedEncoding(enc) => {
+                let mut r = (
+                    StatusCode::UNSUPPORTED_MEDIA_TYPE,
+                    Json(BadRequest::new(format!(
+                        "unsupported Content-Encoding `{enc}`: gatewatch accepts gzip or identity"
+                    ))),
+                )
+                    .into_response();
+                // RFC 7694: the codings the server accepts in requests
+                r.headers_mut()
+                    .insert(header::ACCEPT_ENCODING, HeaderValue::from_static("gzip"));
+                return r;
+            }
             HttpError::Overloaded => {
                 let mut r = (
                     StatusCode::SERVICE_UNAVAILABLE,
@@ -157,13 +172,16 @@ async fn post_write(
     Query(params): Query<std::collections::HashMap<String, String>>,
     b: Result<Bytes, BytesRejection>,
 ) -> Result<StatusCode, HttpError> {
-    // other InfluxDB parameters (db, org, bucket, rp) are accepted and ignored
+    // other InfluxDB parameters (db, org, bucket, rp) are accepted and ignored; `m` and `h`
+    // are InfluxDB 1.x precisions (2.x has only ns, us, ms, s)
     let precision = match params.get("precision").map(String::as_str) {
         None => Precision::Ns,
         Some(s) => Precision::parse(s).ok_or_else(|| {
             HttpError::BadRequest(
-                BadRequest::new(format!("invalid precision `{s}`, expected ns, us, ms or s"))
-                    .field("precision"),
+                BadRequest::new(format!(
+                    "invalid precision `{s}`, expected ns, us, ms, s (or n, u, m, h)"
+                ))
+                .field("precision"),
             )
         })?,
     };
@@ -283,16 +301,35 @@ async fn fallback() -> HttpError {
 }
 
 /// The router with every layer.
+///
+/// Ingestion routes, innermost first: gzip decompression (the body limit then counts
+/// decompressed bytes), `Content-Encoding` check (415), the ingestion bound (503), bearer auth.
+/// The Influx routes (`/api/v2/write`, `/write`, `/query`, `/ping`, `/health`) answer errors in
+/// InfluxDB 2.x's shape ([`influx::v2_errors`]); `/ping` and `/health` are open, as in InfluxDB.
 pub fn router(state: Arc<AppState>) -> Router {
     let s = &state.config.server;
-    let protected = Router::new()
-        .route("/api/v1/samples", post(post_samples))
-        .route("/api/v2/write", post(post_write))
-        .route("/write", post(post_write))
-        .route_layer(middleware::from_fn_with_state(state.clone(), ingest_limit))
+    let decoded = |r: Router<Arc<AppState>>| {
+        r.route_layer(influx::decompression())
+            .route_layer(middleware::from_fn_with_state(
+                state.clone(),
+                influx::content_encoding,
+            ))
+            .route_layer(middleware::from_fn_with_state(state.clone(), ingest_limit))
+    };
+    let protected = decoded(Router::new().route("/api/v1/samples", post(post_samples)))
         .route("/api/v1/gates", get(list_gates))
         .route("/api/v1/gates/{id}", get(get_gate))
         .route_layer(middleware::from_fn_with_state(state.clone(), auth));
+    let influx_routes = decoded(
+        Router::new()
+            .route("/api/v2/write", post(post_write))
+            .route("/write", post(post_write)),
+    )
+    .route("/query", get(influx::query).post(influx::query))
+    .route_layer(middleware::from_fn_with_state(state.clone(), auth))
+    .route("/ping", get(influx::ping))
+    .route("/health", get(influx::health))
+    .route_layer(middleware::from_fn(influx::v2_errors));
     let metrics_route = if s.metrics_auth {
         Router::new()
             .route("/metrics", get(metrics))
@@ -303,6 +340,7 @@ pub fn router(state: Arc<AppState>) -> Router {
     let timeout = Duration::from_secs_f64(s.request_timeout_seconds);
     Router::new()
         .merge(protected)
+        .merge(influx_routes)
         .merge(metrics_route)
         .route("/healthz", get(healthz))
         .route("/readyz", get(readyz))

@@ -188,16 +188,22 @@ pub enum Precision {
     Ms,
     /// Seconds.
     S,
+    /// Minutes (InfluxDB 1.x `/write?precision=m`).
+    M,
+    /// Hours (InfluxDB 1.x `/write?precision=h`).
+    H,
 }
 
 impl Precision {
-    /// Parses `ns|us|ms|s` (also `n`, `u` as InfluxDB 1.x accepts).
+    /// Parses `ns|us|ms|s` (also `n`, `u`, `m`, `h` as InfluxDB 1.x accepts).
     pub fn parse(s: &str) -> Option<Precision> {
         match s {
             "ns" | "n" => Some(Precision::Ns),
             "us" | "u" => Some(Precision::Us),
             "ms" => Some(Precision::Ms),
             "s" => Some(Precision::S),
+            "m" => Some(Precision::M),
+            "h" => Some(Precision::H),
             _ => None,
         }
     }
@@ -209,6 +215,8 @@ impl Precision {
             Precision::Us => 1e-6,
             Precision::Ms => 1e-3,
             Precision::S => 1.0,
+            Precision::M => 60.0,
+            Precision::H => 3600.0,
         }
     }
 }

@@ -1,0 +1,304 @@
+//! The InfluxDB HTTP surface over `Router::oneshot`: gzip bodies (and a gzip bomb), unknown
+//! encodings, precisions `m` and `h`, `/ping`, `/health`, `/query` and InfluxDB 2.x's error
+//! shape. The real clients drive a real daemon in `tests/influx_clients.rs`.
+
+mod service_common;
+
+use std::io::Write;
+use std::time::Duration;
+
+use axum::body::Body;
+use axum::http::{HeaderMap, Request, StatusCode};
+use axum::Router;
+use flate2::write::GzEncoder;
+use flate2::Compression;
+use serde_json::Value;
+use tower::ServiceExt;
+
+use service_common::*;
+
+fn gzip(data: &[u8]) -> Vec<u8> {
+    let mut e = GzEncoder::new(Vec::new(), Compression::default());
+    e.write_all(data).unwrap();
+    e.finish().unwrap()
+}
+
+/// One request with the given headers; the body parsed as JSON when it is.
+async fn request(
+    app: &Router,
+    method: &str,
+    uri: &str,
+    headers: &[(&str, &str)],
+    body: impl Into<Body>,
+) -> (StatusCode, Value, HeaderMap) {
+    let mut req = Request::builder().method(method).uri(uri);
+    for (k, v) in headers {
+        req = req.header(*k, *v);
+    }
+    let resp = tokio::time::timeout(
+        Duration::from_secs(30),
+        app.clone().oneshot(req.body(body.into()).unwrap()),
+    )
+    .await
+    .expect("request timed out")
+    .unwrap();
+    let (status, headers) = (resp.status(), resp.headers().clone());
+    let bytes = axum::body::to_bytes(resp.into_body(), usize::MAX)
+        .await
+        .unwrap();
+    let v = serde_json::from_slice(&bytes)
+        .unwrap_or(Value::String(String::from_utf8_lossy(&bytes).into()));
+    (status, v, headers)
+}
+
+const GZ: (&str, &str) = ("content-encoding", "gzip");
+
+#[tokio::test]
+async fn gzip_bodies_are_accepted_on_every_ingest_route() {
+    let (app, state) = make_app("");
+    let lp = gzip(b"m,gate=v2 force=1 1000000\nm,gate=v2 force=2 1000010\n");
+    let (s, v, _) = request(&app, "POST", "/api/v2/write?precision=ms", &[GZ], lp).await;
+    assert_eq!(s, StatusCode::NO_CONTENT, "{v}");
+    let lp = gzip(b"m,gate=v1 force=1 1000\n");
+    // x-gzip and any case, as RFC 9110 allows
+    let (s, v, _) = request(
+        &app,
+        "POST",
+        "/write?precision=s&db=x",
+        &[("content-encoding", "X-GZIP")],
+        lp,
+    )
+    .await;
+    assert_eq!(s, StatusCode::NO_CONTENT, "{v}");
+    let js = gzip(uniform("js", 1000.0, 5).to_string().as_bytes());
+    let (s, v, _) = request(
+        &app,
+        "POST",
+        "/api/v1/samples",
+        &[GZ, ("content-type", "application/json")],
+        js,
+    )
+    .await;
+    assert_eq!(s, StatusCode::NO_CONTENT, "{v}");
+    assert_eq!(state.gate_view("v2").unwrap().window.samples, 2);
+    assert_eq!(state.gate_view("v1").unwrap().window.samples, 1);
+    assert_eq!(state.gate_view("js").unwrap().window.samples, 5);
+    // identity is the absence of a coding
+    let (s, _, _) = request(
+        &app,
+        "POST",
+        "/api/v2/write?precision=ms",
+        &[("content-encoding", "identity")],
+        "m,gate=v2 force=3 1000020\n",
+    )
+    .await;
+    assert_eq!(s, StatusCode::NO_CONTENT);
+    assert_eq!(state.gate_view("v2").unwrap().window.samples, 3);
+}
+
+#[tokio::test]
+async fn gzip_bomb_is_413_and_counted() {
+    // 64 KiB limit; 16 MiB of line protocol compresses to a few KiB, far under the limit
+    let (app, state) = make_app("body_limit_bytes = 65536");
+    let line = b"m,gate=bomb force=1 1000\n";
+    let plain: Vec<u8> = line
+        .iter()
+        .copied()
+        .cycle()
+        .take(16 * 1024 * 1024)
+        .collect();
+    let bomb = gzip(&plain);
+    assert!(bomb.len() < 65536, "compressed {} bytes", bomb.len());
+    for uri in ["/api/v2/write", "/write"] {
+        let (s, v, _) = request(&app, "POST", uri, &[GZ], bomb.clone()).await;
+        assert_eq!(s, StatusCode::PAYLOAD_TOO_LARGE, "{uri}: {v}");
+        assert_eq!(v["code"], "request too large", "{uri}");
+    }
+    let (s, v, _) = request(&app, "POST", "/api/v1/samples", &[GZ], bomb).await;
+    assert_eq!(s, StatusCode::PAYLOAD_TOO_LARGE, "{v}");
+    assert!(state.gate_view("bomb").is_none());
+    assert_eq!(
+        metric(
+            &state,
+            "gatewatch_samples_rejected_total{reason=\"body_too_large\"}"
+        ),
+        3.0
+    );
+}
+
+#[tokio::test]
+async fn unknown_encodings_are_415_naming_them_and_bad_gzip_is_400() {
+    let (app, state) = make_app("");
+    for enc in ["br", "deflate", "gzip, gzip"] {
+        let (s, v, h) = request(
+            &app,
+            "POST",
+            "/api/v2/write",
+            &[("content-encoding", enc)],
+            "m,gate=g force=1\n",
+        )
+        .await;
+        assert_eq!(s, StatusCode::UNSUPPORTED_MEDIA_TYPE, "{enc}");
+        assert!(
+            v["message"].as_str().unwrap().contains(&format!("`{enc}`")),
+            "{v}"
+        );
+        assert_eq!(v["code"], "unsupported media type");
+        assert_eq!(h["accept-encoding"], "gzip");
+    }
+    // gatewatch's own route keeps its own shape
+    let (s, v, _) = request(
+        &app,
+        "POST",
+        "/api/v1/samples",
+        &[("content-encoding", "zstd")],
+        "{}",
+    )
+    .await;
+    assert_eq!(s, StatusCode::UNSUPPORTED_MEDIA_TYPE);
+    assert!(v["error"].as_str().unwrap().contains("`zstd`"), "{v}");
+    assert!(v.get("code").is_none());
+    // not gzip at all
+    let (s, v, _) = request(&app, "POST", "/api/v2/write", &[GZ], "m,gate=g force=1\n").await;
+    assert_eq!(s, StatusCode::BAD_REQUEST, "{v}");
+    assert!(state.gate_view("g").is_none());
+}
+
+#[tokio::test]
+async fn precisions_m_and_h_of_influxdb_1x() {
+    let (app, state) = make_app("");
+    let (s, v, _) = request(
+        &app,
+        "POST",
+        "/write?precision=m",
+        &[],
+        "m,gate=min force=1 28333334\n",
+    )
+    .await;
+    assert_eq!(s, StatusCode::NO_CONTENT, "{v}");
+    let t = state
+        .gate_view("min")
+        .unwrap()
+        .window
+        .last_sample_time
+        .unwrap();
+    assert!((t - 28_333_334.0 * 60.0).abs() < 1e-3, "{t}");
+    let (s, v, _) = request(
+        &app,
+        "POST",
+        "/write?precision=h",
+        &[],
+        "m,gate=hour force=1 472222\n",
+    )
+    .await;
+    assert_eq!(s, StatusCode::NO_CONTENT, "{v}");
+    let t = state
+        .gate_view("hour")
+        .unwrap()
+        .window
+        .last_sample_time
+        .unwrap();
+    assert!((t - 472_222.0 * 3600.0).abs() < 1e-3, "{t}");
+    let (s, v, _) = request(
+        &app,
+        "POST",
+        "/write?precision=d",
+        &[],
+        "m,gate=x force=1 1\n",
+    )
+    .await;
+    assert_eq!(s, StatusCode::BAD_REQUEST);
+    assert_eq!(v["field"], "precision");
+    assert!(v["message"].as_str().unwrap().contains("m, h"), "{v}");
+}
+
+#[tokio::test]
+async fn ping_health_and_query() {
+    let (app, _) = make_app(&format!("auth_tokens = [\"{TOKEN}\"]"));
+    for method in ["GET", "HEAD"] {
+        let (s, _, h) = request(&app, method, "/ping", &[], Body::empty()).await;
+        assert_eq!(s, StatusCode::NO_CONTENT, "{method}");
+        assert!(h["x-influxdb-version"]
+            .to_str()
+            .unwrap()
+            .starts_with("gatewatch-"));
+    }
+    // no listener in a oneshot test: not ready, in InfluxDB's shape
+    let (s, v, _) = request(&app, "GET", "/health", &[], Body::empty()).await;
+    assert_eq!(s, StatusCode::SERVICE_UNAVAILABLE);
+    assert_eq!(
+        (v["name"].as_str(), v["status"].as_str()),
+        (Some("gatewatch"), Some("fail"))
+    );
+    let auth = format!("Bearer {TOKEN}");
+    let bearer = ("authorization", auth.as_str());
+    let (s, v, _) = request(
+        &app,
+        "POST",
+        "/query?q=CREATE+DATABASE+%22telegraf%22",
+        &[bearer],
+        Body::empty(),
+    )
+    .await;
+    assert_eq!(s, StatusCode::OK, "{v}");
+    assert_eq!(v, serde_json::json!({"results": [{"statement_id": 0}]}));
+    // the 1.x clients may send q as a form body
+    let (s, v, _) = request(
+        &app,
+        "POST",
+        "/query",
+        &[
+            bearer,
+            ("content-type", "application/x-www-form-urlencoded"),
+        ],
+        "q=CREATE+DATABASE+db1",
+    )
+    .await;
+    assert_eq!(s, StatusCode::OK, "{v}");
+    let (s, v, h) = request(
+        &app,
+        "GET",
+        "/query?q=SHOW+DATABASES",
+        &[bearer],
+        Body::empty(),
+    )
+    .await;
+    assert_eq!(s, StatusCode::BAD_REQUEST);
+    assert_eq!(v["code"], "invalid");
+    assert_eq!(h["x-platform-error-code"], "invalid");
+    assert!(
+        v["message"].as_str().unwrap().contains("no databases"),
+        "{v}"
+    );
+    // writes and queries need the token like every ingestion route
+    let (s, v, h) = request(&app, "POST", "/write", &[], "m,gate=g force=1\n").await;
+    assert_eq!(s, StatusCode::UNAUTHORIZED);
+    assert_eq!(v["code"], "unauthorized");
+    assert_eq!(h["www-authenticate"], "Bearer");
+}
+
+#[tokio::test]
+async fn influx_errors_in_v2_shape_and_gatewatch_errors_unchanged() {
+    let (app, _) = make_app("");
+    let (s, v, _) = request(
+        &app,
+        "POST",
+        "/api/v2/write",
+        &[],
+        "m,gate=g1 force=1 1\nm,gate=g1 force=1x 2\n",
+    )
+    .await;
+    assert_eq!(s, StatusCode::BAD_REQUEST);
+    assert_eq!(v["code"], "invalid");
+    let msg = v["message"].as_str().unwrap();
+    assert!(msg.starts_with("line 2 column 17: "), "{msg}");
+    // the 1.x member and the location stay
+    assert!(v["error"].is_string());
+    assert_eq!(
+        (v["line"].as_u64(), v["column"].as_u64()),
+        (Some(2), Some(17))
+    );
+    let (s, v, _) = request(&app, "POST", "/api/v1/samples", &[], "{").await;
+    assert_eq!(s, StatusCode::BAD_REQUEST);
+    assert!(v["error"].is_string() && v.get("code").is_none(), "{v}");
+}
