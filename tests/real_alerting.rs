@@ -183,19 +183,19 @@ fn serve_one(stream: TcpStream, sink: &Seen) -> std::io::Result<()> {
     w.write_all(b"HTTP/1.1 200 OK\r\nContent-Length: 0\r\nConnection: close\r\n\r\n")
 }
 
-/// The shipped rules with `for: Nm` shortened to seconds (expressions and labels untouched).
+/// The shipped rules with their durations shortened for a test of a minute or two: `for: 1m`
+/// to 5 s, `for: 2m` to 30 s, `keep_firing_for: 2m` to 40 s (both still longer than the
+/// test's restart gap, as the shipped ones are longer than a real one); expressions and labels
+/// untouched.
 fn test_rules() -> String {
     let shipped =
         std::fs::read_to_string(Path::new(ROOT).join("deploy/prometheus/gatewatch-rules.yml"))
             .unwrap();
+    assert!(shipped.contains("keep_firing_for: 2m"));
     shipped
-        .lines()
-        .map(|l| match l.trim_start().strip_prefix("for: ") {
-            Some(d) if d.ends_with('m') => l.replace(d, "3s"),
-            _ => l.to_string(),
-        })
-        .collect::<Vec<_>>()
-        .join("\n")
+        .replace("keep_firing_for: 2m", "keep_firing_for: 40s")
+        .replace("for: 1m", "for: 5s")
+        .replace("for: 2m", "for: 30s")
 }
 
 /// The shipped prometheus.yml with the test's addresses and one-second intervals.
@@ -400,7 +400,8 @@ fn onset_restart_and_recovery_through_prometheus_and_alertmanager() {
     wait_until("GateNegativeDamping resolved by Alertmanager", minute, || {
         resolved("GateNegativeDamping").then_some(())
     });
-    wait_until("GateSelfExcited resolved by Alertmanager", minute, || {
+    // after keep_firing_for (40 s here)
+    wait_until("GateSelfExcited resolved by Alertmanager", 2 * minute, || {
         resolved("GateSelfExcited").then_some(())
     });
     assert!(gw_proc.terminate(Duration::from_secs(15)));
