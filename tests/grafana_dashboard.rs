@@ -165,7 +165,8 @@ fn get(port: u16, path: &str) -> Option<String> {
     write!(s, "GET {path} HTTP/1.0\r\nHost: x\r\n\r\n").ok()?;
     let mut out = String::new();
     s.read_to_string(&mut out).ok()?;
-    out.starts_with("HTTP/1.1 200")
+    // the server answers an HTTP/1.0 request as HTTP/1.0
+    (out.starts_with("HTTP/1.0 200") || out.starts_with("HTTP/1.1 200"))
         .then(|| out.split_once("\r\n\r\n").map(|x| x.1.to_string()))?
 }
 

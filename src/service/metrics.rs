@@ -225,7 +225,8 @@ impl Metrics {
             .register(Box::new(notifications_queued.clone()))
             .expect("unique metric");
         // process_cpu_seconds_total, process_resident_memory_bytes, process_open_fds, ...
-        // (Linux: read from /proc/self; elsewhere the collector exports nothing).
+        // read from /proc/self: the prometheus crate has the collector on Linux only.
+        #[cfg(target_os = "linux")]
         registry
             .register(Box::new(
                 prometheus::process_collector::ProcessCollector::for_self(),

@@ -54,8 +54,11 @@ pub struct NotifierStats {
 /// A copy of one kind's counters at one instant.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct KindSnapshot {
+    /// Batches accepted by a target of this kind.
     pub delivered: u64,
+    /// Batches given up for a target of this kind.
     pub failed: u64,
+    /// Batches dropped for a target of this kind.
     pub dropped: u64,
 }
 
