@@ -24,7 +24,10 @@ fn kubernetes_pins_the_image_and_limits_cpu() {
         .lines()
         .find_map(|l| l.trim().strip_prefix("limits: "))
         .expect("resource limits");
-    assert!(limits.contains("cpu:") && limits.contains("memory:"), "{limits}");
+    assert!(
+        limits.contains("cpu:") && limits.contains("memory:"),
+        "{limits}"
+    );
 }
 
 #[test]
@@ -50,9 +53,22 @@ fn systemd_documentation_is_installed() {
         } else {
             format!("docs/{file}")
         };
-        assert!(Path::new(ROOT).join(&source).exists(), "{source} is missing");
-        let glob = if file == "README.md" { "README.md" } else { "docs/*.md" };
-        assert!(install.contains(glob), "the install step does not install {source}");
-        assert!(dockerfile.contains(glob), "the image does not ship {source}");
+        assert!(
+            Path::new(ROOT).join(&source).exists(),
+            "{source} is missing"
+        );
+        let glob = if file == "README.md" {
+            "README.md"
+        } else {
+            "docs/*.md"
+        };
+        assert!(
+            install.contains(glob),
+            "the install step does not install {source}"
+        );
+        assert!(
+            dockerfile.contains(glob),
+            "the image does not ship {source}"
+        );
     }
 }

@@ -100,7 +100,10 @@ fn dashboard_is_well_formed() {
         assert!(ids.insert(id), "duplicate panel id {id}");
         let g = &p["gridPos"];
         let (x, w) = (g["x"].as_u64().unwrap(), g["w"].as_u64().unwrap());
-        assert!(x + w <= 24 && g["h"].as_u64().unwrap() > 0, "panel {id} outside the grid");
+        assert!(
+            x + w <= 24 && g["h"].as_u64().unwrap() > 0,
+            "panel {id} outside the grid"
+        );
         if p["type"] != "row" {
             assert_eq!(p["datasource"]["uid"], "${datasource}", "panel {id}");
             assert!(p["title"].as_str().is_some_and(|t| !t.is_empty()));
@@ -133,7 +136,9 @@ fn every_query_parses_with_promtool() {
     let mut rules = String::from("groups:\n  - name: dashboard\n    rules:\n");
     for (i, e) in expressions(&d).iter().enumerate() {
         let e = substitute(e).replace('\'', "''");
-        rules.push_str(&format!("      - record: dashboard:q{i}\n        expr: '{e}'\n"));
+        rules.push_str(&format!(
+            "      - record: dashboard:q{i}\n        expr: '{e}'\n"
+        ));
     }
     let dir = tempfile::tempdir().unwrap();
     let f = dir.path().join("rules.yml");
@@ -202,15 +207,25 @@ fn every_metric_the_dashboard_reads_is_exported() {
     }
     let _ = child.kill();
     let _ = child.wait();
-    assert!(sim.status.success(), "{}", String::from_utf8_lossy(&sim.stderr));
+    assert!(
+        sim.status.success(),
+        "{}",
+        String::from_utf8_lossy(&sim.stderr)
+    );
     let exported: BTreeSet<&str> = metrics
         .lines()
         .filter_map(|l| l.strip_prefix("# TYPE "))
         .filter_map(|l| l.split(' ').next())
         .collect();
     let d = dashboard();
-    let read: BTreeSet<String> = expressions(&d).iter().flat_map(|e| metric_names(e)).collect();
-    let missing: Vec<&String> = read.iter().filter(|m| !exported.contains(m.as_str())).collect();
+    let read: BTreeSet<String> = expressions(&d)
+        .iter()
+        .flat_map(|e| metric_names(e))
+        .collect();
+    let missing: Vec<&String> = read
+        .iter()
+        .filter(|m| !exported.contains(m.as_str()))
+        .collect();
     assert!(
         missing.is_empty(),
         "the dashboard reads metrics /metrics does not export: {missing:?}"

@@ -38,7 +38,10 @@ async fn alert_firing_follows_the_alert_not_the_displayed_state() {
     assert_eq!(firing("GateNegativeDamping"), Some(0.0));
     assert_eq!(firing("GateDataStale"), Some(0.0));
     let m = state.render_metrics();
-    assert_eq!(sample(&m, "gatewatch_window_gaps_total{gate=\"g1\"}"), Some(0.0));
+    assert_eq!(
+        sample(&m, "gatewatch_window_gaps_total{gate=\"g1\"}"),
+        Some(0.0)
+    );
     // two negative windows (for_windows = 2): GateNegativeDamping fires
     let mut sent = 50usize;
     for k in 0..2 {
@@ -134,7 +137,10 @@ async fn body_too_large_counts_requests_and_http_metrics_label_code() {
         Some(1.0),
         "{m}"
     );
-    assert!(m.contains("gatewatch_http_requests_total{code=\"413\""), "{m}");
+    assert!(
+        m.contains("gatewatch_http_requests_total{code=\"413\""),
+        "{m}"
+    );
     assert!(!m.contains("status=\""), "{m}");
 }
 

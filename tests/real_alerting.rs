@@ -209,7 +209,10 @@ fn test_prometheus_yml(gw: u16, am: u16) -> String {
     shipped
         .replace("127.0.0.1:9464", &format!("127.0.0.1:{gw}"))
         .replace("127.0.0.1:9093", &format!("127.0.0.1:{am}"))
-        .replace("scrape_interval: 15s", "scrape_interval: 1s\n  evaluation_interval: 1s")
+        .replace(
+            "scrape_interval: 15s",
+            "scrape_interval: 1s\n  evaluation_interval: 1s",
+        )
 }
 
 fn gatewatch_toml(gw: u16, am: u16) -> String {
@@ -291,7 +294,10 @@ fn onset_restart_and_recovery_through_prometheus_and_alertmanager() {
     let am_proc = Proc::spawn(
         "alertmanager",
         Command::new(ALERTMANAGER)
-            .arg(format!("--config.file={}", d.join("alertmanager.yml").display()))
+            .arg(format!(
+                "--config.file={}",
+                d.join("alertmanager.yml").display()
+            ))
             .arg(format!("--storage.path={}", d.join("am-data").display()))
             .arg(format!("--web.listen-address=127.0.0.1:{am}"))
             .arg(format!("--cluster.listen-address=127.0.0.1:{am_cluster}")),
@@ -302,8 +308,14 @@ fn onset_restart_and_recovery_through_prometheus_and_alertmanager() {
     let prom_proc = Proc::spawn(
         "prometheus",
         Command::new(PROMETHEUS)
-            .arg(format!("--config.file={}", d.join("prometheus.yml").display()))
-            .arg(format!("--storage.tsdb.path={}", d.join("prom-data").display()))
+            .arg(format!(
+                "--config.file={}",
+                d.join("prometheus.yml").display()
+            ))
+            .arg(format!(
+                "--storage.tsdb.path={}",
+                d.join("prom-data").display()
+            ))
             .arg(format!("--web.listen-address=127.0.0.1:{prom}")),
         d,
     );
@@ -321,8 +333,12 @@ fn onset_restart_and_recovery_through_prometheus_and_alertmanager() {
     let ready = |port: u16, path: &str| http_get(port, path).is_some_and(|r| r.0 == 200);
     let up = Duration::from_secs(30);
     wait_until("gatewatch ready", up, || ready(gw, "/readyz").then_some(()));
-    wait_until("alertmanager ready", up, || ready(am, "/-/ready").then_some(()));
-    wait_until("prometheus ready", up, || ready(prom, "/-/ready").then_some(()));
+    wait_until("alertmanager ready", up, || {
+        ready(am, "/-/ready").then_some(())
+    });
+    wait_until("prometheus ready", up, || {
+        ready(prom, "/-/ready").then_some(())
+    });
     let logs = || {
         format!(
             "{}\n{}\n{}",
@@ -337,18 +353,31 @@ fn onset_restart_and_recovery_through_prometheus_and_alertmanager() {
     let out = simulate(
         gw,
         &[
-            "--scenario", "onset", "--onset-hold", "20", "--onset-ramp", "20",
-            "--duration", "90", "--speed", "5", "--start", &format!("{t0}"),
+            "--scenario",
+            "onset",
+            "--onset-hold",
+            "20",
+            "--onset-ramp",
+            "20",
+            "--duration",
+            "90",
+            "--speed",
+            "5",
+            "--start",
+            &format!("{t0}"),
         ],
     );
-    assert!(out.status.success(), "simulate: {}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "simulate: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let minute = Duration::from_secs(60);
     wait_until("GateNegativeDamping at Alertmanager", minute, || {
         alertmanager_has(am, "GateNegativeDamping").then_some(())
     });
     wait_until("the shipped rule GateSelfExcited firing", minute, || {
-        (prometheus_alert_state(prom, "GateSelfExcited").as_deref() == Some("firing"))
-            .then_some(())
+        (prometheus_alert_state(prom, "GateSelfExcited").as_deref() == Some("firing")).then_some(())
     });
     wait_until("GateSelfExcited at Alertmanager", minute, || {
         alertmanager_has(am, "GateSelfExcited").then_some(())
@@ -356,18 +385,35 @@ fn onset_restart_and_recovery_through_prometheus_and_alertmanager() {
 
     // 2. Restart gatewatch while the gate stays self-excited (a limit cycle at -2 %), and keep
     // the stream going for longer than Alertmanager's resolve timeout.
-    assert!(gw_proc.terminate(Duration::from_secs(15)), "gatewatch did not stop cleanly");
+    assert!(
+        gw_proc.terminate(Duration::from_secs(15)),
+        "gatewatch did not stop cleanly"
+    );
     drop(gw_proc);
     gw_proc = serve();
-    wait_until("gatewatch ready again", up, || ready(gw, "/readyz").then_some(()));
+    wait_until("gatewatch ready again", up, || {
+        ready(gw, "/readyz").then_some(())
+    });
     let out = simulate(
         gw,
         &[
-            "--scenario", "limit-cycle", "--duration", "60", "--speed", "2",
-            "--start", &format!("{}", t0 + 90.0), "--seed", "2",
+            "--scenario",
+            "limit-cycle",
+            "--duration",
+            "60",
+            "--speed",
+            "2",
+            "--start",
+            &format!("{}", t0 + 90.0),
+            "--seed",
+            "2",
         ],
     );
-    assert!(out.status.success(), "simulate: {}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "simulate: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let false_resolves: Vec<_> = seen
         .lock()
         .unwrap()
@@ -386,23 +432,39 @@ fn onset_restart_and_recovery_through_prometheus_and_alertmanager() {
     let out = simulate(
         gw,
         &[
-            "--scenario", "stable", "--duration", "60", "--speed", "5",
-            "--start", &format!("{}", t0 + 150.0), "--seed", "3",
+            "--scenario",
+            "stable",
+            "--duration",
+            "60",
+            "--speed",
+            "5",
+            "--start",
+            &format!("{}", t0 + 150.0),
+            "--seed",
+            "3",
         ],
     );
-    assert!(out.status.success(), "simulate: {}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "simulate: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let resolved = |name: &str| {
         seen.lock()
             .unwrap()
             .iter()
             .any(|(s, n, g)| s == "resolved" && n == name && g == "g1")
     };
-    wait_until("GateNegativeDamping resolved by Alertmanager", minute, || {
-        resolved("GateNegativeDamping").then_some(())
-    });
+    wait_until(
+        "GateNegativeDamping resolved by Alertmanager",
+        minute,
+        || resolved("GateNegativeDamping").then_some(()),
+    );
     // after keep_firing_for (40 s here)
-    wait_until("GateSelfExcited resolved by Alertmanager", 2 * minute, || {
-        resolved("GateSelfExcited").then_some(())
-    });
+    wait_until(
+        "GateSelfExcited resolved by Alertmanager",
+        2 * minute,
+        || resolved("GateSelfExcited").then_some(()),
+    );
     assert!(gw_proc.terminate(Duration::from_secs(15)));
 }
