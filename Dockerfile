@@ -20,6 +20,7 @@ RUN apt-get update \
     && useradd --system --uid 10001 --no-create-home --shell /usr/sbin/nologin gatewatch
 COPY --from=builder /src/target/release/gatewatch /usr/local/bin/gatewatch
 COPY config/gatewatch.toml /etc/gatewatch/gatewatch.toml
+COPY README.md docs/*.md /usr/share/doc/gatewatch/
 USER gatewatch
 # 9464: HTTP API, ingestion and /metrics; 8094: raw TCP line protocol (when tcp_listen is set)
 EXPOSE 9464 8094

@@ -516,3 +516,63 @@ async fn full_queue_drops_without_blocking() {
     assert!(!handle.shutdown(Duration::from_millis(100)).await);
     assert!(handle.notify(Vec::new()), "empty batch is a no-op");
 }
+
+/// A restart must not resolve anything: shutting down sends no "resolved", and re-sends the
+/// firing alerts to Alertmanager once more, so they stay active for a whole resolve_timeout
+/// from the shutdown while the restarted daemon re-asserts them.
+#[tokio::test]
+async fn shutdown_resends_firing_alerts_to_alertmanager_and_resolves_nothing() {
+    let am = Receiver::default();
+    let hook = Receiver::default();
+    let am_base = receiver(am.clone()).await;
+    let hook_base = receiver(hook.clone()).await;
+    let (fired, _) = events("g1");
+    let firing = vec![fired[0].alert().clone()];
+    let config = NotifyConfig {
+        alertmanager_urls: vec![am_base],
+        webhooks: vec![webhook(format!("{hook_base}/hook"), None)],
+        // far longer than the test: only the shutdown can cause a re-send
+        resend_interval_seconds: 3600.0,
+        ..fast_config()
+    };
+    let (handle, _task) = spawn_notifier(config, move || firing.clone());
+    assert!(handle.shutdown(WAIT).await);
+    let reqs = am.requests();
+    assert_eq!(reqs.len(), 1, "one re-send at shutdown");
+    assert_eq!(reqs[0].body[0]["labels"]["gate"], "g1");
+    assert!(reqs[0].body[0].get("endsAt").is_none(), "still firing");
+    assert_eq!(hook.count(), 0, "webhooks get no re-send and no resolved");
+    let s = handle.stats().snapshot();
+    assert_eq!((s.alertmanager.delivered, s.webhook.delivered), (1, 0));
+}
+
+/// The counters are kept per kind of target, and a batch dropped before it reached the
+/// targets' queues counts once for every target.
+#[tokio::test]
+async fn stats_split_by_target_kind() {
+    let am = Receiver::default();
+    let am_base = receiver(am.clone()).await;
+    let config = NotifyConfig {
+        alertmanager_urls: vec![am_base],
+        webhooks: vec![
+            webhook(dead_url().await, None),
+            webhook(dead_url().await, None),
+        ],
+        max_attempts: 1,
+        ..fast_config()
+    };
+    let (handle, _task) = spawn_notifier(config, Vec::new);
+    let (fired, _) = events("g1");
+    assert!(handle.notify(fired.clone()));
+    wait_until("delivered and failed", WAIT, || {
+        let s = handle.stats().snapshot();
+        s.alertmanager.delivered == 1 && s.webhook.failed == 2
+    })
+    .await;
+    assert!(handle.shutdown(WAIT).await);
+    // refused after shutdown: dropped for each of the three targets
+    assert!(!handle.notify(fired));
+    let s = handle.stats().snapshot();
+    assert_eq!((s.webhook.dropped, s.alertmanager.dropped), (2, 1));
+    assert_eq!((s.delivered, s.failed, s.dropped), (1, 2, 3));
+}

@@ -131,6 +131,8 @@ fn serve_with_the_shipped_config_gets_ready_and_stops_on_sigterm() {
         ready,
         "serve --config config/gatewatch.toml never got ready"
     );
-    assert!(metrics.contains("gatewatch_notifications_total{outcome=\"delivered\"} 0"));
+    assert!(metrics.contains(
+        "gatewatch_notifications_total{outcome=\"delivered\",target=\"alertmanager\"} 0"
+    ));
     assert!(exit.expect("exited after SIGTERM").success());
 }

@@ -436,7 +436,9 @@ async fn a_stopped_stream_fires_data_stale_and_new_data_resolves_it() {
     let m = d.metrics().await;
     let delivered = m
         .lines()
-        .find(|l| l.starts_with("gatewatch_notifications_total{outcome=\"delivered\"}"))
+        .find(|l| {
+            l.starts_with("gatewatch_notifications_total{outcome=\"delivered\",target=\"webhook\"}")
+        })
         .and_then(|l| l.split_whitespace().last())
         .and_then(|v| v.parse::<f64>().ok())
         .unwrap_or(0.0);

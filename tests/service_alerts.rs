@@ -41,7 +41,7 @@ async fn alerts_follow_identifications_and_staleness() {
         0.0
     );
     assert!((metric(&state, "gatewatch_damping_ratio{gate=\"g1\"}") + 0.03).abs() < 1e-12);
-    assert!(metric(&state, "gatewatch_notifications_total") >= 1.0);
+    assert!(metric(&state, "gatewatch_notifications_queued_total") >= 1.0);
     // a dead sensor: stale after stale_after_seconds (default 30 s) without data
     state.tick(std::time::SystemTime::now() + Duration::from_secs(120));
     assert_eq!(state.alert_state("g1"), Some("unknown"));

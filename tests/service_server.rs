@@ -77,7 +77,14 @@ async fn a_tcp_burst_is_applied_whole_and_in_order() {
     .await
     .expect("every line ingested");
     let (_, m) = get(addr, "/metrics").await;
-    assert!(!m.contains("gatewatch_samples_rejected_total{"), "{m}");
+    // exported from the start, all still 0
+    assert!(m.contains("gatewatch_samples_rejected_total{"), "{m}");
+    assert!(
+        m.lines()
+            .filter(|l| l.starts_with("gatewatch_samples_rejected_total{"))
+            .all(|l| l.ends_with(" 0")),
+        "{m}"
+    );
     drop(s);
     stop(r).await;
 }

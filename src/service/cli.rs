@@ -29,13 +29,22 @@ pub struct CheckConfigArgs {
 }
 
 /// Sets up tracing (text or JSON; `RUST_LOG` overrides the configured level).
+///
+/// Logs go to stderr, as daemons' logs do (journald and container runtimes collect it; stdout
+/// stays free for command output). Colour codes only when stderr is a terminal: in a file or
+/// journald they are noise that breaks `grep` and log shippers, and JSON never has them.
 pub fn init_tracing(config: &Config) {
+    use std::io::IsTerminal;
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(&config.log.level));
-    let builder = tracing_subscriber::fmt().with_env_filter(filter);
+    let builder = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr);
     let _ = match config.log.format {
-        LogFormat::Json => builder.json().try_init(),
-        LogFormat::Text => builder.try_init(),
+        LogFormat::Json => builder.json().with_ansi(false).try_init(),
+        LogFormat::Text => builder
+            .with_ansi(std::io::stderr().is_terminal())
+            .try_init(),
     };
 }
 

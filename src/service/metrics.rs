@@ -1,13 +1,22 @@
 //! Prometheus metrics, one typed struct registered once in its own [`Registry`].
 //!
 //! Label values are bounded: `gate` by `server.max_gates`, `route` by the route templates
-//! (axum `MatchedPath`, never the raw URI; unmatched requests are `route="unmatched"`), `status`
-//! by HTTP, `reason`, `state`, `outcome` and `coefficient` by code or model.
+//! (axum `MatchedPath`, never the raw URI; unmatched requests are `route="unmatched"`), `code`
+//! by HTTP, `reason`, `state`, `alertname`, `target`, `outcome` and `coefficient` by code or
+//! model. Counters whose label values are known in advance are created at 0 at start-up (per
+//! gate: when the gate is created), so `rate()` and `increase()` see their first event.
+//!
+//! One unit per counter: `gatewatch_samples_rejected_total` counts samples (a TCP line is one
+//! sample), `gatewatch_ingest_requests_rejected_total` counts whole requests refused before any
+//! sample could be read (body too large, unparseable, overloaded).
 
 use prometheus::{
     Encoder, GaugeVec, Histogram, HistogramOpts, HistogramVec, IntCounter, IntCounterVec, Opts,
     Registry, TextEncoder,
 };
+
+use crate::alert::notify::{StatsSnapshot, TargetType};
+use crate::alert::{ALERT_DATA_STALE, ALERT_NEGATIVE_DAMPING};
 
 /// Buckets of the identification duration, seconds (a window takes 0.1 s to a minute).
 const IDENTIFICATION_BUCKETS: &[f64] =
@@ -31,6 +40,12 @@ pub struct Metrics {
     pub model_coefficient: GaugeVec,
     /// `gatewatch_alert_state{gate,state}`.
     pub alert_state: GaugeVec,
+    /// `gatewatch_alert_firing{gate,alertname}`: 1 while gatewatch's own alert fires.
+    pub alert_firing: GaugeVec,
+    /// `gatewatch_amplitude{gate}`: the window's vibration amplitude, signal units.
+    pub amplitude: GaugeVec,
+    /// `gatewatch_build_info{version}`, always 1.
+    pub build_info: GaugeVec,
     /// `gatewatch_last_identification_timestamp_seconds{gate}`.
     pub last_identification: GaugeVec,
     /// `gatewatch_samples_ingested_total{gate}`.
@@ -39,19 +54,24 @@ pub struct Metrics {
     pub window_fill_ratio: GaugeVec,
     /// `gatewatch_window_gaps_total{gate}`.
     pub window_gaps: IntCounterVec,
-    /// `gatewatch_samples_rejected_total{reason}`.
+    /// `gatewatch_samples_rejected_total{reason}`: samples.
     pub samples_rejected: IntCounterVec,
+    /// `gatewatch_ingest_requests_rejected_total{reason}`: requests.
+    pub requests_rejected: IntCounterVec,
     /// `gatewatch_identification_duration_seconds`.
     pub identification_duration: Histogram,
     /// `gatewatch_identification_jobs_replaced_total`.
     pub jobs_replaced: IntCounter,
     /// `gatewatch_identification_failures_total{reason}`.
     pub identification_failures: IntCounterVec,
-    /// `gatewatch_http_requests_total{route,status}`.
+    /// `gatewatch_http_requests_total{route,code}`.
     pub http_requests: IntCounterVec,
     /// `gatewatch_http_request_duration_seconds{route}`.
     pub http_duration: HistogramVec,
-    /// `gatewatch_notifications_total{outcome}`.
+    /// `gatewatch_notifications_queued_total`: batches of alert events handed to the notifier.
+    pub notifications_queued: IntCounter,
+    /// `gatewatch_notifications_total{target,outcome}`: per target, batches delivered, failed
+    /// or dropped.
     pub notifications: IntCounterVec,
     /// `gatewatch_tcp_connections_rejected_total`.
     pub tcp_connections_rejected: IntCounter,
@@ -85,6 +105,29 @@ pub enum RejectReason {
 }
 
 impl RejectReason {
+    /// Every reason, for the counters' initial 0.
+    pub const ALL: [RejectReason; 10] = [
+        RejectReason::Invalid,
+        RejectReason::BodyTooLarge,
+        RejectReason::Overloaded,
+        RejectReason::UnknownGate,
+        RejectReason::TooManyGates,
+        RejectReason::NonFinite,
+        RejectReason::RateMismatch,
+        RejectReason::Duplicate,
+        RejectReason::OutOfOrder,
+        RejectReason::BadLine,
+    ];
+
+    /// Whether the reason refuses a whole request before any sample is read (counted in
+    /// requests), rather than samples.
+    pub fn is_request(self) -> bool {
+        matches!(
+            self,
+            RejectReason::Invalid | RejectReason::BodyTooLarge | RejectReason::Overloaded
+        )
+    }
+
     /// The label value.
     pub fn as_str(self) -> &'static str {
         match self {
@@ -104,6 +147,18 @@ impl RejectReason {
 
 /// Alert states exported in `gatewatch_alert_state`.
 pub const ALERT_STATES: &[&str] = &["ok", "pending", "firing", "resolved", "unknown"];
+
+/// gatewatch's own alerts, the `alertname` values of `gatewatch_alert_firing`.
+pub const ALERT_NAMES: &[&str] = &[ALERT_NEGATIVE_DAMPING, ALERT_DATA_STALE];
+
+/// Reasons of `gatewatch_identification_failures_total`: the analysis refused its settings
+/// or the window, the analysis panicked, or the job queue was full.
+pub const IDENTIFICATION_FAILURES: &[&str] = &["settings", "window", "panic", "queue_full"];
+
+/// Outcomes of `gatewatch_notifications_total`, per target and batch: `delivered`, `failed`
+/// (given up after retries, or refused) and `dropped` (queue full, or abandoned at the shutdown
+/// deadline).
+pub const NOTIFICATION_OUTCOMES: &[&str] = &["delivered", "failed", "dropped"];
 
 impl Metrics {
     /// Creates and registers every metric.
@@ -161,6 +216,22 @@ impl Metrics {
         registry
             .register(Box::new(tcp_connections_rejected.clone()))
             .expect("unique metric");
+        let notifications_queued = IntCounter::new(
+            "gatewatch_notifications_queued_total",
+            "Batches of alert events handed to the notifier (each then goes to every target).",
+        )
+        .expect("valid metric");
+        registry
+            .register(Box::new(notifications_queued.clone()))
+            .expect("unique metric");
+        // process_cpu_seconds_total, process_resident_memory_bytes, process_open_fds, ...
+        // read from /proc/self: the prometheus crate has the collector on Linux only.
+        #[cfg(target_os = "linux")]
+        registry
+            .register(Box::new(
+                prometheus::process_collector::ProcessCollector::for_self(),
+            ))
+            .expect("unique metric");
         let m = Metrics {
             damping_ratio: gauge(
                 "gatewatch_damping_ratio",
@@ -192,6 +263,21 @@ impl Metrics {
                 "1 for the current alert state of the gate, 0 for the others.",
                 &["gate", "state"],
             ),
+            alert_firing: gauge(
+                "gatewatch_alert_firing",
+                "1 while gatewatch's own alert (alertname) fires for the gate, 0 otherwise.",
+                &["gate", "alertname"],
+            ),
+            amplitude: gauge(
+                "gatewatch_amplitude",
+                "Vibration amplitude at the end of the window: the identified model's largest |y| over its last period, in the signal's unit.",
+                &["gate"],
+            ),
+            build_info: gauge(
+                "gatewatch_build_info",
+                "Always 1; the labels say which gatewatch is running.",
+                &["version"],
+            ),
             last_identification: gauge(
                 "gatewatch_last_identification_timestamp_seconds",
                 "Unix time of the gate's last successful identification.",
@@ -214,7 +300,12 @@ impl Metrics {
             ),
             samples_rejected: counter(
                 "gatewatch_samples_rejected_total",
-                "Samples rejected or dropped, by reason.",
+                "Samples rejected or dropped, by reason (a raw TCP line is one sample).",
+                &["reason"],
+            ),
+            requests_rejected: counter(
+                "gatewatch_ingest_requests_rejected_total",
+                "Ingestion requests refused before any sample was read, by reason.",
                 &["reason"],
             ),
             identification_duration,
@@ -226,8 +317,8 @@ impl Metrics {
             ),
             http_requests: counter(
                 "gatewatch_http_requests_total",
-                "HTTP requests by route template and status.",
-                &["route", "status"],
+                "HTTP requests by route template and status code.",
+                &["route", "code"],
             ),
             http_duration: histogram(
                 "gatewatch_http_request_duration_seconds",
@@ -235,17 +326,34 @@ impl Metrics {
                 &["route"],
                 HTTP_BUCKETS,
             ),
+            notifications_queued,
             notifications: counter(
                 "gatewatch_notifications_total",
-                "Alert notification batches: queued to the notifier, then delivered, failed or dropped per target.",
-                &["outcome"],
+                "Alert notification batches per target kind: delivered, failed or dropped.",
+                &["target", "outcome"],
             ),
             tcp_connections_rejected,
             registry,
         };
-        // every outcome is exported from the start, so rate() works from the first increment
-        for o in NOTIFICATION_OUTCOMES {
-            m.notifications.with_label_values(&[o]);
+        m.build_info
+            .with_label_values(&[env!("CARGO_PKG_VERSION")])
+            .set(1.0);
+        // every known label set is exported from the start, so rate() works from the first
+        // increment
+        for t in TargetType::ALL {
+            for o in NOTIFICATION_OUTCOMES {
+                m.notifications.with_label_values(&[t.as_str(), o]);
+            }
+        }
+        for r in RejectReason::ALL {
+            if r.is_request() {
+                m.requests_rejected.with_label_values(&[r.as_str()]);
+            } else {
+                m.samples_rejected.with_label_values(&[r.as_str()]);
+            }
+        }
+        for r in IDENTIFICATION_FAILURES {
+            m.identification_failures.with_label_values(&[r]);
         }
         m
     }
@@ -264,14 +372,35 @@ impl Metrics {
         TextEncoder::new().format_type().to_string()
     }
 
-    /// Counts `n` samples (or requests, where no sample could be read) rejected for `reason`
-    /// in `gatewatch_samples_rejected_total`; nothing when `n` is 0.
+    /// Counts `n` rejected for `reason`: requests in `gatewatch_ingest_requests_rejected_total`
+    /// when the reason refuses a whole request ([`RejectReason::is_request`]), else samples in
+    /// `gatewatch_samples_rejected_total`; nothing when `n` is 0.
     pub fn reject(&self, reason: RejectReason, n: u64) {
         if n > 0 {
-            self.samples_rejected
-                .with_label_values(&[reason.as_str()])
-                .inc_by(n);
+            let counter = if reason.is_request() {
+                &self.requests_rejected
+            } else {
+                &self.samples_rejected
+            };
+            counter.with_label_values(&[reason.as_str()]).inc_by(n);
         }
+    }
+
+    /// Exports a new gate's series at their initial value: its counters at 0 and none of
+    /// gatewatch's alerts firing.
+    pub fn init_gate(&self, gate: &str) {
+        self.samples_ingested.with_label_values(&[gate]);
+        self.window_gaps.with_label_values(&[gate]);
+        for name in ALERT_NAMES {
+            self.alert_firing.with_label_values(&[gate, name]).set(0.0);
+        }
+    }
+
+    /// Sets `gatewatch_alert_firing{gate,alertname}`.
+    pub fn set_alert_firing(&self, gate: &str, alertname: &str, firing: bool) {
+        self.alert_firing
+            .with_label_values(&[gate, alertname])
+            .set(if firing { 1.0 } else { 0.0 });
     }
 
     /// Sets `gatewatch_alert_state{gate,*}`: 1 for `state`, 0 for the others.
@@ -284,30 +413,28 @@ impl Metrics {
     }
 }
 
-/// Outcomes of `gatewatch_notifications_total`: `queued` (batches of alert events handed to the
-/// notifier), then per target and batch `delivered`, `failed` (given up after retries) and
-/// `dropped` (queue full, or abandoned at the shutdown deadline).
-pub const NOTIFICATION_OUTCOMES: &[&str] = &["queued", "delivered", "failed", "dropped"];
-
 /// The notifier's counters as last exported, to turn its totals into counter increments.
 #[derive(Debug, Default)]
 pub struct NotificationCounts {
-    last: std::sync::Mutex<crate::alert::notify::StatsSnapshot>,
+    last: std::sync::Mutex<StatsSnapshot>,
 }
 
 impl NotificationCounts {
     /// Adds what the notifier counted since the last call to `gatewatch_notifications_total`.
-    pub fn sync(&self, metrics: &Metrics, now: crate::alert::notify::StatsSnapshot) {
+    pub fn sync(&self, metrics: &Metrics, now: StatsSnapshot) {
         let mut last = super::sync::lock(&self.last);
-        for (outcome, new, old) in [
-            ("delivered", now.delivered, last.delivered),
-            ("failed", now.failed, last.failed),
-            ("dropped", now.dropped, last.dropped),
-        ] {
-            metrics
-                .notifications
-                .with_label_values(&[outcome])
-                .inc_by(new.saturating_sub(old));
+        for target in TargetType::ALL {
+            let (new, old) = (now.of(target), last.of(target));
+            for (outcome, new, old) in [
+                ("delivered", new.delivered, old.delivered),
+                ("failed", new.failed, old.failed),
+                ("dropped", new.dropped, old.dropped),
+            ] {
+                metrics
+                    .notifications
+                    .with_label_values(&[target.as_str(), outcome])
+                    .inc_by(new.saturating_sub(old));
+            }
         }
         *last = now;
     }

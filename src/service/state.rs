@@ -235,6 +235,7 @@ impl AppState {
         if !inner.gates.contains_key(id) {
             let cfg = self.config.gate(id)?.clone();
             inner.alerts.set_rules(id, cfg.alert.clone());
+            self.metrics.init_gate(id);
             // the sensor counts as seen at creation, so a gate that never sends goes stale
             let events = inner.alerts.data_seen(id, now);
             let state = inner.alerts.state(id).unwrap_or(GateState::Unknown);
@@ -262,6 +263,8 @@ impl AppState {
         }
         for e in &events {
             let a = e.alert();
+            self.metrics
+                .set_alert_firing(a.gate(), &a.name, e.is_firing());
             tracing::info!(
                 gate = a.gate(),
                 alert = %a.name,
@@ -272,10 +275,7 @@ impl AppState {
         }
         // one batch; a full queue drops it and counts it in the notifier's `dropped`
         if self.notifier.notify(events) {
-            self.metrics
-                .notifications
-                .with_label_values(&["queued"])
-                .inc();
+            self.metrics.notifications_queued.inc();
         }
     }
 
@@ -457,6 +457,7 @@ impl AppState {
                 set(&self.metrics.equivalent_damping_ratio, d.zeta_eq);
                 set(&self.metrics.frequency_hertz, d.frequency_hz);
                 set(&self.metrics.fit_nmae, Some(d.fit_nmae));
+                set(&self.metrics.amplitude, d.amplitude);
                 for (name, v) in &a.coefficients {
                     if v.is_finite() {
                         self.metrics

@@ -64,7 +64,7 @@ pub async fn serve(
         let state = state.clone();
         let shutdown = shutdown.clone();
         tokio::spawn(async move {
-            handle(stream, state, shutdown).await;
+            handle(stream, peer, state, shutdown).await;
             drop(permit);
         });
     }
@@ -72,7 +72,7 @@ pub async fn serve(
 
 /// Counts and logs (rate-limited) the bad lines of one connection.
 struct BadLines {
-    peer: Option<std::net::SocketAddr>,
+    peer: std::net::SocketAddr,
     count: u64,
     last_log: Option<Instant>,
 }
@@ -84,7 +84,7 @@ impl BadLines {
             .last_log
             .is_none_or(|t| t.elapsed() >= BAD_LINE_LOG_INTERVAL)
         {
-            tracing::warn!(peer = ?self.peer, line, bad_lines = self.count, error = %msg, "bad line on tcp listener");
+            tracing::warn!(peer = %self.peer, line, bad_lines = self.count, error = %msg, "bad line on tcp listener");
             self.last_log = Some(Instant::now());
         }
     }
@@ -98,10 +98,15 @@ struct Pending {
     lines: usize,
 }
 
-async fn handle(stream: TcpStream, state: Arc<AppState>, mut shutdown: watch::Receiver<bool>) {
+async fn handle(
+    stream: TcpStream,
+    peer: std::net::SocketAddr,
+    state: Arc<AppState>,
+    mut shutdown: watch::Receiver<bool>,
+) {
     let max = state.config.ingest.tcp_max_line_bytes;
     let mut bad = BadLines {
-        peer: stream.peer_addr().ok(),
+        peer,
         count: 0,
         last_log: None,
     };
@@ -122,7 +127,7 @@ async fn handle(stream: TcpStream, state: Arc<AppState>, mut shutdown: watch::Re
             Ok(0) => break,
             Ok(_) => {}
             Err(e) => {
-                tracing::debug!(peer = ?bad.peer, error = %e, "tcp read failed");
+                tracing::debug!(peer = %bad.peer, error = %e, "tcp read failed");
                 break;
             }
         }

@@ -73,6 +73,7 @@ impl WindowAnalyzer for Fake {
                 zeta0: Some(zeta0),
                 zeta_eq: Some(zeta0),
                 frequency_hz: Some(1.5),
+                amplitude: Some(2.5),
                 agrees: true,
                 fit_nmae: 0.01,
                 trusted: true,

@@ -8,7 +8,7 @@ use std::time::Duration;
 use tokio::sync::{mpsc, watch};
 use tokio::task::JoinHandle;
 
-use super::stats::{DropReason, NotifierStats};
+use super::stats::{DropReason, NotifierStats, TargetType};
 use crate::alert::engine::{Alert, AlertEvent};
 
 /// Period of the (disabled) resend ticker when there is nothing to re-send: `interval_at`
@@ -33,6 +33,17 @@ pub(super) struct TargetQueue {
     pub is_alertmanager: bool,
     /// The URL the target posts to (for log lines).
     pub url: String,
+}
+
+impl TargetQueue {
+    /// The `target` label of the target's counters.
+    pub fn target_type(&self) -> TargetType {
+        if self.is_alertmanager {
+            TargetType::Alertmanager
+        } else {
+            TargetType::Webhook
+        }
+    }
 }
 
 /// Everything the dispatcher task owns.
@@ -83,7 +94,7 @@ where
                     continue;
                 }
                 if t.sender.try_send(job.clone()).is_err() {
-                    stats.drop_one(DropReason::TargetQueueFull(&t.url));
+                    stats.drop_one(Some(t.target_type()), DropReason::TargetQueueFull(&t.url));
                 }
             }
         };
@@ -95,13 +106,25 @@ where
                     // Count what is still queued here as dropped.
                     events.close();
                     while events.try_recv().is_ok() {
-                        stats.drop_one(DropReason::ShutdownDeadline);
+                        stats.drop_one(None, DropReason::ShutdownDeadline);
                     }
                     break;
                 }
                 msg = events.recv() => match msg {
                     Some(batch) => fan_out(Job::Events(Arc::new(batch)), false),
-                    None => break,
+                    None => {
+                        // Shutting down: nothing is resolved, and the firing alerts are re-sent
+                        // once more, so Alertmanager keeps them active for a whole
+                        // resolve_timeout from now, the time a restarted daemon has to
+                        // re-assert them (docs/alerts.md, "Restarts").
+                        if resend.is_some() {
+                            let alerts = snapshot();
+                            if !alerts.is_empty() {
+                                fan_out(Job::Resend(Arc::new(alerts)), true);
+                            }
+                        }
+                        break;
+                    }
                 },
                 _ = ticker.tick(), if resend.is_some() => {
                     let alerts = snapshot();

@@ -58,17 +58,17 @@ impl NotifierHandle {
         }
         let guard = self.inner.tx();
         let Some(tx) = guard.as_ref() else {
-            self.inner.stats.drop_one(DropReason::ShutDown);
+            self.inner.stats.drop_one(None, DropReason::ShutDown);
             return false;
         };
         match tx.try_send(events) {
             Ok(()) => true,
             Err(mpsc::error::TrySendError::Full(_)) => {
-                self.inner.stats.drop_one(DropReason::QueueFull);
+                self.inner.stats.drop_one(None, DropReason::QueueFull);
                 false
             }
             Err(mpsc::error::TrySendError::Closed(_)) => {
-                self.inner.stats.drop_one(DropReason::Stopped);
+                self.inner.stats.drop_one(None, DropReason::Stopped);
                 false
             }
         }
@@ -122,7 +122,10 @@ where
     F: Fn() -> Vec<Alert> + Send + Sync + 'static,
 {
     let client = build_client(config.timeout());
-    let stats = Arc::new(NotifierStats::default());
+    let stats = Arc::new(NotifierStats::new(
+        config.webhooks.len(),
+        config.alertmanager_urls.len(),
+    ));
     let (tx, rx) = mpsc::channel(config.capacity());
     let (done_tx, done_rx) = watch::channel(false);
     let (abort_tx, abort_rx) = watch::channel(false);

@@ -42,4 +42,4 @@ pub use payload::{
     alertmanager_payload, webhook_payload, LabelSet, PostableAlert, WebhookAlert, WebhookPayload,
     ZERO_TIME,
 };
-pub use stats::{NotifierStats, StatsSnapshot};
+pub use stats::{KindSnapshot, NotifierStats, StatsSnapshot, TargetType};

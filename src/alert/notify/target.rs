@@ -11,7 +11,7 @@ use tokio::sync::{mpsc, watch};
 
 use super::dispatch::{aborted, Job};
 use super::payload::{PostableAlert, WebhookPayload};
-use super::stats::{DropReason, NotifierStats};
+use super::stats::{DropReason, NotifierStats, TargetType};
 use super::NotifyConfig;
 use crate::alert::engine::{Alert, AlertEvent};
 
@@ -61,6 +61,10 @@ impl TargetTask {
             stats,
             mut abort,
         } = self;
+        let kind = match target.kind {
+            TargetKind::Webhook { .. } => TargetType::Webhook,
+            TargetKind::Alertmanager => TargetType::Alertmanager,
+        };
         let mut limiter = WarnLimiter {
             last: None,
             suppressed: 0,
@@ -80,15 +84,15 @@ impl TargetTask {
             let result = tokio::select! {
                 biased;
                 _ = aborted(&mut abort) => {
-                    stats.drop_one(DropReason::ShutdownDeadline);
+                    stats.drop_one(Some(kind), DropReason::ShutdownDeadline);
                     break;
                 }
                 r = deliver(&target, client.as_ref(), &config, body) => r,
             };
             match result {
-                Ok(()) => stats.delivered_one(),
+                Ok(()) => stats.delivered_one(kind),
                 Err(e) => {
-                    stats.failed_one();
+                    stats.failed_one(kind);
                     limiter.failure(&target.url, &e);
                 }
             }
@@ -96,7 +100,7 @@ impl TargetTask {
         // Aborted: whatever is still queued is abandoned.
         jobs.close();
         while jobs.try_recv().is_ok() {
-            stats.drop_one(DropReason::ShutdownDeadline);
+            stats.drop_one(Some(kind), DropReason::ShutdownDeadline);
         }
     }
 }

@@ -1,0 +1,235 @@
+//! The shipped Grafana dashboard (`deploy/grafana/gatewatch-dashboard.json`) checked as far as
+//! this machine can without a Grafana (not packaged in Debian): the JSON is a dashboard Grafana
+//! provisions (uid, title, schemaVersion, unique panel ids, panels inside the 24-column grid,
+//! every query on the `datasource` variable), every query is valid PromQL to the real
+//! Prometheus parser (`promtool check rules`, with Grafana's variables substituted), and every
+//! metric a query names exists in the `/metrics` of a real `gatewatch serve` that identified a
+//! window of a simulated gate.
+
+use serde_json::Value;
+use std::collections::BTreeSet;
+use std::io::{Read, Write};
+use std::path::Path;
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+const BIN: &str = env!("CARGO_BIN_EXE_gatewatch");
+const ROOT: &str = env!("CARGO_MANIFEST_DIR");
+
+fn dashboard() -> Value {
+    let text =
+        std::fs::read_to_string(Path::new(ROOT).join("deploy/grafana/gatewatch-dashboard.json"))
+            .unwrap();
+    serde_json::from_str(&text).expect("the dashboard is valid JSON")
+}
+
+/// Every panel, rows' nested panels included.
+fn panels(d: &Value) -> Vec<&Value> {
+    let mut out = Vec::new();
+    for p in d["panels"].as_array().expect("panels") {
+        out.push(p);
+        out.extend(p["panels"].as_array().into_iter().flatten());
+    }
+    out
+}
+
+/// Every PromQL expression: the panels' targets and the query variables.
+fn expressions(d: &Value) -> Vec<String> {
+    let mut out: Vec<String> = panels(d)
+        .iter()
+        .flat_map(|p| p["targets"].as_array().into_iter().flatten())
+        .filter_map(|t| t["expr"].as_str().map(str::to_string))
+        .collect();
+    assert!(!out.is_empty(), "the dashboard queries nothing");
+    for v in d["templating"]["list"].as_array().into_iter().flatten() {
+        if v["type"] == "query" {
+            let q = v["definition"].as_str().expect("query variable definition");
+            // label_values(METRIC, label) is Grafana's, not PromQL: check its metric
+            let metric = q
+                .strip_prefix("label_values(")
+                .and_then(|r| r.split(',').next())
+                .expect("label_values(metric, label)");
+            out.push(metric.trim().to_string());
+        }
+    }
+    out
+}
+
+/// Grafana's variables replaced by values Prometheus accepts.
+fn substitute(expr: &str) -> String {
+    expr.replace("$__rate_interval", "1m")
+        .replace("$gate", ".*")
+}
+
+/// Metric names a PromQL expression reads (histogram series mapped to their family).
+fn metric_names(expr: &str) -> BTreeSet<String> {
+    let mut out = BTreeSet::new();
+    let bytes = expr.as_bytes();
+    let mut i = 0;
+    while i < bytes.len() {
+        let rest = &expr[i..];
+        let starts = (rest.starts_with("gatewatch_") || rest.starts_with("process_"))
+            && (i == 0 || !(bytes[i - 1].is_ascii_alphanumeric() || bytes[i - 1] == b'_'));
+        if starts {
+            let len = rest
+                .find(|c: char| !(c.is_ascii_alphanumeric() || c == '_'))
+                .unwrap_or(rest.len());
+            let name = &rest[..len];
+            let family = ["_bucket", "_sum", "_count"]
+                .iter()
+                .find_map(|s| name.strip_suffix(s))
+                .unwrap_or(name);
+            out.insert(family.to_string());
+            i += len;
+        } else {
+            i += 1;
+        }
+    }
+    out
+}
+
+#[test]
+fn dashboard_is_well_formed() {
+    let d = dashboard();
+    assert_eq!(d["uid"], "gatewatch");
+    assert!(d["title"].as_str().is_some_and(|t| !t.is_empty()));
+    assert!(d["schemaVersion"].as_u64().is_some_and(|v| v >= 36));
+    let mut ids = BTreeSet::new();
+    for p in panels(&d) {
+        let id = p["id"].as_u64().expect("panel id");
+        assert!(ids.insert(id), "duplicate panel id {id}");
+        let g = &p["gridPos"];
+        let (x, w) = (g["x"].as_u64().unwrap(), g["w"].as_u64().unwrap());
+        assert!(
+            x + w <= 24 && g["h"].as_u64().unwrap() > 0,
+            "panel {id} outside the grid"
+        );
+        if p["type"] != "row" {
+            assert_eq!(p["datasource"]["uid"], "${datasource}", "panel {id}");
+            assert!(p["title"].as_str().is_some_and(|t| !t.is_empty()));
+            assert!(!p["targets"].as_array().expect("targets").is_empty());
+        }
+    }
+    let vars: Vec<&str> = d["templating"]["list"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(|v| v["name"].as_str())
+        .collect();
+    assert!(vars.contains(&"datasource") && vars.contains(&"gate"));
+    // the provisioning files point Grafana at the dashboard's folder
+    let prov = std::fs::read_to_string(
+        Path::new(ROOT).join("deploy/grafana/provisioning/dashboards/gatewatch.yaml"),
+    )
+    .unwrap();
+    assert!(prov.contains("path: /var/lib/grafana/dashboards/gatewatch"));
+}
+
+#[test]
+fn every_query_parses_with_promtool() {
+    if Command::new("promtool").arg("--version").output().is_err() {
+        assert!(std::env::var_os("CI").is_none(), "CI must install promtool");
+        eprintln!("skipped: promtool not installed");
+        return;
+    }
+    let d = dashboard();
+    let mut rules = String::from("groups:\n  - name: dashboard\n    rules:\n");
+    for (i, e) in expressions(&d).iter().enumerate() {
+        let e = substitute(e).replace('\'', "''");
+        rules.push_str(&format!(
+            "      - record: dashboard:q{i}\n        expr: '{e}'\n"
+        ));
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let f = dir.path().join("rules.yml");
+    std::fs::write(&f, rules).unwrap();
+    let out = Command::new("promtool")
+        .args(["check", "rules"])
+        .arg(&f)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+fn get(port: u16, path: &str) -> Option<String> {
+    let mut s = std::net::TcpStream::connect(("127.0.0.1", port)).ok()?;
+    s.set_read_timeout(Some(Duration::from_secs(5))).ok()?;
+    write!(s, "GET {path} HTTP/1.0\r\nHost: x\r\n\r\n").ok()?;
+    let mut out = String::new();
+    s.read_to_string(&mut out).ok()?;
+    // the server answers an HTTP/1.0 request as HTTP/1.0
+    (out.starts_with("HTTP/1.0 200") || out.starts_with("HTTP/1.1 200"))
+        .then(|| out.split_once("\r\n\r\n").map(|x| x.1.to_string()))?
+}
+
+#[test]
+fn every_metric_the_dashboard_reads_is_exported() {
+    let port = free_port();
+    let mut child = Command::new(BIN)
+        .args(["serve", "--config"])
+        .arg(Path::new(ROOT).join("config/gatewatch.toml"))
+        .env("GATEWATCH_LISTEN", format!("127.0.0.1:{port}"))
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while get(port, "/readyz").is_none() && Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    // one gate with an identified window, so that the per-gate families have series
+    let sim = Command::new(BIN)
+        .args(["simulate", "--url", &format!("http://127.0.0.1:{port}")])
+        .args(["--gate", "g1", "--duration", "16", "--speed", "20"])
+        .output()
+        .unwrap();
+    let mut metrics = String::new();
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while Instant::now() < deadline {
+        metrics = get(port, "/metrics").unwrap_or_default();
+        if metrics.contains("gatewatch_damping_ratio{") {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(200));
+    }
+    let _ = child.kill();
+    let _ = child.wait();
+    assert!(
+        sim.status.success(),
+        "{}",
+        String::from_utf8_lossy(&sim.stderr)
+    );
+    let exported: BTreeSet<&str> = metrics
+        .lines()
+        .filter_map(|l| l.strip_prefix("# TYPE "))
+        .filter_map(|l| l.split(' ').next())
+        .collect();
+    let d = dashboard();
+    let read: BTreeSet<String> = expressions(&d)
+        .iter()
+        .flat_map(|e| metric_names(e))
+        .collect();
+    let missing: Vec<&String> = read
+        .iter()
+        .filter(|m| !exported.contains(m.as_str()))
+        .collect();
+    assert!(
+        missing.is_empty(),
+        "the dashboard reads metrics /metrics does not export: {missing:?}"
+    );
+    // label names the queries group by exist on their metrics
+    assert!(metrics.contains("gatewatch_http_requests_total{code="));
+}

@@ -1,0 +1,210 @@
+//! What an operator's tools read from the daemon: the metrics (gatewatch's own alerts as
+//! gauges, the amplitude, build and process information, counters that exist from the start,
+//! one unit per counter, HTTP `code`) and the logs (no colour codes in a file, plain peers).
+
+mod service_common;
+
+use std::io::Write;
+use std::process::{Command, Stdio};
+use std::sync::Arc;
+use std::time::{Duration, Instant, SystemTime};
+
+use axum::body::Body;
+use axum::http::StatusCode;
+
+use service_common::*;
+
+/// The value of the one sample named exactly `series` (name and labels as exposed).
+fn sample(text: &str, series: &str) -> Option<f64> {
+    text.lines()
+        .find_map(|l| l.strip_prefix(series)?.strip_prefix(' ')?.parse().ok())
+}
+
+#[tokio::test]
+async fn alert_firing_follows_the_alert_not_the_displayed_state() {
+    let fake = Arc::new(Fake {
+        zeta: vec![-0.03],
+        ..Default::default()
+    });
+    let (app, state) = app_with(config(""), fake.clone());
+    let firing = |name: &str| {
+        sample(
+            &state.render_metrics(),
+            &format!("gatewatch_alert_firing{{alertname=\"{name}\",gate=\"g1\"}}"),
+        )
+    };
+    // the gate's series exist from its creation, not firing
+    post_json(&app, uniform("g1", 0.0, 50)).await;
+    assert_eq!(firing("GateNegativeDamping"), Some(0.0));
+    assert_eq!(firing("GateDataStale"), Some(0.0));
+    let m = state.render_metrics();
+    assert_eq!(
+        sample(&m, "gatewatch_window_gaps_total{gate=\"g1\"}"),
+        Some(0.0)
+    );
+    // two negative windows (for_windows = 2): GateNegativeDamping fires
+    let mut sent = 50usize;
+    for k in 0..2 {
+        post_json(&app, uniform("g1", sent as f64 / 100.0, 50)).await;
+        sent += 50;
+        wait_until(|| fake.calls.lock().unwrap().len() == k + 1 && state.pool().in_flight() == 0)
+            .await;
+    }
+    assert_eq!(state.alert_state("g1"), Some("firing"));
+    assert_eq!(firing("GateNegativeDamping"), Some(1.0));
+    // the window's amplitude, as the analysis reports it
+    let m = state.render_metrics();
+    assert_eq!(sample(&m, "gatewatch_amplitude{gate=\"g1\"}"), Some(2.5));
+    // the data stops: the displayed state turns unknown, the alert keeps firing, and the
+    // staleness alert fires too
+    state.tick(SystemTime::now() + Duration::from_secs(120));
+    assert_eq!(state.alert_state("g1"), Some("unknown"));
+    let m = state.render_metrics();
+    assert_eq!(
+        sample(&m, "gatewatch_alert_state{gate=\"g1\",state=\"firing\"}"),
+        Some(0.0)
+    );
+    assert_eq!(firing("GateNegativeDamping"), Some(1.0));
+    assert_eq!(firing("GateDataStale"), Some(1.0));
+    // data again: the staleness alert resolves, the damping alert still fires
+    post_json(&app, uniform("g1", sent as f64 / 100.0, 10)).await;
+    assert_eq!(firing("GateDataStale"), Some(0.0));
+    assert_eq!(firing("GateNegativeDamping"), Some(1.0));
+}
+
+#[tokio::test]
+async fn known_label_sets_start_at_zero_and_process_metrics_exist() {
+    let (_app, state) = make_app("");
+    let m = state.render_metrics();
+    for series in [
+        "gatewatch_samples_rejected_total{reason=\"duplicate\"}",
+        "gatewatch_samples_rejected_total{reason=\"non_finite\"}",
+        "gatewatch_samples_rejected_total{reason=\"bad_line\"}",
+        "gatewatch_ingest_requests_rejected_total{reason=\"body_too_large\"}",
+        "gatewatch_ingest_requests_rejected_total{reason=\"invalid\"}",
+        "gatewatch_ingest_requests_rejected_total{reason=\"overloaded\"}",
+        "gatewatch_identification_failures_total{reason=\"window\"}",
+        "gatewatch_identification_failures_total{reason=\"panic\"}",
+        "gatewatch_identification_failures_total{reason=\"queue_full\"}",
+        "gatewatch_notifications_queued_total",
+        "gatewatch_notifications_total{outcome=\"delivered\",target=\"webhook\"}",
+        "gatewatch_notifications_total{outcome=\"dropped\",target=\"alertmanager\"}",
+    ] {
+        assert_eq!(sample(&m, series), Some(0.0), "{series} in\n{m}");
+    }
+    // one unit per counter: request-level reasons are not samples
+    assert!(!m.contains("gatewatch_samples_rejected_total{reason=\"body_too_large\"}"));
+    assert_eq!(
+        sample(
+            &m,
+            &format!(
+                "gatewatch_build_info{{version=\"{}\"}}",
+                env!("CARGO_PKG_VERSION")
+            )
+        ),
+        Some(1.0)
+    );
+    // the `process` collector (Linux)
+    let rss = sample(&m, "process_resident_memory_bytes").expect("process_* metrics");
+    assert!(rss > 0.0);
+    assert!(m.contains("process_open_fds "));
+}
+
+#[tokio::test]
+async fn body_too_large_counts_requests_and_http_metrics_label_code() {
+    let (app, state) = make_app("body_limit_bytes = 1024");
+    let big = serde_json::json!({"gate": "g1", "start": 0.0, "rate_hz": 100.0,
+        "values": vec![0.5; 1000]});
+    let (s, _) = post_json(&app, big).await;
+    assert_eq!(s, StatusCode::PAYLOAD_TOO_LARGE);
+    let (s, _) = post_json(&app, uniform("g1", 0.0, 10)).await;
+    assert_eq!(s, StatusCode::NO_CONTENT);
+    let (s, _, _) = send(&app, "GET", "/nowhere", Body::empty(), None).await;
+    assert_eq!(s, StatusCode::NOT_FOUND);
+    let m = state.render_metrics();
+    assert_eq!(
+        sample(
+            &m,
+            "gatewatch_ingest_requests_rejected_total{reason=\"body_too_large\"}"
+        ),
+        Some(1.0)
+    );
+    assert_eq!(
+        sample(
+            &m,
+            "gatewatch_http_requests_total{code=\"204\",route=\"/api/v1/samples\"}"
+        ),
+        Some(1.0),
+        "{m}"
+    );
+    assert!(
+        m.contains("gatewatch_http_requests_total{code=\"413\""),
+        "{m}"
+    );
+    assert!(!m.contains("status=\""), "{m}");
+}
+
+fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+/// `serve` with text logs and stderr to a file (as under systemd with `StandardError=file:`
+/// or a shell redirect): no ESC byte, and the TCP peer printed as an address.
+#[test]
+fn text_logs_to_a_file_have_no_colour_codes_and_plain_peers() {
+    let dir = tempfile::tempdir().unwrap();
+    let (http, tcp) = (free_port(), free_port());
+    let cfg = dir.path().join("gatewatch.toml");
+    std::fs::write(
+        &cfg,
+        format!(
+            "[server]\nlisten = \"127.0.0.1:{http}\"\ntcp_listen = \"127.0.0.1:{tcp}\"\n\
+             shutdown_grace_seconds = 2.0\nworker_threads = 1\n[log]\nformat = \"text\"\n\
+             level = \"info\"\n"
+        ),
+    )
+    .unwrap();
+    let log = dir.path().join("stderr.log");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_gatewatch"))
+        .args(["serve", "--config"])
+        .arg(&cfg)
+        .env_remove("RUST_LOG")
+        .stdout(Stdio::null())
+        .stderr(Stdio::from(std::fs::File::create(&log).unwrap()))
+        .spawn()
+        .unwrap();
+    let deadline = Instant::now() + Duration::from_secs(30);
+    let mut sock = loop {
+        if let Ok(s) = std::net::TcpStream::connect(("127.0.0.1", tcp)) {
+            break s;
+        }
+        assert!(Instant::now() < deadline, "the TCP listener never came up");
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    // a bad line: logged with the peer
+    sock.write_all(b"this is not line protocol\n").unwrap();
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while !std::fs::read_to_string(&log)
+        .unwrap_or_default()
+        .contains("bad line")
+    {
+        assert!(Instant::now() < deadline, "the bad line was never logged");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    drop(sock);
+    let _ = Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status();
+    let status = child.wait().unwrap();
+    let text = std::fs::read(&log).unwrap();
+    let shown = String::from_utf8_lossy(&text);
+    assert!(status.success(), "{shown}");
+    assert!(!text.contains(&0x1b), "ANSI escape in a log file:\n{shown}");
+    assert!(shown.contains("peer=127.0.0.1:"), "{shown}");
+    assert!(!shown.contains("Some("), "{shown}");
+    assert!(shown.contains("shut down"), "logs go to stderr:\n{shown}");
+}
