@@ -463,6 +463,39 @@ async fn line_protocol_precisions() {
 }
 
 #[tokio::test]
+async fn authorization_schemes_are_case_insensitive_and_influx_token_is_accepted() {
+    use tower::ServiceExt;
+    let (app, _) = make_app(&format!("auth_tokens = [\"{TOKEN}\"]"));
+    let with = |value: String| {
+        axum::http::Request::builder()
+            .method("POST")
+            .uri("/api/v2/write")
+            .header("authorization", value)
+            .body(Body::from("m,gate=g1 force=1\n"))
+            .unwrap()
+    };
+    for good in [
+        format!("Bearer {TOKEN}"),
+        format!("bearer {TOKEN}"),
+        format!("BEARER {TOKEN}"),
+        format!("Token {TOKEN}"),
+        format!("token {TOKEN}"),
+    ] {
+        let s = app.clone().oneshot(with(good.clone())).await.unwrap().status();
+        assert_eq!(s, StatusCode::NO_CONTENT, "{good}");
+    }
+    for bad in [
+        format!("Basic {TOKEN}"),
+        format!("Bearer{TOKEN}"),
+        TOKEN.to_string(),
+        "Bearer wrong-token-0123456789".to_string(),
+    ] {
+        let s = app.clone().oneshot(with(bad.clone())).await.unwrap().status();
+        assert_eq!(s, StatusCode::UNAUTHORIZED, "{bad}");
+    }
+}
+
+#[tokio::test]
 async fn bearer_tokens() {
     let (app, _) = make_app(&format!("auth_tokens = [\"{TOKEN}\"]"));
     let body = uniform("g1", 0.0, 3).to_string();

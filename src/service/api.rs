@@ -255,6 +255,15 @@ fn ct_eq(a: &[u8], b: &[u8]) -> bool {
     a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
 }
 
+/// The token of an `Authorization` header: the `Bearer` scheme (RFC 6750) or InfluxDB 2.x's
+/// `Token` scheme (what Telegraf's `outputs.influxdb_v2` and the Influx clients send), the
+/// scheme matched case-insensitively as RFC 7235 says.
+fn token_of(header: &str) -> Option<&str> {
+    let (scheme, token) = header.trim_start().split_once(' ')?;
+    (scheme.eq_ignore_ascii_case("bearer") || scheme.eq_ignore_ascii_case("token"))
+        .then(|| token.trim())
+}
+
 async fn auth(State(state): State<Arc<AppState>>, req: Request, next: Next) -> Response {
     let tokens = &state.config.server.auth_tokens;
     if tokens.is_empty() {
@@ -264,8 +273,7 @@ async fn auth(State(state): State<Arc<AppState>>, req: Request, next: Next) -> R
         .headers()
         .get(header::AUTHORIZATION)
         .and_then(|v| v.to_str().ok())
-        .and_then(|v| v.strip_prefix("Bearer "))
-        .map(str::trim);
+        .and_then(token_of);
     let ok = given.is_some_and(|g| {
         tokens
             .iter()
