@@ -230,7 +230,8 @@ pub fn analyze_series_with(
     let best = identification.best_run().clone();
     let c = best.coefficients.clone();
     let lin = Linearization::of(model, &c, t0, scale.y, scale.v);
-    let trajectory = identify::trajectory(model, &data.t, &c, best.initial, config.protocol.test_rtol);
+    let trajectory =
+        identify::trajectory(model, &data.t, &c, best.initial, config.protocol.test_rtol);
     let prediction = identify::predict(
         model,
         &data,

@@ -33,7 +33,7 @@ mod tests;
 
 pub use convergence::convergence;
 pub use map::stability_map;
-pub use report::{identification, trajectory};
+pub use report::{identification, prepare_dir, trajectory};
 pub use series::{fit, hysteresis, phase};
 
 /// Picture size in pixels (SVG user units).

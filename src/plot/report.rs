@@ -51,6 +51,22 @@ pub fn trajectory(
     (t, y, yd)
 }
 
+/// Makes sure pictures can be written into `dir`: creates it if needed and creates (then
+/// removes) a probe file in it. Called before a long computation whose pictures go there, so an
+/// unwritable directory is reported before, not after, the work.
+pub fn prepare_dir(dir: &Path) -> Result<(), PlotError> {
+    let fail = |path: &Path, e: std::io::Error| PlotError::Write {
+        path: path.to_path_buf(),
+        reason: e.to_string(),
+    };
+    std::fs::create_dir_all(dir).map_err(|e| fail(dir, e))?;
+    let probe = dir.join(format!(".gatewatch-probe-{}", std::process::id()));
+    std::fs::File::create(&probe).map_err(|e| fail(dir, e))?;
+    // The probe proved the directory writable; failing to remove it loses nothing.
+    let _ = std::fs::remove_file(&probe);
+    Ok(())
+}
+
 /// The pictures of an identification, written into `dir` (created if needed): `fit` (data and
 /// model output), `phase` (the model's phase plane), `convergence`, and in force mode
 /// `hysteresis` (the velocity-dependent part of the modelled support force against deflection

@@ -58,7 +58,9 @@ fn errors_name_the_key() {
         err("[defaults]\nwindow_seconds = -1.0\n"),
         "defaults.window_seconds: must be > 0"
     );
-    assert!(err("[gates.g1]\nrte_hz = 1.0\n").starts_with("gates.g1: unknown field `rte_hz`"));
+    assert!(
+        err("[gates.g1]\nrte_hz = 1.0\n").starts_with("gates.g1.rte_hz: unknown field `rte_hz`")
+    );
     assert!(err("[server]\nlisten_addr = \"x\"\n").contains("unknown field `listen_addr`"));
     assert!(err("[bogus]\n").contains("unknown field `bogus`"));
     assert!(err("[gates.g1.alert]\nfor_windows = 0\n").starts_with("gates.g1.alert.for_windows"));
