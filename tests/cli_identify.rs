@@ -40,10 +40,9 @@ fn bad(args: &[&str], keys: &[&str]) -> String {
         text(&out.stdout)
     );
     let lines: Vec<&str> = err.lines().collect();
-    // A usage error (clap's) goes on with clap's hint and usage block; every other error is
-    // exactly one line.
-    let usage = lines.iter().any(|l| l.starts_with("Usage: gatewatch"))
-        && lines.last() == Some(&"For more information, try '--help'.");
+    // A usage error (clap's) goes on with clap's hint and usage block, ending with its pointer
+    // to --help; every other error is exactly one line.
+    let usage = lines.last() == Some(&"For more information, try '--help'.");
     assert!(
         lines.len() == 1 || usage,
         "args {args:?}: expected one stderr line or a usage error, got {lines:#?}"

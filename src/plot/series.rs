@@ -118,6 +118,10 @@ pub fn fit(
 struct CurveFigure<'a> {
     x: &'a [f64],
     y: &'a [f64],
+    /// The curve's legend entry.
+    curve_label: &'a str,
+    /// Data drawn as dots beside the curve, with their legend entry.
+    data: Option<(&'a [f64], &'a [f64], String)>,
     x_desc: String,
     y_desc: String,
     title: &'a str,
@@ -130,8 +134,12 @@ impl Figure for CurveFigure<'_> {
         DB::ErrorType: 'static,
     {
         root.fill(&WHITE)?;
-        let (x0, x1) = span(self.x);
-        let (y0, y1) = span(self.y);
+        let (dx, dy): (&[f64], &[f64]) = match &self.data {
+            Some((x, y, _)) => (x, y),
+            None => (&[], &[]),
+        };
+        let (x0, x1) = span(self.x.iter().chain(dx));
+        let (y0, y1) = span(self.y.iter().chain(dy));
         let y1 = y1 + 0.25 * (y1 - y0);
         let mut chart = ChartBuilder::on(root)
             .caption(self.title, (FONT, TITLE_SIZE))
@@ -158,13 +166,24 @@ impl Figure for CurveFigure<'_> {
                 chart.draw_series(LineSeries::new([(x0, 0.0), (x1, 0.0)], axis))?;
             }
         }
+        if let Some((x, y, label)) = &self.data {
+            chart
+                .draw_series(
+                    x.iter()
+                        .zip(y.iter())
+                        .filter(|(a, b)| a.is_finite() && b.is_finite())
+                        .map(|(a, b)| Circle::new((*a, *b), 2, GREY.mix(0.7).filled())),
+                )?
+                .label(label.as_str())
+                .legend(|(x, y)| Circle::new((x + 10, y), 4, GREY.mix(0.7).filled()));
+        }
         let pts = thin(self.x, self.y, (x0, x1), (y0, y1));
         // plotters' bitmap lines wider than 1 px leave gaps on steep segments; a 1 px line
         // (continuous) underneath fills them.
         chart.draw_series(LineSeries::new(pts.iter().copied(), BLUE))?;
         chart
             .draw_series(LineSeries::new(pts, BLUE.stroke_width(2)))?
-            .label("trajectory")
+            .label(self.curve_label)
             .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLUE.stroke_width(2)));
         let start = (self.x[0], self.y[0]);
         chart
@@ -190,40 +209,62 @@ fn check_curve(path: &Path, x: &[f64], y: &[f64]) -> Result<(), PlotError> {
     Ok(())
 }
 
-/// The model's phase plane: velocity `yd` against displacement `y` along a trajectory, with its
-/// start and end marked.
-pub fn phase(path: &Path, y: &[f64], yd: &[f64], units: &Units) -> Result<(), PlotError> {
+/// The phase plane, `yd` against `y`: the model's trajectory as a line with its start and end
+/// marked, and, when given, the states estimated from the data (`data`: `y`, `yd` and their
+/// legend entry) as dots beside it.
+pub fn phase(
+    path: &Path,
+    data: Option<(&[f64], &[f64], &str)>,
+    y: &[f64],
+    yd: &[f64],
+    units: &Units,
+) -> Result<(), PlotError> {
     check_curve(path, y, yd)?;
+    if let Some((dy, dyd, _)) = data {
+        check_curve(path, dy, dyd)?;
+    }
     render(
         path,
         &CurveFigure {
             x: y,
             y: yd,
+            curve_label: "identified model",
+            data: data.map(|(a, b, l)| (a, b, l.to_string())),
             x_desc: label("displacement y", units.signal.as_deref()),
             y_desc: label("velocity yd", units.velocity().as_deref()),
-            title: "Phase plane of the identified model",
+            title: "Phase plane: data and identified model",
             equal_zero_lines: true,
         },
     )
 }
 
-/// The hysteresis loop (the chapter's Figure 8.15): `force` against `deflection`, start and
-/// end marked. The loop's area is the work the force does per cycle.
+/// The hysteresis loop (the chapter's Figure 8.15): the whole support force against the
+/// deflection, the measured force as dots (`measured`: deflection, force) and the model's force
+/// as a line (`model_deflection`, `model_force`, sampled densely so the loop is smooth). The
+/// loop's area is the work the force does per cycle.
 pub fn hysteresis(
     path: &Path,
-    deflection: &[f64],
-    force: &[f64],
+    measured: (&[f64], &[f64]),
+    model_deflection: &[f64],
+    model_force: &[f64],
     units: &Units,
 ) -> Result<(), PlotError> {
-    check_curve(path, deflection, force)?;
+    check_curve(path, model_deflection, model_force)?;
+    check_curve(path, measured.0, measured.1)?;
     render(
         path,
         &CurveFigure {
-            x: deflection,
-            y: force,
-            x_desc: label("deflection y", units.signal.as_deref()),
-            y_desc: label("force F", units.force.as_deref()),
-            title: "Hysteresis loop: force against deflection",
+            x: model_deflection,
+            y: model_force,
+            curve_label: "identified model",
+            data: Some((
+                measured.0,
+                measured.1,
+                "measured force (at the model's deflection)".to_string(),
+            )),
+            x_desc: label("deflection y (model)", units.signal.as_deref()),
+            y_desc: label("support force F", units.force.as_deref()),
+            title: "Hysteresis loop: support force against deflection",
             equal_zero_lines: true,
         },
     )
