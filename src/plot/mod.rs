@@ -39,7 +39,7 @@ mod zoom;
 pub use convergence::convergence;
 pub use map::stability_map;
 pub use report::{identification, prepare_dir, trajectory};
-pub use series::{fit, hysteresis, phase};
+pub use series::{fit, hysteresis, phase, Loop};
 pub use zoom::fit_zoom;
 
 /// Picture size in pixels (SVG user units).

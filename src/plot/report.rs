@@ -151,33 +151,60 @@ pub fn identification(
             _ => (series.y.clone(), "data: y and its central difference"),
         };
         let data_yd = central_difference(&series.t, &data_y);
+        // A force record holds many periods of a slowly changing orbit, which drawn whole fill
+        // a disc: show the last three periods, as the hysteresis loop does.
+        let from = match (signal, period) {
+            // Unless the model's trajectory ended early (it diverged): then all of it.
+            (Signal::Force, Some(p)) if mt.last().is_some_and(|&t| t >= t1 - 3.0 * p) => {
+                t1 - 3.0 * p
+            }
+            _ => f64::NEG_INFINITY,
+        };
+        let keep = |t: &[f64], a: &[f64]| -> Vec<f64> {
+            t.iter()
+                .zip(a)
+                .filter(|(t, _)| **t >= from)
+                .map(|(_, v)| *v)
+                .collect()
+        };
+        let (dy, dyd) = (keep(&series.t, &data_y), keep(&series.t, &data_yd));
+        let (py, pyd) = (keep(&mt, &my), keep(&mt, &myd));
         let p = file("phase");
-        let data = (!data_y.is_empty()).then_some((&data_y[..], &data_yd[..], data_label));
-        phase(&p, data, &my, &myd, units)?;
+        let data = (!dy.is_empty()).then_some((&dy[..], &dyd[..], data_label));
+        phase(&p, data, &py, &pyd, units)?;
         written.push(p);
     }
 
     if let (Signal::Force, Some(period), Some(tr)) = (signal, period, &analysis.trajectory) {
+        // The last three periods: the loop the gate is on now.
         let from = t1 - 3.0 * period;
-        let (measured_defl, measured_force): (Vec<f64>, Vec<f64>) = tr
-            .iter()
-            .zip(series.t.iter().zip(&series.y))
-            .filter(|(_, (&t, _))| t >= from)
-            .map(|(s, (_, &f))| (s[0], f))
-            .unzip();
-        let (model_defl, model_force): (Vec<f64>, Vec<f64>) = mt
-            .iter()
-            .zip(my.iter().zip(&myd))
-            .filter(|(&t, _)| t >= from)
-            .map(|(&t, (&y, &yd))| (y, model.residual(t, y, yd, c)))
-            .unzip();
-        if !model_defl.is_empty() && !measured_defl.is_empty() {
+        // The model's restoring force at rest: what the velocity-dependent part leaves out.
+        let restoring = |t: f64, y: f64| model.residual(t, y, 0.0, c);
+        let mut measured = (Vec::new(), Vec::new(), Vec::new());
+        for (s, (&t, &f)) in tr.iter().zip(series.t.iter().zip(&series.y)) {
+            if t >= from {
+                measured.0.push(s[0]);
+                measured.1.push(f);
+                measured.2.push(f - restoring(t, s[0]));
+            }
+        }
+        let mut modelled = (Vec::new(), Vec::new(), Vec::new());
+        for (&t, (&y, &yd)) in mt.iter().zip(my.iter().zip(&myd)) {
+            if t >= from {
+                let f = model.residual(t, y, yd, c);
+                modelled.0.push(y);
+                modelled.1.push(f);
+                modelled.2.push(f - restoring(t, y));
+            }
+        }
+        if !modelled.0.is_empty() && !measured.0.is_empty() {
             let p = file("hysteresis");
             hysteresis(
                 &p,
-                (&measured_defl, &measured_force),
-                &model_defl,
-                &model_force,
+                (&measured.0, &measured.1),
+                (&modelled.0, &modelled.1),
+                (&measured.0, &measured.2),
+                (&modelled.0, &modelled.2),
                 units,
             )?;
             written.push(p);

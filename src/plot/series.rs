@@ -149,6 +149,8 @@ impl Figure for CurveFigure<'_> {
             .build_cartesian_2d(x0..x1, y0..y1)?;
         chart
             .configure_mesh()
+            // Few enough ticks for a half-width panel (hysteresis).
+            .x_labels(6)
             .x_desc(self.x_desc.as_str())
             .y_desc(self.y_desc.as_str())
             .x_label_formatter(&tick_format(x0, x1))
@@ -166,6 +168,15 @@ impl Figure for CurveFigure<'_> {
                 chart.draw_series(LineSeries::new([(x0, 0.0), (x1, 0.0)], axis))?;
             }
         }
+        let pts = thin(self.x, self.y, (x0, x1), (y0, y1));
+        // plotters' bitmap lines wider than 1 px leave gaps on steep segments; a 1 px line
+        // (continuous) underneath fills them.
+        chart.draw_series(LineSeries::new(pts.iter().copied(), BLUE))?;
+        chart
+            .draw_series(LineSeries::new(pts, BLUE.stroke_width(2)))?
+            .label(self.curve_label)
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLUE.stroke_width(2)));
+        // The data on top: a dense model curve would hide them.
         if let Some((x, y, label)) = &self.data {
             chart
                 .draw_series(
@@ -177,14 +188,6 @@ impl Figure for CurveFigure<'_> {
                 .label(label.as_str())
                 .legend(|(x, y)| Circle::new((x + 10, y), 4, GREY.mix(0.7).filled()));
         }
-        let pts = thin(self.x, self.y, (x0, x1), (y0, y1));
-        // plotters' bitmap lines wider than 1 px leave gaps on steep segments; a 1 px line
-        // (continuous) underneath fills them.
-        chart.draw_series(LineSeries::new(pts.iter().copied(), BLUE))?;
-        chart
-            .draw_series(LineSeries::new(pts, BLUE.stroke_width(2)))?
-            .label(self.curve_label)
-            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLUE.stroke_width(2)));
         let start = (self.x[0], self.y[0]);
         chart
             .draw_series([Circle::new(start, 6, GREEN.filled())])?
@@ -238,34 +241,58 @@ pub fn phase(
     )
 }
 
-/// The hysteresis loop (the chapter's Figure 8.15): the whole support force against the
-/// deflection, the measured force as dots (`measured`: deflection, force) and the model's force
-/// as a line (`model_deflection`, `model_force`, sampled densely so the loop is smooth). The
-/// loop's area is the work the force does per cycle.
+/// Two figures side by side.
+struct SideBySide<'a>(CurveFigure<'a>, CurveFigure<'a>);
+
+impl Figure for SideBySide<'_> {
+    fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> DrawResult
+    where
+        DB::ErrorType: 'static,
+    {
+        let (left, right) = root.split_horizontally(SIZE.0 / 2);
+        self.0.draw(&left)?;
+        self.1.draw(&right)
+    }
+}
+
+/// One set of points of a hysteresis picture: deflection and force.
+pub type Loop<'a> = (&'a [f64], &'a [f64]);
+
+/// The hysteresis loop (the chapter's Figure 8.15), measured (dots, at the model's deflection)
+/// and model (a line, sampled densely so the loop is smooth), in two panels: the whole support
+/// force against deflection (`measured`, `model`), where the stiffness force dominates and the
+/// loop is thin, and its velocity-dependent part, the force minus the model's restoring force at
+/// rest (`measured_part`, `model_part`), whose loop area is the work the force does per cycle.
 pub fn hysteresis(
     path: &Path,
-    measured: (&[f64], &[f64]),
-    model_deflection: &[f64],
-    model_force: &[f64],
+    measured: Loop,
+    model: Loop,
+    measured_part: Loop,
+    model_part: Loop,
     units: &Units,
 ) -> Result<(), PlotError> {
-    check_curve(path, model_deflection, model_force)?;
-    check_curve(path, measured.0, measured.1)?;
-    render(
-        path,
-        &CurveFigure {
-            x: model_deflection,
-            y: model_force,
-            curve_label: "identified model",
-            data: Some((
-                measured.0,
-                measured.1,
-                "measured force (at the model's deflection)".to_string(),
-            )),
-            x_desc: label("deflection y (model)", units.signal.as_deref()),
-            y_desc: label("support force F", units.force.as_deref()),
-            title: "Hysteresis loop: support force against deflection",
-            equal_zero_lines: true,
-        },
-    )
+    for (x, y) in [measured, model, measured_part, model_part] {
+        check_curve(path, x, y)?;
+    }
+    let whole = CurveFigure {
+        x: model.0,
+        y: model.1,
+        curve_label: "identified model",
+        data: Some((measured.0, measured.1, "measured".to_string())),
+        x_desc: label("deflection y (model)", units.signal.as_deref()),
+        y_desc: label("support force F", units.force.as_deref()),
+        title: "Support force against deflection",
+        equal_zero_lines: true,
+    };
+    let part = CurveFigure {
+        x: model_part.0,
+        y: model_part.1,
+        curve_label: "identified model",
+        data: Some((measured_part.0, measured_part.1, "measured".to_string())),
+        x_desc: label("deflection y (model)", units.signal.as_deref()),
+        y_desc: label("F minus restoring force at rest", units.force.as_deref()),
+        title: "Its velocity-dependent part",
+        equal_zero_lines: true,
+    };
+    render(path, &SideBySide(whole, part))
 }

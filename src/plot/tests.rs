@@ -61,7 +61,7 @@ fn svg_and_png_files_are_written() {
         .unwrap()
         .contains("velocity yd [mm/s]"));
     let p = dir.path().join("loop.svg");
-    hysteresis(&p, (&y, &t), &y, &t, &units).unwrap();
+    hysteresis(&p, (&y, &t), (&y, &t), (&y, &t), (&y, &t), &units).unwrap();
     assert!(std::fs::read_to_string(&p)
         .unwrap()
         .contains("support force F [kN]"));
