@@ -137,7 +137,7 @@ pub fn fit_zoom(
     if model_t.len() != model_y.len() {
         return Err(no_data(path, "the model's t and y differ in length"));
     }
-    if !(zoom.0 < zoom.1) {
+    if zoom.0.partial_cmp(&zoom.1) != Some(std::cmp::Ordering::Less) {
         return Err(no_data(path, "the zoom interval is empty"));
     }
     render(
