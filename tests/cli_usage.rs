@@ -183,3 +183,27 @@ fn a_resend_interval_beyond_alertmanagers_resolve_timeout_is_accepted_with_a_war
     assert_eq!(o.status.code(), Some(0));
     assert!(o.stderr.is_empty(), "{}", text(&o.stderr));
 }
+
+#[test]
+fn serve_prints_the_same_warning_at_start() {
+    // A port already taken: serve warns, then fails to bind and exits, without running.
+    let taken = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = taken.local_addr().unwrap().port();
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("gatewatch.toml");
+    std::fs::write(
+        &file,
+        format!(
+            "[server]\nlisten = \"127.0.0.1:{port}\"\n[notify]\nalertmanager_urls = \
+             [\"http://127.0.0.1:9093\"]\nresend_interval_seconds = 900\n"
+        ),
+    )
+    .unwrap();
+    let o = gw(&["serve", "--config", file.to_str().unwrap()]);
+    let err = text(&o.stderr);
+    assert_ne!(o.status.code(), Some(0), "{err}");
+    assert!(
+        err.contains("warning") && err.contains("resend_interval_seconds = 900"),
+        "{err}"
+    );
+}
