@@ -1,7 +1,8 @@
 //! The command line as a user runs it: `gatewatch identify` and `gatewatch bench`.
 //!
-//! Contract (src/cli/mod.rs): exit 0 on success, 2 on bad input with exactly one line on stderr that
-//! names the problem, 1 on anything else. Piped runs print nothing on stderr (no progress bar).
+//! Contract (src/cli/mod.rs): exit 0 on success, 2 on bad input with a first line on stderr that
+//! names the problem (only that line, except for clap's usage errors, which go on with clap's
+//! hint and usage block), 1 on anything else. Piped runs print nothing on stderr (no progress bar).
 
 use serde_json::Value;
 use std::path::PathBuf;
@@ -39,10 +40,12 @@ fn bad(args: &[&str], keys: &[&str]) -> String {
         text(&out.stdout)
     );
     let lines: Vec<&str> = err.lines().collect();
-    assert_eq!(
-        lines.len(),
-        1,
-        "args {args:?}: expected one stderr line, got {lines:#?}"
+    // A usage error (clap's) goes on with clap's hint and usage block, ending with its pointer
+    // to --help; every other error is exactly one line.
+    let usage = lines.last() == Some(&"For more information, try '--help'.");
+    assert!(
+        lines.len() == 1 || usage,
+        "args {args:?}: expected one stderr line or a usage error, got {lines:#?}"
     );
     for k in keys {
         assert!(

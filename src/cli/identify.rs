@@ -215,6 +215,10 @@ pub(super) fn run(a: IdentifyArgs) -> Result<(), CliError> {
         amplitude_limit: a.amplitude_limit,
         max_fit_nmae: a.max_fit_nmae,
     };
+    // Every output is checked before the identification, which can take minutes.
+    if let Some(dir) = &a.plot {
+        crate::plot::prepare_dir(dir).map_err(|e| input(format!("--plot: {e}")))?;
+    }
     let total = (a.runs * a.generations) as u64;
     let bar = progress_bar(total, "identify");
     let result = analysis::analyze_series(&model, &series, &opts, None, |r, g, _| {

@@ -42,9 +42,19 @@ enum Command {
     Simulate(crate::service::cli::SimulateArgs),
     /// Map stable and unstable coefficients of a plane by simulation (Figure 8.13).
     StabilityMap(stability_map::StabilityMapArgs),
+    /// Print a shell completion script, e.g. `gatewatch completions bash > /etc/bash_completion.d/gatewatch`.
+    Completions(CompletionsArgs),
     /// Watch the daemon catch a simulated gate going self-excited (daemon, simulated gate and
     /// webhook receiver in one process).
     Demo(crate::service::cli::DemoArgs),
+}
+
+/// Arguments of `gatewatch completions`.
+#[derive(Debug, clap::Args)]
+struct CompletionsArgs {
+    /// The shell whose completion script is printed on stdout.
+    #[arg(value_enum)]
+    shell: clap_complete::Shell,
 }
 
 #[derive(Debug, Subcommand)]
@@ -115,20 +125,7 @@ pub fn main() -> ExitCode {
                     ExitCode::SUCCESS
                 };
             }
-            // One line: clap's first line, without its usage block. Clap lists missing required
-            // arguments on indented lines after the first; fold them in so the line names them.
-            let text = e.render().to_string();
-            let mut lines = text.lines();
-            let mut line = lines
-                .next()
-                .unwrap_or("error: invalid arguments")
-                .trim_start_matches("error: ")
-                .to_string();
-            for more in lines.take_while(|l| l.starts_with("  ") && !l.trim().is_empty()) {
-                line.push(' ');
-                line.push_str(more.trim());
-            }
-            eprintln!("gatewatch: {line}");
+            eprint!("{}", usage_error(&e.render().to_string()));
             return ExitCode::from(2);
         }
     };
@@ -139,6 +136,12 @@ pub fn main() -> ExitCode {
         Command::Demo(args) => return crate::service::cli::demo(args),
         Command::Bench(BenchCommand::Daemon(args)) => {
             return crate::service::bench::bench_daemon(args)
+        }
+        Command::Completions(args) => {
+            use clap::CommandFactory;
+            let mut cmd = Cli::command();
+            clap_complete::generate(args.shell, &mut cmd, "gatewatch", &mut std::io::stdout());
+            return ExitCode::SUCCESS;
         }
         Command::Identify(args) => identify::run(args),
         Command::StabilityMap(args) => stability_map::run(args),
@@ -157,6 +160,29 @@ pub fn main() -> ExitCode {
             ExitCode::from(1)
         }
     }
+}
+
+/// A command-line error as printed: a first line `gatewatch: ...` that names the problem (clap's
+/// first line, with the missing arguments it lists on indented lines folded in, so scripts and
+/// logs that keep one line keep the whole reason), then clap's own hint ("a similar subcommand
+/// exists: 'identify'") and usage block unchanged, for the person at the terminal.
+fn usage_error(rendered: &str) -> String {
+    let mut lines = rendered.lines().peekable();
+    let mut first = lines
+        .next()
+        .unwrap_or("error: invalid arguments")
+        .trim_start_matches("error: ")
+        .to_string();
+    while let Some(more) = lines.next_if(|l| l.starts_with("  ") && !l.trim().is_empty()) {
+        first.push(' ');
+        first.push_str(more.trim());
+    }
+    let mut out = format!("gatewatch: {first}\n");
+    for line in lines {
+        out.push_str(line);
+        out.push('\n');
+    }
+    out
 }
 
 fn progress_bar(len: u64, what: &str) -> ProgressBar {

@@ -5,6 +5,8 @@ use std::path::Path;
 
 struct ConvergenceFigure<'a> {
     history: &'a [f64],
+    /// The training cost after the polish, drawn one step after the last generation.
+    polished: Option<f64>,
 }
 
 impl Figure for ConvergenceFigure<'_> {
@@ -17,11 +19,21 @@ impl Figure for ConvergenceFigure<'_> {
         let positive: Vec<f64> = self
             .history
             .iter()
+            .chain(self.polished.iter())
             .copied()
             .filter(|v| v.is_finite() && *v > 0.0)
             .collect();
-        let x1 = (n.max(2) - 1) as f64;
+        let x1 = if self.polished.is_some() {
+            n as f64
+        } else {
+            (n.max(2) - 1) as f64
+        };
         let title = "Differential evolution: convergence";
+        let x_desc = if self.polished.is_some() {
+            "generation (last point: after the polish)"
+        } else {
+            "generation"
+        };
         if positive.is_empty() {
             // Every cost is 0 (an exact fit) or unusable: a log scale cannot show it.
             let mut chart = ChartBuilder::on(root)
@@ -32,7 +44,7 @@ impl Figure for ConvergenceFigure<'_> {
                 .build_cartesian_2d(0.0..x1, -1.0..1.0)?;
             chart
                 .configure_mesh()
-                .x_desc("generation")
+                .x_desc(x_desc)
                 .y_desc("best training cost (MAE)")
                 .label_style((FONT, LABEL_SIZE))
                 .axis_desc_style((FONT, DESC_SIZE))
@@ -49,7 +61,11 @@ impl Figure for ConvergenceFigure<'_> {
         let max = positive.iter().copied().fold(0.0, f64::max);
         // Costs of exactly 0 are drawn on a floor a decade below the smallest positive cost.
         let floor = min / 10.0;
-        let has_zero = self.history.iter().any(|v| *v <= 0.0);
+        let has_zero = self
+            .history
+            .iter()
+            .chain(self.polished.iter())
+            .any(|v| *v <= 0.0);
         let lo = if has_zero { floor / 2.0 } else { min / 2.0 };
         let hi = if max > lo * 10.0 {
             max * 2.0
@@ -67,7 +83,7 @@ impl Figure for ConvergenceFigure<'_> {
         let generation = |v: &f64| format!("{v:.0}");
         chart
             .configure_mesh()
-            .x_desc("generation")
+            .x_desc(x_desc)
             .y_desc("best training cost (MAE), log scale")
             .y_label_formatter(&fmt)
             .x_label_formatter(&generation)
@@ -106,6 +122,19 @@ impl Figure for ConvergenceFigure<'_> {
             .draw_series(LineSeries::new(pts.iter().copied(), BLUE.stroke_width(2)))?
             .label("best so far")
             .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLUE.stroke_width(2)));
+        if let (Some(p), Some(&last)) = (self.polished, pts.last()) {
+            let at = (n as f64, if p > 0.0 { p.min(hi) } else { floor });
+            chart.draw_series(DashedLineSeries::new(
+                [last, at],
+                6,
+                4,
+                GREEN.stroke_width(2),
+            ))?;
+            chart
+                .draw_series([Circle::new(at, 6, GREEN.filled())])?
+                .label(format!("after the polish: {p:.3e} (the training error)"))
+                .legend(|(x, y)| Circle::new((x + 10, y), 5, GREEN.filled()));
+        }
         if has_zero {
             chart
                 .draw_series(
@@ -125,9 +154,11 @@ impl Figure for ConvergenceFigure<'_> {
 /// The DE's convergence curve: best-so-far training cost per generation (`history[g]` after
 /// generation `g`, `history[0]` the initial population), log scale. Costs of 0 are drawn on a
 /// marked floor below the smallest positive cost; if every cost is 0 the scale is linear.
-pub fn convergence(path: &Path, history: &[f64]) -> Result<(), PlotError> {
+/// `polished`, the training cost after the local polish of the DE winner, is drawn one step
+/// after the last generation, so the curve ends at the training error the run reports.
+pub fn convergence(path: &Path, history: &[f64], polished: Option<f64>) -> Result<(), PlotError> {
     if history.is_empty() {
         return Err(no_data(path, "the convergence history is empty"));
     }
-    render(path, &ConvergenceFigure { history })
+    render(path, &ConvergenceFigure { history, polished })
 }

@@ -2,9 +2,12 @@
 //!
 //! - [`fit`]: the data with the fitted model: training samples as dots, test samples as
 //!   crosses, the model as a line;
-//! - [`phase`]: the model's phase plane, `yd` against `y`;
-//! - [`hysteresis`]: force against deflection (the chapter's Figure 8.15);
-//! - [`convergence`]: the DE's best-so-far cost per generation on a log scale;
+//! - [`fit_zoom`]: the fit of a long record: a zoom on a few periods above the residual;
+//! - [`phase`]: the phase plane, `yd` against `y`: the model's trajectory beside the data;
+//! - [`hysteresis`]: the support force against deflection, measured and model (the chapter's
+//!   Figure 8.15);
+//! - [`convergence`]: the DE's best-so-far cost per generation on a log scale, ending after the
+//!   polish;
 //! - [`stability_map`]: the stability map of a coefficient plane (Figure 8.13).
 //!
 //! [`identification`] writes the pictures of an identification (`gatewatch identify --plot`).
@@ -15,7 +18,8 @@
 //!
 //! # Layout
 //! `mod.rs` holds the error, format, units and the drawing helpers every figure shares;
-//! `series` the fit, phase and hysteresis figures; `convergence` the DE curve; `map` the
+//! `series` the fit, phase and hysteresis figures; `zoom` the zoomed fit with its residual;
+//! `convergence` the DE curve; `map` the
 //! stability map; `report` the pictures of an identification.
 
 use plotters::coord::Shift;
@@ -30,11 +34,13 @@ mod report;
 mod series;
 #[cfg(test)]
 mod tests;
+mod zoom;
 
 pub use convergence::convergence;
 pub use map::stability_map;
-pub use report::{identification, trajectory};
-pub use series::{fit, hysteresis, phase};
+pub use report::{identification, prepare_dir, trajectory};
+pub use series::{fit, hysteresis, phase, Loop};
+pub use zoom::fit_zoom;
 
 /// Picture size in pixels (SVG user units).
 const SIZE: (u32, u32) = (1000, 650);

@@ -118,6 +118,10 @@ pub fn fit(
 struct CurveFigure<'a> {
     x: &'a [f64],
     y: &'a [f64],
+    /// The curve's legend entry.
+    curve_label: &'a str,
+    /// Data drawn as dots beside the curve, with their legend entry.
+    data: Option<(&'a [f64], &'a [f64], String)>,
     x_desc: String,
     y_desc: String,
     title: &'a str,
@@ -130,8 +134,12 @@ impl Figure for CurveFigure<'_> {
         DB::ErrorType: 'static,
     {
         root.fill(&WHITE)?;
-        let (x0, x1) = span(self.x);
-        let (y0, y1) = span(self.y);
+        let (dx, dy): (&[f64], &[f64]) = match &self.data {
+            Some((x, y, _)) => (x, y),
+            None => (&[], &[]),
+        };
+        let (x0, x1) = span(self.x.iter().chain(dx));
+        let (y0, y1) = span(self.y.iter().chain(dy));
         let y1 = y1 + 0.25 * (y1 - y0);
         let mut chart = ChartBuilder::on(root)
             .caption(self.title, (FONT, TITLE_SIZE))
@@ -141,6 +149,8 @@ impl Figure for CurveFigure<'_> {
             .build_cartesian_2d(x0..x1, y0..y1)?;
         chart
             .configure_mesh()
+            // Few enough ticks for a half-width panel (hysteresis).
+            .x_labels(6)
             .x_desc(self.x_desc.as_str())
             .y_desc(self.y_desc.as_str())
             .x_label_formatter(&tick_format(x0, x1))
@@ -164,8 +174,20 @@ impl Figure for CurveFigure<'_> {
         chart.draw_series(LineSeries::new(pts.iter().copied(), BLUE))?;
         chart
             .draw_series(LineSeries::new(pts, BLUE.stroke_width(2)))?
-            .label("trajectory")
+            .label(self.curve_label)
             .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLUE.stroke_width(2)));
+        // The data on top: a dense model curve would hide them.
+        if let Some((x, y, label)) = &self.data {
+            chart
+                .draw_series(
+                    x.iter()
+                        .zip(y.iter())
+                        .filter(|(a, b)| a.is_finite() && b.is_finite())
+                        .map(|(a, b)| Circle::new((*a, *b), 2, GREY.mix(0.7).filled())),
+                )?
+                .label(label.as_str())
+                .legend(|(x, y)| Circle::new((x + 10, y), 4, GREY.mix(0.7).filled()));
+        }
         let start = (self.x[0], self.y[0]);
         chart
             .draw_series([Circle::new(start, 6, GREEN.filled())])?
@@ -190,41 +212,87 @@ fn check_curve(path: &Path, x: &[f64], y: &[f64]) -> Result<(), PlotError> {
     Ok(())
 }
 
-/// The model's phase plane: velocity `yd` against displacement `y` along a trajectory, with its
-/// start and end marked.
-pub fn phase(path: &Path, y: &[f64], yd: &[f64], units: &Units) -> Result<(), PlotError> {
+/// The phase plane, `yd` against `y`: the model's trajectory as a line with its start and end
+/// marked, and, when given, the states estimated from the data (`data`: `y`, `yd` and their
+/// legend entry) as dots beside it.
+pub fn phase(
+    path: &Path,
+    data: Option<(&[f64], &[f64], &str)>,
+    y: &[f64],
+    yd: &[f64],
+    units: &Units,
+) -> Result<(), PlotError> {
     check_curve(path, y, yd)?;
+    if let Some((dy, dyd, _)) = data {
+        check_curve(path, dy, dyd)?;
+    }
     render(
         path,
         &CurveFigure {
             x: y,
             y: yd,
+            curve_label: "identified model",
+            data: data.map(|(a, b, l)| (a, b, l.to_string())),
             x_desc: label("displacement y", units.signal.as_deref()),
             y_desc: label("velocity yd", units.velocity().as_deref()),
-            title: "Phase plane of the identified model",
+            title: "Phase plane: data and identified model",
             equal_zero_lines: true,
         },
     )
 }
 
-/// The hysteresis loop (the chapter's Figure 8.15): `force` against `deflection`, start and
-/// end marked. The loop's area is the work the force does per cycle.
+/// Two figures side by side.
+struct SideBySide<'a>(CurveFigure<'a>, CurveFigure<'a>);
+
+impl Figure for SideBySide<'_> {
+    fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> DrawResult
+    where
+        DB::ErrorType: 'static,
+    {
+        let (left, right) = root.split_horizontally(SIZE.0 / 2);
+        self.0.draw(&left)?;
+        self.1.draw(&right)
+    }
+}
+
+/// One set of points of a hysteresis picture: deflection and force.
+pub type Loop<'a> = (&'a [f64], &'a [f64]);
+
+/// The hysteresis loop (the chapter's Figure 8.15), measured (dots, at the model's deflection)
+/// and model (a line, sampled densely so the loop is smooth), in two panels: the whole support
+/// force against deflection (`measured`, `model`), where the stiffness force dominates and the
+/// loop is thin, and its velocity-dependent part, the force minus the model's restoring force at
+/// rest (`measured_part`, `model_part`), whose loop area is the work the force does per cycle.
 pub fn hysteresis(
     path: &Path,
-    deflection: &[f64],
-    force: &[f64],
+    measured: Loop,
+    model: Loop,
+    measured_part: Loop,
+    model_part: Loop,
     units: &Units,
 ) -> Result<(), PlotError> {
-    check_curve(path, deflection, force)?;
-    render(
-        path,
-        &CurveFigure {
-            x: deflection,
-            y: force,
-            x_desc: label("deflection y", units.signal.as_deref()),
-            y_desc: label("force F", units.force.as_deref()),
-            title: "Hysteresis loop: force against deflection",
-            equal_zero_lines: true,
-        },
-    )
+    for (x, y) in [measured, model, measured_part, model_part] {
+        check_curve(path, x, y)?;
+    }
+    let whole = CurveFigure {
+        x: model.0,
+        y: model.1,
+        curve_label: "identified model",
+        data: Some((measured.0, measured.1, "measured".to_string())),
+        x_desc: label("deflection y (model)", units.signal.as_deref()),
+        y_desc: label("support force F", units.force.as_deref()),
+        title: "Support force against deflection",
+        equal_zero_lines: true,
+    };
+    let part = CurveFigure {
+        x: model_part.0,
+        y: model_part.1,
+        curve_label: "identified model",
+        data: Some((measured_part.0, measured_part.1, "measured".to_string())),
+        x_desc: label("deflection y (model)", units.signal.as_deref()),
+        y_desc: label("F minus restoring force at rest", units.force.as_deref()),
+        title: "Its velocity-dependent part",
+        equal_zero_lines: true,
+    };
+    render(path, &SideBySide(whole, part))
 }

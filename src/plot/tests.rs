@@ -56,27 +56,27 @@ fn svg_and_png_files_are_written() {
         }
     }
     let p = dir.path().join("phase.svg");
-    phase(&p, &y, &t, &units).unwrap();
+    phase(&p, Some((&y, &t, "data")), &y, &t, &units).unwrap();
     assert!(std::fs::read_to_string(&p)
         .unwrap()
         .contains("velocity yd [mm/s]"));
     let p = dir.path().join("loop.svg");
-    hysteresis(&p, &y, &t, &units).unwrap();
+    hysteresis(&p, (&y, &t), (&y, &t), (&y, &t), (&y, &t), &units).unwrap();
     assert!(std::fs::read_to_string(&p)
         .unwrap()
-        .contains("force F [kN]"));
+        .contains("support force F [kN]"));
 }
 
 #[test]
 fn convergence_with_zero_costs_draws_them_on_a_floor() {
     let dir = tempfile::tempdir().unwrap();
     let p = dir.path().join("c.svg");
-    convergence(&p, &[1e3, 10.0, 0.5, 0.0, 0.0]).unwrap();
+    convergence(&p, &[1e3, 10.0, 0.5, 0.0, 0.0], None).unwrap();
     let text = std::fs::read_to_string(&p).unwrap();
     assert!(text.contains("log scale") && text.contains("drawn at the floor"));
-    convergence(&p, &[0.0, 0.0]).unwrap();
+    convergence(&p, &[0.0, 0.0], None).unwrap();
     assert!(!std::fs::read_to_string(&p).unwrap().contains("log scale"));
-    assert!(convergence(&p, &[]).is_err());
+    assert!(convergence(&p, &[], None).is_err());
 }
 
 #[test]

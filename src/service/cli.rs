@@ -67,6 +67,9 @@ pub fn serve(args: ServeArgs) -> ExitCode {
             return ExitCode::from(2);
         }
     };
+    for w in config.warnings() {
+        eprintln!("gatewatch: warning: {w}");
+    }
     init_tracing(&config);
     let rt = match tokio::runtime::Builder::new_multi_thread()
         .enable_all()
@@ -95,7 +98,10 @@ pub fn serve(args: ServeArgs) -> ExitCode {
 /// `gatewatch check-config FILE`: exit 0 when valid, 2 with a one-line message naming the key.
 pub fn check_config(args: CheckConfigArgs) -> ExitCode {
     match Config::from_file(&args.file) {
-        Ok(_) => {
+        Ok(config) => {
+            for w in config.warnings() {
+                eprintln!("{}: warning: {w}", args.file.display());
+            }
             println!("{}: ok", args.file.display());
             ExitCode::SUCCESS
         }

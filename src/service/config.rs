@@ -41,6 +41,8 @@ pub const DEFAULT_SHUTDOWN_GRACE_SECONDS: f64 = 10.0;
 pub const DEFAULT_RETRY_AFTER_SECONDS: u64 = 1;
 /// Largest window accepted: bounds the memory of one gate (`window_seconds * rate_hz` samples).
 pub const MAX_WINDOW_SAMPLES: usize = 10_000_000;
+/// Alertmanager's default `resolve_timeout` (5 min): an alert not re-sent within it is resolved.
+pub const ALERTMANAGER_RESOLVE_TIMEOUT_SECONDS: f64 = 300.0;
 /// Default equation of motion: van der Pol-like damping, known installed stiffness `k`.
 pub const DEFAULT_MODEL: &str = "c1*ydd + (c2 + c3*yd^2)*yd + k*y = 0";
 
@@ -435,11 +437,15 @@ fn merge(base: &mut toml::Table, over: toml::Table) {
     }
 }
 
-fn gate_from_table(prefix: &str, table: toml::Table) -> Result<GateConfig, ConfigError> {
-    let gate: GateConfig = toml::Value::Table(table)
-        .try_into()
-        .map_err(|e| toml_error(prefix, e))?;
-    gate.validate(prefix)?;
+/// `table` (in `text` at the key path `path`, e.g. `gates.g1`) as a gate's settings.
+fn gate_from_table(
+    text: &str,
+    path: &[&str],
+    table: toml::Table,
+) -> Result<GateConfig, ConfigError> {
+    let gate: GateConfig =
+        locate::deserialize(toml::Value::Table(table), text, path, &["defaults"])?;
+    gate.validate(&path.join("."))?;
     Ok(gate)
 }
 
@@ -466,10 +472,8 @@ impl Config {
             Some(toml::Value::Table(t)) => t,
             Some(_) => return Err(ConfigError::new("gates: must be a table")),
         };
-        let mut config: Config = toml::Value::Table(doc)
-            .try_into()
-            .map_err(|e| toml_error("", e))?;
-        config.defaults = gate_from_table("defaults", defaults.clone())?;
+        let mut config: Config = locate::deserialize(toml::Value::Table(doc), text, &[], &[])?;
+        config.defaults = gate_from_table(text, &["defaults"], defaults.clone())?;
         for (id, table) in gates {
             let prefix = format!("gates.{id}");
             if !valid_gate_id(&id) {
@@ -482,7 +486,7 @@ impl Config {
             };
             let mut merged = defaults.clone();
             merge(&mut merged, table);
-            let gate = gate_from_table(&prefix, merged)?;
+            let gate = gate_from_table(text, &["gates", &id], merged)?;
             config.gates.insert(id, gate);
         }
         config.validate()?;
@@ -617,6 +621,24 @@ impl Config {
         Ok(())
     }
 
+    /// Settings that are accepted but probably wrong, one line each (`check-config` and `serve`
+    /// print them on stderr).
+    pub fn warnings(&self) -> Vec<String> {
+        let mut out = Vec::new();
+        let resend = self.notify.resend_interval_seconds;
+        if !self.notify.alertmanager_urls.is_empty()
+            && resend.is_finite()
+            && resend > ALERTMANAGER_RESOLVE_TIMEOUT_SECONDS
+        {
+            out.push(format!(
+                "notify.resend_interval_seconds = {resend} is longer than Alertmanager's default \
+                 resolve_timeout ({ALERTMANAGER_RESOLVE_TIMEOUT_SECONDS} s): unless its \
+                 resolve_timeout is raised, Alertmanager resolves firing alerts between re-sends"
+            ));
+        }
+        out
+    }
+
     /// The settings of `gate`: its own table, or the defaults (`None` when unknown gates are
     /// refused and `gate` is not configured).
     pub fn gate(&self, gate: &str) -> Option<&GateConfig> {
@@ -628,5 +650,6 @@ impl Config {
     }
 }
 
+mod locate;
 #[cfg(test)]
 mod tests;

@@ -1,0 +1,209 @@
+//! The command line as an operator meets it: clap's hints in usage errors, shell completions,
+//! outputs checked before the work, and `check-config` messages that name key and line.
+
+use std::path::Path;
+use std::process::{Command, Output, Stdio};
+
+fn gw(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_gatewatch"))
+        .args(args)
+        .stdin(Stdio::null())
+        .output()
+        .expect("gatewatch runs")
+}
+
+fn text(bytes: &[u8]) -> String {
+    String::from_utf8_lossy(bytes).into_owned()
+}
+
+#[test]
+fn a_mistyped_command_gets_the_did_you_mean_hint_and_the_usage() {
+    let o = gw(&["identfy", "--input", "x.csv"]);
+    let err = text(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    let first = err.lines().next().unwrap();
+    assert!(
+        first.starts_with("gatewatch: ") && first.contains("'identfy'"),
+        "{err}"
+    );
+    assert!(
+        err.contains("similar subcommand exists: 'identify'"),
+        "{err}"
+    );
+    assert!(err.contains("Usage: gatewatch"), "{err}");
+
+    let o = gw(&["identify", "--inptu", "x.csv"]);
+    let err = text(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(err.lines().next().unwrap().contains("'--inptu'"), "{err}");
+    assert!(err.contains("--input"), "{err}");
+    assert!(err.contains("Usage: gatewatch identify"), "{err}");
+}
+
+#[test]
+fn missing_arguments_stay_named_on_the_first_line() {
+    let o = gw(&["identify", "--model", "ydd + c1*y = 0"]);
+    let err = text(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    let first = err.lines().next().unwrap();
+    assert!(first.contains("--input <FILE>"), "{err}");
+    assert!(err.contains("Usage: gatewatch identify"), "{err}");
+}
+
+/// Runs `shell -c script` if the shell is installed; `None` otherwise.
+fn run_shell(shell: &str, args: &[&str]) -> Option<Output> {
+    Command::new(shell).args(args).output().ok()
+}
+
+#[test]
+fn completions_are_generated_for_every_shell_and_bash_loads_them() {
+    for shell in ["bash", "zsh", "fish", "elvish", "powershell"] {
+        let o = gw(&["completions", shell]);
+        assert!(o.status.success(), "{shell}: {}", text(&o.stderr));
+        let script = text(&o.stdout);
+        for word in ["identify", "check-config", "stability-map"] {
+            assert!(script.contains(word), "{shell}: {word} missing");
+        }
+    }
+    // bash is on every machine this builds on: source the script and ask it to complete.
+    let dir = tempfile::tempdir().unwrap();
+    let script = dir.path().join("gatewatch.bash");
+    std::fs::write(&script, gw(&["completions", "bash"]).stdout).unwrap();
+    let probe = format!(
+        "source {}; COMP_WORDS=(gatewatch ide); COMP_CWORD=1; _gatewatch gatewatch ide gatewatch; \
+         printf '%s\\n' \"${{COMPREPLY[@]}}\"",
+        script.display()
+    );
+    let o = run_shell("bash", &["-c", &probe]).expect("bash runs");
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    assert_eq!(text(&o.stdout).trim(), "identify");
+
+    let o = gw(&["completions", "tcsh"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(text(&o.stderr).contains("'tcsh'"));
+}
+
+fn write_series(path: &Path) {
+    let mut csv = String::from("t,y\n");
+    for i in 0..200 {
+        let t = i as f64 * 0.1;
+        csv.push_str(&format!("{t},{}\n", (-0.1 * t).exp() * t.cos()));
+    }
+    std::fs::write(path, csv).unwrap();
+}
+
+#[test]
+fn an_unwritable_plot_dir_fails_before_the_identification() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("d.csv");
+    write_series(&data);
+    // A regular file where the directory should be: cannot be created, even as root.
+    let blocker = dir.path().join("file");
+    std::fs::write(&blocker, "x").unwrap();
+    let target = blocker.join("plots");
+    let o = gw(&[
+        "identify",
+        "--input",
+        data.to_str().unwrap(),
+        "--model",
+        "ydd + c1*yd + c2*y = 0",
+        "--json",
+        "--plot",
+        target.to_str().unwrap(),
+    ]);
+    let err = text(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    // Nothing was identified: no JSON on stdout.
+    assert!(o.stdout.is_empty(), "stdout: {}", text(&o.stdout));
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    assert!(
+        err.contains("--plot") && err.contains(target.to_str().unwrap()),
+        "{err}"
+    );
+}
+
+fn check_config(toml: &str) -> Output {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("gatewatch.toml");
+    std::fs::write(&file, toml).unwrap();
+    gw(&["check-config", file.to_str().unwrap()])
+}
+
+#[track_caller]
+fn config_error(toml: &str, needles: &[&str]) {
+    let o = check_config(toml);
+    let err = text(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{toml}: {err}");
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    for n in needles {
+        assert!(err.contains(n), "{toml}: {n:?} missing from {err}");
+    }
+}
+
+#[test]
+fn check_config_names_the_key_and_the_line() {
+    config_error(
+        "# gatewatch\n[server]\nlisten = 5\n",
+        &["server.listen: invalid type: integer `5`", "line 3"],
+    );
+    config_error(
+        "[server]\nlisten = \"127.0.0.1:9464\"\nfoo = 1\n",
+        &["server.foo: unknown field `foo`", "line 3"],
+    );
+    config_error(
+        "[log]\n\nbar = true\n",
+        &["log.bar: unknown field", "line 3"],
+    );
+    config_error(
+        "[notify]\n[[notify.webhooks]]\nurl = \"http://x\"\n[[notify.webhooks]]\nurl = 7\n",
+        &["notify.webhooks[1].url: invalid type", "line 5"],
+    );
+    config_error(
+        "[defaults]\nwindow_seconds = \"long\"\n",
+        &["defaults.window_seconds: invalid type", "line 2"],
+    );
+    // Under a gate's table: the gate's full path.
+    config_error(
+        "[gates.g1]\n\n[gates.g2]\nwindow_secondz = 3\n",
+        &["gates.g2.window_secondz: unknown field", "line 4"],
+    );
+}
+
+#[test]
+fn a_resend_interval_beyond_alertmanagers_resolve_timeout_is_accepted_with_a_warning() {
+    let base = "[notify]\nalertmanager_urls = [\"http://127.0.0.1:9093\"]\n";
+    let o = check_config(&format!("{base}resend_interval_seconds = 600\n"));
+    let err = text(&o.stderr);
+    assert_eq!(o.status.code(), Some(0), "{err}");
+    assert!(
+        err.contains("warning") && err.contains("resend_interval_seconds") && err.contains("300"),
+        "{err}"
+    );
+    let o = check_config(&format!("{base}resend_interval_seconds = 120\n"));
+    assert_eq!(o.status.code(), Some(0));
+    assert!(o.stderr.is_empty(), "{}", text(&o.stderr));
+}
+
+#[test]
+fn serve_prints_the_same_warning_at_start() {
+    // A port already taken: serve warns, then fails to bind and exits, without running.
+    let taken = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = taken.local_addr().unwrap().port();
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("gatewatch.toml");
+    std::fs::write(
+        &file,
+        format!(
+            "[server]\nlisten = \"127.0.0.1:{port}\"\n[notify]\nalertmanager_urls = \
+             [\"http://127.0.0.1:9093\"]\nresend_interval_seconds = 900\n"
+        ),
+    )
+    .unwrap();
+    let o = gw(&["serve", "--config", file.to_str().unwrap()]);
+    let err = text(&o.stderr);
+    assert_ne!(o.status.code(), Some(0), "{err}");
+    assert!(
+        err.contains("warning") && err.contains("resend_interval_seconds = 900"),
+        "{err}"
+    );
+}
