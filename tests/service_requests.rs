@@ -481,7 +481,12 @@ async fn authorization_schemes_are_case_insensitive_and_influx_token_is_accepted
         format!("Token {TOKEN}"),
         format!("token {TOKEN}"),
     ] {
-        let s = app.clone().oneshot(with(good.clone())).await.unwrap().status();
+        let s = app
+            .clone()
+            .oneshot(with(good.clone()))
+            .await
+            .unwrap()
+            .status();
         assert_eq!(s, StatusCode::NO_CONTENT, "{good}");
     }
     for bad in [
@@ -490,7 +495,12 @@ async fn authorization_schemes_are_case_insensitive_and_influx_token_is_accepted
         TOKEN.to_string(),
         "Bearer wrong-token-0123456789".to_string(),
     ] {
-        let s = app.clone().oneshot(with(bad.clone())).await.unwrap().status();
+        let s = app
+            .clone()
+            .oneshot(with(bad.clone()))
+            .await
+            .unwrap()
+            .status();
         assert_eq!(s, StatusCode::UNAUTHORIZED, "{bad}");
     }
 }
