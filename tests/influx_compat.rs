@@ -120,7 +120,7 @@ async fn gzip_bomb_is_413_and_counted() {
     assert_eq!(
         metric(
             &state,
-            "gatewatch_samples_rejected_total{reason=\"body_too_large\"}"
+            "gatewatch_ingest_requests_rejected_total{reason=\"body_too_large\"}"
         ),
         3.0
     );
