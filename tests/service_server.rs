@@ -48,6 +48,92 @@ async fn tcp_listener_keeps_the_connection_after_bad_lines() {
     stop(r).await;
 }
 
+/// Waits until gate `gate` has `n` samples.
+async fn wait_for_samples(addr: std::net::SocketAddr, gate: &str, n: usize) {
+    let want = format!("\"samples_total\":{n}");
+    tokio::time::timeout(Duration::from_secs(10), async {
+        while !get(addr, &format!("/api/v1/gates/{gate}"))
+            .await
+            .1
+            .contains(&want)
+        {
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    })
+    .await
+    .unwrap_or_else(|_| panic!("{n} samples of `{gate}`"));
+}
+
+#[tokio::test]
+async fn tcp_an_over_long_line_is_skipped_and_the_next_line_arrives() {
+    use tokio::io::AsyncWriteExt;
+    let r = start(
+        "[ingest]\ntcp_max_line_bytes = 64",
+        Arc::new(Fake::default()),
+    )
+    .await;
+    let mut s = tokio::net::TcpStream::connect(r.tcp).await.unwrap();
+    // exactly 64 bytes before its newline: kept
+    let head = "m,gate=long force=1.";
+    let tail = " 1000000000000";
+    let exact = format!("{head}{}{tail}\n", "0".repeat(64 - head.len() - tail.len()));
+    assert_eq!(exact.len(), 65);
+    s.write_all(exact.as_bytes()).await.unwrap();
+    // 65 bytes, then a good line in the same write
+    s.write_all(format!("{}\nm,gate=long force=2 1000010000000\n", "x".repeat(65)).as_bytes())
+        .await
+        .unwrap();
+    s.flush().await.unwrap();
+    wait_for_samples(r.http, "long", 2).await;
+    // an over-long line arriving in pieces is discarded across the reads
+    for _ in 0..4 {
+        s.write_all(&[b'y'; 50]).await.unwrap();
+        s.flush().await.unwrap();
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    s.write_all(b"\nm,gate=long force=3 1000020000000\n")
+        .await
+        .unwrap();
+    s.flush().await.unwrap();
+    wait_for_samples(r.http, "long", 3).await;
+    let (_, m) = get(r.http, "/metrics").await;
+    assert!(
+        m.contains("gatewatch_samples_rejected_total{reason=\"bad_line\"} 2"),
+        "{m}"
+    );
+    drop(s);
+    stop(r).await;
+}
+
+#[tokio::test]
+async fn tcp_invalid_utf8_mid_stream_is_counted_and_skipped() {
+    use tokio::io::AsyncWriteExt;
+    let r = start("", Arc::new(Fake::default())).await;
+    let mut s = tokio::net::TcpStream::connect(r.tcp).await.unwrap();
+    s.write_all(
+        b"m,gate=u8 force=1 1000000000000\n\
+          m,gate=u8 force=\xff\xfe 1000010000000\n\
+          m,gate=u8 force=2 1000020000000\n",
+    )
+    .await
+    .unwrap();
+    s.flush().await.unwrap();
+    wait_for_samples(r.http, "u8", 2).await;
+    // the connection is kept
+    s.write_all(b"m,gate=u8 force=3 1000030000000\n")
+        .await
+        .unwrap();
+    s.flush().await.unwrap();
+    wait_for_samples(r.http, "u8", 3).await;
+    let (_, m) = get(r.http, "/metrics").await;
+    assert!(
+        m.contains("gatewatch_samples_rejected_total{reason=\"bad_line\"} 1"),
+        "{m}"
+    );
+    drop(s);
+    stop(r).await;
+}
+
 #[tokio::test]
 async fn a_tcp_burst_is_applied_whole_and_in_order() {
     // 10 000 lines (about 400 KB, over MAX_BATCH_BYTES) in one write: they reach the blocking pool in

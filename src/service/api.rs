@@ -12,6 +12,7 @@ use axum::middleware::{self, Next};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use axum::{Json, Router};
+use subtle::{Choice, ConstantTimeEq};
 use tower::ServiceBuilder;
 
 use super::clock::now_unix;
@@ -247,14 +248,6 @@ async fn metrics(State(state): State<Arc<AppState>>) -> Response {
         .into_response()
 }
 
-/// Constant-time comparison (no early exit on the first differing byte).
-fn ct_eq(a: &[u8], b: &[u8]) -> bool {
-    if a.len() != b.len() {
-        return false;
-    }
-    a.iter().zip(b).fold(0u8, |acc, (x, y)| acc | (x ^ y)) == 0
-}
-
 /// The token of an `Authorization` header: the `Bearer` scheme (RFC 6750) or InfluxDB 2.x's
 /// `Token` scheme (what Telegraf's `outputs.influxdb_v2` and the Influx clients send), the
 /// scheme matched case-insensitively as RFC 7235 says.
@@ -274,10 +267,16 @@ async fn auth(State(state): State<Arc<AppState>>, req: Request, next: Next) -> R
         .get(header::AUTHORIZATION)
         .and_then(|v| v.to_str().ok())
         .and_then(token_of);
+    // Every token is compared, in constant time, with no early exit on a match: the time taken
+    // tells neither which token matched nor how much of one did. (`ct_eq` of slices of
+    // different lengths returns false at once: the lengths are not secret.)
     let ok = given.is_some_and(|g| {
         tokens
             .iter()
-            .fold(false, |acc, t| acc | ct_eq(t.as_bytes(), g.as_bytes()))
+            .fold(Choice::from(0), |acc, t| {
+                acc | t.as_bytes().ct_eq(g.as_bytes())
+            })
+            .into()
     });
     if ok {
         next.run(req).await

@@ -7,21 +7,29 @@
 //! Each line is parsed and applied on its own; a bad line is counted
 //! (`gatewatch_samples_rejected_total{reason="bad_line"}` and the validation reasons), logged at
 //! most once per [`BAD_LINE_LOG_INTERVAL`] per connection, and the connection is kept. Lines
-//! longer than `ingest.tcp_max_line_bytes` are skipped up to their newline. At most
-//! `server.max_tcp_connections` connections are served; further ones are closed at once.
+//! longer than `ingest.tcp_max_line_bytes` are skipped up to their newline, and so are lines
+//! that are not UTF-8. At most `server.max_tcp_connections` connections are served; further ones
+//! are closed at once.
+//!
+//! Framing is tokio-util's [`LinesCodec`] with a maximum length (it discards an over-long line
+//! up to its newline and checks UTF-8), read through [`FramedRead`].
 //!
 //! Same rule as HTTP ingestion: parsing and applying (CPU work proportional to the data) run on
-//! the blocking pool, never on the async runtime's threads. Reading stays async; the lines that
-//! have already arrived (up to [`MAX_BATCH_BYTES`]) go to the blocking pool together, so a busy
-//! connection costs one blocking task per read, not per line. Each connection has at most one
-//! such task at a time, so there are at most `server.max_tcp_connections` of them.
+//! the blocking pool, never on the async runtime's threads. Reading and framing stay async; the
+//! lines that have already arrived (up to [`MAX_BATCH_BYTES`]) go to the blocking pool together,
+//! so a busy connection costs one blocking task per read, not per line. Each connection has at
+//! most one such task at a time, so there are at most `server.max_tcp_connections` of them.
 
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use tokio::io::{AsyncBufReadExt, AsyncReadExt, BufReader};
+use std::io;
+
+use futures_util::StreamExt;
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::{watch, Semaphore};
+use tokio_util::bytes::BytesMut;
+use tokio_util::codec::{Decoder, FramedRead, LinesCodec, LinesCodecError};
 
 use super::clock::now_unix;
 use super::ingest::line_protocol::{self, Mapping};
@@ -90,10 +98,51 @@ impl BadLines {
     }
 }
 
-/// Complete lines read but not yet applied: `bytes` holds them, each ending in `\n`, the first
+/// One frame of the connection: a line, or a line that is refused before it is parsed.
+#[derive(Debug, PartialEq)]
+enum Frame {
+    /// A complete line without its `\n` (and `\r`).
+    Line(String),
+    /// A line longer than `ingest.tcp_max_line_bytes`; the codec discards it up to its newline.
+    TooLong,
+    /// A line that is not UTF-8; it has been consumed.
+    NotUtf8,
+}
+
+/// [`LinesCodec`] with a maximum length, its two refusals turned into frames: `FramedRead`
+/// ends the stream after a decoder error, but a bad line must not end the connection. The
+/// error type is left for the reads from the socket, which do end it.
+struct Lines(LinesCodec);
+
+impl Lines {
+    fn frame(r: Result<Option<String>, LinesCodecError>) -> Result<Option<Frame>, io::Error> {
+        match r {
+            Ok(line) => Ok(line.map(Frame::Line)),
+            Err(LinesCodecError::MaxLineLengthExceeded) => Ok(Some(Frame::TooLong)),
+            // the codec does no I/O of its own: its only I/O error is the UTF-8 check, made
+            // after the line was taken out of the buffer
+            Err(LinesCodecError::Io(_)) => Ok(Some(Frame::NotUtf8)),
+        }
+    }
+}
+
+impl Decoder for Lines {
+    type Item = Frame;
+    type Error = io::Error;
+
+    fn decode(&mut self, buf: &mut BytesMut) -> Result<Option<Frame>, io::Error> {
+        Self::frame(self.0.decode(buf))
+    }
+
+    fn decode_eof(&mut self, buf: &mut BytesMut) -> Result<Option<Frame>, io::Error> {
+        Self::frame(self.0.decode_eof(buf))
+    }
+}
+
+/// Complete lines read but not yet applied: `text` holds them, each ending in `\n`, the first
 /// being line `first_line` of the connection.
 struct Pending {
-    bytes: Vec<u8>,
+    text: String,
     first_line: usize,
     lines: usize,
 }
@@ -110,67 +159,50 @@ async fn handle(
         count: 0,
         last_log: None,
     };
-    let mut reader = BufReader::new(stream);
+    let mut frames = FramedRead::new(stream, Lines(LinesCodec::new_with_max_length(max)));
     let mut pending = Pending {
-        bytes: Vec::with_capacity(1024),
+        text: String::with_capacity(1024),
         first_line: 1,
         lines: 0,
     };
     loop {
-        let start = pending.bytes.len();
-        let mut limited = (&mut reader).take(max as u64 + 1);
-        let read = tokio::select! {
-            r = limited.read_until(b'\n', &mut pending.bytes) => r,
+        let frame = tokio::select! {
+            f = frames.next() => f,
             _ = shutdown.wait_for(|s| *s) => break,
         };
-        match read {
-            Ok(0) => break,
-            Ok(_) => {}
-            Err(e) => {
+        let frame = match frame {
+            None => break,
+            Some(Ok(f)) => f,
+            Some(Err(e)) => {
                 tracing::debug!(peer = %bad.peer, error = %e, "tcp read failed");
                 break;
             }
-        }
+        };
         let line_no = pending.first_line + pending.lines;
-        if pending.bytes.len() - start > max && !pending.bytes.ends_with(b"\n") {
-            // apply the lines before it, then skip the rest of the over-long line
-            pending.bytes.truncate(start);
-            apply(&state, &mut pending, &mut bad).await;
-            skip_line(&mut reader).await;
-            state.metrics.reject(RejectReason::BadLine, 1);
-            bad.record(line_no, &format!("line longer than {max} bytes"));
-            pending.first_line = line_no + 1;
-            continue;
-        }
-        if !pending.bytes.ends_with(b"\n") {
-            pending.bytes.push(b'\n'); // the last line, ended by the end of the stream
-        }
-        pending.lines += 1;
-        // more complete lines already buffered: read them before going to the blocking pool
-        if pending.bytes.len() < MAX_BATCH_BYTES && reader.buffer().contains(&b'\n') {
-            continue;
-        }
+        let refused = match frame {
+            Frame::Line(line) => {
+                pending.text.push_str(&line);
+                pending.text.push('\n');
+                pending.lines += 1;
+                // More complete lines already buffered: take them before going to the blocking
+                // pool. (After a `Line` the codec is not discarding, so a newline in its buffer
+                // means the next frame needs no read.)
+                if pending.text.len() < MAX_BATCH_BYTES && frames.read_buffer().contains(&b'\n') {
+                    continue;
+                }
+                apply(&state, &mut pending, &mut bad).await;
+                continue;
+            }
+            Frame::TooLong => format!("line longer than {max} bytes"),
+            Frame::NotUtf8 => "invalid UTF-8".to_string(),
+        };
+        // apply the lines before it, so the pending lines stay consecutive
         apply(&state, &mut pending, &mut bad).await;
+        state.metrics.reject(RejectReason::BadLine, 1);
+        bad.record(line_no, &refused);
+        pending.first_line = line_no + 1;
     }
     apply(&state, &mut pending, &mut bad).await;
-}
-
-/// Discards the rest of an over-long line, up to and including its newline.
-async fn skip_line(reader: &mut BufReader<TcpStream>) {
-    let mut sink = Vec::new();
-    loop {
-        sink.clear();
-        match (&mut *reader)
-            .take(64 * 1024)
-            .read_until(b'\n', &mut sink)
-            .await
-        {
-            Ok(0) => break,
-            Ok(_) if sink.ends_with(b"\n") => break,
-            Ok(_) => continue,
-            Err(_) => break,
-        }
-    }
 }
 
 /// Parses and applies the pending lines on the blocking pool, then records the refused ones;
@@ -179,21 +211,21 @@ async fn apply(state: &Arc<AppState>, pending: &mut Pending, bad: &mut BadLines)
     if pending.lines == 0 {
         return;
     }
-    let bytes = std::mem::take(&mut pending.bytes);
+    let text = std::mem::take(&mut pending.text);
     let first = pending.first_line;
     let st = state.clone();
     let done = tokio::task::spawn_blocking(move || {
-        let refused = process_lines(&st, &bytes, first);
-        (bytes, refused)
+        let refused = process_lines(&st, &text, first);
+        (text, refused)
     })
     .await;
     match done {
-        Ok((mut bytes, refused)) => {
+        Ok((mut text, refused)) => {
             for (line, msg) in refused {
                 bad.record(line, &msg);
             }
-            bytes.clear();
-            pending.bytes = bytes;
+            text.clear();
+            pending.text = text;
         }
         Err(e) => tracing::error!(error = %e, "tcp ingestion task failed"),
     }
@@ -201,11 +233,11 @@ async fn apply(state: &Arc<AppState>, pending: &mut Pending, bad: &mut BadLines)
     pending.lines = 0;
 }
 
-/// Applies each `\n`-terminated line of `bytes` (the first is line `first_line`) on its own;
+/// Applies each `\n`-terminated line of `text` (the first is line `first_line`) on its own;
 /// returns the refused lines with their messages (already counted).
-fn process_lines(state: &AppState, bytes: &[u8], first_line: usize) -> Vec<(usize, String)> {
+fn process_lines(state: &AppState, text: &str, first_line: usize) -> Vec<(usize, String)> {
     let mut refused = Vec::new();
-    for (i, raw) in bytes.split_inclusive(|b| *b == b'\n').enumerate() {
+    for (i, raw) in text.split_terminator('\n').enumerate() {
         let line_no = first_line + i;
         if let Some((reason, msg)) = process(state, raw, line_no) {
             if let Some(r) = reason {
@@ -219,12 +251,10 @@ fn process_lines(state: &AppState, bytes: &[u8], first_line: usize) -> Vec<(usiz
 
 /// Parses and applies one line; `Some((reason, message))` when it is refused (`reason` is
 /// `None` when `AppState::ingest` already counted it).
-fn process(state: &AppState, raw: &[u8], line_no: usize) -> Option<(Option<RejectReason>, String)> {
+fn process(state: &AppState, text: &str, line_no: usize) -> Option<(Option<RejectReason>, String)> {
     let bad_line = |msg: String| Some((Some(RejectReason::BadLine), msg));
-    let Ok(text) = std::str::from_utf8(raw) else {
-        return bad_line("invalid UTF-8".into());
-    };
-    let text = text.trim_end_matches(['\n', '\r']);
+    // the codec took off one `\r`; more are trimmed as before the codec was used
+    let text = text.trim_end_matches('\r');
     let line = match line_protocol::parse_line(text, line_no) {
         Ok(Some(l)) => l,
         Ok(None) => return None,
@@ -249,5 +279,55 @@ fn process(state: &AppState, raw: &[u8], line_no: usize) -> Option<(Option<Rejec
         Err(IngestError::TooManyGates(g)) => {
             Some((None, format!("gate limit reached, `{g}` refused")))
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every frame of `input` as [`FramedRead`] would decode it, the end of the stream included.
+    fn frames(input: &[u8], max: usize) -> Vec<Frame> {
+        let mut codec = Lines(LinesCodec::new_with_max_length(max));
+        let mut buf = BytesMut::from(input);
+        let mut out = Vec::new();
+        while let Some(f) = codec.decode(&mut buf).unwrap() {
+            out.push(f);
+        }
+        while let Some(f) = codec.decode_eof(&mut buf).unwrap() {
+            out.push(f);
+        }
+        out
+    }
+
+    #[test]
+    fn refused_lines_become_frames_and_framing_goes_on() {
+        let mut input = b"ok\r\n".to_vec();
+        input.extend(vec![b'x'; 10]); // exactly the maximum: kept
+        input.push(b'\n');
+        input.extend(vec![b'y'; 25]); // over it: discarded up to its newline
+        input.extend(b"\nnext\n\xff\xfe\nlast");
+        let line = |s: &str| Frame::Line(s.to_string());
+        assert_eq!(
+            frames(&input, 10),
+            vec![
+                line("ok"),
+                line("xxxxxxxxxx"),
+                Frame::TooLong,
+                line("next"),
+                Frame::NotUtf8,
+                line("last"),
+            ]
+        );
+    }
+
+    #[test]
+    fn an_over_long_line_cut_by_the_end_of_the_stream_is_dropped() {
+        let mut input = b"ok\n".to_vec();
+        input.extend(vec![b'z'; 30]);
+        assert_eq!(
+            frames(&input, 10),
+            vec![Frame::Line("ok".into()), Frame::TooLong]
+        );
     }
 }
