@@ -939,7 +939,12 @@ fn a_scale_free_structure_is_reported_normalised() {
     let v = json(&ok(&forced_args(&f, &["--json"])));
     // The group and the coefficient fixed to 1 are named.
     let groups = v["scale_groups"].as_array().expect("scale_groups array");
-    assert_eq!(groups.len(), 1, "{v}");
+    // the scale group, then the sign ambiguity of the odd sine: (c4, c5) ~ (-c4, -c5)
+    assert_eq!(groups.len(), 2, "{v}");
+    assert_eq!(groups[0]["kind"].as_str(), Some("scale"));
+    assert_eq!(groups[1]["kind"].as_str(), Some("sign"));
+    assert_eq!(groups[1]["coefficients"], serde_json::json!(["c4", "c5"]));
+    assert_eq!(groups[1]["fixed"].as_str(), Some("c4"));
     let names: Vec<&str> = groups[0]["coefficients"]
         .as_array()
         .unwrap()

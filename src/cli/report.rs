@@ -33,7 +33,8 @@ pub fn identification_json(model: &Model, a: &SeriesAnalysis) -> serde_json::Val
         "scale_groups": r.scale_groups.iter().map(|g| json!({
             "coefficients": g.members.iter().map(|j| format!("c{}", j + 1)).collect::<Vec<_>>(),
             "fixed": format!("c{}", g.fixed + 1),
-            "fixed_value": if g.sign_free { 1.0 } else { coefficients[g.fixed].signum() },
+            "kind": if g.sign_only { "sign" } else { "scale" },
+            "fixed_value": if g.sign_only { coefficients[g.fixed] } else if g.sign_free { 1.0 } else { coefficients[g.fixed].signum() },
             "normalized": g.normalize(&best.coefficients).is_some(),
         })).collect::<Vec<_>>(),
         "initial": {"y0": best.initial.y0, "v0": best.initial.v0},
@@ -111,7 +112,13 @@ pub(super) fn write_identification(
     for g in &r.scale_groups {
         let names: Vec<String> = g.members.iter().map(|j| format!("c{}", j + 1)).collect();
         let c = format!("c{}", g.fixed + 1);
-        if g.normalize(&best.coefficients).is_some() {
+        if g.sign_only {
+            writeln!(
+                out,
+                "sign:         {} are determined only up to a common sign: normalised to {c} > 0",
+                names.join(", ")
+            )?;
+        } else if g.normalize(&best.coefficients).is_some() {
             fixed.push(g.fixed);
             let one = if g.sign_free { "1" } else { "+-1" };
             writeln!(

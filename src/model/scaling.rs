@@ -7,6 +7,10 @@
 //! line (the fit is right, the numbers are arbitrary), so the coefficients have to be reported
 //! normalised.
 //!
+//! The same search finds sign ambiguities that are not scale ones: in `c4*sin(c5*t)` the pair
+//! `(c4, c5)` and `(-c4, -c5)` give the same force, so a search returns either; those groups
+//! are reported as `sign_only` and normalised to a positive first member.
+//!
 //! Detection is numerical, from the compiled model alone: a subset `S` of the coefficients is
 //! scale-free when scaling every `c_j`, `j` in `S`, by `lambda` leaves `(M, R)` proportional at
 //! random points `(t, y, yd, c)`, for several `lambda`. Why numerical rather than symbolic: it
@@ -48,6 +52,10 @@ pub struct ScaleGroup {
     /// divides by the fixed coefficient (which becomes 1), otherwise by its magnitude (it
     /// becomes +1 or -1).
     pub sign_free: bool,
+    /// The group is determined only up to a common sign, not a factor (`(c4, c5)` of
+    /// `c4*sin(c5*t)`): the normalisation flips the group's signs so that the fixed member
+    /// (its lowest-numbered member not fixed by a scale group) is positive.
+    pub sign_only: bool,
 }
 
 impl ScaleGroup {
@@ -55,7 +63,13 @@ impl ScaleGroup {
     /// `None` when that member is 0 or not finite (no normalisation exists).
     pub fn normalize(&self, coefficients: &[f64]) -> Option<Vec<f64>> {
         let pivot = *coefficients.get(self.fixed)?;
-        let divisor = if self.sign_free { pivot } else { pivot.abs() };
+        let divisor = if self.sign_only {
+            pivot.signum() * (pivot != 0.0) as u8 as f64
+        } else if self.sign_free {
+            pivot
+        } else {
+            pivot.abs()
+        };
         if divisor == 0.0 || !divisor.is_finite() {
             return None;
         }
@@ -168,9 +182,53 @@ impl Model {
                 members,
                 fixed,
                 sign_free,
+                sign_only: false,
             });
         }
+        self.sign_groups(&pts, &mut groups);
         groups
+    }
+
+    /// Appends the sign ambiguities (see the module docs): the smallest subsets whose sign flip
+    /// leaves `(M, R)` proportional and that are not combinations (symmetric differences) of
+    /// flips already accounted for, the sign-free scale groups included.
+    fn sign_groups(&self, pts: &[(f64, f64, f64, Vec<f64>)], groups: &mut Vec<ScaleGroup>) {
+        let n = self.n_coeffs();
+        let fixed_by_scale: Vec<usize> = groups.iter().map(|g| g.fixed).collect();
+        // The GF(2) span of the flips known so far (as bit masks).
+        let mut span: Vec<u32> = vec![0];
+        let add = |span: &mut Vec<u32>, mask: u32| {
+            if !span.contains(&mask) {
+                let more: Vec<u32> = span.iter().map(|x| x ^ mask).collect();
+                span.extend(more);
+            }
+        };
+        for g in groups.iter().filter(|g| g.sign_free) {
+            add(&mut span, g.members.iter().fold(0, |m, &j| m | (1 << j)));
+        }
+        let mut subsets: Vec<u32> = (1u32..(1 << n)).collect();
+        subsets.sort_by_key(|s| (s.count_ones(), *s));
+        for s in subsets {
+            if span.contains(&s) {
+                continue;
+            }
+            let members: Vec<usize> = (0..n).filter(|j| s & (1 << j) != 0).collect();
+            if invariant(self, pts, &members, &[-1.0]) != Some(true) {
+                continue;
+            }
+            let fixed = members
+                .iter()
+                .copied()
+                .find(|j| !fixed_by_scale.contains(j))
+                .unwrap_or(members[0]);
+            add(&mut span, s);
+            groups.push(ScaleGroup {
+                members,
+                fixed,
+                sign_free: false,
+                sign_only: true,
+            });
+        }
     }
 
     /// Whether coefficient `j` changes `M` (multiplies `ydd`) at some test point.
@@ -199,12 +257,39 @@ mod tests {
         let g = groups("c1*ydd + c2*yd + c3*y = c4*sin(c5*t)");
         assert_eq!(
             g,
-            vec![ScaleGroup {
-                members: vec![0, 1, 2, 3],
-                fixed: 0,
-                sign_free: true,
-            }]
+            vec![
+                ScaleGroup {
+                    members: vec![0, 1, 2, 3],
+                    fixed: 0,
+                    sign_free: true,
+                    sign_only: false,
+                },
+                // sin(c5*t) is odd: (c4, c5) and (-c4, -c5) give the same force
+                ScaleGroup {
+                    members: vec![3, 4],
+                    fixed: 3,
+                    sign_free: false,
+                    sign_only: true,
+                }
+            ]
         );
+    }
+
+    #[test]
+    fn sign_groups_make_their_fixed_member_positive() {
+        let g = groups("ydd + c1*yd + c2*y + c3*y^3 = c4*sin(c5*t)");
+        assert_eq!(g.len(), 1);
+        assert_eq!((g[0].members.clone(), g[0].fixed), (vec![3, 4], 3));
+        assert!(g[0].sign_only);
+        let n = g[0].normalize(&[0.1, 1.0, 0.5, -3.0, -2.2]).unwrap();
+        assert_eq!(n, vec![0.1, 1.0, 0.5, 3.0, 2.2]);
+        let n = g[0].normalize(&[0.1, 1.0, 0.5, 3.0, 2.2]).unwrap();
+        assert_eq!(n, vec![0.1, 1.0, 0.5, 3.0, 2.2]);
+        assert_eq!(g[0].normalize(&[0.1, 1.0, 0.5, 0.0, 2.2]), None);
+        // an even function of a lone coefficient is a sign ambiguity of one
+        let g = groups("ydd + c1^2*yd + c2*y = 0");
+        assert_eq!(g.len(), 1);
+        assert_eq!(g[0].members, vec![0]);
     }
 
     #[test]
@@ -234,7 +319,6 @@ mod tests {
             "ydd + c1*(y^2 - 1)*yd + c2*y = 0",
             "c1*ydd + (c2 + c3*yd^2)*yd + k*y = 0",
             "c1*ydd + c2*yd + k*y = 0",
-            "ydd + c1*yd + c2*y + c3*y^3 = c4*sin(c5*t)",
             "ydd + c1*yd + c2*y = c2*c3",
         ] {
             assert_eq!(groups(eq), vec![], "{eq}");
@@ -247,6 +331,7 @@ mod tests {
             members: vec![0, 1, 2, 3],
             fixed: 0,
             sign_free: true,
+            sign_only: false,
         };
         let n = g.normalize(&[-5.0, -0.7, -0.6, -6.0, 2.2]).unwrap();
         for (got, want) in n.iter().zip([1.0, 0.14, 0.12, 1.2, 2.2]) {
