@@ -1,5 +1,9 @@
 //! HTTP routes, bearer-token authentication, request metrics and the one error type.
 
+/// The InfluxDB surface of the API (ping, health, query, gzip, v2 errors): a child of this
+/// module because it answers with this module's [`HttpError`].
+mod influx;
+
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -17,7 +21,7 @@ use tower::ServiceBuilder;
 
 use super::clock::now_unix;
 use super::config::{Precision, DEFAULT_RETRY_AFTER_SECONDS};
-use super::ingest::{influx, json, line_protocol, BadRequest};
+use super::ingest::{json, line_protocol, BadRequest};
 use super::metrics::RejectReason;
 use super::state::{AppState, IngestError};
 

@@ -2,7 +2,6 @@
 //! is applied (see `service::state::AppState::ingest`), so a rejected request changed nothing
 //! and can be retried.
 
-pub mod influx;
 pub mod json;
 pub mod line_protocol;
 

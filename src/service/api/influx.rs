@@ -20,8 +20,8 @@ use axum::Json;
 use serde_json::{json, Map, Value};
 use tower_http::decompression::RequestDecompressionLayer;
 
-use super::BadRequest;
-use crate::service::api::HttpError;
+use super::HttpError;
+use crate::service::ingest::BadRequest;
 use crate::service::metrics::RejectReason;
 use crate::service::state::AppState;
 
