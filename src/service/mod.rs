@@ -9,7 +9,8 @@
 //! - [`state`]: the shared state; the only user of the alert engine ([`crate::alert`]) and of
 //!   its notifier.
 //! - [`metrics`]: the Prometheus metrics and the rejection reasons.
-//! - [`api`]: routes, authentication, `HttpError`.
+//! - [`api`]: routes, authentication, `HttpError`, and (in `api::influx`) the InfluxDB surface:
+//!   `/ping`, `/health`, `/query`, gzip bodies, v2-shaped errors.
 //! - [`server`]: `run`, the HTTP listener and the one-deadline shutdown; [`tcp`]: the raw TCP
 //!   listener; [`shutdown`]: signals.
 //! - [`cli`]: command-line entry points; [`client`]: the simulate client (talks to a daemon
