@@ -30,6 +30,10 @@ struct Receiver {
     fail_first: Arc<AtomicUsize>,
     /// Sleep this long before answering (ms).
     delay_ms: Arc<AtomicUsize>,
+    /// The status of those failures (0: 500).
+    fail_status: Arc<AtomicUsize>,
+    /// `Retry-After` sent with those failures.
+    retry_after: Arc<Mutex<Option<String>>>,
 }
 
 impl Receiver {
@@ -46,7 +50,8 @@ async fn record(
     uri: Uri,
     headers: HeaderMap,
     body: Bytes,
-) -> StatusCode {
+) -> axum::response::Response {
+    use axum::response::IntoResponse;
     let delay = rx.delay_ms.load(Ordering::SeqCst);
     if delay > 0 {
         tokio::time::sleep(Duration::from_millis(delay as u64)).await;
@@ -65,11 +70,20 @@ async fn record(
         .fail_first
         .fetch_update(Ordering::SeqCst, Ordering::SeqCst, |n| n.checked_sub(1))
         .is_ok();
-    if fail {
-        StatusCode::INTERNAL_SERVER_ERROR
-    } else {
-        StatusCode::OK
+    if !fail {
+        return StatusCode::OK.into_response();
     }
+    let status = match rx.fail_status.load(Ordering::SeqCst) {
+        0 => StatusCode::INTERNAL_SERVER_ERROR,
+        code => StatusCode::from_u16(code as u16).expect("valid status"),
+    };
+    let mut resp = status.into_response();
+    if let Some(v) = rx.retry_after.lock().expect("lock").clone() {
+        let v = axum::http::HeaderValue::from_str(&v).expect("header value");
+        resp.headers_mut()
+            .insert(axum::http::header::RETRY_AFTER, v);
+    }
+    resp
 }
 
 /// Start a recording receiver; returns its base URL.
@@ -257,12 +271,81 @@ async fn retries_with_exponential_backoff_until_success() {
         "same body each attempt"
     );
     let gaps: Vec<Duration> = reqs.windows(2).map(|w| w[1].at - w[0].at).collect();
-    // Backoff 40, 80, 160 ms (doubling); allow scheduling slack above, none below.
-    for (gap, min) in gaps.iter().zip([40u64, 80, 160]) {
+    // Backoff 40, 80, 160 ms (doubling), each jittered within its upper half: at least 20, 40,
+    // 80 ms (1 ms off for backon's f32 arithmetic); scheduling slack only adds.
+    for (gap, min) in gaps.iter().zip([19u64, 39, 79]) {
         assert!(*gap >= Duration::from_millis(min), "gaps {gaps:?}");
     }
-    assert!(gaps[2] > gaps[0], "backoff grows: {gaps:?}");
     assert_eq!(handle.stats().snapshot().failed, 0);
+    assert!(handle.shutdown(WAIT).await);
+}
+
+/// A 503 with `Retry-After: 1` is waited out (not the 10 ms backoff), and the attempt counts.
+#[tokio::test]
+async fn retry_after_seconds_is_honoured() {
+    let rec = Receiver::default();
+    rec.fail_first.store(1, Ordering::SeqCst);
+    rec.fail_status.store(503, Ordering::SeqCst);
+    *rec.retry_after.lock().expect("lock") = Some("1".into());
+    let base = receiver(rec.clone()).await;
+    let config = NotifyConfig {
+        webhooks: vec![webhook(format!("{base}/hook"), None)],
+        max_attempts: 2,
+        initial_backoff_ms: 10,
+        max_backoff_ms: 5000,
+        ..fast_config()
+    };
+    let (handle, _task) = spawn_notifier(config, Vec::new);
+    handle.notify(events("g1").0);
+    wait_until("delivered after the 503", WAIT, || {
+        handle.stats().snapshot().delivered == 1
+    })
+    .await;
+    let reqs = rec.requests();
+    assert_eq!(
+        reqs.len(),
+        2,
+        "503 + 200: the Retry-After wait used up one retry"
+    );
+    let gap = reqs[1].at - reqs[0].at;
+    assert!(gap >= Duration::from_millis(950), "waited {gap:?}");
+    let s = handle.stats().snapshot();
+    assert_eq!((s.delivered, s.failed, s.dropped), (1, 0, 0));
+    assert!(handle.shutdown(WAIT).await);
+}
+
+/// A `Retry-After` longer than `max_backoff_ms` (an hour here, as an HTTP date) is cut to it,
+/// every such wait counts as an attempt, and the delivery gives up after `max_attempts`.
+#[tokio::test]
+async fn retry_after_beyond_the_cap_is_capped_and_counted() {
+    let rec = Receiver::default();
+    rec.fail_first.store(usize::MAX, Ordering::SeqCst);
+    rec.fail_status.store(429, Ordering::SeqCst);
+    let in_an_hour = SystemTime::now() + Duration::from_secs(3600);
+    *rec.retry_after.lock().expect("lock") = Some(httpdate::fmt_http_date(in_an_hour));
+    let base = receiver(rec.clone()).await;
+    let config = NotifyConfig {
+        webhooks: vec![webhook(format!("{base}/hook"), None)],
+        max_attempts: 3,
+        initial_backoff_ms: 10,
+        max_backoff_ms: 200,
+        ..fast_config()
+    };
+    let (handle, _task) = spawn_notifier(config, Vec::new);
+    handle.notify(events("g1").0);
+    // Within WAIT, not an hour.
+    wait_until("failure counted", WAIT, || {
+        handle.stats().snapshot().failed == 1
+    })
+    .await;
+    let reqs = rec.requests();
+    assert_eq!(reqs.len(), 3, "max_attempts, Retry-After waits included");
+    for w in reqs.windows(2) {
+        let gap = w[1].at - w[0].at;
+        // The capped Retry-After (200 ms), not the 10-20 ms backoff.
+        assert!(gap >= Duration::from_millis(190), "gap {gap:?}");
+    }
+    assert_eq!(handle.stats().snapshot().delivered, 0);
     assert!(handle.shutdown(WAIT).await);
 }
 

@@ -3,6 +3,7 @@
 
 use std::time::Duration;
 
+use backon::ExponentialBuilder;
 use serde::Deserialize;
 
 /// Default capacity of the notifier's queues (the handle's and each target's).
@@ -58,7 +59,10 @@ pub struct NotifyConfig {
     pub max_attempts: u32,
     /// Wait before the first retry (default 500 ms), doubling at each retry...
     pub initial_backoff_ms: u64,
-    /// ...up to this (default 30000 ms).
+    /// ...up to this (default 30000 ms). Each wait is jittered within its upper half (equal
+    /// jitter), so it never exceeds this. Also the longest wait a receiver's `Retry-After` (on
+    /// 429 or 503) can ask for: a longer one is cut to this, so a receiver cannot park the
+    /// queue.
     pub max_backoff_ms: u64,
     /// Capacity of the handle's queue and of each target's queue, in batches (default 1024;
     /// 0 acts as 1).
@@ -155,16 +159,22 @@ impl NotifyConfig {
         self.queue_capacity.max(1)
     }
 
-    /// Wait before retry number `retry` (1 = first retry): `initial * 2^(retry-1)`, capped.
-    pub fn backoff(&self, retry: u32) -> Duration {
-        let factor = 1u64
-            .checked_shl(retry.saturating_sub(1))
-            .unwrap_or(u64::MAX);
-        let ms = self
-            .initial_backoff_ms
-            .saturating_mul(factor)
-            .min(self.max_backoff_ms);
-        Duration::from_millis(ms)
+    /// The retry schedule before jitter: `initial_backoff_ms * 2^(retry-1)` (to `f32`
+    /// precision, backon computes in `f32` seconds) capped at `max_backoff_ms`, for
+    /// `max_attempts - 1` retries. The first wait is not capped by backon: callers cap every
+    /// wait with [`max_backoff`](Self::max_backoff).
+    pub(super) fn backoff_schedule(&self) -> ExponentialBuilder {
+        let retries = usize::try_from(self.max_attempts.max(1) - 1).unwrap_or(usize::MAX);
+        ExponentialBuilder::new()
+            .with_min_delay(Duration::from_millis(self.initial_backoff_ms))
+            .with_max_delay(self.max_backoff())
+            .with_factor(2.0)
+            .with_max_times(retries)
+    }
+
+    /// The longest wait between two attempts, whether from the backoff or from `Retry-After`.
+    pub(super) fn max_backoff(&self) -> Duration {
+        Duration::from_millis(self.max_backoff_ms)
     }
 }
 
@@ -231,19 +241,48 @@ mod tests {
         assert!(bad.validate().is_err());
     }
 
+    /// Waits in whole milliseconds (backon computes in `f32` seconds).
+    fn schedule_ms(c: &NotifyConfig) -> Vec<u128> {
+        use backon::BackoffBuilder;
+        c.backoff_schedule()
+            .build()
+            .map(|d| (d.as_secs_f64() * 1000.0).round() as u128)
+            .collect()
+    }
+
     #[test]
     fn backoff_doubles_and_caps() {
         let c = NotifyConfig::default();
-        let ms: Vec<u128> = (1..=8).map(|r| c.backoff(r).as_millis()).collect();
-        assert_eq!(ms, vec![500, 1000, 2000, 4000, 8000, 16000, 30000, 30000]);
-        assert_eq!(c.backoff(0).as_millis(), 500);
-        assert_eq!(c.backoff(200).as_millis(), 30000, "no overflow");
+        assert_eq!(
+            schedule_ms(&c),
+            vec![500, 1000, 2000, 4000, 8000],
+            "5 retries"
+        );
+        let c = NotifyConfig {
+            max_attempts: 9,
+            ..NotifyConfig::default()
+        };
+        assert_eq!(
+            schedule_ms(&c),
+            vec![500, 1000, 2000, 4000, 8000, 16000, 30000, 30000]
+        );
+        let c = NotifyConfig {
+            max_attempts: 0,
+            ..NotifyConfig::default()
+        };
+        assert!(schedule_ms(&c).is_empty(), "0 attempts acts as 1: no retry");
+        let c = NotifyConfig {
+            max_attempts: 200,
+            ..NotifyConfig::default()
+        };
+        assert_eq!(schedule_ms(&c).last(), Some(&30000), "no overflow");
         let c = NotifyConfig {
             initial_backoff_ms: u64::MAX,
             max_backoff_ms: u64::MAX,
+            max_attempts: 64,
             ..NotifyConfig::default()
         };
-        assert_eq!(c.backoff(64).as_millis(), u128::from(u64::MAX));
+        assert_eq!(schedule_ms(&c).len(), 63, "huge waits saturate, no panic");
     }
 
     #[test]

@@ -1,11 +1,14 @@
 //! One target task: takes jobs from its own bounded queue, formats them for its receiver and
-//! POSTs them with retries and exponential backoff. A dead or hanging receiver only delays its
+//! POSTs them with retries: exponential backoff with jitter, or the receiver's `Retry-After` on
+//! 429 and 503, never longer than `max_backoff_ms`. A dead or hanging receiver only delays its
 //! own queue.
 
 use std::fmt;
+use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::Arc;
-use std::time::{Duration, Instant};
+use std::time::{Duration, Instant, SystemTime};
 
+use backon::Retryable;
 use serde::Serialize;
 use tokio::sync::{mpsc, watch};
 
@@ -141,8 +144,9 @@ fn to_json(body: &impl Serialize) -> Result<Vec<u8>, String> {
 /// Why one attempt failed.
 #[derive(Debug)]
 enum AttemptError {
-    /// The receiver answered with a status other than 2xx.
-    Status(reqwest::StatusCode),
+    /// The receiver answered with a status other than 2xx; with the wait its `Retry-After`
+    /// asked for, when it answered 429 or 503 with a valid one (not yet capped).
+    Status(reqwest::StatusCode, Option<Duration>),
     /// The request could not be built (e.g. an invalid URL).
     InvalidRequest(reqwest::Error),
     /// Connecting, sending or waiting for the answer failed (timeouts included).
@@ -153,7 +157,7 @@ impl AttemptError {
     /// Server errors, 408, 429 and transport errors may pass; the rest will not get better.
     fn retryable(&self) -> bool {
         match self {
-            AttemptError::Status(s) => {
+            AttemptError::Status(s, _) => {
                 s.is_server_error()
                     || *s == reqwest::StatusCode::TOO_MANY_REQUESTS
                     || *s == reqwest::StatusCode::REQUEST_TIMEOUT
@@ -164,10 +168,62 @@ impl AttemptError {
     }
 }
 
+impl AttemptError {
+    /// The wait the receiver asked for with `Retry-After`, if any.
+    fn retry_after(&self) -> Option<Duration> {
+        match self {
+            AttemptError::Status(_, wait) => *wait,
+            _ => None,
+        }
+    }
+}
+
+/// The wait a `Retry-After` header asks for: delta-seconds, or an HTTP date (a date in the past
+/// means now). Only 429 (Too Many Requests) and 503 (Service Unavailable) define it; on other
+/// statuses, and when it does not parse, it is ignored.
+fn retry_after(
+    status: reqwest::StatusCode,
+    headers: &reqwest::header::HeaderMap,
+    now: SystemTime,
+) -> Option<Duration> {
+    if status != reqwest::StatusCode::TOO_MANY_REQUESTS
+        && status != reqwest::StatusCode::SERVICE_UNAVAILABLE
+    {
+        return None;
+    }
+    let value = headers
+        .get(reqwest::header::RETRY_AFTER)?
+        .to_str()
+        .ok()?
+        .trim();
+    if let Ok(secs) = value.parse::<u64>() {
+        return Some(Duration::from_secs(secs));
+    }
+    let date = httpdate::parse_http_date(value).ok()?;
+    Some(date.duration_since(now).unwrap_or(Duration::ZERO))
+}
+
+/// Equal jitter: a wait drawn in `[backoff / 2, backoff]` from `unit` in `[0, 1)`. Receivers
+/// that failed together do not retry in lock-step, each wait stays within the schedule's cap,
+/// and a failing receiver still gets at least half the backoff between attempts.
+fn equal_jitter(backoff: Duration, unit: f64) -> Duration {
+    let half = backoff / 2;
+    half + (backoff - half).mul_f64(unit.clamp(0.0, 1.0))
+}
+
+/// The wait before the next attempt: the receiver's `Retry-After` if it sent one, else the
+/// jittered backoff; never longer than `max`.
+fn next_wait(error: &AttemptError, backoff: Duration, max: Duration, unit: f64) -> Duration {
+    error
+        .retry_after()
+        .unwrap_or_else(|| equal_jitter(backoff.min(max), unit))
+        .min(max)
+}
+
 impl fmt::Display for AttemptError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
-            AttemptError::Status(s) => write!(f, "HTTP {s}"),
+            AttemptError::Status(s, _) => write!(f, "HTTP {s}"),
             AttemptError::InvalidRequest(e) => write!(f, "invalid request: {e}"),
             AttemptError::Transport(e) => write!(f, "request error: {e}"),
         }
@@ -198,39 +254,66 @@ async fn deliver(
         return Err(DeliveryError::NoClient);
     };
     let body = body.map_err(DeliveryError::Payload)?;
-    let attempts = config.max_attempts.max(1);
-    let mut attempt = 1;
-    loop {
-        let mut req = client
-            .post(&target.url)
-            .header(reqwest::header::CONTENT_TYPE, "application/json")
-            .body(body.clone());
-        if let TargetKind::Webhook {
-            bearer_token: Some(token),
-            ..
-        } = &target.kind
-        {
-            req = req.bearer_auth(token);
+    // Attempts made so far, for the logs and the "after N attempts" message, shared by the
+    // attempt closure and backon's callbacks. Atomic only because the task's future must be
+    // Send (a Cell is not Sync); all of them run on this one task, so Relaxed is enough.
+    let made = AtomicU32::new(0);
+    let attempt = || async {
+        made.fetch_add(1, Ordering::Relaxed);
+        post(target, client, &body).await
+    };
+    let max_wait = config.max_backoff();
+    // backon runs the loop: the schedule bounds the retries (`max_attempts - 1`); `adjust`
+    // replaces each scheduled wait by the receiver's Retry-After or the jittered backoff
+    // (backon's own jitter adds up to 100 % on top of the wait, past `max_backoff_ms`). A
+    // Retry-After wait uses up a retry like any other. The shutdown deadline is enforced by the
+    // caller, which drops this future.
+    let result = attempt
+        .retry(config.backoff_schedule())
+        .sleep(tokio::time::sleep)
+        .when(AttemptError::retryable)
+        .adjust(|error, backoff| backoff.map(|b| next_wait(error, b, max_wait, fastrand::f64())))
+        .notify(|error, wait| {
+            tracing::debug!(
+                target_url = %target.url,
+                attempt = made.load(Ordering::Relaxed),
+                ?wait,
+                retry_after = ?error.retry_after(),
+                "alert delivery: {error}, retrying"
+            );
+        })
+        .await;
+    match result {
+        Ok(()) => Ok(()),
+        Err(error) if !error.retryable() => Err(DeliveryError::NotRetried(error)),
+        Err(last) => Err(DeliveryError::GaveUp {
+            last,
+            attempts: made.load(Ordering::Relaxed),
+        }),
+    }
+}
+
+/// One attempt: a POST of `body`, 2xx is success.
+async fn post(target: &Target, client: &reqwest::Client, body: &[u8]) -> Result<(), AttemptError> {
+    let mut req = client
+        .post(&target.url)
+        .header(reqwest::header::CONTENT_TYPE, "application/json")
+        .body(body.to_vec());
+    if let TargetKind::Webhook {
+        bearer_token: Some(token),
+        ..
+    } = &target.kind
+    {
+        req = req.bearer_auth(token);
+    }
+    match req.send().await {
+        Ok(resp) if resp.status().is_success() => Ok(()),
+        Ok(resp) => {
+            let wait = retry_after(resp.status(), resp.headers(), SystemTime::now());
+            Err(AttemptError::Status(resp.status(), wait))
         }
-        let error = match req.send().await {
-            Ok(resp) if resp.status().is_success() => return Ok(()),
-            Ok(resp) => AttemptError::Status(resp.status()),
-            Err(e) if e.is_builder() => AttemptError::InvalidRequest(e),
-            Err(e) => AttemptError::Transport(e),
-        };
-        if !error.retryable() {
-            return Err(DeliveryError::NotRetried(error));
-        }
-        if attempt >= attempts {
-            return Err(DeliveryError::GaveUp {
-                last: error,
-                attempts: attempt,
-            });
-        }
-        let wait = config.backoff(attempt);
-        tracing::debug!(target_url = %target.url, attempt, ?wait, "alert delivery: {error}, retrying");
-        tokio::time::sleep(wait).await;
-        attempt += 1;
+        Err(e) if e.is_builder() => Err(AttemptError::InvalidRequest(e)),
+        Err(e) => Err(AttemptError::Transport(e)),
     }
 }
 
@@ -365,7 +448,8 @@ mod tests {
     #[test]
     fn which_answers_are_retried() {
         let retried = |code: u16| {
-            AttemptError::Status(StatusCode::from_u16(code).expect("valid status")).retryable()
+            AttemptError::Status(StatusCode::from_u16(code).expect("valid status"), None)
+                .retryable()
         };
         for code in [500, 502, 503, 504, 408, 429] {
             assert!(retried(code), "{code} is retried");
@@ -377,7 +461,7 @@ mod tests {
 
     #[test]
     fn failure_messages() {
-        let s = |code: u16| AttemptError::Status(StatusCode::from_u16(code).expect("status"));
+        let s = |code: u16| AttemptError::Status(StatusCode::from_u16(code).expect("status"), None);
         assert_eq!(
             DeliveryError::NotRetried(s(400)).to_string(),
             "HTTP 400 Bad Request (not retried)"
@@ -391,5 +475,74 @@ mod tests {
             "HTTP 503 Service Unavailable after 6 attempts"
         );
         assert_eq!(DeliveryError::NoClient.to_string(), "no HTTP client");
+    }
+
+    #[test]
+    fn retry_after_delta_seconds_or_http_date_on_429_and_503_only() {
+        use reqwest::header::{HeaderMap, HeaderValue, RETRY_AFTER};
+        let now = UNIX_EPOCH + Duration::from_secs(1_445_412_480); // Wed, 21 Oct 2015 07:28:00 GMT
+        let headers = |v: &str| {
+            let mut h = HeaderMap::new();
+            h.insert(RETRY_AFTER, HeaderValue::from_str(v).expect("header"));
+            h
+        };
+        let ra = |code: u16, v: &str| {
+            retry_after(
+                StatusCode::from_u16(code).expect("status"),
+                &headers(v),
+                now,
+            )
+        };
+        assert_eq!(ra(503, "120"), Some(Duration::from_secs(120)));
+        assert_eq!(ra(429, " 0 "), Some(Duration::ZERO));
+        assert_eq!(
+            ra(503, "Wed, 21 Oct 2015 07:28:30 GMT"),
+            Some(Duration::from_secs(30))
+        );
+        assert_eq!(
+            ra(429, "Wed, 21 Oct 2015 07:27:00 GMT"),
+            Some(Duration::ZERO),
+            "a date in the past: now"
+        );
+        assert_eq!(ra(503, "soon"), None);
+        assert_eq!(ra(503, "-5"), None);
+        assert_eq!(ra(500, "120"), None, "only 429 and 503 define it");
+        assert_eq!(ra(502, "120"), None);
+        assert_eq!(
+            retry_after(StatusCode::SERVICE_UNAVAILABLE, &HeaderMap::new(), now),
+            None
+        );
+    }
+
+    #[test]
+    fn waits_are_jittered_within_the_cap_and_retry_after_wins_capped() {
+        let ms = Duration::from_millis;
+        let max = ms(1000);
+        let plain = AttemptError::Status(StatusCode::INTERNAL_SERVER_ERROR, None);
+        assert_eq!(next_wait(&plain, ms(400), max, 0.0), ms(200));
+        assert_eq!(next_wait(&plain, ms(400), max, 1.0), ms(400));
+        // A first wait above the cap (initial_backoff_ms > max_backoff_ms) is capped too.
+        assert_eq!(next_wait(&plain, ms(5000), max, 1.0), max);
+        let mut rng = fastrand::Rng::with_seed(7);
+        for backoff in [0, 1, 10, 400, 999, 1000, 5000, u64::MAX] {
+            let backoff = ms(backoff);
+            for _ in 0..200 {
+                let w = next_wait(&plain, backoff, max, rng.f64());
+                let b = backoff.min(max);
+                assert!(w >= b / 2 && w <= b, "{w:?} for {backoff:?}");
+            }
+        }
+        let asked = |s: u64| AttemptError::Status(StatusCode::SERVICE_UNAVAILABLE, Some(ms(s)));
+        assert_eq!(
+            next_wait(&asked(300), ms(10), max, 0.5),
+            ms(300),
+            "not jittered"
+        );
+        assert_eq!(next_wait(&asked(0), ms(800), max, 0.5), ms(0));
+        assert_eq!(
+            next_wait(&asked(3_600_000), ms(10), max, 0.5),
+            max,
+            "capped"
+        );
     }
 }
