@@ -455,16 +455,29 @@ fn one_percent_noise_on_van_der_pol_still_identifies_within_two_percent() {
 // ------------------------------------------------------------------------------------------------
 // Scale-free structures (issue 7, defect 6).
 
-/// Only the forced linear structure is defined up to a common factor (of c1..c4); none of the
-/// other seed cases' models or the gate models is flagged.
+/// Only the forced linear structure is defined up to a common factor (of c1..c4) and a common
+/// sign (of c4, c5), mathieu's `c2*sin(c3*t)` up to a common sign; none of the other seed
+/// cases' models or the gate models is flagged.
 #[test]
 fn scale_groups_are_found_only_where_the_equation_is_scale_free() {
     for c in cases::CASES {
         let groups = c.compiled().unwrap().scale_groups();
         if c.id.starts_with("forced_linear") {
-            assert_eq!(groups.len(), 1, "{}", c.id);
+            // the common factor of c1..c4, then the sign of the odd sine's (c4, c5)
+            assert_eq!(groups.len(), 2, "{}", c.id);
             assert_eq!(groups[0].members, vec![0, 1, 2, 3], "{}", c.id);
             assert_eq!(groups[0].fixed, 0, "{}: c1 multiplies ydd", c.id);
+            assert!(!groups[0].sign_only);
+            assert_eq!(groups[1].members, vec![3, 4], "{}", c.id);
+            assert!(groups[1].sign_only, "{}", c.id);
+        } else if c.id == "mathieu" {
+            // c2*sin(c3*t): the odd sine's sign ambiguity, no scale
+            assert_eq!(groups.len(), 1, "{}: {groups:?}", c.id);
+            assert_eq!(
+                (groups[0].members.clone(), groups[0].fixed),
+                (vec![1, 2], 1)
+            );
+            assert!(groups[0].sign_only);
         } else {
             assert!(groups.is_empty(), "{}: {groups:?}", c.id);
         }
