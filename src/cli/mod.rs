@@ -67,6 +67,9 @@ enum BenchCommand {
     GateExample(gate_example::GateExampleArgs),
     /// Load measurements of the daemon: ingest throughput, identification latency, gates sustained.
     Daemon(crate::service::bench::BenchDaemonArgs),
+    /// The daemon under a long mixed load (steady, slow, broken and transient clients),
+    /// recording RSS, open descriptors, p99 ingest latency and jobs replaced.
+    Soak(crate::service::bench_soak::BenchSoakArgs),
 }
 
 pub(crate) fn parse_param(s: &str) -> Result<(String, f64), String> {
@@ -136,6 +139,9 @@ pub fn main() -> ExitCode {
         Command::Demo(args) => return crate::service::cli::demo(args),
         Command::Bench(BenchCommand::Daemon(args)) => {
             return crate::service::bench::bench_daemon(args)
+        }
+        Command::Bench(BenchCommand::Soak(args)) => {
+            return crate::service::bench_soak::bench_soak(args)
         }
         Command::Completions(args) => {
             use clap::CommandFactory;

@@ -27,6 +27,7 @@
 
 pub mod api;
 pub mod bench;
+pub mod bench_soak;
 pub mod cli;
 pub mod client;
 pub mod clock;
