@@ -26,7 +26,9 @@ const SUBSTEPS: usize = 2;
 const BATCH: usize = 8;
 
 fn bench(c: &mut Criterion) {
-    println!("fitness of 8 candidates, 250 training samples of 500; ns per RHS evaluation per candidate");
+    println!(
+        "fitness of 8 candidates, 250 training samples of 500; ns per RHS evaluation per candidate"
+    );
     println!("case            solver  lanes  rhs_evals/8  ns/batch   ns/rhs_eval  (plain loop)");
     let mut group = c.benchmark_group("lanes");
     for id in ["van_der_pol_2", "forced_linear"] {
@@ -93,7 +95,11 @@ fn bench(c: &mut Criterion) {
                 f.cost_batch(&xs, &bounds, &mut out, &mut ws);
                 // The same costs whatever the lane width.
                 let bits = out.map(f64::to_bits);
-                assert_eq!(*reference.get_or_insert(bits), bits, "{id} {method} lanes {lanes}");
+                assert_eq!(
+                    *reference.get_or_insert(bits),
+                    bits,
+                    "{id} {method} lanes {lanes}"
+                );
                 let runs = 300;
                 let start = Instant::now();
                 for _ in 0..runs {
