@@ -311,7 +311,10 @@ impl Fitness<'_> {
         let mut tally: [Tally; L] =
             std::array::from_fn(|l| Tally::new(bounds[l.min(n - 1)], self.n_train));
         let c: &[[f64; L]] = c;
-        let sys = BoundLanes { model: self.model, coeffs: c };
+        let sys = BoundLanes {
+            model: self.model,
+            coeffs: c,
+        };
         let times = &self.t[..self.horizon];
         let outcomes = match self.method {
             Method::Rk4 => lanes::rk4(&sys, &y0, live, times, &self.opts, |i, s, live| {

@@ -220,8 +220,7 @@ where
         for i in 0..N {
             for l in 0..L {
                 ys[i][l] = y[i][l]
-                    + h[l]
-                        * (A51 * k1[i][l] + A52 * k2[i][l] + A53 * k3[i][l] + A54 * k4[i][l]);
+                    + h[l] * (A51 * k1[i][l] + A52 * k2[i][l] + A53 * k3[i][l] + A54 * k4[i][l]);
             }
         }
         for l in 0..L {
@@ -270,8 +269,7 @@ where
                         + E7 * k7[i][l]);
                 let sk = opts.atol + opts.rtol * y[i][l].abs().max(ynew[i][l].abs());
                 err[l] += (e / sk) * (e / sk);
-                finite[l] &=
-                    ynew[i][l].is_finite() & k7[i][l].is_finite() & k2[i][l].is_finite();
+                finite[l] &= ynew[i][l].is_finite() & k7[i][l].is_finite() & k2[i][l].is_finite();
             }
         }
 
@@ -318,9 +316,18 @@ where
                 continue;
             }
             if times[next[l]] <= tnew[l] {
-                match deliver(&mut observe, l, times, &mut next[l], h[l], t[l], tnew[l], &yl, &ynl, [
-                    &k1, &k3, &k4, &k5, &k6, &k7,
-                ]) {
+                match deliver(
+                    &mut observe,
+                    l,
+                    times,
+                    &mut next[l],
+                    h[l],
+                    t[l],
+                    tnew[l],
+                    &yl,
+                    &ynl,
+                    [&k1, &k3, &k4, &k5, &k6, &k7],
+                ) {
                     Delivered::More => {}
                     Delivered::Stopped(tout) => {
                         out[l] = stop(next[l], stats[l], Failure::Stopped { t: tout });
@@ -394,8 +401,8 @@ where
             r1[i] = ydiff;
             r2[i] = bspl;
             r3[i] = ydiff - h * k7[i] - bspl;
-            r4[i] = h
-                * (D1 * k1[i] + D3 * k3[i] + D4 * k4[i] + D5 * k5[i] + D6 * k6[i] + D7 * k7[i]);
+            r4[i] =
+                h * (D1 * k1[i] + D3 * k3[i] + D4 * k4[i] + D5 * k5[i] + D6 * k6[i] + D7 * k7[i]);
         }
     }
     let inv_h = 1.0 / h;

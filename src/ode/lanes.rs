@@ -175,8 +175,7 @@ where
             sys.rhs(&[tn; L], &ys, &mut k4);
             for i in 0..N {
                 for l in 0..L {
-                    ys[i][l] =
-                        y[i][l] + h6 * (k1[i][l] + 2.0 * (k2[i][l] + k3[i][l]) + k4[i][l]);
+                    ys[i][l] = y[i][l] + h6 * (k1[i][l] + 2.0 * (k2[i][l] + k3[i][l]) + k4[i][l]);
                 }
             }
             stats.rhs_evals += 4;
