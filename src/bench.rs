@@ -32,6 +32,8 @@ pub struct BenchOptions {
     pub noise: f64,
     /// Bias half of the initial population with the spectrum (through the analysis pipeline).
     pub fft_bias: bool,
+    /// Trials integrated in lockstep by the fitness (1, 4 or 8; results are identical).
+    pub lanes: usize,
 }
 
 impl Default for BenchOptions {
@@ -46,6 +48,7 @@ impl Default for BenchOptions {
             restart: true,
             noise: 0.0,
             fft_bias: false,
+            lanes: crate::identify::LANES,
         }
     }
 }
@@ -149,6 +152,7 @@ pub fn run_case(
             rtol: opts.rtol,
             refine: opts.refine,
             parallel: false,
+            lanes: opts.lanes,
             ..Search::default()
         },
         protocol: Protocol {

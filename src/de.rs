@@ -42,6 +42,25 @@ pub trait Objective: Sync {
     /// `f64::INFINITY` when there is no bound). Must be deterministic in `x` and `bound`, and never
     /// return NaN (return `f64::INFINITY` for an unusable candidate).
     fn cost(&self, x: &[f64], bound: f64, ws: &mut Self::Workspace) -> f64;
+
+    /// How many candidates [`Objective::cost_batch`] evaluates together at its best (the DE
+    /// aligns its per-thread chunks of a generation to a multiple of it). 1 when there is no
+    /// batch path.
+    fn batch_width(&self) -> usize {
+        1
+    }
+
+    /// The costs of several candidates: `out[k] = cost(x_k, bounds[k])` with `x_k =
+    /// xs[k*d..(k+1)*d]`, `d = dimension()`. An objective may evaluate them together (lockstep
+    /// lanes), but each `out[k]` must depend only on `x_k` and `bounds[k]`, never on which other
+    /// candidates share the batch: that is what keeps a run identical whatever the thread count
+    /// and batch width. The default evaluates one by one.
+    fn cost_batch(&self, xs: &[f64], bounds: &[f64], out: &mut [f64], ws: &mut Self::Workspace) {
+        let d = self.dimension();
+        for (k, o) in out.iter_mut().enumerate() {
+            *o = self.cost(&xs[k * d..(k + 1) * d], bounds[k], ws);
+        }
+    }
 }
 
 /// What to do when the population stalls (not in the chapter).
@@ -444,7 +463,11 @@ impl<W: Send> Pool<W> {
         }
     }
 
-    /// `out[i] = cost(xs[i], bound = bounds[i])`.
+    /// `out[i] = cost(xs[i], bound = bounds[i])`, through the objective's batch entry point.
+    ///
+    /// The generation is cut into contiguous chunks by trial index alone (one per workspace,
+    /// each a multiple of the objective's batch width), never by which thread is free; and each
+    /// cost depends only on its own trial, so the costs are the same for any thread count.
     fn evaluate<O: Objective<Workspace = W>>(
         &mut self,
         objective: &O,
@@ -455,22 +478,20 @@ impl<W: Send> Pool<W> {
     ) {
         let np = out.len();
         if !self.parallel || self.workspaces.len() == 1 {
-            let ws = &mut self.workspaces[0];
-            for i in 0..np {
-                out[i] = sanitize(objective.cost(&xs[i * d..(i + 1) * d], bounds[i], ws));
-            }
-            return;
+            objective.cost_batch(xs, bounds, out, &mut self.workspaces[0]);
+        } else {
+            let width = objective.batch_width().max(1);
+            let chunk = np.div_ceil(self.workspaces.len()).next_multiple_of(width);
+            out.par_chunks_mut(chunk)
+                .zip(self.workspaces.par_iter_mut())
+                .enumerate()
+                .for_each(|(c, (out, ws))| {
+                    let first = c * chunk;
+                    let rows = &xs[first * d..(first + out.len()) * d];
+                    objective.cost_batch(rows, &bounds[first..first + out.len()], out, ws);
+                });
         }
-        let chunk = np.div_ceil(self.workspaces.len());
-        out.par_chunks_mut(chunk)
-            .zip(self.workspaces.par_iter_mut())
-            .enumerate()
-            .for_each(|(c, (out, ws))| {
-                for (k, o) in out.iter_mut().enumerate() {
-                    let i = c * chunk + k;
-                    *o = sanitize(objective.cost(&xs[i * d..(i + 1) * d], bounds[i], ws));
-                }
-            });
+        out.iter_mut().for_each(|c| *c = sanitize(*c));
     }
 
     fn first_workspace(&mut self) -> W

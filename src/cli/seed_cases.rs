@@ -39,6 +39,10 @@ pub struct SeedCasesArgs {
     /// Bias half of the initial population with the spectrum's frequency and growth.
     #[arg(long)]
     fft_bias: bool,
+    /// Trials the fitness integrates in lockstep: 1 (one by one), 4 or 8. Results are
+    /// identical; only the time differs.
+    #[arg(long, default_value_t = crate::identify::LANES)]
+    lanes: usize,
     /// Print the results as JSON.
     #[arg(long)]
     json: bool,
@@ -47,6 +51,9 @@ pub struct SeedCasesArgs {
 pub(super) fn run(a: SeedCasesArgs) -> Result<(), CliError> {
     if a.runs == 0 {
         return Err(input("--runs must be at least 1"));
+    }
+    if !matches!(a.lanes, 1 | 4 | 8) {
+        return Err(input("--lanes must be 1, 4 or 8"));
     }
     if !(0.0..1.0).contains(&a.noise) {
         return Err(input("--noise must be in [0, 1)"));
@@ -68,6 +75,7 @@ pub(super) fn run(a: SeedCasesArgs) -> Result<(), CliError> {
         restart: !a.no_restart,
         noise: a.noise,
         fft_bias: a.fft_bias,
+        lanes: a.lanes,
         ..BenchOptions::default()
     };
     let mut reports = Vec::new();

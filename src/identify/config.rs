@@ -39,6 +39,10 @@ pub struct Search {
     pub continuation: bool,
     /// Evaluate each generation's trials in parallel (results are identical either way).
     pub parallel: bool,
+    /// Trials integrated in lockstep by the fitness (1, 4 or 8; 1 = one by one). Results are
+    /// identical for every width (docs/design.md, "A generation in lanes"); the stiff solver
+    /// always works one by one.
+    pub lanes: usize,
     /// Individuals placed first in the initial population of every run (warm start, bias), in
     /// the DE's coordinates (coefficients, then `y0`, `v0` when fitted).
     pub initial_population: Vec<Vec<f64>>,
@@ -57,6 +61,7 @@ impl Default for Search {
             refine_evaluations: 300,
             continuation: true,
             parallel: false,
+            lanes: crate::identify::LANES,
             initial_population: Vec::new(),
         }
     }
@@ -89,6 +94,12 @@ impl Search {
         tolerance("refine_rtol", self.refine_rtol)?;
         if self.substeps == 0 || self.substeps > 1000 {
             return Err(invalid("substeps", "must be between 1 and 1000"));
+        }
+        if !matches!(self.lanes, 1 | 4 | 8) {
+            return Err(invalid(
+                "lanes",
+                format!("must be 1, 4 or 8, got {}", self.lanes),
+            ));
         }
         Ok(())
     }

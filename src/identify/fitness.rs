@@ -7,9 +7,14 @@ use super::split::initial_from_data;
 use super::stats::magnitude;
 use super::InitialValues;
 use crate::de::Objective;
-use crate::model::{Bound, Model};
-use crate::ode::{self, Method, Options};
+use crate::model::{Bound, BoundLanes, Model};
+use crate::ode::{self, lanes, Method, Options, Outcome};
 use std::ops::ControlFlow;
+
+/// Default number of trials the fitness integrates in lockstep ([`super::Search::lanes`]): 8
+/// lanes of `f64` fill two AVX registers or four SSE2 registers, and a population of 50 leaves
+/// one partly filled batch per generation (docs/design.md, "A generation in lanes").
+pub const LANES: usize = 8;
 
 /// The training objective of section 8.3 with the corrected penalty (see the module docs).
 ///
@@ -35,6 +40,9 @@ pub struct Fitness<'a> {
     y_scale: f64,
     /// Largest per-sample error of a completing candidate: blow-up bound + data magnitude.
     fail_base: f64,
+    /// Candidates integrated in lockstep by [`Objective::cost_batch`] (1, 4 or 8; 1 = one by
+    /// one). Costs are identical either way.
+    lanes: usize,
 }
 
 impl<'a> Fitness<'a> {
@@ -96,7 +104,16 @@ impl<'a> Fitness<'a> {
             opts,
             y_scale,
             fail_base,
+            lanes: search.lanes,
         }
+    }
+
+    /// The same objective with `lanes` candidates per lockstep batch (1, 4 or 8; any other
+    /// value means 1).
+    pub fn with_lanes(&self, lanes: usize) -> Fitness<'a> {
+        let mut f = self.clone();
+        f.lanes = lanes;
+        f
     }
 
     /// The same objective with another solver and tolerance.
@@ -171,7 +188,7 @@ impl<'a> Fitness<'a> {
     /// Prediction minus data at each training sample of the horizon; `None` when the
     /// integration does not complete.
     pub fn residuals(&self, x: &[f64]) -> Option<Vec<f64>> {
-        let mut buf = self.workspace();
+        let mut buf = vec![0.0; self.dimension()];
         let mut out = Vec::with_capacity(self.n_train);
         let o = self.run(x, &mut buf, |i, v| {
             if self.is_train[i] {
@@ -184,7 +201,7 @@ impl<'a> Fitness<'a> {
 
     /// Splits a DE vector into physical coefficients and initial conditions.
     pub fn unpack(&self, x: &[f64]) -> (Vec<f64>, InitialValues) {
-        let mut buf = self.workspace();
+        let mut buf = vec![0.0; self.dimension()];
         let (c, y0, v0) = self.physical(x, &mut buf);
         (c.to_vec(), InitialValues { y0, v0 })
     }
@@ -200,9 +217,142 @@ impl<'a> Fitness<'a> {
     }
 }
 
+/// Scratch space of one thread's evaluations, made once per run: the physical coefficients of
+/// a scalar evaluation, and of a lane batch in structure-of-arrays form.
+#[derive(Debug, Clone)]
+pub struct FitnessWorkspace {
+    buf: Vec<f64>,
+    c4: Vec<[f64; 4]>,
+    c8: Vec<[f64; 8]>,
+}
+
+/// The running error sum of one candidate, sample by sample, with the early abandonment.
+#[derive(Debug, Clone, Copy)]
+struct Tally {
+    limit: f64,
+    sum: f64,
+    reached: usize,
+    abandoned: bool,
+}
+
+impl Tally {
+    fn new(bound: f64, n_train: usize) -> Tally {
+        Tally {
+            limit: bound * n_train as f64,
+            sum: 0.0,
+            reached: 0,
+            abandoned: false,
+        }
+    }
+
+    /// Adds the output `v` at sample `i`; `Break` when the candidate can stop.
+    #[inline(always)]
+    fn add(&mut self, f: &Fitness<'_>, i: usize, v: f64) -> ControlFlow<()> {
+        if f.is_train[i] {
+            let e = (v - f.y[i]).abs();
+            if !e.is_finite() {
+                return ControlFlow::Break(());
+            }
+            self.sum += e;
+            self.reached += 1;
+            if self.sum > self.limit {
+                self.abandoned = true;
+                return ControlFlow::Break(());
+            }
+        }
+        ControlFlow::Continue(())
+    }
+
+    /// The cost once the integration has ended with `outcome`.
+    fn cost(&self, f: &Fitness<'_>, outcome: &Outcome) -> f64 {
+        if self.abandoned {
+            return f64::INFINITY;
+        }
+        let n = f.n_train as f64;
+        if outcome.is_complete() {
+            self.sum / n
+        } else {
+            let missing = (f.n_train - self.reached.min(f.n_train)) as f64;
+            f.fail_base * (1.0 + missing / n) + self.sum / n
+        }
+    }
+}
+
+impl Fitness<'_> {
+    /// The costs of up to `L` candidates (rows of `xs`) integrated in lockstep; each equals
+    /// [`Objective::cost`] on that candidate bit for bit (the lane integrators and the lane model
+    /// evaluator perform each lane's scalar operations in the same order). Lanes beyond the
+    /// candidates are padding: not live, never observed.
+    fn cost_lanes<const L: usize>(
+        &self,
+        xs: &[f64],
+        bounds: &[f64],
+        out: &mut [f64],
+        c: &mut [[f64; L]],
+        buf: &mut [f64],
+    ) {
+        let n = out.len();
+        let d = self.dimension();
+        let nc = self.model.n_coeffs();
+        let mut y0 = [[0.0; L]; 2];
+        let mut live = [false; L];
+        for l in 0..L {
+            // Padding lanes repeat the first candidate, so they compute on ordinary numbers.
+            let x = &xs[(if l < n { l } else { 0 }) * d..][..d];
+            live[l] = l < n;
+            for (k, ck) in c.iter_mut().enumerate() {
+                ck[l] = x[k] * self.scales[k];
+            }
+            (y0[0][l], y0[1][l]) = match self.initial {
+                Initial::Known { y0, v0 } => (y0, v0),
+                _ => (x[nc] * self.scales[nc], x[nc + 1] * self.scales[nc + 1]),
+            };
+        }
+        let mut tally: [Tally; L] =
+            std::array::from_fn(|l| Tally::new(bounds[l.min(n - 1)], self.n_train));
+        let c: &[[f64; L]] = c;
+        let sys = BoundLanes {
+            model: self.model,
+            coeffs: c,
+        };
+        let times = &self.t[..self.horizon];
+        let outcomes = match self.method {
+            Method::Rk4 => lanes::rk4(&sys, &y0, live, times, &self.opts, |i, s, live| {
+                if !self.is_train[i] {
+                    return;
+                }
+                let v = match self.output {
+                    Output::Displacement => s[0],
+                    Output::Force => self.model.residual_lanes(&[times[i]; L], &s[0], &s[1], c),
+                };
+                for l in 0..L {
+                    if live[l] && tally[l].add(self, i, v[l]).is_break() {
+                        live[l] = false;
+                    }
+                }
+            }),
+            _ => lanes::dopri5(&sys, &y0, live, times, &self.opts, |l, i, s| {
+                let v = match self.output {
+                    Output::Displacement => s[0],
+                    Output::Force => {
+                        // The lanes reach a sample at different moments: lane by lane.
+                        for (b, ck) in buf.iter_mut().zip(c) {
+                            *b = ck[l];
+                        }
+                        self.model.residual(times[i], s[0], s[1], &buf[..nc])
+                    }
+                };
+                tally[l].add(self, i, v)
+            }),
+        };
+        for l in 0..n {
+            out[l] = tally[l].cost(self, &outcomes[l]);
+        }
+    }
+}
+
 impl Objective for Fitness<'_> {
-    /// The physical coefficient vector, reused for every evaluation.
-    type Workspace = Vec<f64>;
+    type Workspace = FitnessWorkspace;
 
     fn dimension(&self) -> usize {
         self.model.n_coeffs()
@@ -213,38 +363,54 @@ impl Objective for Fitness<'_> {
             }
     }
 
-    fn workspace(&self) -> Vec<f64> {
-        vec![0.0; self.dimension()]
+    fn workspace(&self) -> FitnessWorkspace {
+        let nc = self.model.n_coeffs();
+        FitnessWorkspace {
+            buf: vec![0.0; self.dimension()],
+            c4: vec![[0.0; 4]; nc],
+            c8: vec![[0.0; 8]; nc],
+        }
     }
 
-    fn cost(&self, x: &[f64], bound: f64, ws: &mut Vec<f64>) -> f64 {
-        let limit = bound * self.n_train as f64;
-        let (mut sum, mut reached) = (0.0, 0usize);
-        let mut abandoned = false;
-        let outcome = self.run(x, ws, |i, v| {
-            if self.is_train[i] {
-                let e = (v - self.y[i]).abs();
-                if !e.is_finite() {
-                    return ControlFlow::Break(());
-                }
-                sum += e;
-                reached += 1;
-                if sum > limit {
-                    abandoned = true;
-                    return ControlFlow::Break(());
-                }
+    fn cost(&self, x: &[f64], bound: f64, ws: &mut FitnessWorkspace) -> f64 {
+        let mut tally = Tally::new(bound, self.n_train);
+        let outcome = self.run(x, &mut ws.buf, |i, v| tally.add(self, i, v));
+        tally.cost(self, &outcome)
+    }
+
+    fn batch_width(&self) -> usize {
+        self.lane_width()
+    }
+
+    fn cost_batch(&self, xs: &[f64], bounds: &[f64], out: &mut [f64], ws: &mut FitnessWorkspace) {
+        let d = self.dimension();
+        let width = self.lane_width();
+        let mut first = 0;
+        while first < out.len() {
+            let n = (out.len() - first).min(width);
+            let (rows, b, o) = (
+                &xs[first * d..(first + n) * d],
+                &bounds[first..first + n],
+                &mut out[first..first + n],
+            );
+            match width {
+                8 => self.cost_lanes::<8>(rows, b, o, &mut ws.c8, &mut ws.buf),
+                4 => self.cost_lanes::<4>(rows, b, o, &mut ws.c4, &mut ws.buf),
+                _ => o[0] = self.cost(rows, b[0], ws),
             }
-            ControlFlow::Continue(())
-        });
-        if abandoned {
-            return f64::INFINITY;
+            first += n;
         }
-        let n = self.n_train as f64;
-        if outcome.is_complete() {
-            sum / n
-        } else {
-            let missing = (self.n_train - reached.min(self.n_train)) as f64;
-            self.fail_base * (1.0 + missing / n) + sum / n
+    }
+}
+
+impl Fitness<'_> {
+    /// The lane width actually used: the configured one for RK4 and Dormand-Prince, 1 for the
+    /// stiff solver (no lane version) and for anything but 4 or 8.
+    fn lane_width(&self) -> usize {
+        match (self.method, self.lanes) {
+            (Method::Rosenbrock, _) => 1,
+            (_, w @ (4 | 8)) => w,
+            _ => 1,
         }
     }
 }

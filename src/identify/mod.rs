@@ -46,7 +46,7 @@ mod split;
 mod stats;
 
 pub use config::{Config, Protocol, Search};
-pub use fitness::Fitness;
+pub use fitness::{Fitness, FitnessWorkspace, LANES};
 pub use predict::{predict, trajectory};
 pub use problem::Problem;
 pub use problem::{Initial, Output};

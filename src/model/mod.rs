@@ -41,6 +41,7 @@ mod lexer;
 mod linear;
 mod parser;
 mod program;
+mod program_lanes;
 mod scaling;
 #[cfg(test)]
 mod tests;
@@ -50,6 +51,7 @@ use lexer::{Tok, Token};
 use parser::{CoefSite, Expr, Facts, Parser};
 use program::Program;
 
+pub use program_lanes::BoundLanes;
 pub use scaling::{ScaleGroup, MAX_SCALE_SEARCH};
 
 /// A parse or compile error, with the 1-based column where it was found when there is one.

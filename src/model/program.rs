@@ -65,7 +65,7 @@ pub(crate) enum Op {
 /// (`K` constant, `C` coefficient, `V` variable index 0 = t, 1 = y, 2 = yd), so each
 /// instruction costs one dispatch instead of two.
 #[derive(Debug, Clone, Copy, PartialEq)]
-enum Instr {
+pub(super) enum Instr {
     LoadK(f64),
     LoadC(u32),
     LoadV(u8),
@@ -384,6 +384,12 @@ impl Program {
             [Op::Load(Leaf::Const(v))] => Some(v),
             _ => None,
         }
+    }
+
+    /// The executed form and the stack slots it needs, for the lane evaluator
+    /// (`super::program_lanes`), which runs the same instructions on `L` candidates at once.
+    pub(super) fn code(&self) -> (&[Instr], usize) {
+        (&self.code, self.depth)
     }
 
     /// The instructions (for tests and debugging).

@@ -44,6 +44,8 @@
 
 use std::ops::ControlFlow;
 
+pub use lanes::LaneSystem;
+
 /// A first-order system `dy/dt = f(t, y)` with `N` states.
 pub trait System<const N: usize> {
     /// Writes `f(t, y)` into `dy`.
@@ -269,6 +271,8 @@ impl Outcome {
 }
 
 mod dopri5;
+mod dopri5_lanes;
+pub mod lanes;
 mod rk4;
 mod rosenbrock;
 mod util;

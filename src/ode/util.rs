@@ -88,6 +88,30 @@ pub(super) fn hinit<const N: usize, S: System<N> + ?Sized>(
     order: i32,
     opts: &Options,
 ) -> f64 {
+    let (probe, y1) = hinit_probe(y0, f0, hmax, opts);
+    let mut f1 = [0.0; N];
+    sys.rhs(t0 + probe.h, &y1, &mut f1);
+    hinit_finish(&probe, f0, &f1, hmax, order)
+}
+
+/// The first half of [`hinit`], before its one evaluation (shared with the lane integrators, so
+/// that a lane chooses the same step as the scalar method, bit for bit).
+#[derive(Debug, Clone, Copy)]
+pub(super) struct HinitProbe<const N: usize> {
+    /// The trial step: the evaluation is `f(t0 + h, y1)`.
+    pub h: f64,
+    sk: [f64; N],
+    dnf: f64,
+}
+
+/// The trial step of [`hinit`] and the state `y1 = y0 + h f0` to evaluate at `t0 + h`.
+#[inline(always)]
+pub(super) fn hinit_probe<const N: usize>(
+    y0: &[f64; N],
+    f0: &[f64; N],
+    hmax: f64,
+    opts: &Options,
+) -> (HinitProbe<N>, [f64; N]) {
     let mut sk = [0.0; N];
     let mut dnf = 0.0;
     let mut dny = 0.0;
@@ -106,8 +130,19 @@ pub(super) fn hinit<const N: usize, S: System<N> + ?Sized>(
     for i in 0..N {
         y1[i] = y0[i] + h * f0[i];
     }
-    let mut f1 = [0.0; N];
-    sys.rhs(t0 + h, &y1, &mut f1);
+    (HinitProbe { h, sk, dnf }, y1)
+}
+
+/// The second half of [`hinit`], given `f1 = f(t0 + h, y1)`.
+#[inline(always)]
+pub(super) fn hinit_finish<const N: usize>(
+    probe: &HinitProbe<N>,
+    f0: &[f64; N],
+    f1: &[f64; N],
+    hmax: f64,
+    order: i32,
+) -> f64 {
+    let (h, sk, dnf) = (probe.h, &probe.sk, probe.dnf);
     let mut der2 = 0.0;
     for i in 0..N {
         let d = (f1[i] - f0[i]) / sk[i];
