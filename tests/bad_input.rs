@@ -160,8 +160,8 @@ fn raw_request(method: &str, path: &str, headers: &[(&str, &str)], body: &[u8]) 
     let mut out = format!("{method} {path} HTTP/1.1\r\nHost: localhost\r\nConnection: close\r\n");
     let mut has_length = false;
     for (k, v) in headers {
-        has_length |= k.eq_ignore_ascii_case("content-length")
-            || k.eq_ignore_ascii_case("transfer-encoding");
+        has_length |=
+            k.eq_ignore_ascii_case("content-length") || k.eq_ignore_ascii_case("transfer-encoding");
         out.push_str(&format!("{k}: {v}\r\n"));
     }
     if !has_length {
@@ -282,7 +282,12 @@ fn check(d: &Daemon, cases: &[Case]) {
         "the daemon panicked:\n{}",
         d.stderr()
     );
-    assert!(failures.is_empty(), "{} cases failed:\n{}", failures.len(), failures.join("\n"));
+    assert!(
+        failures.is_empty(),
+        "{} cases failed:\n{}",
+        failures.len(),
+        failures.join("\n")
+    );
 }
 
 fn json_case(class: &'static str, body: impl Into<Vec<u8>>, want: Want) -> Case {
@@ -331,20 +336,64 @@ fn json_cases() -> Vec<Case> {
         json_case("JSON: unclosed object", "{", Want::LineColumn),
         json_case("JSON: lone closing brace", "}", Want::LineColumn),
         json_case("JSON: missing value", r#"{"gate":}"#, Want::LineColumn),
-        json_case("JSON: trailing garbage", r#"{"gate":"g1"} x"#, Want::LineColumn),
-        json_case("JSON: NaN literal", format!(r#"{{"gate":"g1","start":{t},"rate_hz":100,"values":[NaN]}}"#), Want::LineColumn),
-        json_case("JSON: Infinity literal", format!(r#"{{"gate":"g1","start":{t},"rate_hz":100,"values":[Infinity]}}"#), Want::LineColumn),
-        json_case("JSON: number out of range (1e999)", format!(r#"{{"gate":"g1","start":{t},"rate_hz":100,"values":[1e999]}}"#), Want::LineColumn),
+        json_case(
+            "JSON: trailing garbage",
+            r#"{"gate":"g1"} x"#,
+            Want::LineColumn,
+        ),
+        json_case(
+            "JSON: NaN literal",
+            format!(r#"{{"gate":"g1","start":{t},"rate_hz":100,"values":[NaN]}}"#),
+            Want::LineColumn,
+        ),
+        json_case(
+            "JSON: Infinity literal",
+            format!(r#"{{"gate":"g1","start":{t},"rate_hz":100,"values":[Infinity]}}"#),
+            Want::LineColumn,
+        ),
+        json_case(
+            "JSON: number out of range (1e999)",
+            format!(r#"{{"gate":"g1","start":{t},"rate_hz":100,"values":[1e999]}}"#),
+            Want::LineColumn,
+        ),
         json_case("JSON: lone minus", "-", Want::LineColumn),
         json_case("JSON: single quotes", "{'gate': 'g1'}", Want::LineColumn),
         json_case("JSON: comment", "// c\n{}", Want::LineColumn),
-        json_case("JSON: byte order mark", b"\xef\xbb\xbf{}".to_vec(), Want::LineColumn),
-        json_case("JSON: invalid UTF-8 in a string", b"{\"gate\": \"g\xff\"}".to_vec(), Want::LineColumn),
-        json_case("JSON: lone surrogate escape", r#"{"gate": "\ud800"}"#, Want::LineColumn),
-        json_case("JSON: control character in a string", "{\"gate\": \"g\u{1}\"}", Want::LineColumn),
-        json_case("JSON: 10 000 nested arrays", "[".repeat(10_000), Want::LineColumn),
-        json_case("JSON: unterminated string", r#"{"gate": "g1"#, Want::LineColumn),
-        json_case("JSON: syntax error on line 3", "{\n\"gate\": \"g1\",\n,}", Want::Line(3)),
+        json_case(
+            "JSON: byte order mark",
+            b"\xef\xbb\xbf{}".to_vec(),
+            Want::LineColumn,
+        ),
+        json_case(
+            "JSON: invalid UTF-8 in a string",
+            b"{\"gate\": \"g\xff\"}".to_vec(),
+            Want::LineColumn,
+        ),
+        json_case(
+            "JSON: lone surrogate escape",
+            r#"{"gate": "\ud800"}"#,
+            Want::LineColumn,
+        ),
+        json_case(
+            "JSON: control character in a string",
+            "{\"gate\": \"g\u{1}\"}",
+            Want::LineColumn,
+        ),
+        json_case(
+            "JSON: 10 000 nested arrays",
+            "[".repeat(10_000),
+            Want::LineColumn,
+        ),
+        json_case(
+            "JSON: unterminated string",
+            r#"{"gate": "g1"#,
+            Want::LineColumn,
+        ),
+        json_case(
+            "JSON: syntax error on line 3",
+            "{\n\"gate\": \"g1\",\n,}",
+            Want::Line(3),
+        ),
         // empty and wrong top level
         json_case("JSON: empty body", "", Want::LineColumn),
         json_case("JSON: whitespace only", " \n\t ", Want::LineColumn),
@@ -353,81 +402,336 @@ fn json_cases() -> Vec<Case> {
         json_case("JSON: top-level number", "42", Want::Status(400)),
         json_case("JSON: top-level null", "null", Want::Status(400)),
         json_case("JSON: top-level true", "true", Want::Status(400)),
-        json_case("JSON: array item a number", format!("[{}, 5]", good("g1")), Want::Field("[1]")),
+        json_case(
+            "JSON: array item a number",
+            format!("[{}, 5]", good("g1")),
+            Want::Field("[1]"),
+        ),
         json_case("JSON: empty object", "{}", Want::Field("gate")),
         // gate
-        json_case("JSON: gate a number", good_then("gate", json!(7)), Want::Field("gate")),
-        json_case("JSON: gate null", good_then("gate", Value::Null), Want::Field("gate")),
-        json_case("JSON: gate an array", good_then("gate", json!(["g1"])), Want::Field("gate")),
-        json_case("JSON: gate empty", good_then("gate", json!("")), Want::Field("gate")),
-        json_case("JSON: gate 65 characters", good_then("gate", json!("g".repeat(65))), Want::Field("gate")),
-        json_case("JSON: gate with a slash", good_then("gate", json!("../etc")), Want::Field("gate")),
-        json_case("JSON: gate with unicode", good_then("gate", json!("gäte")), Want::Field("gate")),
-        json_case("JSON: gate with a NUL", good_then("gate", json!("g\u{0}")), Want::Field("gate")),
-        json_case("JSON: gate with RTL override", good_then("gate", json!("g\u{202e}1")), Want::Field("gate")),
-        json_case("JSON: gate with a newline", good_then("gate", json!("g\n1")), Want::Field("gate")),
+        json_case(
+            "JSON: gate a number",
+            good_then("gate", json!(7)),
+            Want::Field("gate"),
+        ),
+        json_case(
+            "JSON: gate null",
+            good_then("gate", Value::Null),
+            Want::Field("gate"),
+        ),
+        json_case(
+            "JSON: gate an array",
+            good_then("gate", json!(["g1"])),
+            Want::Field("gate"),
+        ),
+        json_case(
+            "JSON: gate empty",
+            good_then("gate", json!("")),
+            Want::Field("gate"),
+        ),
+        json_case(
+            "JSON: gate 65 characters",
+            good_then("gate", json!("g".repeat(65))),
+            Want::Field("gate"),
+        ),
+        json_case(
+            "JSON: gate with a slash",
+            good_then("gate", json!("../etc")),
+            Want::Field("gate"),
+        ),
+        json_case(
+            "JSON: gate with unicode",
+            good_then("gate", json!("gäte")),
+            Want::Field("gate"),
+        ),
+        json_case(
+            "JSON: gate with a NUL",
+            good_then("gate", json!("g\u{0}")),
+            Want::Field("gate"),
+        ),
+        json_case(
+            "JSON: gate with RTL override",
+            good_then("gate", json!("g\u{202e}1")),
+            Want::Field("gate"),
+        ),
+        json_case(
+            "JSON: gate with a newline",
+            good_then("gate", json!("g\n1")),
+            Want::Field("gate"),
+        ),
         // start
-        json_case("JSON: start not a time", good_then("start", json!("yesterday")), Want::Field("start")),
-        json_case("JSON: start RFC 3339 without offset", good_then("start", json!("2026-11-23T03:00:00")), Want::Field("start")),
-        json_case("JSON: start RFC 3339 with a numeric offset", good_then("start", json!("2026-11-23T03:00:00+01:00")), Want::Field("start")),
-        json_case("JSON: start date only", good_then("start", json!("2026-11-23")), Want::Field("start")),
-        json_case("JSON: start a boolean", good_then("start", json!(true)), Want::Field("start")),
-        json_case("JSON: start null", good_then("start", Value::Null), Want::Field("start")),
-        json_case("JSON: start an object", good_then("start", json!({"s": 1})), Want::Field("start")),
-        json_case("JSON: start 1e300 (far future)", good_then("start", json!(1e300)), Want::FieldIndex("start", 0)),
-        json_case("JSON: start -1e300", good_then("start", json!(-1e300)), Want::FieldIndex("start", 0)),
-        json_case("JSON: start 0 (1970)", good_then("start", json!(0)), Want::FieldIndex("start", 0)),
-        json_case("JSON: start in 1971", good_then("start", json!("1971-06-01T00:00:00Z")), Want::FieldIndex("start", 0)),
-        json_case("JSON: start in 33658", good_then("start", json!(1.0e12)), Want::FieldIndex("start", 0)),
-        json_case("JSON: start 1e6 s ahead", good_then("start", json!(t + 1e6)), Want::FieldIndex("start", 0)),
-        json_case("JSON: start 2 h behind", good_then("start", json!(t - 7200.0)), Want::FieldIndex("start", 0)),
-        json_case("JSON: start u64::MAX", format!(r#"{{"gate":"g1","start":18446744073709551615,"rate_hz":100,"values":[1]}}"#), Want::FieldIndex("start", 0)),
-        json_case("JSON: start year 99999 string", good_then("start", json!("99999-01-01T00:00:00Z")), Want::Field("start")),
-        json_case("JSON: start a 1 MB-free long string", good_then("start", json!("9".repeat(5000))), Want::Field("start")),
+        json_case(
+            "JSON: start not a time",
+            good_then("start", json!("yesterday")),
+            Want::Field("start"),
+        ),
+        json_case(
+            "JSON: start RFC 3339 without offset",
+            good_then("start", json!("2026-11-23T03:00:00")),
+            Want::Field("start"),
+        ),
+        json_case(
+            "JSON: start RFC 3339 with a numeric offset",
+            good_then("start", json!("2026-11-23T03:00:00+01:00")),
+            Want::Field("start"),
+        ),
+        json_case(
+            "JSON: start date only",
+            good_then("start", json!("2026-11-23")),
+            Want::Field("start"),
+        ),
+        json_case(
+            "JSON: start a boolean",
+            good_then("start", json!(true)),
+            Want::Field("start"),
+        ),
+        json_case(
+            "JSON: start null",
+            good_then("start", Value::Null),
+            Want::Field("start"),
+        ),
+        json_case(
+            "JSON: start an object",
+            good_then("start", json!({"s": 1})),
+            Want::Field("start"),
+        ),
+        json_case(
+            "JSON: start 1e300 (far future)",
+            good_then("start", json!(1e300)),
+            Want::FieldIndex("start", 0),
+        ),
+        json_case(
+            "JSON: start -1e300",
+            good_then("start", json!(-1e300)),
+            Want::FieldIndex("start", 0),
+        ),
+        json_case(
+            "JSON: start 0 (1970)",
+            good_then("start", json!(0)),
+            Want::FieldIndex("start", 0),
+        ),
+        json_case(
+            "JSON: start in 1971",
+            good_then("start", json!("1971-06-01T00:00:00Z")),
+            Want::FieldIndex("start", 0),
+        ),
+        json_case(
+            "JSON: start in 33658",
+            good_then("start", json!(1.0e12)),
+            Want::FieldIndex("start", 0),
+        ),
+        json_case(
+            "JSON: start 1e6 s ahead",
+            good_then("start", json!(t + 1e6)),
+            Want::FieldIndex("start", 0),
+        ),
+        json_case(
+            "JSON: start 2 h behind",
+            good_then("start", json!(t - 7200.0)),
+            Want::FieldIndex("start", 0),
+        ),
+        json_case(
+            "JSON: start u64::MAX",
+            format!(r#"{{"gate":"g1","start":18446744073709551615,"rate_hz":100,"values":[1]}}"#),
+            Want::FieldIndex("start", 0),
+        ),
+        json_case(
+            "JSON: start year 99999 string",
+            good_then("start", json!("99999-01-01T00:00:00Z")),
+            Want::Field("start"),
+        ),
+        json_case(
+            "JSON: start a 1 MB-free long string",
+            good_then("start", json!("9".repeat(5000))),
+            Want::Field("start"),
+        ),
         // rate
-        json_case("JSON: rate_hz 0", good_then("rate_hz", json!(0)), Want::Field("rate_hz")),
-        json_case("JSON: rate_hz negative", good_then("rate_hz", json!(-100)), Want::Field("rate_hz")),
-        json_case("JSON: rate_hz a string", good_then("rate_hz", json!("100")), Want::Field("rate_hz")),
-        json_case("JSON: rate_hz 1e308", good_then("rate_hz", json!(1e308)), Want::Field("rate_hz")),
-        json_case("JSON: rate_hz 2 % off", good_then("rate_hz", json!(102)), Want::Field("rate_hz")),
-        json_case("JSON: rate_hz tiny (5e-324)", good_then("rate_hz", json!(5e-324)), Want::Status(400)),
+        json_case(
+            "JSON: rate_hz 0",
+            good_then("rate_hz", json!(0)),
+            Want::Field("rate_hz"),
+        ),
+        json_case(
+            "JSON: rate_hz negative",
+            good_then("rate_hz", json!(-100)),
+            Want::Field("rate_hz"),
+        ),
+        json_case(
+            "JSON: rate_hz a string",
+            good_then("rate_hz", json!("100")),
+            Want::Field("rate_hz"),
+        ),
+        json_case(
+            "JSON: rate_hz 1e308",
+            good_then("rate_hz", json!(1e308)),
+            Want::Field("rate_hz"),
+        ),
+        json_case(
+            "JSON: rate_hz 2 % off",
+            good_then("rate_hz", json!(102)),
+            Want::Field("rate_hz"),
+        ),
+        json_case(
+            "JSON: rate_hz tiny (5e-324)",
+            good_then("rate_hz", json!(5e-324)),
+            Want::Status(400),
+        ),
         // values
-        json_case("JSON: values not an array", good_then("values", json!(1.0)), Want::Field("values")),
-        json_case("JSON: values empty", good_then("values", json!([])), Want::Field("values")),
-        json_case("JSON: values with a string", good_then("values", json!([1, "x", 3])), Want::FieldIndex("values", 1)),
-        json_case("JSON: values with null", good_then("values", json!([1, null])), Want::FieldIndex("values", 1)),
-        json_case("JSON: values with a boolean", good_then("values", json!([true])), Want::FieldIndex("values", 0)),
-        json_case("JSON: values nested", good_then("values", json!([[1]])), Want::FieldIndex("values", 0)),
-        json_case("JSON: values an object", good_then("values", json!({"0": 1})), Want::Field("values")),
+        json_case(
+            "JSON: values not an array",
+            good_then("values", json!(1.0)),
+            Want::Field("values"),
+        ),
+        json_case(
+            "JSON: values empty",
+            good_then("values", json!([])),
+            Want::Field("values"),
+        ),
+        json_case(
+            "JSON: values with a string",
+            good_then("values", json!([1, "x", 3])),
+            Want::FieldIndex("values", 1),
+        ),
+        json_case(
+            "JSON: values with null",
+            good_then("values", json!([1, null])),
+            Want::FieldIndex("values", 1),
+        ),
+        json_case(
+            "JSON: values with a boolean",
+            good_then("values", json!([true])),
+            Want::FieldIndex("values", 0),
+        ),
+        json_case(
+            "JSON: values nested",
+            good_then("values", json!([[1]])),
+            Want::FieldIndex("values", 0),
+        ),
+        json_case(
+            "JSON: values an object",
+            good_then("values", json!({"0": 1})),
+            Want::Field("values"),
+        ),
         // samples
-        json_case("JSON: samples pair of three", s(json!({"gate": "g1", "samples": [[t, 1, 2]]})), Want::FieldIndex("samples", 0)),
-        json_case("JSON: samples pair of one", s(json!({"gate": "g1", "samples": [[t]]})), Want::FieldIndex("samples", 0)),
-        json_case("JSON: samples not an array", s(json!({"gate": "g1", "samples": 5})), Want::Field("samples")),
-        json_case("JSON: samples empty", s(json!({"gate": "g1", "samples": []})), Want::Field("samples")),
-        json_case("JSON: samples time a string", s(json!({"gate": "g1", "samples": [["now", 1]]})), Want::FieldIndex("samples", 0)),
-        json_case("JSON: samples time far future", s(json!({"gate": "g1", "samples": [[t, 1], [t + 1e6, 1]]})), Want::FieldIndex("samples", 1)),
-        json_case("JSON: samples time 1970", s(json!({"gate": "g1", "samples": [[1.0, 1]]})), Want::FieldIndex("samples", 0)),
-        json_case("JSON: samples with start", s(json!({"gate": "g1", "start": t, "samples": [[t, 1]]})), Want::Field("start")),
-        json_case("JSON: values and samples", s(json!({"gate": "g1", "values": [1], "samples": [[t, 1]]})), Want::Field("samples")),
-        json_case("JSON: samples spacing implies 50 Hz", s(json!({"gate": "g1", "samples": [[t, 1], [t + 0.02, 1], [t + 0.04, 1]]})), Want::Field("samples")),
+        json_case(
+            "JSON: samples pair of three",
+            s(json!({"gate": "g1", "samples": [[t, 1, 2]]})),
+            Want::FieldIndex("samples", 0),
+        ),
+        json_case(
+            "JSON: samples pair of one",
+            s(json!({"gate": "g1", "samples": [[t]]})),
+            Want::FieldIndex("samples", 0),
+        ),
+        json_case(
+            "JSON: samples not an array",
+            s(json!({"gate": "g1", "samples": 5})),
+            Want::Field("samples"),
+        ),
+        json_case(
+            "JSON: samples empty",
+            s(json!({"gate": "g1", "samples": []})),
+            Want::Field("samples"),
+        ),
+        json_case(
+            "JSON: samples time a string",
+            s(json!({"gate": "g1", "samples": [["now", 1]]})),
+            Want::FieldIndex("samples", 0),
+        ),
+        json_case(
+            "JSON: samples time far future",
+            s(json!({"gate": "g1", "samples": [[t, 1], [t + 1e6, 1]]})),
+            Want::FieldIndex("samples", 1),
+        ),
+        json_case(
+            "JSON: samples time 1970",
+            s(json!({"gate": "g1", "samples": [[1.0, 1]]})),
+            Want::FieldIndex("samples", 0),
+        ),
+        json_case(
+            "JSON: samples with start",
+            s(json!({"gate": "g1", "start": t, "samples": [[t, 1]]})),
+            Want::Field("start"),
+        ),
+        json_case(
+            "JSON: values and samples",
+            s(json!({"gate": "g1", "values": [1], "samples": [[t, 1]]})),
+            Want::Field("samples"),
+        ),
+        json_case(
+            "JSON: samples spacing implies 50 Hz",
+            s(json!({"gate": "g1", "samples": [[t, 1], [t + 0.02, 1], [t + 0.04, 1]]})),
+            Want::Field("samples"),
+        ),
         // fields
-        json_case("JSON: missing gate", s(json!({"start": t, "rate_hz": 100, "values": [1]})), Want::Field("gate")),
-        json_case("JSON: missing start", s(json!({"gate": "g1", "rate_hz": 100, "values": [1]})), Want::Field("start")),
-        json_case("JSON: missing rate_hz", s(json!({"gate": "g1", "start": t, "values": [1]})), Want::Field("rate_hz")),
-        json_case("JSON: missing values", s(json!({"gate": "g1", "start": t, "rate_hz": 100})), Want::Field("values")),
-        json_case("JSON: unknown member", good_then("colour", json!(1)), Want::Field("colour")),
-        json_case("JSON: unknown unicode member", good_then("gäte", json!(1)), Want::Field("gäte")),
-        json_case("JSON: duplicate gate key", format!(r#"{{"gate":"g1","start":{t},"rate_hz":100,"values":[1],"gate":"g2"}}"#), Want::Field("gate")),
-        json_case("JSON: duplicate values key", format!(r#"{{"gate":"g1","start":{t},"rate_hz":100,"values":[1],"values":[2]}}"#), Want::Field("values")),
-        json_case("JSON: duplicate key in the 2nd batch", format!(r#"[{},{{"gate":"g1","gate":"g1"}}]"#, good("g1")), Want::Field("gate")),
-        json_case("JSON: 2nd batch bad, nothing applied", s(json!([good("g1"), {"gate": "g2", "start": t, "rate_hz": 100, "values": [1, "x"]}])), Want::FieldIndex("[1].values", 1)),
-        json_case("JSON: 2nd batch wrong rate", s(json!([good("g1"), {"gate": "g2", "start": t, "rate_hz": 200, "values": [1]}])), Want::Field("[1].rate_hz")),
-        json_case("JSON: 2nd batch in the future", s(json!([good("g1"), {"gate": "g2", "start": t + 1e6, "rate_hz": 100, "values": [1]}])), Want::FieldIndex("[1].start", 0)),
+        json_case(
+            "JSON: missing gate",
+            s(json!({"start": t, "rate_hz": 100, "values": [1]})),
+            Want::Field("gate"),
+        ),
+        json_case(
+            "JSON: missing start",
+            s(json!({"gate": "g1", "rate_hz": 100, "values": [1]})),
+            Want::Field("start"),
+        ),
+        json_case(
+            "JSON: missing rate_hz",
+            s(json!({"gate": "g1", "start": t, "values": [1]})),
+            Want::Field("rate_hz"),
+        ),
+        json_case(
+            "JSON: missing values",
+            s(json!({"gate": "g1", "start": t, "rate_hz": 100})),
+            Want::Field("values"),
+        ),
+        json_case(
+            "JSON: unknown member",
+            good_then("colour", json!(1)),
+            Want::Field("colour"),
+        ),
+        json_case(
+            "JSON: unknown unicode member",
+            good_then("gäte", json!(1)),
+            Want::Field("gäte"),
+        ),
+        json_case(
+            "JSON: duplicate gate key",
+            format!(r#"{{"gate":"g1","start":{t},"rate_hz":100,"values":[1],"gate":"g2"}}"#),
+            Want::Field("gate"),
+        ),
+        json_case(
+            "JSON: duplicate values key",
+            format!(r#"{{"gate":"g1","start":{t},"rate_hz":100,"values":[1],"values":[2]}}"#),
+            Want::Field("values"),
+        ),
+        json_case(
+            "JSON: duplicate key in the 2nd batch",
+            format!(r#"[{},{{"gate":"g1","gate":"g1"}}]"#, good("g1")),
+            Want::Field("gate"),
+        ),
+        json_case(
+            "JSON: 2nd batch bad, nothing applied",
+            s(json!([good("g1"), {"gate": "g2", "start": t, "rate_hz": 100, "values": [1, "x"]}])),
+            Want::FieldIndex("[1].values", 1),
+        ),
+        json_case(
+            "JSON: 2nd batch wrong rate",
+            s(json!([good("g1"), {"gate": "g2", "start": t, "rate_hz": 200, "values": [1]}])),
+            Want::Field("[1].rate_hz"),
+        ),
+        json_case(
+            "JSON: 2nd batch in the future",
+            s(json!([good("g1"), {"gate": "g2", "start": t + 1e6, "rate_hz": 100, "values": [1]}])),
+            Want::FieldIndex("[1].start", 0),
+        ),
     ];
     // huge numbers of digits
     c.push(json_case(
         "JSON: a value of 400 digits",
-        format!(r#"{{"gate":"g1","start":{t},"rate_hz":100,"values":[{}]}}"#, "9".repeat(400)),
+        format!(
+            r#"{{"gate":"g1","start":{t},"rate_hz":100,"values":[{}]}}"#,
+            "9".repeat(400)
+        ),
         Want::LineColumn,
     ));
     c
@@ -442,46 +746,223 @@ fn lp_cases() -> Vec<Case> {
     let v2 = "/api/v2/write";
     let v1 = "/write";
     vec![
-        lp_case("LP: missing value field", v2, format!("m,gate=g1 other=1 {ns}"), Want::FieldLine("force", 1)),
-        lp_case("LP: missing gate tag", v2, format!("m force=1 {ns}"), Want::FieldLine("gate", 1)),
-        lp_case("LP: string value", v2, format!("m,gate=g1 force=\"x\" {ns}"), Want::FieldLine("force", 1)),
-        lp_case("LP: boolean value", v2, format!("m,gate=g1 force=true {ns}"), Want::FieldLine("force", 1)),
-        lp_case("LP: bad number", v2, format!("m,gate=g1 force=1.2.3 {ns}"), Want::Line(1)),
-        lp_case("LP: NaN", v2, format!("m,gate=g1 force=NaN {ns}"), Want::Line(1)),
-        lp_case("LP: inf", v2, format!("m,gate=g1 force=inf {ns}"), Want::Line(1)),
-        lp_case("LP: 1e999", v2, format!("m,gate=g1 force=1e999 {ns}"), Want::Line(1)),
-        lp_case("LP: empty field value", v2, format!("m,gate=g1 force= {ns}"), Want::Line(1)),
+        lp_case(
+            "LP: missing value field",
+            v2,
+            format!("m,gate=g1 other=1 {ns}"),
+            Want::FieldLine("force", 1),
+        ),
+        lp_case(
+            "LP: missing gate tag",
+            v2,
+            format!("m force=1 {ns}"),
+            Want::FieldLine("gate", 1),
+        ),
+        lp_case(
+            "LP: string value",
+            v2,
+            format!("m,gate=g1 force=\"x\" {ns}"),
+            Want::FieldLine("force", 1),
+        ),
+        lp_case(
+            "LP: boolean value",
+            v2,
+            format!("m,gate=g1 force=true {ns}"),
+            Want::FieldLine("force", 1),
+        ),
+        lp_case(
+            "LP: bad number",
+            v2,
+            format!("m,gate=g1 force=1.2.3 {ns}"),
+            Want::Line(1),
+        ),
+        lp_case(
+            "LP: NaN",
+            v2,
+            format!("m,gate=g1 force=NaN {ns}"),
+            Want::Line(1),
+        ),
+        lp_case(
+            "LP: inf",
+            v2,
+            format!("m,gate=g1 force=inf {ns}"),
+            Want::Line(1),
+        ),
+        lp_case(
+            "LP: 1e999",
+            v2,
+            format!("m,gate=g1 force=1e999 {ns}"),
+            Want::Line(1),
+        ),
+        lp_case(
+            "LP: empty field value",
+            v2,
+            format!("m,gate=g1 force= {ns}"),
+            Want::Line(1),
+        ),
         lp_case("LP: no fields", v2, "m,gate=g1", Want::Line(1)),
-        lp_case("LP: unterminated string field", v2, "m,gate=g1 note=\"abc", Want::Line(1)),
-        lp_case("LP: timestamp not a number", v2, "m,gate=g1 force=1 yesterday", Want::Line(1)),
-        lp_case("LP: timestamp beyond i64", v2, "m,gate=g1 force=1 99999999999999999999", Want::Line(1)),
-        lp_case("LP: timestamp 1e6 s ahead", v2, format!("m,gate=g1 force=1 {}", ns + 1_000_000_000_000_000), Want::FieldLine("timestamp", 1)),
-        lp_case("LP: timestamp in 1971", v2, "m,gate=g1 force=1 40000000000000000", Want::FieldLine("timestamp", 1)),
-        lp_case("LP: timestamp 0", v2, "m,gate=g1 force=1 0", Want::FieldLine("timestamp", 1)),
-        lp_case("LP: negative timestamp", v2, "m,gate=g1 force=1 -5", Want::FieldLine("timestamp", 1)),
-        lp_case("LP: year 33658 at precision s", &format!("{v2}?precision=s"), "m,gate=g1 force=1 1000000000000", Want::FieldLine("timestamp", 1)),
-        lp_case("LP: future on line 3 of 3", v2, format!("m,gate=g1 force=1 {ns}\nm,gate=g1 force=1 {}\nm,gate=g1 force=1 {}", ns + 10_000_000, ns + (1u64 << 62) as i128), Want::FieldLine("timestamp", 3)),
-        lp_case("LP: NaN on line 2 of 2", v2, format!("m,gate=g1 force=1 {ns}\nm,gate=g1 force=NaN {}", ns + 10_000_000), Want::Line(2)),
-        lp_case("LP: not UTF-8", v2, b"m,gate=g\xff force=1".to_vec(), Want::Status(400)),
+        lp_case(
+            "LP: unterminated string field",
+            v2,
+            "m,gate=g1 note=\"abc",
+            Want::Line(1),
+        ),
+        lp_case(
+            "LP: timestamp not a number",
+            v2,
+            "m,gate=g1 force=1 yesterday",
+            Want::Line(1),
+        ),
+        lp_case(
+            "LP: timestamp beyond i64",
+            v2,
+            "m,gate=g1 force=1 99999999999999999999",
+            Want::Line(1),
+        ),
+        lp_case(
+            "LP: timestamp 1e6 s ahead",
+            v2,
+            format!("m,gate=g1 force=1 {}", ns + 1_000_000_000_000_000),
+            Want::FieldLine("timestamp", 1),
+        ),
+        lp_case(
+            "LP: timestamp in 1971",
+            v2,
+            "m,gate=g1 force=1 40000000000000000",
+            Want::FieldLine("timestamp", 1),
+        ),
+        lp_case(
+            "LP: timestamp 0",
+            v2,
+            "m,gate=g1 force=1 0",
+            Want::FieldLine("timestamp", 1),
+        ),
+        lp_case(
+            "LP: negative timestamp",
+            v2,
+            "m,gate=g1 force=1 -5",
+            Want::FieldLine("timestamp", 1),
+        ),
+        lp_case(
+            "LP: year 33658 at precision s",
+            &format!("{v2}?precision=s"),
+            "m,gate=g1 force=1 1000000000000",
+            Want::FieldLine("timestamp", 1),
+        ),
+        lp_case(
+            "LP: future on line 3 of 3",
+            v2,
+            format!(
+                "m,gate=g1 force=1 {ns}\nm,gate=g1 force=1 {}\nm,gate=g1 force=1 {}",
+                ns + 10_000_000,
+                ns + (1u64 << 62) as i128
+            ),
+            Want::FieldLine("timestamp", 3),
+        ),
+        lp_case(
+            "LP: NaN on line 2 of 2",
+            v2,
+            format!(
+                "m,gate=g1 force=1 {ns}\nm,gate=g1 force=NaN {}",
+                ns + 10_000_000
+            ),
+            Want::Line(2),
+        ),
+        lp_case(
+            "LP: not UTF-8",
+            v2,
+            b"m,gate=g\xff force=1".to_vec(),
+            Want::Status(400),
+        ),
         lp_case("LP: empty body", v2, "", Want::Status(400)),
         lp_case("LP: only a comment", v2, "# nothing\n", Want::Status(400)),
         lp_case("LP: only blank lines", v2, "\n\n\n", Want::Status(400)),
-        lp_case("LP: invalid gate id", v2, format!("m,gate=a/b force=1 {ns}"), Want::FieldLine("gate", 1)),
-        lp_case("LP: gate id with unicode", v2, format!("m,gate=gäte force=1 {ns}"), Want::FieldLine("gate", 1)),
+        lp_case(
+            "LP: invalid gate id",
+            v2,
+            format!("m,gate=a/b force=1 {ns}"),
+            Want::FieldLine("gate", 1),
+        ),
+        lp_case(
+            "LP: gate id with unicode",
+            v2,
+            format!("m,gate=gäte force=1 {ns}"),
+            Want::FieldLine("gate", 1),
+        ),
         lp_case("LP: trailing backslash", v2, "m,gate=g1\\", Want::Line(1)),
         lp_case("LP: tag without value", v2, "m,gate force=1", Want::Line(1)),
-        lp_case("LP: space before tags", v2, " ,gate=g1 force=1", Want::Line(1)),
-        lp_case("LP: carriage return inside", v2, "m,gate=g1 force=1\r5", Want::Line(1)),
-        lp_case("LP: integer overflow 99999999999999999999i", v2, "m,gate=g1 force=99999999999999999999i", Want::Line(1)),
-        lp_case("LP: unsigned negative -1u", v2, "m,gate=g1 force=-1u", Want::Line(1)),
-        lp_case("LP: /write precision=d", &format!("{v1}?precision=d"), "m,gate=g1 force=1 1", Want::Field("precision")),
-        lp_case("LP: precision empty", &format!("{v2}?precision="), "m,gate=g1 force=1 1", Want::Field("precision")),
-        lp_case("LP: precision uppercase NS", &format!("{v2}?precision=NS"), "m,gate=g1 force=1 1", Want::Field("precision")),
-        lp_case("LP: precision twice", &format!("{v2}?precision=s&precision=ns"), format!("m,gate=g1 force=1 {ns}"), Want::Field("precision")),
-        lp_case("LP: precision twice (same value)", &format!("{v1}?precision=ns&db=x&precision=ns"), format!("m,gate=g1 force=1 {ns}"), Want::Field("precision")),
-        lp_case("LP: precision percent-encoded twice", &format!("{v2}?precision=s&%70recision=ms"), format!("m,gate=g1 force=1 {ns}"), Want::Field("precision")),
-        lp_case("LP: precision bad percent-encoding", &format!("{v2}?precision=%ZZ"), "m,gate=g1 force=1 1", Want::Field("precision")),
-        lp_case("LP: JSON sent to the line protocol route", v2, good("g1").to_string(), Want::Line(1)),
+        lp_case(
+            "LP: space before tags",
+            v2,
+            " ,gate=g1 force=1",
+            Want::Line(1),
+        ),
+        lp_case(
+            "LP: carriage return inside",
+            v2,
+            "m,gate=g1 force=1\r5",
+            Want::Line(1),
+        ),
+        lp_case(
+            "LP: integer overflow 99999999999999999999i",
+            v2,
+            "m,gate=g1 force=99999999999999999999i",
+            Want::Line(1),
+        ),
+        lp_case(
+            "LP: unsigned negative -1u",
+            v2,
+            "m,gate=g1 force=-1u",
+            Want::Line(1),
+        ),
+        lp_case(
+            "LP: /write precision=d",
+            &format!("{v1}?precision=d"),
+            "m,gate=g1 force=1 1",
+            Want::Field("precision"),
+        ),
+        lp_case(
+            "LP: precision empty",
+            &format!("{v2}?precision="),
+            "m,gate=g1 force=1 1",
+            Want::Field("precision"),
+        ),
+        lp_case(
+            "LP: precision uppercase NS",
+            &format!("{v2}?precision=NS"),
+            "m,gate=g1 force=1 1",
+            Want::Field("precision"),
+        ),
+        lp_case(
+            "LP: precision twice",
+            &format!("{v2}?precision=s&precision=ns"),
+            format!("m,gate=g1 force=1 {ns}"),
+            Want::Field("precision"),
+        ),
+        lp_case(
+            "LP: precision twice (same value)",
+            &format!("{v1}?precision=ns&db=x&precision=ns"),
+            format!("m,gate=g1 force=1 {ns}"),
+            Want::Field("precision"),
+        ),
+        lp_case(
+            "LP: precision percent-encoded twice",
+            &format!("{v2}?precision=s&%70recision=ms"),
+            format!("m,gate=g1 force=1 {ns}"),
+            Want::Field("precision"),
+        ),
+        lp_case(
+            "LP: precision bad percent-encoding",
+            &format!("{v2}?precision=%ZZ"),
+            "m,gate=g1 force=1 1",
+            Want::Field("precision"),
+        ),
+        lp_case(
+            "LP: JSON sent to the line protocol route",
+            v2,
+            good("g1").to_string(),
+            Want::Line(1),
+        ),
     ]
 }
 
@@ -494,7 +975,12 @@ fn http_cases() -> Vec<Case> {
     let big_lines: Vec<u8> = "m,gate=g1 force=1\n".repeat(1 << 20).into_bytes();
     let bomb = gzip(&big_lines);
     let gz_good = gzip(good("g1").to_string().as_bytes());
-    let with = |class: &'static str, method: &str, path: &str, headers: &[(&str, &str)], body: &[u8], want: Want| Case {
+    let with = |class: &'static str,
+                method: &str,
+                path: &str,
+                headers: &[(&str, &str)],
+                body: &[u8],
+                want: Want| Case {
         class,
         raw: raw_request(method, path, headers, body),
         want,
@@ -554,19 +1040,70 @@ fn tcp_cases() -> Vec<(&'static str, String, &'static str)> {
     let ns = now_ns();
     vec![
         ("TCP: garbage", "garbage".into(), "bad_line"),
-        ("TCP: NaN", format!("m,gate=t1 force=NaN {ns}"), "non_finite"),
-        ("TCP: string value", format!("m,gate=t1 force=\"x\" {ns}"), "bad_line"),
-        ("TCP: missing gate tag", format!("m force=1 {ns}"), "bad_line"),
-        ("TCP: invalid gate id", format!("m,gate=a/b force=1 {ns}"), "bad_line"),
-        ("TCP: timestamp beyond i64", "m,gate=t1 force=1 99999999999999999999".into(), "bad_line"),
-        ("TCP: far future", format!("m,gate=t1 force=1 {}", ns + 1_000_000_000_000_000), "too_far_in_future"),
-        ("TCP: year 2200 (the last years i64 nanoseconds reach)", "m,gate=t1 force=1 7258118400000000000".into(), "too_far_in_future"),
-        ("TCP: year 33658 (beyond i64 nanoseconds)", format!("m,gate=t1 force=1 {}", 1_000_000_000_000i128 * 1_000_000_000), "bad_line"),
-        ("TCP: year 1971", "m,gate=t1 force=1 40000000000000000".into(), "too_old"),
+        (
+            "TCP: NaN",
+            format!("m,gate=t1 force=NaN {ns}"),
+            "non_finite",
+        ),
+        (
+            "TCP: string value",
+            format!("m,gate=t1 force=\"x\" {ns}"),
+            "bad_line",
+        ),
+        (
+            "TCP: missing gate tag",
+            format!("m force=1 {ns}"),
+            "bad_line",
+        ),
+        (
+            "TCP: invalid gate id",
+            format!("m,gate=a/b force=1 {ns}"),
+            "bad_line",
+        ),
+        (
+            "TCP: timestamp beyond i64",
+            "m,gate=t1 force=1 99999999999999999999".into(),
+            "bad_line",
+        ),
+        (
+            "TCP: far future",
+            format!("m,gate=t1 force=1 {}", ns + 1_000_000_000_000_000),
+            "too_far_in_future",
+        ),
+        (
+            "TCP: year 2200 (the last years i64 nanoseconds reach)",
+            "m,gate=t1 force=1 7258118400000000000".into(),
+            "too_far_in_future",
+        ),
+        (
+            "TCP: year 33658 (beyond i64 nanoseconds)",
+            format!(
+                "m,gate=t1 force=1 {}",
+                1_000_000_000_000i128 * 1_000_000_000
+            ),
+            "bad_line",
+        ),
+        (
+            "TCP: year 1971",
+            "m,gate=t1 force=1 40000000000000000".into(),
+            "too_old",
+        ),
         ("TCP: timestamp 0", "m,gate=t1 force=1 0".into(), "too_old"),
-        ("TCP: over-long line", format!("m,gate=t1 force=1,pad=\"{}\" {ns}", "x".repeat(70_000)), "bad_line"),
-        ("TCP: carriage return and ANSI escape", "m,gate=t1 force=1\r\x1b[2KFAKE".into(), "bad_line"),
-        ("TCP: unicode gate", format!("m,gate=gäte force=1 {ns}"), "bad_line"),
+        (
+            "TCP: over-long line",
+            format!("m,gate=t1 force=1,pad=\"{}\" {ns}", "x".repeat(70_000)),
+            "bad_line",
+        ),
+        (
+            "TCP: carriage return and ANSI escape",
+            "m,gate=t1 force=1\r\x1b[2KFAKE".into(),
+            "bad_line",
+        ),
+        (
+            "TCP: unicode gate",
+            format!("m,gate=gäte force=1 {ns}"),
+            "bad_line",
+        ),
     ]
 }
 
@@ -614,8 +1151,14 @@ fn a_far_future_sample_is_refused_and_does_not_wipe_the_window() {
     assert_eq!(r.status, 204);
     let r = d.post("/api/v1/samples", &[], batch(t0 + 1e6, 1).as_bytes());
     assert_eq!(r.status, 400);
-    assert_eq!((r.json()["field"].clone(), r.json()["index"].clone()), (json!("start"), json!(0)));
-    assert!(r.json()["error"].as_str().unwrap().contains("max_future_seconds"));
+    assert_eq!(
+        (r.json()["field"].clone(), r.json()["index"].clone()),
+        (json!("start"), json!(0))
+    );
+    assert!(r.json()["error"]
+        .as_str()
+        .unwrap()
+        .contains("max_future_seconds"));
     let r = d.post("/api/v1/samples", &[], batch(t0 + 0.5, 50).as_bytes());
     assert_eq!(r.status, 204, "the good samples after it are all taken");
     let w = &d.get_json("/api/v1/gates/w1")["window"];
@@ -632,7 +1175,10 @@ fn a_far_future_sample_is_refused_and_does_not_wipe_the_window() {
     for i in 0..50 {
         text.push_str(&format!("m,gate=w1 force=1 {}\n", ns0 + i * 10_000_000));
     }
-    text.push_str(&format!("m,gate=w1 force=1 {}\n", ns0 + 1_000_000_000_000_000));
+    text.push_str(&format!(
+        "m,gate=w1 force=1 {}\n",
+        ns0 + 1_000_000_000_000_000
+    ));
     for i in 50..100 {
         text.push_str(&format!("m,gate=w1 force=1 {}\n", ns0 + i * 10_000_000));
     }
@@ -659,10 +1205,12 @@ fn dropped_samples_are_reported_not_answered_204() {
     let d = Daemon::start("");
     let t0 = now() - 10.0;
     let batch = |start: f64| {
-        json!({"gate": "d1", "start": start, "rate_hz": 100, "values": [1.0, 2.0, 3.0]})
-            .to_string()
+        json!({"gate": "d1", "start": start, "rate_hz": 100, "values": [1.0, 2.0, 3.0]}).to_string()
     };
-    assert_eq!(d.post("/api/v1/samples", &[], batch(t0).as_bytes()).status, 204);
+    assert_eq!(
+        d.post("/api/v1/samples", &[], batch(t0).as_bytes()).status,
+        204
+    );
     // the same three again: duplicates
     let r = d.post("/api/v1/samples", &[], batch(t0).as_bytes());
     assert_eq!(r.status, 200);
@@ -671,9 +1219,16 @@ fn dropped_samples_are_reported_not_answered_204() {
     assert_eq!(r.json()["dropped"]["out_of_order"], 2);
     // the Influx routes keep 204 (Telegraf needs it) and say so in a header
     let ns = (t0 * 1e9) as i128;
-    let r = d.post("/api/v2/write", &[], format!("m,gate=d1 force=1 {ns}").as_bytes());
+    let r = d.post(
+        "/api/v2/write",
+        &[],
+        format!("m,gate=d1 force=1 {ns}").as_bytes(),
+    );
     assert_eq!(r.status, 204);
-    assert_eq!(r.header("x-gatewatch-dropped"), Some("duplicate=0, out_of_order=1"));
+    assert_eq!(
+        r.header("x-gatewatch-dropped"),
+        Some("duplicate=0, out_of_order=1")
+    );
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -693,7 +1248,12 @@ fn run(args: &[&str], file: &Path) -> (Option<i32>, String) {
     loop {
         if let Some(status) = child.try_wait().unwrap() {
             let mut err = String::new();
-            child.stderr.take().unwrap().read_to_string(&mut err).unwrap();
+            child
+                .stderr
+                .take()
+                .unwrap()
+                .read_to_string(&mut err)
+                .unwrap();
             return (status.code(), err);
         }
         if Instant::now() > deadline {
@@ -710,42 +1270,217 @@ fn run(args: &[&str], file: &Path) -> (Option<i32>, String) {
 fn bad_configs() -> Vec<(&'static str, String, &'static str, Option<usize>)> {
     let c = |name, text: &str, key, line| (name, text.to_string(), key, line);
     vec![
-        c("TOML syntax: unclosed table", "[server]\nmax_gates = 3\n[ingest\n", "line 3", None),
-        c("TOML syntax: missing value", "[server]\nmax_gates =\n", "line 2", None),
-        c("TOML syntax: bare string", "[server]\nlisten = 127.0.0.1\n", "line 2", None),
-        c("TOML duplicate key", "[server]\nmax_gates = 3\nmax_gates = 4\n", "max_gates", Some(3)),
-        c("TOML duplicate table", "[server]\n[log]\n[server]\n", "line 3", None),
-        c("wrong type under defaults", "[defaults]\nrate_hz = \"fast\"\n", "defaults.rate_hz", Some(2)),
-        c("wrong type under defaults.alert", "[defaults.alert]\nfor_windows = \"two\"\n", "defaults.alert.for_windows", Some(2)),
-        c("wrong type: defaults a number", "defaults = 5\n", "defaults", None),
-        c("bad tcp_precision", "[ingest]\ntcp_precision = \"xs\"\n", "ingest.tcp_precision", Some(2)),
-        c("tcp_precision a number", "[ingest]\ntcp_precision = 9\n", "ingest.tcp_precision", Some(2)),
-        c("unknown key in server", "[server]\nlisten_addr = \"x\"\n", "server.listen_addr", Some(2)),
+        c(
+            "TOML syntax: unclosed table",
+            "[server]\nmax_gates = 3\n[ingest\n",
+            "line 3",
+            None,
+        ),
+        c(
+            "TOML syntax: missing value",
+            "[server]\nmax_gates =\n",
+            "line 2",
+            None,
+        ),
+        c(
+            "TOML syntax: bare string",
+            "[server]\nlisten = 127.0.0.1\n",
+            "line 2",
+            None,
+        ),
+        c(
+            "TOML duplicate key",
+            "[server]\nmax_gates = 3\nmax_gates = 4\n",
+            "max_gates",
+            Some(3),
+        ),
+        c(
+            "TOML duplicate table",
+            "[server]\n[log]\n[server]\n",
+            "line 3",
+            None,
+        ),
+        c(
+            "wrong type under defaults",
+            "[defaults]\nrate_hz = \"fast\"\n",
+            "defaults.rate_hz",
+            Some(2),
+        ),
+        c(
+            "wrong type under defaults.alert",
+            "[defaults.alert]\nfor_windows = \"two\"\n",
+            "defaults.alert.for_windows",
+            Some(2),
+        ),
+        c(
+            "wrong type: defaults a number",
+            "defaults = 5\n",
+            "defaults",
+            None,
+        ),
+        c(
+            "bad tcp_precision",
+            "[ingest]\ntcp_precision = \"xs\"\n",
+            "ingest.tcp_precision",
+            Some(2),
+        ),
+        c(
+            "tcp_precision a number",
+            "[ingest]\ntcp_precision = 9\n",
+            "ingest.tcp_precision",
+            Some(2),
+        ),
+        c(
+            "unknown key in server",
+            "[server]\nlisten_addr = \"x\"\n",
+            "server.listen_addr",
+            Some(2),
+        ),
         c("unknown section", "[bogus]\n", "bogus", Some(1)),
-        c("unknown key in a gate", "[gates.g1]\nrte_hz = 1.0\n", "gates.g1.rte_hz", Some(2)),
-        c("bad listen address", "[server]\nlisten = \"nope\"\n", "server.listen", Some(2)),
-        c("bad tcp_listen address", "[server]\ntcp_listen = \"host\"\n", "server.tcp_listen", Some(2)),
-        c("short token", "[server]\nauth_tokens = [\"short\"]\n", "server.auth_tokens", Some(2)),
-        c("max_gates 0", "[server]\nmax_gates = 0\n", "server.max_gates", Some(2)),
-        c("negative usize", "[server]\nmax_gates = -1\n", "server.max_gates", Some(2)),
-        c("request_timeout_seconds 1e300", "[server]\nrequest_timeout_seconds = 1e300\n", "server.request_timeout_seconds", Some(2)),
-        c("shutdown_grace_seconds 1e300", "[server]\nshutdown_grace_seconds = 1e300\n", "server.shutdown_grace_seconds", Some(2)),
-        c("shutdown_grace_seconds nan", "[server]\nshutdown_grace_seconds = nan\n", "server.shutdown_grace_seconds", Some(2)),
-        c("notify timeout 1e300", "[notify]\ntimeout_seconds = 1e300\n", "notify", None),
-        c("stale_after_seconds 1e300", "[defaults.alert]\nstale_after_seconds = 1e300\n", "defaults.alert.stale_after_seconds", Some(2)),
-        c("model unbalanced", "[defaults]\nmodel = \"c1*ydd + ((c2*yd\"\n", "defaults.model", Some(2)),
-        c("model ydd^2", "[defaults]\nmodel = \"ydd^2 + c1*y = 0\"\n", "defaults.model", Some(2)),
-        c("model unknown symbol", "[defaults]\nmodel = \"c1*ydd + c2*yd + q*y = 0\"\n", "defaults.model", Some(2)),
-        c("model without ydd", "[defaults]\nmodel = \"c1*yd + c2*y = 0\"\n", "defaults.model", Some(2)),
-        c("model of one gate", "[gates.g1]\nmodel = \"c1*ydd + \"\n", "gates.g1.model", Some(2)),
-        c("rate_hz 0", "[gates.g1]\nrate_hz = 0.0\n", "gates.g1.rate_hz", Some(2)),
-        c("window too small", "[defaults]\nwindow_seconds = 0.01\n", "defaults.window_seconds", Some(2)),
-        c("max_future_seconds negative", "[defaults]\nmax_future_seconds = -1.0\n", "defaults.max_future_seconds", Some(2)),
-        c("bad gate id", "[gates.\"bad id!\"]\n", "gates.bad id!", None),
-        c("fire_below above clear_above", "[defaults.alert]\nfire_below = 0.1\nclear_above = 0.0\n", "defaults.alert.clear_above", Some(3)),
-        c("webhook URL not http", "[[notify.webhooks]]\nurl = \"ftp://x\"\n", "notify", None),
-        c("log format xml", "[log]\nformat = \"xml\"\n", "log.format", Some(2)),
-        c("listen an integer", "[server]\nlisten = 5\n", "server.listen", Some(2)),
+        c(
+            "unknown key in a gate",
+            "[gates.g1]\nrte_hz = 1.0\n",
+            "gates.g1.rte_hz",
+            Some(2),
+        ),
+        c(
+            "bad listen address",
+            "[server]\nlisten = \"nope\"\n",
+            "server.listen",
+            Some(2),
+        ),
+        c(
+            "bad tcp_listen address",
+            "[server]\ntcp_listen = \"host\"\n",
+            "server.tcp_listen",
+            Some(2),
+        ),
+        c(
+            "short token",
+            "[server]\nauth_tokens = [\"short\"]\n",
+            "server.auth_tokens",
+            Some(2),
+        ),
+        c(
+            "max_gates 0",
+            "[server]\nmax_gates = 0\n",
+            "server.max_gates",
+            Some(2),
+        ),
+        c(
+            "negative usize",
+            "[server]\nmax_gates = -1\n",
+            "server.max_gates",
+            Some(2),
+        ),
+        c(
+            "request_timeout_seconds 1e300",
+            "[server]\nrequest_timeout_seconds = 1e300\n",
+            "server.request_timeout_seconds",
+            Some(2),
+        ),
+        c(
+            "shutdown_grace_seconds 1e300",
+            "[server]\nshutdown_grace_seconds = 1e300\n",
+            "server.shutdown_grace_seconds",
+            Some(2),
+        ),
+        c(
+            "shutdown_grace_seconds nan",
+            "[server]\nshutdown_grace_seconds = nan\n",
+            "server.shutdown_grace_seconds",
+            Some(2),
+        ),
+        c(
+            "notify timeout 1e300",
+            "[notify]\ntimeout_seconds = 1e300\n",
+            "notify",
+            None,
+        ),
+        c(
+            "stale_after_seconds 1e300",
+            "[defaults.alert]\nstale_after_seconds = 1e300\n",
+            "defaults.alert.stale_after_seconds",
+            Some(2),
+        ),
+        c(
+            "model unbalanced",
+            "[defaults]\nmodel = \"c1*ydd + ((c2*yd\"\n",
+            "defaults.model",
+            Some(2),
+        ),
+        c(
+            "model ydd^2",
+            "[defaults]\nmodel = \"ydd^2 + c1*y = 0\"\n",
+            "defaults.model",
+            Some(2),
+        ),
+        c(
+            "model unknown symbol",
+            "[defaults]\nmodel = \"c1*ydd + c2*yd + q*y = 0\"\n",
+            "defaults.model",
+            Some(2),
+        ),
+        c(
+            "model without ydd",
+            "[defaults]\nmodel = \"c1*yd + c2*y = 0\"\n",
+            "defaults.model",
+            Some(2),
+        ),
+        c(
+            "model of one gate",
+            "[gates.g1]\nmodel = \"c1*ydd + \"\n",
+            "gates.g1.model",
+            Some(2),
+        ),
+        c(
+            "rate_hz 0",
+            "[gates.g1]\nrate_hz = 0.0\n",
+            "gates.g1.rate_hz",
+            Some(2),
+        ),
+        c(
+            "window too small",
+            "[defaults]\nwindow_seconds = 0.01\n",
+            "defaults.window_seconds",
+            Some(2),
+        ),
+        c(
+            "max_future_seconds negative",
+            "[defaults]\nmax_future_seconds = -1.0\n",
+            "defaults.max_future_seconds",
+            Some(2),
+        ),
+        c(
+            "bad gate id",
+            "[gates.\"bad id!\"]\n",
+            "gates.bad id!",
+            None,
+        ),
+        c(
+            "fire_below above clear_above",
+            "[defaults.alert]\nfire_below = 0.1\nclear_above = 0.0\n",
+            "defaults.alert.clear_above",
+            Some(3),
+        ),
+        c(
+            "webhook URL not http",
+            "[[notify.webhooks]]\nurl = \"ftp://x\"\n",
+            "notify",
+            None,
+        ),
+        c(
+            "log format xml",
+            "[log]\nformat = \"xml\"\n",
+            "log.format",
+            Some(2),
+        ),
+        c(
+            "listen an integer",
+            "[server]\nlisten = 5\n",
+            "server.listen",
+            Some(2),
+        ),
     ]
 }
 

@@ -136,7 +136,9 @@ fn format_line(l: &Line) -> String {
 fn json_check(body: &[u8]) -> Result<(), TestCaseError> {
     if let Err(e) = json::parse(body) {
         prop_assert!(
-            e.field.is_some() || (e.line.is_some() && e.column.is_some()) || body_shape_error(&e.error),
+            e.field.is_some()
+                || (e.line.is_some() && e.column.is_some())
+                || body_shape_error(&e.error),
             "{:?}: {e:?}",
             String::from_utf8_lossy(body)
         );
@@ -155,7 +157,9 @@ fn json_value() -> impl Strategy<Value = String> {
     let leaf = prop_oneof![
         Just("null".to_string()),
         Just("true".to_string()),
-        any::<f64>().prop_filter("finite", |x| x.is_finite()).prop_map(|x| format!("{x:?}")),
+        any::<f64>()
+            .prop_filter("finite", |x| x.is_finite())
+            .prop_map(|x| format!("{x:?}")),
         any::<i64>().prop_map(|x| x.to_string()),
         Just("1e999".to_string()),
         Just("18446744073709551616".to_string()),
@@ -174,10 +178,13 @@ fn json_value() -> impl Strategy<Value = String> {
             Just("x"),
         ];
         prop_oneof![
-            proptest::collection::vec(inner.clone(), 0..6).prop_map(|v| format!("[{}]", v.join(","))),
+            proptest::collection::vec(inner.clone(), 0..6)
+                .prop_map(|v| format!("[{}]", v.join(","))),
             proptest::collection::vec((key, inner), 0..6).prop_map(|kv| {
-                let members: Vec<String> =
-                    kv.into_iter().map(|(k, v)| format!("\"{k}\":{v}")).collect();
+                let members: Vec<String> = kv
+                    .into_iter()
+                    .map(|(k, v)| format!("\"{k}\":{v}"))
+                    .collect();
                 format!("{{{}}}", members.join(","))
             }),
         ]

@@ -22,8 +22,8 @@ use tower::ServiceBuilder;
 use super::clock::now_unix;
 use super::config::{Precision, DEFAULT_RETRY_AFTER_SECONDS};
 use super::ingest::{json, line_protocol, BadRequest};
-use super::metrics::RejectReason;
 use super::ingest_checks::single_param;
+use super::metrics::RejectReason;
 use super::state::{AppState, IngestError, IngestSummary};
 
 /// The one error type of the HTTP API: 4xx precise, 5xx generic (detail logged).
@@ -205,7 +205,8 @@ fn accepted(summary: IngestSummary, influx: bool) -> Response {
 }
 
 /// The header of a 204 from an Influx route that dropped samples: `duplicate=N, out_of_order=M`.
-pub const DROPPED_HEADER: header::HeaderName = header::HeaderName::from_static("x-gatewatch-dropped");
+pub const DROPPED_HEADER: header::HeaderName =
+    header::HeaderName::from_static("x-gatewatch-dropped");
 
 async fn post_write(
     State(state): State<Arc<AppState>>,

@@ -547,7 +547,9 @@ impl Config {
     }
 
     fn from_toml_unlocated(text: &str) -> Result<Config, ConfigError> {
-        let mut doc: toml::Table = text.parse::<toml::Table>().map_err(|e| toml_error(text, e))?;
+        let mut doc: toml::Table = text
+            .parse::<toml::Table>()
+            .map_err(|e| toml_error(text, e))?;
         let defaults = match doc.remove("defaults") {
             None => toml::Table::new(),
             Some(toml::Value::Table(t)) => t,
@@ -719,7 +721,10 @@ impl Config {
         }
         for (key, v) in [
             ("timeout_seconds", self.notify.timeout_seconds),
-            ("resend_interval_seconds", self.notify.resend_interval_seconds),
+            (
+                "resend_interval_seconds",
+                self.notify.resend_interval_seconds,
+            ),
         ] {
             if v > MAX_SECONDS {
                 return Err(ConfigError::new(format!(

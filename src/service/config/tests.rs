@@ -129,7 +129,10 @@ fn the_four_toml_errors_name_key_and_line() {
     assert!(e.contains("rate_hz") && e.ends_with(", line 3"), "{e}");
     // tcp_precision
     let e = err("[ingest]\ngate_tag = \"gate\"\ntcp_precision = \"xs\"\n");
-    assert!(e.starts_with("ingest.tcp_precision: unknown variant `xs`"), "{e}");
+    assert!(
+        e.starts_with("ingest.tcp_precision: unknown variant `xs`"),
+        "{e}"
+    );
     assert!(e.ends_with(", line 3"), "{e}");
 }
 
@@ -152,19 +155,46 @@ fn models_are_compiled_as_serve_compiles_them() {
 #[test]
 fn durations_are_bounded_not_panicking() {
     for (text, key) in [
-        ("[server]\nrequest_timeout_seconds = 1e300\n", "server.request_timeout_seconds"),
-        ("[server]\nshutdown_grace_seconds = 1e300\n", "server.shutdown_grace_seconds"),
-        ("[server]\nshutdown_grace_seconds = inf\n", "server.shutdown_grace_seconds"),
+        (
+            "[server]\nrequest_timeout_seconds = 1e300\n",
+            "server.request_timeout_seconds",
+        ),
+        (
+            "[server]\nshutdown_grace_seconds = 1e300\n",
+            "server.shutdown_grace_seconds",
+        ),
+        (
+            "[server]\nshutdown_grace_seconds = inf\n",
+            "server.shutdown_grace_seconds",
+        ),
         ("[notify]\ntimeout_seconds = 1e300\n", "notify"),
-        ("[notify]\nresend_interval_seconds = 1e300\n", "notify.resend_interval_seconds"),
-        ("[defaults.alert]\nstale_after_seconds = 1e300\n", "defaults.alert.stale_after_seconds"),
-        ("[defaults]\nidentify_every_seconds = 1e300\n", "defaults.identify_every_seconds"),
-        ("[defaults]\nmax_future_seconds = -1\n", "defaults.max_future_seconds"),
-        ("[defaults]\nmax_past_seconds = 1e300\n", "defaults.max_past_seconds"),
+        (
+            "[notify]\nresend_interval_seconds = 1e300\n",
+            "notify.resend_interval_seconds",
+        ),
+        (
+            "[defaults.alert]\nstale_after_seconds = 1e300\n",
+            "defaults.alert.stale_after_seconds",
+        ),
+        (
+            "[defaults]\nidentify_every_seconds = 1e300\n",
+            "defaults.identify_every_seconds",
+        ),
+        (
+            "[defaults]\nmax_future_seconds = -1\n",
+            "defaults.max_future_seconds",
+        ),
+        (
+            "[defaults]\nmax_past_seconds = 1e300\n",
+            "defaults.max_past_seconds",
+        ),
     ] {
         let e = err(text);
         assert!(e.starts_with(key), "{text}: {e}");
     }
     // the bound itself is accepted
-    Config::from_toml(&format!("[server]\nrequest_timeout_seconds = {MAX_SECONDS}\n")).unwrap();
+    Config::from_toml(&format!(
+        "[server]\nrequest_timeout_seconds = {MAX_SECONDS}\n"
+    ))
+    .unwrap();
 }
