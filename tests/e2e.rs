@@ -305,7 +305,7 @@ async fn onset_fires_negative_damping_and_recovery_resolves_it() {
     let d = daemon(
         hook.addr,
         &format!(
-            "[defaults]\nrate_hz = 200.0\nwindow_seconds = {window}\nidentify_every_seconds = {every}\n\
+            "[defaults]\nrate_hz = 200.0\nmax_past_seconds = 0.0\nwindow_seconds = {window}\nidentify_every_seconds = {every}\n\
              [defaults.alert]\nstale_after_seconds = 600.0\n"
         ),
     )
@@ -373,7 +373,7 @@ async fn stable_gate_for_30_minutes_fires_nothing() {
     let d = daemon(
         hook.addr,
         &format!(
-            "[defaults]\nrate_hz = 100.0\nwindow_seconds = {window}\nidentify_every_seconds = {every}\n\
+            "[defaults]\nrate_hz = 100.0\nmax_past_seconds = 0.0\nwindow_seconds = {window}\nidentify_every_seconds = {every}\n\
              [defaults.alert]\nstale_after_seconds = 600.0\n"
         ),
     )
@@ -415,7 +415,7 @@ async fn a_stopped_stream_fires_data_stale_and_new_data_resolves_it() {
     let mut hook = hook().await;
     let d = daemon(
         hook.addr,
-        "[defaults]\nrate_hz = 200.0\n[defaults.alert]\nstale_after_seconds = 1.0\n",
+        "[defaults]\nrate_hz = 200.0\nmax_past_seconds = 0.0\n[defaults.alert]\nstale_after_seconds = 1.0\n",
     )
     .await;
     let mut sim = GateSimulator::scenario(

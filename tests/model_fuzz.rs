@@ -3,6 +3,8 @@
 //! ASCII strings, and random sequences of the language's own tokens, which reach far deeper
 //! into the parser than random characters do.
 
+mod fuzz_common;
+
 use gatewatch::model::{Model, ModelError};
 use proptest::prelude::*;
 
@@ -93,4 +95,18 @@ fn pathological_inputs_never_panic() {
         let _ = check(eq);
     }
     assert!(check(&format!("ydd{} = 0", " + y".repeat(200_000))).is_ok());
+}
+
+/// The long run (see `tests/fuzz_common`): token sequences, the strategy that reaches deepest.
+#[test]
+#[ignore = "long fuzz run: FUZZ_SECONDS (600) per target"]
+fn fuzz_long_model() {
+    let strategy = proptest::collection::vec(0..TOKENS.len(), 0..60);
+    fuzz_common::long_run("model language", strategy, |idx| {
+        let eq: String = idx.iter().map(|&i| TOKENS[i]).collect::<Vec<_>>().join(" ");
+        let _ = check(&eq);
+        let tight: String = idx.iter().map(|&i| TOKENS[i]).collect();
+        let _ = check(&tight);
+        Ok(())
+    });
 }

@@ -175,7 +175,8 @@ async fn a_day_of_samples_keeps_the_reported_times_true() {
     const RATE: f64 = 200.0;
     let cfg = Config::from_toml(
         "[server]\nworker_threads = 1\nlisten = \"127.0.0.1:0\"\n\
-         [defaults]\nrate_hz = 200.0\nwindow_seconds = 1.0\nidentify_every_seconds = 3600.0\n",
+         [defaults]\nrate_hz = 200.0\nwindow_seconds = 1.0\nidentify_every_seconds = 3600.0\n\
+         max_past_seconds = 0.0\nmax_future_seconds = 0.0\n",
     )
     .unwrap();
     let fake = Arc::new(Fake::default());

@@ -10,7 +10,7 @@ use std::time::{Duration, Instant};
 use axum::body::Bytes;
 use axum::error_handling::HandleErrorLayer;
 use axum::extract::rejection::BytesRejection;
-use axum::extract::{DefaultBodyLimit, MatchedPath, Path, Query, Request, State};
+use axum::extract::{DefaultBodyLimit, MatchedPath, Path, RawQuery, Request, State};
 use axum::http::{header, HeaderValue, StatusCode};
 use axum::middleware::{self, Next};
 use axum::response::{IntoResponse, Response};
@@ -22,8 +22,9 @@ use tower::ServiceBuilder;
 use super::clock::now_unix;
 use super::config::{Precision, DEFAULT_RETRY_AFTER_SECONDS};
 use super::ingest::{json, line_protocol, BadRequest};
+use super::ingest_checks::single_param;
 use super::metrics::RejectReason;
-use super::state::{AppState, IngestError};
+use super::state::{AppState, IngestError, IngestSummary};
 
 /// The one error type of the HTTP API: 4xx precise, 5xx generic (detail logged).
 #[derive(Debug)]
@@ -136,8 +137,8 @@ fn invalid(state: &AppState, e: BadRequest) -> HttpError {
 /// blocking pool, off the async runtime's threads; their number is bounded by
 /// `server.max_concurrent_ingest`.
 async fn blocking(
-    f: impl FnOnce() -> Result<StatusCode, HttpError> + Send + 'static,
-) -> Result<StatusCode, HttpError> {
+    f: impl FnOnce() -> Result<Response, HttpError> + Send + 'static,
+) -> Result<Response, HttpError> {
     tokio::task::spawn_blocking(f)
         .await
         .unwrap_or_else(|e| Err(HttpError::Internal(format!("ingestion task failed: {e}"))))
@@ -162,24 +163,60 @@ async fn ingest_limit(State(state): State<Arc<AppState>>, req: Request, next: Ne
 async fn post_samples(
     State(state): State<Arc<AppState>>,
     b: Result<Bytes, BytesRejection>,
-) -> Result<StatusCode, HttpError> {
+) -> Result<Response, HttpError> {
     let bytes = body(&state, b)?;
     blocking(move || {
         let batches = json::parse(&bytes).map_err(|e| invalid(&state, e))?;
-        state.ingest(batches)?;
-        Ok(StatusCode::NO_CONTENT)
+        let summary = state.ingest(batches)?;
+        Ok(accepted(summary, false))
     })
     .await
 }
 
+/// The answer to an applied request. 204 only when every sample went into its window; samples
+/// dropped as duplicates or out of order are said so: gatewatch's own route answers 200 with
+/// the counts, the Influx routes (`influx = true`) keep 204, which Telegraf's InfluxDB outputs
+/// require (any other 2xx is an error to them, and they would resend the batch), and carry the
+/// counts in `X-Gatewatch-Dropped`.
+fn accepted(summary: IngestSummary, influx: bool) -> Response {
+    let dropped = summary.duplicate + summary.out_of_order;
+    if dropped == 0 {
+        return StatusCode::NO_CONTENT.into_response();
+    }
+    if influx {
+        let counts = format!(
+            "duplicate={}, out_of_order={}",
+            summary.duplicate, summary.out_of_order
+        );
+        let mut r = StatusCode::NO_CONTENT.into_response();
+        if let Ok(v) = HeaderValue::from_str(&counts) {
+            r.headers_mut().insert(DROPPED_HEADER, v);
+        }
+        return r;
+    }
+    (
+        StatusCode::OK,
+        Json(serde_json::json!({
+            "accepted": summary.accepted,
+            "dropped": { "duplicate": summary.duplicate, "out_of_order": summary.out_of_order },
+        })),
+    )
+        .into_response()
+}
+
+/// The header of a 204 from an Influx route that dropped samples: `duplicate=N, out_of_order=M`.
+pub const DROPPED_HEADER: header::HeaderName =
+    header::HeaderName::from_static("x-gatewatch-dropped");
+
 async fn post_write(
     State(state): State<Arc<AppState>>,
-    Query(params): Query<std::collections::HashMap<String, String>>,
+    RawQuery(query): RawQuery,
     b: Result<Bytes, BytesRejection>,
-) -> Result<StatusCode, HttpError> {
+) -> Result<Response, HttpError> {
     // other InfluxDB parameters (db, org, bucket, rp) are accepted and ignored; `m` and `h`
-    // are InfluxDB 1.x precisions (2.x has only ns, us, ms, s)
-    let precision = match params.get("precision").map(String::as_str) {
+    // are InfluxDB 1.x precisions (2.x has only ns, us, ms, s); `precision` twice is a 400
+    let precision = single_param(query.as_deref(), "precision").map_err(HttpError::BadRequest)?;
+    let precision = match precision.as_deref() {
         None => Precision::Ns,
         Some(s) => Precision::parse(s).ok_or_else(|| {
             HttpError::BadRequest(
@@ -207,8 +244,8 @@ async fn post_write(
             },
         )
         .map_err(|e| invalid(&state, e))?;
-        state.ingest(batches)?;
-        Ok(StatusCode::NO_CONTENT)
+        let summary = state.ingest(batches)?;
+        Ok(accepted(summary, true))
     })
     .await
 }

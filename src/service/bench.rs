@@ -161,7 +161,9 @@ async fn ingest_rate(args: &BenchDaemonArgs, proto: Proto) -> anyhow::Result<f64
     let rate = 200.0;
     let r = start(
         "[server]\nworker_threads = 1\nmax_concurrent_ingest = 64\n\
-         [defaults]\nrate_hz = 200.0\n",
+         [defaults]\nrate_hz = 200.0\n\
+         # synthetic times run ahead of the clock at full speed: no time bounds\n\
+         max_future_seconds = 0.0\nmax_past_seconds = 0.0\n",
         Arc::new(Trivial),
     )
     .await?;
@@ -284,7 +286,9 @@ async fn capacity_run(
     worker_threads: usize,
 ) -> anyhow::Result<(f64, f64, f64, f64)> {
     let text = format!(
-        "[server]\nworker_threads = {worker_threads}\nmax_gates = {}\n",
+        "[server]\nworker_threads = {worker_threads}\nmax_gates = {}\n\
+         [defaults]\n# replayed synthetic times: no time bounds\nmax_past_seconds = 0.0\n\
+         max_future_seconds = 0.0\n",
         gates.max(1)
     );
     let analyzer: Arc<dyn WindowAnalyzer> =

@@ -95,9 +95,15 @@ pub fn serve(args: ServeArgs) -> ExitCode {
     }
 }
 
-/// `gatewatch check-config FILE`: exit 0 when valid, 2 with a one-line message naming the key.
+/// `gatewatch check-config FILE`: exit 0 when valid, 2 with a one-line message naming the key
+/// (and its line when the file has it).
+///
+/// It runs exactly what `serve` runs before binding its listeners, [`load_config`]: the file,
+/// the `GATEWATCH_*` environment overrides, every validation (the models are compiled, every
+/// duration is bounded). The systemd unit runs it as `ExecStartPre` with the same environment,
+/// so a config it passes does not make `serve` fail at start-up.
 pub fn check_config(args: CheckConfigArgs) -> ExitCode {
-    match Config::from_file(&args.file) {
+    match load_config(Some(&args.file)) {
         Ok(config) => {
             for w in config.warnings() {
                 eprintln!("{}: warning: {w}", args.file.display());

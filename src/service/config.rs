@@ -11,7 +11,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::alert::notify::NotifyConfig;
 use crate::alert::AlertRules;
-use crate::analysis::{AnalysisSettings, Signal};
+use crate::analysis::{AnalysisError, AnalysisSettings, Analyzer, Signal};
 
 /// The embedded default configuration (the documented example), used by `serve` without
 /// `--config` and by the demo.
@@ -43,6 +43,16 @@ pub const DEFAULT_RETRY_AFTER_SECONDS: u64 = 1;
 pub const MAX_WINDOW_SAMPLES: usize = 10_000_000;
 /// Alertmanager's default `resolve_timeout` (5 min): an alert not re-sent within it is resolved.
 pub const ALERTMANAGER_RESOLVE_TIMEOUT_SECONDS: f64 = 300.0;
+/// Default bound on how far ahead of the daemon's clock a sample may be: 10 min, as Mimir's
+/// `creation_grace_period`; clocks synchronised by NTP are within milliseconds.
+pub const DEFAULT_MAX_FUTURE_SECONDS: f64 = 600.0;
+/// Default bound on how far behind the daemon's clock a sample may be: 1 h. A monitor acts on
+/// live data; older samples are a replay or a broken clock (year 1971).
+pub const DEFAULT_MAX_PAST_SECONDS: f64 = 3600.0;
+/// Largest value of any setting in seconds (one year). `Duration::from_secs_f64` panics on
+/// values past `u64::MAX` seconds and deadlines far past the clock's range overflow; a year is
+/// far beyond any sensible timeout, grace period or window.
+pub const MAX_SECONDS: f64 = 365.0 * 86_400.0;
 /// Default equation of motion: van der Pol-like damping, known installed stiffness `k`.
 pub const DEFAULT_MODEL: &str = "c1*ydd + (c2 + c3*yd^2)*yd + k*y = 0";
 
@@ -274,6 +284,12 @@ pub struct GateConfig {
     pub window_seconds: f64,
     /// Identification cadence, seconds of new sample time.
     pub identify_every_seconds: f64,
+    /// Samples more than this many seconds ahead of the daemon's clock refuse their request
+    /// (400); 0: no bound. See `service::ingest_checks` for why.
+    pub max_future_seconds: f64,
+    /// Samples more than this many seconds behind the daemon's clock refuse their request
+    /// (400); 0: no bound (replaying recorded data).
+    pub max_past_seconds: f64,
     /// Alert rules.
     pub alert: AlertRules,
 }
@@ -292,6 +308,8 @@ impl Default for GateConfig {
             max_fit_nmae: 0.2,
             window_seconds: 10.0,
             identify_every_seconds: 5.0,
+            max_future_seconds: DEFAULT_MAX_FUTURE_SECONDS,
+            max_past_seconds: DEFAULT_MAX_PAST_SECONDS,
             alert: AlertRules::default(),
         }
     }
@@ -381,6 +399,23 @@ impl GateConfig {
         if !(self.identify_every_seconds.is_finite() && self.identify_every_seconds > 0.0) {
             return err("identify_every_seconds", "must be > 0");
         }
+        for (key, v) in [
+            ("max_future_seconds", self.max_future_seconds),
+            ("max_past_seconds", self.max_past_seconds),
+        ] {
+            if !(v.is_finite() && (0.0..=MAX_SECONDS).contains(&v)) {
+                return err(key, &format!("must be in 0..={MAX_SECONDS} (0: no bound)"));
+            }
+        }
+        for (key, v) in [
+            ("window_seconds", self.window_seconds),
+            ("identify_every_seconds", self.identify_every_seconds),
+            ("alert.stale_after_seconds", self.alert.stale_after_seconds),
+        ] {
+            if v > MAX_SECONDS {
+                return err(key, &format!("must be <= {MAX_SECONDS} (one year)"));
+            }
+        }
         let a = &self.alert;
         if !a.fire_below.is_finite() {
             return err("alert.fire_below", "must be a finite number");
@@ -396,6 +431,16 @@ impl GateConfig {
         }
         if !(a.stale_after_seconds.is_finite() && a.stale_after_seconds > 0.0) {
             return err("alert.stale_after_seconds", "must be > 0");
+        }
+        // the model is compiled here as `serve` compiles it, so `check-config` refuses what
+        // `serve` would refuse (a model that does not parse, has no `ydd` or no unknowns)
+        if let Err(e) = Analyzer::new(self.analysis_settings()) {
+            let msg = match e {
+                AnalysisError::Settings(m) => m,
+                other => other.to_string(),
+            };
+            let msg = msg.strip_prefix("model: ").unwrap_or(&msg).to_string();
+            return err("model", &msg);
         }
         Ok(())
     }
@@ -417,12 +462,49 @@ impl ConfigError {
     }
 }
 
-fn toml_error(prefix: &str, e: toml::de::Error) -> ConfigError {
+/// A TOML syntax error (or duplicate key) with what toml's span points at and its line:
+/// `duplicate key `max_gates`, line 3` or `line 1: unclosed table, expected `]`: `[server``.
+fn toml_error(text: &str, e: toml::de::Error) -> ConfigError {
     let msg = e.message().trim().to_string();
-    if prefix.is_empty() {
-        ConfigError::new(msg)
-    } else {
-        ConfigError::new(format!("{prefix}: {msg}"))
+    let Some(span) = e.span() else {
+        return ConfigError::new(msg);
+    };
+    let start = span.start.min(text.len());
+    let line = text[..start].matches('\n').count() + 1;
+    // the key a duplicate-key error points at, or the text of the line at fault
+    let at = text.get(span.clone()).map(str::trim).unwrap_or("");
+    if msg.starts_with("duplicate key") && !at.is_empty() && !at.contains('\n') {
+        return ConfigError::new(format!("{at}: duplicate key, line {line}"));
+    }
+    let line_text = text.lines().nth(line - 1).unwrap_or("").trim();
+    let line_text: String = line_text.chars().take(80).collect();
+    ConfigError::new(format!("line {line}: {msg}: `{line_text}`"))
+}
+
+/// `err` with the line of the key it names (`server.max_gates: must be ...`), when the text
+/// has that key. Validation works on merged values, so the line is looked up afterwards;
+/// a gate's key inherited from `[defaults]` is found there.
+fn with_line(text: &str, err: ConfigError) -> ConfigError {
+    if err.message.contains(", line ") {
+        return err;
+    }
+    let Some((key, _)) = err.message.split_once(": ") else {
+        return err;
+    };
+    let path: Vec<String> = key.split('.').map(String::from).collect();
+    let line = locate::line_of(text, &path)
+        .filter(|_| path.len() > 1)
+        .or_else(|| {
+            (path.len() > 2 && path[0] == "gates").then(|| {
+                let alt: Vec<String> = std::iter::once("defaults".to_string())
+                    .chain(path[2..].iter().cloned())
+                    .collect();
+                locate::line_of(text, &alt)
+            })?
+        });
+    match line {
+        Some(l) => ConfigError::new(format!("{}, line {l}", err.message)),
+        None => err,
     }
 }
 
@@ -461,7 +543,13 @@ pub fn valid_gate_id(id: &str) -> bool {
 impl Config {
     /// Parses and validates TOML text (no environment overrides).
     pub fn from_toml(text: &str) -> Result<Config, ConfigError> {
-        let mut doc: toml::Table = text.parse::<toml::Table>().map_err(|e| toml_error("", e))?;
+        Config::from_toml_unlocated(text).map_err(|e| with_line(text, e))
+    }
+
+    fn from_toml_unlocated(text: &str) -> Result<Config, ConfigError> {
+        let mut doc: toml::Table = text
+            .parse::<toml::Table>()
+            .map_err(|e| toml_error(text, e))?;
         let defaults = match doc.remove("defaults") {
             None => toml::Table::new(),
             Some(toml::Value::Table(t)) => t,
@@ -588,8 +676,16 @@ impl Config {
         if s.max_concurrent_ingest == 0 {
             return err("max_concurrent_ingest", "must be > 0");
         }
-        if !(s.request_timeout_seconds.is_finite() && s.request_timeout_seconds > 0.0) {
-            return err("request_timeout_seconds", "must be > 0");
+        // every setting that becomes a `Duration` is bounded here: `from_secs_f64` panics on
+        // values past u64::MAX seconds (1e300 once made `serve` exit 101)
+        if !(s.request_timeout_seconds.is_finite()
+            && s.request_timeout_seconds > 0.0
+            && s.request_timeout_seconds <= MAX_SECONDS)
+        {
+            return err(
+                "request_timeout_seconds",
+                &format!("must be > 0 and <= {MAX_SECONDS} (one year)"),
+            );
         }
         if s.max_gates == 0 || s.max_gates > MAX_GATES_LIMIT {
             return err("max_gates", &format!("must be in 1..={MAX_GATES_LIMIT}"));
@@ -603,8 +699,13 @@ impl Config {
         if s.max_tcp_connections == 0 {
             return err("max_tcp_connections", "must be > 0");
         }
-        if !(s.shutdown_grace_seconds.is_finite() && s.shutdown_grace_seconds >= 0.0) {
-            return err("shutdown_grace_seconds", "must be >= 0");
+        if !(s.shutdown_grace_seconds.is_finite()
+            && (0.0..=MAX_SECONDS).contains(&s.shutdown_grace_seconds))
+        {
+            return err(
+                "shutdown_grace_seconds",
+                &format!("must be >= 0 and <= {MAX_SECONDS} (one year)"),
+            );
         }
         if self.ingest.gate_tag.is_empty() {
             return Err(ConfigError::new("ingest.gate_tag: must not be empty"));
@@ -617,6 +718,19 @@ impl Config {
         }
         if let Err(e) = self.notify.validate() {
             return Err(ConfigError::new(format!("notify: {e}")));
+        }
+        for (key, v) in [
+            ("timeout_seconds", self.notify.timeout_seconds),
+            (
+                "resend_interval_seconds",
+                self.notify.resend_interval_seconds,
+            ),
+        ] {
+            if v > MAX_SECONDS {
+                return Err(ConfigError::new(format!(
+                    "notify.{key}: must be <= {MAX_SECONDS} (one year)"
+                )));
+            }
         }
         Ok(())
     }

@@ -102,11 +102,15 @@ pub enum RejectReason {
     OutOfOrder,
     /// A raw TCP line that cannot be parsed or is too long.
     BadLine,
+    /// A sample time more than the gate's `max_future_seconds` ahead of the daemon's clock.
+    TooFarInFuture,
+    /// A sample time more than the gate's `max_past_seconds` behind the daemon's clock.
+    TooOld,
 }
 
 impl RejectReason {
     /// Every reason, for the counters' initial 0.
-    pub const ALL: [RejectReason; 10] = [
+    pub const ALL: [RejectReason; 12] = [
         RejectReason::Invalid,
         RejectReason::BodyTooLarge,
         RejectReason::Overloaded,
@@ -117,6 +121,8 @@ impl RejectReason {
         RejectReason::Duplicate,
         RejectReason::OutOfOrder,
         RejectReason::BadLine,
+        RejectReason::TooFarInFuture,
+        RejectReason::TooOld,
     ];
 
     /// Whether the reason refuses a whole request before any sample is read (counted in
@@ -141,6 +147,8 @@ impl RejectReason {
             RejectReason::Duplicate => "duplicate",
             RejectReason::OutOfOrder => "out_of_order",
             RejectReason::BadLine => "bad_line",
+            RejectReason::TooFarInFuture => "too_far_in_future",
+            RejectReason::TooOld => "too_old",
         }
     }
 }

@@ -4,6 +4,7 @@
 //!
 //! - [`config`]: TOML configuration, environment overrides, validation naming the key.
 //! - [`ingest`]: request formats ([`ingest::json`], [`ingest::line_protocol`]), pure parsing.
+//! - [`ingest_checks`]: sample times against the daemon's clock, repeated query parameters.
 //! - [`window`]: the ring buffer of a gate and the sample-time cadence.
 //! - [`worker`]: `WindowAnalyzer`, the worker pool and its replace-don't-queue scheduler.
 //! - [`state`]: the shared state; the only user of the alert engine ([`crate::alert`]) and of
@@ -21,7 +22,8 @@
 //!
 //! Imports go one way (no circle): `cli` -> `server`, `demo`, `client`, `shutdown`; `demo`,
 //! `bench` -> `server`, `client`; `server` -> `api`, `tcp`, `state`, `worker`; `api`, `tcp` ->
-//! `state`, `ingest`, `metrics`; `state` -> `worker`, `window`, `ingest`, `metrics`, `config`;
+//! `state`, `ingest`, `metrics`; `state` -> `worker`, `window`, `ingest`, `ingest_checks`, `metrics`, `config`;
+//! `ingest_checks` -> `ingest`, `metrics`, `config`;
 //! `ingest`, `worker` -> `config`; and `config`, `window`, `clock`, `sync` import nothing of
 //! the service.
 
@@ -34,6 +36,7 @@ pub mod clock;
 pub mod config;
 pub mod demo;
 pub mod ingest;
+pub mod ingest_checks;
 pub mod metrics;
 pub mod server;
 pub mod shutdown;

@@ -386,6 +386,7 @@ impl AppState {
         batches: &[Batch],
     ) -> Result<(), (RejectReason, IngestError)> {
         let mut new_gates: Vec<&str> = Vec::new();
+        let now = super::clock::now_unix();
         for b in batches {
             let Some(cfg) = self.config.gate(&b.gate) else {
                 return Err((
@@ -415,6 +416,9 @@ impl AppState {
                     return Err((RejectReason::NonFinite, IngestError::BadRequest(e)));
                 }
             }
+            // before the window sees them: a far-future time would restart it (see ingest_checks)
+            super::ingest_checks::check_times(b, cfg, now)
+                .map_err(|(reason, e)| (reason, IngestError::BadRequest(e)))?;
             if let Some((rate, field)) = &b.rate {
                 if ((rate - cfg.rate_hz) / cfg.rate_hz).abs() > RATE_TOLERANCE {
                     return Err((

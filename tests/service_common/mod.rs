@@ -94,7 +94,8 @@ impl WindowAnalyzer for Fake {
 pub fn config(extra: &str) -> Config {
     Config::from_toml(&format!(
         "[server]\nworker_threads = 1\nlisten = \"127.0.0.1:0\"\n{extra}\n\
-         [defaults]\nrate_hz = 100.0\nwindow_seconds = 1.0\nidentify_every_seconds = 0.5\n"
+         [defaults]\nrate_hz = 100.0\nwindow_seconds = 1.0\nidentify_every_seconds = 0.5\n\
+         max_past_seconds = 0.0\n"
     ))
     .unwrap()
 }

@@ -52,11 +52,11 @@ fn err(text: &str) -> String {
 fn errors_name_the_key() {
     assert_eq!(
         err("[gates.g1]\nrate_hz = 0.0\n"),
-        "gates.g1.rate_hz: must be > 0"
+        "gates.g1.rate_hz: must be > 0, line 2"
     );
     assert_eq!(
         err("[defaults]\nwindow_seconds = -1.0\n"),
-        "defaults.window_seconds: must be > 0"
+        "defaults.window_seconds: must be > 0, line 2"
     );
     assert!(
         err("[gates.g1]\nrte_hz = 1.0\n").starts_with("gates.g1.rte_hz: unknown field `rte_hz`")
@@ -104,4 +104,97 @@ fn environment_overrides() {
 #[test]
 fn worker_threads_default_is_at_least_one() {
     assert!(ServerConfig::default().effective_worker_threads() >= 1);
+}
+
+#[test]
+fn the_four_toml_errors_name_key_and_line() {
+    // syntax error: the line and its text
+    let e = err("[server]\nlisten = \"127.0.0.1:1\"\n[ingest\n");
+    assert!(e.starts_with("line 3: "), "{e}");
+    assert!(e.contains("[ingest"), "{e}");
+    // duplicate key
+    assert_eq!(
+        err("[server]\nmax_gates = 3\nmax_gates = 4\n"),
+        "max_gates: duplicate key, line 3"
+    );
+    // wrong type under [defaults], directly and in a nested table
+    let e = err("[defaults]\nsignal = \"force\"\nrate_hz = \"fast\"\n");
+    assert!(e.starts_with("defaults.rate_hz: invalid type"), "{e}");
+    assert!(e.ends_with(", line 3"), "{e}");
+    let e = err("[defaults.alert]\nfor_windows = \"x\"\n");
+    assert!(e.starts_with("defaults.alert.for_windows: "), "{e}");
+    assert!(e.ends_with(", line 2"), "{e}");
+    // a gate's bad value inherited from [defaults] is found there
+    let e = err("[defaults]\n\nrate_hz = \"fast\"\n[gates.g1]\nwindow_seconds = 4.0\n");
+    assert!(e.contains("rate_hz") && e.ends_with(", line 3"), "{e}");
+    // tcp_precision
+    let e = err("[ingest]\ngate_tag = \"gate\"\ntcp_precision = \"xs\"\n");
+    assert!(
+        e.starts_with("ingest.tcp_precision: unknown variant `xs`"),
+        "{e}"
+    );
+    assert!(e.ends_with(", line 3"), "{e}");
+}
+
+#[test]
+fn models_are_compiled_as_serve_compiles_them() {
+    for bad in [
+        "c1*ydd + ((c2*yd",
+        "ydd^2 + c1*y = 0",
+        "c1*ydd + c2*yd + q*y = 0",
+        "c1*yd + c2*y = 0",
+    ] {
+        let e = err(&format!("[defaults]\nmodel = \"{bad}\"\n"));
+        assert!(e.starts_with("defaults.model: "), "{bad}: {e}");
+        assert!(e.ends_with(", line 2"), "{bad}: {e}");
+        let e = err(&format!("[gates.g1]\nmodel = \"{bad}\"\n"));
+        assert!(e.starts_with("gates.g1.model: "), "{bad}: {e}");
+    }
+}
+
+#[test]
+fn durations_are_bounded_not_panicking() {
+    for (text, key) in [
+        (
+            "[server]\nrequest_timeout_seconds = 1e300\n",
+            "server.request_timeout_seconds",
+        ),
+        (
+            "[server]\nshutdown_grace_seconds = 1e300\n",
+            "server.shutdown_grace_seconds",
+        ),
+        (
+            "[server]\nshutdown_grace_seconds = inf\n",
+            "server.shutdown_grace_seconds",
+        ),
+        ("[notify]\ntimeout_seconds = 1e300\n", "notify"),
+        (
+            "[notify]\nresend_interval_seconds = 1e300\n",
+            "notify.resend_interval_seconds",
+        ),
+        (
+            "[defaults.alert]\nstale_after_seconds = 1e300\n",
+            "defaults.alert.stale_after_seconds",
+        ),
+        (
+            "[defaults]\nidentify_every_seconds = 1e300\n",
+            "defaults.identify_every_seconds",
+        ),
+        (
+            "[defaults]\nmax_future_seconds = -1\n",
+            "defaults.max_future_seconds",
+        ),
+        (
+            "[defaults]\nmax_past_seconds = 1e300\n",
+            "defaults.max_past_seconds",
+        ),
+    ] {
+        let e = err(text);
+        assert!(e.starts_with(key), "{text}: {e}");
+    }
+    // the bound itself is accepted
+    Config::from_toml(&format!(
+        "[server]\nrequest_timeout_seconds = {MAX_SECONDS}\n"
+    ))
+    .unwrap();
 }

@@ -16,14 +16,8 @@ use crate::service::config::valid_gate_id;
 
 /// Parses a request body into batches.
 pub fn parse(body: &[u8]) -> Result<Vec<Batch>, BadRequest> {
-    let value: Value = serde_json::from_slice(body).map_err(|e| {
-        let mut b = BadRequest::new(format!("invalid JSON: {e}"));
-        if e.line() > 0 {
-            b.line = Some(e.line());
-            b.column = Some(e.column());
-        }
-        b
-    })?;
+    // duplicate keys are refused, naming the key (see `strict_json`)
+    let value: Value = super::strict_json::parse(body)?;
     match value {
         Value::Object(o) => Ok(vec![parse_object(&o, "")?]),
         Value::Array(items) => {
@@ -65,10 +59,19 @@ fn type_name(v: &Value) -> &'static str {
     }
 }
 
-/// Parses `start`: Unix seconds, or an RFC 3339 UTC string (`Z` suffix).
+/// Parses `start`: Unix seconds, or an RFC 3339 UTC string (`Z` suffix). A time without an
+/// offset is refused rather than taken as UTC: it is local time somewhere, and guessing wrong
+/// shifts every sample by hours (RFC 3339 section 4.3 wants an explicit offset).
 fn start_time(v: &Value, field: &str) -> Result<f64, BadRequest> {
     match v {
         Value::String(s) => {
+            if !s.ends_with(['Z', 'z']) {
+                return Err(BadRequest::new(format!(
+                    "RFC 3339 time `{s}` must be in UTC and end with `Z` (a time without an offset \
+                     is ambiguous; numeric offsets are not accepted)"
+                ))
+                .field(field));
+            }
             let t = humantime::parse_rfc3339_weak(s)
                 .map_err(|e| BadRequest::new(format!("invalid RFC 3339 time: {e}")).field(field))?;
             t.duration_since(std::time::UNIX_EPOCH)

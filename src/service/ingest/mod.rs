@@ -4,6 +4,7 @@
 
 pub mod json;
 pub mod line_protocol;
+pub mod strict_json;
 
 use serde::Serialize;
 
