@@ -50,7 +50,13 @@ fn median(mut v: Vec<f64>) -> f64 {
 
 /// Consecutive `secs`-second windows of a gate held at `zeta` on its limit cycle (started on
 /// the cycle, 20 s settling discarded).
-fn limit_cycle_windows(p: GateParams, zeta: f64, windows: usize, secs: f64, seed: u64) -> Vec<Vec<f64>> {
+fn limit_cycle_windows(
+    p: GateParams,
+    zeta: f64,
+    windows: usize,
+    secs: f64,
+    seed: u64,
+) -> Vec<Vec<f64>> {
     let y_lc = p.limit_cycle_force_amplitude(zeta).unwrap() / p.stiffness;
     let p = GateParams { y0: y_lc, ..p };
     let rate = p.rate_hz;
@@ -67,7 +73,13 @@ fn limit_cycle_windows(p: GateParams, zeta: f64, windows: usize, secs: f64, seed
 }
 
 /// (median |error|, coverage, median estimate) of the envelope estimator over the windows.
-fn envelope_scores(p: GateParams, zeta: f64, windows: usize, secs: f64, seed: u64) -> (f64, f64, f64) {
+fn envelope_scores(
+    p: GateParams,
+    zeta: f64,
+    windows: usize,
+    secs: f64,
+    seed: u64,
+) -> (f64, f64, f64) {
     let f = p.natural_frequency_hz();
     let rate = p.rate_hz;
     let ws = limit_cycle_windows(p, zeta, windows, secs, seed);
@@ -168,9 +180,19 @@ fn limit_cycle_envelope_lock_gate_pooled() {
         pooled_cov as f64 / n,
         single_cov as f64 / ws.len() as f64
     );
-    assert!(single_cov as f64 >= 0.9 * ws.len() as f64, "single coverage {single_cov}");
-    assert!(err <= 0.005, "pooled median |error| {:.3} points", 100.0 * err);
-    assert!(pooled_cov as f64 >= 0.9 * n, "pooled coverage {pooled_cov} of {n}");
+    assert!(
+        single_cov as f64 >= 0.9 * ws.len() as f64,
+        "single coverage {single_cov}"
+    );
+    assert!(
+        err <= 0.005,
+        "pooled median |error| {:.3} points",
+        100.0 * err
+    );
+    assert!(
+        pooled_cov as f64 >= 0.9 * n,
+        "pooled coverage {pooled_cov} of {n}"
+    );
 }
 
 /// The daemon's analyzer on the lab and lock gates held on their limit cycle at -2 %: the report's
@@ -194,7 +216,10 @@ fn analyzer_reports_the_limit_cycle_from_the_envelope() {
         let mut zetas = Vec::new();
         let mut covered = 0;
         let mut warm: Option<Vec<f64>> = None;
-        for (i, x) in limit_cycle_windows(p.clone(), -0.02, 6, 10.0, seed).iter().enumerate() {
+        for (i, x) in limit_cycle_windows(p.clone(), -0.02, 6, 10.0, seed)
+            .iter()
+            .enumerate()
+        {
             let a = analyzer
                 .analyze(
                     WindowInput {
@@ -209,7 +234,11 @@ fn analyzer_reports_the_limit_cycle_from_the_envelope() {
             let d = &a.damping;
             eprintln!(
                 "{name} window {i}: zeta0 {:?} {:?} from {:?}, verdict {:?}, curve {} points",
-                d.zeta0, d.zeta0_interval, d.zeta0_source, d.verdict, d.zeta_eq_curve.len()
+                d.zeta0,
+                d.zeta0_interval,
+                d.zeta0_source,
+                d.verdict,
+                d.zeta_eq_curve.len()
             );
             // Never a trusted all-clear or a confident number near zero on a limit cycle.
             if d.trusted {
@@ -228,7 +257,11 @@ fn analyzer_reports_the_limit_cycle_from_the_envelope() {
         // back to the model as before: a window whose envelope the classifier does not call
         // saturated).
         assert!(zetas.len() >= 4, "{name}: {} envelope windows", zetas.len());
-        assert!(covered + 1 >= zetas.len(), "{name}: {covered} of {} covered", zetas.len());
+        assert!(
+            covered + 1 >= zetas.len(),
+            "{name}: {covered} of {} covered",
+            zetas.len()
+        );
         let m = median(zetas);
         // One window's physical spread is 0.5 (lab) to 0.75 points (lock gate). The lab gate's
         // median of six windows is checked at 0.75 points (the 0.5-point target over 20 windows

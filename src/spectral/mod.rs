@@ -32,8 +32,8 @@ mod tests;
 pub use ambient::{ambient_damping, normal_quantile, AmbientDamping, ArOptions};
 pub use analyzer::{GrowthOptions, GrowthRate, Peak, SpectralAnalyzer};
 pub use classify::{classify, ClassifyOptions, Regime, WindowOptions, WindowSpectral};
-pub use preprocess::{damping_from_growth, detrend_linear, hann, hann_into, remove_moving_average};
 pub use pool::{DampingPool, PoolOptions, PooledEstimate, WindowEstimate};
+pub use preprocess::{damping_from_growth, detrend_linear, hann, hann_into, remove_moving_average};
 pub use relaxation::{envelope_relaxation, EnvelopeRelaxation, RelaxationOptions};
 pub use ssi::{ssi_cov_damping, t_quantile, SsiError, SsiEstimate, SsiOptions};
 

@@ -182,8 +182,7 @@ impl DampingPool {
             let oldest = self.entries[0];
             let too_many = self.entries.len() > self.opts.max_windows;
             let too_long = newest.t_end - oldest.t_start > self.opts.max_seconds;
-            let not_needed =
-                span_cycles(self.entries.iter().skip(1)) >= self.opts.min_cycles;
+            let not_needed = span_cycles(self.entries.iter().skip(1)) >= self.opts.min_cycles;
             if too_many || too_long || not_needed {
                 self.entries.pop_front();
             } else {

@@ -138,7 +138,12 @@ pub struct EnvelopeRelaxation {
 /// Autocovariance of `e` (mean already removed) at lag `k` samples.
 fn autocov(e: &[f64], k: usize) -> f64 {
     let n = e.len();
-    e[..n - k].iter().zip(&e[k..]).map(|(a, b)| a * b).sum::<f64>() / n as f64
+    e[..n - k]
+        .iter()
+        .zip(&e[k..])
+        .map(|(a, b)| a * b)
+        .sum::<f64>()
+        / n as f64
 }
 
 /// Estimates `zeta0` from the envelope `env` (e.g. [`super::SpectralAnalyzer::envelope`] with
@@ -262,7 +267,10 @@ impl super::SpectralAnalyzer {
     ) -> Result<EnvelopeRelaxation, SpectralError> {
         let b = opts.band.clamp(0.01, 0.99);
         let rate = self.rate_hz();
-        let env = self.envelope(x, Some((frequency_hz * (1.0 - b), frequency_hz * (1.0 + b))))?;
+        let env = self.envelope(
+            x,
+            Some((frequency_hz * (1.0 - b), frequency_hz * (1.0 + b))),
+        )?;
         envelope_relaxation(env, rate, frequency_hz, opts)
     }
 }
