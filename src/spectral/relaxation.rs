@@ -176,7 +176,7 @@ pub fn envelope_relaxation(
     let n = x.len();
     let t_rec = n as f64 / rate_hz;
     let mean = x.iter().sum::<f64>() / n as f64;
-    if !(mean > 0.0) {
+    if mean.is_nan() || mean <= 0.0 {
         return Err(SpectralError::NoResult("zero envelope".into()));
     }
     let e: Vec<f64> = x.iter().map(|v| v - mean).collect();
