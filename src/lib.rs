@@ -15,7 +15,8 @@
 //! - [`identify`]: fitness, train/test split, DE + local refinement + restarts: the identification.
 //! - [`cases`]: the chapter's seed cases (Table 8.1), generated in code.
 //! - [`analysis`]: the early-warning analysis of a window: damping figures and a verdict.
-//! - [`spectral`]: model-free analysis: dominant frequency, Hilbert envelope growth, ambient AR damping.
+//! - [`spectral`]: model-free analysis: dominant frequency, Hilbert envelope growth, ambient AR and
+//!   SSI-COV damping, a limit cycle's zeta0 from its envelope, pooling of a gate's windows.
 //! - [`simulate`]: synthetic gate signals: noise-driven gate with a damping scenario, worked example.
 //! - [`bench`]: `gatewatch bench seed-cases`: the chapter's protocol and its comparison table.
 //! - [`stability`]: the stability map (Figure 8.13): Monte Carlo over a plane of two coefficients,

@@ -384,6 +384,22 @@ fn force_pictures_show_the_whole_force_a_zoom_with_its_residual_and_the_data() {
     );
     let read = |name: &str| std::fs::read_to_string(out_dir.join(name)).unwrap();
 
+    // The damping-amplitude curve (issue 8): zeta_eq in percent against the force amplitude,
+    // a line of the report's points.
+    let svg = read("damping.svg");
+    let labels: Vec<String> = texts(&svg).into_iter().map(|t| t.1).collect();
+    assert!(
+        labels.iter().any(|t| t == "amplitude A [N]")
+            && labels
+                .iter()
+                .any(|t| t == "equivalent damping ratio zeta_eq [%]"),
+        "{labels:?}"
+    );
+    assert!(
+        polylines(&svg, BLUE, 2).iter().any(|l| l.len() > 2),
+        "the curve is drawn"
+    );
+
     // Hysteresis: the axis says support force, and the panel under it spans the whole force
     // (hundreds of newtons, as the samples), measured and model; the velocity-dependent part
     // has its own panel. The model loops are smooth (hundreds of points, not a 19-point polygon).

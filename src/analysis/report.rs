@@ -11,6 +11,9 @@ pub enum Zeta0Source {
     Model,
     /// The AR fit of a noise-driven window whose free-vibration model does not fit.
     Ambient,
+    /// The relaxation of the envelope's perturbations on a limit cycle
+    /// ([`crate::spectral::envelope_relaxation`]).
+    Envelope,
 }
 
 impl Zeta0Source {
@@ -19,6 +22,7 @@ impl Zeta0Source {
         match self {
             Zeta0Source::Model => "model",
             Zeta0Source::Ambient => "ambient",
+            Zeta0Source::Envelope => "envelope",
         }
     }
 }
@@ -54,6 +58,16 @@ impl From<AmbientZeta> for (f64, f64, f64) {
     }
 }
 
+impl From<&crate::spectral::EnvelopeRelaxation> for AmbientZeta {
+    fn from(e: &crate::spectral::EnvelopeRelaxation) -> Self {
+        AmbientZeta {
+            zeta: e.zeta0,
+            low: e.zeta0_interval.0,
+            high: e.zeta0_interval.1,
+        }
+    }
+}
+
 impl From<&crate::spectral::AmbientDamping> for AmbientZeta {
     fn from(a: &crate::spectral::AmbientDamping) -> Self {
         AmbientZeta {
@@ -69,9 +83,9 @@ impl From<&crate::spectral::AmbientDamping> for AmbientZeta {
 pub struct DampingReport {
     /// Damping ratio at rest from the linearisation, `C0 / (2 sqrt(K0 M0))`.
     pub zeta0: Option<f64>,
-    /// Interval (low, high) for `zeta0`: the AR estimate's 95 % interval when `zeta0` comes
-    /// from it, the spread of the runs when several were made, else `None` (as
-    /// `docs/damping.md` says; no interval is derived from the polish's Jacobian).
+    /// Interval (low, high) for `zeta0`: the 95 % interval of the AR or envelope estimate when
+    /// `zeta0` comes from it, the spread of the runs when several were made, else `None` (as
+    /// `docs/damping.md` says).
     pub zeta0_interval: Option<(f64, f64)>,
     /// Where `zeta0` comes from (`None` when there is no `zeta0`).
     pub zeta0_source: Option<Zeta0Source>,
@@ -92,6 +106,15 @@ pub struct DampingReport {
     pub growth_rate_stderr: Option<f64>,
     /// Model-free damping ratio of a noise-driven window (AR fit) and its 95 % interval.
     pub ambient_zeta: Option<AmbientZeta>,
+    /// `zeta0` of a limit-cycle window from the relaxation of its envelope, with its 95 %
+    /// interval (`[zeta, low, high]`; `docs/damping.md`, "The limit cycle").
+    #[serde(default)]
+    pub envelope_zeta: Option<AmbientZeta>,
+    /// The model's equivalent damping ratio over the amplitudes the window visited: points
+    /// `(amplitude in the signal's unit, zeta_eq)`, amplitude increasing; empty without a model
+    /// oscillator at rest.
+    #[serde(default)]
+    pub zeta_eq_curve: Vec<(f64, f64)>,
     /// The model's own frequency at rest, Hz (`sqrt(K0/M0) / 2 pi`).
     pub model_frequency_hz: Option<f64>,
     /// Displacement amplitude at the end of the window (model), m or the data's unit.
@@ -133,6 +156,8 @@ impl DampingReport {
             growth_rate: None,
             growth_rate_stderr: None,
             ambient_zeta: None,
+            envelope_zeta: None,
+            zeta_eq_curve: Vec::new(),
             model_frequency_hz: None,
             amplitude: None,
             agrees: false,

@@ -266,6 +266,7 @@ pub fn analyze_series_with(
         damping.growth_rate_stderr = Some(s.growth.stderr);
         damping.ambient_zeta = s.ambient.as_ref().map(AmbientZeta::from);
     }
+    damping.envelope_zeta = free.relaxation.as_ref().map(AmbientZeta::from);
     let runs_zeta = identification
         .runs
         .iter()
@@ -315,6 +316,8 @@ struct ModelFree {
     omega: Option<f64>,
     /// Envelope growth rate when it is a clean exponential, 1/s.
     sigma_clean: Option<f64>,
+    /// `zeta0` from the envelope's relaxation, on a limit-cycle window.
+    relaxation: Option<crate::spectral::EnvelopeRelaxation>,
 }
 
 /// The model-free analysis (uniform sampling only), with the analyzer replaced when it does not
@@ -355,11 +358,27 @@ fn model_free(data: &TimeSeries, spectral: &mut Option<SpectralAnalyzer>) -> Mod
         (g.stderr < CLEAN_GROWTH_RELATIVE_ERROR * g.sigma.abs() + CLEAN_GROWTH_FLOOR)
             .then_some(g.sigma)
     });
+    // On a limit cycle the equivalent damping is zero; the envelope's relaxation still sees
+    // zeta0 (docs/damping.md, "The limit cycle"). The same pre-processing as the window's.
+    let relaxation = match (&spec, spectral.as_mut()) {
+        (Some(s), Some(sa)) if s.regime == crate::spectral::Regime::LimitCycle => {
+            let mut work = data.y.clone();
+            crate::spectral::detrend_linear(&mut work);
+            sa.envelope_relaxation(
+                &work,
+                s.peak.frequency_hz,
+                &crate::spectral::RelaxationOptions::default(),
+            )
+            .ok()
+        }
+        _ => None,
+    };
     ModelFree {
         window_options,
         spec,
         omega: peak_hz.map(|f| 2.0 * PI * f),
         sigma_clean,
+        relaxation,
     }
 }
 
@@ -491,7 +510,20 @@ fn damping_figures(
         }
         _ => None,
     };
+    let zeta_eq_curve = trajectory
+        .and_then(|tr| visited_amplitudes(tr, &data.t, lin.omega0().or(omega_meas)?))
+        .map(|(lo, hi)| {
+            (0..CURVE_POINTS)
+                .filter_map(|k| {
+                    let a = lo + (hi - lo) * k as f64 / (CURVE_POINTS - 1) as f64;
+                    let (z, _) = equivalent_damping(model, c, lin, a, t0)?;
+                    Some((f.signal_of(a), z))
+                })
+                .collect()
+        })
+        .unwrap_or_default();
     DampingReport {
+        zeta_eq_curve,
         zeta_eq: eq.map(|e| e.0),
         energy_per_cycle: eq.map(|e| e.1),
         limit_cycle_amplitude,
@@ -500,6 +532,27 @@ fn damping_figures(
         amplitude: amplitude.map(|a| f.signal_of(a)),
         ..DampingReport::unknown()
     }
+}
+
+/// Points of the `zeta_eq(A)` curve of a report: few enough for the API, enough for a picture.
+pub const CURVE_POINTS: usize = 17;
+
+/// The smallest and largest per-period peak `|y|` of the model's trajectory: the amplitudes the
+/// window visited (`None` without a full period or with a zero peak).
+fn visited_amplitudes(tr: &[[f64; 2]], t: &[f64], omega: f64) -> Option<(f64, f64)> {
+    let period = 2.0 * PI / omega;
+    let (mut lo, mut hi) = (f64::INFINITY, 0.0f64);
+    let (mut start, mut peak) = (*t.first()?, 0.0f64);
+    for (s, &ti) in tr.iter().zip(t) {
+        if ti - start >= period {
+            lo = lo.min(peak);
+            hi = hi.max(peak);
+            start = ti;
+            peak = 0.0;
+        }
+        peak = peak.max(s[0].abs());
+    }
+    (hi > 0.0 && lo.is_finite() && lo > 0.0).then_some((lo, hi))
 }
 
 /// Range of zeta0 over the runs, when there were several.
@@ -528,11 +581,17 @@ fn conclude(
         agrees: damping.agrees,
         zeta0_model,
         ambient: damping.ambient_zeta,
+        envelope: damping.envelope_zeta,
         regime,
     });
-    let (zeta0, interval) = match (decision.source, damping.ambient_zeta) {
-        (Zeta0Source::Ambient, Some(a)) => (Some(a.zeta), Some((a.low, a.high))),
-        _ => (zeta0_model, model_interval),
+    let model_free = match decision.source {
+        Zeta0Source::Ambient => damping.ambient_zeta,
+        Zeta0Source::Envelope => damping.envelope_zeta,
+        Zeta0Source::Model => None,
+    };
+    let (zeta0, interval) = match model_free {
+        Some(a) => (Some(a.zeta), Some((a.low, a.high))),
+        None => (zeta0_model, model_interval),
     };
     damping.zeta0 = zeta0;
     damping.zeta0_interval = interval;

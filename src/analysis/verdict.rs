@@ -55,6 +55,8 @@ pub struct VerdictFacts {
     pub zeta0_model: Option<f64>,
     /// The ambient (AR) damping of the window, when the fit succeeded.
     pub ambient: Option<AmbientZeta>,
+    /// `zeta0` from the envelope's relaxation, on a limit-cycle window where it succeeded.
+    pub envelope: Option<AmbientZeta>,
     /// The model-free regime of the window (`None` without uniform sampling).
     pub regime: Option<Regime>,
 }
@@ -78,23 +80,44 @@ fn regime_alarms(regime: Option<Regime>) -> bool {
 
 /// The verdict of a window, row by row the table of `docs/damping.md`:
 ///
-/// 1. model trusted (fits and agrees), `zeta0 < 0`: `SelfExcited`, from the model;
+/// 0. limit-cycle regime with an envelope estimate: from the envelope; `SelfExcited` when its
+///    whole interval is below zero, else `Unknown` (untrusted, with its honestly wide interval).
+///    On a limit cycle the equivalent damping is zero, so the model's and the AR's `zeta0` read
+///    about zero whatever the truth (issue 8); the envelope's relaxation is what still sees it.
+/// 1. model trusted (fits and agrees), `zeta0 < 0`: `SelfExcited`, from the model, unless the
+///    model contradicts the spectrum: a `Damped` regime (no growth, ambient interval above
+///    zero) whose ambient interval lies above zero. Then row 3 decides: a free-vibration model
+///    fitted to a noise-driven window can land on a slightly negative `c1` (issue 8: -1 to -3 %
+///    on a +1 % gate), while the whole ambient interval says the gate dissipates energy.
 /// 2. model trusted, `zeta0 >= 0`, the regime is no alarm: `Damped`, from the model;
-/// 3. model not trusted, AR interval above zero, the regime is no alarm: `Damped`, ambient;
+/// 3. ambient interval above zero, the regime is no alarm, and the model is not trusted or
+///    contradicted (row 1): `Damped`, ambient;
 /// 4. anything else: `Unknown`, untrusted, the model's `zeta0` for information only. This
 ///    includes a trusted model with `zeta0 >= 0` on a self-excited or limit-cycle window: the
 ///    spectrum sees a vibration sustaining itself, so "damped" would be a false all-clear.
 pub fn decide(f: &VerdictFacts) -> Decision {
-    let model_trusted = f.fit_nmae <= f.max_fit_nmae && f.agrees;
     let alarm = regime_alarms(f.regime);
-    let (verdict, trusted, source) = match (f.zeta0_model, f.ambient) {
-        (Some(z), _) if model_trusted && z < 0.0 => {
-            (Verdict::SelfExcited, true, Zeta0Source::Model)
-        }
-        (Some(_), _) if model_trusted && !alarm => (Verdict::Damped, true, Zeta0Source::Model),
-        (_, Some(a)) if !model_trusted && a.low > 0.0 && !alarm => {
-            (Verdict::Damped, true, Zeta0Source::Ambient)
-        }
+    if let (Some(Regime::LimitCycle), Some(e)) = (f.regime, f.envelope) {
+        let (verdict, trusted) = if e.high < 0.0 {
+            (Verdict::SelfExcited, true)
+        } else {
+            (Verdict::Unknown, false)
+        };
+        return Decision {
+            verdict,
+            trusted,
+            source: Zeta0Source::Envelope,
+        };
+    }
+    let ambient_damped = f.ambient.is_some_and(|a| a.low > 0.0) && !alarm;
+    let contradicted = f.zeta0_model.is_some_and(|z| z < 0.0)
+        && ambient_damped
+        && f.regime == Some(Regime::Damped);
+    let model_trusted = f.fit_nmae <= f.max_fit_nmae && f.agrees && !contradicted;
+    let (verdict, trusted, source) = match f.zeta0_model {
+        Some(z) if model_trusted && z < 0.0 => (Verdict::SelfExcited, true, Zeta0Source::Model),
+        Some(_) if model_trusted && !alarm => (Verdict::Damped, true, Zeta0Source::Model),
+        _ if !model_trusted && ambient_damped => (Verdict::Damped, true, Zeta0Source::Ambient),
         _ => (Verdict::Unknown, false, Zeta0Source::Model),
     };
     Decision {
@@ -122,6 +145,7 @@ mod tests {
             agrees: true,
             zeta0_model: Some(0.01),
             ambient: Some(AMBIENT_DAMPED),
+            envelope: None,
             regime: Some(Regime::Damped),
         }
     }
@@ -138,7 +162,6 @@ mod tests {
     fn row_trusted_negative_zeta0_is_self_excited_whatever_the_regime() {
         for regime in [
             None,
-            Some(Regime::Damped),
             Some(Regime::Undecided),
             Some(Regime::SelfExcited),
             Some(Regime::LimitCycle),
@@ -154,6 +177,88 @@ mod tests {
                 "{regime:?}"
             );
         }
+    }
+
+    /// Issue 8: a trusted model reading -1..-3 % on a stable +1 % gate replaced the ambient
+    /// estimate. A negative model `zeta0` that a `Damped` regime's ambient interval contradicts
+    /// gives way to the ambient estimate.
+    #[test]
+    fn model_contradicted_by_a_damped_ambient_interval_gives_way() {
+        for z in [-0.003, -0.012, -0.03] {
+            let f = VerdictFacts {
+                zeta0_model: Some(z),
+                ..facts()
+            };
+            assert_eq!(
+                decide(&f),
+                decision(Verdict::Damped, true, Zeta0Source::Ambient),
+                "{z}"
+            );
+        }
+        // The ambient interval reaching zero does not contradict: the model decides.
+        let f = VerdictFacts {
+            zeta0_model: Some(-0.01),
+            ambient: Some(AmbientZeta {
+                zeta: 0.004,
+                low: -0.001,
+                high: 0.009,
+            }),
+            regime: Some(Regime::Undecided),
+            ..facts()
+        };
+        assert_eq!(
+            decide(&f),
+            decision(Verdict::SelfExcited, true, Zeta0Source::Model)
+        );
+        // Nor does a regime other than Damped (an onset whose envelope grows).
+        let f = VerdictFacts {
+            zeta0_model: Some(-0.01),
+            regime: Some(Regime::SelfExcited),
+            ..facts()
+        };
+        assert_eq!(decide(&f).verdict, Verdict::SelfExcited);
+    }
+
+    /// Issue 8: on a limit cycle the envelope's relaxation decides, not the model (whose `zeta0`
+    /// scattered between -1 and +0.6 % at a true -2 %).
+    #[test]
+    fn limit_cycle_with_envelope_estimate_reports_it() {
+        let negative = AmbientZeta {
+            zeta: -0.02,
+            low: -0.03,
+            high: -0.01,
+        };
+        let wide = AmbientZeta {
+            zeta: -0.01,
+            low: -0.03,
+            high: 0.01,
+        };
+        for zeta0_model in [Some(0.004), Some(-0.01), None] {
+            let f = VerdictFacts {
+                zeta0_model,
+                envelope: Some(negative),
+                regime: Some(Regime::LimitCycle),
+                ..facts()
+            };
+            assert_eq!(
+                decide(&f),
+                decision(Verdict::SelfExcited, true, Zeta0Source::Envelope)
+            );
+            let f = VerdictFacts {
+                envelope: Some(wide),
+                ..f
+            };
+            assert_eq!(
+                decide(&f),
+                decision(Verdict::Unknown, false, Zeta0Source::Envelope)
+            );
+        }
+        // The envelope estimate is used only on a limit cycle.
+        let f = VerdictFacts {
+            envelope: Some(negative),
+            ..facts()
+        };
+        assert_eq!(decide(&f).source, Zeta0Source::Model);
     }
 
     #[test]

@@ -29,6 +29,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Once;
 
 mod convergence;
+mod damping;
 mod map;
 mod report;
 mod series;
@@ -37,6 +38,7 @@ mod tests;
 mod zoom;
 
 pub use convergence::convergence;
+pub use damping::damping_curve;
 pub use map::stability_map;
 pub use report::{identification, prepare_dir, trajectory};
 pub use series::{fit, hysteresis, phase, Loop};

@@ -78,6 +78,8 @@ pub fn prepare_dir(dir: &Path) -> Result<(), PlotError> {
 /// - `hysteresis` (force): the whole support force against the deflection over the last three
 ///   periods, measured and model: the chapter's Figure 8.15, whose area is the energy fed in per
 ///   cycle.
+/// - `damping`: the model's equivalent damping ratio `zeta_eq(A)` over the amplitudes the window
+///   visited (the report's `zeta_eq_curve`), when the model is an oscillator at rest.
 /// - `convergence`: the DE's best cost per generation, ending at the training error after the
 ///   polish.
 pub fn identification(
@@ -209,6 +211,16 @@ pub fn identification(
             )?;
             written.push(p);
         }
+    }
+
+    if !analysis.damping.zeta_eq_curve.is_empty() {
+        let p = file("damping");
+        let unit = match signal {
+            Signal::Force => units.force.as_deref(),
+            Signal::Displacement => units.signal.as_deref(),
+        };
+        damping_curve(&p, &analysis.damping.zeta_eq_curve, unit)?;
+        written.push(p);
     }
 
     let p = file("convergence");

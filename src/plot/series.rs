@@ -115,17 +115,17 @@ pub fn fit(
     )
 }
 
-struct CurveFigure<'a> {
-    x: &'a [f64],
-    y: &'a [f64],
+pub(super) struct CurveFigure<'a> {
+    pub(super) x: &'a [f64],
+    pub(super) y: &'a [f64],
     /// The curve's legend entry.
-    curve_label: &'a str,
+    pub(super) curve_label: &'a str,
     /// Data drawn as dots beside the curve, with their legend entry.
-    data: Option<(&'a [f64], &'a [f64], String)>,
-    x_desc: String,
-    y_desc: String,
-    title: &'a str,
-    equal_zero_lines: bool,
+    pub(super) data: Option<(&'a [f64], &'a [f64], String)>,
+    pub(super) x_desc: String,
+    pub(super) y_desc: String,
+    pub(super) title: &'a str,
+    pub(super) equal_zero_lines: bool,
 }
 
 impl Figure for CurveFigure<'_> {

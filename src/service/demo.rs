@@ -305,10 +305,16 @@ pub async fn run_demo(
                 };
                 println!(
                     "[{:6.1} s] identification of {DEMO_GATE} (window ending at t = {:6.1} s): \
-                     zeta0 {} (true {}), f {} Hz, fit NMAE {}, trusted {}, state {}",
+                     zeta0 {}{} from {} (true {}), f {} Hz, fit NMAE {}, trusted {}, state {}",
                     began.elapsed().as_secs_f64(),
                     end,
                     pct(d["zeta0"].as_f64()),
+                    // The 95 % interval says how much the number can be trusted (issue 8).
+                    match (d["zeta0_interval"][0].as_f64(), d["zeta0_interval"][1].as_f64()) {
+                        (Some(lo), Some(hi)) => format!(" [{}, {}]", pct(Some(lo)), pct(Some(hi))),
+                        _ => String::new(),
+                    },
+                    d["zeta0_source"].as_str().unwrap_or("n/a"),
                     pct(Some(truth.true_zeta(end))),
                     d["frequency_hz"].as_f64().map(|f| format!("{f:.2}")).unwrap_or_else(|| "n/a".into()),
                     d["fit_nmae"].as_f64().map(|f| format!("{f:.3}")).unwrap_or_else(|| "n/a".into()),

@@ -12,13 +12,19 @@
 //!   [`SpectralAnalyzer::envelope`] (analytic signal by FFT) and
 //!   [`SpectralAnalyzer::growth_rate`] (least-squares slope of the log envelope).
 //! - `ambient`: [`ambient_damping`], AR(p) least squares, pole to damping ratio, delta-method interval.
+//! - `pool`: [`DampingPool`], a gate's consecutive ambient estimates combined until they hold
+//!   enough cycles, flushed on a regime change.
+//! - `relaxation`: [`envelope_relaxation`], `zeta0` of a limit cycle from the relaxation of the
+//!   envelope's perturbations (stochastic averaging).
 //! - `classify`: [`classify`] and the options and result of
 //!   [`SpectralAnalyzer::analyze_window`], the building blocks put together.
 
 mod ambient;
 mod analyzer;
 mod classify;
+mod pool;
 mod preprocess;
+mod relaxation;
 mod ssi;
 #[cfg(test)]
 mod tests;
@@ -26,7 +32,9 @@ mod tests;
 pub use ambient::{ambient_damping, normal_quantile, AmbientDamping, ArOptions};
 pub use analyzer::{GrowthOptions, GrowthRate, Peak, SpectralAnalyzer};
 pub use classify::{classify, ClassifyOptions, Regime, WindowOptions, WindowSpectral};
+pub use pool::{DampingPool, PoolOptions, PooledEstimate, WindowEstimate};
 pub use preprocess::{damping_from_growth, detrend_linear, hann, hann_into, remove_moving_average};
+pub use relaxation::{envelope_relaxation, EnvelopeRelaxation, RelaxationOptions};
 pub use ssi::{ssi_cov_damping, t_quantile, SsiError, SsiEstimate, SsiOptions};
 
 /// Why a spectral computation could not be done.

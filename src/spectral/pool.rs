@@ -1,0 +1,357 @@
+//! Pooling a gate's consecutive ambient estimates so the record behind its damping follows the
+//! gate's period, not the window's seconds.
+//!
+//! # Why
+//! What limits an ambient damping estimate is the number of cycles it sees (Au's uncertainty law:
+//! `sd(zeta) ~ sqrt(zeta / (2 pi N_c))`), not seconds: a 10 s window holds 100 cycles of a 10 Hz
+//! gate but 20 of a 2 Hz one. A single window of SSI-COV is unbiased but often too wide to
+//! exclude zero (issue 8). [`DampingPool`] keeps the last windows' estimates of one gate and
+//! combines them until they hold [`PoolOptions::min_cycles`] distinct cycles, bounded in
+//! seconds and windows.
+//!
+//! # Combination
+//! Each window's estimate is weighted by its record length in cycles (equal weights for equal
+//! windows). Inverse-variance weights are not used on purpose: Au's floor makes the variance
+//! grow with `zeta`, so `1/se^2` weights would favour low estimates and bias the pool down.
+//! Consecutive windows overlap (the daemon's default: 10 s windows every 5 s), so their
+//! estimates are correlated; the pool's variance takes the correlation of two estimates as the
+//! fraction of their records they share, `rho_ij = overlap_ij / sqrt(T_i T_j)`:
+//! `Var = sum_ij w_i w_j rho_ij se_i se_j / (sum w)^2`. For 50 % overlap this is about twice the
+//! variance of independent windows, as it should be (half the samples are new per window).
+//!
+//! # Regime changes flush the pool
+//! A pooled estimate averages the record, so a gate whose damping changes must not carry its
+//! old windows: a new window whose estimate differs from the pool by more than
+//! [`PoolOptions::flush_sigmas`] combined standard errors, whose frequency moved by more than
+//! [`PoolOptions::max_frequency_shift`], or that starts after a gap longer than
+//! [`PoolOptions::max_seconds`] empties the pool first; the report then rests on the new window
+//! alone (wide, honest) until the pool fills again.
+
+use super::SpectralError;
+use std::collections::VecDeque;
+
+/// Options of [`DampingPool`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PoolOptions {
+    /// Distinct cycles of the gate's frequency the pool aims for (older windows are dropped
+    /// once the newer ones hold this many). Default 250: Au's law gives `sd ~ 0.11 zeta^(1/2)`
+    /// there, about +-0.3 points (95 %) at +2 %.
+    pub min_cycles: f64,
+    /// The pool never spans more sample time than this, s (bounds the lag of a pooled estimate
+    /// behind a slow drift).
+    pub max_seconds: f64,
+    /// The pool never holds more windows than this (bounds memory and work per window).
+    pub max_windows: usize,
+    /// A new estimate this many combined standard errors from the pool flushes it.
+    pub flush_sigmas: f64,
+    /// A relative frequency change larger than this flushes the pool (another mode, a new
+    /// water level).
+    pub max_frequency_shift: f64,
+    /// Two-sided confidence of the pooled interval (normal quantile).
+    pub confidence: f64,
+}
+
+impl Default for PoolOptions {
+    fn default() -> Self {
+        PoolOptions {
+            min_cycles: 250.0,
+            max_seconds: 120.0,
+            max_windows: 16,
+            flush_sigmas: 3.0,
+            max_frequency_shift: 0.05,
+            confidence: 0.95,
+        }
+    }
+}
+
+/// One window's ambient estimate, as pooled.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WindowEstimate {
+    /// Start of the window's record, s (any clock, the same for all windows of a gate).
+    pub t_start: f64,
+    /// End of the window's record, s.
+    pub t_end: f64,
+    /// Damping ratio.
+    pub zeta: f64,
+    /// Its standard error.
+    pub stderr: f64,
+    /// Frequency of the mode, Hz.
+    pub frequency_hz: f64,
+}
+
+/// The pooled estimate after a window.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PooledEstimate {
+    /// Pooled damping ratio.
+    pub zeta: f64,
+    /// Its interval.
+    pub interval: (f64, f64),
+    /// Its standard error.
+    pub stderr: f64,
+    /// Windows pooled.
+    pub windows: usize,
+    /// Distinct cycles of record behind it.
+    pub cycles: f64,
+    /// Whether this window flushed the pool (a regime change).
+    pub flushed: bool,
+}
+
+/// The last windows' ambient estimates of one gate (see the module documentation).
+#[derive(Debug, Clone, PartialEq)]
+pub struct DampingPool {
+    opts: PoolOptions,
+    entries: VecDeque<WindowEstimate>,
+}
+
+impl DampingPool {
+    /// An empty pool; checks the options.
+    pub fn new(opts: PoolOptions) -> Result<DampingPool, SpectralError> {
+        let ok = opts.min_cycles > 0.0
+            && opts.max_seconds > 0.0
+            && opts.max_windows >= 1
+            && opts.flush_sigmas > 0.0
+            && opts.max_frequency_shift > 0.0
+            && opts.confidence > 0.0
+            && opts.confidence < 1.0;
+        if !ok {
+            return Err(SpectralError::Invalid(format!("pool options {opts:?}")));
+        }
+        Ok(DampingPool {
+            opts,
+            entries: VecDeque::with_capacity(opts.max_windows),
+        })
+    }
+
+    /// Windows held.
+    pub fn len(&self) -> usize {
+        self.entries.len()
+    }
+
+    /// Whether the pool is empty.
+    pub fn is_empty(&self) -> bool {
+        self.entries.is_empty()
+    }
+
+    /// Empties the pool.
+    pub fn clear(&mut self) {
+        self.entries.clear();
+    }
+
+    /// Adds a window's estimate (flushing first on a regime change) and returns the pooled
+    /// estimate. A window that is not finite, has a non-positive standard error or ends before
+    /// it starts is refused with the reason.
+    pub fn push(&mut self, e: WindowEstimate) -> Result<PooledEstimate, SpectralError> {
+        let finite = [e.t_start, e.t_end, e.zeta, e.stderr, e.frequency_hz]
+            .iter()
+            .all(|v| v.is_finite());
+        if !(finite && e.stderr > 0.0 && e.t_end > e.t_start && e.frequency_hz > 0.0) {
+            return Err(SpectralError::Invalid(format!("window estimate {e:?}")));
+        }
+        let mut flushed = false;
+        if let (Some(last), Some(pooled)) = (self.entries.back().copied(), self.combine()) {
+            let gap = e.t_start - last.t_end;
+            let shift = (e.frequency_hz / last.frequency_hz - 1.0).abs();
+            let far = (e.zeta - pooled.zeta).abs()
+                > self.opts.flush_sigmas * e.stderr.hypot(pooled.stderr);
+            // Out of order (a replay restarted) counts as a gap too.
+            if gap > self.opts.max_seconds
+                || e.t_end <= last.t_end
+                || shift > self.opts.max_frequency_shift
+                || far
+            {
+                self.entries.clear();
+                flushed = true;
+            }
+        }
+        self.entries.push_back(e);
+        self.trim();
+        let mut p = self
+            .combine()
+            .expect("the pool holds the window just pushed");
+        p.flushed = flushed;
+        Ok(p)
+    }
+
+    /// Drops the oldest windows beyond the bounds, or not needed for `min_cycles`.
+    fn trim(&mut self) {
+        let newest = match self.entries.back() {
+            Some(e) => *e,
+            None => return,
+        };
+        while self.entries.len() > 1 {
+            let oldest = self.entries[0];
+            let too_many = self.entries.len() > self.opts.max_windows;
+            let too_long = newest.t_end - oldest.t_start > self.opts.max_seconds;
+            let not_needed = span_cycles(self.entries.iter().skip(1)) >= self.opts.min_cycles;
+            if too_many || too_long || not_needed {
+                self.entries.pop_front();
+            } else {
+                break;
+            }
+        }
+    }
+
+    /// The cycle-weighted mean with the overlap-correlated variance.
+    fn combine(&self) -> Option<PooledEstimate> {
+        if self.entries.is_empty() {
+            return None;
+        }
+        let w: Vec<f64> = self
+            .entries
+            .iter()
+            .map(|e| (e.t_end - e.t_start) * e.frequency_hz)
+            .collect();
+        let sw: f64 = w.iter().sum();
+        let zeta = self
+            .entries
+            .iter()
+            .zip(&w)
+            .map(|(e, w)| w * e.zeta)
+            .sum::<f64>()
+            / sw;
+        let mut var = 0.0;
+        for (i, a) in self.entries.iter().enumerate() {
+            for (j, b) in self.entries.iter().enumerate() {
+                let shared = (a.t_end.min(b.t_end) - a.t_start.max(b.t_start)).max(0.0);
+                let rho = shared / ((a.t_end - a.t_start) * (b.t_end - b.t_start)).sqrt();
+                var += w[i] * w[j] * rho * a.stderr * b.stderr;
+            }
+        }
+        let stderr = var.sqrt() / sw;
+        let q = super::normal_quantile(0.5 + self.opts.confidence / 2.0);
+        Some(PooledEstimate {
+            zeta,
+            interval: (zeta - q * stderr, zeta + q * stderr),
+            stderr,
+            windows: self.entries.len(),
+            cycles: span_cycles(self.entries.iter()),
+            flushed: false,
+        })
+    }
+}
+
+/// Distinct cycles covered by windows in time order (overlaps counted once).
+fn span_cycles<'a>(entries: impl Iterator<Item = &'a WindowEstimate>) -> f64 {
+    let mut cycles = 0.0;
+    let mut covered_to = f64::NEG_INFINITY;
+    for e in entries {
+        let from = e.t_start.max(covered_to);
+        if e.t_end > from {
+            cycles += (e.t_end - from) * e.frequency_hz;
+        }
+        covered_to = covered_to.max(e.t_end);
+    }
+    cycles
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use approx::assert_relative_eq;
+
+    fn est(t_start: f64, zeta: f64, stderr: f64) -> WindowEstimate {
+        WindowEstimate {
+            t_start,
+            t_end: t_start + 10.0,
+            zeta,
+            stderr,
+            frequency_hz: 10.0,
+        }
+    }
+
+    #[test]
+    fn disjoint_equal_windows_average_with_sqrt_n_error() {
+        let mut p = DampingPool::new(PoolOptions::default()).unwrap();
+        let mut last = None;
+        for (k, z) in [0.018, 0.022, 0.020].iter().enumerate() {
+            last = Some(p.push(est(10.0 * k as f64, *z, 0.004)).unwrap());
+        }
+        let last = last.unwrap();
+        assert_relative_eq!(last.zeta, 0.020, epsilon = 1e-12);
+        assert_relative_eq!(last.stderr, 0.004 / 3f64.sqrt(), epsilon = 1e-12);
+        assert_eq!(last.windows, 3);
+        assert_relative_eq!(last.cycles, 300.0, epsilon = 1e-9);
+    }
+
+    /// 50 % overlap: half the samples are new per window, so the pooled variance is larger
+    /// than for independent windows.
+    #[test]
+    fn overlapping_windows_count_their_shared_record() {
+        let mut p = DampingPool::new(PoolOptions::default()).unwrap();
+        let mut r = None;
+        for k in 0..5 {
+            r = Some(p.push(est(5.0 * k as f64, 0.02, 0.004)).unwrap());
+        }
+        let r = r.unwrap();
+        // The newest four windows (5 s to 30 s) hold 250 cycles: the oldest is dropped.
+        assert_eq!(r.windows, 4);
+        assert_relative_eq!(r.cycles, 250.0, epsilon = 1e-9);
+        // sum_ij rho_ij = 4 + 2 * 3 * 0.5 = 7, over 4^2.
+        assert_relative_eq!(r.stderr, 0.004 * 7f64.sqrt() / 4.0, epsilon = 1e-12);
+        assert!(r.stderr > 0.004 / 4f64.sqrt());
+    }
+
+    #[test]
+    fn the_pool_keeps_only_what_min_cycles_needs_and_its_bounds() {
+        let mut p = DampingPool::new(PoolOptions {
+            min_cycles: 250.0,
+            ..PoolOptions::default()
+        })
+        .unwrap();
+        for k in 0..10 {
+            p.push(est(10.0 * k as f64, 0.02, 0.004)).unwrap();
+        }
+        // 100 cycles per window: three windows hold 300 >= 250, two would hold 200.
+        assert_eq!(p.len(), 3);
+        // A 2 Hz gate (20 cycles per window) is bounded by max_seconds = 120 s.
+        let mut slow = DampingPool::new(PoolOptions::default()).unwrap();
+        for k in 0..30 {
+            let e = WindowEstimate {
+                frequency_hz: 2.0,
+                ..est(10.0 * k as f64, 0.02, 0.01)
+            };
+            slow.push(e).unwrap();
+        }
+        assert_eq!(slow.len(), 12);
+    }
+
+    /// A regime change (the damping drops from +2 % to -1 %) flushes the pool at once instead of
+    /// averaging the old windows into the new state.
+    #[test]
+    fn a_regime_change_flushes_the_pool() {
+        let mut p = DampingPool::new(PoolOptions::default()).unwrap();
+        for k in 0..3 {
+            assert!(!p.push(est(10.0 * k as f64, 0.02, 0.003)).unwrap().flushed);
+        }
+        let r = p.push(est(30.0, -0.01, 0.003)).unwrap();
+        assert!(r.flushed);
+        assert_eq!(r.windows, 1);
+        assert_relative_eq!(r.zeta, -0.01, epsilon = 1e-12);
+        // A frequency jump and a gap flush too; a consistent window does not.
+        let r = p.push(est(40.0, -0.011, 0.003)).unwrap();
+        assert!(!r.flushed && r.windows == 2);
+        let moved = WindowEstimate {
+            frequency_hz: 11.0,
+            ..est(50.0, -0.011, 0.003)
+        };
+        assert!(p.push(moved).unwrap().flushed);
+        let late = WindowEstimate {
+            frequency_hz: 11.0,
+            ..est(1000.0, -0.011, 0.003)
+        };
+        assert!(p.push(late).unwrap().flushed);
+    }
+
+    #[test]
+    fn bad_estimates_and_options_are_refused() {
+        let mut p = DampingPool::new(PoolOptions::default()).unwrap();
+        assert!(p.push(est(0.0, f64::NAN, 0.003)).is_err());
+        assert!(p.push(est(0.0, 0.02, 0.0)).is_err());
+        assert!(p.is_empty());
+        assert!(DampingPool::new(PoolOptions {
+            max_windows: 0,
+            ..PoolOptions::default()
+        })
+        .is_err());
+    }
+}
