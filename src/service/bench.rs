@@ -79,6 +79,7 @@ impl WindowAnalyzer for Trivial {
             evaluations: 0,
             seconds: 0.0,
             warm_start: Vec::new(),
+            path: Default::default(),
         })
     }
 }

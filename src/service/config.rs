@@ -11,7 +11,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::alert::notify::NotifyConfig;
 use crate::alert::AlertRules;
-use crate::analysis::{AnalysisSettings, Signal};
+use crate::analysis::{AnalysisSettings, Signal, TrackingPolicy};
 
 /// The embedded default configuration (the documented example), used by `serve` without
 /// `--config` and by the demo.
@@ -276,6 +276,9 @@ pub struct GateConfig {
     pub identify_every_seconds: f64,
     /// Alert rules.
     pub alert: AlertRules,
+    /// When a window may refine the previous window's model instead of searching
+    /// (`docs/design.md`, "Tracking between windows").
+    pub tracking: TrackingPolicy,
 }
 
 impl Default for GateConfig {
@@ -293,6 +296,7 @@ impl Default for GateConfig {
             window_seconds: 10.0,
             identify_every_seconds: 5.0,
             alert: AlertRules::default(),
+            tracking: TrackingPolicy::default(),
         }
     }
 }
@@ -396,6 +400,10 @@ impl GateConfig {
         }
         if !(a.stale_after_seconds.is_finite() && a.stale_after_seconds > 0.0) {
             return err("alert.stale_after_seconds", "must be > 0");
+        }
+        if let Err(e) = self.tracking.validate() {
+            let (key, msg) = e.split_once(": ").unwrap_or((&e, "invalid"));
+            return err(&format!("tracking.{key}"), msg);
         }
         Ok(())
     }
