@@ -176,7 +176,10 @@ fn a_frequency_shift_of_20_percent_falls_back_within_one_window() {
     );
     assert_eq!(ws[k].a.path, Path::Full, "window {k}\n{s}");
     let (m0, m1) = (ws[0].a.warm_start[0], ws[k].a.warm_start[0]);
-    assert!((m0 / m1 / 1.44 - 1.0).abs() < 0.05, "mass {m0} -> {m1}\n{s}");
+    assert!(
+        (m0 / m1 / 1.44 - 1.0).abs() < 0.05,
+        "mass {m0} -> {m1}\n{s}"
+    );
 }
 
 #[test]

@@ -188,9 +188,14 @@ impl Analyzer {
                 &mut spectral,
                 |_, _, _| {},
             ),
-            Start::Refine(from, evaluations) => {
-                track_series_with(&self.model, &series, &opts, from, evaluations, &mut spectral)
-            }
+            Start::Refine(from, evaluations) => track_series_with(
+                &self.model,
+                &series,
+                &opts,
+                from,
+                evaluations,
+                &mut spectral,
+            ),
         };
         if let (Some(sa), Ok(mut pool)) = (spectral, self.spectral_pool.lock()) {
             pool.push(sa);

@@ -195,7 +195,7 @@ pub fn plan<'a>(
         return Err(FullReason::Untrusted);
     }
     // Overlap: the new window starts inside the previous one (after its start, before its end).
-    if !(t_start > p.t_start && t_start <= p.t_end) {
+    if t_start.is_nan() || t_start <= p.t_start || t_start > p.t_end {
         return Err(FullReason::Gap);
     }
     if p.since_full + 1 >= policy.full_every {
@@ -220,9 +220,7 @@ pub fn accept(
         return Err(Rejection::VerdictChanged);
     }
     if let Some(measured_hz) = r.frequency_hz {
-        let off = r
-            .model_frequency_hz
-            .map(|m| (m / measured_hz - 1.0).abs());
+        let off = r.model_frequency_hz.map(|m| (m / measured_hz - 1.0).abs());
         // NaN and a model that is no oscillator fail too.
         if !off.is_some_and(|off| off <= policy.frequency_tolerance) {
             return Err(Rejection::Frequency {
@@ -235,8 +233,7 @@ pub fn accept(
         return Err(Rejection::Disagrees);
     }
     let limit = policy.fit_tolerance * previous.full_fit_nmae + FIT_SLACK;
-    // NaN fails the test too.
-    if !(r.fit_nmae <= limit) {
+    if r.fit_nmae.is_nan() || r.fit_nmae > limit {
         return Err(Rejection::Fit {
             nmae: r.fit_nmae,
             limit,
@@ -328,10 +325,7 @@ mod tests {
             trusted: false,
             ..report()
         };
-        assert_eq!(
-            accept(&policy, &p, &untrusted),
-            Err(Rejection::Untrusted)
-        );
+        assert_eq!(accept(&policy, &p, &untrusted), Err(Rejection::Untrusted));
         let disagrees = DampingReport {
             agrees: false,
             ..report()
@@ -359,7 +353,8 @@ mod tests {
         assert!(matches!(
             accept(&policy, &p, &no_oscillator),
             Err(Rejection::Frequency { model_hz: None, .. })
-        ));        let onset = DampingReport {
+        ));
+        let onset = DampingReport {
             verdict: Verdict::SelfExcited,
             ..report()
         };
@@ -377,7 +372,10 @@ mod tests {
             fit_nmae: f64::NAN,
             ..report()
         };
-        assert!(matches!(accept(&policy, &p, &nan), Err(Rejection::Fit { .. })));
+        assert!(matches!(
+            accept(&policy, &p, &nan),
+            Err(Rejection::Fit { .. })
+        ));
     }
 
     #[test]

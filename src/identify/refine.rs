@@ -12,7 +12,7 @@ use super::polish::polish;
 use super::problem::{Initial, Problem};
 use super::split::{initial_from_data, split};
 use super::{
-    nmae, predict, summarize, IdentifyError, Identification, InitialValues, Output, RunResult,
+    nmae, predict, summarize, Identification, IdentifyError, InitialValues, Output, RunResult,
 };
 use crate::de::Objective;
 use crate::ode::Method;

@@ -344,7 +344,7 @@ fn median(mut v: Vec<f64>) -> f64 {
     }
     v.sort_by(f64::total_cmp);
     let m = v.len() / 2;
-    if v.len() % 2 == 1 {
+    if !v.len().is_multiple_of(2) {
         v[m]
     } else {
         0.5 * (v[m - 1] + v[m])
@@ -557,8 +557,7 @@ async fn bench(args: BenchDaemonArgs) -> anyhow::Result<()> {
                 c.replaced,
                 c.dropped,
                 c.failures,
-                c.cpu_per_window
-                    .map_or("-".into(), |v| format!("{v:.4}")),
+                c.cpu_per_window.map_or("-".into(), |v| format!("{v:.4}")),
                 c.rss
                     .map_or("-".into(), |(r, p)| format!("{r:.0} ({p:.0})")),
                 if ok { "yes" } else { "no" }
