@@ -344,7 +344,7 @@ fn median(mut v: Vec<f64>) -> f64 {
     }
     v.sort_by(f64::total_cmp);
     let m = v.len() / 2;
-    if !v.len().is_multiple_of(2) {
+    if v.len() % 2 == 1 {
         v[m]
     } else {
         0.5 * (v[m - 1] + v[m])
