@@ -1,7 +1,8 @@
 //! The daemon's per-window analyzer: the model compiled and the settings checked once per gate,
 //! then [`Analyzer::analyze`] for every window.
 
-use super::series::{analyze_series_with, SeriesOptions};
+use super::series::{analyze_series_with, track_series_with, SeriesOptions};
+use super::tracking::{self, Path, Previous, TrackingPolicy};
 use super::{AnalysisError, AnalysisSettings, Signal, WindowAnalysis, WindowInput};
 use crate::data::TimeSeries;
 use crate::identify;
@@ -17,6 +18,8 @@ pub struct Analyzer {
     /// a time and returned, so FFTs are planned once per window length and worker, not per
     /// window. Bounded by the number of concurrent analyses.
     spectral_pool: std::sync::Arc<std::sync::Mutex<Vec<crate::spectral::SpectralAnalyzer>>>,
+    /// When [`Analyzer::analyze_tracked`] may refine the previous window's model.
+    tracking: TrackingPolicy,
 }
 
 impl Analyzer {
@@ -45,7 +48,22 @@ impl Analyzer {
             settings,
             model,
             spectral_pool: Default::default(),
+            tracking: TrackingPolicy::default(),
         })
+    }
+
+    /// The same analyzer with another tracking policy (checked).
+    pub fn with_tracking(mut self, policy: TrackingPolicy) -> Result<Analyzer, AnalysisError> {
+        policy
+            .validate()
+            .map_err(|e| AnalysisError::Settings(format!("tracking.{e}")))?;
+        self.tracking = policy;
+        Ok(self)
+    }
+
+    /// The tracking policy.
+    pub fn tracking(&self) -> &TrackingPolicy {
+        &self.tracking
     }
 
     /// The settings this analyzer was made with.
@@ -61,7 +79,40 @@ impl Analyzer {
         warm: Option<&[f64]>,
         seed: u64,
     ) -> Result<WindowAnalysis, AnalysisError> {
-        self.analyze_with(input, warm, seed, true)
+        self.analyze_with(input, Start::Search(warm), seed, true)
+    }
+
+    /// Analyses a window of a gate whose last window is `previous` (`None`: a new gate): the
+    /// tracked path when [`tracking::plan`] allows it and [`tracking::accept`] takes the refined
+    /// model, else the full search warm-started from `previous` (what [`Analyzer::analyze`]
+    /// does). The result's `path` says which; its `seconds` and `evaluations` include a refused
+    /// refinement. A refinement that fails is not an error: the full search runs and reports
+    /// its own.
+    pub fn analyze_tracked(
+        &self,
+        input: WindowInput<'_>,
+        previous: Option<&Previous>,
+        seed: u64,
+    ) -> Result<WindowAnalysis, AnalysisError> {
+        let started = std::time::Instant::now();
+        let mut refused_evaluations = 0;
+        if let Ok(p) = tracking::plan(&self.tracking, previous, input.t0) {
+            let start = Start::Refine(&p.coefficients, self.tracking.refine_evaluations);
+            if let Ok(a) = self.analyze_with(input, start, seed, true) {
+                if tracking::accept(&self.tracking, p, &a.damping).is_ok() {
+                    return Ok(WindowAnalysis {
+                        path: Path::Tracked,
+                        ..a
+                    });
+                }
+                refused_evaluations = a.evaluations;
+            }
+        }
+        let warm = previous.map(|p| p.coefficients.as_slice());
+        let mut a = self.analyze_with(input, Start::Search(warm), seed, true)?;
+        a.evaluations += refused_evaluations;
+        a.seconds = started.elapsed().as_secs_f64();
+        Ok(a)
     }
 
     /// [`Analyzer::analyze`] without the FFT-biased initial population (for the benchmark that
@@ -71,13 +122,13 @@ impl Analyzer {
         input: WindowInput<'_>,
         seed: u64,
     ) -> Result<WindowAnalysis, AnalysisError> {
-        self.analyze_with(input, None, seed, false)
+        self.analyze_with(input, Start::Search(None), seed, false)
     }
 
     fn analyze_with(
         &self,
         input: WindowInput<'_>,
-        warm: Option<&[f64]>,
+        start: Start<'_>,
         seed: u64,
         fft_bias: bool,
     ) -> Result<WindowAnalysis, AnalysisError> {
@@ -128,14 +179,24 @@ impl Analyzer {
         // Borrow a spectral analyzer (the lock is held only to pop and push, never during the
         // analysis; a poisoned pool just means planning afresh).
         let mut spectral = self.spectral_pool.lock().ok().and_then(|mut p| p.pop());
-        let result = analyze_series_with(
-            &self.model,
-            &series,
-            &opts,
-            warm,
-            &mut spectral,
-            |_, _, _| {},
-        );
+        let result = match start {
+            Start::Search(warm) => analyze_series_with(
+                &self.model,
+                &series,
+                &opts,
+                warm,
+                &mut spectral,
+                |_, _, _| {},
+            ),
+            Start::Refine(from, evaluations) => track_series_with(
+                &self.model,
+                &series,
+                &opts,
+                from,
+                evaluations,
+                &mut spectral,
+            ),
+        };
         if let (Some(sa), Ok(mut pool)) = (spectral, self.spectral_pool.lock()) {
             pool.push(sa);
         }
@@ -153,6 +214,16 @@ impl Analyzer {
             evaluations: run.evaluations,
             seconds: started.elapsed().as_secs_f64(),
             warm_start: a.coefficients,
+            path: Path::Full,
         })
     }
+}
+
+/// Where [`Analyzer::analyze_with`] starts.
+#[derive(Clone, Copy)]
+enum Start<'a> {
+    /// The DE search, warm-started.
+    Search(Option<&'a [f64]>),
+    /// The refinement of these coefficients with at most this many integrations.
+    Refine(&'a [f64], usize),
 }

@@ -11,6 +11,7 @@
 //!   analysis, force-mode scaling, initial population, identification, damping figures.
 //! - `verdict`: agreement with the spectrum and the verdict table of `docs/damping.md`.
 //! - `report`: the damping report and its parts.
+//! - `tracking`: when a window may refine the previous window's model instead of searching.
 //! - `analyzer`: the daemon's per-gate [`Analyzer`].
 
 mod analyzer;
@@ -20,6 +21,7 @@ mod report;
 mod series;
 #[cfg(test)]
 mod tests;
+pub mod tracking;
 mod verdict;
 
 pub use analyzer::Analyzer;
@@ -27,9 +29,10 @@ pub use linearisation::{equivalent_damping, limit_cycle, time_to_amplitude, Line
 pub use population::{biased_population, SpectralTarget};
 pub use report::{AmbientZeta, DampingReport, Verdict, Zeta0Source};
 pub use series::{
-    analyze_series, analyze_series_with, pre_run, term_scales, SeriesAnalysis, SeriesOptions,
-    DAMPING_FORCE_FRACTION,
+    analyze_series, analyze_series_with, pre_run, term_scales, track_series_with, SeriesAnalysis,
+    SeriesOptions, DAMPING_FORCE_FRACTION,
 };
+pub use tracking::{Path, Previous, TrackingPolicy};
 pub use verdict::{decide, Decision, VerdictFacts};
 
 use serde::{Deserialize, Serialize};
@@ -92,6 +95,10 @@ pub struct WindowAnalysis {
     pub seconds: f64,
     /// Internal state to warm-start the next window of the same gate.
     pub warm_start: Vec<f64>,
+    /// Whether the window was identified by the full search or tracked from the previous
+    /// window's model ([`tracking`]).
+    #[serde(default)]
+    pub path: Path,
 }
 
 /// Why a window could not be analysed.

@@ -187,6 +187,49 @@ pub fn analyze_series_with(
     spectral: &mut Option<SpectralAnalyzer>,
     progress: impl FnMut(usize, usize, f64),
 ) -> Result<SeriesAnalysis, AnalysisError> {
+    analyze(model, series, opts, Start::Search(warm), spectral, progress)
+}
+
+/// [`analyze_series_with`] without the DE search: the coefficients `from` (physical units, e.g.
+/// the previous window's of the same gate) are refined by least squares with at most about
+/// `max_evaluations` integrations ([`identify::refine`]); everything else (pre-processing,
+/// model-free analysis, scaling, damping figures, verdict) is the same. Whether the result may
+/// stand is the caller's decision ([`super::tracking::accept`]).
+pub fn track_series_with(
+    model: &Model,
+    series: &TimeSeries,
+    opts: &SeriesOptions,
+    from: &[f64],
+    max_evaluations: usize,
+    spectral: &mut Option<SpectralAnalyzer>,
+) -> Result<SeriesAnalysis, AnalysisError> {
+    analyze(
+        model,
+        series,
+        opts,
+        Start::Refine(from, max_evaluations),
+        spectral,
+        |_, _, _| {},
+    )
+}
+
+/// Where the identification of [`analyze`] starts.
+#[derive(Clone, Copy)]
+enum Start<'a> {
+    /// The DE search, with an optional warm start in its initial population.
+    Search(Option<&'a [f64]>),
+    /// The least-squares refinement of these coefficients, with this many integrations at most.
+    Refine(&'a [f64], usize),
+}
+
+fn analyze(
+    model: &Model,
+    series: &TimeSeries,
+    opts: &SeriesOptions,
+    start: Start<'_>,
+    spectral: &mut Option<SpectralAnalyzer>,
+    progress: impl FnMut(usize, usize, f64),
+) -> Result<SeriesAnalysis, AnalysisError> {
     let n = series.len();
     if n < 2 {
         return Err(AnalysisError::Window(format!("{n} samples are too few")));
@@ -202,31 +245,46 @@ pub fn analyze_series_with(
     } else {
         vec![1.0; model.n_coeffs()]
     };
-    let initial_population = initial_population(
-        model,
-        warm,
-        &PopulationInputs {
-            scales: &scales,
-            population: config.search.population,
-            seed: config.protocol.seed,
-            fit_initial_conditions: matches!(config.initial, identify::Initial::Fit),
-            fft_bias: opts.fft_bias,
-            target: free.omega.map(|omega| SpectralTarget {
-                omega,
-                sigma: free.sigma_clean,
-            }),
-            t0,
-            y_scale: scale.y,
-            v_scale: scale.v,
-        },
-    );
-    config.search.initial_population = initial_population;
+    // The refinement has no population: the biased one (dozens of linearisations) is skipped.
+    if let Start::Search(warm) = start {
+        let initial_population = initial_population(
+            model,
+            warm,
+            &PopulationInputs {
+                scales: &scales,
+                population: config.search.population,
+                seed: config.protocol.seed,
+                fit_initial_conditions: matches!(config.initial, identify::Initial::Fit),
+                fft_bias: opts.fft_bias,
+                target: free.omega.map(|omega| SpectralTarget {
+                    omega,
+                    sigma: free.sigma_clean,
+                }),
+                t0,
+                y_scale: scale.y,
+                v_scale: scale.v,
+            },
+        );
+        config.search.initial_population = initial_population;
+    }
 
-    let identification =
-        identify::identify(model, &data, &config, progress).map_err(|e| match e {
-            identify::IdentifyError::De(e) => AnalysisError::Settings(e.to_string()),
-            other => AnalysisError::Settings(other.to_string()),
-        })?;
+    let identification = match start {
+        Start::Search(_) => identify::identify(model, &data, &config, progress),
+        Start::Refine(from, max_evaluations) => config.validate().and_then(|()| {
+            let problem = config.problem(model, &data)?;
+            identify::refine(
+                &problem,
+                &config.search,
+                &config.protocol,
+                from,
+                max_evaluations,
+            )
+        }),
+    }
+    .map_err(|e| match e {
+        identify::IdentifyError::De(e) => AnalysisError::Settings(e.to_string()),
+        other => AnalysisError::Settings(other.to_string()),
+    })?;
     let best = identification.best_run().clone();
     let c = best.coefficients.clone();
     let lin = Linearization::of(model, &c, t0, scale.y, scale.v);

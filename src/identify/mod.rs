@@ -25,6 +25,7 @@
 //! - `fitness`: the training objective ([`Fitness`]);
 //! - `search`: one attempt of a run, the DE with continuation and restarts, then the polish;
 //! - `polish`: the Levenberg-Marquardt polish of a DE winner;
+//! - `refine`: the polish alone from known coefficients (the daemon's tracked windows);
 //! - `split`: the train/test split and the initial conditions from the data;
 //! - `predict`: the model's trajectory and prediction at the sample times;
 //! - `stats`: NMAE, summaries and the noise estimate.
@@ -41,6 +42,7 @@ mod fitness;
 mod polish;
 mod predict;
 mod problem;
+mod refine;
 mod search;
 mod split;
 mod stats;
@@ -50,6 +52,7 @@ pub use fitness::{Fitness, FitnessWorkspace, LANES};
 pub use predict::{predict, trajectory};
 pub use problem::Problem;
 pub use problem::{Initial, Output};
+pub use refine::refine;
 pub use search::STALL_GENERATIONS_PER_UNKNOWN;
 pub use split::{initial_from_data, split};
 pub use stats::{nmae, std_dev, summarize};

@@ -3,11 +3,14 @@
 //! 1. Ingest throughput (samples/s) through `POST /api/v1/samples` (JSON), `POST /api/v2/write`
 //!    (line protocol over HTTP) and the raw TCP listener, with a trivial analyzer (identification
 //!    costs nothing), the daemon in-process on loopback, `--senders` concurrent clients.
-//! 2. Identification latency per window (the real [`crate::analysis::Analyzer`], default gate
-//!    settings, 10 s windows of the simulated lab gate at 200 Hz), cold and warm-started.
+//! 2. Identification cost per window (the real [`crate::analysis::Analyzer`], default gate
+//!    settings, 10 s windows of the simulated lab gate at 200 Hz every 5 s): CPU seconds of the
+//!    analysing thread, cold (full search) and tracked (`Analyzer::analyze_tracked` with the
+//!    gate's memory, as the daemon runs it), with the path each window took.
 //! 3. Gates sustained: N gates at 200 Hz, 10 s windows, identified every 5 s, streamed at real-time
 //!    pace for `--seconds`; sustained when no job was replaced, none dropped and none failed.
-//!    N doubles until it is not sustained (or `--max-gates`).
+//!    N doubles until it is not sustained (or `--max-gates`), or runs through `--gates`; each
+//!    count reports the tracked share, the process CPU per identified window and the RSS.
 
 use std::net::SocketAddr;
 use std::panic::{catch_unwind, AssertUnwindSafe};
@@ -21,7 +24,7 @@ use super::config::Config;
 use super::server::{run_with_analyzer, Listeners};
 use super::worker::{AnalyzerMap, WindowAnalyzer};
 use crate::analysis::{
-    AnalysisError, Analyzer, DampingReport, Verdict, WindowAnalysis, WindowInput,
+    AnalysisError, Analyzer, DampingReport, Path, Previous, Verdict, WindowAnalysis, WindowInput,
 };
 use crate::simulate::{GateParams, GateSimulator, Scenario};
 
@@ -46,6 +49,10 @@ pub struct BenchDaemonArgs {
     /// Largest gate count tried.
     #[arg(long, default_value_t = 64)]
     pub max_gates: usize,
+    /// Gate counts of the capacity sweep, e.g. `8,32,128,200,512` (every one is run); without
+    /// it, powers of two up to `--max-gates` until one is not sustained.
+    #[arg(long, value_delimiter = ',')]
+    pub gates: Vec<usize>,
     /// Identification worker threads (0: cores - 1).
     #[arg(long, default_value_t = 0)]
     pub worker_threads: usize,
@@ -79,6 +86,7 @@ impl WindowAnalyzer for Trivial {
             evaluations: 0,
             seconds: 0.0,
             warm_start: Vec::new(),
+            path: Default::default(),
         })
     }
 }
@@ -243,32 +251,86 @@ async fn ingest_rate(args: &BenchDaemonArgs, proto: Proto) -> anyhow::Result<f64
     Ok(expected / secs)
 }
 
-/// Identification latency of `windows` windows: (cold seconds, warm seconds) per window.
-fn latency(windows: usize) -> anyhow::Result<Vec<(f64, f64)>> {
+/// CPU seconds of the calling thread (Linux `schedstat`, nanoseconds), `None` elsewhere. CPU
+/// rather than wall time: the machine is shared with other builds.
+fn thread_cpu_seconds() -> Option<f64> {
+    let text = std::fs::read_to_string("/proc/thread-self/schedstat").ok()?;
+    let ns: f64 = text.split_whitespace().next()?.parse().ok()?;
+    Some(ns * 1e-9)
+}
+
+/// CPU seconds of this process (user + system, clock ticks of 10 ms), `None` off Linux.
+fn process_cpu_seconds() -> Option<f64> {
+    let text = std::fs::read_to_string("/proc/self/stat").ok()?;
+    // fields after the command (which may contain spaces) start after the last ')'
+    let rest = text.rsplit_once(')')?.1;
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let (utime, stime): (f64, f64) = (f.get(11)?.parse().ok()?, f.get(12)?.parse().ok()?);
+    Some((utime + stime) / 100.0)
+}
+
+/// `VmRSS` and `VmHWM` (peak) of this process, MiB, `None` off Linux.
+fn rss_mib() -> Option<(f64, f64)> {
+    let text = std::fs::read_to_string("/proc/self/status").ok()?;
+    let field = |name: &str| -> Option<f64> {
+        let line = text.lines().find(|l| l.starts_with(name))?;
+        let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+        Some(kb / 1024.0)
+    };
+    Some((field("VmRSS:")?, field("VmHWM:")?))
+}
+
+/// Seconds spent by `f` on this thread: CPU when known, else wall.
+fn timed<T>(f: impl FnOnce() -> T) -> (T, f64) {
+    let (c0, t0) = (thread_cpu_seconds(), Instant::now());
+    let out = f();
+    let secs = match (c0, thread_cpu_seconds()) {
+        (Some(a), Some(b)) => b - a,
+        _ => t0.elapsed().as_secs_f64(),
+    };
+    (out, secs)
+}
+
+/// One row of the latency table.
+struct LatencyRow {
+    cold: f64,
+    tracked: f64,
+    path: Path,
+}
+
+/// Identification cost of `windows` consecutive windows (5 s apart): each analysed cold (full
+/// search, no warm start) and as the daemon does (tracked when the rule allows).
+fn latency(windows: usize) -> anyhow::Result<Vec<LatencyRow>> {
     let config = Config::embedded();
-    let analyzer = Analyzer::new(config.defaults.analysis_settings())?;
+    let analyzer = Analyzer::new(config.defaults.analysis_settings())?
+        .with_tracking(config.defaults.tracking.clone())?;
     let n = config.defaults.window_samples();
     let every = config.defaults.every_samples();
+    let rate = config.defaults.rate_hz;
     let mut sim = GateSimulator::scenario(GateParams::default(), Scenario::Stable, 1);
     let mut values = vec![0.0; n];
     sim.fill(&mut values);
-    let mut warm: Option<Vec<f64>> = None;
+    let mut previous: Option<Previous> = None;
     let mut out = Vec::new();
     for w in 0..windows {
+        let t0 = (w * every) as f64 / rate;
         let input = WindowInput {
-            t0: 0.0,
-            rate_hz: config.defaults.rate_hz,
+            t0,
+            rate_hz: rate,
             values: &values,
         };
-        let t = Instant::now();
-        let cold = analyzer.analyze(input, None, w as u64)?;
-        let cold_s = t.elapsed().as_secs_f64();
-        let t = Instant::now();
-        let seed = warm.clone().unwrap_or_else(|| cold.warm_start.clone());
-        let next = analyzer.analyze(input, Some(&seed), w as u64)?;
-        let warm_s = t.elapsed().as_secs_f64();
-        warm = Some(next.warm_start);
-        out.push((cold_s, warm_s));
+        let seed = (w * every + n) as u64;
+        let (cold, cold_s) = timed(|| analyzer.analyze(input, None, seed));
+        cold?;
+        let (next, tracked_s) = timed(|| analyzer.analyze_tracked(input, previous.as_ref(), seed));
+        let next = next?;
+        let t_end = t0 + (n - 1) as f64 / rate;
+        previous = Some(Previous::after(previous.as_ref(), &next, t0, t_end));
+        out.push(LatencyRow {
+            cold: cold_s,
+            tracked: tracked_s,
+            path: next.path,
+        });
         // slide the window by the cadence
         values.drain(..every);
         let mut more = vec![0.0; every];
@@ -278,25 +340,56 @@ fn latency(windows: usize) -> anyhow::Result<Vec<(f64, f64)>> {
     Ok(out)
 }
 
+fn median(mut v: Vec<f64>) -> f64 {
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    v.sort_by(f64::total_cmp);
+    let m = v.len() / 2;
+    if v.len() % 2 == 1 {
+        v[m]
+    } else {
+        0.5 * (v[m - 1] + v[m])
+    }
+}
+
+/// What one gate count of the capacity measurement gave.
+struct Capacity {
+    identifications: f64,
+    replaced: f64,
+    dropped: f64,
+    failures: f64,
+    tracked: f64,
+    /// Process CPU seconds (ingestion included) per identified window.
+    cpu_per_window: Option<f64>,
+    /// RSS and peak RSS at the end of the run, MiB.
+    rss: Option<(f64, f64)>,
+    workers: usize,
+}
+
 /// One gate count: streams `gates` gates at real-time pace; returns
 /// (identifications, replaced, dropped, failures).
 async fn capacity_run(
     gates: usize,
     seconds: f64,
     worker_threads: usize,
-) -> anyhow::Result<(f64, f64, f64, f64)> {
+) -> anyhow::Result<Capacity> {
     let text = format!(
         "[server]\nworker_threads = {worker_threads}\nmax_gates = {}\n\
          [defaults]\n# replayed synthetic times: no time bounds\nmax_past_seconds = 0.0\n\
          max_future_seconds = 0.0\n",
         gates.max(1)
     );
-    let analyzer: Arc<dyn WindowAnalyzer> =
-        Arc::new(AnalyzerMap::from_config(&Config::from_toml(&text)?)?);
+    let config = Config::from_toml(&text)?;
+    let workers = config.server.effective_worker_threads();
+    let analyzer: Arc<dyn WindowAnalyzer> = Arc::new(AnalyzerMap::from_config(&config)?);
     let r = start(&text, analyzer).await?;
     let client = reqwest::Client::new();
     let rate = 200.0;
-    let chunk = 20usize; // 0.1 s
+    let cpu0 = process_cpu_seconds();
+    // 0.1 s per request up to 32 gates; 1 s beyond, so that the sender (one request at a time)
+    // keeps real-time pace with hundreds of gates (the cadence is 5 s either way).
+    let chunk = if gates <= 32 { 20usize } else { 200 };
     let start_t = 1_700_000_000.0;
     let backfill = 2000usize; // one full window at once, so identification starts at once
     let mut sims: Vec<GateSimulator> = (0..gates)
@@ -346,16 +439,33 @@ async fn capacity_run(
     })
     .await;
     let m = metrics(&client, r.http).await?;
+    let cpu = process_cpu_seconds();
+    let rss = rss_mib();
     r.stop().await;
-    Ok((
-        metric_sum(&m, "gatewatch_identification_duration_seconds_count"),
-        metric_sum(&m, "gatewatch_identification_jobs_replaced_total"),
-        metric_sum(
+    let identifications = metric_sum(&m, "gatewatch_identification_duration_seconds_count");
+    let tracked: f64 = m
+        .lines()
+        .filter(|l| {
+            l.starts_with("gatewatch_identifications_total{") && l.contains("path=\"tracked\"")
+        })
+        .filter_map(|l| l.rsplit(' ').next()?.parse::<f64>().ok())
+        .sum();
+    Ok(Capacity {
+        identifications,
+        replaced: metric_sum(&m, "gatewatch_identification_jobs_replaced_total"),
+        dropped: metric_sum(
             &m,
             "gatewatch_identification_failures_total{reason=\"queue_full\"}",
         ),
-        metric_sum(&m, "gatewatch_identification_failures_total{"),
-    ))
+        failures: metric_sum(&m, "gatewatch_identification_failures_total{"),
+        tracked,
+        cpu_per_window: match (cpu0, cpu) {
+            (Some(a), Some(b)) if identifications > 0.0 => Some((b - a) / identifications),
+            _ => None,
+        },
+        rss,
+        workers,
+    })
 }
 
 async fn bench(args: BenchDaemonArgs) -> anyhow::Result<()> {
@@ -380,7 +490,9 @@ async fn bench(args: BenchDaemonArgs) -> anyhow::Result<()> {
         }
     }
     if !skip("latency") {
-        println!("\n2. identification latency per window (default gate settings, 10 s at 200 Hz)");
+        println!(
+            "\n2. identification CPU per window (default gate settings, 10 s at 200 Hz every 5 s)"
+        );
         let windows = args.windows;
         let r = tokio::task::spawn_blocking(move || {
             catch_unwind(AssertUnwindSafe(|| latency(windows)))
@@ -388,15 +500,28 @@ async fn bench(args: BenchDaemonArgs) -> anyhow::Result<()> {
         .await?;
         match r {
             Ok(Ok(rows)) => {
-                println!("| window | cold, s | warm-started, s |");
-                println!("|---:|---:|---:|");
-                for (i, (c, w)) in rows.iter().enumerate() {
-                    println!("| {i} | {c:.3} | {w:.3} |");
+                println!("| window | cold (full search), s | as the daemon runs it, s | path |");
+                println!("|---:|---:|---:|---|");
+                for (i, r) in rows.iter().enumerate() {
+                    println!(
+                        "| {i} | {:.4} | {:.4} | {} |",
+                        r.cold,
+                        r.tracked,
+                        r.path.as_str()
+                    );
                 }
-                let mean = |f: fn(&(f64, f64)) -> f64| {
-                    rows.iter().map(f).sum::<f64>() / rows.len().max(1) as f64
-                };
-                println!("| mean | {:.3} | {:.3} |", mean(|r| r.0), mean(|r| r.1));
+                let cold = median(rows.iter().map(|r| r.cold).collect());
+                let tracked: Vec<f64> = rows
+                    .iter()
+                    .filter(|r| r.path == Path::Tracked)
+                    .map(|r| r.tracked)
+                    .collect();
+                println!(
+                    "median cold {cold:.4} s; median tracked {:.4} s ({} of {} windows tracked)",
+                    median(tracked.clone()),
+                    tracked.len(),
+                    rows.len()
+                );
             }
             Ok(Err(e)) => println!("analysis failed: {e}"),
             Err(_) => println!("the analyzer panicked (not implemented in this build?)"),
@@ -407,25 +532,47 @@ async fn bench(args: BenchDaemonArgs) -> anyhow::Result<()> {
             "\n3. gates sustained: 200 Hz, 10 s windows every 5 s, real-time pace for {} s",
             args.seconds
         );
-        println!("| gates | jobs finished | replaced | queue full | failures | sustained |");
-        println!("|---:|---:|---:|---:|---:|---|");
-        let mut gates = 1usize;
+        println!(
+            "| gates | workers | gates/worker | jobs finished | tracked | replaced | queue full \
+             | failures | process CPU s/window | RSS MiB (peak) | sustained |"
+        );
+        println!("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|");
+        let sweep = !args.gates.is_empty();
+        let counts: Vec<usize> = if sweep {
+            args.gates.clone()
+        } else {
+            std::iter::successors(Some(1usize), |g| g.checked_mul(2))
+                .take_while(|g| *g <= args.max_gates)
+                .collect()
+        };
         let mut best = 0usize;
-        while gates <= args.max_gates {
-            let (ids, replaced, dropped, failures) =
-                capacity_run(gates, args.seconds, args.worker_threads).await?;
-            let ok = replaced == 0.0 && dropped == 0.0 && failures == 0.0 && ids > 0.0;
+        for gates in counts {
+            let c = capacity_run(gates, args.seconds, args.worker_threads).await?;
+            let ok = c.replaced == 0.0
+                && c.dropped == 0.0
+                && c.failures == 0.0
+                && c.identifications > 0.0;
             println!(
-                "| {gates} | {ids} | {replaced} | {dropped} | {failures} | {} |",
+                "| {gates} | {} | {:.1} | {} | {} | {} | {} | {} | {} | {} | {} |",
+                c.workers,
+                gates as f64 / c.workers.max(1) as f64,
+                c.identifications,
+                c.tracked,
+                c.replaced,
+                c.dropped,
+                c.failures,
+                c.cpu_per_window.map_or("-".into(), |v| format!("{v:.4}")),
+                c.rss
+                    .map_or("-".into(), |(r, p)| format!("{r:.0} ({p:.0})")),
                 if ok { "yes" } else { "no" }
             );
-            if !ok {
+            if ok {
+                best = best.max(gates);
+            } else if !sweep {
                 break;
             }
-            best = gates;
-            gates *= 2;
         }
-        println!("\nsustained: {best} gates (largest power of two tried with no job replaced)");
+        println!("\nsustained: {best} gates (largest count tried with no job replaced)");
     }
     Ok(())
 }

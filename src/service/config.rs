@@ -11,7 +11,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::alert::notify::NotifyConfig;
 use crate::alert::AlertRules;
-use crate::analysis::{AnalysisError, AnalysisSettings, Analyzer, Signal};
+use crate::analysis::{AnalysisError, AnalysisSettings, Analyzer, Signal, TrackingPolicy};
 
 /// The embedded default configuration (the documented example), used by `serve` without
 /// `--config` and by the demo.
@@ -292,6 +292,9 @@ pub struct GateConfig {
     pub max_past_seconds: f64,
     /// Alert rules.
     pub alert: AlertRules,
+    /// When a window may refine the previous window's model instead of searching
+    /// (`docs/design.md`, "Tracking between windows").
+    pub tracking: TrackingPolicy,
 }
 
 impl Default for GateConfig {
@@ -311,6 +314,7 @@ impl Default for GateConfig {
             max_future_seconds: DEFAULT_MAX_FUTURE_SECONDS,
             max_past_seconds: DEFAULT_MAX_PAST_SECONDS,
             alert: AlertRules::default(),
+            tracking: TrackingPolicy::default(),
         }
     }
 }
@@ -431,6 +435,10 @@ impl GateConfig {
         }
         if !(a.stale_after_seconds.is_finite() && a.stale_after_seconds > 0.0) {
             return err("alert.stale_after_seconds", "must be > 0");
+        }
+        if let Err(e) = self.tracking.validate() {
+            let (key, msg) = e.split_once(": ").unwrap_or((&e, "invalid"));
+            return err(&format!("tracking.{key}"), msg);
         }
         // the model is compiled here as `serve` compiles it, so `check-config` refuses what
         // `serve` would refuse (a model that does not parse, has no `ydd` or no unknowns)

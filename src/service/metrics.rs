@@ -64,6 +64,9 @@ pub struct Metrics {
     pub jobs_replaced: IntCounter,
     /// `gatewatch_identification_failures_total{reason}`.
     pub identification_failures: IntCounterVec,
+    /// `gatewatch_identifications_total{gate,path}`: windows identified, by path ("tracked" or
+    /// "full"; two values per gate, and gates are bounded by `max_gates`).
+    pub identifications: IntCounterVec,
     /// `gatewatch_http_requests_total{route,code}`.
     pub http_requests: IntCounterVec,
     /// `gatewatch_http_request_duration_seconds{route}`.
@@ -322,6 +325,11 @@ impl Metrics {
                 "gatewatch_identification_failures_total",
                 "Identification jobs that failed, by reason.",
                 &["reason"],
+            ),
+            identifications: counter(
+                "gatewatch_identifications_total",
+                "Windows identified per gate, by path: tracked from the previous model or full.",
+                &["gate", "path"],
             ),
             http_requests: counter(
                 "gatewatch_http_requests_total",

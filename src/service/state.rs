@@ -157,6 +157,8 @@ pub struct IdentificationView {
     pub damping: crate::analysis::DampingReport,
     /// Wall time, seconds.
     pub seconds: f64,
+    /// How the window was identified: "tracked" (the previous model refined) or "full".
+    pub path: crate::analysis::Path,
 }
 
 impl AppState {
@@ -474,6 +476,10 @@ impl AppState {
                     .last_identification
                     .with_label_values(&[g])
                     .set(unix_seconds(now));
+                self.metrics
+                    .identifications
+                    .with_label_values(&[g, a.path.as_str()])
+                    .inc();
                 let events = inner.alerts.observe(
                     g,
                     &Observation {
@@ -579,6 +585,7 @@ impl AppState {
                 coefficients: a.coefficients.iter().cloned().collect(),
                 damping: a.damping.clone(),
                 seconds: a.seconds,
+                path: a.path,
             }),
             last_error: e.last_error.clone(),
             analysed_until: e.analysed_until,

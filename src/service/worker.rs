@@ -4,8 +4,10 @@
 //! The scheduler keeps at most ONE pending job per gate: a newer window of the same gate replaces
 //! the pending one (counted in `gatewatch_identification_jobs_replaced_total`), so the queue is
 //! bounded by the number of gates whatever the ingestion rate. At most one job per gate is in
-//! flight, so the warm start of a gate's next job is always its previous result. Every job runs
-//! under `catch_unwind`: a panic in the numerics is logged and counted as a failed job.
+//! flight, so the warm start of a gate's next job is always its previous result: the pool keeps
+//! each gate's [`Previous`] (the tracking memory of `analysis::tracking`) and hands it to the
+//! next job. Every job runs under `catch_unwind`: a panic in the numerics is logged and counted
+//! as a failed job.
 
 use std::collections::{HashMap, HashSet, VecDeque};
 use std::panic::{catch_unwind, AssertUnwindSafe};
@@ -14,7 +16,7 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use super::sync::lock;
-use crate::analysis::{AnalysisError, Analyzer, WindowAnalysis, WindowInput};
+use crate::analysis::{AnalysisError, Analyzer, Previous, WindowAnalysis, WindowInput};
 
 /// What the pool needs from the numerics; implemented for [`AnalyzerMap`] and by test fakes.
 pub trait WindowAnalyzer: Send + Sync + 'static {
@@ -26,6 +28,19 @@ pub trait WindowAnalyzer: Send + Sync + 'static {
         warm: Option<&[f64]>,
         seed: u64,
     ) -> Result<WindowAnalysis, AnalysisError>;
+
+    /// Analyses one window of `gate` whose last window is `previous`; the default ignores
+    /// tracking and warm-starts [`WindowAnalyzer::analyze`] from the previous coefficients.
+    fn analyze_tracked(
+        &self,
+        gate: &str,
+        input: WindowInput<'_>,
+        previous: Option<&Previous>,
+        seed: u64,
+    ) -> Result<WindowAnalysis, AnalysisError> {
+        let warm = previous.map(|p| p.coefficients.as_slice());
+        self.analyze(gate, input, warm, seed)
+    }
 }
 
 /// One [`Analyzer`] per configured gate, and the defaults' analyzer for the others.
@@ -38,10 +53,12 @@ pub struct AnalyzerMap {
 impl AnalyzerMap {
     /// Builds the analyzers from the configuration (compiles each model once).
     pub fn from_config(config: &super::config::Config) -> Result<AnalyzerMap, AnalysisError> {
-        let default = Analyzer::new(config.defaults.analysis_settings())?;
+        let default = Analyzer::new(config.defaults.analysis_settings())?
+            .with_tracking(config.defaults.tracking.clone())?;
         let mut gates = HashMap::new();
         for (id, g) in &config.gates {
             let a = Analyzer::new(g.analysis_settings())
+                .and_then(|a| a.with_tracking(g.tracking.clone()))
                 .map_err(|e| AnalysisError::Settings(format!("gates.{id}: {e}")))?;
             gates.insert(id.clone(), a);
         }
@@ -61,6 +78,19 @@ impl WindowAnalyzer for AnalyzerMap {
             .get(gate)
             .unwrap_or(&self.default)
             .analyze(input, warm, seed)
+    }
+
+    fn analyze_tracked(
+        &self,
+        gate: &str,
+        input: WindowInput<'_>,
+        previous: Option<&Previous>,
+        seed: u64,
+    ) -> Result<WindowAnalysis, AnalysisError> {
+        self.gates
+            .get(gate)
+            .unwrap_or(&self.default)
+            .analyze_tracked(input, previous, seed)
     }
 }
 
@@ -125,7 +155,8 @@ struct Sched {
     pending: HashMap<String, Job>,
     order: VecDeque<String>,
     in_flight: HashSet<String>,
-    warm: HashMap<String, Vec<f64>>,
+    /// Each gate's tracking memory (bounded by the gates, as `pending`).
+    previous: HashMap<String, Previous>,
     closed: bool,
     running_workers: usize,
 }
@@ -253,7 +284,7 @@ impl WorkerPool {
 
 fn worker_loop(shared: Arc<Shared>) {
     loop {
-        let (job, warm) = {
+        let (job, previous) = {
             let mut s = lock(&shared.sched);
             loop {
                 if s.closed {
@@ -266,8 +297,8 @@ fn worker_loop(shared: Arc<Shared>) {
                     let gate = s.order.remove(pos).expect("position is in range");
                     let job = s.pending.remove(&gate).expect("order and pending agree");
                     s.in_flight.insert(gate.clone());
-                    let warm = s.warm.get(&gate).cloned();
-                    break (job, warm);
+                    let previous = s.previous.get(&gate).cloned();
+                    break (job, previous);
                 }
                 s = shared.cv.wait(s).unwrap_or_else(|p| p.into_inner());
             }
@@ -275,23 +306,23 @@ fn worker_loop(shared: Arc<Shared>) {
         let started = Instant::now();
         let seed = window_seed(&job.gate, job.end_index);
         let result = catch_unwind(AssertUnwindSafe(|| {
-            shared.analyzer.analyze(
+            shared.analyzer.analyze_tracked(
                 &job.gate,
                 WindowInput {
                     t0: job.t0,
                     rate_hz: job.rate_hz,
                     values: &job.values,
                 },
-                warm.as_deref(),
+                previous.as_ref(),
                 seed,
             )
         }));
         let elapsed = started.elapsed();
         let outcome = match result {
             Ok(Ok(a)) => {
-                lock(&shared.sched)
-                    .warm
-                    .insert(job.gate.clone(), a.warm_start.clone());
+                let t_end = job.t0 + job.values.len().saturating_sub(1) as f64 / job.rate_hz;
+                let next = Previous::after(previous.as_ref(), &a, job.t0, t_end);
+                lock(&shared.sched).previous.insert(job.gate.clone(), next);
                 JobOutcome::Done(Box::new(a))
             }
             Ok(Err(e)) => JobOutcome::Failed(e),

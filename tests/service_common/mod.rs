@@ -87,6 +87,7 @@ impl WindowAnalyzer for Fake {
             evaluations: 1,
             seconds: 0.0,
             warm_start: vec![n as f64],
+            path: Default::default(),
         })
     }
 }

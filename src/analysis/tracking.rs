@@ -1,0 +1,416 @@
+//! Tracking between windows: when a window may start from the previous window's model with a
+//! short least-squares refinement instead of the full DE search (`docs/design.md`, "Tracking").
+//!
+//! Two pure decisions, so that each branch is testable without numerics:
+//! - [`plan`], before the window is analysed: the full search runs when tracking is off, the
+//!   gate is new, the previous window's model was not trusted, the windows do not overlap (a
+//!   gap), or the schedule says so (every `full_every` windows);
+//! - [`accept`], after the refinement: the refined window stands only when it is still trusted,
+//!   gives the same verdict as the previous window, the model's frequency at rest is within a
+//!   tolerance of the measured dominant frequency, the model still agrees with the model-free
+//!   estimates (frequency, envelope growth) when the previous one did, and it fits within a
+//!   tolerance of the last full search's fit.
+//!
+//! The per-gate [`Previous`] lives in the service (the worker pool keeps one per gate).
+
+use super::report::{DampingReport, Verdict};
+use super::WindowAnalysis;
+use serde::{Deserialize, Serialize};
+
+/// Absolute slack of the fit test, NMAE: a tracked fit may exceed `fit_tolerance` times the
+/// last full fit by this much. Value: half the chapter's success criterion (NMAE 0.01); without
+/// it a nearly perfect full fit (NMAE 1e-4 on clean data) would make any noise a "regime change".
+pub const FIT_SLACK: f64 = 0.005;
+
+/// How a gate's windows are tracked (`[defaults.tracking]` in the daemon's configuration).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TrackingPolicy {
+    /// Whether windows may take the tracked path at all (false: every window runs the full DE).
+    pub enabled: bool,
+    /// The full search runs at least every this many windows (1: always), so that a slowly
+    /// drifting model cannot stay in a local optimum the refinement cannot leave.
+    pub full_every: usize,
+    /// A tracked fit NMAE may be at most this factor times the last full search's, plus
+    /// [`FIT_SLACK`].
+    pub fit_tolerance: f64,
+    /// The refined model's frequency at rest may differ from the window's measured dominant
+    /// frequency by at most this fraction.
+    pub frequency_tolerance: f64,
+    /// Integrations the refinement may spend (bounds a tracked window's cost).
+    pub refine_evaluations: usize,
+}
+
+impl Default for TrackingPolicy {
+    fn default() -> Self {
+        TrackingPolicy {
+            enabled: true,
+            full_every: 12,
+            fit_tolerance: 1.5,
+            frequency_tolerance: 0.05,
+            refine_evaluations: 60,
+        }
+    }
+}
+
+impl TrackingPolicy {
+    /// Checks the values; the error names the key (`full_every: must be >= 1`).
+    pub fn validate(&self) -> Result<(), String> {
+        if self.full_every == 0 {
+            return Err("full_every: must be >= 1".into());
+        }
+        if !(self.fit_tolerance.is_finite() && self.fit_tolerance >= 1.0) {
+            return Err("fit_tolerance: must be a finite number >= 1".into());
+        }
+        if !(self.frequency_tolerance.is_finite() && self.frequency_tolerance > 0.0) {
+            return Err("frequency_tolerance: must be a finite number > 0".into());
+        }
+        if self.refine_evaluations < 4 {
+            return Err("refine_evaluations: must be >= 4".into());
+        }
+        Ok(())
+    }
+}
+
+/// Which way a window was identified. Serialised as `"tracked"` / `"full"` (API, metric label).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum Path {
+    /// The previous window's model, refined by least squares and accepted by [`accept`].
+    Tracked,
+    /// The full DE search (with the polish).
+    #[default]
+    Full,
+}
+
+impl Path {
+    /// The name in the API and the metric label.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Path::Tracked => "tracked",
+            Path::Full => "full",
+        }
+    }
+}
+
+/// What a gate's tracking remembers of its last analysed window.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Previous {
+    /// The last window's coefficients (physical units): the refinement's start.
+    pub coefficients: Vec<f64>,
+    /// Fit NMAE of the last full search (the reference of the fit test).
+    pub full_fit_nmae: f64,
+    /// Windows taken on the tracked path since the last full search.
+    pub since_full: usize,
+    /// The last window's verdict.
+    pub verdict: Verdict,
+    /// Whether the last window was trusted (by its model or the ambient estimate).
+    pub trusted: bool,
+    /// Whether the last window's model agreed with the model-free estimates.
+    pub agrees: bool,
+    /// Time of the last window's first sample.
+    pub t_start: f64,
+    /// Time of the last window's last sample.
+    pub t_end: f64,
+}
+
+impl Previous {
+    /// The memory after window `a` covering `[t_start, t_end]`, given the memory before it.
+    pub fn after(before: Option<&Previous>, a: &WindowAnalysis, t_start: f64, t_end: f64) -> Self {
+        let tracked = a.path == Path::Tracked;
+        let (full_fit_nmae, since_full) = match (tracked, before) {
+            (true, Some(b)) => (b.full_fit_nmae, b.since_full + 1),
+            _ => (a.damping.fit_nmae, 0),
+        };
+        Previous {
+            coefficients: a.warm_start.clone(),
+            full_fit_nmae,
+            since_full,
+            verdict: a.damping.verdict,
+            trusted: a.damping.trusted,
+            agrees: a.damping.agrees,
+            t_start,
+            t_end,
+        }
+    }
+}
+
+/// Why a window runs the full search.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum FullReason {
+    /// Tracking is off.
+    Disabled,
+    /// No previous window (a new gate, or the daemon restarted).
+    NewGate,
+    /// The previous window's model was not trusted: nothing worth following.
+    Untrusted,
+    /// The window does not overlap the previous one (data missing, jobs replaced, time reset).
+    Gap,
+    /// `full_every` windows since the last full search.
+    Schedule,
+    /// The refinement was tried and [`accept`] refused it.
+    Refused(Rejection),
+}
+
+/// Why [`accept`] refused a refined model.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Rejection {
+    /// The refinement could not run (the analysis failed).
+    Failed,
+    /// The refined window is not trusted (see `docs/damping.md`).
+    Untrusted,
+    /// The model's frequency at rest is off the measured dominant frequency.
+    Frequency {
+        /// The model's, Hz (`None`: not an oscillator at rest).
+        model_hz: Option<f64>,
+        /// The measured, Hz.
+        measured_hz: f64,
+    },
+    /// Its frequency or growth disagrees with the model-free estimates, where the previous
+    /// model agreed.
+    Disagrees,
+    /// Its verdict differs from the previous window's: a change is always confirmed by a search.
+    VerdictChanged,
+    /// Its fit NMAE is above the limit derived from the last full search.
+    Fit {
+        /// The refined model's NMAE.
+        nmae: f64,
+        /// The limit.
+        limit: f64,
+    },
+}
+
+/// Whether the window starting at `t_start` may try the tracked path: `Ok(previous)` or the
+/// reason for the full search.
+pub fn plan<'a>(
+    policy: &TrackingPolicy,
+    previous: Option<&'a Previous>,
+    t_start: f64,
+) -> Result<&'a Previous, FullReason> {
+    if !policy.enabled {
+        return Err(FullReason::Disabled);
+    }
+    let p = previous.ok_or(FullReason::NewGate)?;
+    if !p.trusted {
+        return Err(FullReason::Untrusted);
+    }
+    // Overlap: the new window starts inside the previous one (after its start, before its end).
+    if t_start.is_nan() || t_start <= p.t_start || t_start > p.t_end {
+        return Err(FullReason::Gap);
+    }
+    if p.since_full + 1 >= policy.full_every {
+        return Err(FullReason::Schedule);
+    }
+    if p.coefficients.iter().any(|c| !c.is_finite()) || p.coefficients.is_empty() {
+        return Err(FullReason::NewGate);
+    }
+    Ok(p)
+}
+
+/// Whether the refined model's report `r` may stand for the window (see the module docs).
+pub fn accept(
+    policy: &TrackingPolicy,
+    previous: &Previous,
+    r: &DampingReport,
+) -> Result<(), Rejection> {
+    if !r.trusted {
+        return Err(Rejection::Untrusted);
+    }
+    if r.verdict != previous.verdict {
+        return Err(Rejection::VerdictChanged);
+    }
+    if let Some(measured_hz) = r.frequency_hz {
+        let off = r.model_frequency_hz.map(|m| (m / measured_hz - 1.0).abs());
+        // NaN and a model that is no oscillator fail too.
+        if !off.is_some_and(|off| off <= policy.frequency_tolerance) {
+            return Err(Rejection::Frequency {
+                model_hz: r.model_frequency_hz,
+                measured_hz,
+            });
+        }
+    }
+    if previous.agrees && !r.agrees {
+        return Err(Rejection::Disagrees);
+    }
+    let limit = policy.fit_tolerance * previous.full_fit_nmae + FIT_SLACK;
+    if r.fit_nmae.is_nan() || r.fit_nmae > limit {
+        return Err(Rejection::Fit {
+            nmae: r.fit_nmae,
+            limit,
+        });
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn previous() -> Previous {
+        Previous {
+            coefficients: vec![19.0, -5.0, 1.0],
+            full_fit_nmae: 0.02,
+            since_full: 0,
+            verdict: Verdict::Damped,
+            trusted: true,
+            agrees: true,
+            t_start: 100.0,
+            t_end: 109.995,
+        }
+    }
+
+    fn report() -> DampingReport {
+        DampingReport {
+            fit_nmae: 0.025,
+            agrees: true,
+            trusted: true,
+            verdict: Verdict::Damped,
+            frequency_hz: Some(10.4),
+            model_frequency_hz: Some(10.5),
+            ..DampingReport::unknown()
+        }
+    }
+
+    #[test]
+    fn plan_tracks_an_overlapping_window_of_a_trusted_gate() {
+        let p = previous();
+        assert_eq!(plan(&TrackingPolicy::default(), Some(&p), 105.0), Ok(&p));
+    }
+
+    #[test]
+    fn plan_runs_the_full_search_when_disabled_new_untrusted_gap_or_due() {
+        let policy = TrackingPolicy::default();
+        let off = TrackingPolicy {
+            enabled: false,
+            ..TrackingPolicy::default()
+        };
+        let p = previous();
+        assert_eq!(plan(&off, Some(&p), 105.0), Err(FullReason::Disabled));
+        assert_eq!(plan(&policy, None, 105.0), Err(FullReason::NewGate));
+        let untrusted = Previous {
+            trusted: false,
+            ..previous()
+        };
+        assert_eq!(
+            plan(&policy, Some(&untrusted), 105.0),
+            Err(FullReason::Untrusted)
+        );
+        // after the previous window's end, and before its start (time reset)
+        assert_eq!(plan(&policy, Some(&p), 110.5), Err(FullReason::Gap));
+        assert_eq!(plan(&policy, Some(&p), 90.0), Err(FullReason::Gap));
+        let due = Previous {
+            since_full: policy.full_every - 1,
+            ..previous()
+        };
+        assert_eq!(plan(&policy, Some(&due), 105.0), Err(FullReason::Schedule));
+        let always = TrackingPolicy {
+            full_every: 1,
+            ..TrackingPolicy::default()
+        };
+        assert_eq!(plan(&always, Some(&p), 105.0), Err(FullReason::Schedule));
+    }
+
+    #[test]
+    fn accept_takes_a_refined_model_that_still_fits() {
+        assert_eq!(
+            accept(&TrackingPolicy::default(), &previous(), &report()),
+            Ok(())
+        );
+    }
+
+    #[test]
+    fn accept_refuses_untrusted_disagreeing_changed_or_worse_fits() {
+        let (policy, p) = (TrackingPolicy::default(), previous());
+        let untrusted = DampingReport {
+            trusted: false,
+            ..report()
+        };
+        assert_eq!(accept(&policy, &p, &untrusted), Err(Rejection::Untrusted));
+        let disagrees = DampingReport {
+            agrees: false,
+            ..report()
+        };
+        assert_eq!(accept(&policy, &p, &disagrees), Err(Rejection::Disagrees));
+        // ... unless the previous model disagreed too (an ambient-only gate)
+        let p_disagreed = Previous {
+            agrees: false,
+            ..previous()
+        };
+        assert_eq!(accept(&policy, &p_disagreed, &disagrees), Ok(()));
+        // a 20 % frequency shift, and a model that is no oscillator at rest
+        let shifted = DampingReport {
+            frequency_hz: Some(12.5),
+            ..report()
+        };
+        assert!(matches!(
+            accept(&policy, &p, &shifted),
+            Err(Rejection::Frequency { .. })
+        ));
+        let no_oscillator = DampingReport {
+            model_frequency_hz: None,
+            ..report()
+        };
+        assert!(matches!(
+            accept(&policy, &p, &no_oscillator),
+            Err(Rejection::Frequency { model_hz: None, .. })
+        ));
+        let onset = DampingReport {
+            verdict: Verdict::SelfExcited,
+            ..report()
+        };
+        assert_eq!(accept(&policy, &p, &onset), Err(Rejection::VerdictChanged));
+        // limit = 1.5 * 0.02 + 0.005 = 0.035
+        let worse = DampingReport {
+            fit_nmae: 0.04,
+            ..report()
+        };
+        assert!(matches!(
+            accept(&policy, &p, &worse),
+            Err(Rejection::Fit { limit, .. }) if (limit - 0.035).abs() < 1e-12
+        ));
+        let nan = DampingReport {
+            fit_nmae: f64::NAN,
+            ..report()
+        };
+        assert!(matches!(
+            accept(&policy, &p, &nan),
+            Err(Rejection::Fit { .. })
+        ));
+    }
+
+    #[test]
+    fn previous_counts_tracked_windows_and_keeps_the_full_fit() {
+        let mut a = WindowAnalysis {
+            equation: String::new(),
+            coefficients: Vec::new(),
+            damping: report(),
+            evaluations: 0,
+            seconds: 0.0,
+            warm_start: vec![1.0, 2.0, 3.0],
+            path: Path::Full,
+        };
+        let full = Previous::after(None, &a, 0.0, 10.0);
+        assert_eq!((full.since_full, full.full_fit_nmae), (0, 0.025));
+        a.path = Path::Tracked;
+        a.damping.fit_nmae = 0.03;
+        let tracked = Previous::after(Some(&full), &a, 5.0, 15.0);
+        assert_eq!((tracked.since_full, tracked.full_fit_nmae), (1, 0.025));
+        assert_eq!(tracked.coefficients, vec![1.0, 2.0, 3.0]);
+        assert_eq!((tracked.t_start, tracked.t_end), (5.0, 15.0));
+    }
+
+    #[test]
+    fn policy_validation_names_the_key() {
+        let bad = TrackingPolicy {
+            full_every: 0,
+            ..TrackingPolicy::default()
+        };
+        assert!(bad.validate().unwrap_err().starts_with("full_every"));
+        let bad = TrackingPolicy {
+            fit_tolerance: 0.5,
+            ..TrackingPolicy::default()
+        };
+        assert!(bad.validate().unwrap_err().starts_with("fit_tolerance"));
+        assert_eq!(TrackingPolicy::default().validate(), Ok(()));
+    }
+}
