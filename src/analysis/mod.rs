@@ -12,12 +12,18 @@
 //! - `verdict`: agreement with the spectrum and the verdict table of `docs/damping.md`.
 //! - `report`: the damping report and its parts.
 //! - `analyzer`: the daemon's per-gate [`Analyzer`].
+//! - `trend`: the robust weighted trend of `zeta0` over recent windows and its predicted
+//!   crossing of a threshold (the `GateDampingDeclining` warning's evidence).
+//! - `early_warning`: the model-free critical-slowing-down indicators (rolling variance, lag-1
+//!   autocorrelation, Kendall tau), the baseline the trend is compared against.
 
 mod analyzer;
+mod early_warning;
 mod linearisation;
 mod population;
 mod report;
 mod series;
+mod trend;
 #[cfg(test)]
 mod tests;
 mod verdict;
@@ -29,6 +35,11 @@ pub use report::{AmbientZeta, DampingReport, Verdict, Zeta0Source};
 pub use series::{
     analyze_series, analyze_series_with, pre_run, term_scales, SeriesAnalysis, SeriesOptions,
     DAMPING_FORCE_FRACTION,
+};
+pub use early_warning::{kendall_tau, lag1_autocorrelation, rolling, variance, EwsIndicators};
+pub use trend::{
+    fit_trend, DampingTrend, TrendError, TrendEstimate, TrendPoint, MAX_TREND_POINTS,
+    MIN_TREND_POINTS,
 };
 pub use verdict::{decide, Decision, VerdictFacts};
 

@@ -16,7 +16,8 @@ use prometheus::{
 };
 
 use crate::alert::notify::{StatsSnapshot, TargetType};
-use crate::alert::{ALERT_DATA_STALE, ALERT_NEGATIVE_DAMPING};
+use crate::alert::{ALERT_DAMPING_DECLINING, ALERT_DATA_STALE, ALERT_NEGATIVE_DAMPING};
+use crate::analysis::TrendEstimate;
 
 /// Buckets of the identification duration, seconds (a window takes 0.1 s to a minute).
 const IDENTIFICATION_BUCKETS: &[f64] =
@@ -30,6 +31,16 @@ pub struct Metrics {
     registry: Registry,
     /// `gatewatch_damping_ratio{gate}`.
     pub damping_ratio: GaugeVec,
+    /// `gatewatch_damping_ratio_lower{gate}`: lower end of zeta0's 95 % interval.
+    pub damping_ratio_lower: GaugeVec,
+    /// `gatewatch_damping_ratio_upper{gate}`: upper end of zeta0's 95 % interval.
+    pub damping_ratio_upper: GaugeVec,
+    /// `gatewatch_damping_ratio_trend_per_second{gate}`: slope of zeta0's robust trend.
+    pub damping_ratio_trend: GaugeVec,
+    /// `gatewatch_damping_zero_crossing_seconds{gate}`: predicted sample time left until zeta0
+    /// crosses `fire_below` (confident figure); absent when the trend is not significantly
+    /// declining.
+    pub damping_zero_crossing: GaugeVec,
     /// `gatewatch_equivalent_damping_ratio{gate}`.
     pub equivalent_damping_ratio: GaugeVec,
     /// `gatewatch_frequency_hertz{gate}`.
@@ -149,7 +160,11 @@ impl RejectReason {
 pub const ALERT_STATES: &[&str] = &["ok", "pending", "firing", "resolved", "unknown"];
 
 /// gatewatch's own alerts, the `alertname` values of `gatewatch_alert_firing`.
-pub const ALERT_NAMES: &[&str] = &[ALERT_NEGATIVE_DAMPING, ALERT_DATA_STALE];
+pub const ALERT_NAMES: &[&str] = &[
+    ALERT_NEGATIVE_DAMPING,
+    ALERT_DAMPING_DECLINING,
+    ALERT_DATA_STALE,
+];
 
 /// Reasons of `gatewatch_identification_failures_total`: the analysis refused its settings
 /// or the window, the analysis panicked, or the job queue was full.
@@ -236,6 +251,30 @@ impl Metrics {
             damping_ratio: gauge(
                 "gatewatch_damping_ratio",
                 "Identified damping ratio at rest (zeta0).",
+                &["gate"],
+            ),
+            // Two gauges rather than one with a `bound` label: summing or averaging a metric over
+            // its labels must stay meaningful (Prometheus naming guide), a rule can say
+            // `gatewatch_damping_ratio_upper < 0` without label matching, and Grafana fills the
+            // band between two series directly.
+            damping_ratio_lower: gauge(
+                "gatewatch_damping_ratio_lower",
+                "Lower end of the 95 % interval of the damping ratio at rest (absent without an interval).",
+                &["gate"],
+            ),
+            damping_ratio_upper: gauge(
+                "gatewatch_damping_ratio_upper",
+                "Upper end of the 95 % interval of the damping ratio at rest (absent without an interval).",
+                &["gate"],
+            ),
+            damping_ratio_trend: gauge(
+                "gatewatch_damping_ratio_trend_per_second",
+                "Slope of the robust trend of the damping ratio at rest, per second of sample time.",
+                &["gate"],
+            ),
+            damping_zero_crossing: gauge(
+                "gatewatch_damping_zero_crossing_seconds",
+                "Predicted sample time until the damping ratio crosses the alert threshold, at the slope's one-sided 95 % bound (absent when not declining).",
                 &["gate"],
             ),
             equivalent_damping_ratio: gauge(
@@ -394,6 +433,28 @@ impl Metrics {
         for name in ALERT_NAMES {
             self.alert_firing.with_label_values(&[gate, name]).set(0.0);
         }
+    }
+
+    /// Exports a window's interval and the gate's trend. A missing interval, trend or predicted
+    /// crossing removes the series (absent, not a stale or made-up value: no evidence).
+    pub fn set_trend(
+        &self,
+        gate: &str,
+        interval: Option<(f64, f64)>,
+        trend: Option<&TrendEstimate>,
+    ) {
+        let put = |g: &GaugeVec, v: Option<f64>| match v.filter(|v| v.is_finite()) {
+            Some(v) => g.with_label_values(&[gate]).set(v),
+            // Err only when the series did not exist: nothing to remove.
+            None => drop(g.remove_label_values(&[gate])),
+        };
+        put(&self.damping_ratio_lower, interval.map(|i| i.0));
+        put(&self.damping_ratio_upper, interval.map(|i| i.1));
+        put(&self.damping_ratio_trend, trend.map(|t| t.slope_per_second));
+        put(
+            &self.damping_zero_crossing,
+            trend.and_then(|t| t.crossing_seconds_confident),
+        );
     }
 
     /// Sets `gatewatch_alert_firing{gate,alertname}`.
