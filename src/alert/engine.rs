@@ -470,7 +470,8 @@ impl AlertEngine {
         self.gates.keys().cloned().collect()
     }
 
-    /// Every firing alert (every kind), sorted by gate then alert name, for periodic re-sending.
+    /// Every firing alert, by gate (sorted), then `GateNegativeDamping`, `GateDataStale`,
+    /// `GateDampingDeclining`, for periodic re-sending.
     pub fn firing(&self) -> Vec<Alert> {
         let mut out = Vec::new();
         for track in self.gates.values() {
@@ -484,7 +485,6 @@ impl AlertEngine {
                 out.push(alert.clone());
             }
         }
-        out.sort_by(|a, b| (a.gate(), &a.name).cmp(&(b.gate(), &b.name)));
         out
     }
 

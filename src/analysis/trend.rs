@@ -281,7 +281,8 @@ fn fit(
         r_prev = Some(r);
     }
     let scale = (chi2 / (n - 2) as f64).max(1.0);
-    let rho = if c0 > 0.0 {
+    // Residuals at rounding level (a perfect line) carry no correlation to speak of.
+    let rho = if c0 > 1e-6 * n as f64 {
         (c1 / c0).clamp(0.0, 0.9)
     } else {
         0.0
