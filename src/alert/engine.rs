@@ -529,6 +529,6 @@ fn track_mut<'m>(gates: &'m mut BTreeMap<String, GateTrack>, gate: &str) -> &'m 
 }
 
 #[cfg(test)]
-mod tests;
-#[cfg(test)]
 mod interval_tests;
+#[cfg(test)]
+mod tests;

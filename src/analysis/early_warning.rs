@@ -180,6 +180,10 @@ mod tests {
         }
         let ews = EwsIndicators::compute(&x, 500);
         assert!(ews.variance_tau.unwrap() > 0.8, "{:?}", ews.variance_tau);
-        assert!(ews.autocorrelation_tau.unwrap() > 0.8, "{:?}", ews.autocorrelation_tau);
+        assert!(
+            ews.autocorrelation_tau.unwrap() > 0.8,
+            "{:?}",
+            ews.autocorrelation_tau
+        );
     }
 }

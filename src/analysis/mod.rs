@@ -23,12 +23,13 @@ mod linearisation;
 mod population;
 mod report;
 mod series;
-mod trend;
 #[cfg(test)]
 mod tests;
+mod trend;
 mod verdict;
 
 pub use analyzer::Analyzer;
+pub use early_warning::{kendall_tau, lag1_autocorrelation, rolling, variance, EwsIndicators};
 pub use linearisation::{equivalent_damping, limit_cycle, time_to_amplitude, Linearization};
 pub use population::{biased_population, SpectralTarget};
 pub use report::{AmbientZeta, DampingReport, Verdict, Zeta0Source};
@@ -36,7 +37,6 @@ pub use series::{
     analyze_series, analyze_series_with, pre_run, term_scales, SeriesAnalysis, SeriesOptions,
     DAMPING_FORCE_FRACTION,
 };
-pub use early_warning::{kendall_tau, lag1_autocorrelation, rolling, variance, EwsIndicators};
 pub use trend::{
     fit_trend, DampingTrend, TrendError, TrendEstimate, TrendPoint, MAX_TREND_POINTS,
     MIN_TREND_POINTS,

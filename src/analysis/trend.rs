@@ -99,7 +99,12 @@ impl TrendEstimate {
 pub enum TrendError {
     /// A time, value or bound is NaN or infinite.
     #[error("trend point at t = {t}: zeta0 {zeta0} and interval ({low}, {high}) must be finite")]
-    NotFinite { t: f64, zeta0: f64, low: f64, high: f64 },
+    NotFinite {
+        t: f64,
+        zeta0: f64,
+        low: f64,
+        high: f64,
+    },
     /// The interval's ends are reversed.
     #[error("trend point at t = {t}: interval ({low}, {high}) has its lower end above the upper")]
     Reversed { t: f64, low: f64, high: f64 },

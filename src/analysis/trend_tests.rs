@@ -68,10 +68,7 @@ fn steady_gates_are_never_confidently_declining() {
         for seed in 0..200 {
             let pts = series(seed, 120, 0.003, |_| truth);
             let e = fit_trend(&pts, 0.0).unwrap();
-            assert!(
-                !e.crosses_within(600.0),
-                "truth {truth} seed {seed}: {e:?}"
-            );
+            assert!(!e.crosses_within(600.0), "truth {truth} seed {seed}: {e:?}");
         }
     }
 }
@@ -113,9 +110,19 @@ fn wide_windows_weigh_less() {
         .map(|i| {
             let t = 5.0 * i as f64;
             if i % 2 == 0 {
-                TrendPoint { t, zeta0: 0.01, low: 0.009, high: 0.011 }
+                TrendPoint {
+                    t,
+                    zeta0: 0.01,
+                    low: 0.009,
+                    high: 0.011,
+                }
             } else {
-                TrendPoint { t, zeta0: -0.05, low: -0.5, high: 0.4 }
+                TrendPoint {
+                    t,
+                    zeta0: -0.05,
+                    low: -0.5,
+                    high: 0.4,
+                }
             }
         })
         .collect();
@@ -128,19 +135,37 @@ fn horizon_and_bounds_are_kept() {
     let mut tr = DampingTrend::new(60.0);
     for i in 0..100 {
         let t = 5.0 * i as f64;
-        tr.push(TrendPoint { t, zeta0: 0.01, low: 0.0, high: 0.02 }).unwrap();
+        tr.push(TrendPoint {
+            t,
+            zeta0: 0.01,
+            low: 0.0,
+            high: 0.02,
+        })
+        .unwrap();
     }
     // 60 s at one window per 5 s: t = 435 .. 495
     assert_eq!(tr.points().count(), 13);
     assert_relative_eq!(tr.points().next().unwrap().t, 435.0);
     // the same time again replaces the newest
-    tr.push(TrendPoint { t: 495.0, zeta0: 0.02, low: 0.01, high: 0.03 }).unwrap();
+    tr.push(TrendPoint {
+        t: 495.0,
+        zeta0: 0.02,
+        low: 0.01,
+        high: 0.03,
+    })
+    .unwrap();
     assert_eq!(tr.points().count(), 13);
     assert_relative_eq!(tr.points().last().unwrap().zeta0, 0.02);
     // the count bound holds whatever the horizon
     let mut long = DampingTrend::new(1e9);
     for i in 0..(MAX_TREND_POINTS + 10) {
-        long.push(TrendPoint { t: i as f64, zeta0: 0.0, low: -0.1, high: 0.1 }).unwrap();
+        long.push(TrendPoint {
+            t: i as f64,
+            zeta0: 0.0,
+            low: -0.1,
+            high: 0.1,
+        })
+        .unwrap();
     }
     assert_eq!(long.points().count(), MAX_TREND_POINTS);
 }
@@ -148,14 +173,30 @@ fn horizon_and_bounds_are_kept() {
 #[test]
 fn bad_points_are_refused_with_their_time() {
     let mut tr = DampingTrend::new(600.0);
-    let ok = TrendPoint { t: 10.0, zeta0: 0.01, low: 0.0, high: 0.02 };
+    let ok = TrendPoint {
+        t: 10.0,
+        zeta0: 0.01,
+        low: 0.0,
+        high: 0.02,
+    };
     tr.push(ok).unwrap();
-    let e = tr.push(TrendPoint { zeta0: f64::NAN, ..ok }).unwrap_err();
+    let e = tr
+        .push(TrendPoint {
+            zeta0: f64::NAN,
+            ..ok
+        })
+        .unwrap_err();
     assert!(matches!(e, TrendError::NotFinite { .. }));
     assert!(e.to_string().contains("t = 10"));
     let e = tr.push(TrendPoint { low: 0.03, ..ok }).unwrap_err();
     assert!(matches!(e, TrendError::Reversed { .. }));
     let e = tr.push(TrendPoint { t: 5.0, ..ok }).unwrap_err();
-    assert_eq!(e, TrendError::OutOfOrder { t: 5.0, newest: 10.0 });
+    assert_eq!(
+        e,
+        TrendError::OutOfOrder {
+            t: 5.0,
+            newest: 10.0
+        }
+    );
     assert_eq!(tr.points().count(), 1);
 }

@@ -120,4 +120,3 @@ pub(super) fn stale_alert(
     a.insert("last_seen".to_string(), rfc3339(last_seen));
     Alert::new(ALERT_DATA_STALE, gate, &rules.severity, a, now)
 }
-

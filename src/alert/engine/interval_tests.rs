@@ -33,7 +33,9 @@ fn fires_only_when_the_whole_interval_is_below() {
     }
     assert_eq!(e.state("g"), Some(GateState::Ok));
     // the whole interval below 0 for 2 windows fires, starting at the first
-    assert!(e.observe("g", &obs(-0.004, -0.006, -0.001), t(20)).is_empty());
+    assert!(e
+        .observe("g", &obs(-0.004, -0.006, -0.001), t(20))
+        .is_empty());
     assert_eq!(e.state("g"), Some(GateState::Pending));
     let ev = e.observe("g", &obs(-0.004, -0.006, -0.001), t(25));
     assert_eq!(ev.len(), 1);
@@ -49,7 +51,9 @@ fn resolves_only_when_the_whole_interval_is_above_clear_above() {
     assert!(e.is_firing("g"));
     // point well above clear_above (0.005), interval reaching below it: keeps firing
     for i in 0..10 {
-        assert!(e.observe("g", &obs(0.01, 0.003, 0.017), t(10 + i)).is_empty());
+        assert!(e
+            .observe("g", &obs(0.01, 0.003, 0.017), t(10 + i))
+            .is_empty());
     }
     assert!(e.is_firing("g"));
     assert!(e.observe("g", &obs(0.01, 0.006, 0.014), t(30)).is_empty());
@@ -74,7 +78,9 @@ fn a_missing_interval_is_no_evidence() {
     }
     e.observe("g", &obs(-0.01, -0.012, -0.008), t(20));
     e.observe("g", &none, t(25));
-    assert!(e.observe("g", &obs(-0.01, -0.012, -0.008), t(30)).is_empty());
+    assert!(e
+        .observe("g", &obs(-0.01, -0.012, -0.008), t(30))
+        .is_empty());
     assert_eq!(e.state("g"), Some(GateState::Pending));
     // ... never resolves either, and breaks the good streak
     e.observe("g", &obs(-0.01, -0.012, -0.008), t(35));
@@ -204,7 +210,11 @@ fn declining_fires_resolves_and_holds_on_no_evidence() {
     assert_eq!(an["damping_ratio_upper"], "0.016");
     assert_relative_eq!(an["trend_per_minute"].parse::<f64>().unwrap(), -0.0012);
     assert_eq!(an["crossing_seconds_confident"], "550");
-    assert!(an["summary"].contains("within 9.2 min"), "{}", an["summary"]);
+    assert!(
+        an["summary"].contains("within 9.2 min"),
+        "{}",
+        an["summary"]
+    );
     assert!(an["description"].contains("0.1 percentage points per minute"));
     // the damping alert did not fire (the interval is positive) and the warning is listed
     assert!(!e.is_firing("g"));
@@ -305,8 +315,14 @@ fn steady_stable_gates_give_no_alert_in_a_day() {
     // +1 % and +0.5 % with the scatter of one ambient window (0.3 points), 24 h of windows
     for (seed, truth) in [(1, 0.01), (2, 0.005)] {
         let (neg, dec) = run(stream(seed, 24 * 720, 0.003, |_| truth));
-        assert!(neg.is_empty(), "truth {truth}: GateNegativeDamping at {neg:?}");
-        assert!(dec.is_empty(), "truth {truth}: GateDampingDeclining at {dec:?}");
+        assert!(
+            neg.is_empty(),
+            "truth {truth}: GateNegativeDamping at {neg:?}"
+        );
+        assert!(
+            dec.is_empty(),
+            "truth {truth}: GateDampingDeclining at {dec:?}"
+        );
     }
 }
 
@@ -319,7 +335,10 @@ fn slow_drift_warns_before_zero() {
         let first = dec.first().copied();
         assert!(first.is_some_and(|t| t < 600.0), "seed {seed}: {dec:?}");
         // and the damping alert fires later, once the interval is below 0
-        assert!(neg.first().is_some_and(|t| *t > 600.0), "seed {seed}: {neg:?}");
+        assert!(
+            neg.first().is_some_and(|t| *t > 600.0),
+            "seed {seed}: {neg:?}"
+        );
     }
 }
 
@@ -333,6 +352,9 @@ fn onset_ramp_fires_by_minus_one_percent() {
     let ramp = |t: f64| 0.02 - 0.04 * ((t - 40.0) / 60.0).clamp(0.0, 1.0);
     for seed in 0..20 {
         let (neg, _) = run(stream(seed, 40, 0.0005, ramp));
-        assert!(neg.first().is_some_and(|t| *t <= 85.0), "seed {seed}: {neg:?}");
+        assert!(
+            neg.first().is_some_and(|t| *t <= 85.0),
+            "seed {seed}: {neg:?}"
+        );
     }
 }
