@@ -506,3 +506,57 @@ impl Default for Metrics {
         Metrics::new()
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn estimate(crossing: Option<f64>) -> TrendEstimate {
+        TrendEstimate {
+            windows: 60,
+            span_seconds: 300.0,
+            level: 0.01,
+            slope_per_second: -2e-5,
+            slope_stderr: 3e-6,
+            slope_upper: -1.5e-5,
+            threshold: 0.0,
+            crossing_seconds: Some(500.0),
+            crossing_seconds_confident: crossing,
+        }
+    }
+
+    #[test]
+    fn interval_and_trend_series_come_and_go_with_the_evidence() {
+        let m = Metrics::new();
+        m.set_trend("g1", Some((0.004, 0.016)), Some(&estimate(Some(666.0))));
+        let text = m.render();
+        assert!(text.contains("gatewatch_damping_ratio_lower{gate=\"g1\"} 0.004"));
+        assert!(text.contains("gatewatch_damping_ratio_upper{gate=\"g1\"} 0.016"));
+        let slope = text
+            .lines()
+            .find_map(|l| l.strip_prefix("gatewatch_damping_ratio_trend_per_second{gate=\"g1\"} "))
+            .and_then(|v| v.parse::<f64>().ok());
+        assert_eq!(slope, Some(-2e-5));
+        assert!(text.contains("gatewatch_damping_zero_crossing_seconds{gate=\"g1\"} 666"));
+        // no longer declining: the crossing disappears, the slope stays
+        m.set_trend("g1", Some((0.004, 0.016)), Some(&estimate(None)));
+        let text = m.render();
+        assert!(!text.contains("gatewatch_damping_zero_crossing_seconds{"));
+        assert!(text.contains("gatewatch_damping_ratio_trend_per_second{gate=\"g1\"}"));
+        // a window without an interval and no trend: no band, no slope (no evidence)
+        m.set_trend("g1", None, None);
+        let text = m.render();
+        assert!(!text.contains("gatewatch_damping_ratio_lower{"));
+        assert!(!text.contains("gatewatch_damping_ratio_upper{"));
+        assert!(!text.contains("gatewatch_damping_ratio_trend_per_second{"));
+    }
+
+    #[test]
+    fn the_warning_is_an_alert_name_from_the_start() {
+        let m = Metrics::new();
+        m.init_gate("g1");
+        let text = m.render();
+        assert!(text
+            .contains("gatewatch_alert_firing{alertname=\"GateDampingDeclining\",gate=\"g1\"} 0"));
+    }
+}
