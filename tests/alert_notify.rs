@@ -135,11 +135,13 @@ fn t(secs: u64) -> SystemTime {
 fn obs(z: f64) -> Observation<'static> {
     Observation {
         zeta0: Some(z),
+        zeta0_interval: Some((z - 0.002, z + 0.002)),
         trusted: true,
         frequency_hz: Some(10.4),
         limit_cycle_amplitude: Some(0.05),
         time_to_limit: Some(12.0),
         equation: "ydd + c1*yd + c2*y = 0",
+        trend: None,
     }
 }
 

@@ -9,104 +9,24 @@ use std::time::{Duration, SystemTime, UNIX_EPOCH};
 use serde::ser::SerializeMap;
 use serde::{Deserialize, Serialize, Serializer};
 
+mod annotations;
+mod rules;
+mod trend_alert;
+
+use annotations::{damping_alert, damping_annotations, stale_alert};
+#[cfg(test)]
+use annotations::{fmt_hz, fmt_percent};
+pub use rules::{AlertRules, RulesError};
+use trend_alert::Declining;
+
+use crate::analysis::TrendEstimate;
+
 /// `alertname` of the alert raised when a gate's identified damping at rest is negative.
 pub const ALERT_NEGATIVE_DAMPING: &str = "GateNegativeDamping";
+/// `alertname` of the warning raised when a gate's damping trend heads for `fire_below`.
+pub const ALERT_DAMPING_DECLINING: &str = "GateDampingDeclining";
 /// `alertname` of the alert raised when a gate stopped sending samples.
 pub const ALERT_DATA_STALE: &str = "GateDataStale";
-
-/// Thresholds and timing of the alert rules (global, or per gate via
-/// [`AlertEngine::set_rules`]).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct AlertRules {
-    /// `zeta0` strictly below this counts as negative damping (default 0.0).
-    pub fire_below: f64,
-    /// Hysteresis: a firing alert resolves only on windows with `zeta0 >= clear_above`
-    /// (default 0.005).
-    pub clear_above: f64,
-    /// Consecutive negative trusted windows before firing (default 2; 0 acts as 1).
-    pub for_windows: u32,
-    /// Consecutive windows with `zeta0 >= clear_above` before resolving (default 2; 0 acts as 1).
-    pub resolve_windows: u32,
-    /// No samples for this long (wall clock) fires `GateDataStale` (default 30). A value that
-    /// is not a positive finite number disables the staleness check.
-    pub stale_after_seconds: f64,
-    /// Value of the `severity` label (default "critical").
-    pub severity: String,
-}
-
-impl Default for AlertRules {
-    fn default() -> Self {
-        AlertRules {
-            fire_below: 0.0,
-            clear_above: 0.005,
-            for_windows: 2,
-            resolve_windows: 2,
-            stale_after_seconds: 30.0,
-            severity: "critical".to_string(),
-        }
-    }
-}
-
-/// A rule set that makes no sense (see [`AlertRules::validate`]).
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum RulesError {
-    /// A threshold is NaN or infinite.
-    #[error("alert rule `{0}` must be a finite number")]
-    NotFinite(&'static str),
-    /// `clear_above < fire_below`: there would be no hysteresis band, windows could be
-    /// negative and "good" at once.
-    #[error("alert rule clear_above ({clear_above}) must be >= fire_below ({fire_below})")]
-    ClearBelowFire { fire_below: f64, clear_above: f64 },
-    /// `stale_after_seconds` is not a positive finite number.
-    #[error("alert rule stale_after_seconds must be a positive finite number, got {0}")]
-    BadStaleAfter(f64),
-    /// The severity label is empty.
-    #[error("alert rule severity must not be empty")]
-    EmptySeverity,
-}
-
-impl AlertRules {
-    /// Check the rules for consistency. The engine never panics on invalid rules (it behaves as
-    /// documented on each field), but a daemon should reject them when loading its config.
-    pub fn validate(&self) -> Result<(), RulesError> {
-        if !self.fire_below.is_finite() {
-            return Err(RulesError::NotFinite("fire_below"));
-        }
-        if !self.clear_above.is_finite() {
-            return Err(RulesError::NotFinite("clear_above"));
-        }
-        if self.clear_above < self.fire_below {
-            return Err(RulesError::ClearBelowFire {
-                fire_below: self.fire_below,
-                clear_above: self.clear_above,
-            });
-        }
-        if !(self.stale_after_seconds.is_finite() && self.stale_after_seconds > 0.0) {
-            return Err(RulesError::BadStaleAfter(self.stale_after_seconds));
-        }
-        if self.severity.trim().is_empty() {
-            return Err(RulesError::EmptySeverity);
-        }
-        Ok(())
-    }
-
-    fn for_windows(&self) -> u32 {
-        self.for_windows.max(1)
-    }
-
-    fn resolve_windows(&self) -> u32 {
-        self.resolve_windows.max(1)
-    }
-
-    fn stale_after(&self) -> Option<Duration> {
-        if self.stale_after_seconds.is_finite() && self.stale_after_seconds > 0.0 {
-            Duration::try_from_secs_f64(self.stale_after_seconds).ok()
-        } else {
-            None
-        }
-    }
-}
 
 /// The displayed state of a gate's damping alert.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -148,6 +68,9 @@ impl fmt::Display for GateState {
 pub struct Observation<'a> {
     /// Damping ratio at rest; negative = self-excited. `None` (or NaN/inf) = unknown.
     pub zeta0: Option<f64>,
+    /// 95 % interval `(low, high)` of `zeta0`. `None` = no evidence: the window neither fires
+    /// nor resolves `GateNegativeDamping` (it reads as unknown), however confident `zeta0` looks.
+    pub zeta0_interval: Option<(f64, f64)>,
     /// Whether the identification is trustworthy enough to act on.
     pub trusted: bool,
     /// Frequency of the (self-excited) oscillation, Hz.
@@ -158,6 +81,10 @@ pub struct Observation<'a> {
     pub time_to_limit: Option<f64>,
     /// The identified equation of motion, as text.
     pub equation: &'a str,
+    /// The gate's trend of `zeta0` up to and including this window (see
+    /// [`crate::analysis::DampingTrend`]); `None` = not enough windows with an interval yet.
+    /// Drives `GateDampingDeclining`.
+    pub trend: Option<TrendEstimate>,
 }
 
 /// One alert instance, as Alertmanager understands it.
@@ -310,28 +237,33 @@ pub fn rfc3339(t: SystemTime) -> String {
 /// How one window reads under a gate's rules.
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum Reading {
-    /// Untrusted, or no (finite) damping ratio.
+    /// Untrusted, or no (finite) damping ratio, or no (finite) interval: no evidence.
     Unknown,
-    /// `zeta0 < fire_below`.
+    /// The interval lies below `fire_below` (or `P(zeta0 < fire_below) >= fire_probability`).
     Negative,
-    /// `fire_below <= zeta0 < clear_above`: hysteresis band.
+    /// Neither negative nor good: hysteresis band, or an interval too wide to tell.
     Band,
-    /// `zeta0 >= clear_above` (and not negative).
+    /// The interval lies at or above `clear_above` (and the window is not negative).
     Good,
 }
 
 fn classify(obs: &Observation, rules: &AlertRules) -> Reading {
-    match obs.zeta0 {
-        Some(z) if obs.trusted && z.is_finite() => {
-            if z < rules.fire_below {
-                Reading::Negative
-            } else if z >= rules.clear_above {
-                Reading::Good
-            } else {
-                Reading::Band
-            }
-        }
-        _ => Reading::Unknown,
+    let (Some(z), Some((low, high))) = (obs.zeta0, obs.zeta0_interval) else {
+        return Reading::Unknown;
+    };
+    if !(obs.trusted && z.is_finite() && low.is_finite() && high.is_finite()) || low > high {
+        return Reading::Unknown;
+    }
+    let negative = match rules.fire_probability {
+        Some(p) => AlertRules::probability_below(low, high, rules.fire_below) >= p,
+        None => high < rules.fire_below,
+    };
+    if negative {
+        Reading::Negative
+    } else if low >= rules.clear_above {
+        Reading::Good
+    } else {
+        Reading::Band
     }
 }
 
@@ -349,6 +281,7 @@ struct GateTrack {
     displayed: GateState,
     last_seen: Option<SystemTime>,
     stale: Option<Alert>,
+    declining: Declining,
 }
 
 impl GateTrack {
@@ -358,6 +291,7 @@ impl GateTrack {
             displayed: GateState::Unknown,
             last_seen: None,
             stale: None,
+            declining: Declining::default(),
         }
     }
 }
@@ -392,7 +326,8 @@ impl AlertEngine {
         self.overrides.get(gate).unwrap_or(&self.defaults)
     }
 
-    /// Feed one identification result of `gate`. Returns the transitions to notify (at most one).
+    /// Feed one identification result of `gate`. Returns the transitions to notify (at most one
+    /// per alert: `GateDampingDeclining` first, then `GateNegativeDamping`).
     ///
     /// This does not touch the staleness clock: call [`AlertEngine::data_seen`] when samples
     /// arrive (re-identifying an old window must not hide that the gate went silent).
@@ -400,6 +335,7 @@ impl AlertEngine {
         let rules = self.overrides.get(gate).unwrap_or(&self.defaults);
         let track = track_mut(&mut self.gates, gate);
         let mut events = Vec::new();
+        events.extend(track.declining.observe(gate, rules, obs, now));
         match classify(obs, rules) {
             Reading::Unknown => {
                 track.displayed = GateState::Unknown;
@@ -534,7 +470,8 @@ impl AlertEngine {
         self.gates.keys().cloned().collect()
     }
 
-    /// Every firing alert (both kinds), sorted by gate then alert name, for periodic re-sending.
+    /// Every firing alert, by gate (sorted), then `GateNegativeDamping`, `GateDataStale`,
+    /// `GateDampingDeclining`, for periodic re-sending.
     pub fn firing(&self) -> Vec<Alert> {
         let mut out = Vec::new();
         for track in self.gates.values() {
@@ -542,6 +479,9 @@ impl AlertEngine {
                 out.push(alert.clone());
             }
             if let Some(alert) = &track.stale {
+                out.push(alert.clone());
+            }
+            if let Some(alert) = track.declining.alert() {
                 out.push(alert.clone());
             }
         }
@@ -564,7 +504,18 @@ impl AlertEngine {
             alert.ends_at = Some(now);
             events.push(AlertEvent::Resolved(alert));
         }
+        if let Some(mut alert) = track.declining.into_alert() {
+            alert.ends_at = Some(now);
+            events.push(AlertEvent::Resolved(alert));
+        }
         events
+    }
+
+    /// Whether `gate` has a firing `GateDampingDeclining` warning.
+    pub fn is_declining(&self, gate: &str) -> bool {
+        self.gates
+            .get(gate)
+            .is_some_and(|t| t.declining.alert().is_some())
     }
 }
 
@@ -577,121 +528,7 @@ fn track_mut<'m>(gates: &'m mut BTreeMap<String, GateTrack>, gate: &str) -> &'m 
         .expect("invariant: the gate was inserted just above")
 }
 
-fn finite(x: Option<f64>) -> Option<f64> {
-    x.filter(|v| v.is_finite())
-}
-
-/// A percentage with one decimal, or one significant digit below 1 %.
-fn fmt_percent(ratio: f64) -> String {
-    let p = ratio * 100.0;
-    let a = p.abs();
-    if a >= 1.0 || a == 0.0 {
-        format!("{p:.1}")
-    } else {
-        let decimals = (-a.log10()).ceil().clamp(1.0, 9.0) as usize;
-        format!("{p:.decimals$}")
-    }
-}
-
-fn fmt_hz(f: f64) -> String {
-    if f.abs() >= 1.0 {
-        format!("{f:.1}")
-    } else {
-        format!("{f:.3}")
-    }
-}
-
-fn damping_annotations(
-    gate: &str,
-    rules: &AlertRules,
-    obs: &Observation,
-) -> BTreeMap<String, String> {
-    let mut a = BTreeMap::new();
-    let zeta = finite(obs.zeta0);
-    let freq = finite(obs.frequency_hz);
-    let amp = finite(obs.limit_cycle_amplitude);
-    let ttl = finite(obs.time_to_limit);
-    let pct = zeta.map(fmt_percent).unwrap_or_else(|| "?".to_string());
-    let summary = match freq {
-        Some(f) => format!(
-            "gate {gate}: damping ratio {pct} % (self-excited vibration at {} Hz)",
-            fmt_hz(f)
-        ),
-        None => format!("gate {gate}: damping ratio {pct} % (self-excited vibration)"),
-    };
-    let mut description = format!(
-        "The equation of motion identified for gate {gate} has negative damping at rest \
-         (damping ratio {pct} %, below {} %): oscillations grow by themselves.",
-        fmt_percent(rules.fire_below)
-    );
-    if let Some(a) = amp {
-        description.push_str(&format!(" Predicted limit-cycle amplitude: {a}."));
-    }
-    if let Some(t) = ttl {
-        description.push_str(&format!(" Time to reach the amplitude limit: {t:.1} s."));
-    }
-    if !obs.equation.is_empty() {
-        description.push_str(&format!(" Identified equation: {}", obs.equation));
-    }
-    a.insert("summary".to_string(), summary);
-    a.insert("description".to_string(), description);
-    if let Some(z) = zeta {
-        a.insert("damping_ratio".to_string(), z.to_string());
-    }
-    if let Some(f) = freq {
-        a.insert("frequency_hz".to_string(), f.to_string());
-    }
-    if let Some(v) = amp {
-        a.insert("limit_cycle_amplitude".to_string(), v.to_string());
-    }
-    if let Some(t) = ttl {
-        a.insert("time_to_limit_seconds".to_string(), t.to_string());
-    }
-    if !obs.equation.is_empty() {
-        a.insert("equation".to_string(), obs.equation.to_string());
-    }
-    a
-}
-
-fn damping_alert(
-    gate: &str,
-    rules: &AlertRules,
-    obs: &Observation,
-    starts_at: SystemTime,
-) -> Alert {
-    Alert::new(
-        ALERT_NEGATIVE_DAMPING,
-        gate,
-        &rules.severity,
-        damping_annotations(gate, rules, obs),
-        starts_at,
-    )
-}
-
-fn stale_alert(
-    gate: &str,
-    rules: &AlertRules,
-    last_seen: SystemTime,
-    elapsed: Duration,
-    now: SystemTime,
-) -> Alert {
-    let secs = elapsed.as_secs();
-    let mut a = BTreeMap::new();
-    a.insert(
-        "summary".to_string(),
-        format!("gate {gate}: no data for {secs} s"),
-    );
-    a.insert(
-        "description".to_string(),
-        format!(
-            "No samples from gate {gate} since {} (limit {} s): its damping is not monitored.",
-            rfc3339(last_seen),
-            rules.stale_after_seconds
-        ),
-    );
-    a.insert("last_seen".to_string(), rfc3339(last_seen));
-    Alert::new(ALERT_DATA_STALE, gate, &rules.severity, a, now)
-}
-
+#[cfg(test)]
+mod interval_tests;
 #[cfg(test)]
 mod tests;

@@ -5,7 +5,9 @@
 //! - [`engine`] (re-exported here): the per-gate state machine. Pure: no tokio, no I/O, the
 //!   current time is always passed in, so every transition is unit-tested with explicit times.
 //!   It decides *when* `GateNegativeDamping` fires and resolves (with `for`/hysteresis rules)
-//!   and when `GateDataStale` fires because a gate stopped sending samples.
+//!   decided on each window's 95 % interval, when `GateDampingDeclining` warns that the trend
+//!   of `zeta0` heads for the threshold, and when `GateDataStale` fires because a gate stopped
+//!   sending samples.
 //! - [`notify`]: delivery of the resulting [`AlertEvent`]s to webhooks (Alertmanager webhook
 //!   format, version 4) and to Alertmanager's `POST /api/v2/alerts`, with per-target bounded
 //!   queues, retries with exponential backoff, periodic re-sending of firing alerts and a
@@ -27,7 +29,7 @@
 //!     snap.lock().map(|e| e.firing()).unwrap_or_default()
 //! });
 //! // on every identified window:
-//! let obs = Observation { zeta0: Some(-0.012), trusted: true, frequency_hz: Some(10.4),
+//! let obs = Observation { zeta0: Some(-0.012), zeta0_interval: Some((-0.02, -0.004)), trusted: true, frequency_hz: Some(10.4),
 //!     ..Default::default() };
 //! let events = engine.lock().unwrap().observe("g1", &obs, SystemTime::now());
 //! notifier.notify(events);
@@ -41,5 +43,5 @@ pub mod notify;
 
 pub use engine::{
     fingerprint, Alert, AlertEngine, AlertEvent, AlertRules, GateState, Observation, RulesError,
-    ALERT_DATA_STALE, ALERT_NEGATIVE_DAMPING,
+    ALERT_DAMPING_DECLINING, ALERT_DATA_STALE, ALERT_NEGATIVE_DAMPING,
 };

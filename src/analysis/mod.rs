@@ -13,8 +13,13 @@
 //! - `report`: the damping report and its parts.
 //! - `tracking`: when a window may refine the previous window's model instead of searching.
 //! - `analyzer`: the daemon's per-gate [`Analyzer`].
+//! - `trend`: the robust weighted trend of `zeta0` over recent windows and its predicted
+//!   crossing of a threshold (the `GateDampingDeclining` warning's evidence).
+//! - `early_warning`: the model-free critical-slowing-down indicators (rolling variance, lag-1
+//!   autocorrelation, Kendall tau), the baseline the trend is compared against.
 
 mod analyzer;
+mod early_warning;
 mod linearisation;
 mod population;
 mod report;
@@ -22,9 +27,11 @@ mod series;
 #[cfg(test)]
 mod tests;
 pub mod tracking;
+mod trend;
 mod verdict;
 
 pub use analyzer::Analyzer;
+pub use early_warning::{kendall_tau, lag1_autocorrelation, rolling, variance, EwsIndicators};
 pub use linearisation::{equivalent_damping, limit_cycle, time_to_amplitude, Linearization};
 pub use population::{biased_population, SpectralTarget};
 pub use report::{AmbientZeta, DampingReport, Verdict, Zeta0Source};
@@ -33,6 +40,10 @@ pub use series::{
     SeriesOptions, DAMPING_FORCE_FRACTION,
 };
 pub use tracking::{Path, Previous, TrackingPolicy};
+pub use trend::{
+    fit_trend, DampingTrend, TrendError, TrendEstimate, TrendPoint, MAX_TREND_POINTS,
+    MIN_TREND_POINTS,
+};
 pub use verdict::{decide, Decision, VerdictFacts};
 
 use serde::{Deserialize, Serialize};

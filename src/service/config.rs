@@ -450,6 +450,31 @@ impl GateConfig {
             let msg = msg.strip_prefix("model: ").unwrap_or(&msg).to_string();
             return err("model", &msg);
         }
+        if let Some(p) = a.fire_probability {
+            if !(p > 0.0 && p < 1.0) {
+                return err("alert.fire_probability", "must be in (0, 1)");
+            }
+        }
+        for (key, v) in [
+            ("alert.trend_horizon_seconds", a.trend_horizon_seconds),
+            ("alert.warn_lead_seconds", a.warn_lead_seconds),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return err(key, "must be > 0");
+            }
+        }
+        if !(a.trend_min_span_seconds.is_finite() && a.trend_min_span_seconds >= 0.0) {
+            return err("alert.trend_min_span_seconds", "must be >= 0");
+        }
+        if a.warn_for_windows == 0 {
+            return err("alert.warn_for_windows", "must be >= 1");
+        }
+        if a.warn_resolve_windows == 0 {
+            return err("alert.warn_resolve_windows", "must be >= 1");
+        }
+        if a.warn_severity.trim().is_empty() {
+            return err("alert.warn_severity", "must not be empty");
+        }
         Ok(())
     }
 }

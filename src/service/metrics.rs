@@ -16,7 +16,8 @@ use prometheus::{
 };
 
 use crate::alert::notify::{StatsSnapshot, TargetType};
-use crate::alert::{ALERT_DATA_STALE, ALERT_NEGATIVE_DAMPING};
+use crate::alert::{ALERT_DAMPING_DECLINING, ALERT_DATA_STALE, ALERT_NEGATIVE_DAMPING};
+use crate::analysis::TrendEstimate;
 
 /// Buckets of the identification duration, seconds (a window takes 0.1 s to a minute).
 const IDENTIFICATION_BUCKETS: &[f64] =
@@ -30,6 +31,16 @@ pub struct Metrics {
     registry: Registry,
     /// `gatewatch_damping_ratio{gate}`.
     pub damping_ratio: GaugeVec,
+    /// `gatewatch_damping_ratio_lower{gate}`: lower end of zeta0's 95 % interval.
+    pub damping_ratio_lower: GaugeVec,
+    /// `gatewatch_damping_ratio_upper{gate}`: upper end of zeta0's 95 % interval.
+    pub damping_ratio_upper: GaugeVec,
+    /// `gatewatch_damping_ratio_trend_per_second{gate}`: slope of zeta0's robust trend.
+    pub damping_ratio_trend: GaugeVec,
+    /// `gatewatch_damping_zero_crossing_seconds{gate}`: predicted sample time left until zeta0
+    /// crosses `fire_below` (confident figure); absent when the trend is not significantly
+    /// declining.
+    pub damping_zero_crossing: GaugeVec,
     /// `gatewatch_equivalent_damping_ratio{gate}`.
     pub equivalent_damping_ratio: GaugeVec,
     /// `gatewatch_frequency_hertz{gate}`.
@@ -160,7 +171,11 @@ impl RejectReason {
 pub const ALERT_STATES: &[&str] = &["ok", "pending", "firing", "resolved", "unknown"];
 
 /// gatewatch's own alerts, the `alertname` values of `gatewatch_alert_firing`.
-pub const ALERT_NAMES: &[&str] = &[ALERT_NEGATIVE_DAMPING, ALERT_DATA_STALE];
+pub const ALERT_NAMES: &[&str] = &[
+    ALERT_NEGATIVE_DAMPING,
+    ALERT_DAMPING_DECLINING,
+    ALERT_DATA_STALE,
+];
 
 /// Reasons of `gatewatch_identification_failures_total`: the analysis refused its settings
 /// or the window, the analysis panicked, or the job queue was full.
@@ -247,6 +262,30 @@ impl Metrics {
             damping_ratio: gauge(
                 "gatewatch_damping_ratio",
                 "Identified damping ratio at rest (zeta0).",
+                &["gate"],
+            ),
+            // Two gauges rather than one with a `bound` label: summing or averaging a metric over
+            // its labels must stay meaningful (Prometheus naming guide), a rule can say
+            // `gatewatch_damping_ratio_upper < 0` without label matching, and Grafana fills the
+            // band between two series directly.
+            damping_ratio_lower: gauge(
+                "gatewatch_damping_ratio_lower",
+                "Lower end of the 95 % interval of the damping ratio at rest (absent without an interval).",
+                &["gate"],
+            ),
+            damping_ratio_upper: gauge(
+                "gatewatch_damping_ratio_upper",
+                "Upper end of the 95 % interval of the damping ratio at rest (absent without an interval).",
+                &["gate"],
+            ),
+            damping_ratio_trend: gauge(
+                "gatewatch_damping_ratio_trend_per_second",
+                "Slope of the robust trend of the damping ratio at rest, per second of sample time.",
+                &["gate"],
+            ),
+            damping_zero_crossing: gauge(
+                "gatewatch_damping_zero_crossing_seconds",
+                "Predicted sample time until the damping ratio crosses the alert threshold, at the slope's one-sided 95 % bound (absent when not declining).",
                 &["gate"],
             ),
             equivalent_damping_ratio: gauge(
@@ -412,6 +451,28 @@ impl Metrics {
         }
     }
 
+    /// Exports a window's interval and the gate's trend. A missing interval, trend or predicted
+    /// crossing removes the series (absent, not a stale or made-up value: no evidence).
+    pub fn set_trend(
+        &self,
+        gate: &str,
+        interval: Option<(f64, f64)>,
+        trend: Option<&TrendEstimate>,
+    ) {
+        let put = |g: &GaugeVec, v: Option<f64>| match v.filter(|v| v.is_finite()) {
+            Some(v) => g.with_label_values(&[gate]).set(v),
+            // Err only when the series did not exist: nothing to remove.
+            None => drop(g.remove_label_values(&[gate])),
+        };
+        put(&self.damping_ratio_lower, interval.map(|i| i.0));
+        put(&self.damping_ratio_upper, interval.map(|i| i.1));
+        put(&self.damping_ratio_trend, trend.map(|t| t.slope_per_second));
+        put(
+            &self.damping_zero_crossing,
+            trend.and_then(|t| t.crossing_seconds_confident),
+        );
+    }
+
     /// Sets `gatewatch_alert_firing{gate,alertname}`.
     pub fn set_alert_firing(&self, gate: &str, alertname: &str, firing: bool) {
         self.alert_firing
@@ -459,5 +520,59 @@ impl NotificationCounts {
 impl Default for Metrics {
     fn default() -> Self {
         Metrics::new()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn estimate(crossing: Option<f64>) -> TrendEstimate {
+        TrendEstimate {
+            windows: 60,
+            span_seconds: 300.0,
+            level: 0.01,
+            slope_per_second: -2e-5,
+            slope_stderr: 3e-6,
+            slope_upper: -1.5e-5,
+            threshold: 0.0,
+            crossing_seconds: Some(500.0),
+            crossing_seconds_confident: crossing,
+        }
+    }
+
+    #[test]
+    fn interval_and_trend_series_come_and_go_with_the_evidence() {
+        let m = Metrics::new();
+        m.set_trend("g1", Some((0.004, 0.016)), Some(&estimate(Some(666.0))));
+        let text = m.render();
+        assert!(text.contains("gatewatch_damping_ratio_lower{gate=\"g1\"} 0.004"));
+        assert!(text.contains("gatewatch_damping_ratio_upper{gate=\"g1\"} 0.016"));
+        let slope = text
+            .lines()
+            .find_map(|l| l.strip_prefix("gatewatch_damping_ratio_trend_per_second{gate=\"g1\"} "))
+            .and_then(|v| v.parse::<f64>().ok());
+        assert_eq!(slope, Some(-2e-5));
+        assert!(text.contains("gatewatch_damping_zero_crossing_seconds{gate=\"g1\"} 666"));
+        // no longer declining: the crossing disappears, the slope stays
+        m.set_trend("g1", Some((0.004, 0.016)), Some(&estimate(None)));
+        let text = m.render();
+        assert!(!text.contains("gatewatch_damping_zero_crossing_seconds{"));
+        assert!(text.contains("gatewatch_damping_ratio_trend_per_second{gate=\"g1\"}"));
+        // a window without an interval and no trend: no band, no slope (no evidence)
+        m.set_trend("g1", None, None);
+        let text = m.render();
+        assert!(!text.contains("gatewatch_damping_ratio_lower{"));
+        assert!(!text.contains("gatewatch_damping_ratio_upper{"));
+        assert!(!text.contains("gatewatch_damping_ratio_trend_per_second{"));
+    }
+
+    #[test]
+    fn the_warning_is_an_alert_name_from_the_start() {
+        let m = Metrics::new();
+        m.init_gate("g1");
+        let text = m.render();
+        assert!(text
+            .contains("gatewatch_alert_firing{alertname=\"GateDampingDeclining\",gate=\"g1\"} 0"));
     }
 }

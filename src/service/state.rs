@@ -24,7 +24,7 @@ use super::window::Window;
 use super::worker::{Job, JobOutcome, Submitted, WindowAnalyzer, WorkerPool};
 use crate::alert::notify::{spawn_notifier, NotifierHandle};
 use crate::alert::{Alert, AlertEngine, AlertEvent, GateState, Observation};
-use crate::analysis::{AnalysisError, WindowAnalysis};
+use crate::analysis::{AnalysisError, DampingTrend, TrendEstimate, WindowAnalysis};
 
 /// Relative disagreement of a declared or implied sample rate with `rate_hz` that is refused.
 pub const RATE_TOLERANCE: f64 = 0.01;
@@ -63,6 +63,10 @@ struct GateEntry {
     /// Sample time of the end of the last window whose job finished (succeeded or failed).
     analysed_until: Option<f64>,
     last_error: Option<String>,
+    /// Trend of `zeta0` over the last `alert.trend_horizon_seconds` (GateDampingDeclining).
+    trend: DampingTrend,
+    /// Its latest estimate, for the API.
+    trend_estimate: Option<TrendEstimate>,
 }
 
 struct Inner {
@@ -119,6 +123,9 @@ pub struct GateView {
     /// Sample time (Unix s) of the last sample of the last window whose identification
     /// finished, successfully or not (absent before the first).
     pub analysed_until: Option<f64>,
+    /// Trend of `zeta0` over the recent windows with an interval: slope per second, predicted
+    /// crossing of `fire_below` (absent until enough windows).
+    pub trend: Option<TrendEstimate>,
 }
 
 /// Window statistics.
@@ -247,12 +254,14 @@ impl AppState {
                 id.to_string(),
                 GateEntry {
                     window: Window::new(cfg.rate_hz, cfg.window_samples(), cfg.every_samples()),
+                    trend: DampingTrend::new(cfg.alert.trend_horizon_seconds),
                     config: cfg,
                     latest: None,
                     last_identification: None,
                     latest_window: None,
                     analysed_until: None,
                     last_error: None,
+                    trend_estimate: None,
                 },
             );
         }
@@ -480,10 +489,19 @@ impl AppState {
                     .identifications
                     .with_label_values(&[g, a.path.as_str()])
                     .inc();
+                let fire_below = inner.alerts.rules(g).fire_below;
+                let trend = inner.gates.get_mut(g).and_then(|e| {
+                    let (z, iv) = (d.zeta0, d.zeta0_interval);
+                    e.trend_estimate = e.trend.observe(window.1, z, iv, d.trusted, fire_below);
+                    e.trend_estimate
+                });
+                self.metrics.set_trend(g, d.zeta0_interval, trend.as_ref());
                 let events = inner.alerts.observe(
                     g,
                     &Observation {
                         zeta0: d.zeta0,
+                        zeta0_interval: d.zeta0_interval,
+                        trend,
                         trusted: d.trusted,
                         frequency_hz: d.frequency_hz,
                         limit_cycle_amplitude: d.limit_cycle_amplitude,
@@ -589,6 +607,7 @@ impl AppState {
             }),
             last_error: e.last_error.clone(),
             analysed_until: e.analysed_until,
+            trend: e.trend_estimate,
         })
     }
 

@@ -201,11 +201,13 @@ mod tests {
     fn obs(z: f64) -> Observation<'static> {
         Observation {
             zeta0: Some(z),
+            zeta0_interval: Some((z - 0.002, z + 0.002)),
             trusted: true,
             frequency_hz: Some(10.4),
             limit_cycle_amplitude: None,
             time_to_limit: None,
             equation: "ydd + c1*yd + c2*y = 0",
+            trend: None,
         }
     }
 

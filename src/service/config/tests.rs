@@ -65,6 +65,25 @@ fn errors_name_the_key() {
     assert!(err("[bogus]\n").contains("unknown field `bogus`"));
     assert!(err("[gates.g1.alert]\nfor_windows = 0\n").starts_with("gates.g1.alert.for_windows"));
     assert!(err("[gates.g1.alert]\nsevrity = \"x\"\n").contains("sevrity"));
+    // the interval and trend rules name their key
+    for (toml, key) in [
+        ("fire_probability = 1.0", "gates.g1.alert.fire_probability"),
+        (
+            "warn_lead_seconds = 0.0",
+            "gates.g1.alert.warn_lead_seconds",
+        ),
+        (
+            "trend_horizon_seconds = -1.0",
+            "gates.g1.alert.trend_horizon_seconds",
+        ),
+        ("warn_for_windows = 0", "gates.g1.alert.warn_for_windows"),
+        ("warn_severity = \"\"", "gates.g1.alert.warn_severity"),
+    ] {
+        assert!(
+            err(&format!("[gates.g1.alert]\n{toml}\n")).starts_with(key),
+            "{toml}"
+        );
+    }
     assert!(err("[server]\nlisten = \"nope\"\n").starts_with("server.listen:"));
     assert!(err("[server]\nmax_gates = 0\n").starts_with("server.max_gates:"));
     assert!(err("[server]\nauth_tokens = [\"short\"]\n").starts_with("server.auth_tokens:"));

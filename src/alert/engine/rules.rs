@@ -1,0 +1,178 @@
+//! The alert rules (thresholds and timing) and their validation.
+
+use std::time::Duration;
+
+use serde::{Deserialize, Serialize};
+
+/// Thresholds and timing of the alert rules (global, or per gate via
+/// [`AlertEngine::set_rules`]).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct AlertRules {
+    /// A window counts as negative damping when its whole 95 % interval for `zeta0` lies below
+    /// this (upper end `< fire_below`), or, with [`AlertRules::fire_probability`], when
+    /// `P(zeta0 < fire_below)` reaches that level (default 0.0: confidently negative).
+    pub fire_below: f64,
+    /// Hysteresis: a firing alert resolves only on windows whose whole interval lies at or above
+    /// this (lower end `>= clear_above`) (default 0.005).
+    pub clear_above: f64,
+    /// Decide on probability instead of the interval's upper end: a window is negative when
+    /// `P(zeta0 < fire_below) >= fire_probability`, from a normal approximation of its 95 %
+    /// interval (centre the midpoint, sd the half width / 1.96). Unset (default): the interval
+    /// rule, which is this rule at 0.975. In (0, 1).
+    pub fire_probability: Option<f64>,
+    /// Consecutive negative trusted windows before firing (default 2; 0 acts as 1).
+    pub for_windows: u32,
+    /// Consecutive windows with the interval above `clear_above` before resolving (default 2;
+    /// 0 acts as 1).
+    pub resolve_windows: u32,
+    /// Sample time over which the trend of `zeta0` is fitted, seconds (default 600).
+    pub trend_horizon_seconds: f64,
+    /// The trend acts only once its windows span at least this much sample time, seconds
+    /// (default 120): a line through the first few windows says little.
+    pub trend_min_span_seconds: f64,
+    /// `GateDampingDeclining` fires when the trend predicts, with 95 % confidence (one-sided,
+    /// on the slope), that `zeta0` crosses `fire_below` within this many seconds (default 600).
+    pub warn_lead_seconds: f64,
+    /// Consecutive trusted windows predicting the crossing before `GateDampingDeclining` fires
+    /// (default 2; 0 acts as 1).
+    pub warn_for_windows: u32,
+    /// Consecutive trusted windows no longer predicting it before it resolves (default 2;
+    /// 0 acts as 1).
+    pub warn_resolve_windows: u32,
+    /// Value of `GateDampingDeclining`'s `severity` label (default "warning").
+    pub warn_severity: String,
+    /// No samples for this long (wall clock) fires `GateDataStale` (default 30). A value that
+    /// is not a positive finite number disables the staleness check.
+    pub stale_after_seconds: f64,
+    /// Value of the `severity` label (default "critical").
+    pub severity: String,
+}
+
+impl Default for AlertRules {
+    fn default() -> Self {
+        AlertRules {
+            fire_below: 0.0,
+            clear_above: 0.005,
+            fire_probability: None,
+            for_windows: 2,
+            resolve_windows: 2,
+            trend_horizon_seconds: 600.0,
+            trend_min_span_seconds: 120.0,
+            warn_lead_seconds: 600.0,
+            warn_for_windows: 2,
+            warn_resolve_windows: 2,
+            warn_severity: "warning".to_string(),
+            stale_after_seconds: 30.0,
+            severity: "critical".to_string(),
+        }
+    }
+}
+
+/// A rule set that makes no sense (see [`AlertRules::validate`]).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum RulesError {
+    /// A threshold is NaN or infinite.
+    #[error("alert rule `{0}` must be a finite number")]
+    NotFinite(&'static str),
+    /// `clear_above < fire_below`: there would be no hysteresis band, windows could be
+    /// negative and "good" at once.
+    #[error("alert rule clear_above ({clear_above}) must be >= fire_below ({fire_below})")]
+    ClearBelowFire { fire_below: f64, clear_above: f64 },
+    /// `stale_after_seconds` is not a positive finite number.
+    #[error("alert rule stale_after_seconds must be a positive finite number, got {0}")]
+    BadStaleAfter(f64),
+    /// The severity label is empty.
+    #[error("alert rule severity must not be empty")]
+    EmptySeverity,
+    /// `fire_probability` is not strictly between 0 and 1.
+    #[error("alert rule fire_probability must be in (0, 1), got {0}")]
+    BadProbability(f64),
+    /// A duration of the trend is not a positive finite number of seconds.
+    #[error("alert rule `{0}` must be a positive finite number of seconds, got {1}")]
+    BadSeconds(&'static str, f64),
+}
+
+impl AlertRules {
+    /// Check the rules for consistency. The engine never panics on invalid rules (it behaves as
+    /// documented on each field), but a daemon should reject them when loading its config.
+    pub fn validate(&self) -> Result<(), RulesError> {
+        if !self.fire_below.is_finite() {
+            return Err(RulesError::NotFinite("fire_below"));
+        }
+        if !self.clear_above.is_finite() {
+            return Err(RulesError::NotFinite("clear_above"));
+        }
+        if self.clear_above < self.fire_below {
+            return Err(RulesError::ClearBelowFire {
+                fire_below: self.fire_below,
+                clear_above: self.clear_above,
+            });
+        }
+        if !(self.stale_after_seconds.is_finite() && self.stale_after_seconds > 0.0) {
+            return Err(RulesError::BadStaleAfter(self.stale_after_seconds));
+        }
+        if self.severity.trim().is_empty() || self.warn_severity.trim().is_empty() {
+            return Err(RulesError::EmptySeverity);
+        }
+        if let Some(p) = self.fire_probability {
+            if !(p > 0.0 && p < 1.0) {
+                return Err(RulesError::BadProbability(p));
+            }
+        }
+        for (name, v) in [
+            ("trend_horizon_seconds", self.trend_horizon_seconds),
+            ("warn_lead_seconds", self.warn_lead_seconds),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(RulesError::BadSeconds(name, v));
+            }
+        }
+        if !(self.trend_min_span_seconds.is_finite() && self.trend_min_span_seconds >= 0.0) {
+            return Err(RulesError::BadSeconds(
+                "trend_min_span_seconds",
+                self.trend_min_span_seconds,
+            ));
+        }
+        Ok(())
+    }
+
+    pub(super) fn for_windows(&self) -> u32 {
+        self.for_windows.max(1)
+    }
+
+    pub(super) fn resolve_windows(&self) -> u32 {
+        self.resolve_windows.max(1)
+    }
+
+    pub(super) fn warn_for_windows(&self) -> u32 {
+        self.warn_for_windows.max(1)
+    }
+
+    pub(super) fn warn_resolve_windows(&self) -> u32 {
+        self.warn_resolve_windows.max(1)
+    }
+
+    /// `P(zeta0 < threshold)` under a normal approximation of the 95 % interval `(low, high)`:
+    /// centre the midpoint, standard deviation the half width / 1.96. A zero-width interval
+    /// gives 0 or 1.
+    pub fn probability_below(low: f64, high: f64, threshold: f64) -> f64 {
+        let mid = 0.5 * (low + high);
+        let sd = (high - low) / (2.0 * 1.959_963_984_540_054);
+        if sd > 0.0 {
+            0.5 * libm::erfc((mid - threshold) / (sd * std::f64::consts::SQRT_2))
+        } else if mid < threshold {
+            1.0
+        } else {
+            0.0
+        }
+    }
+
+    pub(super) fn stale_after(&self) -> Option<Duration> {
+        if self.stale_after_seconds.is_finite() && self.stale_after_seconds > 0.0 {
+            Duration::try_from_secs_f64(self.stale_after_seconds).ok()
+        } else {
+            None
+        }
+    }
+}

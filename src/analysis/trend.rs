@@ -1,0 +1,337 @@
+//! The trend of a gate's damping ratio over the last minutes, and when it will cross a threshold.
+//!
+//! Each identified window gives `zeta0` with a 95 % interval. [`DampingTrend`] keeps the recent
+//! ones (a bounded horizon of SAMPLE time) and fits a straight line `zeta0(t) = level + slope *
+//! (t - t_last)` by iteratively reweighted least squares:
+//!
+//! - each window weighs `1 / var`, its variance read off its interval (`half width / 1.96`), so a
+//!   confident window counts more than a vague one; a window without an interval is no evidence
+//!   and is not kept at all;
+//! - Huber weights on the standardised residuals (`k = 1.345`, 95 % efficiency under normal
+//!   errors) make a window that is wildly off (a bad fit that was still trusted) count as if it
+//!   were only `k` standard deviations off, so one outlier cannot fake a trend;
+//! - the slope's standard error is inflated when the residuals scatter more than the intervals
+//!   claim (scale `max(1, chi2 / (n - 2))`) and for the correlation between overlapping windows
+//!   (lag-1 autocorrelation `r` of the residuals: factor `sqrt((1 + r) / (1 - r))`, the AR(1)
+//!   variance inflation), so the intervals' optimism and the overlap both widen it.
+//!
+//! The crossing time is given twice: from the slope itself ("expected") and from the slope's
+//! one-sided 95 % upper bound `slope + 1.645 se` ("confident"): only when even that bound is
+//! negative is the decline taken as real, and the confident crossing is the latest the line
+//! would cross at that bound. `docs/damping.md` ("Trend") explains the choices.
+//!
+//! Pure and deterministic: no randomness, no I/O; memory bounded by [`MAX_TREND_POINTS`].
+
+use std::collections::VecDeque;
+
+use serde::Serialize;
+
+/// Most windows kept per gate whatever the horizon: 10 minutes at one window every 5 s is 120;
+/// the bound keeps a long horizon with a fast cadence from growing the fit's cost without limit
+/// (the oldest windows are dropped first).
+pub const MAX_TREND_POINTS: usize = 1024;
+
+/// Fewest windows before a trend is estimated: a line through fewer points has almost no
+/// degrees of freedom left to estimate its own scatter.
+pub const MIN_TREND_POINTS: usize = 6;
+
+/// z of a two-sided 95 % interval: half width = 1.96 standard deviations.
+const Z95_TWO_SIDED: f64 = 1.959_963_984_540_054;
+/// z of a one-sided 95 % bound.
+const Z95_ONE_SIDED: f64 = 1.644_853_626_951_472_2;
+/// Huber's tuning constant (95 % efficiency at the normal distribution).
+const HUBER_K: f64 = 1.345;
+/// IRLS iterations: the weights settle in a few; a fixed count keeps the cost fixed.
+const IRLS_ITERATIONS: usize = 10;
+/// Floor of a window's standard deviation (0.01 percentage point): an interval of zero width
+/// would otherwise take all the weight.
+const MIN_SD: f64 = 1e-4;
+
+/// One window's damping ratio with its 95 % interval, at the sample time of the window's end.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct TrendPoint {
+    /// Sample time of the window's last sample, seconds (any origin; Unix seconds in the daemon).
+    pub t: f64,
+    /// The window's `zeta0`.
+    pub zeta0: f64,
+    /// Lower end of its 95 % interval.
+    pub low: f64,
+    /// Upper end of its 95 % interval.
+    pub high: f64,
+}
+
+/// The fitted trend at the newest window.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct TrendEstimate {
+    /// Windows in the fit.
+    pub windows: usize,
+    /// Sample time spanned by them, seconds.
+    pub span_seconds: f64,
+    /// The line's value at the newest window (the smoothed current `zeta0`).
+    pub level: f64,
+    /// Slope, damping ratio per second of sample time (negative: declining).
+    pub slope_per_second: f64,
+    /// Standard error of the slope (inflated for excess scatter and window overlap).
+    pub slope_stderr: f64,
+    /// One-sided 95 % upper bound of the slope: `slope + 1.645 stderr`.
+    pub slope_upper: f64,
+    /// The threshold the crossing times refer to (the alert's `fire_below`).
+    pub threshold: f64,
+    /// Seconds from the newest window until the line crosses `threshold` at the fitted slope;
+    /// 0 when the level is already below it; `None` when the slope is not negative.
+    pub crossing_seconds: Option<f64>,
+    /// The same at the slope's upper bound: set only when even that bound is negative, i.e.
+    /// the decline is significant at 95 % (one-sided). The figure an alert may act on.
+    pub crossing_seconds_confident: Option<f64>,
+}
+
+impl TrendEstimate {
+    /// Whether the trend says, with 95 % confidence, that `threshold` is crossed within
+    /// `lead_seconds` (or already was).
+    pub fn crosses_within(&self, lead_seconds: f64) -> bool {
+        self.crossing_seconds_confident
+            .is_some_and(|t| t <= lead_seconds)
+    }
+}
+
+/// Why a point was refused by [`DampingTrend::push`].
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+pub enum TrendError {
+    /// A time, value or bound is NaN or infinite.
+    #[error("trend point at t = {t}: zeta0 {zeta0} and interval ({low}, {high}) must be finite")]
+    NotFinite {
+        t: f64,
+        zeta0: f64,
+        low: f64,
+        high: f64,
+    },
+    /// The interval's ends are reversed.
+    #[error("trend point at t = {t}: interval ({low}, {high}) has its lower end above the upper")]
+    Reversed { t: f64, low: f64, high: f64 },
+    /// The point is older than the newest one kept (windows arrive in sample-time order).
+    #[error("trend point at t = {t} is older than the newest point kept (t = {newest})")]
+    OutOfOrder { t: f64, newest: f64 },
+}
+
+/// The recent windows of one gate and the robust trend through them.
+#[derive(Debug, Clone)]
+pub struct DampingTrend {
+    horizon_seconds: f64,
+    points: VecDeque<TrendPoint>,
+}
+
+impl DampingTrend {
+    /// A trend over the last `horizon_seconds` of sample time (a non-positive or non-finite
+    /// horizon keeps only the newest window, so never yields a trend).
+    pub fn new(horizon_seconds: f64) -> DampingTrend {
+        DampingTrend {
+            horizon_seconds: if horizon_seconds.is_finite() {
+                horizon_seconds.max(0.0)
+            } else {
+                0.0
+            },
+            points: VecDeque::new(),
+        }
+    }
+
+    /// The horizon, seconds of sample time.
+    pub fn horizon_seconds(&self) -> f64 {
+        self.horizon_seconds
+    }
+
+    /// The windows kept, oldest first.
+    pub fn points(&self) -> impl Iterator<Item = &TrendPoint> {
+        self.points.iter()
+    }
+
+    /// Forget every window (e.g. after a gap in the data or a change of the gate's settings).
+    pub fn clear(&mut self) {
+        self.points.clear();
+    }
+
+    /// Add a window and drop those older than the horizon (and beyond [`MAX_TREND_POINTS`]).
+    /// A point at the same time as the newest replaces it (a window identified twice).
+    pub fn push(&mut self, p: TrendPoint) -> Result<(), TrendError> {
+        if !(p.t.is_finite() && p.zeta0.is_finite() && p.low.is_finite() && p.high.is_finite()) {
+            return Err(TrendError::NotFinite {
+                t: p.t,
+                zeta0: p.zeta0,
+                low: p.low,
+                high: p.high,
+            });
+        }
+        if p.low > p.high {
+            return Err(TrendError::Reversed {
+                t: p.t,
+                low: p.low,
+                high: p.high,
+            });
+        }
+        if let Some(last) = self.points.back() {
+            if p.t < last.t {
+                return Err(TrendError::OutOfOrder {
+                    t: p.t,
+                    newest: last.t,
+                });
+            }
+            if p.t == last.t {
+                self.points.pop_back();
+            }
+        }
+        self.points.push_back(p);
+        while self
+            .points
+            .front()
+            .is_some_and(|f| p.t - f.t > self.horizon_seconds)
+            || self.points.len() > MAX_TREND_POINTS
+        {
+            self.points.pop_front();
+        }
+        Ok(())
+    }
+
+    /// One identified window, as the daemon calls it: a trusted window with a finite `zeta0` and
+    /// 95 % interval joins the trend (at `t`, its last sample's time); any other window is no
+    /// evidence and is skipped (so is a window older than the newest kept: a replay). Returns the
+    /// trend afterwards against `threshold`.
+    pub fn observe(
+        &mut self,
+        t: f64,
+        zeta0: Option<f64>,
+        interval: Option<(f64, f64)>,
+        trusted: bool,
+        threshold: f64,
+    ) -> Option<TrendEstimate> {
+        if let (true, Some(zeta0), Some((low, high))) = (trusted, zeta0, interval) {
+            // A refused point (non-finite, reversed, out of order) is simply not evidence.
+            let _ = self.push(TrendPoint {
+                t,
+                zeta0,
+                low,
+                high,
+            });
+        }
+        self.estimate(threshold)
+    }
+
+    /// The trend and its crossing of `threshold`; `None` with fewer than
+    /// [`MIN_TREND_POINTS`] windows or when they all share one time.
+    pub fn estimate(&self, threshold: f64) -> Option<TrendEstimate> {
+        fit(self.points.iter().copied(), self.points.len(), threshold)
+    }
+}
+
+/// The weighted robust line fit of [`DampingTrend::estimate`], over `points` in time order.
+/// Exposed for callers (benchmarks) that keep their own series.
+pub fn fit_trend(points: &[TrendPoint], threshold: f64) -> Option<TrendEstimate> {
+    fit(points.iter().copied(), points.len(), threshold)
+}
+
+fn fit(
+    points: impl Iterator<Item = TrendPoint> + Clone,
+    n: usize,
+    threshold: f64,
+) -> Option<TrendEstimate> {
+    if n < MIN_TREND_POINTS || !threshold.is_finite() {
+        return None;
+    }
+    let t_last = points.clone().last()?.t;
+    let t_first = points.clone().next()?.t;
+    if t_last <= t_first {
+        return None;
+    }
+    // Each window's prior precision from its interval.
+    let sd = |p: &TrendPoint| ((p.high - p.low) / (2.0 * Z95_TWO_SIDED)).max(MIN_SD);
+    let mut level = 0.0;
+    let mut slope = 0.0;
+    let mut sw = 0.0;
+    let mut sx = 0.0;
+    let mut sxx = 0.0;
+    for it in 0..IRLS_ITERATIONS {
+        let (mut s0, mut s1, mut s2, mut sy, mut sxy) = (0.0, 0.0, 0.0, 0.0, 0.0);
+        for p in points.clone() {
+            let x = p.t - t_last;
+            let s = sd(&p);
+            let robust = if it == 0 {
+                1.0
+            } else {
+                huber((p.zeta0 - level - slope * x) / s)
+            };
+            let w = robust / (s * s);
+            s0 += w;
+            s1 += w * x;
+            s2 += w * x * x;
+            sy += w * p.zeta0;
+            sxy += w * x * p.zeta0;
+        }
+        let det = s0 * s2 - s1 * s1;
+        if !(det.is_finite() && det > 0.0) {
+            return None;
+        }
+        slope = (s0 * sxy - s1 * sy) / det;
+        level = (sy - s1 * slope) / s0;
+        (sw, sx, sxx) = (s0, s1, s2);
+    }
+    // Scale: how much more the residuals scatter than the intervals say (never less).
+    let mut chi2 = 0.0;
+    let (mut r_prev, mut c0, mut c1) = (None::<f64>, 0.0, 0.0);
+    for p in points.clone() {
+        let x = p.t - t_last;
+        let r = (p.zeta0 - level - slope * x) / sd(&p);
+        chi2 += huber(r) * r * r;
+        c0 += r * r;
+        if let Some(q) = r_prev {
+            c1 += r * q;
+        }
+        r_prev = Some(r);
+    }
+    let scale = (chi2 / (n - 2) as f64).max(1.0);
+    // Residuals at rounding level (a perfect line) carry no correlation to speak of.
+    let rho = if c0 > 1e-6 * n as f64 {
+        (c1 / c0).clamp(0.0, 0.9)
+    } else {
+        0.0
+    };
+    let overlap = (1.0 + rho) / (1.0 - rho);
+    let var_slope = sw / (sw * sxx - sx * sx) * scale * overlap;
+    let slope_stderr = var_slope.sqrt();
+    let slope_upper = slope + Z95_ONE_SIDED * slope_stderr;
+    let crossing = |s: f64| {
+        if level <= threshold {
+            Some(0.0)
+        } else if s < 0.0 {
+            Some((level - threshold) / -s)
+        } else {
+            None
+        }
+    };
+    Some(TrendEstimate {
+        windows: n,
+        span_seconds: t_last - t_first,
+        level,
+        slope_per_second: slope,
+        slope_stderr,
+        slope_upper,
+        threshold,
+        crossing_seconds: crossing(slope),
+        crossing_seconds_confident: if slope_upper < 0.0 {
+            crossing(slope_upper)
+        } else {
+            None
+        },
+    })
+}
+
+/// Huber's weight of a standardised residual.
+fn huber(r: f64) -> f64 {
+    let a = r.abs();
+    if a <= HUBER_K {
+        1.0
+    } else {
+        HUBER_K / a
+    }
+}
+
+#[cfg(test)]
+#[path = "trend_tests.rs"]
+mod tests;

@@ -1,0 +1,202 @@
+use super::*;
+use approx::assert_relative_eq;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal};
+
+/// A window every 5 s whose `zeta0` scatters about `truth(t)` with sd `sd`, reporting an
+/// honest 95 % interval `+- 1.96 sd`.
+fn series(seed: u64, n: usize, sd: f64, truth: impl Fn(f64) -> f64) -> Vec<TrendPoint> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let noise = Normal::new(0.0, sd).unwrap();
+    (0..n)
+        .map(|i| {
+            let t = 5.0 * i as f64;
+            let z = truth(t) + noise.sample(&mut rng);
+            TrendPoint {
+                t,
+                zeta0: z,
+                low: z - 1.96 * sd,
+                high: z + 1.96 * sd,
+            }
+        })
+        .collect()
+}
+
+#[test]
+fn exact_line_is_recovered() {
+    let pts: Vec<_> = (0..20)
+        .map(|i| {
+            let t = 10.0 * i as f64;
+            let z = 0.02 - 1e-5 * t;
+            TrendPoint {
+                t,
+                zeta0: z,
+                low: z - 0.002,
+                high: z + 0.002,
+            }
+        })
+        .collect();
+    let e = fit_trend(&pts, 0.0).unwrap();
+    assert_relative_eq!(e.slope_per_second, -1e-5, max_relative = 1e-9);
+    // level at the newest window (t = 190): 0.02 - 0.0019
+    assert_relative_eq!(e.level, 0.0181, max_relative = 1e-9);
+    assert_relative_eq!(e.crossing_seconds.unwrap(), 1810.0, max_relative = 1e-6);
+    // no scatter: the bound is the slope plus the intervals' own uncertainty, still negative
+    assert!(e.crossing_seconds_confident.unwrap() >= e.crossing_seconds.unwrap());
+    assert_eq!(e.windows, 20);
+    assert_relative_eq!(e.span_seconds, 190.0);
+}
+
+#[test]
+fn too_few_points_or_one_time_give_no_trend() {
+    let pts = series(1, MIN_TREND_POINTS - 1, 0.003, |_| 0.01);
+    assert!(fit_trend(&pts, 0.0).is_none());
+    let same_t: Vec<_> = series(1, 10, 0.003, |_| 0.01)
+        .into_iter()
+        .map(|p| TrendPoint { t: 3.0, ..p })
+        .collect();
+    assert!(fit_trend(&same_t, 0.0).is_none());
+    assert!(fit_trend(&series(1, 10, 0.003, |_| 0.01), f64::NAN).is_none());
+}
+
+#[test]
+fn steady_gates_are_never_confidently_declining() {
+    // +1 % and +0.5 %, sd 0.3 points (the ambient estimate's scatter on one 10 s window):
+    // over 200 seeds, no 10-minute trend predicts a crossing of 0 within 10 minutes.
+    for &truth in &[0.01, 0.005] {
+        for seed in 0..200 {
+            let pts = series(seed, 120, 0.003, |_| truth);
+            let e = fit_trend(&pts, 0.0).unwrap();
+            assert!(!e.crosses_within(600.0), "truth {truth} seed {seed}: {e:?}");
+        }
+    }
+}
+
+#[test]
+fn slow_drift_is_seen_before_the_crossing() {
+    // +2 % -> -2 % over 20 minutes: crosses 0 at t = 600 s. After 6 minutes of data the trend
+    // must predict the crossing within 10 minutes, confidently, in every seed.
+    let drift = |t: f64| 0.02 - 0.04 * t / 1200.0;
+    for seed in 0..50 {
+        let pts = series(seed, 73, 0.003, drift); // t = 0 .. 360 s
+        let e = fit_trend(&pts, 0.0).unwrap();
+        assert!(e.crosses_within(600.0), "seed {seed}: {e:?}");
+        assert!(e.slope_per_second < 0.0);
+        // the expected crossing is near the truth (240 s left)
+        let left = e.crossing_seconds.unwrap();
+        assert!((120.0..480.0).contains(&left), "seed {seed}: {left}");
+    }
+}
+
+#[test]
+fn one_wild_window_does_not_make_a_trend() {
+    // a steady +1 % gate with one trusted window at -8 % (a bad fit) at the newest end, where a
+    // plain least-squares line would tilt most
+    let mut pts = series(7, 60, 0.003, |_| 0.01);
+    let last = pts.len() - 1;
+    pts[last].zeta0 = -0.08;
+    pts[last].low = -0.08 - 0.006;
+    pts[last].high = -0.08 + 0.006;
+    let e = fit_trend(&pts, 0.0).unwrap();
+    assert!(!e.crosses_within(600.0), "{e:?}");
+    assert!(e.level > 0.005, "{e:?}");
+}
+
+#[test]
+fn wide_windows_weigh_less() {
+    // alternate sharp windows on a flat +1 % with vague windows saying -5 %: the sharp ones win
+    let pts: Vec<_> = (0..40)
+        .map(|i| {
+            let t = 5.0 * i as f64;
+            if i % 2 == 0 {
+                TrendPoint {
+                    t,
+                    zeta0: 0.01,
+                    low: 0.009,
+                    high: 0.011,
+                }
+            } else {
+                TrendPoint {
+                    t,
+                    zeta0: -0.05,
+                    low: -0.5,
+                    high: 0.4,
+                }
+            }
+        })
+        .collect();
+    let e = fit_trend(&pts, 0.0).unwrap();
+    assert!((e.level - 0.01).abs() < 0.001, "{e:?}");
+}
+
+#[test]
+fn horizon_and_bounds_are_kept() {
+    let mut tr = DampingTrend::new(60.0);
+    for i in 0..100 {
+        let t = 5.0 * i as f64;
+        tr.push(TrendPoint {
+            t,
+            zeta0: 0.01,
+            low: 0.0,
+            high: 0.02,
+        })
+        .unwrap();
+    }
+    // 60 s at one window per 5 s: t = 435 .. 495
+    assert_eq!(tr.points().count(), 13);
+    assert_relative_eq!(tr.points().next().unwrap().t, 435.0);
+    // the same time again replaces the newest
+    tr.push(TrendPoint {
+        t: 495.0,
+        zeta0: 0.02,
+        low: 0.01,
+        high: 0.03,
+    })
+    .unwrap();
+    assert_eq!(tr.points().count(), 13);
+    assert_relative_eq!(tr.points().last().unwrap().zeta0, 0.02);
+    // the count bound holds whatever the horizon
+    let mut long = DampingTrend::new(1e9);
+    for i in 0..(MAX_TREND_POINTS + 10) {
+        long.push(TrendPoint {
+            t: i as f64,
+            zeta0: 0.0,
+            low: -0.1,
+            high: 0.1,
+        })
+        .unwrap();
+    }
+    assert_eq!(long.points().count(), MAX_TREND_POINTS);
+}
+
+#[test]
+fn bad_points_are_refused_with_their_time() {
+    let mut tr = DampingTrend::new(600.0);
+    let ok = TrendPoint {
+        t: 10.0,
+        zeta0: 0.01,
+        low: 0.0,
+        high: 0.02,
+    };
+    tr.push(ok).unwrap();
+    let e = tr
+        .push(TrendPoint {
+            zeta0: f64::NAN,
+            ..ok
+        })
+        .unwrap_err();
+    assert!(matches!(e, TrendError::NotFinite { .. }));
+    assert!(e.to_string().contains("t = 10"));
+    let e = tr.push(TrendPoint { low: 0.03, ..ok }).unwrap_err();
+    assert!(matches!(e, TrendError::Reversed { .. }));
+    let e = tr.push(TrendPoint { t: 5.0, ..ok }).unwrap_err();
+    assert_eq!(
+        e,
+        TrendError::OutOfOrder {
+            t: 5.0,
+            newest: 10.0
+        }
+    );
+    assert_eq!(tr.points().count(), 1);
+}
