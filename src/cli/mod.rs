@@ -67,6 +67,9 @@ enum BenchCommand {
     GateExample(gate_example::GateExampleArgs),
     /// Load measurements of the daemon: ingest throughput, identification latency, gates sustained.
     Daemon(crate::service::bench::BenchDaemonArgs),
+    /// How well the daemon warns: each scenario streamed through the daemon in sample time,
+    /// scored against the simulator's true damping (delays, false alarms, error, coverage).
+    Warning(crate::service::bench_warning::BenchWarningArgs),
 }
 
 pub(crate) fn parse_param(s: &str) -> Result<(String, f64), String> {
@@ -134,6 +137,9 @@ pub fn main() -> ExitCode {
         Command::CheckConfig(args) => return crate::service::cli::check_config(args),
         Command::Simulate(args) => return crate::service::cli::simulate(args),
         Command::Demo(args) => return crate::service::cli::demo(args),
+        Command::Bench(BenchCommand::Warning(args)) => {
+            return crate::service::bench_warning::bench_warning(args)
+        }
         Command::Bench(BenchCommand::Daemon(args)) => {
             return crate::service::bench::bench_daemon(args)
         }
