@@ -417,13 +417,14 @@ fn sensor_faults_spike_drop_clip_and_offset() {
     assert!(median(before).abs() < 1e-9);
     // clipping eats into the offset where the response is large; most samples keep it whole
     assert!((median(after) - f.dc_offset).abs() < 0.05 * f.dc_offset);
-    // spikes (10 sigma) saturate the amplifier: a clipped reading where the gate is near rest;
-    // 0.1 per s over 600 s is ~60
+    // spikes (10 sigma) saturate the amplifier: a clipped reading where the gate is near rest
+    // (|clean| < 0.5 sigma, 38 % of the time): 0.1 per s over 600 s is ~60 spikes, ~23 of them
+    // counted here (Poisson, sd ~5)
     let s1 = p.stationary_force_std(0.01);
     let spikes = x
         .iter()
         .zip(&clean)
         .filter(|(a, b)| (a.abs() - f.clip).abs() < 1e-9 && b.abs() < 0.5 * s1)
         .count();
-    assert!((30..=100).contains(&spikes), "{spikes} spikes");
+    assert!((10..=45).contains(&spikes), "{spikes} spikes");
 }
