@@ -348,3 +348,64 @@ pub async fn simulate_with_source(
     }
     Ok(sent)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Parser)]
+    struct Cli {
+        #[command(flatten)]
+        args: SimulateArgs,
+    }
+
+    fn parse(flags: &[&str]) -> Result<SimulateArgs, clap::Error> {
+        let argv = std::iter::once("simulate").chain(flags.iter().copied());
+        Cli::try_parse_from(argv).map(|c| c.args)
+    }
+
+    #[test]
+    fn scenario_preset_and_absolute_noise_flags_reach_the_simulator() {
+        let args = parse(&[
+            "--scenario",
+            "slow-drift",
+            "--gate-preset",
+            "lock",
+            "--noise-abs",
+            "50",
+        ])
+        .unwrap();
+        assert_eq!(args.sensor.preset, crate::simulate::GatePreset::Lock);
+        // --rate defaults to the preset's
+        assert!((args.effective_rate() - 100.0).abs() < 1e-12);
+        let mut sim = simulator(&args).unwrap();
+        // the warm-up is not sent: the first sample is the scenario's t = 0
+        assert!(sim.time().abs() < 1e-9, "starts at {}", sim.time());
+        assert!(sim.true_zeta(720.0).abs() < 1e-12);
+        let mut sq = 0.0;
+        let n = 20_000;
+        for _ in 0..n {
+            let v = sim.next_sample();
+            sq += (v - sim.last_clean()).powi(2);
+        }
+        let rms = (sq / n as f64).sqrt();
+        assert!((rms / 50.0 - 1.0).abs() < 0.03, "noise rms {rms}");
+        // the lab gate stays the default, at 200 Hz
+        let lab = parse(&["--scenario", "stable"]).unwrap();
+        assert!((lab.effective_rate() - 200.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn bad_scenario_flags_are_refused_naming_them() {
+        assert!(parse(&["--gate-preset", "weir"])
+            .unwrap_err()
+            .to_string()
+            .contains("weir"));
+        assert!(parse(&["--scenario", "nope"]).is_err());
+        assert!(parse(&["--noise-abs", "1", "--noise-rel", "0.1"]).is_err());
+        let neg = parse(&["--noise-abs=-1"]).unwrap();
+        let e = simulator(&neg).unwrap_err().to_string();
+        assert!(e.contains("--noise-abs"), "{e}");
+    }
+}
