@@ -184,6 +184,7 @@ impl Daemon {
             start: Some(START + first as f64 / rate),
             onset_hold: 0.0,
             onset_ramp: 0.0,
+            sensor: Default::default(),
         };
         tokio::time::timeout(
             Duration::from_secs(60),

@@ -395,6 +395,7 @@ async fn simulate_client_streams_through_every_protocol() {
             start: Some(1000.0),
             onset_hold: 1.0,
             onset_ramp: 1.0,
+            sensor: Default::default(),
         };
         let mut sim = simulator(&args).unwrap();
         let source = |b: &mut [f64]| sim.fill(b);
@@ -441,6 +442,7 @@ async fn simulate_client_streams_through_every_protocol() {
         start: None,
         onset_hold: 60.0,
         onset_ramp: 300.0,
+        sensor: Default::default(),
     };
     let e = simulate_with_source(&args, |b: &mut [f64]| b.fill(0.0))
         .await
@@ -467,6 +469,7 @@ fn simulate_scenarios_map_to_the_simulator_and_are_reproducible() {
         start: None,
         onset_hold: 5.0,
         onset_ramp: 10.0,
+        sensor: Default::default(),
     };
     for (sc, z0, z_late) in [
         (Scenario::Stable, 0.01, 0.01),

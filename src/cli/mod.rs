@@ -70,6 +70,9 @@ enum BenchCommand {
     /// The daemon under a long mixed load (steady, slow, broken and transient clients),
     /// recording RSS, open descriptors, p99 ingest latency and jobs replaced.
     Soak(crate::service::bench_soak::BenchSoakArgs),
+    /// How well the daemon warns: each scenario streamed through the daemon in sample time,
+    /// scored against the simulator's true damping (delays, false alarms, error, coverage).
+    Warning(crate::service::bench_warning::BenchWarningArgs),
 }
 
 pub(crate) fn parse_param(s: &str) -> Result<(String, f64), String> {
@@ -137,6 +140,9 @@ pub fn main() -> ExitCode {
         Command::CheckConfig(args) => return crate::service::cli::check_config(args),
         Command::Simulate(args) => return crate::service::cli::simulate(args),
         Command::Demo(args) => return crate::service::cli::demo(args),
+        Command::Bench(BenchCommand::Warning(args)) => {
+            return crate::service::bench_warning::bench_warning(args)
+        }
         Command::Bench(BenchCommand::Daemon(args)) => {
             return crate::service::bench::bench_daemon(args)
         }

@@ -9,15 +9,45 @@ use std::time::Duration;
 
 use super::clock::now_unix;
 
-/// Scenario of the simulated gate (maps to [`crate::simulate::Scenario`]).
+/// Scenario of the simulated gate (see [`crate::simulate::ScenarioName`] and `docs/damping.md`,
+/// "Scenarios").
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum Scenario {
     /// Damping ratio +1 % throughout, shaken by turbulent forcing.
     Stable,
+    /// +0.5 % throughout.
+    StableLow,
+    /// +2 % for 2 min, then linear to -2 % over 20 min, then -2 %.
+    SlowDrift,
     /// +2 % for `--onset-hold` s, then a ramp to -2 % over `--onset-ramp` s, then -2 %.
     Onset,
-    /// -2 % from the start: growth from the noise into a limit cycle.
+    /// -2 % from the start, on the limit cycle from the first sample.
     LimitCycle,
+    /// On the -2 % limit cycle for 2 min, back to +2 % in 60 s.
+    Recovery,
+    /// +2 % for 2 min, then a step to -2 %.
+    Step,
+    /// +1 % with a 15 s burst at -3 % every 90 s from 60 s on.
+    Bursting,
+    /// +1 % while the stiffness falls to 70 % over 10 min (a falling water level).
+    WaterLevel,
+    /// +1 % with spikes, dropouts, clipping and a DC offset on the sensor.
+    SensorFaults,
+}
+
+/// The simulated gate and its sensor (`gatewatch simulate`).
+#[derive(Debug, Clone, Default, clap::Args)]
+pub struct GateSensorArgs {
+    /// Gate preset: lab (19 kg, 10.4 Hz, 200 Hz), lock (2000 kg, 5 Hz, 100 Hz), barrier
+    /// (500 kg, 2 Hz, 50 Hz). (`--gate` is the gate's id.)
+    #[arg(long = "gate-preset", default_value = "lab", value_parser = crate::simulate::GatePreset::parse)]
+    pub preset: crate::simulate::GatePreset,
+    /// Sensor noise RMS in signal units (N), as a load cell's noise floor is given.
+    #[arg(long, conflicts_with = "noise_rel")]
+    pub noise_abs: Option<f64>,
+    /// Sensor noise RMS as a fraction of the gate's ambient response std at +1 %.
+    #[arg(long)]
+    pub noise_rel: Option<f64>,
 }
 
 /// Protocol the simulator sends with.
@@ -58,8 +88,8 @@ pub struct SimulateArgs {
     /// Protocol.
     #[arg(long, value_enum, default_value = "json")]
     pub protocol: Protocol,
-    /// Sample rate, Hz.
-    #[arg(long, default_value_t = 200.0)]
+    /// Sample rate, Hz (0: the preset's, 200 Hz for the lab gate).
+    #[arg(long, default_value_t = 0.0)]
     pub rate: f64,
     /// Bearer token.
     #[arg(long, env = "GATEWATCH_TOKEN")]
@@ -76,6 +106,9 @@ pub struct SimulateArgs {
     /// `onset`: seconds of sample time of the ramp from +2 % to -2 % (then -2 %).
     #[arg(long, default_value_t = 300.0)]
     pub onset_ramp: f64,
+    /// The gate preset and its sensor noise.
+    #[command(flatten)]
+    pub sensor: GateSensorArgs,
 }
 
 /// Retries of one request answered 429/503 or failing to connect.
@@ -88,28 +121,56 @@ pub const SIMULATE_MAX_RETRY_AFTER: u64 = 30;
 pub use crate::alert::notify::ensure_crypto_provider;
 
 impl Scenario {
-    /// The simulator's scenario; `Onset` holds `+2 %` for `onset_hold` seconds, then ramps to
-    /// `-2 %` over `onset_ramp` seconds.
+    /// The simulator's scenario of the three the library had first; `Onset` holds `+2 %` for
+    /// `onset_hold` seconds, then ramps to `-2 %` over `onset_ramp` seconds. The others are
+    /// named scenarios ([`Self::named`]); for them this gives the nearest of the three.
     pub fn to_simulation(self, onset_hold: f64, onset_ramp: f64) -> crate::simulate::Scenario {
         match self {
-            Scenario::Stable => crate::simulate::Scenario::Stable,
             Scenario::Onset => crate::simulate::Scenario::Onset {
                 hold_s: onset_hold,
                 ramp_s: onset_ramp,
             },
             Scenario::LimitCycle => crate::simulate::Scenario::LimitCycle,
+            _ => crate::simulate::Scenario::Stable,
+        }
+    }
+
+    /// The named scenario (`None` for `onset`, whose timing the `--onset-*` flags set).
+    pub fn named(self) -> Option<crate::simulate::ScenarioName> {
+        use crate::simulate::ScenarioName as N;
+        Some(match self {
+            Scenario::Stable => N::Stable,
+            Scenario::StableLow => N::StableLow,
+            Scenario::SlowDrift => N::SlowDrift,
+            Scenario::Onset => return None,
+            Scenario::LimitCycle => N::LimitCycle,
+            Scenario::Recovery => N::Recovery,
+            Scenario::Step => N::Step,
+            Scenario::Bursting => N::Bursting,
+            Scenario::WaterLevel => N::WaterLevel,
+            Scenario::SensorFaults => N::SensorFaults,
+        })
+    }
+}
+
+impl SimulateArgs {
+    /// The sample rate: `--rate`, or the preset's when it is 0.
+    pub fn effective_rate(&self) -> f64 {
+        if self.rate == 0.0 {
+            self.sensor.preset.params().rate_hz
+        } else {
+            self.rate
         }
     }
 }
 
-/// The simulated gate of `args`: the chapter's lab gate ([`crate::simulate::GateParams`]
-/// defaults: 19.14 kg, 81 360 N/m, 10.4 Hz, force output) sampled at `--rate`, whose damping
-/// follows `--scenario`, seeded with `--seed`.
+/// The simulated gate of `args`: the `--gate-preset` gate (default: the chapter's lab gate,
+/// 19.14 kg, 81 360 N/m, 10.4 Hz, force output) sampled at `--rate`, whose damping follows
+/// `--scenario`, with `--noise-abs`/`--noise-rel` sensor noise, seeded with `--seed`. Sample 0
+/// is the scenario's `t = 0`: the named scenarios' warm-up is run and not sent.
 pub fn simulator(args: &SimulateArgs) -> anyhow::Result<crate::simulate::GateSimulator> {
-    anyhow::ensure!(
-        args.rate > 0.0 && args.rate.is_finite(),
-        "--rate must be > 0"
-    );
+    let rate = args.effective_rate();
+    anyhow::ensure!(rate > 0.0 && rate.is_finite(), "--rate must be > 0");
     anyhow::ensure!(
         args.onset_hold >= 0.0 && args.onset_hold.is_finite(),
         "--onset-hold must be >= 0"
@@ -118,16 +179,45 @@ pub fn simulator(args: &SimulateArgs) -> anyhow::Result<crate::simulate::GateSim
         args.onset_ramp >= 0.0 && args.onset_ramp.is_finite(),
         "--onset-ramp must be >= 0"
     );
+    for (flag, v) in [
+        ("--noise-abs", args.sensor.noise_abs),
+        ("--noise-rel", args.sensor.noise_rel),
+    ] {
+        if let Some(v) = v {
+            anyhow::ensure!(v >= 0.0 && v.is_finite(), "{flag} must be >= 0, got {v}");
+        }
+    }
     let params = crate::simulate::GateParams {
-        rate_hz: args.rate,
-        ..Default::default()
+        rate_hz: rate,
+        ..args.sensor.preset.params()
     };
-    Ok(crate::simulate::GateSimulator::scenario(
-        params,
-        args.scenario
-            .to_simulation(args.onset_hold, args.onset_ramp),
-        args.seed,
-    ))
+    let noise = match (args.sensor.noise_abs, args.sensor.noise_rel) {
+        (Some(a), _) => crate::simulate::NoiseLevel::Absolute(a),
+        (None, Some(r)) => crate::simulate::NoiseLevel::Relative(r),
+        (None, None) => crate::simulate::NoiseLevel::Absolute(0.0),
+    };
+    match args.scenario.named() {
+        Some(name) => {
+            let mut sim = name
+                .def(&params)
+                .simulator(&params, noise, args.seed)
+                .map_err(anyhow::Error::msg)?;
+            while sim.time() < -0.5 / rate {
+                sim.next_sample();
+            }
+            Ok(sim)
+        }
+        // the onset keeps the library's first form (no warm-up), as before
+        None => Ok(crate::simulate::GateSimulator::scenario(
+            crate::simulate::GateParams {
+                noise_std: noise.rms(&params),
+                ..params
+            },
+            args.scenario
+                .to_simulation(args.onset_hold, args.onset_ramp),
+            args.seed,
+        )),
+    }
 }
 
 async fn send_http(
@@ -184,18 +274,16 @@ pub async fn simulate_with_source(
     args: &SimulateArgs,
     mut source: impl FnMut(&mut [f64]),
 ) -> anyhow::Result<u64> {
-    anyhow::ensure!(
-        args.rate > 0.0 && args.rate.is_finite(),
-        "--rate must be > 0"
-    );
+    let rate = args.effective_rate();
+    anyhow::ensure!(rate > 0.0 && rate.is_finite(), "--rate must be > 0");
     anyhow::ensure!(
         args.duration > 0.0 && args.duration.is_finite(),
         "--duration must be > 0"
     );
     anyhow::ensure!(args.chunk_seconds > 0.0, "--chunk-seconds must be > 0");
     let start = args.start.unwrap_or_else(now_unix);
-    let total = (args.duration * args.rate).round() as u64;
-    let chunk = ((args.chunk_seconds * args.rate).round() as usize).max(1);
+    let total = (args.duration * rate).round() as u64;
+    let chunk = ((args.chunk_seconds * rate).round() as usize).max(1);
     ensure_crypto_provider();
     let client = reqwest::Client::builder()
         .timeout(Duration::from_secs(30))
@@ -212,11 +300,11 @@ pub async fn simulate_with_source(
     while sent < total {
         let n = chunk.min((total - sent) as usize);
         source(&mut buf[..n]);
-        let t0 = start + sent as f64 / args.rate;
+        let t0 = start + sent as f64 / rate;
         match args.protocol {
             Protocol::Json => {
                 let body = serde_json::json!({
-                    "gate": args.gate, "start": t0, "rate_hz": args.rate, "values": &buf[..n],
+                    "gate": args.gate, "start": t0, "rate_hz": rate, "values": &buf[..n],
                 });
                 send_http(
                     &client,
@@ -230,7 +318,7 @@ pub async fn simulate_with_source(
             Protocol::Line | Protocol::Tcp => {
                 let mut body = String::with_capacity(n * 48);
                 for (i, v) in buf[..n].iter().enumerate() {
-                    let ns = ((start + (sent + i as u64) as f64 / args.rate) * 1e9).round() as i64;
+                    let ns = ((start + (sent + i as u64) as f64 / rate) * 1e9).round() as i64;
                     body.push_str(&format!("gate,gate={} force={v} {ns}\n", args.gate));
                 }
                 if let Some(s) = tcp.as_mut() {
@@ -250,7 +338,7 @@ pub async fn simulate_with_source(
         }
         sent += n as u64;
         if args.speed > 0.0 {
-            let due = Duration::from_secs_f64(sent as f64 / args.rate / args.speed);
+            let due = Duration::from_secs_f64(sent as f64 / rate / args.speed);
             tokio::time::sleep_until(began + due).await;
         }
     }
@@ -259,4 +347,65 @@ pub async fn simulate_with_source(
         s.shutdown().await?;
     }
     Ok(sent)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Parser)]
+    struct Cli {
+        #[command(flatten)]
+        args: SimulateArgs,
+    }
+
+    fn parse(flags: &[&str]) -> Result<SimulateArgs, clap::Error> {
+        let argv = std::iter::once("simulate").chain(flags.iter().copied());
+        Cli::try_parse_from(argv).map(|c| c.args)
+    }
+
+    #[test]
+    fn scenario_preset_and_absolute_noise_flags_reach_the_simulator() {
+        let args = parse(&[
+            "--scenario",
+            "slow-drift",
+            "--gate-preset",
+            "lock",
+            "--noise-abs",
+            "50",
+        ])
+        .unwrap();
+        assert_eq!(args.sensor.preset, crate::simulate::GatePreset::Lock);
+        // --rate defaults to the preset's
+        assert!((args.effective_rate() - 100.0).abs() < 1e-12);
+        let mut sim = simulator(&args).unwrap();
+        // the warm-up is not sent: the first sample is the scenario's t = 0
+        assert!(sim.time().abs() < 1e-9, "starts at {}", sim.time());
+        assert!(sim.true_zeta(720.0).abs() < 1e-12);
+        let mut sq = 0.0;
+        let n = 20_000;
+        for _ in 0..n {
+            let v = sim.next_sample();
+            sq += (v - sim.last_clean()).powi(2);
+        }
+        let rms = (sq / n as f64).sqrt();
+        assert!((rms / 50.0 - 1.0).abs() < 0.03, "noise rms {rms}");
+        // the lab gate stays the default, at 200 Hz
+        let lab = parse(&["--scenario", "stable"]).unwrap();
+        assert!((lab.effective_rate() - 200.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn bad_scenario_flags_are_refused_naming_them() {
+        assert!(parse(&["--gate-preset", "weir"])
+            .unwrap_err()
+            .to_string()
+            .contains("weir"));
+        assert!(parse(&["--scenario", "nope"]).is_err());
+        assert!(parse(&["--noise-abs", "1", "--noise-rel", "0.1"]).is_err());
+        let neg = parse(&["--noise-abs=-1"]).unwrap();
+        let e = simulator(&neg).unwrap_err().to_string();
+        assert!(e.contains("--noise-abs"), "{e}");
+    }
 }

@@ -232,6 +232,7 @@ pub async fn run_demo(
         start: Some(start),
         onset_hold: args.onset_hold,
         onset_ramp: args.onset_ramp,
+        sensor: Default::default(),
     };
     let truth = GateSimulator::scenario(
         GateParams::default(),

@@ -17,12 +17,15 @@
 //! - [`cli`]: command-line entry points; [`client`]: the simulate client (talks to a daemon
 //!   over the network only, and installs the TLS crypto provider its HTTP client needs).
 //! - [`bench`]: `gatewatch bench daemon`, load measurements.
+//! - [`bench_warning`]: `gatewatch bench warning`, the scenarios streamed through [`state`] in
+//!   sample time and scored against the simulator's truth.
 //! - [`demo`]: `gatewatch demo`, daemon + webhook receiver + simulated gate in one process.
 //! - [`clock`], [`sync`]: Unix seconds and the poison-tolerant lock, shared by the above.
 //!
 //! Imports go one way (no circle): `cli` -> `server`, `demo`, `client`, `shutdown`; `demo`,
-//! `bench` -> `server`, `client`; `server` -> `api`, `tcp`, `state`, `worker`; `api`, `tcp` ->
-//! `state`, `ingest`, `metrics`; `state` -> `worker`, `window`, `ingest`, `ingest_checks`, `metrics`, `config`;
+//! `bench` -> `server`, `client`; `bench_warning` -> `state`, `worker`, `ingest`, `config`;
+//! `server` -> `api`, `tcp`, `state`, `worker`; `api`, `tcp` -> `state`, `ingest`, `metrics`;
+//! `state` -> `worker`, `window`, `ingest`, `ingest_checks`, `metrics`, `config`;
 //! `ingest_checks` -> `ingest`, `metrics`, `config`;
 //! `ingest`, `worker` -> `config`; and `config`, `window`, `clock`, `sync` import nothing of
 //! the service.
@@ -30,6 +33,7 @@
 pub mod api;
 pub mod bench;
 pub mod bench_soak;
+pub mod bench_warning;
 pub mod cli;
 pub mod client;
 pub mod clock;

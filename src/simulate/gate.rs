@@ -1,6 +1,6 @@
 //! The noise-driven gate: its parameters and the streaming RK4 simulator.
 
-use super::{Output, Scenario, ZetaSchedule};
+use super::{Output, Scenario, SensorFaults, ZetaSchedule};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
@@ -105,6 +105,18 @@ pub struct GateSimulator {
     f_next: f64,
     force_rng: ChaCha8Rng,
     noise_rng: ChaCha8Rng,
+    /// Stiffness as a factor of `p.stiffness` over time (a falling water level); `None`: 1.
+    k_factor: Option<ZetaSchedule>,
+    /// Time of sample 0, s (negative: a warm-up the scenario's clock starts after).
+    t_start: f64,
+    /// Sensor faults applied to the measured output.
+    faults: SensorFaults,
+    /// Its own random stream, so adding faults leaves forcing and noise unchanged.
+    fault_rng: ChaCha8Rng,
+    /// Samples left in the current dropout.
+    dropout_left: u64,
+    /// The clean output of the last sample returned.
+    last_clean: f64,
 }
 
 impl GateSimulator {
@@ -119,6 +131,8 @@ impl GateSimulator {
         force_rng.set_stream(0);
         let mut noise_rng = ChaCha8Rng::seed_from_u64(seed);
         noise_rng.set_stream(1);
+        let mut fault_rng = ChaCha8Rng::seed_from_u64(seed);
+        fault_rng.set_stream(2);
         let mut s = GateSimulator {
             crit: params.critical_damping(),
             y: params.y0,
@@ -130,6 +144,12 @@ impl GateSimulator {
             f_next: 0.0,
             force_rng,
             noise_rng,
+            k_factor: None,
+            t_start: 0.0,
+            faults: SensorFaults::default(),
+            fault_rng,
+            dropout_left: 0,
+            last_clean: 0.0,
         };
         s.f_now = s.draw_force();
         s.f_next = s.draw_force();
@@ -139,6 +159,41 @@ impl GateSimulator {
     /// A simulator of one of the predefined scenarios.
     pub fn scenario(params: GateParams, scenario: Scenario, seed: u64) -> GateSimulator {
         GateSimulator::new(params, scenario.schedule(), seed)
+    }
+
+    /// Lets the stiffness follow `factor(t) * stiffness` (a falling water level lowers the
+    /// added mass' restoring force and the frequency); the damping coefficient follows it so that
+    /// `zeta(t)` stays what the schedule says.
+    pub fn with_stiffness_factor(mut self, factor: ZetaSchedule) -> GateSimulator {
+        self.k_factor = Some(factor);
+        self
+    }
+
+    /// Starts the clock at `t_start` (s): sample 0 is at `t_start`, so a negative value is a
+    /// warm-up that brings the gate to its stationary response before the scenario's `t = 0`.
+    pub fn with_start_time(mut self, t_start: f64) -> GateSimulator {
+        self.t_start = t_start;
+        self
+    }
+
+    /// Applies `faults` to the measured output (spikes, dropouts, clipping, a DC offset).
+    pub fn with_faults(mut self, faults: SensorFaults) -> GateSimulator {
+        self.faults = faults;
+        self
+    }
+
+    /// The clean (noise-, drift- and fault-free) output of the sample last returned.
+    pub fn last_clean(&self) -> f64 {
+        self.last_clean
+    }
+
+    /// Stiffness at time `t`, N/m.
+    #[inline]
+    fn stiffness_at(&self, t: f64) -> f64 {
+        match &self.k_factor {
+            Some(f) => self.p.stiffness * f.at(t),
+            None => self.p.stiffness,
+        }
     }
 
     fn draw_force(&mut self) -> f64 {
@@ -167,7 +222,7 @@ impl GateSimulator {
 
     /// Time of the next sample `next_sample` will return, s.
     pub fn time(&self) -> f64 {
-        self.index as f64 / self.p.rate_hz
+        self.t_start + self.index as f64 / self.p.rate_hz
     }
 
     /// Index of the next sample.
@@ -183,9 +238,9 @@ impl GateSimulator {
     /// Acceleration at state `(y, v)`, time `t` within the current sample interval, with the
     /// damping coefficient `c` (held over one RK4 step).
     #[inline]
-    fn accel(&self, y: f64, v: f64, c: f64, t_frac: f64) -> f64 {
+    fn accel(&self, y: f64, v: f64, c: f64, k: f64, t_frac: f64) -> f64 {
         let f = self.f_now + (self.f_next - self.f_now) * t_frac;
-        (f - c * v - self.p.c3 * v * v * v - self.p.stiffness * y) / self.p.mass
+        (f - c * v - self.p.c3 * v * v * v - k * y) / self.p.mass
     }
 
     /// Advances the state by one sample interval (RK4 substeps).
@@ -200,16 +255,22 @@ impl GateSimulator {
             let e = (j as f64 + 1.0) / n as f64;
             // Damping evaluated at the step's midpoint: the schedule varies on a scale of
             // seconds, far slower than a substep.
-            let c = self.crit * self.schedule.at(t0 + b * dt);
+            let tm = t0 + b * dt;
+            let k = self.stiffness_at(tm);
+            let crit = match self.k_factor {
+                Some(_) => 2.0 * (k * self.p.mass).sqrt(),
+                None => self.crit,
+            };
+            let c = crit * self.schedule.at(tm);
             let (y, v) = (self.y, self.v);
             let k1y = v;
-            let k1v = self.accel(y, v, c, a);
+            let k1v = self.accel(y, v, c, k, a);
             let k2y = v + 0.5 * h * k1v;
-            let k2v = self.accel(y + 0.5 * h * k1y, k2y, c, b);
+            let k2v = self.accel(y + 0.5 * h * k1y, k2y, c, k, b);
             let k3y = v + 0.5 * h * k2v;
-            let k3v = self.accel(y + 0.5 * h * k2y, k3y, c, b);
+            let k3v = self.accel(y + 0.5 * h * k2y, k3y, c, k, b);
             let k4y = v + h * k3v;
-            let k4v = self.accel(y + h * k3y, k4y, c, e);
+            let k4v = self.accel(y + h * k3y, k4y, c, k, e);
             self.y = y + h / 6.0 * (k1y + 2.0 * k2y + 2.0 * k3y + k4y);
             self.v = v + h / 6.0 * (k1v + 2.0 * k2v + 2.0 * k3v + k4v);
         }
@@ -222,7 +283,7 @@ impl GateSimulator {
     #[inline]
     fn clean_output(&self) -> f64 {
         match self.p.output {
-            Output::Force => self.p.stiffness * self.y,
+            Output::Force => self.stiffness_at(self.time()) * self.y,
             Output::Displacement => self.y,
         }
     }
@@ -230,7 +291,9 @@ impl GateSimulator {
     /// The next sample (output at [`Self::time`], then the state advances by one interval).
     pub fn next_sample(&mut self) -> f64 {
         let t = self.time();
-        let mut out = self.clean_output();
+        let clean = self.clean_output();
+        self.last_clean = clean;
+        let mut out = clean;
         if self.p.noise_std > 0.0 {
             let z: f64 = StandardNormal.sample(&mut self.noise_rng);
             out += self.p.noise_std * z;
@@ -241,6 +304,15 @@ impl GateSimulator {
         if self.p.drift_amplitude != 0.0 && self.p.drift_period_s > 0.0 {
             out += self.p.drift_amplitude
                 * (2.0 * std::f64::consts::PI * t / self.p.drift_period_s).sin();
+        }
+        if self.faults.is_active() {
+            out = self.faults.apply(
+                out,
+                t,
+                self.p.rate_hz,
+                &mut self.fault_rng,
+                &mut self.dropout_left,
+            );
         }
         self.advance();
         out

@@ -31,15 +31,22 @@
 //! # Layout
 //! - `schedule`: [`ZetaSchedule`] and the predefined [`Scenario`]s.
 //! - `gate`: [`GateParams`] and the streaming [`GateSimulator`].
+//! - `scenarios`: the named scenarios an operator meets ([`ScenarioName`], with the true
+//!   `zeta0(t)` beside the signal), the gate presets ([`GatePreset`]) and [`NoiseLevel`].
+//! - `faults`: [`SensorFaults`] (spikes, dropouts, clipping, a DC offset).
 //! - `worked_example`: the chapter's worked example, [`worked_example`].
 
+mod faults;
 mod gate;
+mod scenarios;
 mod schedule;
 #[cfg(test)]
 mod tests;
 mod worked_example;
 
+pub use faults::SensorFaults;
 pub use gate::{GateParams, GateSimulator};
+pub use scenarios::{GatePreset, NoiseLevel, ScenarioDef, ScenarioName};
 pub use schedule::{Scenario, ZetaSchedule};
 pub use worked_example::{
     worked_example, WorkedExample, WorkedExampleOptions, EX_C1, EX_C3, EX_K, EX_MASS, EX_V0, EX_Y0,

@@ -19,6 +19,9 @@ pub enum ZetaSchedule {
     Table(Vec<(f64, f64)>),
     /// Any function of time.
     Custom(Box<dyn Fn(f64) -> f64 + Send + Sync>),
+    /// A plain function of time: unlike `Custom` it can be cloned, so the truth and the
+    /// simulator can each hold the schedule.
+    Function(fn(f64) -> f64),
 }
 
 impl std::fmt::Debug for ZetaSchedule {
@@ -36,6 +39,7 @@ impl std::fmt::Debug for ZetaSchedule {
             ),
             ZetaSchedule::Table(t) => write!(f, "Table({t:?})"),
             ZetaSchedule::Custom(_) => write!(f, "Custom(..)"),
+            ZetaSchedule::Function(_) => write!(f, "Function(..)"),
         }
     }
 }
@@ -80,7 +84,42 @@ impl ZetaSchedule {
                 pts[pts.len() - 1].1
             }
             ZetaSchedule::Custom(f) => f(t),
+            ZetaSchedule::Function(f) => f(t),
         }
+    }
+
+    /// A copy of the schedule; `None` for `Custom` (a boxed closure cannot be cloned).
+    pub fn try_clone(&self) -> Option<ZetaSchedule> {
+        Some(match self {
+            ZetaSchedule::Constant(z) => ZetaSchedule::Constant(*z),
+            ZetaSchedule::Ramp {
+                start_s,
+                duration_s,
+                from,
+                to,
+            } => ZetaSchedule::Ramp {
+                start_s: *start_s,
+                duration_s: *duration_s,
+                from: *from,
+                to: *to,
+            },
+            ZetaSchedule::Table(t) => ZetaSchedule::Table(t.clone()),
+            ZetaSchedule::Function(f) => ZetaSchedule::Function(*f),
+            ZetaSchedule::Custom(_) => return None,
+        })
+    }
+
+    /// Mean over `[t0, t1]` (midpoint rule, 200 points: enough for the piecewise-linear and
+    /// piecewise-constant schedules of the scenarios, whose kinks fall anywhere in a window).
+    pub fn mean(&self, t0: f64, t1: f64) -> f64 {
+        if t1 <= t0 {
+            return self.at(t0);
+        }
+        let n = 200;
+        (0..n)
+            .map(|i| self.at(t0 + (i as f64 + 0.5) / n as f64 * (t1 - t0)))
+            .sum::<f64>()
+            / n as f64
     }
 
     /// First time at or after `from_s` (scanned in steps of `step_s` up to `until_s`) where

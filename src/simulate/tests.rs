@@ -206,3 +206,225 @@ fn worked_example_settles_on_its_limit_cycle() {
         "tail amplitude {amp} vs harmonic balance {predicted}"
     );
 }
+
+/// `n` samples of `sim` from the scenario's `t = 0` (the warm-up dropped), with the clean output.
+fn run_scenario(sim: &mut GateSimulator, n: usize) -> (Vec<f64>, Vec<f64>) {
+    while sim.time() < -1e-9 {
+        sim.next_sample();
+    }
+    let mut measured = Vec::with_capacity(n);
+    let mut clean = Vec::with_capacity(n);
+    for _ in 0..n {
+        measured.push(sim.next_sample());
+        clean.push(sim.last_clean());
+    }
+    (measured, clean)
+}
+
+#[test]
+fn every_scenario_true_zeta_matches_its_definition() {
+    let p = GatePreset::Lab.params();
+    let z = |n: ScenarioName, t: f64| n.def(&p).true_zeta(t);
+    let close = |a: f64, b: f64| (a - b).abs() < 1e-12;
+    assert!(
+        close(z(ScenarioName::Stable, 0.0), 0.01) && close(z(ScenarioName::Stable, 599.0), 0.01)
+    );
+    assert!(close(z(ScenarioName::StableLow, 300.0), 0.005));
+    // slow drift: +2 % until 120 s, zero at 720 s, -1 % at 1020 s, -2 % from 1320 s
+    let d = ScenarioName::SlowDrift.def(&p);
+    assert!(close(d.true_zeta(120.0), 0.02) && close(d.true_zeta(720.0), 0.0));
+    assert!(close(d.true_zeta(1020.0), -0.01) && close(d.true_zeta(1380.0), -0.02));
+    let t0 = d
+        .zeta
+        .first_time_at_or_below(0.0, 0.0, d.duration_s, 1.0)
+        .unwrap();
+    assert!((t0 - 720.0).abs() < 1e-6, "slow drift crosses zero at {t0}");
+    // onset: +2 % to -2 % in 60 s from 120 s: zero at 150 s, -1 % at 165 s
+    let o = ScenarioName::Onset.def(&p);
+    let t1 = o
+        .zeta
+        .first_time_at_or_below(-0.01, 0.0, o.duration_s, 1.0)
+        .unwrap();
+    assert!((t1 - 165.0).abs() < 1e-6, "onset reaches -1 % at {t1}");
+    assert!(close(o.true_zeta(150.0), 0.0) && close(o.true_zeta(200.0), -0.02));
+    assert!(
+        close(z(ScenarioName::LimitCycle, 0.0), -0.02)
+            && close(z(ScenarioName::LimitCycle, 299.0), -0.02)
+    );
+    let r = ScenarioName::Recovery.def(&p);
+    assert!(
+        close(r.true_zeta(100.0), -0.02)
+            && close(r.true_zeta(150.0), 0.0)
+            && close(r.true_zeta(200.0), 0.02)
+    );
+    let s = ScenarioName::Step.def(&p);
+    assert!(close(s.true_zeta(119.9), 0.02) && close(s.true_zeta(120.1), -0.02));
+    let b = ScenarioName::Bursting.def(&p);
+    for (t, want) in [
+        (30.0, 0.01),
+        (61.0, -0.03),
+        (74.0, -0.03),
+        (76.0, 0.01),
+        (151.0, -0.03),
+        (170.0, 0.01),
+    ] {
+        assert!(
+            close(b.true_zeta(t), want),
+            "bursting at {t}: {}",
+            b.true_zeta(t)
+        );
+    }
+    let w = ScenarioName::WaterLevel.def(&p);
+    assert!(close(w.true_zeta(300.0), 0.01));
+    let k = w.stiffness_factor.as_ref().unwrap();
+    assert!(close(k.at(0.0), 1.0) && close(k.at(300.0), 0.85) && close(k.at(600.0), 0.7));
+    // window-average truth of a ramp is its value at the centre
+    assert!((d.mean_zeta(700.0, 740.0) - 0.0).abs() < 1e-9);
+    for n in ScenarioName::ALL {
+        assert_eq!(ScenarioName::parse(n.as_str()), Ok(n));
+        assert_eq!(
+            n.is_stable(),
+            n.def(&p)
+                .zeta
+                .first_time_at_or_below(0.0, 0.0, 2000.0, 0.5)
+                .is_none(),
+            "{n:?}"
+        );
+    }
+    assert!(ScenarioName::parse("nope")
+        .unwrap_err()
+        .contains("slow-drift"));
+}
+
+#[test]
+fn every_scenario_same_seed_same_signal() {
+    for g in GatePreset::ALL {
+        let p = g.params();
+        for n in ScenarioName::ALL {
+            let d = n.def(&p);
+            let samples = (2.0 * p.rate_hz) as usize;
+            let mut a = d.simulator(&p, NoiseLevel::Absolute(0.1), 5).unwrap();
+            let mut b = d.simulator(&p, NoiseLevel::Absolute(0.1), 5).unwrap();
+            let mut c = d.simulator(&p, NoiseLevel::Absolute(0.1), 6).unwrap();
+            let (xa, _) = run_scenario(&mut a, samples);
+            let (xb, _) = run_scenario(&mut b, samples);
+            let (xc, _) = run_scenario(&mut c, samples);
+            assert_eq!(xa, xb, "{n:?} on {g:?}: same seed, different signal");
+            assert_ne!(xa, xc, "{n:?} on {g:?}: different seeds, same signal");
+            assert!(xa.iter().all(|v| v.is_finite()));
+        }
+    }
+}
+
+#[test]
+fn absolute_noise_has_the_requested_rms() {
+    for (g, level) in [(GatePreset::Lab, 0.7), (GatePreset::Lock, 50.0)] {
+        let p = g.params();
+        let d = ScenarioName::Stable.def(&p);
+        let mut sim = d.simulator(&p, NoiseLevel::Absolute(level), 9).unwrap();
+        let (x, clean) = run_scenario(&mut sim, 40_000);
+        let noise: Vec<f64> = x.iter().zip(&clean).map(|(a, b)| a - b).collect();
+        // 40 000 draws: the sample RMS of Gaussian noise scatters by 1/sqrt(2n) = 0.35 %
+        let r = rms(&noise);
+        assert!(
+            (r / level - 1.0).abs() < 0.02,
+            "{g:?}: noise rms {r} vs {level}"
+        );
+    }
+    // relative noise: a fraction of the preset's ambient std at +1 %
+    let p = GatePreset::Lock.params();
+    assert!((NoiseLevel::Relative(0.1).rms(&p) - 0.1 * p.stationary_force_std(0.01)).abs() < 1e-12);
+}
+
+#[test]
+fn presets_have_their_frequency_rate_and_limit_cycle_ratio() {
+    let lab = GatePreset::Lab.params();
+    assert!((lab.natural_frequency_hz() - 10.4).abs() < 0.05);
+    let lock = GatePreset::Lock.params();
+    assert!((lock.natural_frequency_hz() - 5.0).abs() < 1e-9);
+    assert!((lock.mass - 2000.0).abs() < 1e-12 && (lock.rate_hz - 100.0).abs() < 1e-12);
+    let barrier = GatePreset::Barrier.params();
+    assert!((barrier.natural_frequency_hz() - 2.0).abs() < 1e-9);
+    for p in [&lock, &barrier] {
+        let ratio = p.limit_cycle_force_amplitude(-0.02).unwrap() / p.stationary_force_std(0.01);
+        assert!((ratio - 17.0).abs() < 1e-9, "limit cycle / ambient {ratio}");
+    }
+    assert_eq!(GatePreset::parse("lock"), Ok(GatePreset::Lock));
+    assert!(GatePreset::parse("weir").is_err());
+}
+
+#[test]
+fn held_limit_cycle_starts_on_the_cycle_of_the_lock_gate() {
+    let p = GatePreset::Lock.params();
+    let d = ScenarioName::LimitCycle.def(&p);
+    let mut sim = d.simulator(&p, NoiseLevel::Absolute(0.0), 2).unwrap();
+    let (_, clean) = run_scenario(&mut sim, 1000);
+    let amp = rms(&clean) * std::f64::consts::SQRT_2;
+    let lc = p.limit_cycle_force_amplitude(-0.02).unwrap();
+    assert!(
+        (amp / lc - 1.0).abs() < 0.1,
+        "first 10 s at {amp}, cycle {lc}"
+    );
+}
+
+#[test]
+fn water_level_lowers_the_frequency() {
+    let p = GatePreset::Lab.params();
+    let d = ScenarioName::WaterLevel.def(&p);
+    let mut sim = d.simulator(&p, NoiseLevel::Absolute(0.0), 4).unwrap();
+    let (_, clean) = run_scenario(&mut sim, 200 * 600);
+    // zero crossings per second ~ 2 f: over the first and the last 60 s
+    let rate = |x: &[f64]| x.windows(2).filter(|w| w[0] * w[1] < 0.0).count() as f64 / 2.0 / 60.0;
+    let f_start = rate(&clean[..200 * 60]);
+    let f_end = rate(&clean[200 * 540..]);
+    let want = p.natural_frequency_hz() * 0.7f64.sqrt();
+    assert!(
+        (f_start / p.natural_frequency_hz() - 1.0).abs() < 0.03,
+        "start {f_start} Hz"
+    );
+    assert!(
+        (f_end / want - 1.0).abs() < 0.04,
+        "end {f_end} Hz vs {want}"
+    );
+}
+
+#[test]
+fn sensor_faults_spike_drop_clip_and_offset() {
+    let p = GatePreset::Lab.params();
+    let d = ScenarioName::SensorFaults.def(&p);
+    let f = d.faults.clone();
+    let mut sim = d.simulator(&p, NoiseLevel::Absolute(0.0), 8).unwrap();
+    let (x, clean) = run_scenario(&mut sim, 200 * 600);
+    assert!(x.iter().all(|v| v.abs() <= f.clip + 1e-12), "clipping");
+    let zeros = x.iter().filter(|v| **v == 0.0).count();
+    // 600 s at 1/150 per s: ~4 dropouts of 200 samples each
+    assert!(zeros >= 200, "no dropout: {zeros} zero samples");
+    // the offset after 300 s: the median of measured - clean moves by dc_offset
+    let median = |mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let before: Vec<f64> = x[..200 * 300]
+        .iter()
+        .zip(&clean)
+        .map(|(a, b)| a - b)
+        .collect();
+    let after: Vec<f64> = x[200 * 300..]
+        .iter()
+        .zip(&clean[200 * 300..])
+        .map(|(a, b)| a - b)
+        .collect();
+    assert!(median(before).abs() < 1e-9);
+    // clipping eats into the offset where the response is large; most samples keep it whole
+    assert!((median(after) - f.dc_offset).abs() < 0.05 * f.dc_offset);
+    // spikes (10 sigma) saturate the amplifier: a clipped reading where the gate is near rest
+    // (|clean| < 0.5 sigma, 38 % of the time): 0.1 per s over 600 s is ~60 spikes, ~23 of them
+    // counted here (Poisson, sd ~5)
+    let s1 = p.stationary_force_std(0.01);
+    let spikes = x
+        .iter()
+        .zip(&clean)
+        .filter(|(a, b)| (a.abs() - f.clip).abs() < 1e-9 && b.abs() < 0.5 * s1)
+        .count();
+    assert!((10..=45).contains(&spikes), "{spikes} spikes");
+}

@@ -1,0 +1,458 @@
+//! `gatewatch bench warning`: how well the daemon warns, scored against the simulator's truth.
+//!
+//! Each named scenario ([`crate::simulate::ScenarioName`]) on each gate preset is streamed
+//! through the REAL daemon path, in sample time and faster than real time: a fresh
+//! [`AppState`] (ingestion, per-gate window, worker pool, the real analyzers of the
+//! configuration, the alert engine) gets the samples with [`AppState::ingest`], one
+//! identification cadence at a time, and the bench waits for each window's identification before
+//! sending the next, so no window is replaced and the result does not depend on the machine's
+//! speed. Alerts are read by NAME from the gate's firing alerts as the API shows them
+//! ([`AppState::gate_view`]) after every window, so a new alert (`GateDampingDeclining`) is
+//! scored as soon as the engine raises it, without changing this file. The damping figures are
+//! read through their JSON form (`zeta0`, `zeta0_interval`, `zeta0_source`) for the same reason.
+//!
+//! Scoring (pure functions over [`RunRecord`]s, tested on synthetic sequences) is in
+//! [`score`](self::score); what each column means is in `docs/benchmarks.md`.
+
+use std::process::ExitCode;
+use std::sync::Arc;
+use std::time::Duration;
+
+use serde::Serialize;
+
+use super::config::{Config, GateConfig};
+use super::ingest::Batch;
+use super::state::AppState;
+use super::worker::{AnalyzerMap, WindowAnalyzer};
+use crate::simulate::{GatePreset, NoiseLevel, ScenarioName};
+
+mod score;
+#[cfg(test)]
+mod tests;
+
+pub use score::{alert_rows, regime_rows, AlertRow, Regime, RegimeRow, Targets};
+
+/// Name of the negative-damping alert.
+pub const ALERT_NEGATIVE: &str = "GateNegativeDamping";
+/// Name of the trend alert (issue 8, section 3; scored when the engine raises it).
+pub const ALERT_DECLINING: &str = "GateDampingDeclining";
+/// Unix time of the first sample of every stream: any fixed value works, the daemon only sees
+/// differences; fixed so that a run is reproducible.
+const STREAM_EPOCH: f64 = 1_700_000_000.0;
+/// Longest wall time one window's identification may take before the run is abandoned as stuck.
+pub const WINDOW_TIMEOUT: Duration = Duration::from_secs(300);
+
+/// `gatewatch bench warning`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct BenchWarningArgs {
+    /// Seeds per scenario and gate (seeds 1..=N).
+    #[arg(long, default_value_t = 3)]
+    pub seeds: u64,
+    /// Print JSON instead of the tables.
+    #[arg(long)]
+    pub json: bool,
+    /// Hours of sample time streamed per seed on the stable scenarios (`stable`, `stable-low`),
+    /// the false-alarm part; other scenarios run their defined length.
+    #[arg(long, default_value_t = 0.5)]
+    pub hours: f64,
+    /// Scenarios to run (default: all).
+    #[arg(long, value_delimiter = ',')]
+    pub scenarios: Vec<String>,
+    /// Gate presets (lab, lock, barrier).
+    #[arg(long, value_delimiter = ',', default_value = "lab,lock")]
+    pub gates: Vec<String>,
+    /// Sensor noise RMS in signal units (N), the same on every gate; overrides --noise-rel.
+    #[arg(long)]
+    pub noise_abs: Option<f64>,
+    /// Sensor noise RMS as a fraction of each gate's ambient response std at +1 % (0.125: the
+    /// lab gate's 0.7 N load-cell floor against its 5.6 N ambient response, as in issue 8).
+    #[arg(long, default_value_t = 0.125)]
+    pub noise_rel: f64,
+    /// Identification worker threads of the daemon under test.
+    #[arg(long, default_value_t = 1)]
+    pub worker_threads: usize,
+}
+
+/// What one run streams.
+#[derive(Debug, Clone, Serialize)]
+pub struct RunSpec {
+    /// Scenario.
+    #[serde(serialize_with = "ser_scenario")]
+    pub scenario: ScenarioName,
+    /// Gate preset.
+    #[serde(serialize_with = "ser_gate")]
+    pub gate: GatePreset,
+    /// Simulation seed.
+    pub seed: u64,
+    /// Sensor noise RMS, signal units.
+    pub noise_rms: f64,
+    /// Sample time streamed after the warm-up, s.
+    pub duration_s: f64,
+}
+
+fn ser_scenario<S: serde::Serializer>(n: &ScenarioName, s: S) -> Result<S::Ok, S::Error> {
+    s.serialize_str(n.as_str())
+}
+
+fn ser_gate<S: serde::Serializer>(g: &GatePreset, s: S) -> Result<S::Ok, S::Error> {
+    s.serialize_str(g.as_str())
+}
+
+/// One identified window, beside the truth.
+#[derive(Debug, Clone, Serialize)]
+pub struct WindowRecord {
+    /// Scenario time of the window's first sample, s.
+    pub start: f64,
+    /// Scenario time of the window's last sample, s.
+    pub end: f64,
+    /// The reported `zeta0` (`None`: no estimate, or the identification failed).
+    pub zeta0: Option<f64>,
+    /// The reported 95 % interval of `zeta0`.
+    pub interval: Option<(f64, f64)>,
+    /// The reported `zeta0_source`.
+    pub source: Option<String>,
+    /// True `zeta0` at the window's centre.
+    pub truth_centre: f64,
+    /// True `zeta0` averaged over the window.
+    pub truth_mean: f64,
+    /// Natural frequency at the window's centre, Hz (for Au's limit).
+    pub frequency_hz: f64,
+    /// Regime of the window.
+    pub regime: Regime,
+    /// Names of the gate's alerts firing after this window.
+    pub firing: Vec<String>,
+}
+
+/// One stream's record.
+#[derive(Debug, Clone, Serialize)]
+pub struct RunRecord {
+    /// What was streamed.
+    pub spec: RunSpec,
+    /// Window length, s.
+    pub window_s: f64,
+    /// First time the truth is at or below zero (`None`: never).
+    pub t_zero: Option<f64>,
+    /// First time the truth is at or below -1 %.
+    pub t_minus_one: Option<f64>,
+    /// Every window, in order.
+    pub windows: Vec<WindowRecord>,
+}
+
+/// The daemon configuration of a run: the embedded defaults, `worker_threads`, and one gate
+/// `id` with the preset's rate and stiffness (as an operator would configure it).
+pub fn run_config(gate: GatePreset, worker_threads: usize) -> Config {
+    let mut config = Config::embedded();
+    config.server.worker_threads = worker_threads.max(1);
+    let p = gate.params();
+    config.gates.insert(
+        gate.as_str().to_string(),
+        GateConfig {
+            rate_hz: p.rate_hz,
+            stiffness: Some(p.stiffness),
+            ..config.defaults.clone()
+        },
+    );
+    config
+}
+
+/// `(zeta0, interval, source)` of a damping report, read through its JSON form.
+fn damping_fields(d: &serde_json::Value) -> (Option<f64>, Option<(f64, f64)>, Option<String>) {
+    let zeta0 = d["zeta0"].as_f64().filter(|v| v.is_finite());
+    let iv = &d["zeta0_interval"];
+    let pair = |a: &serde_json::Value, b: &serde_json::Value| Some((a.as_f64()?, b.as_f64()?));
+    let interval = if iv.is_array() {
+        pair(&iv[0], &iv[1])
+    } else if iv.is_object() {
+        pair(&iv["lower"], &iv["upper"]).or_else(|| pair(&iv["lo"], &iv["hi"]))
+    } else {
+        None
+    };
+    let source = match &d["zeta0_source"] {
+        serde_json::Value::String(s) => Some(s.clone()),
+        serde_json::Value::Null => None,
+        other => Some(other.to_string()),
+    };
+    (zeta0, interval, source)
+}
+
+/// Streams `spec` through a fresh daemon state with `analyzer` and records every window.
+pub async fn run_stream(
+    spec: &RunSpec,
+    config: Config,
+    analyzer: Arc<dyn WindowAnalyzer>,
+) -> anyhow::Result<RunRecord> {
+    let p = spec.gate.params();
+    let def = spec.scenario.def(&p);
+    let mut sim = def
+        .simulator(&p, NoiseLevel::Absolute(spec.noise_rms), spec.seed)
+        .map_err(anyhow::Error::msg)?;
+    let id = spec.gate.as_str();
+    let gate_cfg = config
+        .gate(id)
+        .ok_or_else(|| anyhow::anyhow!("gate `{id}` is not in the configuration"))?
+        .clone();
+    anyhow::ensure!(
+        (gate_cfg.rate_hz - p.rate_hz).abs() < 1e-9,
+        "gate `{id}`: configured rate {} Hz, preset {} Hz",
+        gate_cfg.rate_hz,
+        p.rate_hz
+    );
+    let rate = p.rate_hz;
+    let every = gate_cfg.every_samples();
+    let window_s = gate_cfg.window_samples() as f64 / rate;
+    let state = AppState::new(config, analyzer)?;
+    while sim.time() < -0.5 / rate {
+        sim.next_sample();
+    }
+    // per cadence chunk: (start time, sum of squares of the clean signal, samples), to
+    // classify a window's regime by its clean amplitude without keeping hours of samples
+    let mut chunks: Vec<(f64, f64, usize)> = Vec::new();
+    let total = (spec.duration_s * rate).round() as usize;
+    let mut sent = 0usize;
+    let mut windows = Vec::new();
+    let mut buf: Vec<(f64, f64)> = Vec::with_capacity(every);
+    while sent < total {
+        let n = every.min(total - sent);
+        buf.clear();
+        let mut sq = 0.0;
+        let t_chunk = sent as f64 / rate;
+        for i in 0..n {
+            let v = sim.next_sample();
+            let c = sim.last_clean();
+            sq += c * c;
+            buf.push((STREAM_EPOCH + (sent + i) as f64 / rate, v));
+        }
+        chunks.push((t_chunk, sq, n));
+        sent += n;
+        let summary = state
+            .ingest(vec![Batch {
+                gate: id.to_string(),
+                samples: buf.clone(),
+                rate: None,
+                values_field: "values".into(),
+                lines: None,
+            }])
+            .map_err(|e| anyhow::anyhow!("ingest refused: {e:?}"))?;
+        if summary.jobs == 0 {
+            continue;
+        }
+        let end_unix = STREAM_EPOCH + (sent - 1) as f64 / rate;
+        let waited = tokio::time::timeout(WINDOW_TIMEOUT, async {
+            loop {
+                let done = state
+                    .gate_view(id)
+                    .and_then(|v| v.analysed_until)
+                    .is_some_and(|u| u >= end_unix - 0.25 / rate);
+                if done {
+                    break;
+                }
+                tokio::time::sleep(Duration::from_millis(2)).await;
+            }
+        })
+        .await;
+        anyhow::ensure!(
+            waited.is_ok(),
+            "{} on {id}, seed {}: the window ending at {:.1} s was not identified within {:?}",
+            spec.scenario.as_str(),
+            spec.seed,
+            end_unix - STREAM_EPOCH,
+            WINDOW_TIMEOUT
+        );
+        let view = state
+            .gate_view(id)
+            .ok_or_else(|| anyhow::anyhow!("gate `{id}` vanished"))?;
+        let end = end_unix - STREAM_EPOCH;
+        let start = end - (gate_cfg.window_samples() - 1) as f64 / rate;
+        // the identification shown is this window's only if its end matches (a failed job
+        // leaves the previous one in place: then this window has no estimate)
+        let (zeta0, interval, source) = match &view.identification {
+            Some(iv) if (iv.window_end - end_unix).abs() < 0.5 / rate => {
+                damping_fields(&serde_json::to_value(&iv.damping)?)
+            }
+            _ => (None, None, None),
+        };
+        let centre = 0.5 * (start + end);
+        let truth_centre = def.true_zeta(centre);
+        let k_factor = def.stiffness_factor.as_ref().map_or(1.0, |k| k.at(centre));
+        let frequency_hz = p.natural_frequency_hz() * k_factor.sqrt();
+        let (sq, count) = chunks
+            .iter()
+            .filter(|c| c.0 >= start - 0.5 / rate && c.0 < end)
+            .fold((0.0, 0usize), |a, c| (a.0 + c.1, a.1 + c.2));
+        let amplitude = std::f64::consts::SQRT_2 * (sq / count.max(1) as f64).sqrt();
+        let mut firing: Vec<String> = view.alerts.iter().map(|a| a.name.clone()).collect();
+        firing.sort();
+        firing.dedup();
+        windows.push(WindowRecord {
+            start,
+            end,
+            zeta0,
+            interval,
+            source,
+            truth_centre,
+            truth_mean: def.mean_zeta(start, end),
+            frequency_hz,
+            regime: Regime::classify(&p, truth_centre, amplitude),
+            firing,
+        });
+        // keep only the chunks a future window can reach
+        let keep_from = end - 2.0 * window_s;
+        chunks.retain(|c| c.0 >= keep_from);
+    }
+    let (_abandoned, _clean) = state.pool().shutdown(Duration::from_secs(10)).await;
+    state.shutdown_notifier(Duration::from_secs(1)).await;
+    let horizon = spec.duration_s.max(def.duration_s);
+    Ok(RunRecord {
+        spec: spec.clone(),
+        window_s,
+        t_zero: def.zeta.first_time_at_or_below(0.0, 0.0, horizon, 0.5),
+        t_minus_one: def.zeta.first_time_at_or_below(-0.01, 0.0, horizon, 0.5),
+        windows,
+    })
+}
+
+/// The runs `args` asks for, in table order.
+pub fn plan(args: &BenchWarningArgs) -> anyhow::Result<Vec<RunSpec>> {
+    anyhow::ensure!(args.seeds >= 1, "--seeds must be at least 1");
+    anyhow::ensure!(
+        args.hours > 0.0 && args.hours.is_finite(),
+        "--hours must be > 0"
+    );
+    anyhow::ensure!(
+        args.noise_rel >= 0.0 && args.noise_rel.is_finite(),
+        "--noise-rel must be >= 0"
+    );
+    if let Some(a) = args.noise_abs {
+        anyhow::ensure!(a >= 0.0 && a.is_finite(), "--noise-abs must be >= 0");
+    }
+    let scenarios: Vec<ScenarioName> = if args.scenarios.is_empty() {
+        ScenarioName::ALL.to_vec()
+    } else {
+        args.scenarios
+            .iter()
+            .map(|s| ScenarioName::parse(s).map_err(|e| anyhow::anyhow!("--scenarios: {e}")))
+            .collect::<anyhow::Result<_>>()?
+    };
+    let gates: Vec<GatePreset> = args
+        .gates
+        .iter()
+        .map(|s| GatePreset::parse(s).map_err(|e| anyhow::anyhow!("--gates: {e}")))
+        .collect::<anyhow::Result<_>>()?;
+    let mut out = Vec::new();
+    for &scenario in &scenarios {
+        for &gate in &gates {
+            let p = gate.params();
+            let noise = match args.noise_abs {
+                Some(a) => NoiseLevel::Absolute(a),
+                None => NoiseLevel::Relative(args.noise_rel),
+            };
+            let duration_s = if matches!(scenario, ScenarioName::Stable | ScenarioName::StableLow) {
+                args.hours * 3600.0
+            } else {
+                scenario.def(&p).duration_s
+            };
+            for seed in 1..=args.seeds {
+                out.push(RunSpec {
+                    scenario,
+                    gate,
+                    seed,
+                    noise_rms: noise.rms(&p),
+                    duration_s,
+                });
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// Output of the bench: every row and, with `--json`, every window.
+#[derive(Debug, Serialize)]
+pub struct Report {
+    /// Per scenario, gate and regime.
+    pub regimes: Vec<RegimeRow>,
+    /// Per scenario and gate: detection delays and false alarms.
+    pub alerts: Vec<AlertRow>,
+}
+
+async fn bench(args: BenchWarningArgs) -> anyhow::Result<Report> {
+    let specs = plan(&args)?;
+    let mut records = Vec::new();
+    let mut analyzers: Vec<(GatePreset, Arc<dyn WindowAnalyzer>)> = Vec::new();
+    for (i, spec) in specs.iter().enumerate() {
+        let config = run_config(spec.gate, args.worker_threads);
+        let analyzer = match analyzers.iter().find(|a| a.0 == spec.gate) {
+            Some(a) => a.1.clone(),
+            None => {
+                let a: Arc<dyn WindowAnalyzer> = Arc::new(AnalyzerMap::from_config(&config)?);
+                analyzers.push((spec.gate, a.clone()));
+                a
+            }
+        };
+        eprintln!(
+            "[{}/{}] {} on {} gate, seed {}, {:.0} s of sample time",
+            i + 1,
+            specs.len(),
+            spec.scenario.as_str(),
+            spec.gate.as_str(),
+            spec.seed,
+            spec.duration_s
+        );
+        records.push(run_stream(spec, config, analyzer).await?);
+    }
+    Ok(Report {
+        regimes: regime_rows(&records),
+        alerts: alert_rows(&records, &Targets::ISSUE_8),
+    })
+}
+
+/// `gatewatch bench warning`: exit 0 when every run streamed (whether the targets are met is in
+/// the table), 2 on bad arguments, 1 when a run failed.
+pub fn bench_warning(args: BenchWarningArgs) -> ExitCode {
+    if let Err(e) = plan(&args) {
+        eprintln!("gatewatch bench warning: {e:#}");
+        return ExitCode::from(2);
+    }
+    let rt = match tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(1)
+        .enable_all()
+        .build()
+    {
+        Ok(rt) => rt,
+        Err(e) => {
+            eprintln!("gatewatch bench warning: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
+    let json = args.json;
+    let header = format!(
+        "gatewatch bench warning: seeds {}, gates {}, stable scenarios {} h per seed, noise {}",
+        args.seeds,
+        args.gates.join(","),
+        args.hours,
+        match args.noise_abs {
+            Some(a) => format!("{a} RMS (absolute)"),
+            None => format!("{} x the ambient std at +1 %", args.noise_rel),
+        }
+    );
+    match rt.block_on(bench(args)) {
+        Ok(report) => {
+            if json {
+                match serde_json::to_string_pretty(&report) {
+                    Ok(s) => println!("{s}"),
+                    Err(e) => {
+                        eprintln!("gatewatch bench warning: {e}");
+                        return ExitCode::FAILURE;
+                    }
+                }
+            } else {
+                println!("{header}\n");
+                print!("{}", score::render(&report.regimes, &report.alerts));
+            }
+            ExitCode::SUCCESS
+        }
+        Err(e) => {
+            eprintln!("gatewatch bench warning: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}

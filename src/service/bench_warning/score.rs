@@ -1,0 +1,429 @@
+//! Scoring of the warning bench: pure functions of the recorded windows, so the bookkeeping can
+//! be tested on sequences whose answer is known.
+
+use std::collections::BTreeSet;
+use std::fmt::Write as _;
+
+use serde::Serialize;
+
+use super::{RunRecord, WindowRecord, ALERT_DECLINING, ALERT_NEGATIVE};
+use crate::simulate::{GateParams, ScenarioName};
+
+/// The regime a window belongs to, from the truth at its centre and its clean amplitude.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Regime {
+    /// `zeta0 >= 0` and the response at the ambient level: a stable gate shaken by turbulence.
+    Ambient,
+    /// `zeta0 < 0`, amplitude below half the limit cycle's: growing.
+    Growth,
+    /// `zeta0 < 0`, amplitude at least half the limit cycle's: on (or near) the limit cycle.
+    LimitCycle,
+    /// `zeta0 >= 0` with the response still well above ambient: decaying after self-excitation.
+    Decay,
+}
+
+impl Regime {
+    /// Name in tables.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Regime::Ambient => "ambient",
+            Regime::Growth => "growth",
+            Regime::LimitCycle => "limit-cycle",
+            Regime::Decay => "decay",
+        }
+    }
+
+    /// Classifies a window of gate `p` with true damping `zeta` at its centre and clean force
+    /// amplitude `amplitude` (`sqrt 2` times its RMS). Half the harmonic-balance amplitude
+    /// separates growth from the cycle (growth at -2 % passes it in under a second at 10 Hz);
+    /// three times the ambient amplitude separates a decay from ambient (ambient windows
+    /// exceed it with a probability far below 1e-3).
+    pub fn classify(p: &GateParams, zeta: f64, amplitude: f64) -> Regime {
+        if zeta < 0.0 {
+            match p.limit_cycle_force_amplitude(zeta) {
+                Some(a) if amplitude >= 0.5 * a => Regime::LimitCycle,
+                _ => Regime::Growth,
+            }
+        } else {
+            let ambient = std::f64::consts::SQRT_2 * p.stationary_force_std(zeta.max(0.005));
+            if amplitude > 3.0 * ambient {
+                Regime::Decay
+            } else {
+                Regime::Ambient
+            }
+        }
+    }
+}
+
+/// The issue's targets.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Targets {
+    /// Largest median `|zeta0 error|` per regime.
+    pub max_median_error: f64,
+    /// Smallest coverage of the 95 % interval per regime.
+    pub min_coverage: f64,
+}
+
+impl Targets {
+    /// Issue 8: median error at most 0.5 points, coverage at least 90 %, and (fixed in
+    /// [`alert_rows`]) `GateDampingDeclining` before zero on the slow drift in every seed,
+    /// `GateNegativeDamping` before -1 % on the onset ramp in every seed, no false alarm of
+    /// either alert on the stable gates (+1 %, +0.5 %).
+    pub const ISSUE_8: Targets = Targets {
+        max_median_error: 0.005,
+        min_coverage: 0.9,
+    };
+}
+
+/// Whether a window's interval covers the truth: at the window's centre or its average over
+/// the window (either is a fair reading of "the truth of this window" while it drifts).
+pub fn covers(w: &WindowRecord) -> bool {
+    match w.interval {
+        Some((lo, hi)) => {
+            let inside = |z: f64| lo <= z && z <= hi;
+            inside(w.truth_centre) || inside(w.truth_mean)
+        }
+        None => false,
+    }
+}
+
+/// Au's physical limit on the standard deviation of a damping ratio estimated from `cycles`
+/// cycles of ambient response: `zeta * (2 pi zeta N_c)^(-1/2)` (`None` for `|zeta| < 0.1 %`,
+/// where the law's small-damping asymptotics says nothing useful).
+pub fn au_limit(zeta: f64, cycles: f64) -> Option<f64> {
+    let z = zeta.abs();
+    (z >= 0.001 && cycles > 0.0).then(|| z / (2.0 * std::f64::consts::PI * z * cycles).sqrt())
+}
+
+fn median(mut v: Vec<f64>) -> Option<f64> {
+    if v.is_empty() {
+        return None;
+    }
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    Some(if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    })
+}
+
+/// One row per scenario, gate and regime, over every seed.
+#[derive(Debug, Clone, Serialize)]
+pub struct RegimeRow {
+    /// Scenario.
+    pub scenario: String,
+    /// Gate preset.
+    pub gate: String,
+    /// Regime.
+    pub regime: Regime,
+    /// Windows in the regime.
+    pub windows: usize,
+    /// Windows with a `zeta0`.
+    pub estimates: usize,
+    /// Windows with an interval.
+    pub intervals: usize,
+    /// Median `|zeta0 - truth at the centre|` over windows with a `zeta0`, percentage points.
+    pub median_abs_error_pts: Option<f64>,
+    /// Median `zeta0 - truth`, percentage points (the bias).
+    pub median_error_pts: Option<f64>,
+    /// Fraction of ALL the regime's windows whose interval covers the truth (a window without
+    /// an interval does not cover).
+    pub coverage: Option<f64>,
+    /// Standard deviation of `zeta0 - truth`, percentage points.
+    pub spread_pts: Option<f64>,
+    /// Au's limit for the window's cycles, averaged over the windows, percentage points.
+    pub au_limit_pts: Option<f64>,
+    /// Median error within the target.
+    pub pass_error: Option<bool>,
+    /// Coverage within the target.
+    pub pass_coverage: Option<bool>,
+}
+
+/// Scores windows per scenario, gate and regime.
+pub fn regime_rows(records: &[RunRecord]) -> Vec<RegimeRow> {
+    regime_rows_with(records, &Targets::ISSUE_8)
+}
+
+/// [`regime_rows`] against `targets`.
+pub fn regime_rows_with(records: &[RunRecord], targets: &Targets) -> Vec<RegimeRow> {
+    let mut keys: Vec<(usize, usize, Regime)> = Vec::new();
+    let order = |r: &RunRecord| {
+        (
+            ScenarioName::ALL
+                .iter()
+                .position(|n| *n == r.spec.scenario)
+                .unwrap_or(usize::MAX),
+            crate::simulate::GatePreset::ALL
+                .iter()
+                .position(|g| *g == r.spec.gate)
+                .unwrap_or(usize::MAX),
+        )
+    };
+    for r in records {
+        let (s, g) = order(r);
+        for w in &r.windows {
+            if !keys.contains(&(s, g, w.regime)) {
+                keys.push((s, g, w.regime));
+            }
+        }
+    }
+    keys.sort();
+    keys.into_iter()
+        .map(|key| {
+            let mut windows = 0;
+            let mut errors = Vec::new();
+            let mut covered = 0;
+            let mut intervals = 0;
+            let mut au = Vec::new();
+            let mut names = (String::new(), String::new());
+            for r in records.iter().filter(|r| {
+                let (s, g) = order(r);
+                (s, g) == (key.0, key.1)
+            }) {
+                names = (r.spec.scenario.as_str().into(), r.spec.gate.as_str().into());
+                for w in r.windows.iter().filter(|w| w.regime == key.2) {
+                    windows += 1;
+                    if let Some(z) = w.zeta0 {
+                        errors.push(z - w.truth_centre);
+                    }
+                    if w.interval.is_some() {
+                        intervals += 1;
+                    }
+                    if covers(w) {
+                        covered += 1;
+                    }
+                    if let Some(a) = au_limit(w.truth_centre, w.frequency_hz * r.window_s) {
+                        au.push(a);
+                    }
+                }
+            }
+            let n = errors.len();
+            let mean = errors.iter().sum::<f64>() / n.max(1) as f64;
+            let spread = (n >= 2).then(|| {
+                (errors.iter().map(|e| (e - mean).powi(2)).sum::<f64>() / (n - 1) as f64).sqrt()
+            });
+            let med_abs = median(errors.iter().map(|e| e.abs()).collect());
+            let coverage = (windows > 0).then(|| covered as f64 / windows as f64);
+            RegimeRow {
+                scenario: names.0,
+                gate: names.1,
+                regime: key.2,
+                windows,
+                estimates: n,
+                intervals,
+                median_abs_error_pts: med_abs.map(|e| 100.0 * e),
+                median_error_pts: median(errors.clone()).map(|e| 100.0 * e),
+                coverage,
+                spread_pts: spread.map(|s| 100.0 * s),
+                au_limit_pts: (!au.is_empty())
+                    .then(|| 100.0 * au.iter().sum::<f64>() / au.len() as f64),
+                // no estimate at all fails the error target: silence is not accuracy
+                pass_error: Some(med_abs.is_some_and(|e| e <= targets.max_median_error)),
+                pass_coverage: coverage.map(|c| c >= targets.min_coverage),
+            }
+        })
+        .collect()
+}
+
+/// One row per scenario, gate and alert name.
+#[derive(Debug, Clone, Serialize)]
+pub struct AlertRow {
+    /// Scenario.
+    pub scenario: String,
+    /// Gate preset.
+    pub gate: String,
+    /// Alert name.
+    pub alert: String,
+    /// Seeds streamed.
+    pub seeds: usize,
+    /// Hours of sample time streamed over all seeds.
+    pub hours: f64,
+    /// Per seed: scenario time of the first window after which the alert fired (`None`: never).
+    pub first_fired: Vec<Option<f64>>,
+    /// Per seed: first firing minus the true zero crossing, s (negative: before it).
+    pub delay_vs_zero: Vec<Option<f64>>,
+    /// Per seed: first firing minus the time the truth reached -1 %, s.
+    pub delay_vs_minus_one: Vec<Option<f64>>,
+    /// Times the alert started firing, over all seeds.
+    pub fired: usize,
+    /// On a stable gate: `fired` per 24 h of stream (extrapolated from `hours`).
+    pub false_alarms_per_day: Option<f64>,
+    /// The target this row is judged by (empty: none).
+    pub target: String,
+    /// Whether it is met (`None`: no target).
+    pub pass: Option<bool>,
+}
+
+/// Times (window ends) at which `name` started firing in `windows`.
+pub fn fire_times(windows: &[WindowRecord], name: &str) -> Vec<f64> {
+    let mut out = Vec::new();
+    let mut was = false;
+    for w in windows {
+        let now = w.firing.iter().any(|n| n == name);
+        if now && !was {
+            out.push(w.end);
+        }
+        was = now;
+    }
+    out
+}
+
+/// Detection delays and false alarms per scenario, gate and alert name (the two damping alerts
+/// always, any other alert seen firing as well).
+pub fn alert_rows(records: &[RunRecord], _targets: &Targets) -> Vec<AlertRow> {
+    let mut groups: Vec<(ScenarioName, crate::simulate::GatePreset)> = Vec::new();
+    for r in records {
+        if !groups.contains(&(r.spec.scenario, r.spec.gate)) {
+            groups.push((r.spec.scenario, r.spec.gate));
+        }
+    }
+    let mut rows = Vec::new();
+    for (scenario, gate) in groups {
+        let runs: Vec<&RunRecord> = records
+            .iter()
+            .filter(|r| r.spec.scenario == scenario && r.spec.gate == gate)
+            .collect();
+        let mut names: BTreeSet<String> = [ALERT_NEGATIVE, ALERT_DECLINING]
+            .iter()
+            .map(|s| s.to_string())
+            .collect();
+        for r in &runs {
+            for w in &r.windows {
+                names.extend(w.firing.iter().cloned());
+            }
+        }
+        let hours: f64 = runs.iter().map(|r| r.spec.duration_s / 3600.0).sum();
+        for name in names {
+            let fires: Vec<Vec<f64>> = runs.iter().map(|r| fire_times(&r.windows, &name)).collect();
+            let first: Vec<Option<f64>> = fires.iter().map(|f| f.first().copied()).collect();
+            let delay = |t_ref: fn(&RunRecord) -> Option<f64>| -> Vec<Option<f64>> {
+                runs.iter()
+                    .zip(&first)
+                    .map(|(r, f)| Some(f.as_ref()? - t_ref(r)?))
+                    .collect()
+            };
+            let delay_vs_zero = delay(|r| r.t_zero);
+            let delay_vs_minus_one = delay(|r| r.t_minus_one);
+            let fired: usize = fires.iter().map(Vec::len).sum();
+            let stable = scenario.is_stable();
+            let damping_alert = name == ALERT_NEGATIVE || name == ALERT_DECLINING;
+            let (target, pass) = match scenario {
+                ScenarioName::SlowDrift if name == ALERT_DECLINING => (
+                    "fires before zero, every seed".to_string(),
+                    Some(delay_vs_zero.iter().all(|d| d.is_some_and(|d| d < 0.0))),
+                ),
+                ScenarioName::Onset if name == ALERT_NEGATIVE => (
+                    "fires before -1 %, every seed".to_string(),
+                    Some(
+                        delay_vs_minus_one
+                            .iter()
+                            .all(|d| d.is_some_and(|d| d < 0.0)),
+                    ),
+                ),
+                ScenarioName::Stable | ScenarioName::StableLow if damping_alert => {
+                    ("no false alarm".to_string(), Some(fired == 0))
+                }
+                _ => (String::new(), None),
+            };
+            rows.push(AlertRow {
+                scenario: scenario.as_str().into(),
+                gate: gate.as_str().into(),
+                alert: name,
+                seeds: runs.len(),
+                hours,
+                first_fired: first,
+                delay_vs_zero,
+                delay_vs_minus_one,
+                fired,
+                false_alarms_per_day: (stable && hours > 0.0).then(|| fired as f64 * 24.0 / hours),
+                target,
+                pass,
+            });
+        }
+    }
+    rows
+}
+
+fn opt(v: Option<f64>, digits: usize) -> String {
+    v.map_or_else(|| "-".into(), |x| format!("{x:.digits$}"))
+}
+
+fn pass(p: Option<bool>) -> &'static str {
+    match p {
+        Some(true) => "pass",
+        Some(false) => "FAIL",
+        None => "-",
+    }
+}
+
+fn delays(v: &[Option<f64>]) -> String {
+    v.iter()
+        .map(|d| d.map_or_else(|| "never".into(), |d| format!("{d:+.0}")))
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
+/// The two tables in Markdown.
+pub fn render(regimes: &[RegimeRow], alerts: &[AlertRow]) -> String {
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "zeta0 per regime (errors, spread and Au's limit in percentage points)\n"
+    );
+    let _ = writeln!(
+        s,
+        "| scenario | gate | regime | windows | estimates | median abs err | median err | coverage | spread | Au limit | err <= 0.5 | cov >= 90 % |"
+    );
+    let _ = writeln!(
+        s,
+        "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---|---|"
+    );
+    for r in regimes {
+        let _ = writeln!(
+            s,
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
+            r.scenario,
+            r.gate,
+            r.regime.as_str(),
+            r.windows,
+            r.estimates,
+            opt(r.median_abs_error_pts, 2),
+            opt(r.median_error_pts, 2),
+            r.coverage
+                .map_or_else(|| "-".into(), |c| format!("{:.0} %", 100.0 * c)),
+            opt(r.spread_pts, 2),
+            opt(r.au_limit_pts, 2),
+            pass(r.pass_error),
+            pass(r.pass_coverage),
+        );
+    }
+    let _ = writeln!(
+        s,
+        "\nalerts (delays in s of sample time per seed, negative = before; never = did not fire)\n"
+    );
+    let _ = writeln!(
+        s,
+        "| scenario | gate | alert | hours | first fired | vs zero | vs -1 % | fired | per 24 h | target | result |"
+    );
+    let _ = writeln!(s, "|---|---|---|---:|---|---|---|---:|---:|---|---|");
+    for a in alerts {
+        let _ = writeln!(
+            s,
+            "| {} | {} | {} | {:.2} | {} | {} | {} | {} | {} | {} | {} |",
+            a.scenario,
+            a.gate,
+            a.alert,
+            a.hours,
+            delays(&a.first_fired).replace('+', ""),
+            delays(&a.delay_vs_zero),
+            delays(&a.delay_vs_minus_one),
+            a.fired,
+            opt(a.false_alarms_per_day, 1),
+            if a.target.is_empty() { "-" } else { &a.target },
+            pass(a.pass),
+        );
+    }
+    s
+}

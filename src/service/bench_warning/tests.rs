@@ -1,0 +1,236 @@
+//! The bench's bookkeeping: a stream through the real daemon state with an analyzer whose
+//! answers (and so whose alert times) are known, and the scores of synthetic sequences.
+
+use super::score::{au_limit, covers, fire_times, regime_rows_with};
+use super::*;
+use crate::analysis::{AnalysisError, DampingReport, Verdict, WindowAnalysis, WindowInput};
+
+/// Reports `zeta0 = -2 %` (interval +-0.5 points) for windows ending after `negative_after` s of
+/// stream, `+1 %` before: on the onset scenario the alert's time follows from the rules alone.
+struct Scripted {
+    negative_after: f64,
+}
+
+impl WindowAnalyzer for Scripted {
+    fn analyze(
+        &self,
+        _gate: &str,
+        input: WindowInput<'_>,
+        _warm: Option<&[f64]>,
+        _seed: u64,
+    ) -> Result<WindowAnalysis, AnalysisError> {
+        let end = input.t0 + (input.values.len() - 1) as f64 / input.rate_hz - STREAM_EPOCH;
+        let z = if end > self.negative_after {
+            -0.02
+        } else {
+            0.01
+        };
+        Ok(WindowAnalysis {
+            equation: String::new(),
+            coefficients: Vec::new(),
+            damping: DampingReport {
+                zeta0: Some(z),
+                zeta0_interval: Some((z - 0.005, z + 0.005)),
+                agrees: true,
+                fit_nmae: 0.0,
+                trusted: true,
+                verdict: if z < 0.0 {
+                    Verdict::SelfExcited
+                } else {
+                    Verdict::Damped
+                },
+                ..DampingReport::unknown()
+            },
+            evaluations: 0,
+            seconds: 0.0,
+            warm_start: Vec::new(),
+        })
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_known_alert_time_gives_the_computed_delay() {
+    let spec = RunSpec {
+        scenario: ScenarioName::Onset,
+        gate: GatePreset::Lab,
+        seed: 1,
+        noise_rms: 0.0,
+        duration_s: 200.0,
+    };
+    let config = run_config(GatePreset::Lab, 1);
+    let rules = config.defaults.alert.clone();
+    let rec = run_stream(
+        &spec,
+        config,
+        Arc::new(Scripted {
+            negative_after: 150.0,
+        }),
+    )
+    .await
+    .unwrap();
+    // 10 s windows every 5 s over 200 s: the first ends at 10 s, the last at 200 s
+    assert_eq!(rec.windows.len(), 39);
+    let last = rec.windows.last().unwrap();
+    assert!(
+        (last.end - (200.0 - 1.0 / 200.0)).abs() < 1e-6,
+        "{}",
+        last.end
+    );
+    assert!((rec.windows[0].end - (10.0 - 1.0 / 200.0)).abs() < 1e-6);
+    // every window was identified and read back through the real state
+    assert!(rec.windows.iter().all(|w| w.zeta0.is_some()));
+    // the first negative window ends at 155 s; the alert fires on the `for_windows`-th
+    let first_negative = 155.0 - 1.0 / 200.0;
+    let expect = first_negative + 5.0 * (f64::from(rules.for_windows.max(1)) - 1.0);
+    let fired = fire_times(&rec.windows, ALERT_NEGATIVE);
+    assert_eq!(fired.len(), 1, "{fired:?}");
+    assert!(
+        (fired[0] - expect).abs() < 1e-6,
+        "fired at {} not {expect}",
+        fired[0]
+    );
+    // truth: zero at 150 s, -1 % at 165 s
+    assert!((rec.t_zero.unwrap() - 150.0).abs() < 1e-6);
+    assert!((rec.t_minus_one.unwrap() - 165.0).abs() < 1e-6);
+    let rows = alert_rows(std::slice::from_ref(&rec), &Targets::ISSUE_8);
+    let neg = rows.iter().find(|r| r.alert == ALERT_NEGATIVE).unwrap();
+    assert!((neg.delay_vs_zero[0].unwrap() - (expect - 150.0)).abs() < 1e-6);
+    assert!((neg.delay_vs_minus_one[0].unwrap() - (expect - 165.0)).abs() < 1e-6);
+    assert_eq!(neg.pass, Some(expect < 165.0));
+    let dec = rows.iter().find(|r| r.alert == ALERT_DECLINING).unwrap();
+    assert_eq!(dec.first_fired, vec![None]);
+    // windows centred before 120 s are ambient at +2 %; the scripted +1 % is 1 point off
+    let regimes = regime_rows(std::slice::from_ref(&rec));
+    let amb = regimes
+        .iter()
+        .find(|r| r.regime == Regime::Ambient)
+        .unwrap();
+    assert!(amb.windows >= 20);
+    assert!((amb.median_abs_error_pts.unwrap() - 1.0).abs() < 0.2);
+    assert_eq!(amb.pass_error, Some(false));
+}
+
+fn window(end: f64, zeta0: Option<f64>, interval: Option<(f64, f64)>, truth: f64) -> WindowRecord {
+    WindowRecord {
+        start: end - 10.0,
+        end,
+        zeta0,
+        interval,
+        source: None,
+        truth_centre: truth,
+        truth_mean: truth,
+        frequency_hz: 10.0,
+        regime: Regime::Ambient,
+        firing: Vec::new(),
+    }
+}
+
+fn record(scenario: ScenarioName, windows: Vec<WindowRecord>, hours: f64) -> RunRecord {
+    RunRecord {
+        spec: RunSpec {
+            scenario,
+            gate: GatePreset::Lab,
+            seed: 1,
+            noise_rms: 0.0,
+            duration_s: hours * 3600.0,
+        },
+        window_s: 10.0,
+        t_zero: None,
+        t_minus_one: None,
+        windows,
+    }
+}
+
+#[test]
+fn coverage_and_errors_of_a_synthetic_sequence() {
+    // 10 windows at truth +1 %: 7 intervals cover it, 2 miss, 1 window has no estimate at all
+    let mut ws = Vec::new();
+    for i in 0..7 {
+        ws.push(window(
+            10.0 * f64::from(i),
+            Some(0.012),
+            Some((0.008, 0.016)),
+            0.01,
+        ));
+    }
+    ws.push(window(70.0, Some(0.02), Some((0.018, 0.022)), 0.01));
+    ws.push(window(80.0, Some(0.0), Some((-0.001, 0.001)), 0.01));
+    ws.push(window(90.0, None, None, 0.01));
+    // a drifting window: the centre is outside, the window-average truth inside
+    let mut drift = window(100.0, Some(0.0), Some((0.0005, 0.002)), 0.0);
+    drift.truth_mean = 0.001;
+    assert!(covers(&drift));
+    ws.push(drift);
+    let rows = regime_rows_with(&[record(ScenarioName::Stable, ws, 1.0)], &Targets::ISSUE_8);
+    assert_eq!(rows.len(), 1);
+    let r = &rows[0];
+    assert_eq!((r.windows, r.estimates, r.intervals), (11, 10, 10));
+    // 8 of 11 windows covered (the one without an interval counts as not covering)
+    assert!((r.coverage.unwrap() - 8.0 / 11.0).abs() < 1e-12);
+    assert_eq!(r.pass_coverage, Some(false));
+    // |errors| in points: 0.2 x7, 1.0, 1.0, 0.0 -> median 0.2
+    assert!((r.median_abs_error_pts.unwrap() - 0.2).abs() < 1e-9);
+    assert_eq!(r.pass_error, Some(true));
+    // Au: 1 % over 100 cycles -> 0.01 / sqrt(2 pi 0.01 100) = 0.399 points
+    assert!(
+        (au_limit(0.01, 100.0).unwrap() - 0.01 / (2.0 * std::f64::consts::PI).sqrt()).abs() < 1e-12
+    );
+    assert!(au_limit(0.0, 100.0).is_none());
+}
+
+#[test]
+fn false_alarms_are_counted_per_firing_and_extrapolated_to_a_day() {
+    let mut ws: Vec<WindowRecord> = (0..10)
+        .map(|i| window(5.0 * f64::from(i), Some(0.01), None, 0.01))
+        .collect();
+    // fires at window 2, stays through 3, resolves, fires again at 7
+    for i in [2, 3, 7] {
+        ws[i].firing = vec![ALERT_NEGATIVE.to_string()];
+    }
+    assert_eq!(fire_times(&ws, ALERT_NEGATIVE), vec![10.0, 35.0]);
+    let rows = alert_rows(
+        &[record(ScenarioName::StableLow, ws, 0.5)],
+        &Targets::ISSUE_8,
+    );
+    let neg = rows.iter().find(|r| r.alert == ALERT_NEGATIVE).unwrap();
+    assert_eq!(neg.fired, 2);
+    assert!((neg.false_alarms_per_day.unwrap() - 96.0).abs() < 1e-9);
+    assert_eq!(neg.pass, Some(false));
+    let dec = rows.iter().find(|r| r.alert == ALERT_DECLINING).unwrap();
+    assert_eq!((dec.fired, dec.pass), (0, Some(true)));
+}
+
+#[test]
+fn plan_refuses_bad_arguments_naming_the_flag() {
+    let args = BenchWarningArgs {
+        seeds: 2,
+        json: false,
+        hours: 0.1,
+        scenarios: vec!["onset".into(), "stable".into()],
+        gates: vec!["lab".into(), "lock".into()],
+        noise_abs: None,
+        noise_rel: 0.125,
+        worker_threads: 1,
+    };
+    let p = plan(&args).unwrap();
+    assert_eq!(p.len(), 8);
+    let stable = p
+        .iter()
+        .find(|s| s.scenario == ScenarioName::Stable)
+        .unwrap();
+    assert!((stable.duration_s - 360.0).abs() < 1e-9);
+    let lock = p.iter().find(|s| s.gate == GatePreset::Lock).unwrap();
+    assert!(
+        (lock.noise_rms - 0.125 * GatePreset::Lock.params().stationary_force_std(0.01)).abs()
+            < 1e-9
+    );
+    let bad = |f: &dyn Fn(&mut BenchWarningArgs)| {
+        let mut a = args.clone();
+        f(&mut a);
+        plan(&a).unwrap_err().to_string()
+    };
+    assert!(bad(&|a| a.scenarios = vec!["nope".into()]).contains("--scenarios"));
+    assert!(bad(&|a| a.gates = vec!["weir".into()]).contains("--gates"));
+    assert!(bad(&|a| a.hours = 0.0).contains("--hours"));
+    assert!(bad(&|a| a.noise_abs = Some(-1.0)).contains("--noise-abs"));
+}
