@@ -49,3 +49,4 @@ pub mod service;
 pub mod simulate;
 pub mod spectral;
 pub mod stability;
+pub mod store;

@@ -693,5 +693,6 @@ fn stale_alert(
     Alert::new(ALERT_DATA_STALE, gate, &rules.severity, a, now)
 }
 
+pub mod persist;
 #[cfg(test)]
 mod tests;
