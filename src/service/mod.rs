@@ -17,6 +17,8 @@
 //!   over the network only, and installs the TLS crypto provider its HTTP client needs).
 //! - [`bench`]: `gatewatch bench daemon`, load measurements.
 //! - [`demo`]: `gatewatch demo`, daemon + webhook receiver + simulated gate in one process.
+//! - [`storage`]: the daemon's side of the store ([`crate::store`]): restore at start, writes
+//!   of the history, the alert states and the outbox; [`history`]: `GET .../history`.
 //! - [`clock`], [`sync`]: Unix seconds and the poison-tolerant lock, shared by the above.
 //!
 //! Imports go one way (no circle): `cli` -> `server`, `demo`, `client`, `shutdown`; `demo`,
@@ -32,11 +34,13 @@ pub mod client;
 pub mod clock;
 pub mod config;
 pub mod demo;
+pub mod history;
 pub mod ingest;
 pub mod metrics;
 pub mod server;
 pub mod shutdown;
 pub mod state;
+pub mod storage;
 pub mod sync;
 pub mod tcp;
 pub mod window;
