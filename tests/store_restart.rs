@@ -56,7 +56,8 @@ fn serve(cfg: &Path) -> Child {
 /// `(status, startsAt)` of the persisted outbox rows (the daemon's file, read-only, while it
 /// runs: WAL).
 fn outbox(db: &Path) -> Vec<(String, String)> {
-    let Ok(c) = rusqlite::Connection::open_with_flags(db, rusqlite::OpenFlags::SQLITE_OPEN_READ_ONLY)
+    let Ok(c) =
+        rusqlite::Connection::open_with_flags(db, rusqlite::OpenFlags::SQLITE_OPEN_READ_ONLY)
     else {
         return Vec::new();
     };
@@ -179,5 +180,8 @@ fn a_corrupt_or_unusable_database_stops_the_start_naming_the_file() {
         .expect("run");
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(1), "{err}");
-    assert!(err.contains("gw.db") && err.contains("is a directory"), "{err}");
+    assert!(
+        err.contains("gw.db") && err.contains("is a directory"),
+        "{err}"
+    );
 }

@@ -125,7 +125,13 @@ impl Persistence {
                 orphans.push(r.id);
                 continue;
             };
-            match outbox::decode(r.id, r.row.batch, &r.row.status, r.row.created, &r.row.payload) {
+            match outbox::decode(
+                r.id,
+                r.row.batch,
+                &r.row.status,
+                r.row.created,
+                &r.row.payload,
+            ) {
                 Ok(e) => entries.push((i, e)),
                 Err(e) => {
                     tracing::error!("{e}; dropped");

@@ -81,6 +81,8 @@ pub fn history_csv(records: &[IdentificationRecord]) -> Result<String, String> {
         ])
         .map_err(err)?;
     }
-    let bytes = w.into_inner().map_err(|e| format!("cannot write CSV: {e}"))?;
+    let bytes = w
+        .into_inner()
+        .map_err(|e| format!("cannot write CSV: {e}"))?;
     String::from_utf8(bytes).map_err(|e| format!("CSV is not UTF-8: {e}"))
 }

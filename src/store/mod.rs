@@ -86,7 +86,9 @@ pub struct IdentificationRecord {
 impl IdentificationRecord {
     /// The damping ratio at rest, when the report has one.
     pub fn zeta0(&self) -> Option<f64> {
-        self.damping.get("zeta0").and_then(serde_json::Value::as_f64)
+        self.damping
+            .get("zeta0")
+            .and_then(serde_json::Value::as_f64)
     }
 
     /// The interval of the damping ratio at rest, when the report has one.

@@ -201,8 +201,8 @@ fn a_full_database_fails_the_write_and_the_writer_counts_it() {
     let dir = tempfile::tempdir().expect("tempdir");
     // 1 MiB: the bound is SQLite's max_page_count, the same error as a full disk
     let store = Arc::new(SqliteStore::open(&dir.path().join("gw.db"), 1).expect("open"));
-    let writer = StoreWriter::start(store.clone(), Duration::from_secs(86_400), 1_000_000)
-        .expect("writer");
+    let writer =
+        StoreWriter::start(store.clone(), Duration::from_secs(86_400), 1_000_000).expect("writer");
     let (tx, rx) = std::sync::mpsc::channel();
     for i in 0..2000 {
         let tx = tx.clone();

@@ -219,7 +219,10 @@ mod tests {
         let fired = r.observe("g", &obs(-0.02), t(205));
         assert!(matches!(&fired[..], [AlertEvent::Firing(a)] if a.starts_at == t(5)));
         // samples resolve the stale alert
-        assert!(matches!(&r.data_seen("g", t(210))[..], [AlertEvent::Resolved(_)]));
+        assert!(matches!(
+            &r.data_seen("g", t(210))[..],
+            [AlertEvent::Resolved(_)]
+        ));
     }
 
     #[test]

@@ -206,7 +206,11 @@ where
         infos.push(TargetInfo {
             key: format!(
                 "{} {}",
-                if is_alertmanager { "alertmanager" } else { "webhook" },
+                if is_alertmanager {
+                    "alertmanager"
+                } else {
+                    "webhook"
+                },
                 target.url
             ),
             is_alertmanager,

@@ -164,7 +164,11 @@ pub(super) async fn drain(
                 continue;
             }
         };
-        let oldest = group.iter().map(|e| e.created).min().unwrap_or_else(SystemTime::now);
+        let oldest = group
+            .iter()
+            .map(|e| e.created)
+            .min()
+            .unwrap_or_else(SystemTime::now);
         let mut backoff = Duration::from_millis(d.config.initial_backoff_ms);
         let mut attempts: u32 = 0;
         loop {
@@ -298,7 +302,10 @@ mod tests {
         let back = decode(7, 3, "resolved", 12.5, &encode(&e)).expect("decode");
         assert_eq!(back.event, e);
         assert_eq!(back.id, Some(7));
-        assert_eq!(back.created, SystemTime::UNIX_EPOCH + Duration::from_millis(12_500));
+        assert_eq!(
+            back.created,
+            SystemTime::UNIX_EPOCH + Duration::from_millis(12_500)
+        );
         assert!(decode(7, 3, "weird", 1.0, &encode(&e)).is_err());
         assert!(decode(7, 3, "firing", 1.0, "{").is_err());
     }

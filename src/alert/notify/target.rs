@@ -146,7 +146,11 @@ impl TargetTask {
 
 /// The serialised body of `job` for a target of `kind`, or `None` if such a target does not
 /// take this job. Serialised once per job, not per attempt.
-pub(super) fn body(kind: &TargetKind, job: &Job, external_url: &str) -> Option<Result<Vec<u8>, String>> {
+pub(super) fn body(
+    kind: &TargetKind,
+    job: &Job,
+    external_url: &str,
+) -> Option<Result<Vec<u8>, String>> {
     match (kind, job) {
         (TargetKind::Webhook { receiver, .. }, Job::Events(events)) => Some(to_json(
             &WebhookPayload::new(receiver, external_url, events),
@@ -253,7 +257,12 @@ fn equal_jitter(backoff: Duration, unit: f64) -> Duration {
 
 /// The wait before the next attempt: the receiver's `Retry-After` if it sent one, else the
 /// jittered backoff; never longer than `max`.
-pub(super) fn next_wait(error: &AttemptError, backoff: Duration, max: Duration, unit: f64) -> Duration {
+pub(super) fn next_wait(
+    error: &AttemptError,
+    backoff: Duration,
+    max: Duration,
+    unit: f64,
+) -> Duration {
     error
         .retry_after()
         .unwrap_or_else(|| equal_jitter(backoff.min(max), unit))
