@@ -17,7 +17,8 @@ FROM debian:bookworm-slim
 RUN apt-get update \
     && apt-get install -y --no-install-recommends ca-certificates \
     && rm -rf /var/lib/apt/lists/* \
-    && useradd --system --uid 10001 --no-create-home --shell /usr/sbin/nologin gatewatch
+    && useradd --system --uid 10001 --no-create-home --shell /usr/sbin/nologin gatewatch \
+    && install -d -o gatewatch -g gatewatch -m 0700 /var/lib/gatewatch
 COPY --from=builder /src/target/release/gatewatch /usr/local/bin/gatewatch
 COPY config/gatewatch.toml /etc/gatewatch/gatewatch.toml
 COPY README.md docs/*.md /usr/share/doc/gatewatch/
@@ -25,5 +26,9 @@ USER gatewatch
 # 9464: HTTP API, ingestion and /metrics; 8094: raw TCP line protocol (when tcp_listen is set)
 EXPOSE 9464 8094
 ENV GATEWATCH_LOG_FORMAT=json
+# The store (history, alert state, notification outbox): mount a volume here so it outlives
+# the container (docs/operations.md, "The store").
+ENV GATEWATCH_STORAGE_PATH=/var/lib/gatewatch/gatewatch.db
+VOLUME /var/lib/gatewatch
 ENTRYPOINT ["/usr/local/bin/gatewatch"]
 CMD ["serve", "--config", "/etc/gatewatch/gatewatch.toml"]

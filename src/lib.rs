@@ -50,3 +50,4 @@ pub mod service;
 pub mod simulate;
 pub mod spectral;
 pub mod stability;
+pub mod store;

@@ -12,6 +12,7 @@ use serde::{Deserialize, Serialize, Serializer};
 mod annotations;
 mod rules;
 mod trend_alert;
+pub mod persist;
 
 use annotations::{damping_alert, damping_annotations, stale_alert};
 #[cfg(test)]

@@ -41,6 +41,7 @@
 pub mod engine;
 pub mod notify;
 
+pub use engine::persist::{AlertRecord, GateSnapshot, PhaseSnapshot};
 pub use engine::{
     fingerprint, Alert, AlertEngine, AlertEvent, AlertRules, GateState, Observation, RulesError,
     ALERT_DAMPING_DECLINING, ALERT_DATA_STALE, ALERT_NEGATIVE_DAMPING,

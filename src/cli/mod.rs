@@ -12,6 +12,7 @@ use std::process::ExitCode;
 
 mod gate_example;
 mod generate;
+mod history;
 mod identify;
 mod report;
 mod seed_cases;
@@ -47,6 +48,8 @@ enum Command {
     /// Watch the daemon catch a simulated gate going self-excited (daemon, simulated gate and
     /// webhook receiver in one process).
     Demo(crate::service::cli::DemoArgs),
+    /// Print a gate's identification history from the daemon's store (read-only).
+    History(history::HistoryArgs),
 }
 
 /// Arguments of `gatewatch completions`.
@@ -156,6 +159,7 @@ pub fn main() -> ExitCode {
             return ExitCode::SUCCESS;
         }
         Command::Identify(args) => identify::run(args),
+        Command::History(args) => history::run(args),
         Command::StabilityMap(args) => stability_map::run(args),
         Command::Bench(BenchCommand::SeedCases(args)) => seed_cases::run(args),
         Command::Bench(BenchCommand::Generate(args)) => generate::run(args),

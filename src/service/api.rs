@@ -367,6 +367,10 @@ pub fn router(state: Arc<AppState>) -> Router {
     let protected = decoded(Router::new().route("/api/v1/samples", post(post_samples)))
         .route("/api/v1/gates", get(list_gates))
         .route("/api/v1/gates/{id}", get(get_gate))
+        .route(
+            "/api/v1/gates/{id}/history",
+            get(super::history::get_history),
+        )
         .route_layer(middleware::from_fn_with_state(state.clone(), auth));
     let influx_routes = decoded(
         Router::new()

@@ -60,13 +60,16 @@ pub fn load_config(path: Option<&std::path::Path>) -> Result<Config, super::conf
 
 /// `gatewatch serve`: exit 0 after a clean shutdown, 2 on a configuration error, 1 otherwise.
 pub fn serve(args: ServeArgs) -> ExitCode {
-    let config = match load_config(args.config.as_deref()) {
+    let mut config = match load_config(args.config.as_deref()) {
         Ok(c) => c,
         Err(e) => {
             eprintln!("gatewatch: {e}");
             return ExitCode::from(2);
         }
     };
+    // a relative storage.path is relative to the configuration file, like Prometheus does
+    let base = args.config.as_deref().and_then(std::path::Path::parent);
+    config.storage.path = config.storage.resolve(base).display().to_string();
     for w in config.warnings() {
         eprintln!("gatewatch: warning: {w}");
     }

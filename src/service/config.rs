@@ -70,6 +70,8 @@ pub struct Config {
     /// holds bearer tokens.
     #[serde(skip_serializing)]
     pub notify: NotifyConfig,
+    /// The store: history, alert state, outbox (`crate::store`, `docs/operations.md`).
+    pub storage: crate::store::StorageConfig,
     /// Settings for every gate (resolved; the raw table is merged into each gate).
     #[serde(skip)]
     pub defaults: GateConfig,
@@ -653,6 +655,9 @@ impl Config {
                 }
             };
         }
+        if let Some(v) = get("GATEWATCH_STORAGE_PATH") {
+            self.storage.path = v;
+        }
         if let Some(v) = get("GATEWATCH_LOG_LEVEL") {
             self.log.level = v;
         }
@@ -764,6 +769,9 @@ impl Config {
                     "notify.{key}: must be <= {MAX_SECONDS} (one year)"
                 )));
             }
+        }
+        if let Err(e) = self.storage.validate() {
+            return Err(ConfigError::new(e));
         }
         Ok(())
     }

@@ -186,6 +186,12 @@ pub async fn run_demo(
     });
     config.notify.external_url = format!("http://{daemon_addr}");
     config.notify.initial_backoff_ms = 100;
+    // a fresh temporary store: the demo must not resume an earlier demo's alerts
+    let db = std::env::temp_dir().join(format!("gatewatch-demo-{}.db", std::process::id()));
+    for suffix in ["", "-wal", "-shm"] {
+        let _ = std::fs::remove_file(format!("{}{suffix}", db.display()));
+    }
+    config.storage.path = db.display().to_string();
     let rules = config.defaults.alert.clone();
     let base = format!("http://{daemon_addr}");
 

@@ -20,6 +20,8 @@
 //! - [`bench_warning`]: `gatewatch bench warning`, the scenarios streamed through [`state`] in
 //!   sample time and scored against the simulator's truth.
 //! - [`demo`]: `gatewatch demo`, daemon + webhook receiver + simulated gate in one process.
+//! - [`storage`]: the daemon's side of the store ([`crate::store`]): restore at start, writes
+//!   of the history, the alert states and the outbox; [`history`]: `GET .../history`.
 //! - [`clock`], [`sync`]: Unix seconds and the poison-tolerant lock, shared by the above.
 //!
 //! Imports go one way (no circle): `cli` -> `server`, `demo`, `client`, `shutdown`; `demo`,
@@ -39,12 +41,14 @@ pub mod client;
 pub mod clock;
 pub mod config;
 pub mod demo;
+pub mod history;
 pub mod ingest;
 pub mod ingest_checks;
 pub mod metrics;
 pub mod server;
 pub mod shutdown;
 pub mod state;
+pub mod storage;
 pub mod sync;
 pub mod tcp;
 pub mod window;

@@ -19,6 +19,7 @@ use tokio::time::Instant;
 use super::api;
 use super::config::Config;
 use super::state::AppState;
+use super::storage::Persistence;
 use super::tcp;
 use super::worker::{AnalyzerMap, WindowAnalyzer};
 
@@ -60,25 +61,52 @@ pub fn build_app(
     Ok((api::router(state.clone()), state))
 }
 
-/// Runs the daemon with the real analyzers until `shutdown` resolves.
+/// Runs the daemon with the real analyzers and the store of `[storage]` (`storage.path` as
+/// given: the caller resolves a relative one) until `shutdown` resolves. A store that cannot
+/// be opened is an error naming the file: no silent in-memory fallback.
 pub async fn run(
     config: Config,
     listeners: Listeners,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> anyhow::Result<()> {
     let analyzer = Arc::new(AnalyzerMap::from_config(&config)?);
-    run_with_analyzer(config, listeners, analyzer, shutdown).await
+    let storage = config.storage.clone();
+    let persistence = tokio::task::spawn_blocking(move || {
+        Persistence::open(std::path::Path::new(&storage.path), &storage)
+    })
+    .await
+    .map_err(|e| anyhow::anyhow!("opening the store: {e}"))??;
+    run_with_persistence(config, listeners, analyzer, Some(persistence), shutdown).await
 }
 
-/// Runs the daemon with the given analyzer until `shutdown` resolves.
+/// Runs the daemon with the given analyzer and no store until `shutdown` resolves.
 pub async fn run_with_analyzer(
     config: Config,
     listeners: Listeners,
     analyzer: Arc<dyn WindowAnalyzer>,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> anyhow::Result<()> {
+    run_with_persistence(config, listeners, analyzer, None, shutdown).await
+}
+
+/// Runs the daemon with the given analyzer and store until `shutdown` resolves. At shutdown
+/// the store is flushed (the notifier's last acknowledgements and alert states included) and
+/// checkpointed within the same deadline.
+pub async fn run_with_persistence(
+    config: Config,
+    listeners: Listeners,
+    analyzer: Arc<dyn WindowAnalyzer>,
+    persistence: Option<Persistence>,
+    shutdown: impl Future<Output = ()> + Send + 'static,
+) -> anyhow::Result<()> {
     let grace = Duration::from_secs_f64(config.server.shutdown_grace_seconds);
-    let (router, state) = build_app(config, analyzer)?;
+    // restoring reads the store: off the executor
+    let state = tokio::task::spawn_blocking(move || {
+        AppState::with_persistence(config, analyzer, persistence)
+    })
+    .await
+    .map_err(|e| anyhow::anyhow!("starting: {e}"))??;
+    let router = api::router(state.clone());
     let (stop_tx, stop_rx) = watch::channel(false);
     // when the stop signal came: the one shutdown deadline is counted from it
     let stopped_at = Arc::new(OnceLock::new());
@@ -165,6 +193,22 @@ pub async fn run_with_analyzer(
         .shutdown_notifier(deadline.saturating_duration_since(Instant::now()))
         .await;
     tracing::info!(flushed, "alert notifier stopped");
+    if let Some(p) = state.persistence.clone() {
+        // at least a second for the last commit, even when the grace period is used up
+        let within = deadline
+            .saturating_duration_since(Instant::now())
+            .max(Duration::from_secs(1));
+        let flushed = tokio::task::spawn_blocking(move || {
+            let flushed = p.writer.close(within);
+            (flushed, p.checkpoint())
+        })
+        .await;
+        match flushed {
+            Ok((flushed, Ok(()))) => tracing::info!(flushed, "store flushed"),
+            Ok((flushed, Err(e))) => tracing::warn!(flushed, "store checkpoint failed: {e}"),
+            Err(e) => tracing::error!("store flush failed: {e}"),
+        }
+    }
     tracing::info!("shut down");
     served.map_err(|e| anyhow::anyhow!("HTTP server failed: {e}"))
 }

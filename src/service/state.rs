@@ -19,10 +19,11 @@ use super::clock::unix_seconds;
 use super::config::{Config, GateConfig};
 use super::ingest::{BadRequest, Batch};
 use super::metrics::{Metrics, NotificationCounts, RejectReason};
+use super::storage::{identification_record, Persistence};
 use super::sync::lock;
 use super::window::Window;
 use super::worker::{Job, JobOutcome, Submitted, WindowAnalyzer, WorkerPool};
-use crate::alert::notify::{spawn_notifier, NotifierHandle};
+use crate::alert::notify::{spawn_notifier_with_ack, NotifierHandle};
 use crate::alert::{Alert, AlertEngine, AlertEvent, GateState, Observation};
 use crate::analysis::{AnalysisError, DampingTrend, TrendEstimate, WindowAnalysis};
 
@@ -89,6 +90,9 @@ pub struct AppState {
     pub listeners_up: AtomicBool,
     /// Permits of ingestion requests in progress (`server.max_concurrent_ingest`).
     pub ingest_permits: Arc<tokio::sync::Semaphore>,
+    /// The store (`[storage]`), when the daemon has one (`serve`, `demo`); `None` keeps
+    /// everything in memory (library use, in-process tests).
+    pub persistence: Option<Arc<Persistence>>,
 }
 
 impl std::fmt::Debug for AppState {
@@ -174,16 +178,36 @@ impl AppState {
         config: Config,
         analyzer: Arc<dyn WindowAnalyzer>,
     ) -> std::io::Result<Arc<AppState>> {
+        Self::with_persistence(config, analyzer, None)
+    }
+
+    /// [`AppState::new`] with a store: the alert states and the undelivered notifications are
+    /// restored from it (blocking reads: call off the async executor, e.g. in
+    /// `spawn_blocking`), and every transition is written before it is sent.
+    pub fn with_persistence(
+        mut config: Config,
+        analyzer: Arc<dyn WindowAnalyzer>,
+        persistence: Option<Persistence>,
+    ) -> std::io::Result<Arc<AppState>> {
+        let persistence = persistence.map(Arc::new);
+        if persistence.is_some() {
+            config.notify.outbox_max_age = Some(config.storage.notification_max_age());
+        }
+        let ack = super::storage::ack(persistence.as_ref());
         let config = Arc::new(config);
         let threads = config.server.effective_worker_threads();
         let queue = config.server.effective_job_queue();
         let state = Arc::new_cyclic(|weak: &Weak<AppState>| {
             let w = weak.clone();
-            let (notifier, task) = spawn_notifier(config.notify.clone(), move || {
-                w.upgrade()
-                    .map(|s| lock(&s.inner).alerts.firing())
-                    .unwrap_or_default()
-            });
+            let (notifier, task) = spawn_notifier_with_ack(
+                config.notify.clone(),
+                move || {
+                    w.upgrade()
+                        .map(|s| lock(&s.inner).alerts.firing())
+                        .unwrap_or_default()
+                },
+                ack,
+            );
             AppState {
                 config: config.clone(),
                 metrics: Metrics::new(),
@@ -199,6 +223,7 @@ impl AppState {
                 ingest_permits: Arc::new(tokio::sync::Semaphore::new(
                     config.server.max_concurrent_ingest,
                 )),
+                persistence: persistence.clone(),
             }
         });
         let weak = Arc::downgrade(&state);
@@ -219,6 +244,9 @@ impl AppState {
             let mut inner = lock(&state.inner);
             for id in config.gates.keys() {
                 state.ensure_gate(&mut inner, id, now);
+            }
+            if let Some(p) = &state.persistence {
+                super::storage::resume(&state.metrics, p, &mut inner.alerts, &state.notifier, now);
             }
         }
         Ok(state)
@@ -269,7 +297,16 @@ impl AppState {
     }
 
     fn notify(&self, events: Vec<AlertEvent>) {
+        self.notify_and_write(events, crate::store::WriteBatch::default());
+    }
+
+    /// [`AppState::notify`], and with a store: `extra` and the transitions written in one
+    /// transaction before they are handed to the notifier.
+    fn notify_and_write(&self, events: Vec<AlertEvent>, extra: crate::store::WriteBatch) {
         if events.is_empty() {
+            if let Some(p) = &self.persistence {
+                p.writer.submit(extra, None);
+            }
             return;
         }
         for e in &events {
@@ -283,6 +320,11 @@ impl AppState {
                 summary = a.annotations.get("summary").map(String::as_str).unwrap_or(""),
                 "alert"
             );
+        }
+        if let Some(p) = &self.persistence {
+            p.persist_and_notify(&self.notifier, events, extra);
+            self.metrics.notifications_queued.inc();
+            return;
         }
         // one batch; a full queue drops it and counts it in the notifier's `dropped`
         if self.notifier.notify(events) {
@@ -512,6 +554,12 @@ impl AppState {
                 );
                 let state = inner.alerts.state(g).unwrap_or(GateState::Unknown);
                 self.metrics.set_alert_state(g, state_name(state));
+                let write = super::storage::window_write(
+                    self.persistence.as_deref(),
+                    &inner.alerts,
+                    g,
+                    identification_record(g, now, window, &a),
+                );
                 if let Some(e) = inner.gates.get_mut(g) {
                     e.latest = Some(*a);
                     e.last_identification = Some(now);
@@ -519,7 +567,7 @@ impl AppState {
                     e.last_error = None;
                 }
                 drop(inner);
-                self.notify(events);
+                self.notify_and_write(events, write);
             }
             JobOutcome::Failed(err) => {
                 let reason = match err {
@@ -557,8 +605,9 @@ impl AppState {
             let state = inner.alerts.state(g).unwrap_or(GateState::Unknown);
             self.metrics.set_alert_state(g, state_name(state));
         }
+        let write = super::storage::states_write(self.persistence.as_deref(), &inner.alerts);
         drop(inner);
-        self.notify(events);
+        self.notify_and_write(events, write);
     }
 
     /// Alert state of a gate.

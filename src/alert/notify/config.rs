@@ -69,6 +69,11 @@ pub struct NotifyConfig {
     pub queue_capacity: usize,
     /// This daemon's URL: `externalURL` of webhook payloads and `generatorURL` of every alert.
     pub external_url: String,
+    /// Set by the daemon from `[storage] notification_max_age_seconds` when it has an outbox:
+    /// an outbox entry is then retried for as long as it is younger than this, whatever
+    /// `max_attempts` says (not a `[notify]` key).
+    #[serde(skip)]
+    pub outbox_max_age: Option<Duration>,
 }
 
 impl Default for NotifyConfig {
@@ -83,6 +88,7 @@ impl Default for NotifyConfig {
             max_backoff_ms: 30_000,
             queue_capacity: DEFAULT_QUEUE_CAPACITY,
             external_url: String::new(),
+            outbox_max_age: None,
         }
     }
 }

@@ -8,6 +8,7 @@ use std::time::Duration;
 use tokio::sync::{mpsc, watch};
 use tokio::task::JoinHandle;
 
+use super::outbox::OutboxEntry;
 use super::stats::{DropReason, NotifierStats, TargetType};
 use crate::alert::engine::{Alert, AlertEvent};
 
@@ -23,6 +24,19 @@ pub(super) enum Job {
     Events(Arc<Vec<AlertEvent>>),
     /// Firing alerts re-sent so Alertmanager does not resolve them (Alertmanager targets only).
     Resend(Arc<Vec<Alert>>),
+    /// Outbox entries of this target, delivered in order until acknowledged or too old.
+    Outbox(Vec<OutboxEntry>),
+}
+
+/// What the handle sends to the dispatcher.
+#[derive(Debug)]
+pub(super) enum Input {
+    /// Transitions for every target, kept in memory only.
+    Events(Vec<AlertEvent>),
+    /// Outbox entries, each for the target of that index.
+    Entries(Vec<(usize, OutboxEntry)>),
+    /// Re-send the firing alerts to Alertmanager now (after a restart).
+    ResendNow,
 }
 
 /// The dispatcher's end of one target's queue.
@@ -49,7 +63,7 @@ impl TargetQueue {
 /// Everything the dispatcher task owns.
 pub(super) struct Dispatcher<F> {
     /// Batches from [`NotifierHandle::notify`](super::NotifierHandle::notify).
-    pub events: mpsc::Receiver<Vec<AlertEvent>>,
+    pub events: mpsc::Receiver<Input>,
     pub targets: Vec<TargetQueue>,
     /// The target tasks; awaited after their queues are closed.
     pub tasks: Vec<JoinHandle<()>>,
@@ -111,7 +125,33 @@ where
                     break;
                 }
                 msg = events.recv() => match msg {
-                    Some(batch) => fan_out(Job::Events(Arc::new(batch)), false),
+                    Some(Input::Events(batch)) => fan_out(Job::Events(Arc::new(batch)), false),
+                    Some(Input::Entries(entries)) => {
+                        let mut per_target: Vec<Vec<OutboxEntry>> = vec![Vec::new(); targets.len()];
+                        for (i, e) in entries {
+                            if let Some(v) = per_target.get_mut(i) {
+                                v.push(e);
+                            }
+                        }
+                        for (t, entries) in targets.iter().zip(per_target) {
+                            if entries.is_empty() {
+                                continue;
+                            }
+                            // persisted entries are not lost when the queue is full: the next
+                            // start delivers them from the store
+                            if t.sender.try_send(Job::Outbox(entries)).is_err() {
+                                stats.drop_one(Some(t.target_type()), DropReason::TargetQueueFull(&t.url));
+                            }
+                        }
+                    }
+                    Some(Input::ResendNow) => {
+                        if has_am {
+                            let alerts = snapshot();
+                            if !alerts.is_empty() {
+                                fan_out(Job::Resend(Arc::new(alerts)), true);
+                            }
+                        }
+                    }
                     None => {
                         // Shutting down: nothing is resolved, and the firing alerts are re-sent
                         // once more, so Alertmanager keeps them active for a whole

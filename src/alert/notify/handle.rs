@@ -8,7 +8,8 @@ use tokio::sync::{mpsc, watch};
 use tokio::task::JoinHandle;
 
 use super::client::build_client;
-use super::dispatch::{Dispatcher, TargetQueue};
+use super::dispatch::{Dispatcher, Input, TargetQueue};
+use super::outbox::{Ack, OutboxEntry, TargetInfo};
 use super::stats::{DropReason, NotifierStats};
 use super::target::{Target, TargetKind, TargetTask};
 use super::NotifyConfig;
@@ -22,18 +23,20 @@ pub struct NotifierHandle {
 
 struct HandleInner {
     /// `None` after [`NotifierHandle::shutdown`]: dropping the sender closes the queue.
-    tx: Mutex<Option<mpsc::Sender<Vec<AlertEvent>>>>,
+    tx: Mutex<Option<mpsc::Sender<Input>>>,
     stats: Arc<NotifierStats>,
     /// Set by the dispatcher once every target task has ended.
     done: watch::Receiver<bool>,
     /// Set at the shutdown deadline: the tasks abandon what is left.
     abort: watch::Sender<bool>,
+    /// The targets, in the order outbox entries are addressed by.
+    targets: Vec<TargetInfo>,
 }
 
 impl HandleInner {
     /// The sender slot. A poisoned lock is used anyway: the slot is an `Option` that is only
     /// ever taken, so a panic elsewhere cannot leave it half-written.
-    fn tx(&self) -> MutexGuard<'_, Option<mpsc::Sender<Vec<AlertEvent>>>> {
+    fn tx(&self) -> MutexGuard<'_, Option<mpsc::Sender<Input>>> {
         self.tx
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner)
@@ -61,7 +64,47 @@ impl NotifierHandle {
             self.inner.stats.drop_one(None, DropReason::ShutDown);
             return false;
         };
-        match tx.try_send(events) {
+        match tx.try_send(Input::Events(events)) {
+            Ok(()) => true,
+            Err(mpsc::error::TrySendError::Full(_)) => {
+                self.inner.stats.drop_one(None, DropReason::QueueFull);
+                false
+            }
+            Err(mpsc::error::TrySendError::Closed(_)) => {
+                self.inner.stats.drop_one(None, DropReason::Stopped);
+                false
+            }
+        }
+    }
+
+    /// Queue outbox entries, each for the target of that index in [`NotifierHandle::targets`]
+    /// (the caller persisted them first). Never blocks; a full queue drops the batch, counted
+    /// in `dropped` (persisted entries are delivered from the store at the next start).
+    pub fn notify_entries(&self, entries: Vec<(usize, OutboxEntry)>) -> bool {
+        if entries.is_empty() {
+            return true;
+        }
+        self.send(Input::Entries(entries))
+    }
+
+    /// Re-send the firing alerts to the Alertmanager targets now (after a restart, so
+    /// Alertmanager does not resolve them while the first windows are identified).
+    pub fn resend_now(&self) -> bool {
+        self.send(Input::ResendNow)
+    }
+
+    /// The targets, in order.
+    pub fn targets(&self) -> &[TargetInfo] {
+        &self.inner.targets
+    }
+
+    fn send(&self, input: Input) -> bool {
+        let guard = self.inner.tx();
+        let Some(tx) = guard.as_ref() else {
+            self.inner.stats.drop_one(None, DropReason::ShutDown);
+            return false;
+        };
+        match tx.try_send(input) {
             Ok(()) => true,
             Err(mpsc::error::TrySendError::Full(_)) => {
                 self.inner.stats.drop_one(None, DropReason::QueueFull);
@@ -121,6 +164,19 @@ pub fn spawn_notifier<F>(
 where
     F: Fn() -> Vec<Alert> + Send + Sync + 'static,
 {
+    spawn_notifier_with_ack(config, engine_snapshot, Arc::new(|_| {}))
+}
+
+/// [`spawn_notifier`] for a daemon with an outbox: `ack` is called (on a target task) with the
+/// ids of outbox entries once they are settled, so the store deletes them.
+pub fn spawn_notifier_with_ack<F>(
+    config: NotifyConfig,
+    engine_snapshot: F,
+    ack: Ack,
+) -> (NotifierHandle, JoinHandle<()>)
+where
+    F: Fn() -> Vec<Alert> + Send + Sync + 'static,
+{
     let client = build_client(config.timeout());
     let stats = Arc::new(NotifierStats::new(
         config.webhooks.len(),
@@ -143,8 +199,22 @@ where
         kind: TargetKind::Alertmanager,
     });
     let mut targets = Vec::new();
+    let mut infos = Vec::new();
     let mut tasks = Vec::new();
     for target in webhooks.chain(alertmanagers) {
+        let is_alertmanager = target.is_alertmanager();
+        infos.push(TargetInfo {
+            key: format!(
+                "{} {}",
+                if is_alertmanager {
+                    "alertmanager"
+                } else {
+                    "webhook"
+                },
+                target.url
+            ),
+            is_alertmanager,
+        });
         let (sender, jobs) = mpsc::channel(config.capacity());
         targets.push(TargetQueue {
             sender,
@@ -158,6 +228,7 @@ where
             config: config.clone(),
             stats: stats.clone(),
             abort: abort_rx.clone(),
+            ack: ack.clone(),
         };
         tasks.push(tokio::spawn(task.run()));
     }
@@ -179,6 +250,7 @@ where
             stats,
             done: done_rx,
             abort: abort_tx,
+            targets: infos,
         }),
     };
     (handle, dispatcher)

@@ -26,18 +26,20 @@
 //! - `payload`: the bodies, as typed serde structs ([`WebhookPayload`], [`PostableAlert`]).
 //! - `client`: the HTTP client and [`ensure_crypto_provider`], the crate's one rustls set-up.
 //! - `stats`: [`NotifierStats`] and the reasons a batch is dropped.
+//! - [`outbox`]: outbox entries: in-order delivery until acknowledged or too old, supersession.
 
 mod client;
 mod config;
 mod dispatch;
 mod handle;
+pub mod outbox;
 mod payload;
 mod stats;
 mod target;
 
 pub use client::ensure_crypto_provider;
 pub use config::{NotifyConfig, NotifyConfigError, WebhookTarget, DEFAULT_QUEUE_CAPACITY};
-pub use handle::{spawn_notifier, NotifierHandle};
+pub use handle::{spawn_notifier, spawn_notifier_with_ack, NotifierHandle};
 pub use payload::{
     alertmanager_payload, webhook_payload, LabelSet, PostableAlert, WebhookAlert, WebhookPayload,
     ZERO_TIME,

@@ -3,6 +3,7 @@
 //! 429 and 503, never longer than `max_backoff_ms`. A dead or hanging receiver only delays its
 //! own queue.
 
+use std::collections::VecDeque;
 use std::fmt;
 use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::Arc;
@@ -13,6 +14,7 @@ use serde::Serialize;
 use tokio::sync::{mpsc, watch};
 
 use super::dispatch::{aborted, Job};
+use super::outbox::{drain, Ack, Drain};
 use super::payload::{PostableAlert, WebhookPayload};
 use super::stats::{DropReason, NotifierStats, TargetType};
 use super::NotifyConfig;
@@ -40,6 +42,13 @@ pub(super) enum TargetKind {
     Alertmanager,
 }
 
+impl Target {
+    /// Whether the target is an Alertmanager (takes states and re-sends).
+    pub(super) fn is_alertmanager(&self) -> bool {
+        matches!(self.kind, TargetKind::Alertmanager)
+    }
+}
+
 /// Everything one target task owns.
 pub(super) struct TargetTask {
     pub target: Target,
@@ -50,6 +59,8 @@ pub(super) struct TargetTask {
     pub stats: Arc<NotifierStats>,
     /// Set at the shutdown deadline.
     pub abort: watch::Receiver<bool>,
+    /// Told the ids of settled outbox entries.
+    pub ack: Ack,
 }
 
 impl TargetTask {
@@ -63,24 +74,42 @@ impl TargetTask {
             config,
             stats,
             mut abort,
+            ack,
         } = self;
         let kind = match target.kind {
             TargetKind::Webhook { .. } => TargetType::Webhook,
             TargetKind::Alertmanager => TargetType::Alertmanager,
         };
-        let mut limiter = WarnLimiter {
-            last: None,
-            suppressed: 0,
-        };
+        let mut limiter = WarnLimiter::new();
+        // jobs that arrived while the outbox was drained
+        let mut deferred = VecDeque::new();
         loop {
-            let job = tokio::select! {
-                biased;
-                _ = aborted(&mut abort) => break,
-                job = jobs.recv() => match job {
-                    Some(job) => job,
-                    None => return,
+            let job = match deferred.pop_front() {
+                Some(job) => job,
+                None => tokio::select! {
+                    biased;
+                    _ = aborted(&mut abort) => break,
+                    job = jobs.recv() => match job {
+                        Some(job) => job,
+                        None => return,
+                    },
                 },
             };
+            if let Job::Outbox(entries) = job {
+                let d = Drain {
+                    target: &target,
+                    client: client.as_ref(),
+                    config: &config,
+                    stats: &stats,
+                    kind,
+                    ack: &ack,
+                    limiter: &mut limiter,
+                };
+                if !drain(d, entries, &mut jobs, &mut abort, &mut deferred).await {
+                    break;
+                }
+                continue;
+            }
             let Some(body) = body(&target.kind, &job, &config.external_url) else {
                 continue; // Webhooks get transitions only.
             };
@@ -100,17 +129,28 @@ impl TargetTask {
                 }
             }
         }
-        // Aborted: whatever is still queued is abandoned.
+        // Aborted: whatever is still queued is abandoned (outbox entries with a row id stay in
+        // the store for the next start).
         jobs.close();
-        while jobs.try_recv().is_ok() {
-            stats.drop_one(Some(kind), DropReason::ShutdownDeadline);
+        while let Ok(job) = jobs.try_recv() {
+            let lost = match &job {
+                Job::Outbox(entries) => entries.iter().filter(|e| e.id.is_none()).count(),
+                _ => 1,
+            };
+            for _ in 0..lost {
+                stats.drop_one(Some(kind), DropReason::ShutdownDeadline);
+            }
         }
     }
 }
 
 /// The serialised body of `job` for a target of `kind`, or `None` if such a target does not
 /// take this job. Serialised once per job, not per attempt.
-fn body(kind: &TargetKind, job: &Job, external_url: &str) -> Option<Result<Vec<u8>, String>> {
+pub(super) fn body(
+    kind: &TargetKind,
+    job: &Job,
+    external_url: &str,
+) -> Option<Result<Vec<u8>, String>> {
     match (kind, job) {
         (TargetKind::Webhook { receiver, .. }, Job::Events(events)) => Some(to_json(
             &WebhookPayload::new(receiver, external_url, events),
@@ -123,6 +163,8 @@ fn body(kind: &TargetKind, job: &Job, external_url: &str) -> Option<Result<Vec<u
         (TargetKind::Alertmanager, Job::Resend(alerts)) => {
             Some(postable_alerts(alerts.iter(), external_url))
         }
+        // delivered by `outbox::drain`, never formatted as a whole
+        (_, Job::Outbox(_)) => None,
     }
 }
 
@@ -143,7 +185,9 @@ fn to_json(body: &impl Serialize) -> Result<Vec<u8>, String> {
 
 /// Why one attempt failed.
 #[derive(Debug)]
-enum AttemptError {
+pub(super) enum AttemptError {
+    /// The HTTP client could not be built at start (not retried).
+    NoClient,
     /// The receiver answered with a status other than 2xx; with the wait its `Retry-After`
     /// asked for, when it answered 429 or 503 with a valid one (not yet capped).
     Status(reqwest::StatusCode, Option<Duration>),
@@ -155,14 +199,14 @@ enum AttemptError {
 
 impl AttemptError {
     /// Server errors, 408, 429 and transport errors may pass; the rest will not get better.
-    fn retryable(&self) -> bool {
+    pub(super) fn retryable(&self) -> bool {
         match self {
             AttemptError::Status(s, _) => {
                 s.is_server_error()
                     || *s == reqwest::StatusCode::TOO_MANY_REQUESTS
                     || *s == reqwest::StatusCode::REQUEST_TIMEOUT
             }
-            AttemptError::InvalidRequest(_) => false,
+            AttemptError::InvalidRequest(_) | AttemptError::NoClient => false,
             AttemptError::Transport(_) => true,
         }
     }
@@ -213,7 +257,12 @@ fn equal_jitter(backoff: Duration, unit: f64) -> Duration {
 
 /// The wait before the next attempt: the receiver's `Retry-After` if it sent one, else the
 /// jittered backoff; never longer than `max`.
-fn next_wait(error: &AttemptError, backoff: Duration, max: Duration, unit: f64) -> Duration {
+pub(super) fn next_wait(
+    error: &AttemptError,
+    backoff: Duration,
+    max: Duration,
+    unit: f64,
+) -> Duration {
     error
         .retry_after()
         .unwrap_or_else(|| equal_jitter(backoff.min(max), unit))
@@ -225,6 +274,7 @@ impl fmt::Display for AttemptError {
         match self {
             AttemptError::Status(s, _) => write!(f, "HTTP {s}"),
             AttemptError::InvalidRequest(e) => write!(f, "invalid request: {e}"),
+            AttemptError::NoClient => write!(f, "no HTTP client"),
             AttemptError::Transport(e) => write!(f, "request error: {e}"),
         }
     }
@@ -260,7 +310,7 @@ async fn deliver(
     let made = AtomicU32::new(0);
     let attempt = || async {
         made.fetch_add(1, Ordering::Relaxed);
-        post(target, client, &body).await
+        post(target, Some(client), &body).await
     };
     let max_wait = config.max_backoff();
     // backon runs the loop: the schedule bounds the retries (`max_attempts - 1`); `adjust`
@@ -294,7 +344,14 @@ async fn deliver(
 }
 
 /// One attempt: a POST of `body`, 2xx is success.
-async fn post(target: &Target, client: &reqwest::Client, body: &[u8]) -> Result<(), AttemptError> {
+pub(super) async fn post(
+    target: &Target,
+    client: Option<&reqwest::Client>,
+    body: &[u8],
+) -> Result<(), AttemptError> {
+    let Some(client) = client else {
+        return Err(AttemptError::NoClient);
+    };
     let mut req = client
         .post(&target.url)
         .header(reqwest::header::CONTENT_TYPE, "application/json")
@@ -318,13 +375,24 @@ async fn post(target: &Target, client: &reqwest::Client, body: &[u8]) -> Result<
 }
 
 /// Per-target warning rate limiter.
-struct WarnLimiter {
+pub(super) struct WarnLimiter {
     last: Option<Instant>,
     suppressed: u64,
 }
 
 impl WarnLimiter {
+    pub(super) fn new() -> Self {
+        WarnLimiter {
+            last: None,
+            suppressed: 0,
+        }
+    }
+
     fn failure(&mut self, url: &str, error: &DeliveryError) {
+        self.failure_message(url, &error.to_string());
+    }
+
+    pub(super) fn failure_message(&mut self, url: &str, error: &str) {
         let now = Instant::now();
         if self
             .last

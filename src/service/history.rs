@@ -1,0 +1,108 @@
+//! `GET /api/v1/gates/{id}/history?from=&to=&limit=`: a gate's identifications from the store,
+//! JSON, or CSV with `Accept: text/csv` (`docs/api.md`).
+
+use std::sync::Arc;
+
+use axum::extract::{Path, Query, State};
+use axum::http::{header, HeaderMap};
+use axum::response::{IntoResponse, Response};
+use axum::Json;
+use serde::Deserialize;
+use tokio::sync::Semaphore;
+
+use super::api::HttpError;
+use super::ingest::BadRequest;
+use super::state::AppState;
+use crate::store::{history_csv, parse_time, HistoryQuery, MAX_HISTORY_LIMIT};
+
+/// History queries read the database at once at most this many: each holds a blocking thread
+/// and the store's read connection; more wait for none and get 503 (the client retries).
+pub const MAX_CONCURRENT_HISTORY: usize = 4;
+
+static PERMITS: Semaphore = Semaphore::const_new(MAX_CONCURRENT_HISTORY);
+
+/// The query string.
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct HistoryParams {
+    /// RFC 3339 or Unix seconds (inclusive, on the window end).
+    pub from: Option<String>,
+    /// RFC 3339 or Unix seconds (inclusive, on the window end).
+    pub to: Option<String>,
+    /// At most this many rows, 1..=[`MAX_HISTORY_LIMIT`] (default: the maximum).
+    pub limit: Option<usize>,
+}
+
+/// The query a request asks for, or a 400 naming the parameter.
+pub fn query(gate: &str, p: &HistoryParams) -> Result<HistoryQuery, HttpError> {
+    let time = |name: &str, v: &Option<String>| -> Result<Option<f64>, HttpError> {
+        v.as_deref()
+            .map(|s| parse_time(s).map_err(|e| bad(format!("{name}: {e}"), name)))
+            .transpose()
+    };
+    let from = time("from", &p.from)?;
+    let to = time("to", &p.to)?;
+    if let (Some(f), Some(t)) = (from, to) {
+        if f > t {
+            return Err(bad(format!("from ({f}) is after to ({t})"), "from"));
+        }
+    }
+    let limit = p.limit.unwrap_or(MAX_HISTORY_LIMIT);
+    if limit == 0 || limit > MAX_HISTORY_LIMIT {
+        return Err(bad(
+            format!("limit must be in 1..={MAX_HISTORY_LIMIT}, got {limit}"),
+            "limit",
+        ));
+    }
+    Ok(HistoryQuery {
+        gate: gate.to_string(),
+        from,
+        to,
+        limit,
+    })
+}
+
+fn bad(message: String, field: &str) -> HttpError {
+    HttpError::BadRequest(BadRequest::new(message).field(field.to_string()))
+}
+
+/// The handler.
+pub async fn get_history(
+    State(state): State<Arc<AppState>>,
+    Path(id): Path<String>,
+    Query(params): Query<HistoryParams>,
+    headers: HeaderMap,
+) -> Result<Response, HttpError> {
+    let Some(p) = state.persistence.clone() else {
+        return Err(HttpError::NotFound(
+            "no history: this daemon runs without a store".into(),
+        ));
+    };
+    if state.config.gate(&id).is_none() && !state.gate_ids().contains(&id) {
+        return Err(HttpError::NotFound(format!("unknown gate `{id}`")));
+    }
+    let q = query(&id, &params)?;
+    let csv = headers
+        .get(header::ACCEPT)
+        .and_then(|v| v.to_str().ok())
+        .is_some_and(|v| v.contains("text/csv"));
+    let Ok(permit) = PERMITS.try_acquire() else {
+        return Err(HttpError::Overloaded);
+    };
+    let rows = tokio::task::spawn_blocking(move || p.store.history(&q))
+        .await
+        .map_err(|e| HttpError::Internal(format!("history task failed: {e}")))?
+        .map_err(|e| HttpError::Internal(e.to_string()))?;
+    drop(permit);
+    if csv {
+        let body = history_csv(&rows).map_err(HttpError::Internal)?;
+        return Ok(([(header::CONTENT_TYPE, "text/csv; charset=utf-8")], body).into_response());
+    }
+    Ok(Json(serde_json::json!({
+        "gate": id,
+        "count": rows.len(),
+        "limit": params.limit.unwrap_or(MAX_HISTORY_LIMIT),
+        "identifications": rows,
+    }))
+    .into_response())
+}

@@ -1,0 +1,330 @@
+//! The daemon's side of the store ([`crate::store`]): opening it at start, restoring the alert
+//! states and the outbox, and turning identifications and alert transitions into writes.
+//!
+//! Everything here talks to the [`Store`] trait and the [`StoreWriter`] thread, never to
+//! SQLite: the writes leave the caller's thread at once (bounded queue), the alert transitions
+//! are handed to the notifier only once written ("written before sent"), and a failed write
+//! degrades to delivery from memory, counted and logged.
+
+use std::collections::HashMap;
+use std::path::Path;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::SystemTime;
+
+use super::clock::unix_seconds;
+use super::sync::lock;
+use crate::alert::notify::outbox::{self, OutboxEntry, TargetInfo};
+use crate::alert::notify::NotifierHandle;
+use crate::alert::{AlertEngine, AlertEvent, GateSnapshot};
+use crate::analysis::WindowAnalysis;
+use crate::store::{
+    IdentificationRecord, NewOutboxRow, SqliteStore, StorageConfig, Store, StoreError, StoreWriter,
+    WriteBatch,
+};
+
+/// The store as the daemon holds it.
+pub struct Persistence {
+    /// For reads (history, start-up).
+    pub store: Arc<dyn Store>,
+    /// For writes.
+    pub writer: StoreWriter,
+    /// The number of the next batch of transitions.
+    batch: AtomicU64,
+    /// The last alert state written per gate, so an unchanged state is not rewritten.
+    written: Mutex<HashMap<String, String>>,
+    /// The SQLite store behind `store`, for its checkpoint.
+    sqlite: Option<Arc<SqliteStore>>,
+}
+
+impl std::fmt::Debug for Persistence {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Persistence").finish_non_exhaustive()
+    }
+}
+
+impl Persistence {
+    /// Opens the SQLite store at `path` and starts its writer thread. The error names the
+    /// file; there is no in-memory fallback.
+    pub fn open(path: &Path, config: &StorageConfig) -> Result<Persistence, StoreError> {
+        let store = Arc::new(SqliteStore::open(path, config.max_size_mb)?);
+        tracing::info!(path = %path.display(), "store opened");
+        let writer = StoreWriter::start(store.clone(), config.retention(), config.max_history_rows)
+            .map_err(|e| StoreError::Open {
+                path: path.display().to_string(),
+                message: format!("cannot start the writer thread: {e}"),
+            })?;
+        let mut p = Persistence::with(store.clone(), writer);
+        p.sqlite = Some(store);
+        Ok(p)
+    }
+
+    /// Wraps any store (tests, another implementation).
+    pub fn with(store: Arc<dyn Store>, writer: StoreWriter) -> Persistence {
+        Persistence {
+            store,
+            writer,
+            batch: AtomicU64::new(1),
+            written: Mutex::new(HashMap::new()),
+            sqlite: None,
+        }
+    }
+
+    /// Writes the WAL into the database file (at shutdown, after [`StoreWriter::close`]), so a
+    /// copy of the `.db` file alone is complete. A store that is not SQLite has nothing to do.
+    pub fn checkpoint(&self) -> Result<(), StoreError> {
+        match &self.sqlite {
+            Some(s) => s.checkpoint(),
+            None => Ok(()),
+        }
+    }
+
+    /// Restores every persisted gate state into `engine` (at start, before any window).
+    /// A state that does not decode is logged and skipped (the gate starts fresh).
+    pub fn restore_alerts(&self, engine: &mut AlertEngine, now: SystemTime) -> usize {
+        let states = match self.store.alert_states() {
+            Ok(s) => s,
+            Err(e) => {
+                tracing::error!("cannot read the alert states, starting without them: {e}");
+                return 0;
+            }
+        };
+        let mut n = 0;
+        let mut written = lock(&self.written);
+        for (gate, json) in states {
+            match serde_json::from_str::<GateSnapshot>(&json) {
+                Ok(snap) => {
+                    engine.restore_gate(&gate, snap, now);
+                    written.insert(gate, json);
+                    n += 1;
+                }
+                Err(e) => tracing::error!(%gate, "stored alert state does not decode: {e}"),
+            }
+        }
+        n
+    }
+
+    /// Hands the undelivered notifications of the store to the notifier. Entries of targets no
+    /// longer configured are deleted with a warning.
+    pub fn resume_outbox(&self, notifier: &NotifierHandle) -> usize {
+        let rows = match self.store.outbox() {
+            Ok(r) => r,
+            Err(e) => {
+                tracing::error!("cannot read the outbox: {e}");
+                return 0;
+            }
+        };
+        let targets = notifier.targets();
+        let mut entries = Vec::new();
+        let mut orphans = Vec::new();
+        let mut max_batch = 0;
+        for r in rows {
+            max_batch = max_batch.max(r.row.batch);
+            let Some(i) = targets.iter().position(|t| t.key == r.row.target) else {
+                tracing::warn!(target = %r.row.target, "outbox entry for a target no longer configured, dropped");
+                orphans.push(r.id);
+                continue;
+            };
+            match outbox::decode(
+                r.id,
+                r.row.batch,
+                &r.row.status,
+                r.row.created,
+                &r.row.payload,
+            ) {
+                Ok(e) => entries.push((i, e)),
+                Err(e) => {
+                    tracing::error!("{e}; dropped");
+                    orphans.push(r.id);
+                }
+            }
+        }
+        self.batch.fetch_max(max_batch + 1, Ordering::Relaxed);
+        if !orphans.is_empty() {
+            self.writer.submit(
+                WriteBatch {
+                    delivered: orphans,
+                    ..Default::default()
+                },
+                None,
+            );
+        }
+        let n = entries.len();
+        notifier.notify_entries(entries);
+        n
+    }
+
+    /// The alert state of `gate` to write, when it changed since the last write.
+    pub fn changed_state(&self, engine: &AlertEngine, gate: &str) -> Option<(String, String)> {
+        let mut snap = engine.export_gate(gate)?;
+        // the staleness clock restarts at restore unless the stale alert fires: not worth a
+        // write per ingestion
+        if snap.stale.is_none() {
+            snap.last_seen = None;
+        }
+        let json = serde_json::to_string(&snap).ok()?;
+        let mut written = lock(&self.written);
+        if written.get(gate) == Some(&json) {
+            return None;
+        }
+        written.insert(gate.to_string(), json.clone());
+        Some((gate.to_string(), json))
+    }
+
+    /// Writes `extra` and the outbox rows of `events`, then (on the writer thread) hands the
+    /// entries to the notifier, with their ids, or without when the write failed.
+    pub fn persist_and_notify(
+        &self,
+        notifier: &NotifierHandle,
+        events: Vec<AlertEvent>,
+        mut extra: WriteBatch,
+    ) {
+        let now = SystemTime::now();
+        let batch = self.batch.fetch_add(1, Ordering::Relaxed);
+        let targets: Vec<TargetInfo> = notifier.targets().to_vec();
+        let mut entries = Vec::new();
+        for event in &events {
+            let payload = outbox::encode(event);
+            for (i, t) in targets.iter().enumerate() {
+                extra.outbox.push(NewOutboxRow {
+                    target: t.key.clone(),
+                    fingerprint: event.alert().fingerprint.clone(),
+                    status: event.status().to_string(),
+                    created: unix_seconds(now),
+                    batch,
+                    payload: payload.clone(),
+                    supersedes: outbox::supersedes(t.is_alertmanager, event.is_firing()),
+                });
+                entries.push((
+                    i,
+                    OutboxEntry {
+                        id: None,
+                        batch,
+                        event: event.clone(),
+                        created: now,
+                    },
+                ));
+            }
+        }
+        let notifier = notifier.clone();
+        self.writer.submit(
+            extra,
+            Some(Box::new(move |result| {
+                if let Ok(ids) = result {
+                    for ((_, e), id) in entries.iter_mut().zip(ids) {
+                        e.id = Some(id);
+                    }
+                }
+                notifier.notify_entries(entries);
+            })),
+        );
+    }
+}
+
+/// The history row of an identified window.
+pub fn identification_record(
+    gate: &str,
+    time: SystemTime,
+    window: (f64, f64),
+    a: &WindowAnalysis,
+) -> IdentificationRecord {
+    let d = &a.damping;
+    IdentificationRecord {
+        gate: gate.to_string(),
+        time: unix_seconds(time),
+        window_start: window.0,
+        window_end: window.1,
+        equation: a.equation.clone(),
+        coefficients: a.coefficients.clone(),
+        damping: serde_json::to_value(d).unwrap_or(serde_json::Value::Null),
+        verdict: serde_json::to_value(d.verdict)
+            .ok()
+            .and_then(|v| v.as_str().map(String::from))
+            .unwrap_or_default(),
+        fit_nmae: d.fit_nmae,
+        // issue 9 adds the tracked path; every identification is a full one until then
+        path: "full".to_string(),
+    }
+}
+
+/// The acknowledgement callback of the notifier: settled outbox entries are deleted.
+pub fn ack(persistence: Option<&Arc<Persistence>>) -> outbox::Ack {
+    match persistence {
+        Some(p) => {
+            let writer = p.writer.clone();
+            Arc::new(move |ids: Vec<i64>| {
+                writer.submit(
+                    WriteBatch {
+                        delivered: ids,
+                        ..Default::default()
+                    },
+                    None,
+                )
+            })
+        }
+        None => Arc::new(|_| {}),
+    }
+}
+
+/// At start: the alert states back into the engine, the gauges set, the undelivered
+/// notifications handed to the notifier and the firing alerts re-sent to Alertmanager at once.
+pub fn resume(
+    metrics: &super::metrics::Metrics,
+    p: &Persistence,
+    engine: &mut AlertEngine,
+    notifier: &NotifierHandle,
+    now: SystemTime,
+) {
+    let restored = p.restore_alerts(engine, now);
+    for gate in engine.gates() {
+        if let Some(s) = engine.state(&gate) {
+            metrics.set_alert_state(&gate, s.as_str());
+        }
+    }
+    let firing = engine.firing();
+    for a in &firing {
+        metrics.set_alert_firing(a.gate(), &a.name, true);
+    }
+    let pending = p.resume_outbox(notifier);
+    if !firing.is_empty() {
+        notifier.resend_now();
+    }
+    tracing::info!(
+        gates = restored,
+        firing = firing.len(),
+        undelivered = pending,
+        "alert state restored from the store"
+    );
+}
+
+/// What an identified window writes: its history row and the gate's alert state if changed.
+pub fn window_write(
+    p: Option<&Persistence>,
+    engine: &AlertEngine,
+    gate: &str,
+    record: IdentificationRecord,
+) -> WriteBatch {
+    let Some(p) = p else {
+        return WriteBatch::default();
+    };
+    WriteBatch {
+        identifications: vec![record],
+        alert_states: p.changed_state(engine, gate).into_iter().collect(),
+        ..Default::default()
+    }
+}
+
+/// The alert states that changed since they were last written (each tick).
+pub fn states_write(p: Option<&Persistence>, engine: &AlertEngine) -> WriteBatch {
+    let Some(p) = p else {
+        return WriteBatch::default();
+    };
+    WriteBatch {
+        alert_states: engine
+            .gates()
+            .iter()
+            .filter_map(|g| p.changed_state(engine, g))
+            .collect(),
+        ..Default::default()
+    }
+}

@@ -1,0 +1,96 @@
+//! `[storage]`: where the store lives and how much it keeps.
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use serde::{Deserialize, Serialize};
+
+/// Capacity of the writer thread's queue, in write requests. One identification or one alert
+/// transition is one request; 4096 is minutes of 16 gates at a window a second, far more than
+/// a healthy disk ever lets pile up. When it is full the write is dropped, counted
+/// (`StoreStats::queue_full`; not yet a Prometheus metric) and logged: ingestion and alert
+/// delivery go on from memory.
+pub const STORE_QUEUE_CAPACITY: usize = 4096;
+
+/// Largest `limit` of one history query (HTTP and CLI): one day of one gate at a window every
+/// 5 s is 17 280 rows, so a day always fits; a longer range is paged with `from`.
+pub const MAX_HISTORY_LIMIT: usize = 20_000;
+
+/// `[storage]` in the configuration.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct StorageConfig {
+    /// The SQLite file (default `gatewatch.db`). A relative path is taken relative to the
+    /// directory of the configuration file (the working directory without one), like
+    /// Prometheus does. Its directory must exist and be writable (the WAL and shared-memory
+    /// files sit next to it).
+    pub path: String,
+    /// History older than this is deleted (default 30 days).
+    pub retention_days: f64,
+    /// Bound on the history: beyond this many rows the oldest are deleted (default 5 000 000,
+    /// about 2 GB at the measured ~400 bytes a row; see docs/benchmarks.md).
+    pub max_history_rows: u64,
+    /// Hard bound on the database file, in MiB (default 4096): SQLite's `max_page_count`.
+    /// A write that would grow the file beyond it fails like a full disk: counted
+    /// (`StoreStats::write_failed`) and logged, and ingestion goes on.
+    pub max_size_mb: u64,
+    /// A notification is retried for as long as it is younger than this, then given up,
+    /// counted and logged (default 86400 s = 24 h).
+    pub notification_max_age_seconds: f64,
+}
+
+impl Default for StorageConfig {
+    fn default() -> Self {
+        StorageConfig {
+            path: "gatewatch.db".to_string(),
+            retention_days: 30.0,
+            max_history_rows: 5_000_000,
+            max_size_mb: 4096,
+            notification_max_age_seconds: 86_400.0,
+        }
+    }
+}
+
+impl StorageConfig {
+    /// Checks the values; the message names the key.
+    pub fn validate(&self) -> Result<(), String> {
+        if self.path.trim().is_empty() {
+            return Err("storage.path: must not be empty".into());
+        }
+        if !(self.retention_days.is_finite() && self.retention_days > 0.0) {
+            return Err("storage.retention_days: must be > 0".into());
+        }
+        if self.max_history_rows == 0 {
+            return Err("storage.max_history_rows: must be > 0".into());
+        }
+        if self.max_size_mb == 0 {
+            return Err("storage.max_size_mb: must be > 0".into());
+        }
+        if !(self.notification_max_age_seconds.is_finite()
+            && self.notification_max_age_seconds > 0.0)
+        {
+            return Err("storage.notification_max_age_seconds: must be > 0".into());
+        }
+        Ok(())
+    }
+
+    /// The retention as a duration.
+    pub fn retention(&self) -> Duration {
+        Duration::try_from_secs_f64(self.retention_days * 86_400.0).unwrap_or(Duration::MAX)
+    }
+
+    /// The notifications' maximum age as a duration.
+    pub fn notification_max_age(&self) -> Duration {
+        Duration::try_from_secs_f64(self.notification_max_age_seconds).unwrap_or(Duration::MAX)
+    }
+
+    /// The file, a relative `path` resolved against `base` (the configuration file's
+    /// directory).
+    pub fn resolve(&self, base: Option<&Path>) -> PathBuf {
+        let p = PathBuf::from(&self.path);
+        match base {
+            Some(dir) if p.is_relative() => dir.join(p),
+            _ => p,
+        }
+    }
+}

@@ -1,0 +1,208 @@
+//! The daemon's persistence: identification history, each gate's alert state and the
+//! notification outbox, behind one small trait, [`Store`].
+//!
+//! The service talks to the trait only, so the embedded implementation ([`SqliteStore`], one
+//! SQLite file in WAL mode) can be replaced by a distributed one (NATS JetStream) without the
+//! alert engine, the notifier or the worker pool knowing. Nothing in the numerical core imports
+//! this module. Why SQLite and WAL, the migrations and the outbox semantics are in
+//! `docs/design.md` ("The store").
+//!
+//! # Layout
+//! - this file: the trait, the records it keeps, its error type;
+//! - `config`: [`StorageConfig`] (`[storage]`) and the bounds;
+//! - `sqlite`: [`SqliteStore`] and its migrations;
+//! - `writer`: [`StoreWriter`], the dedicated thread that takes every write off the callers'
+//!   threads through a bounded queue;
+//! - `history`: time parsing (`RFC 3339` or Unix seconds) and the CSV form of the history,
+//!   shared by the HTTP route and `gatewatch history`.
+
+mod config;
+mod history;
+mod sqlite;
+mod writer;
+
+pub use config::{StorageConfig, MAX_HISTORY_LIMIT, STORE_QUEUE_CAPACITY};
+pub use history::{history_csv, parse_time, HISTORY_CSV_HEADER};
+pub use sqlite::{SqliteStore, SCHEMA_VERSION};
+pub use writer::{StoreStats, StoreWriter};
+
+use serde::{Deserialize, Serialize};
+
+/// What went wrong in the store, with the file or the operation it concerns.
+#[derive(Debug, thiserror::Error)]
+pub enum StoreError {
+    /// The database file cannot be opened, is not a database, or its schema is unusable.
+    #[error("storage file {path}: {message}")]
+    Open {
+        /// The file.
+        path: String,
+        /// What SQLite said, in words.
+        message: String,
+    },
+    /// One operation failed (disk full, I/O error, constraint...).
+    #[error("storage {operation}: {source}")]
+    Sqlite {
+        /// What was being done (`write`, `history`, ...).
+        operation: &'static str,
+        /// SQLite's error.
+        #[source]
+        source: rusqlite::Error,
+    },
+    /// A stored value does not decode (a row written by a newer or broken version).
+    #[error("storage {operation}: bad stored value: {message}")]
+    Decode {
+        /// What was being read.
+        operation: &'static str,
+        /// Why it does not decode.
+        message: String,
+    },
+}
+
+/// One identified window of a gate, as the history keeps it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct IdentificationRecord {
+    /// Gate id.
+    pub gate: String,
+    /// Wall-clock time of the identification, Unix seconds.
+    pub time: f64,
+    /// Sample time of the window's first sample, Unix seconds.
+    pub window_start: f64,
+    /// Sample time of the window's last sample, Unix seconds.
+    pub window_end: f64,
+    /// The identified equation with numbers.
+    pub equation: String,
+    /// Coefficients by name.
+    pub coefficients: Vec<(String, f64)>,
+    /// The damping report (`analysis::DampingReport`) as JSON, intervals included.
+    pub damping: serde_json::Value,
+    /// `damped`, `self_excited`, ... (the report's verdict).
+    pub verdict: String,
+    /// Fit error (normalised mean absolute error).
+    pub fit_nmae: f64,
+    /// Which identification path produced it: `full` (issue 9 adds `tracked`).
+    pub path: String,
+}
+
+impl IdentificationRecord {
+    /// The damping ratio at rest, when the report has one.
+    pub fn zeta0(&self) -> Option<f64> {
+        self.damping
+            .get("zeta0")
+            .and_then(serde_json::Value::as_f64)
+    }
+
+    /// The interval of the damping ratio at rest, when the report has one.
+    pub fn zeta0_interval(&self) -> Option<(f64, f64)> {
+        let v = self.damping.get("zeta0_interval")?.as_array()?;
+        Some((v.first()?.as_f64()?, v.get(1)?.as_f64()?))
+    }
+}
+
+/// A history query: one gate, a time range on the window end, at most `limit` rows, oldest
+/// first.
+#[derive(Debug, Clone, PartialEq)]
+pub struct HistoryQuery {
+    /// Gate id.
+    pub gate: String,
+    /// Inclusive lower bound on `window_end`, Unix seconds.
+    pub from: Option<f64>,
+    /// Inclusive upper bound on `window_end`, Unix seconds.
+    pub to: Option<f64>,
+    /// At most this many rows (capped at [`MAX_HISTORY_LIMIT`]).
+    pub limit: usize,
+}
+
+/// A notification to persist before it is sent: one alert transition for one target.
+#[derive(Debug, Clone, PartialEq)]
+pub struct NewOutboxRow {
+    /// The target's key (`webhook <url>` or `alertmanager <url>`).
+    pub target: String,
+    /// Alertmanager's fingerprint of the alert.
+    pub fingerprint: String,
+    /// `firing` or `resolved`.
+    pub status: String,
+    /// Wall-clock time of the transition, Unix seconds (the age counts from it).
+    pub created: f64,
+    /// Number of the batch the transition came in (delivered together when possible).
+    pub batch: u64,
+    /// The alert, as JSON (see `alert::notify::outbox`).
+    pub payload: String,
+    /// Whether this row removes the older undelivered rows of the same target and fingerprint.
+    pub supersedes: bool,
+}
+
+/// A persisted, undelivered notification.
+#[derive(Debug, Clone, PartialEq)]
+pub struct OutboxRow {
+    /// Row id: the order of the outbox, and the key to delete it by.
+    pub id: i64,
+    /// The row as it was written.
+    pub row: NewOutboxRow,
+}
+
+/// Everything one write does, in one transaction: it all lands or none of it does.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct WriteBatch {
+    /// Identified windows to append to the history.
+    pub identifications: Vec<IdentificationRecord>,
+    /// `(gate, state as JSON)`: each gate's alert state, replacing the stored one.
+    pub alert_states: Vec<(String, String)>,
+    /// Gates whose alert state is deleted (removed from the configuration).
+    pub forget_gates: Vec<String>,
+    /// Notifications to persist (in this order; each may supersede older ones).
+    pub outbox: Vec<NewOutboxRow>,
+    /// Delivered (or given up) notifications to delete.
+    pub delivered: Vec<i64>,
+}
+
+impl WriteBatch {
+    /// Whether the batch does nothing.
+    pub fn is_empty(&self) -> bool {
+        self.identifications.is_empty()
+            && self.alert_states.is_empty()
+            && self.forget_gates.is_empty()
+            && self.outbox.is_empty()
+            && self.delivered.is_empty()
+    }
+
+    /// Appends `other` (order kept).
+    pub fn append(&mut self, mut other: WriteBatch) {
+        self.identifications.append(&mut other.identifications);
+        self.alert_states.append(&mut other.alert_states);
+        self.forget_gates.append(&mut other.forget_gates);
+        self.outbox.append(&mut other.outbox);
+        self.delivered.append(&mut other.delivered);
+    }
+}
+
+/// What pruning removed.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Pruned {
+    /// History rows older than the retention.
+    pub expired: u64,
+    /// Oldest history rows beyond the size bound.
+    pub over_size: u64,
+}
+
+/// The seam between the daemon and its persistence. Every method is blocking: callers on the
+/// async runtime go through [`StoreWriter`] (writes) or `spawn_blocking` (reads).
+pub trait Store: Send + Sync + 'static {
+    /// Applies a batch in one transaction. Returns the ids given to `batch.outbox`, in order.
+    fn write(&self, batch: &WriteBatch) -> Result<Vec<i64>, StoreError>;
+
+    /// One gate's history, oldest first.
+    fn history(&self, query: &HistoryQuery) -> Result<Vec<IdentificationRecord>, StoreError>;
+
+    /// Every gate's persisted alert state, `(gate, JSON)`.
+    fn alert_states(&self) -> Result<Vec<(String, String)>, StoreError>;
+
+    /// Every undelivered notification, oldest first.
+    fn outbox(&self) -> Result<Vec<OutboxRow>, StoreError>;
+
+    /// Deletes history rows whose window ended before `cutoff` (Unix seconds), then the oldest
+    /// rows beyond `max_rows`.
+    fn prune(&self, cutoff: f64, max_rows: u64) -> Result<Pruned, StoreError>;
+}
+
+#[cfg(test)]
+mod tests;

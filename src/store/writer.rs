@@ -1,0 +1,285 @@
+//! [`StoreWriter`]: the one thread that writes to the store.
+//!
+//! SQLite calls block (a commit waits for an fsync), so they never run on the async runtime nor
+//! under the daemon's state lock: callers hand a [`WriteBatch`] to this thread through a
+//! bounded queue ([`STORE_QUEUE_CAPACITY`]) and go on. The thread also prunes the history
+//! (retention and size bound) once at start and every [`PRUNE_INTERVAL`].
+//!
+//! A write that fails (disk full, I/O error) or does not fit in the queue is counted in
+//! [`StoreStats`] and logged (at most one warning per [`WARN_EVERY`], with the number
+//! suppressed); its callback is told, so the notifier still delivers the notification from
+//! memory. Nothing waits for the disk.
+
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::mpsc::{self, RecvTimeoutError, SyncSender, TrySendError};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+
+use super::{Store, WriteBatch, STORE_QUEUE_CAPACITY};
+
+/// How often the writer prunes the history.
+pub const PRUNE_INTERVAL: Duration = Duration::from_secs(3600);
+
+/// Requests merged into one transaction at most (a burst commits in one fsync).
+const MAX_MERGED: usize = 256;
+
+/// A failing store logs at most one warning this often.
+const WARN_EVERY: Duration = Duration::from_secs(30);
+
+/// What a write's callback is told: the outbox ids, or why nothing was written.
+pub type WriteResult = Result<Vec<i64>, String>;
+
+/// Called on the writer thread once the batch is committed (or failed).
+pub type Then = Box<dyn FnOnce(WriteResult) + Send>;
+
+enum Request {
+    Write(WriteBatch, Option<Then>),
+    /// Answered once every request before it is done.
+    Flush(SyncSender<()>),
+}
+
+/// Counters of the store, for `/metrics`.
+#[derive(Debug, Default)]
+pub struct StoreStats {
+    /// Transactions committed.
+    pub commits: AtomicU64,
+    /// Write requests lost because the queue was full.
+    pub queue_full: AtomicU64,
+    /// Write requests lost because SQLite failed (disk full, I/O error...).
+    pub write_failed: AtomicU64,
+    /// History rows deleted by the retention.
+    pub expired_rows: AtomicU64,
+    /// History rows deleted by the size bound.
+    pub over_size_rows: AtomicU64,
+}
+
+/// Handle to the writer thread. Cheap to clone.
+#[derive(Clone)]
+pub struct StoreWriter {
+    tx: Arc<Mutex<Option<SyncSender<Request>>>>,
+    thread: Arc<Mutex<Option<JoinHandle<()>>>>,
+    stats: Arc<StoreStats>,
+    warn: Arc<Mutex<(Option<Instant>, u64)>>,
+}
+
+impl std::fmt::Debug for StoreWriter {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("StoreWriter")
+            .field("stats", &self.stats)
+            .finish()
+    }
+}
+
+impl StoreWriter {
+    /// Starts the thread. `retention` and `max_rows` drive the pruning.
+    pub fn start(
+        store: Arc<dyn Store>,
+        retention: Duration,
+        max_rows: u64,
+    ) -> std::io::Result<StoreWriter> {
+        let (tx, rx) = mpsc::sync_channel::<Request>(STORE_QUEUE_CAPACITY);
+        let stats = Arc::new(StoreStats::default());
+        let warn = Arc::new(Mutex::new((None, 0)));
+        let writer = StoreWriter {
+            tx: Arc::new(Mutex::new(Some(tx))),
+            thread: Arc::new(Mutex::new(None)),
+            stats: stats.clone(),
+            warn: warn.clone(),
+        };
+        let w = writer.clone();
+        let thread = std::thread::Builder::new()
+            .name("gatewatch-store".into())
+            .spawn(move || {
+                let mut next_prune = Instant::now();
+                loop {
+                    if Instant::now() >= next_prune {
+                        w.prune(store.as_ref(), retention, max_rows);
+                        next_prune = Instant::now() + PRUNE_INTERVAL;
+                    }
+                    let first = match rx.recv_timeout(next_prune - Instant::now()) {
+                        Ok(r) => r,
+                        Err(RecvTimeoutError::Timeout) => continue,
+                        Err(RecvTimeoutError::Disconnected) => break,
+                    };
+                    let mut writes = Vec::new();
+                    let mut flushes = Vec::new();
+                    let mut next = Some(first);
+                    while let Some(r) = next.take() {
+                        match r {
+                            Request::Write(b, then) => writes.push((b, then)),
+                            Request::Flush(done) => flushes.push(done),
+                        }
+                        if writes.len() < MAX_MERGED {
+                            next = rx.try_recv().ok();
+                        }
+                    }
+                    w.commit(store.as_ref(), writes);
+                    for f in flushes {
+                        let _ = f.send(());
+                    }
+                }
+            })?;
+        *writer.thread.lock().unwrap_or_else(|p| p.into_inner()) = Some(thread);
+        Ok(writer)
+    }
+
+    /// The counters.
+    pub fn stats(&self) -> Arc<StoreStats> {
+        self.stats.clone()
+    }
+
+    /// Queues a write; never blocks. `then` runs on the writer thread after the commit, or at
+    /// once (on the caller's thread) with an error when the queue is full or closed.
+    pub fn submit(&self, batch: WriteBatch, then: Option<Then>) {
+        if batch.is_empty() {
+            if let Some(then) = then {
+                then(Ok(Vec::new()));
+            }
+            return;
+        }
+        let guard = self.tx.lock().unwrap_or_else(|p| p.into_inner());
+        let Some(tx) = guard.as_ref() else {
+            drop(guard);
+            self.failed("the store is closed", &self.stats.queue_full);
+            if let Some(then) = then {
+                then(Err("the store is closed".into()));
+            }
+            return;
+        };
+        match tx.try_send(Request::Write(batch, then)) {
+            Ok(()) => {}
+            Err(TrySendError::Full(Request::Write(_, then)))
+            | Err(TrySendError::Disconnected(Request::Write(_, then))) => {
+                drop(guard);
+                self.failed(
+                    &format!("write queue full ({STORE_QUEUE_CAPACITY} requests)"),
+                    &self.stats.queue_full,
+                );
+                if let Some(then) = then {
+                    then(Err("store write queue full".into()));
+                }
+            }
+            Err(_) => {}
+        }
+    }
+
+    /// Blocks until every write queued before it is committed (or failed), or `within` passed.
+    /// Returns whether it finished in time.
+    pub fn flush(&self, within: Duration) -> bool {
+        let (done_tx, done_rx) = mpsc::sync_channel(1);
+        {
+            let guard = self.tx.lock().unwrap_or_else(|p| p.into_inner());
+            let Some(tx) = guard.as_ref() else {
+                return true;
+            };
+            let deadline = Instant::now() + within;
+            let mut req = Request::Flush(done_tx);
+            // the queue may be full: retry until the deadline rather than block forever
+            loop {
+                match tx.try_send(req) {
+                    Ok(()) => break,
+                    Err(TrySendError::Full(r)) if Instant::now() < deadline => {
+                        req = r;
+                        std::thread::sleep(Duration::from_millis(5));
+                    }
+                    Err(_) => return false,
+                }
+            }
+        }
+        done_rx.recv_timeout(within).is_ok()
+    }
+
+    /// Flushes (until `within`), stops the thread. Idempotent.
+    pub fn close(&self, within: Duration) -> bool {
+        let flushed = self.flush(within);
+        self.tx.lock().unwrap_or_else(|p| p.into_inner()).take();
+        if flushed {
+            if let Some(t) = self.thread.lock().unwrap_or_else(|p| p.into_inner()).take() {
+                let _ = t.join();
+            }
+        }
+        flushed
+    }
+
+    fn commit(&self, store: &dyn Store, writes: Vec<(WriteBatch, Option<Then>)>) {
+        if writes.is_empty() {
+            return;
+        }
+        let mut merged = WriteBatch::default();
+        let mut splits = Vec::with_capacity(writes.len());
+        let mut thens = Vec::with_capacity(writes.len());
+        for (b, then) in writes {
+            splits.push(b.outbox.len());
+            merged.append(b);
+            thens.push(then);
+        }
+        match store.write(&merged) {
+            Ok(ids) => {
+                self.stats.commits.fetch_add(1, Ordering::Relaxed);
+                let mut ids = ids.into_iter();
+                for (n, then) in splits.into_iter().zip(thens) {
+                    let mine: Vec<i64> = ids.by_ref().take(n).collect();
+                    if let Some(then) = then {
+                        then(Ok(mine));
+                    }
+                }
+            }
+            Err(e) => {
+                let msg = e.to_string();
+                for _ in &thens {
+                    self.stats.write_failed.fetch_add(1, Ordering::Relaxed);
+                }
+                self.warn(&msg);
+                for then in thens.into_iter().flatten() {
+                    then(Err(msg.clone()));
+                }
+            }
+        }
+    }
+
+    fn prune(&self, store: &dyn Store, retention: Duration, max_rows: u64) {
+        let now = SystemTime::now()
+            .duration_since(UNIX_EPOCH)
+            .unwrap_or_default();
+        let cutoff = now.saturating_sub(retention).as_secs_f64();
+        match store.prune(cutoff, max_rows) {
+            Ok(p) => {
+                self.stats
+                    .expired_rows
+                    .fetch_add(p.expired, Ordering::Relaxed);
+                self.stats
+                    .over_size_rows
+                    .fetch_add(p.over_size, Ordering::Relaxed);
+                if p.expired + p.over_size > 0 {
+                    tracing::info!(
+                        expired = p.expired,
+                        over_size = p.over_size,
+                        "store: history pruned"
+                    );
+                }
+            }
+            Err(e) => self.warn(&e.to_string()),
+        }
+    }
+
+    fn failed(&self, msg: &str, counter: &AtomicU64) {
+        counter.fetch_add(1, Ordering::Relaxed);
+        self.warn(msg);
+    }
+
+    fn warn(&self, msg: &str) {
+        let mut w = self.warn.lock().unwrap_or_else(|p| p.into_inner());
+        let now = Instant::now();
+        if w.0.is_none_or(|t| now.duration_since(t) >= WARN_EVERY) {
+            tracing::warn!(
+                suppressed_since_last_warning = w.1,
+                "store write failed, ingestion and alerting go on from memory: {msg}"
+            );
+            *w = (Some(now), 0);
+        } else {
+            w.1 += 1;
+            tracing::debug!("store write failed: {msg}");
+        }
+    }
+}
