@@ -9,10 +9,11 @@
 //! - [`state`]: the shared state; the only user of the alert engine ([`crate::alert`]) and of
 //!   its notifier.
 //! - [`metrics`]: the Prometheus metrics and the rejection reasons.
+//! - [`limits`]: the body-bytes budget, refusals before the body is read, log escaping.
 //! - [`api`]: routes, authentication, `HttpError`, and (in `api::influx`) the InfluxDB surface:
 //!   `/ping`, `/health`, `/query`, gzip bodies, v2-shaped errors.
-//! - [`server`]: `run`, the HTTP listener and the one-deadline shutdown; [`tcp`]: the raw TCP
-//!   listener; [`shutdown`]: signals.
+//! - [`server`]: `run` and the one-deadline shutdown; [`listen`]: the HTTP accept loop with its
+//!   connection cap and header timeout; [`tcp`]: the raw TCP listener; [`shutdown`]: signals.
 //! - [`cli`]: command-line entry points; [`client`]: the simulate client (talks to a daemon
 //!   over the network only, and installs the TLS crypto provider its HTTP client needs).
 //! - [`bench`]: `gatewatch bench daemon`, load measurements.
@@ -20,8 +21,8 @@
 //! - [`clock`], [`sync`]: Unix seconds and the poison-tolerant lock, shared by the above.
 //!
 //! Imports go one way (no circle): `cli` -> `server`, `demo`, `client`, `shutdown`; `demo`,
-//! `bench` -> `server`, `client`; `server` -> `api`, `tcp`, `state`, `worker`; `api`, `tcp` ->
-//! `state`, `ingest`, `metrics`; `state` -> `worker`, `window`, `ingest`, `metrics`, `config`;
+//! `bench` -> `server`, `client`; `server` -> `api`, `listen`, `tcp`, `state`, `worker`; `api`, `tcp` ->
+//! `state`, `ingest`, `metrics`, `limits`; `state` -> `worker`, `window`, `ingest`, `metrics`, `config`;
 //! `ingest`, `worker` -> `config`; and `config`, `window`, `clock`, `sync` import nothing of
 //! the service.
 
@@ -33,6 +34,8 @@ pub mod clock;
 pub mod config;
 pub mod demo;
 pub mod ingest;
+pub mod limits;
+pub mod listen;
 pub mod metrics;
 pub mod server;
 pub mod shutdown;
