@@ -148,7 +148,10 @@ async fn connections_over_the_cap_are_closed_and_a_client_gets_in_after_they_go(
         .write_all(b"GET /healthz HTTP/1.1\r\nhost: x\r\n\r\n")
         .await;
     let answer = read_to_close(&mut extra).await;
-    assert!(answer.is_empty(), "over the cap: closed unanswered, got {answer}");
+    assert!(
+        answer.is_empty(),
+        "over the cap: closed unanswered, got {answer}"
+    );
     drop(held);
     // the slots free as the held connections end: /healthz answers again
     let addr = r.http;
@@ -166,9 +169,9 @@ async fn connections_over_the_cap_are_closed_and_a_client_gets_in_after_they_go(
     .expect("a new client is served after the held connections closed");
     let (_, m) = get(addr, "/metrics").await;
     assert!(
-        m.lines()
-            .any(|l| l.starts_with("gatewatch_http_connections_rejected_total ")
-                && !l.ends_with(" 0")),
+        m.lines().any(
+            |l| l.starts_with("gatewatch_http_connections_rejected_total ") && !l.ends_with(" 0")
+        ),
         "{m}"
     );
     stop(r).await;
@@ -203,10 +206,15 @@ async fn tcp_clients_outside_the_allowed_networks_are_closed_at_accept() {
     )
     .await;
     let mut c = TcpStream::connect(r.tcp).await.unwrap();
-    let _ = c.write_all(b"m,gate=outsider force=1 1000000000000\n").await;
+    let _ = c
+        .write_all(b"m,gate=outsider force=1 1000000000000\n")
+        .await;
     assert!(closed_by_server(&mut c).await);
     let (_, m) = get(r.http, "/metrics").await;
-    assert!(m.contains("gatewatch_tcp_connections_rejected_total 1"), "{m}");
+    assert!(
+        m.contains("gatewatch_tcp_connections_rejected_total 1"),
+        "{m}"
+    );
     assert_eq!(get(r.http, "/api/v1/gates/outsider").await.0, 404);
     stop(r).await;
 }

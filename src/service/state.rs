@@ -603,7 +603,11 @@ impl AppState {
     /// summaries, and the id to continue after when more remain. The lock is held only while
     /// this bounded page is copied; the caller serialises it without the lock, so a listing of
     /// thousands of gates holds up ingestion for one page's copy at most.
-    pub fn gate_page(&self, after: Option<&str>, limit: usize) -> (Vec<GateSummary>, Option<String>) {
+    pub fn gate_page(
+        &self,
+        after: Option<&str>,
+        limit: usize,
+    ) -> (Vec<GateSummary>, Option<String>) {
         use std::ops::Bound;
         let inner = lock(&self.inner);
         let lower = after.map_or(Bound::Unbounded, Bound::Excluded);

@@ -69,7 +69,10 @@ pub async fn serve(
                 continue;
             }
         };
-        if !allowed.iter().any(|n| n.contains(&peer.ip().to_canonical())) {
+        if !allowed
+            .iter()
+            .any(|n| n.contains(&peer.ip().to_canonical()))
+        {
             state.metrics.tcp_connections_rejected.inc();
             tracing::warn!(%peer, "tcp client outside server.tcp_allowed_networks, closing");
             drop(stream);

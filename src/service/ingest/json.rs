@@ -239,28 +239,34 @@ impl<'de> Visitor<'de> for Object<'_> {
                 "rate_hz" => rate = Some(a.next_value::<Scalar>()?),
                 "values" => {
                     let field = format!("{p}values");
-                    let seed = Numbers { field: &field, fault: &mut *fault };
+                    let seed = Numbers {
+                        field: &field,
+                        fault: &mut *fault,
+                    };
                     values = Some(a.next_value_seed(seed)?);
                 }
                 _ => {
                     let field = format!("{p}samples");
-                    let seed = Pairs { field: &field, fault: &mut *fault };
+                    let seed = Pairs {
+                        field: &field,
+                        fault: &mut *fault,
+                    };
                     samples = Some(a.next_value_seed(seed)?);
                 }
             }
         }
-        let data = match (values, samples) {
-            (Some(_), Some(_)) => Err(BadRequest::new(
-                "give either `values` or `samples`, not both",
-            )
-            .field(format!("{p}samples"))),
-            (Some(v), None) => Ok(Data::Values(v)),
-            (None, Some(s)) => Ok(Data::Samples(s)),
-            (None, None) => Err(BadRequest::new("missing field `values` or `samples`")
-                .field(format!("{p}values"))),
-        };
-        build(&p, gate, start, rate, data)
-            .map_err(|b| fail(fault, b))
+        let data =
+            match (values, samples) {
+                (Some(_), Some(_)) => Err(BadRequest::new(
+                    "give either `values` or `samples`, not both",
+                )
+                .field(format!("{p}samples"))),
+                (Some(v), None) => Ok(Data::Values(v)),
+                (None, Some(s)) => Ok(Data::Samples(s)),
+                (None, None) => Err(BadRequest::new("missing field `values` or `samples`")
+                    .field(format!("{p}values"))),
+            };
+        build(&p, gate, start, rate, data).map_err(|b| fail(fault, b))
     }
 }
 
@@ -305,9 +311,7 @@ fn build(
             let rate = match rate {
                 Some(Scalar::Num(r)) => r,
                 Some(other) => return Err(not_a_number(&other, &rate_field, None)),
-                None => {
-                    return Err(BadRequest::new("missing field `rate_hz`").field(rate_field))
-                }
+                None => return Err(BadRequest::new("missing field `rate_hz`").field(rate_field)),
             };
             if !(rate.is_finite() && rate > 0.0) {
                 return Err(BadRequest::new("must be > 0").field(rate_field));
@@ -566,12 +570,18 @@ mod tests {
         assert!(e.error.contains("got a string"), "{}", e.error);
         let e = parse(br#"[{"gate":"g","samples":[[1,2]]},{"gate":"g","samples":[[1,2,3]]}]"#)
             .unwrap_err();
-        assert_eq!((e.field.as_deref(), e.index), (Some("[1].samples"), Some(0)));
+        assert_eq!(
+            (e.field.as_deref(), e.index),
+            (Some("[1].samples"), Some(0))
+        );
         let e = parse(br#"{"gate":"g","gate":"h","samples":[[1,2]]}"#).unwrap_err();
         assert_eq!(e.field.as_deref(), Some("gate"));
         assert!(e.error.contains("duplicate"), "{}", e.error);
         let e = parse(br#"{"gate":"g","samples":[[1,2]]"#).unwrap_err();
-        assert!(e.line.is_some() && e.error.starts_with("invalid JSON"), "{e:?}");
+        assert!(
+            e.line.is_some() && e.error.starts_with("invalid JSON"),
+            "{e:?}"
+        );
         // `values` before `start` and `rate_hz`: the times are set afterwards
         let b = parse(br#"{"values":[5,6],"rate_hz":2,"gate":"g","start":10}"#).unwrap();
         assert_eq!(b[0].samples, vec![(10.0, 5.0), (10.5, 6.0)]);
