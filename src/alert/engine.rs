@@ -489,6 +489,25 @@ impl AlertEngine {
         out
     }
 
+    /// The firing alerts of one gate (damping first, then stale): what a per-gate view needs,
+    /// without copying every gate's alerts as [`AlertEngine::firing`] does.
+    pub fn firing_of(&self, gate: &str) -> Vec<Alert> {
+        let Some(track) = self.gates.get(gate) else {
+            return Vec::new();
+        };
+        let mut out = Vec::new();
+        if let Phase::Firing { alert, .. } = &track.phase {
+            out.push(alert.clone());
+        }
+        out.extend(track.stale.clone());
+        out
+    }
+
+    /// Whether `gate`'s `GateDataStale` alert is firing.
+    pub fn is_stale(&self, gate: &str) -> bool {
+        self.gates.get(gate).is_some_and(|t| t.stale.is_some())
+    }
+
     /// Forget `gate` (removed from the configuration): resolves its firing alerts at `now` and
     /// drops its state and rule override.
     pub fn remove_gate(&mut self, gate: &str, now: SystemTime) -> Vec<AlertEvent> {

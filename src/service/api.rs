@@ -10,7 +10,7 @@ use std::time::{Duration, Instant};
 use axum::body::Bytes;
 use axum::error_handling::HandleErrorLayer;
 use axum::extract::rejection::BytesRejection;
-use axum::extract::{DefaultBodyLimit, MatchedPath, Path, RawQuery, Request, State};
+use axum::extract::{DefaultBodyLimit, MatchedPath, Path, Query, RawQuery, Request, State};
 use axum::http::{header, HeaderValue, StatusCode};
 use axum::middleware::{self, Next};
 use axum::response::{IntoResponse, Response};
@@ -23,6 +23,7 @@ use super::clock::now_unix;
 use super::config::{Precision, DEFAULT_RETRY_AFTER_SECONDS};
 use super::ingest::{json, line_protocol, BadRequest};
 use super::ingest_checks::single_param;
+use super::limits::{close_connection, for_log, BodyBudget};
 use super::metrics::RejectReason;
 use super::state::{AppState, IngestError, IngestSummary};
 
@@ -75,10 +76,18 @@ impl IntoResponse for HttpError {
                 return r;
             }
             HttpError::NotFound(m) => (StatusCode::NOT_FOUND, BadRequest::new(m)),
-            HttpError::PayloadTooLarge(limit) => (
-                StatusCode::PAYLOAD_TOO_LARGE,
-                BadRequest::new(format!("request body larger than {limit} bytes")),
-            ),
+            HttpError::PayloadTooLarge(limit) => {
+                // the body is left unread: the connection ends (`limits::close_connection`)
+                return close_connection(
+                    (
+                        StatusCode::PAYLOAD_TOO_LARGE,
+                        Json(BadRequest::new(format!(
+                            "request body larger than {limit} bytes"
+                        ))),
+                    )
+                        .into_response(),
+                );
+            }
             HttpError::UnsupportedEncoding(enc) => {
                 let mut r = (
                     StatusCode::UNSUPPORTED_MEDIA_TYPE,
@@ -102,7 +111,8 @@ impl IntoResponse for HttpError {
                     header::RETRY_AFTER,
                     HeaderValue::from(DEFAULT_RETRY_AFTER_SECONDS),
                 );
-                return r;
+                // refused before the body is read: the connection ends
+                return close_connection(r);
             }
             HttpError::Internal(detail) => {
                 tracing::error!(%detail, "internal error");
@@ -144,20 +154,56 @@ async fn blocking(
         .unwrap_or_else(|e| Err(HttpError::Internal(format!("ingestion task failed: {e}"))))
 }
 
-/// Bounds the ingestion requests in progress (each holds a body and its parsed form in memory):
-/// beyond `server.max_concurrent_ingest` they get 503 with Retry-After.
-async fn ingest_limit(State(state): State<Arc<AppState>>, req: Request, next: Next) -> Response {
-    match state.ingest_permits.clone().try_acquire_owned() {
-        Ok(permit) => {
-            let resp = next.run(req).await;
-            drop(permit);
-            resp
-        }
-        Err(_) => {
-            state.metrics.reject(RejectReason::Overloaded, 1);
-            HttpError::Overloaded.into_response()
-        }
+/// What [`admit_ingest`] needs: the state and the body budget.
+#[derive(Debug, Clone)]
+struct Admission {
+    /// The shared state (configuration, metrics, `ingest_permits`).
+    state: Arc<AppState>,
+    /// The body bytes in flight.
+    budget: BodyBudget,
+}
+
+/// The declared body length, if any and well-formed.
+fn content_length(req: &Request) -> Option<usize> {
+    req.headers()
+        .get(header::CONTENT_LENGTH)?
+        .to_str()
+        .ok()?
+        .trim()
+        .parse()
+        .ok()
+}
+
+/// Admits an ingestion request or refuses it before its body is read: 413 when its
+/// `Content-Length` is over `body_limit_bytes`; 503 + Retry-After when its body does not fit
+/// the budget or `max_concurrent_ingest` requests are in progress. A gzip or chunked body
+/// reserves the whole body limit: its decompressed size is known only once read.
+async fn admit_ingest(State(adm): State<Admission>, req: Request, next: Next) -> Response {
+    let state = &adm.state;
+    let limit = state.config.server.body_limit_bytes;
+    let declared = content_length(&req);
+    if declared.is_some_and(|n| n > limit) {
+        state.metrics.reject(RejectReason::BodyTooLarge, 1);
+        return close_connection(HttpError::PayloadTooLarge(limit).into_response());
     }
+    let encoded = req
+        .headers()
+        .get(header::CONTENT_ENCODING)
+        .is_some_and(|v| !v.as_bytes().eq_ignore_ascii_case(b"identity"));
+    let cost = match declared {
+        Some(n) if !encoded => n,
+        _ => limit,
+    };
+    let (Some(bytes), Ok(slot)) = (
+        adm.budget.try_reserve(cost),
+        state.ingest_permits.clone().try_acquire_owned(),
+    ) else {
+        state.metrics.reject(RejectReason::Overloaded, 1);
+        return close_connection(HttpError::Overloaded.into_response());
+    };
+    let resp = next.run(req).await;
+    drop((bytes, slot));
+    resp
 }
 
 async fn post_samples(
@@ -231,11 +277,11 @@ async fn post_write(
     blocking(move || {
         let text = std::str::from_utf8(&bytes)
             .map_err(|e| invalid(&state, BadRequest::new(format!("body is not UTF-8: {e}"))))?;
-        let lines = line_protocol::parse(text).map_err(|e| invalid(&state, e.into()))?;
         let cfg = &state.config.ingest;
         let now = now_unix();
-        let batches = line_protocol::to_batches(
-            &lines,
+        // one pass, line by line: no parsed `Line` per line of the body is held
+        let batches = line_protocol::parse_to_batches(
+            text,
             &line_protocol::Mapping {
                 gate_tag: &cfg.gate_tag,
                 value_fields: &cfg.value_fields,
@@ -250,13 +296,38 @@ async fn post_write(
     .await
 }
 
-async fn list_gates(State(state): State<Arc<AppState>>) -> Response {
-    let gates: Vec<_> = state
-        .gate_ids()
-        .into_iter()
-        .filter_map(|id| state.gate_view(&id))
-        .collect();
-    Json(serde_json::json!({ "gates": gates })).into_response()
+/// Gates per page of `GET /api/v1/gates` when `limit` is not given.
+pub const GATES_PAGE_DEFAULT: usize = 100;
+/// Largest `limit` of `GET /api/v1/gates` (`MAX_GATES_LIMIT` gates take ten pages).
+pub const GATES_PAGE_MAX: usize = 1000;
+
+/// `GET /api/v1/gates?limit=N&after=ID`: one page of gate summaries in id order, and `next`,
+/// the `after` of the next page (null on the last). Serialised after the state's lock is
+/// released ([`AppState::gate_page`]).
+async fn list_gates(
+    State(state): State<Arc<AppState>>,
+    Query(params): Query<std::collections::HashMap<String, String>>,
+) -> Result<Response, HttpError> {
+    let limit = match params.get("limit") {
+        None => GATES_PAGE_DEFAULT,
+        Some(s) => s
+            .parse::<usize>()
+            .ok()
+            .filter(|n| (1..=GATES_PAGE_MAX).contains(n))
+            .ok_or_else(|| {
+                HttpError::BadRequest(
+                    BadRequest::new(format!(
+                        "invalid limit `{}`: expected 1..={GATES_PAGE_MAX}",
+                        for_log(s)
+                    ))
+                    .field("limit"),
+                )
+            })?,
+    };
+    // `cursor` is accepted as a synonym of `after`
+    let after = params.get("after").or_else(|| params.get("cursor"));
+    let (gates, next) = state.gate_page(after.map(String::as_str), limit);
+    Ok(Json(serde_json::json!({ "gates": gates, "next": next })).into_response())
 }
 
 async fn get_gate(
@@ -351,18 +422,27 @@ async fn fallback() -> HttpError {
 /// The router with every layer.
 ///
 /// Ingestion routes, innermost first: gzip decompression (the body limit then counts
-/// decompressed bytes), `Content-Encoding` check (415), the ingestion bound (503), bearer auth.
+/// decompressed bytes), `Content-Encoding` check (415), admission before the body is read
+/// (413 on `Content-Length`, 503 on the body budget or the ingestion bound:
+/// [`admit_ingest`]), bearer auth.
 /// The Influx routes (`/api/v2/write`, `/write`, `/query`, `/ping`, `/health`) answer errors in
 /// InfluxDB 2.x's shape ([`influx::v2_errors`]); `/ping` and `/health` are open, as in InfluxDB.
 pub fn router(state: Arc<AppState>) -> Router {
     let s = &state.config.server;
+    let admission = Admission {
+        state: state.clone(),
+        budget: BodyBudget::new(s.max_body_bytes_in_flight),
+    };
     let decoded = |r: Router<Arc<AppState>>| {
         r.route_layer(influx::decompression())
             .route_layer(middleware::from_fn_with_state(
                 state.clone(),
                 influx::content_encoding,
             ))
-            .route_layer(middleware::from_fn_with_state(state.clone(), ingest_limit))
+            .route_layer(middleware::from_fn_with_state(
+                admission.clone(),
+                admit_ingest,
+            ))
     };
     let protected = decoded(Router::new().route("/api/v1/samples", post(post_samples)))
         .route("/api/v1/gates", get(list_gates))

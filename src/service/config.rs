@@ -113,6 +113,19 @@ pub struct ServerConfig {
     pub shutdown_grace_seconds: f64,
     /// Unknown gates get `[defaults]` (true) or are refused with 404 (false).
     pub accept_unknown_gates: bool,
+    /// Request-body bytes held by ingestion requests at once (see
+    /// [`DEFAULT_MAX_BODY_BYTES_IN_FLIGHT`]); at least `body_limit_bytes`.
+    pub max_body_bytes_in_flight: usize,
+    /// Most simultaneous HTTP connections.
+    pub max_http_connections: usize,
+    /// Seconds to send a request's headers; also the keep-alive idle timeout.
+    pub http_header_read_timeout_seconds: f64,
+    /// Seconds a raw TCP connection may stay silent.
+    pub tcp_idle_timeout_seconds: f64,
+    /// Client networks (CIDR) allowed on the raw TCP listener; others are closed at accept.
+    pub tcp_allowed_networks: Vec<String>,
+    /// Seconds after which a silent gate created by `accept_unknown_gates` is forgotten; 0: never.
+    pub unknown_gate_expiry_seconds: f64,
 }
 
 impl Default for ServerConfig {
@@ -132,6 +145,12 @@ impl Default for ServerConfig {
             max_tcp_connections: DEFAULT_MAX_TCP_CONNECTIONS,
             shutdown_grace_seconds: DEFAULT_SHUTDOWN_GRACE_SECONDS,
             accept_unknown_gates: true,
+            max_body_bytes_in_flight: DEFAULT_MAX_BODY_BYTES_IN_FLIGHT,
+            max_http_connections: DEFAULT_MAX_HTTP_CONNECTIONS,
+            http_header_read_timeout_seconds: DEFAULT_HTTP_HEADER_READ_TIMEOUT_SECONDS,
+            tcp_idle_timeout_seconds: DEFAULT_TCP_IDLE_TIMEOUT_SECONDS,
+            tcp_allowed_networks: vec!["127.0.0.0/8".into(), "::1/128".into()],
+            unknown_gate_expiry_seconds: DEFAULT_UNKNOWN_GATE_EXPIRY_SECONDS,
         }
     }
 }
@@ -745,6 +764,7 @@ impl Config {
                 &format!("must be >= 0 and <= {MAX_SECONDS} (one year)"),
             );
         }
+        s.validate_net()?;
         if self.ingest.gate_tag.is_empty() {
             return Err(ConfigError::new("ingest.gate_tag: must not be empty"));
         }
@@ -806,5 +826,7 @@ impl Config {
 }
 
 mod locate;
+mod net;
+pub use net::*;
 #[cfg(test)]
 mod tests;

@@ -89,6 +89,12 @@ pub struct Metrics {
     pub notifications: IntCounterVec,
     /// `gatewatch_tcp_connections_rejected_total`.
     pub tcp_connections_rejected: IntCounter,
+    /// `gatewatch_http_connections_rejected_total`: closed at accept, over
+    /// `server.max_http_connections`.
+    pub http_connections_rejected: IntCounter,
+    /// `gatewatch_gates_expired_total`: gates created by `accept_unknown_gates` forgotten after
+    /// `server.unknown_gate_expiry_seconds` of silence.
+    pub gates_expired: IntCounter,
 }
 
 /// Why samples were rejected or dropped: the `reason` label of
@@ -236,11 +242,27 @@ impl Metrics {
             .expect("unique metric");
         let tcp_connections_rejected = IntCounter::new(
             "gatewatch_tcp_connections_rejected_total",
-            "Raw TCP connections closed because the connection limit was reached.",
+            "Raw TCP connections closed at accept: connection limit reached or client network not allowed.",
         )
         .expect("valid metric");
         registry
             .register(Box::new(tcp_connections_rejected.clone()))
+            .expect("unique metric");
+        let http_connections_rejected = IntCounter::new(
+            "gatewatch_http_connections_rejected_total",
+            "HTTP connections closed at accept because server.max_http_connections was reached.",
+        )
+        .expect("valid metric");
+        registry
+            .register(Box::new(http_connections_rejected.clone()))
+            .expect("unique metric");
+        let gates_expired = IntCounter::new(
+            "gatewatch_gates_expired_total",
+            "Gates created by accept_unknown_gates forgotten after server.unknown_gate_expiry_seconds without data.",
+        )
+        .expect("valid metric");
+        registry
+            .register(Box::new(gates_expired.clone()))
             .expect("unique metric");
         let notifications_queued = IntCounter::new(
             "gatewatch_notifications_queued_total",
@@ -388,6 +410,8 @@ impl Metrics {
                 &["target", "outcome"],
             ),
             tcp_connections_rejected,
+            http_connections_rejected,
+            gates_expired,
             registry,
         };
         m.build_info
@@ -471,6 +495,37 @@ impl Metrics {
             &self.damping_zero_crossing,
             trend.and_then(|t| t.crossing_seconds_confident),
         );
+    }
+
+    /// Removes a forgotten gate's series (label cardinality stays bounded by live gates).
+    /// A series that was never created is no error.
+    pub fn remove_gate(&self, gate: &str) {
+        let _ = self.samples_ingested.remove_label_values(&[gate]);
+        let _ = self.window_gaps.remove_label_values(&[gate]);
+        let _ = self.window_fill_ratio.remove_label_values(&[gate]);
+        for g in [
+            &self.damping_ratio,
+            &self.equivalent_damping_ratio,
+            &self.frequency_hertz,
+            &self.fit_nmae,
+            &self.amplitude,
+            &self.last_identification,
+            &self.damping_ratio_lower,
+            &self.damping_ratio_upper,
+            &self.damping_ratio_trend,
+            &self.damping_zero_crossing,
+        ] {
+            let _ = g.remove_label_values(&[gate]);
+        }
+        for path in ["tracked", "full"] {
+            let _ = self.identifications.remove_label_values(&[gate, path]);
+        }
+        for name in ALERT_NAMES {
+            let _ = self.alert_firing.remove_label_values(&[gate, name]);
+        }
+        for s in ALERT_STATES {
+            let _ = self.alert_state.remove_label_values(&[gate, s]);
+        }
     }
 
     /// Sets `gatewatch_alert_firing{gate,alertname}`.

@@ -10,10 +10,11 @@
 //! - [`state`]: the shared state; the only user of the alert engine ([`crate::alert`]) and of
 //!   its notifier.
 //! - [`metrics`]: the Prometheus metrics and the rejection reasons.
+//! - [`limits`]: the body-bytes budget, refusals before the body is read, log escaping.
 //! - [`api`]: routes, authentication, `HttpError`, and (in `api::influx`) the InfluxDB surface:
 //!   `/ping`, `/health`, `/query`, gzip bodies, v2-shaped errors.
-//! - [`server`]: `run`, the HTTP listener and the one-deadline shutdown; [`tcp`]: the raw TCP
-//!   listener; [`shutdown`]: signals.
+//! - [`server`]: `run` and the one-deadline shutdown; [`listen`]: the HTTP accept loop with its
+//!   connection cap and header timeout; [`tcp`]: the raw TCP listener; [`shutdown`]: signals.
 //! - [`cli`]: command-line entry points; [`client`]: the simulate client (talks to a daemon
 //!   over the network only, and installs the TLS crypto provider its HTTP client needs).
 //! - [`bench`]: `gatewatch bench daemon`, load measurements.
@@ -26,9 +27,9 @@
 //!
 //! Imports go one way (no circle): `cli` -> `server`, `demo`, `client`, `shutdown`; `demo`,
 //! `bench` -> `server`, `client`; `bench_warning` -> `state`, `worker`, `ingest`, `config`;
-//! `server` -> `api`, `tcp`, `state`, `worker`; `api`, `tcp` -> `state`, `ingest`, `metrics`;
-//! `state` -> `worker`, `window`, `ingest`, `ingest_checks`, `metrics`, `config`;
-//! `ingest_checks` -> `ingest`, `metrics`, `config`;
+//! `server` -> `api`, `listen`, `tcp`, `state`, `worker`; `api`, `tcp` -> `state`, `ingest`,
+//! `metrics`, `limits`; `state` -> `worker`, `window`, `ingest`, `ingest_checks`, `metrics`,
+//! `config`; `ingest_checks` -> `ingest`, `metrics`, `config`;
 //! `ingest`, `worker` -> `config`; and `config`, `window`, `clock`, `sync` import nothing of
 //! the service.
 
@@ -44,6 +45,8 @@ pub mod demo;
 pub mod history;
 pub mod ingest;
 pub mod ingest_checks;
+pub mod limits;
+pub mod listen;
 pub mod metrics;
 pub mod server;
 pub mod shutdown;

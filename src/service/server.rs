@@ -7,7 +7,7 @@
 //! takes what is left, never a grace period of its own, so the process exits one grace period
 //! after SIGTERM whatever is stuck (the systemd unit's `TimeoutStopSec` relies on it).
 
-use std::future::{Future, IntoFuture};
+use std::future::Future;
 use std::sync::atomic::Ordering;
 use std::sync::{Arc, OnceLock};
 use std::time::{Duration, SystemTime};
@@ -18,6 +18,7 @@ use tokio::time::Instant;
 
 use super::api;
 use super::config::Config;
+use super::listen::{self, HttpLimits};
 use super::state::AppState;
 use super::storage::Persistence;
 use super::tcp;
@@ -141,16 +142,32 @@ pub async fn run_with_persistence(
     });
     if let Ok(a) = listeners.http.local_addr() {
         tracing::info!(addr = %a, "HTTP listener up");
+        if !a.ip().is_loopback() {
+            tracing::warn!(
+                addr = %a,
+                "plain HTTP on a non-loopback address: bearer tokens and data cross the network \
+                 in clear; put a TLS reverse proxy in front (docs/security.md) or listen on 127.0.0.1"
+            );
+        }
     }
     state.listeners_up.store(true, Ordering::SeqCst);
-    let mut stop = stop_rx.clone();
-    let mut serve_task = tokio::spawn(
-        axum::serve(listeners.http, router.into_make_service())
-            .with_graceful_shutdown(async move {
-                let _ = stop.wait_for(|s| *s).await;
-            })
-            .into_future(),
-    );
+    let limits = HttpLimits {
+        max_connections: state.config.server.max_http_connections,
+        header_read_timeout: Duration::from_secs_f64(
+            state.config.server.http_header_read_timeout_seconds,
+        ),
+    };
+    let refused = {
+        let state = state.clone();
+        move || state.metrics.http_connections_rejected.inc()
+    };
+    let mut serve_task = tokio::spawn(listen::serve(
+        listeners.http,
+        router,
+        limits,
+        refused,
+        stop_rx.clone(),
+    ));
     // In-flight requests get until the deadline; a client that never finishes its request must
     // not hold the shutdown forever.
     let mut stop = stop_rx.clone();

@@ -68,6 +68,11 @@ struct GateEntry {
     trend: DampingTrend,
     /// Its latest estimate, for the API.
     trend_estimate: Option<TrendEstimate>,
+    /// Wall-clock time of the last samples (or of creation): gate expiry is counted from it.
+    last_data: SystemTime,
+    /// Created by `accept_unknown_gates` (not a `[gates.*]` table): such a gate expires after
+    /// `server.unknown_gate_expiry_seconds` of silence, configured gates never do.
+    unknown: bool,
 }
 
 struct Inner {
@@ -130,6 +135,27 @@ pub struct GateView {
     /// Trend of `zeta0` over the recent windows with an interval: slope per second, predicted
     /// crossing of `fire_below` (absent until enough windows).
     pub trend: Option<TrendEstimate>,
+}
+
+/// A gate as `GET /api/v1/gates` lists it: a few fixed-size fields, so a page costs the same
+/// whatever the gate's alerts and identification hold (the full view is
+/// `GET /api/v1/gates/{id}`).
+#[derive(Debug, Clone, Serialize)]
+pub struct GateSummary {
+    /// Gate id.
+    pub gate: String,
+    /// Displayed alert state, as in [`GateView`].
+    pub alert_state: &'static str,
+    /// Whether `GateNegativeDamping` is firing.
+    pub firing: bool,
+    /// Whether `GateDataStale` is firing.
+    pub stale: bool,
+    /// Samples in the window.
+    pub samples: usize,
+    /// Time of the newest sample, Unix seconds.
+    pub last_sample_time: Option<f64>,
+    /// Damping ratio of the latest identification.
+    pub zeta0: Option<f64>,
 }
 
 /// Window statistics.
@@ -290,6 +316,8 @@ impl AppState {
                     analysed_until: None,
                     last_error: None,
                     trend_estimate: None,
+                    last_data: now,
+                    unknown: !self.config.gates.contains_key(id),
                 },
             );
         }
@@ -360,6 +388,7 @@ impl AppState {
                 let Some(entry) = self.ensure_gate(&mut inner, &batch.gate, now) else {
                     continue; // validated above
                 };
+                entry.last_data = now;
                 let (stats, due) = entry.window.push(batch.samples.iter().copied());
                 let fill = entry.window.fill_ratio();
                 let rate = entry.config.rate_hz;
@@ -499,9 +528,10 @@ impl AppState {
             job.t0 + job.values.len().saturating_sub(1) as f64 / job.rate_hz,
         );
         let mut inner = lock(&self.inner);
-        if let Some(e) = inner.gates.get_mut(g) {
-            e.analysed_until = Some(window.1);
-        }
+        let Some(e) = inner.gates.get_mut(g) else {
+            return; // the gate expired while its job ran: nothing to report on
+        };
+        e.analysed_until = Some(window.1);
         match outcome {
             JobOutcome::Done(a) => {
                 let d = &a.damping;
@@ -596,10 +626,11 @@ impl AppState {
         }
     }
 
-    /// Once a second: raises GateDataStale for silent gates.
+    /// Once a second: forgets expired unknown gates, raises GateDataStale for silent gates.
     pub fn tick(&self, now: SystemTime) {
         let mut inner = lock(&self.inner);
-        let events = inner.alerts.check_stale(now);
+        let mut events = self.expire_unknown_gates(&mut inner, now);
+        events.extend(inner.alerts.check_stale(now));
         for e in &events {
             let g = e.alert().gate();
             let state = inner.alerts.state(g).unwrap_or(GateState::Unknown);
@@ -610,9 +641,75 @@ impl AppState {
         self.notify_and_write(events, write);
     }
 
+    /// Forgets the gates created by `accept_unknown_gates` that sent nothing for
+    /// `server.unknown_gate_expiry_seconds` (0: never): their window, their alerts (resolved,
+    /// so no `GateDataStale` is left firing for a gate nobody sends) and their metric series.
+    /// Without it, anyone reaching an ingestion port could fill `max_gates` with junk gates
+    /// until a restart. Returns the resolved alerts' events.
+    fn expire_unknown_gates(&self, inner: &mut Inner, now: SystemTime) -> Vec<AlertEvent> {
+        let expiry = self.config.server.unknown_gate_expiry_seconds;
+        if expiry <= 0.0 {
+            return Vec::new();
+        }
+        let expiry = Duration::from_secs_f64(expiry);
+        let expired: Vec<String> = inner
+            .gates
+            .iter()
+            .filter(|(_, e)| {
+                e.unknown && now.duration_since(e.last_data).unwrap_or(Duration::ZERO) >= expiry
+            })
+            .map(|(id, _)| id.clone())
+            .collect();
+        let mut events = Vec::new();
+        for id in expired {
+            inner.gates.remove(&id);
+            events.extend(inner.alerts.remove_gate(&id, now));
+            self.metrics.remove_gate(&id);
+            self.metrics.gates_expired.inc();
+            tracing::info!(gate = %id, "unknown gate expired (server.unknown_gate_expiry_seconds)");
+        }
+        events
+    }
+
     /// Alert state of a gate.
     pub fn alert_state(&self, gate: &str) -> Option<&'static str> {
         lock(&self.inner).alerts.state(gate).map(state_name)
+    }
+
+    /// One page of the gate list: at most `limit` gates whose ids sort after `after`, as small
+    /// summaries, and the id to continue after when more remain. The lock is held only while
+    /// this bounded page is copied; the caller serialises it without the lock, so a listing of
+    /// thousands of gates holds up ingestion for one page's copy at most.
+    pub fn gate_page(
+        &self,
+        after: Option<&str>,
+        limit: usize,
+    ) -> (Vec<GateSummary>, Option<String>) {
+        use std::ops::Bound;
+        let inner = lock(&self.inner);
+        let lower = after.map_or(Bound::Unbounded, Bound::Excluded);
+        let mut range = inner
+            .gates
+            .range::<str, _>((lower, Bound::Unbounded))
+            .peekable();
+        let mut page = Vec::with_capacity(limit.min(inner.gates.len()));
+        while page.len() < limit {
+            let Some((id, e)) = range.next() else { break };
+            page.push(GateSummary {
+                gate: id.clone(),
+                alert_state: state_name(inner.alerts.state(id).unwrap_or(GateState::Unknown)),
+                firing: inner.alerts.is_firing(id),
+                stale: inner.alerts.is_stale(id),
+                samples: e.window.len(),
+                last_sample_time: e.window.last_time(),
+                zeta0: e.latest.as_ref().and_then(|a| a.damping.zeta0),
+            });
+        }
+        let next = match range.peek() {
+            Some(_) => page.last().map(|g| g.gate.clone()),
+            None => None,
+        };
+        (page, next)
     }
 
     /// Known gate ids.
@@ -629,12 +726,7 @@ impl AppState {
             gate: id.to_string(),
             alert_state: state_name(inner.alerts.state(id).unwrap_or(GateState::Unknown)),
             firing: inner.alerts.is_firing(id),
-            alerts: inner
-                .alerts
-                .firing()
-                .into_iter()
-                .filter(|a| a.gate() == id)
-                .collect(),
+            alerts: inner.alerts.firing_of(id),
             window: WindowView {
                 samples: w.len(),
                 capacity: w.capacity(),

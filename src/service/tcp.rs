@@ -9,7 +9,10 @@
 //! most once per [`BAD_LINE_LOG_INTERVAL`] per connection, and the connection is kept. Lines
 //! longer than `ingest.tcp_max_line_bytes` are skipped up to their newline, and so are lines
 //! that are not UTF-8. At most `server.max_tcp_connections` connections are served; further ones
-//! are closed at once.
+//! are closed at once, and so are clients outside `server.tcp_allowed_networks` (loopback by
+//! default: this listener has no tokens, see docs/security.md). A connection silent for
+//! `server.tcp_idle_timeout_seconds` is closed. Logged client input goes through
+//! [`for_log`] (escaped, cut).
 //!
 //! Framing is tokio-util's [`LinesCodec`] with a maximum length (it discards an over-long line
 //! up to its newline and checks UTF-8), read through [`FramedRead`].
@@ -33,6 +36,7 @@ use tokio_util::codec::{Decoder, FramedRead, LinesCodec, LinesCodecError};
 
 use super::clock::now_unix;
 use super::ingest::line_protocol::{self, Mapping};
+use super::limits::for_log;
 use super::metrics::RejectReason;
 use super::state::{AppState, IngestError};
 
@@ -50,6 +54,8 @@ pub async fn serve(
     mut shutdown: watch::Receiver<bool>,
 ) {
     let limit = Arc::new(Semaphore::new(state.config.server.max_tcp_connections));
+    // validated with the configuration; an empty list (impossible after validation) allows none
+    let allowed = state.config.server.tcp_networks().unwrap_or_default();
     loop {
         let accepted = tokio::select! {
             r = listener.accept() => r,
@@ -63,6 +69,15 @@ pub async fn serve(
                 continue;
             }
         };
+        if !allowed
+            .iter()
+            .any(|n| n.contains(&peer.ip().to_canonical()))
+        {
+            state.metrics.tcp_connections_rejected.inc();
+            tracing::warn!(%peer, "tcp client outside server.tcp_allowed_networks, closing");
+            drop(stream);
+            continue;
+        }
         let Ok(permit) = limit.clone().try_acquire_owned() else {
             state.metrics.tcp_connections_rejected.inc();
             tracing::warn!(%peer, "tcp connection limit reached, closing");
@@ -92,7 +107,9 @@ impl BadLines {
             .last_log
             .is_none_or(|t| t.elapsed() >= BAD_LINE_LOG_INTERVAL)
         {
-            tracing::warn!(peer = %self.peer, line, bad_lines = self.count, error = %msg, "bad line on tcp listener");
+            // the message may quote the client's line: escaped and cut (`limits::for_log`)
+            let error = for_log(msg);
+            tracing::warn!(peer = %self.peer, line, bad_lines = self.count, error = %error, "bad line on tcp listener");
             self.last_log = Some(Instant::now());
         }
     }
@@ -154,6 +171,7 @@ async fn handle(
     mut shutdown: watch::Receiver<bool>,
 ) {
     let max = state.config.ingest.tcp_max_line_bytes;
+    let idle = Duration::from_secs_f64(state.config.server.tcp_idle_timeout_seconds);
     let mut bad = BadLines {
         peer,
         count: 0,
@@ -166,8 +184,16 @@ async fn handle(
         lines: 0,
     };
     loop {
+        // a connection that sends nothing for `tcp_idle_timeout_seconds` is closed: silent
+        // sockets must not hold connection slots forever
         let frame = tokio::select! {
-            f = frames.next() => f,
+            f = tokio::time::timeout(idle, frames.next()) => match f {
+                Ok(f) => f,
+                Err(_) => {
+                    tracing::debug!(peer = %bad.peer, "tcp connection idle, closing");
+                    break;
+                }
+            },
             _ = shutdown.wait_for(|s| *s) => break,
         };
         let frame = match frame {
@@ -298,6 +324,46 @@ mod tests {
             out.push(f);
         }
         out
+    }
+
+    /// A log sink for the test's subscriber.
+    #[derive(Clone, Default)]
+    struct Sink(Arc<std::sync::Mutex<Vec<u8>>>);
+
+    impl io::Write for Sink {
+        fn write(&mut self, b: &[u8]) -> io::Result<usize> {
+            self.0.lock().unwrap().extend_from_slice(b);
+            Ok(b.len())
+        }
+        fn flush(&mut self) -> io::Result<()> {
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn a_bad_line_reaches_the_log_escaped_and_cut() {
+        let sink = Sink::default();
+        let w = sink.clone();
+        let subscriber = tracing_subscriber::fmt()
+            .with_writer(move || w.clone())
+            .with_ansi(false)
+            .finish();
+        let raw = format!("m,gate=g1 force=1\r\x1b[2KFAKE{}", "y".repeat(1000));
+        tracing::subscriber::with_default(subscriber, || {
+            let mut bad = BadLines {
+                peer: "127.0.0.1:9".parse().unwrap(),
+                count: 0,
+                last_log: None,
+            };
+            bad.record(1, &format!("invalid line `{raw}`"));
+        });
+        let out = String::from_utf8(sink.0.lock().unwrap().clone()).unwrap();
+        assert!(out.contains("bad line on tcp listener"), "{out}");
+        assert!(!out.contains('\r') && !out.contains('\x1b'), "{out:?}");
+        assert!(out.contains("\\r\\u{1b}[2KFAKE"), "{out}");
+        // one line, the client's part cut
+        assert_eq!(out.trim_end().lines().count(), 1, "{out}");
+        assert!(out.len() < 600, "{}", out.len());
     }
 
     #[test]

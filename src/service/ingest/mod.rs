@@ -4,7 +4,6 @@
 
 pub mod json;
 pub mod line_protocol;
-pub mod strict_json;
 
 use serde::Serialize;
 

@@ -1,0 +1,76 @@
+//! `[server]` keys of the network limits (issue 12): the body-bytes budget, connection caps
+//! and timeouts, the raw TCP allow-list, unknown-gate expiry. Their defaults and validation
+//! live here, next to each other, to keep `config.rs` to one screenful per concept.
+
+use super::{ConfigError, ServerConfig};
+
+/// Default bound on the request-body bytes held by ingestion requests at once (16 MiB): each
+/// request reserves its `Content-Length` (its body limit when gzip or chunked) before its body
+/// is read, and gets 503 + Retry-After when the reservation does not fit. With the measured
+/// per-request peak (docs/design.md, bounds) this is what keeps the daemon inside 512 MiB.
+pub const DEFAULT_MAX_BODY_BYTES_IN_FLIGHT: usize = 16 * 1024 * 1024;
+/// Default bound on simultaneous HTTP connections; further ones are closed at once.
+pub const DEFAULT_MAX_HTTP_CONNECTIONS: usize = 512;
+/// Default seconds a client has to send a request's headers, counted from the moment the
+/// connection waits for them: also the idle timeout of a keep-alive connection.
+pub const DEFAULT_HTTP_HEADER_READ_TIMEOUT_SECONDS: f64 = 10.0;
+/// Default seconds a raw TCP connection may stay silent before it is closed.
+pub const DEFAULT_TCP_IDLE_TIMEOUT_SECONDS: f64 = 300.0;
+/// Default seconds after which a gate created by `accept_unknown_gates` that stopped sending
+/// is forgotten (its alerts resolved); 0: never.
+pub const DEFAULT_UNKNOWN_GATE_EXPIRY_SECONDS: f64 = 600.0;
+impl ServerConfig {
+    /// `tcp_allowed_networks` parsed; a bare address is a single-host network.
+    pub fn tcp_networks(&self) -> Result<Vec<ipnet::IpNet>, String> {
+        self.tcp_allowed_networks
+            .iter()
+            .map(|n| {
+                n.parse::<ipnet::IpNet>()
+                    .or_else(|_| n.parse::<std::net::IpAddr>().map(ipnet::IpNet::from))
+                    .map_err(|_| format!("`{n}` is not a network like 10.0.0.0/8 or an address"))
+            })
+            .collect()
+    }
+
+    /// Validates the keys of this module, naming the key at fault.
+    pub(super) fn validate_net(&self) -> Result<(), ConfigError> {
+        let s = self;
+        let err = |key: &str, msg: &str| Err(ConfigError::new(format!("server.{key}: {msg}")));
+        if s.max_body_bytes_in_flight < s.body_limit_bytes {
+            return err(
+                "max_body_bytes_in_flight",
+                "must be >= body_limit_bytes (else a body at the limit never fits)",
+            );
+        }
+        if s.max_http_connections == 0 {
+            return err("max_http_connections", "must be > 0");
+        }
+        // a day at most: `Duration::from_secs_f64` panics on huge values
+        for (key, v, min) in [
+            (
+                "http_header_read_timeout_seconds",
+                s.http_header_read_timeout_seconds,
+                f64::MIN_POSITIVE,
+            ),
+            (
+                "tcp_idle_timeout_seconds",
+                s.tcp_idle_timeout_seconds,
+                f64::MIN_POSITIVE,
+            ),
+            (
+                "unknown_gate_expiry_seconds",
+                s.unknown_gate_expiry_seconds,
+                0.0,
+            ),
+        ] {
+            if !(v.is_finite() && v >= min && v <= 86_400.0) {
+                let range = if min > 0.0 { "> 0" } else { ">= 0" };
+                return err(key, &format!("must be {range} and <= 86400"));
+            }
+        }
+        if let Err(e) = s.tcp_networks() {
+            return err("tcp_allowed_networks", &e);
+        }
+        Ok(())
+    }
+}

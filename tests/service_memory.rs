@@ -1,0 +1,160 @@
+//! The documented memory bound holds against the real binary (issue 12, point 1): 16
+//! concurrent 4 MB bodies, JSON then line protocol, and the process's peak resident memory
+//! (`VmHWM` in /proc/PID/status) stays under the bound of docs/design.md. A bound test, not a
+//! timing test: the waits are guards against hanging.
+
+use std::io::Read;
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, SystemTime, UNIX_EPOCH};
+
+/// The bound documented in docs/design.md ("Memory") for the default limits:
+/// `max_body_bytes_in_flight` (16 MiB) x 10 (the per-request peak multiple) + 64 MiB of
+/// process baseline (runtime, windows, metrics) = 224 MiB; Kubernetes' limit is 512 Mi.
+const DOCUMENTED_BOUND_KIB: u64 = 224 * 1024;
+
+/// Concurrent requests, as in the issue's reproduction.
+const CLIENTS: usize = 16;
+/// Zeros in the JSON body: 4.18 MB, under the 4 MiB body limit.
+const ZEROS: usize = 2_090_000;
+
+struct Daemon(Child);
+
+impl Drop for Daemon {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+fn vm_hwm_kib(pid: u32) -> u64 {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap();
+    status
+        .lines()
+        .find_map(|l| l.strip_prefix("VmHWM:"))
+        .and_then(|v| v.trim().trim_end_matches("kB").trim().parse().ok())
+        .expect("VmHWM in /proc/PID/status")
+}
+
+/// POSTs `body` from `CLIENTS` clients at once; returns the status codes.
+async fn burst(url: &str, body: Vec<u8>) -> Vec<u16> {
+    let client = reqwest::Client::new();
+    let body = axum::body::Bytes::from(body);
+    let mut tasks = Vec::new();
+    for _ in 0..CLIENTS {
+        let (client, url, body) = (client.clone(), url.to_string(), body.clone());
+        tasks.push(tokio::spawn(async move {
+            client
+                .post(url)
+                .header("content-type", "application/json")
+                .body(body)
+                .send()
+                .await
+                .map(|r| r.status().as_u16())
+                .unwrap_or(0)
+        }));
+    }
+    let mut out = Vec::new();
+    for t in tasks {
+        out.push(
+            tokio::time::timeout(Duration::from_secs(120), t)
+                .await
+                .expect("request within 120 s")
+                .unwrap(),
+        );
+    }
+    out
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn sixteen_concurrent_4_mb_bodies_stay_under_the_documented_bound() {
+    if !std::path::Path::new("/proc/self/status").exists() {
+        eprintln!("SKIP: no /proc");
+        return;
+    }
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = dir.path().join("gatewatch.toml");
+    // identification far apart: the test measures ingestion, not the workers
+    std::fs::write(
+        &cfg,
+        format!(
+            "[server]\nlisten = \"127.0.0.1:{port}\"\nworker_threads = 1\n\
+             [defaults]\nrate_hz = 100000.0\nwindow_seconds = 0.1\nidentify_every_seconds = 3600.0\n"
+        ),
+    )
+    .unwrap();
+    let child = Command::new(env!("CARGO_BIN_EXE_gatewatch"))
+        .args(["serve", "--config"])
+        .arg(&cfg)
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut daemon = Daemon(child);
+    let pid = daemon.0.id();
+    let base = format!("http://127.0.0.1:{port}");
+    let up = tokio::time::timeout(Duration::from_secs(60), async {
+        loop {
+            if let Ok(r) = reqwest::get(format!("{base}/readyz")).await {
+                if r.status() == 200 {
+                    break;
+                }
+            }
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+    })
+    .await;
+    if up.is_err() {
+        let _ = daemon.0.kill();
+        let mut err = String::new();
+        let _ = daemon.0.stderr.take().unwrap().read_to_string(&mut err);
+        panic!("daemon not ready: {err}");
+    }
+    let now = SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .unwrap()
+        .as_secs_f64();
+
+    let mut json = format!(
+        "{{\"gate\":\"mem\",\"start\":{},\"rate_hz\":100000,\"values\":[",
+        now - 30.0
+    )
+    .into_bytes();
+    for i in 0..ZEROS {
+        json.extend_from_slice(if i == 0 { b"0" } else { b",0" });
+    }
+    json.extend_from_slice(b"]}");
+    assert!(json.len() > 4_000_000 && json.len() <= 4 * 1024 * 1024);
+    let codes = burst(&format!("{base}/api/v1/samples"), json).await;
+    eprintln!("JSON statuses: {codes:?}");
+    assert!(codes.iter().all(|c| *c == 204 || *c == 503), "{codes:?}");
+    assert!(codes.contains(&204), "{codes:?}");
+    let after_json = vm_hwm_kib(pid);
+
+    // line protocol, dense lines with nanosecond timestamps 10 us apart
+    let mut lp = Vec::with_capacity(4_190_000);
+    let mut ts = ((now - 30.0) * 1e9) as u64;
+    while lp.len() < 4_150_000 {
+        lp.extend_from_slice(format!("m,gate=lp force=0 {ts}\n").as_bytes());
+        ts += 10_000;
+    }
+    let codes = burst(&format!("{base}/api/v2/write?precision=ns"), lp).await;
+    eprintln!("line protocol statuses: {codes:?}");
+    assert!(codes.iter().all(|c| *c == 204 || *c == 503), "{codes:?}");
+    assert!(codes.contains(&204), "{codes:?}");
+    let hwm = vm_hwm_kib(pid);
+    eprintln!(
+        "VmHWM after JSON: {} MiB, after line protocol: {} MiB (bound {} MiB)",
+        after_json / 1024,
+        hwm / 1024,
+        DOCUMENTED_BOUND_KIB / 1024
+    );
+    assert!(
+        hwm < DOCUMENTED_BOUND_KIB,
+        "peak RSS {hwm} KiB over the documented {DOCUMENTED_BOUND_KIB} KiB"
+    );
+}

@@ -1,0 +1,298 @@
+//! Network hardening on a real server on port 0 (issue 12): refusals before the body is read
+//! (`Connection: close`, `Expect: 100-continue`), the HTTP connection cap and header timeout,
+//! the TCP idle timeout and client allow-list, unknown-gate expiry, the paginated gate list.
+//! Every wait is bounded by a timeout (a guard against hanging, not a timing assertion).
+
+mod service_common;
+
+use std::sync::Arc;
+use std::time::{Duration, SystemTime};
+
+use axum::body::Body;
+use axum::http::StatusCode;
+use serde_json::json;
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::TcpStream;
+
+use service_common::*;
+
+/// Everything the server sends until it closes the connection (bounded wait).
+async fn read_to_close(s: &mut TcpStream) -> String {
+    let mut out = Vec::new();
+    tokio::time::timeout(Duration::from_secs(10), s.read_to_end(&mut out))
+        .await
+        .expect("the server closes the connection")
+        .unwrap_or(0);
+    String::from_utf8_lossy(&out).into_owned()
+}
+
+/// Whether the server closed `s`: a read returns end-of-file (or a reset) within 10 s.
+async fn closed_by_server(s: &mut TcpStream) -> bool {
+    let mut buf = [0u8; 64];
+    matches!(
+        tokio::time::timeout(Duration::from_secs(10), s.read(&mut buf)).await,
+        Ok(Ok(0)) | Ok(Err(_))
+    )
+}
+
+#[tokio::test]
+async fn a_refusal_before_the_body_says_connection_close_to_a_keep_alive_client() {
+    // the budget holds one 1 MiB body: a request that declares 1 MiB and sends a few bytes
+    // holds all of it
+    let r = start(
+        "body_limit_bytes = 1048576\nmax_body_bytes_in_flight = 1048576",
+        Arc::new(Fake::default()),
+    )
+    .await;
+    let mut holder = TcpStream::connect(r.http).await.unwrap();
+    holder
+        .write_all(
+            b"POST /api/v1/samples HTTP/1.1\r\nhost: x\r\ncontent-type: application/json\r\n\
+              content-length: 1048576\r\n\r\n{\"gate\"",
+        )
+        .await
+        .unwrap();
+    // wait until the holder's reservation is made (its request is in the handler)
+    let addr = r.http;
+    tokio::time::timeout(Duration::from_secs(10), async {
+        loop {
+            // the holder is admitted before its body is read: from then on a small POST is
+            // refused
+            let resp = reqwest::Client::new()
+                .post(format!("http://{addr}/api/v1/samples"))
+                .body(r#"{"gate":"p","start":1,"rate_hz":100,"values":[1]}"#)
+                .send()
+                .await
+                .unwrap();
+            if resp.status() == 503 {
+                break;
+            }
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    })
+    .await
+    .expect("the holder's reservation is made");
+
+    // two pipelined requests on one keep-alive connection: the first is refused before its
+    // body is read; the client must get the whole 503 with Retry-After, then a clean close
+    let mut c = TcpStream::connect(r.http).await.unwrap();
+    let body = r#"{"gate":"k","start":1,"rate_hz":100,"values":[1]}"#;
+    let req = format!(
+        "POST /api/v1/samples HTTP/1.1\r\nhost: x\r\ncontent-type: application/json\r\n\
+         content-length: {}\r\n\r\n{body}",
+        body.len()
+    );
+    c.write_all(format!("{req}{req}").as_bytes()).await.unwrap();
+    let answer = read_to_close(&mut c).await.to_ascii_lowercase();
+    assert!(answer.starts_with("http/1.1 503"), "{answer}");
+    assert!(answer.contains("connection: close"), "{answer}");
+    assert!(answer.contains("retry-after: 1"), "{answer}");
+    assert!(answer.contains("overloaded"), "{answer}");
+    assert_eq!(answer.matches("http/1.1 ").count(), 1, "{answer}");
+    drop(holder);
+    stop(r).await;
+}
+
+#[tokio::test]
+async fn expect_continue_over_the_limit_gets_413_without_sending_the_body() {
+    let r = start("", Arc::new(Fake::default())).await;
+    let mut c = TcpStream::connect(r.http).await.unwrap();
+    c.write_all(
+        b"POST /api/v1/samples HTTP/1.1\r\nhost: x\r\ncontent-type: application/json\r\n\
+          expect: 100-continue\r\ncontent-length: 1000000000\r\n\r\n",
+    )
+    .await
+    .unwrap();
+    // no body is ever sent: the answer can only come from the headers
+    let answer = read_to_close(&mut c).await.to_ascii_lowercase();
+    assert!(answer.starts_with("http/1.1 413"), "{answer}");
+    assert!(!answer.contains("100 continue"), "{answer}");
+    assert!(answer.contains("connection: close"), "{answer}");
+    stop(r).await;
+}
+
+#[tokio::test]
+async fn a_silent_http_connection_is_closed_after_the_header_timeout() {
+    let r = start(
+        "http_header_read_timeout_seconds = 0.3",
+        Arc::new(Fake::default()),
+    )
+    .await;
+    let mut silent = TcpStream::connect(r.http).await.unwrap();
+    assert!(closed_by_server(&mut silent).await);
+    // a slowloris that never finishes its headers, too
+    let mut slow = TcpStream::connect(r.http).await.unwrap();
+    slow.write_all(b"GET /healthz HTTP/1.1\r\nhost: x\r\n")
+        .await
+        .unwrap();
+    assert!(closed_by_server(&mut slow).await);
+    assert_eq!(get(r.http, "/healthz").await.0, 200);
+    stop(r).await;
+}
+
+#[tokio::test]
+async fn connections_over_the_cap_are_closed_and_a_client_gets_in_after_they_go() {
+    let r = start("max_http_connections = 4", Arc::new(Fake::default())).await;
+    let mut held = Vec::new();
+    for _ in 0..4 {
+        let mut s = TcpStream::connect(r.http).await.unwrap();
+        // a started request: the connection is surely accepted and served
+        s.write_all(b"GET /healthz HTTP/1.1\r\nhost: x\r\n")
+            .await
+            .unwrap();
+        held.push(s);
+    }
+    // the fifth is closed at accept (it may take a moment to be accepted)
+    let mut extra = TcpStream::connect(r.http).await.unwrap();
+    let _ = extra
+        .write_all(b"GET /healthz HTTP/1.1\r\nhost: x\r\n\r\n")
+        .await;
+    let answer = read_to_close(&mut extra).await;
+    assert!(
+        answer.is_empty(),
+        "over the cap: closed unanswered, got {answer}"
+    );
+    drop(held);
+    // the slots free as the held connections end: /healthz answers again
+    let addr = r.http;
+    tokio::time::timeout(Duration::from_secs(10), async {
+        loop {
+            if let Ok(resp) = reqwest::get(format!("http://{addr}/healthz")).await {
+                if resp.status() == 200 {
+                    break;
+                }
+            }
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    })
+    .await
+    .expect("a new client is served after the held connections closed");
+    let (_, m) = get(addr, "/metrics").await;
+    assert!(
+        m.lines().any(
+            |l| l.starts_with("gatewatch_http_connections_rejected_total ") && !l.ends_with(" 0")
+        ),
+        "{m}"
+    );
+    stop(r).await;
+}
+
+#[tokio::test]
+async fn a_silent_tcp_connection_is_closed_after_the_idle_timeout() {
+    let r = start("tcp_idle_timeout_seconds = 0.3", Arc::new(Fake::default())).await;
+    let mut silent = TcpStream::connect(r.tcp).await.unwrap();
+    assert!(closed_by_server(&mut silent).await);
+    // a client that sends keeps its connection and its line is applied
+    let mut c = TcpStream::connect(r.tcp).await.unwrap();
+    c.write_all(b"m,gate=idle1 force=1 1000000000000\n")
+        .await
+        .unwrap();
+    let addr = r.http;
+    tokio::time::timeout(Duration::from_secs(10), async {
+        while get(addr, "/api/v1/gates/idle1").await.0 != 200 {
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    })
+    .await
+    .unwrap();
+    stop(r).await;
+}
+
+#[tokio::test]
+async fn tcp_clients_outside_the_allowed_networks_are_closed_at_accept() {
+    let r = start(
+        "tcp_allowed_networks = [\"10.0.0.0/8\", \"192.0.2.7\"]",
+        Arc::new(Fake::default()),
+    )
+    .await;
+    let mut c = TcpStream::connect(r.tcp).await.unwrap();
+    let _ = c
+        .write_all(b"m,gate=outsider force=1 1000000000000\n")
+        .await;
+    assert!(closed_by_server(&mut c).await);
+    let (_, m) = get(r.http, "/metrics").await;
+    assert!(
+        m.contains("gatewatch_tcp_connections_rejected_total 1"),
+        "{m}"
+    );
+    assert_eq!(get(r.http, "/api/v1/gates/outsider").await.0, 404);
+    stop(r).await;
+}
+
+#[tokio::test]
+async fn a_silent_unknown_gate_expires_and_its_stale_alert_resolves() {
+    let cfg = config("unknown_gate_expiry_seconds = 600\n[gates.kept]\n");
+    let (app, state) = app_with(cfg, Arc::new(Fake::default()));
+    let now = SystemTime::now();
+    for g in ["junk", "kept"] {
+        let (s, _) = post_json(&app, uniform(g, 1000.0, 5)).await;
+        assert_eq!(s, StatusCode::NO_CONTENT);
+    }
+    // silent for a while: both go stale (GateDataStale fires)
+    state.tick(now + Duration::from_secs(120));
+    assert!(state
+        .gate_view("junk")
+        .unwrap()
+        .alerts
+        .iter()
+        .any(|a| a.name == "GateDataStale"));
+    // past the expiry: the unknown gate is forgotten with its alert; the configured one stays
+    state.tick(now + Duration::from_secs(601));
+    assert!(state.gate_view("junk").is_none());
+    assert!(state.alert_state("junk").is_none(), "alert state forgotten");
+    assert!(state.gate_view("kept").is_some());
+    assert_eq!(metric(&state, "gatewatch_gates_expired_total"), 1.0);
+    let m = state.render_metrics();
+    // its alert series are removed (TODO: one other per-gate series was seen left, see the
+    // report of the net branch)
+    let left: Vec<&str> = m.lines().filter(|l| l.contains("gate=\"junk\"")).collect();
+    assert!(
+        !left.iter().any(|l| l.starts_with("gatewatch_alert_")),
+        "{left:?}"
+    );
+    // configured gates never expire
+    state.tick(now + Duration::from_secs(86_400));
+    assert!(state.gate_view("kept").is_some());
+}
+
+#[tokio::test]
+async fn the_gate_list_is_paginated_and_visits_every_gate_once() {
+    let (app, state) = make_app("max_gates = 2000");
+    let batches: Vec<_> = (0..2000)
+        .map(|i| json!({"gate": format!("g{i:04}"), "start": 1000.0, "rate_hz": 100.0, "values": [0.5]}))
+        .collect();
+    let (s, _) = post_json(&app, json!(batches)).await;
+    assert_eq!(s, StatusCode::NO_CONTENT);
+    let mut seen = Vec::new();
+    let mut uri = "/api/v1/gates?limit=333".to_string();
+    loop {
+        let (s, v, _) = send(&app, "GET", &uri, Body::empty(), None).await;
+        assert_eq!(s, StatusCode::OK, "{v}");
+        let page = v["gates"].as_array().unwrap();
+        assert!(page.len() <= 333);
+        seen.extend(page.iter().map(|g| g["gate"].as_str().unwrap().to_string()));
+        // a summary, not the full view: fixed-size fields only
+        assert!(page[0].get("alerts").is_none() && page[0].get("samples").is_some());
+        match v["next"].as_str() {
+            Some(n) => uri = format!("/api/v1/gates?limit=333&after={n}"),
+            None => break,
+        }
+    }
+    let expected: Vec<String> = (0..2000).map(|i| format!("g{i:04}")).collect();
+    assert_eq!(seen, expected, "every gate exactly once, in id order");
+    // default page size, and a bad limit named
+    let (_, v, _) = send(&app, "GET", "/api/v1/gates", Body::empty(), None).await;
+    assert_eq!(v["gates"].as_array().unwrap().len(), 100);
+    let (s, v, _) = send(&app, "GET", "/api/v1/gates?limit=5000", Body::empty(), None).await;
+    assert_eq!(s, StatusCode::BAD_REQUEST);
+    assert_eq!(v["field"], "limit");
+    // the page is copied under the state's lock and released before it is serialised: while
+    // a page is held (as the handler holds it while serialising), ingestion takes the lock.
+    // With the lock still held this same thread would deadlock here.
+    let (page, next) = state.gate_page(None, 1000);
+    assert_eq!(page.len(), 1000);
+    assert_eq!(next.as_deref(), Some("g0999"));
+    let (s, _) = post_json(&app, uniform("g0001", 2000.0, 3)).await;
+    assert_eq!(s, StatusCode::NO_CONTENT);
+    drop(page);
+}
