@@ -181,7 +181,7 @@ fn check_config_files() {
     );
     assert_eq!(
         Config::from_file(&bad).unwrap_err().message,
-        "gates.g1.rate_hz: must be > 0"
+        "gates.g1.rate_hz: must be > 0, line 2"
     );
     assert_eq!(
         check_config(CheckConfigArgs {

@@ -67,6 +67,8 @@ async fn burst(url: &str, body: Vec<u8>) -> Vec<u16> {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn sixteen_concurrent_4_mb_bodies_stay_under_the_documented_bound() {
+    // reqwest is built without a default TLS provider (rustls with ring, set up here).
+    gatewatch::alert::notify::ensure_crypto_provider();
     if !std::path::Path::new("/proc/self/status").exists() {
         eprintln!("SKIP: no /proc");
         return;

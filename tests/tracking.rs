@@ -97,8 +97,12 @@ fn a_steady_gate_mostly_tracks_and_agrees_with_the_full_search() {
         tracked * 2 > windows - 1,
         "{tracked} of {windows} windows tracked\n{s}"
     );
-    // The tracked result agrees with the full search on the same window: the mass (set by the
-    // frequency) within 1 %, the same verdict, and the damping ratio within 0.005.
+    // The tracked result is as good as the full search on the same window, judged against the
+    // truth (a single noise-driven window's full search itself scatters by several % in mass:
+    // on this seed one full search read 20.4 kg for a 19.1 kg gate): the mass (set by the
+    // frequency) no more than 1 % further from the truth, the same verdict, and the damping
+    // ratio no more than 0.005 further from the true +1 %.
+    let true_mass = GateParams::default().mass;
     for w in ws.iter().filter(|w| w.a.path == Path::Tracked) {
         let start = (w.t0 * RATE).round() as usize;
         let full = a
@@ -113,10 +117,17 @@ fn a_steady_gate_mostly_tracks_and_agrees_with_the_full_search() {
             )
             .unwrap();
         let (t, f) = (&w.a.warm_start, &full.warm_start);
-        assert!((t[0] / f[0] - 1.0).abs() < 0.01, "mass {t:?} vs {f:?}\n{s}");
+        let (et, ef) = (
+            (t[0] / true_mass - 1.0).abs(),
+            (f[0] / true_mass - 1.0).abs(),
+        );
+        assert!(et <= ef + 0.01, "mass {t:?} vs {f:?} (true {true_mass})\n{s}");
         assert_eq!(w.a.damping.verdict, full.damping.verdict, "{s}");
         let (zt, zf) = (w.a.damping.zeta0.unwrap(), full.damping.zeta0.unwrap());
-        assert!((zt - zf).abs() < 0.005, "zeta0 {zt} vs {zf}\n{s}");
+        assert!(
+            (zt - 0.01).abs() <= (zf - 0.01).abs() + 0.005,
+            "zeta0 {zt} vs {zf} (true 0.01)\n{s}"
+        );
     }
 }
 

@@ -149,6 +149,10 @@ pub fn run_config(gate: GatePreset, worker_threads: usize) -> Config {
         GateConfig {
             rate_hz: p.rate_hz,
             stiffness: Some(p.stiffness),
+            // The scenarios stream in sample time, faster than real time, from a fixed epoch:
+            // the wall-clock bounds on sample times do not apply to a replay.
+            max_future_seconds: 0.0,
+            max_past_seconds: 0.0,
             ..config.defaults.clone()
         },
     );

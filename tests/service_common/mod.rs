@@ -71,6 +71,9 @@ impl WindowAnalyzer for Fake {
             coefficients: vec![("c1".into(), zeta0), ("c2".into(), 1.0)],
             damping: DampingReport {
                 zeta0: Some(zeta0),
+                // a sharp 95 % interval: the alert engine decides on the interval, and a
+                // window without one is no evidence
+                zeta0_interval: Some((zeta0 - 0.0005, zeta0 + 0.0005)),
                 zeta_eq: Some(zeta0),
                 frequency_hz: Some(1.5),
                 amplitude: Some(2.5),

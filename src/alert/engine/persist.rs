@@ -168,6 +168,8 @@ mod tests {
     fn obs(z: f64) -> Observation<'static> {
         Observation {
             zeta0: Some(z),
+            // a sharp interval: the engine decides on the interval (no interval, no evidence)
+            zeta0_interval: Some((z - 0.0005, z + 0.0005)),
             trusted: true,
             ..Default::default()
         }

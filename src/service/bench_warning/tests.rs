@@ -43,6 +43,7 @@ impl WindowAnalyzer for Scripted {
             },
             evaluations: 0,
             seconds: 0.0,
+            path: Default::default(),
             warm_start: Vec::new(),
         })
     }

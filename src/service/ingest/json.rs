@@ -202,10 +202,43 @@ enum Data {
     Samples(Vec<(f64, f64)>),
 }
 
+impl Object<'_> {
+    /// An array item that is not an object: 400 naming the item (`[i]`).
+    fn not_an_object<E: de::Error>(self, got: &str) -> E {
+        let field = self.prefix.trim_end_matches('.').to_string();
+        let b = BadRequest::new(format!("expected an object, got {got}"));
+        fail(
+            self.fault,
+            if field.is_empty() { b } else { b.field(field) },
+        )
+    }
+}
+
 impl<'de> Visitor<'de> for Object<'_> {
     type Value = Batch;
     fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
         f.write_str("an object")
+    }
+    fn visit_bool<E: de::Error>(self, _: bool) -> Result<Batch, E> {
+        Err(self.not_an_object("a boolean"))
+    }
+    fn visit_i64<E: de::Error>(self, _: i64) -> Result<Batch, E> {
+        Err(self.not_an_object("a number"))
+    }
+    fn visit_u64<E: de::Error>(self, _: u64) -> Result<Batch, E> {
+        Err(self.not_an_object("a number"))
+    }
+    fn visit_f64<E: de::Error>(self, _: f64) -> Result<Batch, E> {
+        Err(self.not_an_object("a number"))
+    }
+    fn visit_str<E: de::Error>(self, _: &str) -> Result<Batch, E> {
+        Err(self.not_an_object("a string"))
+    }
+    fn visit_unit<E: de::Error>(self) -> Result<Batch, E> {
+        Err(self.not_an_object("null"))
+    }
+    fn visit_seq<A: SeqAccess<'de>>(self, _: A) -> Result<Batch, A::Error> {
+        Err(self.not_an_object("an array"))
     }
     fn visit_map<A: MapAccess<'de>>(self, mut a: A) -> Result<Batch, A::Error> {
         let p = self.prefix;
