@@ -234,7 +234,8 @@ proptest! {
             prop_assert!((got - want).abs() <= want.abs() * 4.0 * f64::EPSILON, "{got} vs {want}");
         }
         for (i, (t, _)) in b[0].samples.iter().enumerate() {
-            prop_assert_eq!(*t, start + i as f64 / rate);
+            let want = start + i as f64 / rate;
+            prop_assert!((t - want).abs() <= want.abs() * 4.0 * f64::EPSILON, "{t} vs {want}");
         }
         let pairs: Vec<(f64, f64)> = b[0].samples.clone();
         let body = serde_json::json!({"gate": "g1", "samples": pairs});
