@@ -532,7 +532,7 @@ fn json_cases() -> Vec<Case> {
         ),
         json_case(
             "JSON: start u64::MAX",
-            format!(r#"{{"gate":"g1","start":18446744073709551615,"rate_hz":100,"values":[1]}}"#),
+            r#"{"gate":"g1","start":18446744073709551615,"rate_hz":100,"values":[1]}"#,
             Want::FieldIndex("start", 0),
         ),
         json_case(
