@@ -133,8 +133,14 @@ async fn sixteen_concurrent_4_mb_bodies_stay_under_the_documented_bound() {
     assert!(json.len() > 4_000_000 && json.len() <= 4 * 1024 * 1024);
     let codes = burst(&format!("{base}/api/v1/samples"), json).await;
     eprintln!("JSON statuses: {codes:?}");
-    assert!(codes.iter().all(|c| *c == 204 || *c == 503), "{codes:?}");
-    assert!(codes.contains(&204), "{codes:?}");
+    // 204, or 200 when the overlapping bursts' samples were dropped as duplicates (counted in
+    // the answer); 503 over the body budget; 0: the early 503 closed the connection while the
+    // client was still writing its 4 MB (a memory test: what matters is what was accepted)
+    assert!(
+        codes.iter().all(|c| [0, 200, 204, 503].contains(c)),
+        "{codes:?}"
+    );
+    assert!(codes.iter().any(|c| *c == 200 || *c == 204), "{codes:?}");
     let after_json = vm_hwm_kib(pid);
 
     // line protocol, dense lines with nanosecond timestamps 10 us apart
@@ -146,8 +152,14 @@ async fn sixteen_concurrent_4_mb_bodies_stay_under_the_documented_bound() {
     }
     let codes = burst(&format!("{base}/api/v2/write?precision=ns"), lp).await;
     eprintln!("line protocol statuses: {codes:?}");
-    assert!(codes.iter().all(|c| *c == 204 || *c == 503), "{codes:?}");
-    assert!(codes.contains(&204), "{codes:?}");
+    // 204, or 200 when the overlapping bursts' samples were dropped as duplicates (counted in
+    // the answer); 503 over the body budget; 0: the early 503 closed the connection while the
+    // client was still writing its 4 MB (a memory test: what matters is what was accepted)
+    assert!(
+        codes.iter().all(|c| [0, 200, 204, 503].contains(c)),
+        "{codes:?}"
+    );
+    assert!(codes.iter().any(|c| *c == 200 || *c == 204), "{codes:?}");
     let hwm = vm_hwm_kib(pid);
     eprintln!(
         "VmHWM after JSON: {} MiB, after line protocol: {} MiB (bound {} MiB)",

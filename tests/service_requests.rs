@@ -281,7 +281,7 @@ async fn huge_body_is_413() {
 #[tokio::test]
 async fn unknown_gate_refused_when_configured() {
     let cfg = Config::from_toml(
-        "[server]\nworker_threads = 1\naccept_unknown_gates = false\n[defaults]\nrate_hz = 100.0\nwindow_seconds = 1.0\n[gates.known]\n",
+        "[server]\nworker_threads = 1\naccept_unknown_gates = false\n[defaults]\nrate_hz = 100.0\nwindow_seconds = 1.0\nmax_past_seconds = 0.0\n[gates.known]\n",
     )
     .unwrap();
     let (app, _) = app_with(cfg, Arc::new(Fake::default()));

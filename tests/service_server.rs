@@ -500,10 +500,14 @@ async fn real_analyzers_never_take_the_daemon_down() {
     // `server::run` with the real per-gate analyzers: whatever the numerics do (succeed, refuse,
     // or panic while unfinished), the daemon keeps serving and reports the outcome.
     gatewatch::service::client::ensure_crypto_provider();
-    let cfg = Config::from_toml(
+    // `server::run` opens the store: a file of this test's own, not one in the checkout
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = Config::from_toml(&format!(
         "[server]\nworker_threads = 1\nlisten = \"127.0.0.1:0\"\nshutdown_grace_seconds = 1.0\n\
-         [defaults]\nrate_hz = 100.0\nwindow_seconds = 1.0\npopulation = 8\ngenerations = 5\n",
-    )
+         [storage]\npath = \"{}\"\n\
+         [defaults]\nrate_hz = 100.0\nwindow_seconds = 1.0\npopulation = 8\ngenerations = 5\nmax_past_seconds = 0.0\n",
+        dir.path().join("gw.db").display()
+    ))
     .unwrap();
     let http = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
     let addr = http.local_addr().unwrap();

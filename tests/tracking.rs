@@ -121,7 +121,10 @@ fn a_steady_gate_mostly_tracks_and_agrees_with_the_full_search() {
             (t[0] / true_mass - 1.0).abs(),
             (f[0] / true_mass - 1.0).abs(),
         );
-        assert!(et <= ef + 0.01, "mass {t:?} vs {f:?} (true {true_mass})\n{s}");
+        assert!(
+            et <= ef + 0.01,
+            "mass {t:?} vs {f:?} (true {true_mass})\n{s}"
+        );
         assert_eq!(w.a.damping.verdict, full.damping.verdict, "{s}");
         let (zt, zf) = (w.a.damping.zeta0.unwrap(), full.damping.zeta0.unwrap());
         assert!(

@@ -10,9 +10,9 @@ use serde::ser::SerializeMap;
 use serde::{Deserialize, Serialize, Serializer};
 
 mod annotations;
+pub mod persist;
 mod rules;
 mod trend_alert;
-pub mod persist;
 
 use annotations::{damping_alert, damping_annotations, stale_alert};
 #[cfg(test)]

@@ -28,7 +28,15 @@ pub fn parse(body: &[u8]) -> Result<Vec<Batch>, BadRequest> {
         .deserialize(&mut de)
         .and_then(|b| de.end().map(|()| b));
     parsed.map_err(|e| {
-        // a fault found by a visitor is the answer; otherwise it is a syntax error
+        // a fault found by a visitor is the answer (with where it was found, when the fault
+        // does not say); otherwise it is a syntax error
+        if let Some(mut b) = fault.take() {
+            if b.line.is_none() && b.index.is_none() && e.line() > 0 {
+                b.line = Some(e.line());
+                b.column = Some(e.column());
+            }
+            return b;
+        }
         fault.take().unwrap_or_else(|| {
             let mut b = BadRequest::new(format!("invalid JSON: {e}"));
             if e.line() > 0 {
