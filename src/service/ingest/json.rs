@@ -497,7 +497,8 @@ impl<'de> DeserializeSeed<'de> for Pairs<'_> {
 enum Pair {
     Ok(f64, f64),
     NotANumber(Scalar),
-    NotAPair,
+    /// Not an array of two numbers.
+    Malformed,
 }
 
 impl<'de> de::Deserialize<'de> for Pair {
@@ -519,30 +520,30 @@ impl<'de> de::Deserialize<'de> for Pair {
                         Scalar::Num(_) => v,
                         t => t,
                     }),
-                    _ => Pair::NotAPair,
+                    _ => Pair::Malformed,
                 })
             }
             fn visit_map<A: MapAccess<'de>>(self, mut a: A) -> Result<Pair, A::Error> {
                 while a.next_entry::<IgnoredAny, IgnoredAny>()?.is_some() {}
-                Ok(Pair::NotAPair)
+                Ok(Pair::Malformed)
             }
             fn visit_bool<E>(self, _: bool) -> Result<Pair, E> {
-                Ok(Pair::NotAPair)
+                Ok(Pair::Malformed)
             }
             fn visit_i64<E>(self, _: i64) -> Result<Pair, E> {
-                Ok(Pair::NotAPair)
+                Ok(Pair::Malformed)
             }
             fn visit_u64<E>(self, _: u64) -> Result<Pair, E> {
-                Ok(Pair::NotAPair)
+                Ok(Pair::Malformed)
             }
             fn visit_f64<E>(self, _: f64) -> Result<Pair, E> {
-                Ok(Pair::NotAPair)
+                Ok(Pair::Malformed)
             }
             fn visit_str<E>(self, _: &str) -> Result<Pair, E> {
-                Ok(Pair::NotAPair)
+                Ok(Pair::Malformed)
             }
             fn visit_unit<E>(self) -> Result<Pair, E> {
-                Ok(Pair::NotAPair)
+                Ok(Pair::Malformed)
             }
         }
         d.deserialize_any(V)
@@ -563,7 +564,7 @@ impl<'de> Visitor<'de> for Pairs<'_> {
                 Pair::NotANumber(s) => {
                     return Err(fail(self.fault, not_a_number(&s, self.field, Some(i))))
                 }
-                Pair::NotAPair => {
+                Pair::Malformed => {
                     let b = BadRequest::new("expected a [time, value] pair")
                         .field(self.field)
                         .index(i);
