@@ -1,0 +1,165 @@
+//! A gate's derived settings and their validation (the checks `serve` and `check-config`
+//! share), apart from the configuration types in `config.rs`.
+
+#[allow(unused_imports)]
+use super::*;
+
+impl GateConfig {
+    /// Samples in a full window.
+    pub fn window_samples(&self) -> usize {
+        (self.window_seconds * self.rate_hz).round() as usize
+    }
+
+    /// New samples between identifications.
+    pub fn every_samples(&self) -> usize {
+        ((self.identify_every_seconds * self.rate_hz).round() as usize).max(1)
+    }
+
+    /// The analysis settings of this gate. The known stiffness is passed as constant `k`.
+    pub fn analysis_settings(&self) -> AnalysisSettings {
+        let mut params: Vec<(String, f64)> =
+            self.params.iter().map(|(k, v)| (k.clone(), *v)).collect();
+        if let Some(k) = self.stiffness {
+            if !self.params.contains_key("k") {
+                params.push(("k".into(), k));
+            }
+        }
+        AnalysisSettings {
+            signal: self.signal,
+            stiffness: self.stiffness,
+            model: self.model.clone(),
+            params,
+            population: self.population,
+            generations: self.generations,
+            amplitude_limit: self.amplitude_limit,
+            max_fit_nmae: self.max_fit_nmae,
+        }
+    }
+
+    pub(super) fn validate(&self, prefix: &str) -> Result<(), ConfigError> {
+        let err = |key: &str, msg: &str| Err(ConfigError::new(format!("{prefix}.{key}: {msg}")));
+        if !(self.rate_hz.is_finite() && self.rate_hz > 0.0) {
+            return err("rate_hz", "must be > 0");
+        }
+        if let Some(k) = self.stiffness {
+            if !(k.is_finite() && k > 0.0) {
+                return err("stiffness", "must be > 0");
+            }
+        } else if self.signal == Signal::Force {
+            return err("stiffness", "required when signal = \"force\"");
+        }
+        if self.model.trim().is_empty() {
+            return err("model", "must not be empty");
+        }
+        for (name, v) in &self.params {
+            if !v.is_finite() {
+                return err(&format!("params.{name}"), "must be a finite number");
+            }
+        }
+        if self.population < 4 {
+            return err("population", "must be >= 4");
+        }
+        if self.generations == 0 {
+            return err("generations", "must be > 0");
+        }
+        if let Some(a) = self.amplitude_limit {
+            if !(a.is_finite() && a > 0.0) {
+                return err("amplitude_limit", "must be > 0");
+            }
+        }
+        if !(self.max_fit_nmae.is_finite() && self.max_fit_nmae > 0.0) {
+            return err("max_fit_nmae", "must be > 0");
+        }
+        if !(self.window_seconds.is_finite() && self.window_seconds > 0.0) {
+            return err("window_seconds", "must be > 0");
+        }
+        if self.window_samples() < 16 {
+            return err(
+                "window_seconds",
+                "window_seconds * rate_hz must be >= 16 samples",
+            );
+        }
+        if self.window_samples() > MAX_WINDOW_SAMPLES {
+            return err(
+                "window_seconds",
+                &format!("window_seconds * rate_hz must be <= {MAX_WINDOW_SAMPLES} samples"),
+            );
+        }
+        if !(self.identify_every_seconds.is_finite() && self.identify_every_seconds > 0.0) {
+            return err("identify_every_seconds", "must be > 0");
+        }
+        for (key, v) in [
+            ("max_future_seconds", self.max_future_seconds),
+            ("max_past_seconds", self.max_past_seconds),
+        ] {
+            if !(v.is_finite() && (0.0..=MAX_SECONDS).contains(&v)) {
+                return err(key, &format!("must be in 0..={MAX_SECONDS} (0: no bound)"));
+            }
+        }
+        for (key, v) in [
+            ("window_seconds", self.window_seconds),
+            ("identify_every_seconds", self.identify_every_seconds),
+            ("alert.stale_after_seconds", self.alert.stale_after_seconds),
+        ] {
+            if v > MAX_SECONDS {
+                return err(key, &format!("must be <= {MAX_SECONDS} (one year)"));
+            }
+        }
+        let a = &self.alert;
+        if !a.fire_below.is_finite() {
+            return err("alert.fire_below", "must be a finite number");
+        }
+        if !(a.clear_above.is_finite() && a.clear_above >= a.fire_below) {
+            return err("alert.clear_above", "must be >= alert.fire_below");
+        }
+        if a.for_windows == 0 {
+            return err("alert.for_windows", "must be >= 1");
+        }
+        if a.resolve_windows == 0 {
+            return err("alert.resolve_windows", "must be >= 1");
+        }
+        if !(a.stale_after_seconds.is_finite() && a.stale_after_seconds > 0.0) {
+            return err("alert.stale_after_seconds", "must be > 0");
+        }
+        if let Err(e) = self.tracking.validate() {
+            let (key, msg) = e.split_once(": ").unwrap_or((&e, "invalid"));
+            return err(&format!("tracking.{key}"), msg);
+        }
+        // the model is compiled here as `serve` compiles it, so `check-config` refuses what
+        // `serve` would refuse (a model that does not parse, has no `ydd` or no unknowns)
+        if let Err(e) = Analyzer::new(self.analysis_settings()) {
+            let msg = match e {
+                AnalysisError::Settings(m) => m,
+                other => other.to_string(),
+            };
+            let msg = msg.strip_prefix("model: ").unwrap_or(&msg).to_string();
+            return err("model", &msg);
+        }
+        if let Some(p) = a.fire_probability {
+            if !(p > 0.0 && p < 1.0) {
+                return err("alert.fire_probability", "must be in (0, 1)");
+            }
+        }
+        for (key, v) in [
+            ("alert.trend_horizon_seconds", a.trend_horizon_seconds),
+            ("alert.warn_lead_seconds", a.warn_lead_seconds),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return err(key, "must be > 0");
+            }
+        }
+        if !(a.trend_min_span_seconds.is_finite() && a.trend_min_span_seconds >= 0.0) {
+            return err("alert.trend_min_span_seconds", "must be >= 0");
+        }
+        if a.warn_for_windows == 0 {
+            return err("alert.warn_for_windows", "must be >= 1");
+        }
+        if a.warn_resolve_windows == 0 {
+            return err("alert.warn_resolve_windows", "must be >= 1");
+        }
+        if a.warn_severity.trim().is_empty() {
+            return err("alert.warn_severity", "must not be empty");
+        }
+        Ok(())
+    }
+}
