@@ -1,14 +1,19 @@
 //! The coefficients' covariance at a least-squares optimum, and the delta method through it:
 //! what turns a model-based figure (e.g. zeta0) into a figure with a 95 % interval.
 //!
-//! `Cov(c) = n/n_eff * sigma^2 (J^T J)^+`, `sigma^2 = RSS / (n - rank)`, `J` the Jacobian of the
-//! prediction at the sample times w.r.t. the coefficients (central differences), `n/n_eff = 1 +
-//! 2 sum rho_k` over the residuals' autocorrelations up to their first zero crossing (the
-//! turbulent forcing that a free-vibration fit treats as measurement error is correlated in
-//! time, and white-noise formulas would be too confident by that factor). Why a pseudo-inverse:
-//! a scale group (`model::scaling`) leaves one direction of the coefficients undetermined, and
-//! a scale-free figure (zeta0) does not depend on it; a figure that does depend on an
-//! undetermined direction gets no standard deviation ([`Covariance::std_dev_of`] is `None`).
+//! `Cov(c) = B Omega B * n/(n - rank)`, `B = (J^T J)^+`, `J` the Jacobian of the prediction at
+//! the sample times w.r.t. the coefficients (central differences), and `Omega` the Newey-West
+//! (Bartlett-weighted) sum of the scores' autocovariances `sum_i r_i r_(i+k) J_i^T J_(i+k)` over
+//! lags up to the residuals' correlation length ([`bandwidth`]). With white residuals this is
+//! the textbook `sigma^2 (J^T J)^-1`. Why not the textbook alone: the turbulent forcing that a
+//! free-vibration fit treats as measurement error is narrow-band at the gate's own frequency,
+//! exactly where the Jacobian's columns oscillate, so its errors add up coherently over many
+//! cycles; a white-noise formula (or an inflation by the autocorrelation up to its first zero
+//! crossing, a quarter period) is then too confident by an order of magnitude. Why a
+//! pseudo-inverse: a scale group (`model::scaling`) leaves one direction of the coefficients
+//! undetermined, and a scale-free figure (zeta0) does not depend on it; a figure that does
+//! depend on an undetermined direction gets no standard deviation ([`Covariance::std_dev_of`]
+//! is `None`).
 
 use super::predict::predict;
 use super::problem::Output;
@@ -27,14 +32,17 @@ pub const COVARIANCE_RTOL: f64 = 1e-9;
 pub const DIFFERENCE_STEP: f64 = 1e-4;
 
 /// Singular values of the column-normalised Jacobian below this fraction of the largest count
-/// as zero (an undetermined direction). Value: `J^T J` then has a condition number up to 1e18,
-/// about what `f64` resolves; anything better conditioned is kept and widens the interval.
-const SINGULAR_CUTOFF: f64 = 1e-9;
+/// as zero (an undetermined direction). Value: the differenced Jacobian itself is only good to
+/// about `COVARIANCE_RTOL / DIFFERENCE_STEP` = 1e-5 relative, so an exactly undetermined
+/// direction (a scale group) shows a singular value of that order, not zero; anything ten times
+/// above is taken as determined (`J^T J` conditioned up to 1e8) and widens the interval.
+const SINGULAR_CUTOFF: f64 = 1e-4;
 
 /// A gradient whose component along an undetermined direction exceeds this fraction of its
-/// norm has no standard deviation. Value: far above the central differences' error (about
-/// 1e-8 relative) and far below a real dependence (of order one).
-const NULL_TOLERANCE: f64 = 1e-4;
+/// norm has no standard deviation. Value: above the error of an undetermined direction
+/// computed from the differenced Jacobian (about 1e-5), far below a real dependence (of order
+/// one).
+const NULL_TOLERANCE: f64 = 1e-3;
 
 /// The covariance of the coefficients at a least-squares optimum.
 #[derive(Debug, Clone)]
@@ -43,8 +51,8 @@ pub struct Covariance {
     pub matrix: DMatrix<f64>,
     /// Residual variance `RSS / (n - rank)`.
     pub sigma2: f64,
-    /// `n / n_eff` from the residuals' autocorrelation (at least 1).
-    pub inflation: f64,
+    /// Lags of the residuals' autocorrelation counted in `Omega` ([`bandwidth`]).
+    pub bandwidth: usize,
     /// Rank of the Jacobian (number of determined directions).
     pub rank: usize,
     /// Residuals used, `n`.
@@ -84,7 +92,7 @@ impl Covariance {
         for (j, norm) in column_norms.iter().enumerate() {
             scaled.column_mut(j).unscale_mut(*norm);
         }
-        let svd = scaled.svd(false, true);
+        let svd = scaled.clone().svd(false, true);
         let v_t = svd.v_t?;
         let s_max = svd.singular_values.max();
         if !(s_max > 0.0) {
@@ -107,9 +115,30 @@ impl Covariance {
         }
         let rss: f64 = residuals.iter().map(|r| r * r).sum();
         let sigma2 = rss / (n - rank) as f64;
-        let inflation = inflation(residuals);
+        let bandwidth = bandwidth(residuals);
+        // Omega in the normalised coordinates: Bartlett weights keep it positive semi-definite.
+        let mut omega = DMatrix::zeros(p, p);
+        for k in 0..=bandwidth {
+            let w = 1.0 - k as f64 / (bandwidth + 1) as f64;
+            let mut gamma = DMatrix::zeros(p, p);
+            for i in 0..n - k {
+                let rr = residuals[i] * residuals[i + k];
+                for a in 0..p {
+                    let sa = scaled[(i, a)] * rr;
+                    for b in 0..p {
+                        gamma[(a, b)] += sa * scaled[(i + k, b)];
+                    }
+                }
+            }
+            if k == 0 {
+                omega += gamma;
+            } else {
+                omega += (&gamma + gamma.transpose()) * w;
+            }
+        }
+        let dof = n as f64 / (n - rank) as f64;
         // Back to the coefficients' units: x_j = norm_j * c_j, so Cov(c) = D^-1 Cov(x) D^-1.
-        let mut matrix = pinv * (sigma2 * inflation);
+        let mut matrix = &pinv * omega * &pinv * dof;
         for j in 0..p {
             matrix.row_mut(j).unscale_mut(column_norms[j]);
             matrix.column_mut(j).unscale_mut(column_norms[j]);
@@ -120,7 +149,7 @@ impl Covariance {
             .then_some(Covariance {
                 matrix,
                 sigma2,
-                inflation,
+                bandwidth,
                 rank,
                 samples: n,
                 null,
@@ -152,32 +181,35 @@ impl Covariance {
     }
 }
 
-/// `n / n_eff = 1 + 2 sum_k rho_k` over the lags before the residuals' autocorrelation first
-/// drops to zero or below (at least 1; lags up to `n / 2`).
-pub fn inflation(residuals: &[f64]) -> f64 {
+/// The residuals' correlation length in samples: the largest lag up to `n / 4` whose
+/// autocorrelation exceeds `4 / sqrt(n)` in magnitude (0 when none does). Why this threshold:
+/// an autocorrelation of white residuals has a standard error of about `1 / sqrt(n)`, so four
+/// of them are rarely crossed by chance (a few percent over all lags of a 2000-sample window),
+/// while a narrow-band residual's oscillating autocorrelation keeps crossing it until its
+/// envelope has decayed, which is the length its errors stay coherent over.
+pub fn bandwidth(residuals: &[f64]) -> usize {
     let n = residuals.len();
-    if n < 4 {
-        return 1.0;
+    if n < 8 {
+        return 0;
     }
     let mean = residuals.iter().sum::<f64>() / n as f64;
     let r0: f64 = residuals.iter().map(|r| (r - mean) * (r - mean)).sum();
     if !(r0 > 0.0) {
-        return 1.0;
+        return 0;
     }
-    let mut sum = 0.0;
-    for k in 1..n / 2 {
+    let threshold = 4.0 / (n as f64).sqrt();
+    let mut last = 0;
+    for k in 1..=n / 4 {
         let rk: f64 = residuals[..n - k]
             .iter()
             .zip(&residuals[k..])
             .map(|(a, b)| (a - mean) * (b - mean))
             .sum();
-        let rho = rk / r0;
-        if rho <= 0.0 {
-            break;
+        if (rk / r0).abs() > threshold {
+            last = k;
         }
-        sum += rho;
     }
-    (1.0 + 2.0 * sum).max(1.0)
+    last
 }
 
 /// Central-difference steps for coefficients `c` whose DE scales are `scales` (empty: 1):
@@ -240,7 +272,7 @@ mod tests {
     #[test]
     fn straight_line_matches_the_textbook_standard_errors() {
         // y = a + b x with known residuals: Cov = sigma^2 (X^T X)^-1 when they are uncorrelated
-        // (alternating signs: every autocorrelation's first lag is negative, so no inflation).
+        // (ten residuals: no autocorrelation can exceed 4 / sqrt(10), so no lag is counted).
         let n = 10;
         let x: Vec<f64> = (0..n).map(|i| i as f64).collect();
         let jac = DMatrix::from_fn(n, 2, |i, j| if j == 0 { 1.0 } else { x[i] });
@@ -248,7 +280,7 @@ mod tests {
             .map(|i| if i % 2 == 0 { 0.1 } else { -0.1 })
             .collect();
         let cov = Covariance::from_jacobian(&jac, &residuals).unwrap();
-        approx::assert_relative_eq!(cov.inflation, 1.0);
+        assert_eq!(cov.bandwidth, 0);
         let sigma2 = 0.1f64 * 0.1 * n as f64 / (n - 2) as f64;
         approx::assert_relative_eq!(cov.sigma2, sigma2, max_relative = 1e-12);
         let sxx: f64 = x.iter().map(|v| (v - 4.5) * (v - 4.5)).sum();
@@ -293,11 +325,41 @@ mod tests {
     }
 
     #[test]
-    fn correlated_residuals_inflate() {
-        // White-ish residuals: about 1. A slow sine: far above 1.
-        let alternating: Vec<f64> = (0..200).map(|i| if i % 2 == 0 { 1.0 } else { -1.0 }).collect();
-        approx::assert_relative_eq!(inflation(&alternating), 1.0);
-        let slow: Vec<f64> = (0..200).map(|i| (i as f64 * 0.05).sin()).collect();
-        assert!(inflation(&slow) > 10.0, "{}", inflation(&slow));
+    fn narrow_band_residuals_widen_the_interval() {
+        // A sine fitted with its amplitude as the coefficient: white residuals give the
+        // textbook variance; residuals oscillating at the sine's own frequency (a forced
+        // response the model treats as error) are coherent with the Jacobian and must give a
+        // far larger one, not the white-noise figure.
+        let n = 2000;
+        let jac = DMatrix::from_fn(n, 1, |i, _| (i as f64 * 0.3).sin());
+        let mut state = 12345u64;
+        let white: Vec<f64> = (0..n)
+            .map(|_| {
+                // xorshift: deterministic white-ish residuals without a dependency.
+                state ^= state << 13;
+                state ^= state >> 7;
+                state ^= state << 17;
+                (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+            })
+            .collect();
+        let narrow: Vec<f64> = (0..n)
+            .map(|i| 0.3 * (i as f64 * 0.3 + 0.4 * (i as f64 * 0.002).sin()).cos())
+            .collect();
+        let cov_white = Covariance::from_jacobian(&jac, &white).unwrap();
+        let textbook = cov_white.sigma2 / jac.column(0).norm_squared();
+        let var_white = cov_white.matrix[(0, 0)];
+        assert!(
+            (var_white / textbook - 1.0).abs() < 0.3,
+            "white: {var_white} vs {textbook}, bandwidth {}",
+            cov_white.bandwidth
+        );
+        let cov_narrow = Covariance::from_jacobian(&jac, &narrow).unwrap();
+        let textbook = cov_narrow.sigma2 / jac.column(0).norm_squared();
+        assert!(cov_narrow.bandwidth > 100, "{}", cov_narrow.bandwidth);
+        assert!(
+            cov_narrow.matrix[(0, 0)] > 10.0 * textbook,
+            "{} vs {textbook}",
+            cov_narrow.matrix[(0, 0)]
+        );
     }
 }

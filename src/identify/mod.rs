@@ -51,7 +51,7 @@ mod split;
 mod stats;
 
 pub use config::{Config, Protocol, Search};
-pub use covariance::{covariance, difference_steps, inflation, Covariance, COVARIANCE_RTOL};
+pub use covariance::{bandwidth, covariance, difference_steps, Covariance, COVARIANCE_RTOL};
 pub use fitness::{Fitness, FitnessWorkspace, LANES};
 pub use predict::{predict, trajectory};
 pub use problem::Problem;
