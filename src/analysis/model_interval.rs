@@ -99,10 +99,7 @@ mod tests {
         let problem = config
             .problem(model, series)
             .unwrap()
-            .with_initial(Initial::Known {
-                y0: 1.0,
-                v0: 0.0,
-            })
+            .with_initial(Initial::Known { y0: 1.0, v0: 0.0 })
             .unwrap();
         let id = crate::identify::refine(&problem, &config.search, &config.protocol, truth, 400)
             .unwrap();
@@ -132,7 +129,10 @@ mod tests {
         }
         let mean = widths.iter().sum::<f64>() / widths.len() as f64;
         eprintln!("coverage {covered}/{seeds}, mean width {mean}");
-        assert!(covered >= 36, "covered {covered} of {seeds}, widths {widths:?}");
+        assert!(
+            covered >= 36,
+            "covered {covered} of {seeds}, widths {widths:?}"
+        );
         // Honest but not useless: a 20-cycle decay at 5 % noise pins zeta0 to a few tenths of a
         // point.
         assert!(mean > 1e-4 && mean < 0.01, "mean width {mean}");

@@ -339,7 +339,10 @@ fn analyze(
             initial: best.initial,
             output: config.output,
         };
-        hull(zeta0_interval(&fit, &data, t0, scale.y, scale.v), run_spread(runs_zeta))
+        hull(
+            zeta0_interval(&fit, &data, t0, scale.y, scale.v),
+            run_spread(runs_zeta),
+        )
     };
     conclude(
         &mut damping,

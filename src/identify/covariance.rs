@@ -95,7 +95,7 @@ impl Covariance {
         let svd = scaled.clone().svd(false, true);
         let v_t = svd.v_t?;
         let s_max = svd.singular_values.max();
-        if !(s_max > 0.0) {
+        if s_max.is_nan() || s_max <= 0.0 {
             return None;
         }
         let mut rank = 0;
@@ -139,22 +139,19 @@ impl Covariance {
         let dof = n as f64 / (n - rank) as f64;
         // Back to the coefficients' units: x_j = norm_j * c_j, so Cov(c) = D^-1 Cov(x) D^-1.
         let mut matrix = &pinv * omega * &pinv * dof;
-        for j in 0..p {
-            matrix.row_mut(j).unscale_mut(column_norms[j]);
-            matrix.column_mut(j).unscale_mut(column_norms[j]);
+        for (j, norm) in column_norms.iter().enumerate() {
+            matrix.row_mut(j).unscale_mut(*norm);
+            matrix.column_mut(j).unscale_mut(*norm);
         }
-        matrix
-            .iter()
-            .all(|v| v.is_finite())
-            .then_some(Covariance {
-                matrix,
-                sigma2,
-                bandwidth,
-                rank,
-                samples: n,
-                null,
-                column_norms,
-            })
+        matrix.iter().all(|v| v.is_finite()).then_some(Covariance {
+            matrix,
+            sigma2,
+            bandwidth,
+            rank,
+            samples: n,
+            null,
+            column_norms,
+        })
     }
 
     /// Standard deviation of a figure `f(c)` with gradient `gradient` (delta method: `sqrt(g^T
@@ -194,7 +191,7 @@ pub fn bandwidth(residuals: &[f64]) -> usize {
     }
     let mean = residuals.iter().sum::<f64>() / n as f64;
     let r0: f64 = residuals.iter().map(|r| (r - mean) * (r - mean)).sum();
-    if !(r0 > 0.0) {
+    if r0.is_nan() || r0 <= 0.0 {
         return 0;
     }
     let threshold = 4.0 / (n as f64).sqrt();
