@@ -3,6 +3,7 @@
 //! the identification, the damping figures and the verdict.
 
 use super::linearisation::{equivalent_damping, limit_cycle, time_to_amplitude, Linearization};
+use super::model_interval::{zeta0_interval, FittedModel};
 use super::population::{initial_population, PopulationInputs, SpectralTarget};
 use super::report::{AmbientZeta, DampingReport, Zeta0Source};
 use super::verdict::{agrees, decide, VerdictFacts};
@@ -329,10 +330,24 @@ fn analyze(
         .runs
         .iter()
         .filter_map(|r| Linearization::of(model, &r.coefficients, t0, scale.y, scale.v).zeta0());
+    // Computed only when the model's zeta0 is reported (2p + 1 integrations).
+    let model_interval = || {
+        let fit = FittedModel {
+            model,
+            coefficients: &c,
+            scales: &scales,
+            initial: best.initial,
+            output: config.output,
+        };
+        hull(
+            zeta0_interval(&fit, &data, t0, scale.y, scale.v),
+            run_spread(runs_zeta),
+        )
+    };
     conclude(
         &mut damping,
         lin.zeta0(),
-        run_spread(runs_zeta),
+        model_interval,
         free.spec.map(|s| s.regime),
         opts.max_fit_nmae,
     );
@@ -624,12 +639,22 @@ fn run_spread(zetas: impl Iterator<Item = f64>) -> Option<(f64, f64)> {
     (count > 1).then_some((lo, hi))
 }
 
+/// The smallest interval holding both (either alone when the other is missing): the
+/// covariance interval widened by the runs' spread, which it may not cover when runs land in
+/// different minima.
+fn hull(a: Option<(f64, f64)>, b: Option<(f64, f64)>) -> Option<(f64, f64)> {
+    match (a, b) {
+        (Some(a), Some(b)) => Some((a.0.min(b.0), a.1.max(b.1))),
+        (a, b) => a.or(b),
+    }
+}
+
 /// Fills in the verdict, `trusted` and `zeta0` with its interval and source from the report's
 /// fit, agreement and ambient estimate ([`decide`]).
 fn conclude(
     damping: &mut DampingReport,
     zeta0_model: Option<f64>,
-    model_interval: Option<(f64, f64)>,
+    model_interval: impl FnOnce() -> Option<(f64, f64)>,
     regime: Option<crate::spectral::Regime>,
     max_fit_nmae: f64,
 ) {
@@ -649,7 +674,7 @@ fn conclude(
     };
     let (zeta0, interval) = match model_free {
         Some(a) => (Some(a.zeta), Some((a.low, a.high))),
-        None => (zeta0_model, model_interval),
+        None => (zeta0_model, zeta0_model.and_then(|_| model_interval())),
     };
     damping.zeta0 = zeta0;
     damping.zeta0_interval = interval;

@@ -23,6 +23,8 @@
 //! - `config`: how ([`Search`]: one DE run; [`Protocol`]: runs, seeds, retries, split, test;
 //!   [`Config`]: both with the problem's settings, for callers without the data yet);
 //! - `fitness`: the training objective ([`Fitness`]);
+//! - `covariance`: the coefficients' covariance at the optimum and the delta method
+//!   ([`Covariance`]);
 //! - `search`: one attempt of a run, the DE with continuation and restarts, then the polish;
 //! - `polish`: the Levenberg-Marquardt polish of a DE winner;
 //! - `refine`: the polish alone from known coefficients (the daemon's tracked windows);
@@ -38,6 +40,7 @@ use serde::Serialize;
 use std::time::Instant;
 
 mod config;
+mod covariance;
 mod fitness;
 mod polish;
 mod predict;
@@ -48,6 +51,7 @@ mod split;
 mod stats;
 
 pub use config::{Config, Protocol, Search};
+pub use covariance::{bandwidth, covariance, difference_steps, Covariance, COVARIANCE_RTOL};
 pub use fitness::{Fitness, FitnessWorkspace, LANES};
 pub use predict::{predict, trajectory};
 pub use problem::Problem;

@@ -1,0 +1,174 @@
+//! The 95 % interval of a model-based zeta0: the coefficients' covariance at the least-squares
+//! optimum ([`identify::covariance`]) through the delta method on `zeta0 = C0 / (2 sqrt(K0 M0))`
+//! (see `docs/damping.md`, "zeta0_interval").
+
+use super::linearisation::Linearization;
+use crate::data::TimeSeries;
+use crate::identify::{self, InitialValues, Output};
+use crate::model::Model;
+
+/// Two-sided 95 % normal quantile.
+const Z95: f64 = 1.959_963_984_540_054;
+
+/// A fitted model as the interval needs it: the model, its coefficients, their DE scales (for
+/// the difference steps), the initial conditions and the output that was fitted.
+#[derive(Debug, Clone, Copy)]
+pub struct FittedModel<'a> {
+    /// The model.
+    pub model: &'a Model,
+    /// Its fitted coefficients `c1..cN`.
+    pub coefficients: &'a [f64],
+    /// The DE scales of the coefficients (empty: 1).
+    pub scales: &'a [f64],
+    /// The initial conditions of the fit (held fixed).
+    pub initial: InitialValues,
+    /// What the fit compared with the data.
+    pub output: Output,
+}
+
+/// `zeta0 +- 1.96 sd` for the model linearised at `(t0, 0, 0)` with the difference steps of
+/// [`Linearization::of`] set by `y_scale` and `v_scale`. `None` (never NaN) when the model has
+/// no zeta0, an integration fails, or the covariance cannot say anything about zeta0 (a
+/// singular Jacobian along a direction zeta0 depends on).
+pub fn zeta0_interval(
+    fit: &FittedModel<'_>,
+    data: &TimeSeries,
+    t0: f64,
+    y_scale: f64,
+    v_scale: f64,
+) -> Option<(f64, f64)> {
+    let zeta0 = |c: &[f64]| Linearization::of(fit.model, c, t0, y_scale, v_scale).zeta0();
+    let z = zeta0(fit.coefficients)?;
+    let steps = identify::difference_steps(fit.coefficients, fit.scales);
+    // Gradient first: it costs no integration, and a model without zeta0 nearby needs none.
+    let mut c = fit.coefficients.to_vec();
+    let mut gradient = Vec::with_capacity(c.len());
+    for (j, h) in steps.iter().enumerate() {
+        c[j] = fit.coefficients[j] + h;
+        let plus = zeta0(&c)?;
+        c[j] = fit.coefficients[j] - h;
+        let minus = zeta0(&c)?;
+        c[j] = fit.coefficients[j];
+        gradient.push((plus - minus) / (2.0 * h));
+    }
+    let cov = identify::covariance(
+        fit.model,
+        data,
+        fit.coefficients,
+        fit.initial,
+        fit.output,
+        &steps,
+    )?;
+    let sd = cov.std_dev_of(&gradient)?;
+    let (lo, hi) = (z - Z95 * sd, z + Z95 * sd);
+    (lo.is_finite() && hi.is_finite()).then_some((lo, hi))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::identify::{Config, Initial};
+    use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
+    use rand_distr::{Distribution, StandardNormal};
+
+    const ZETA: f64 = 0.02;
+    const OMEGA: f64 = 2.0 * std::f64::consts::PI * 2.0;
+
+    /// A free decay from (1, 0) plus white noise of `sigma`,
+    /// 10 s at 50 Hz (20 cycles).
+    fn decay(seed: u64, sigma: f64) -> TimeSeries {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let wd = OMEGA * (1.0 - ZETA * ZETA).sqrt();
+        let t: Vec<f64> = (0..500).map(|i| i as f64 / 50.0).collect();
+        let y = t
+            .iter()
+            .map(|&t| {
+                let e: f64 = StandardNormal.sample(&mut rng);
+                // y(0) = 1, yd(0) = 0.
+                let decay = (wd * t).cos() + ZETA * OMEGA / wd * (wd * t).sin();
+                (-ZETA * OMEGA * t).exp() * decay + sigma * e
+            })
+            .collect();
+        TimeSeries::new(t, y).unwrap()
+    }
+
+    /// The least-squares fit from the truth (the polish alone), then the interval.
+    fn fitted_interval(model: &Model, series: &TimeSeries, truth: &[f64]) -> Option<(f64, f64)> {
+        let config = Config::default();
+        let problem = config
+            .problem(model, series)
+            .unwrap()
+            .with_initial(Initial::Known { y0: 1.0, v0: 0.0 })
+            .unwrap();
+        let id = crate::identify::refine(&problem, &config.search, &config.protocol, truth, 400)
+            .unwrap();
+        let run = id.best_run();
+        let fit = FittedModel {
+            model,
+            coefficients: &run.coefficients,
+            scales: &[],
+            initial: run.initial,
+            output: Output::Displacement,
+        };
+        zeta0_interval(&fit, series, 0.0, 1.0, OMEGA)
+    }
+
+    #[test]
+    fn the_interval_covers_the_true_zeta0_at_its_nominal_rate() {
+        let model = Model::parse("ydd + c1*yd + c2*y = 0", &[]).unwrap();
+        let truth = [2.0 * ZETA * OMEGA, OMEGA * OMEGA];
+        let seeds = 40;
+        let (mut covered, mut widths) = (0, Vec::new());
+        for seed in 0..seeds {
+            let (lo, hi) = fitted_interval(&model, &decay(seed, 0.05), &truth)
+                .unwrap_or_else(|| panic!("seed {seed}: no interval"));
+            assert!(lo < hi, "seed {seed}: ({lo}, {hi})");
+            covered += usize::from(lo <= ZETA && ZETA <= hi);
+            widths.push(hi - lo);
+        }
+        let mean = widths.iter().sum::<f64>() / widths.len() as f64;
+        eprintln!("coverage {covered}/{seeds}, mean width {mean}");
+        assert!(
+            covered >= 36,
+            "covered {covered} of {seeds}, widths {widths:?}"
+        );
+        // Honest but not useless: a 20-cycle decay at 5 % noise pins zeta0 to a few tenths of a
+        // point.
+        assert!(mean > 1e-4 && mean < 0.01, "mean width {mean}");
+    }
+
+    #[test]
+    fn a_scale_group_still_gets_an_interval() {
+        // c1*ydd + c2*yd + c3*y = 0 is determined only up to a common factor: J^T J is
+        // singular along c itself, which zeta0 does not depend on.
+        let model = Model::parse("c1*ydd + c2*yd + c3*y = 0", &[]).unwrap();
+        let truth = [1.0, 2.0 * ZETA * OMEGA, OMEGA * OMEGA];
+        let (lo, hi) = fitted_interval(&model, &decay(7, 0.05), &truth).unwrap();
+        assert!(lo <= ZETA && ZETA <= hi && hi - lo < 0.01, "({lo}, {hi})");
+    }
+
+    #[test]
+    fn a_signal_that_determines_nothing_gives_no_interval() {
+        // At rest with zero initial conditions every model predicts zero: the Jacobian is
+        // zero, and the interval is None, not NaN and not a panic.
+        let model = Model::parse("ydd + c1*yd + c2*y = 0", &[]).unwrap();
+        let t: Vec<f64> = (0..200).map(|i| i as f64 / 50.0).collect();
+        let series = TimeSeries::new(t, vec![0.0; 200]).unwrap();
+        let fit = FittedModel {
+            model: &model,
+            coefficients: &[0.5, 100.0],
+            scales: &[],
+            initial: InitialValues { y0: 0.0, v0: 0.0 },
+            output: Output::Displacement,
+        };
+        assert_eq!(zeta0_interval(&fit, &series, 0.0, 1.0, 10.0), None);
+        // A model without a zeta0 (no restoring force) has no interval either.
+        let fit = FittedModel {
+            coefficients: &[0.5, -100.0],
+            initial: InitialValues { y0: 1.0, v0: 0.0 },
+            ..fit
+        };
+        assert_eq!(zeta0_interval(&fit, &series, 0.0, 1.0, 10.0), None);
+    }
+}

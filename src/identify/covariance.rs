@@ -1,0 +1,362 @@
+//! The coefficients' covariance at a least-squares optimum, and the delta method through it:
+//! what turns a model-based figure (e.g. zeta0) into a figure with a 95 % interval.
+//!
+//! `Cov(c) = B Omega B * n/(n - rank)`, `B = (J^T J)^+`, `J` the Jacobian of the prediction at
+//! the sample times w.r.t. the coefficients (central differences), and `Omega` the Newey-West
+//! (Bartlett-weighted) sum of the scores' autocovariances `sum_i r_i r_(i+k) J_i^T J_(i+k)` over
+//! lags up to the residuals' correlation length ([`bandwidth`]). With white residuals this is
+//! the textbook `sigma^2 (J^T J)^-1`. Why not the textbook alone: the turbulent forcing that a
+//! free-vibration fit treats as measurement error is narrow-band at the gate's own frequency,
+//! exactly where the Jacobian's columns oscillate, so its errors add up coherently over many
+//! cycles; a white-noise formula (or an inflation by the autocorrelation up to its first zero
+//! crossing, a quarter period) is then too confident by an order of magnitude. Why a
+//! pseudo-inverse: a scale group (`model::scaling`) leaves one direction of the coefficients
+//! undetermined, and a scale-free figure (zeta0) does not depend on it; a figure that does
+//! depend on an undetermined direction gets no standard deviation ([`Covariance::std_dev_of`]
+//! is `None`).
+
+use super::predict::predict;
+use super::problem::Output;
+use super::InitialValues;
+use crate::data::TimeSeries;
+use crate::model::Model;
+use nalgebra::{DMatrix, DVector};
+
+/// Relative tolerance of the integrations behind the Jacobian. Value: the difference steps are
+/// 1e-4 relative, so the solver's error (about `rtol`) stays five orders below the differences.
+pub const COVARIANCE_RTOL: f64 = 1e-9;
+
+/// Relative step of the central differences (of the Jacobian and of a figure's gradient).
+/// Value: large against the solver's error at [`COVARIANCE_RTOL`], small against the
+/// curvature of an oscillator's response in its damping and stiffness.
+pub const DIFFERENCE_STEP: f64 = 1e-4;
+
+/// Singular values of the column-normalised Jacobian below this fraction of the largest count
+/// as zero (an undetermined direction). Value: the differenced Jacobian itself is only good to
+/// about `COVARIANCE_RTOL / DIFFERENCE_STEP` = 1e-5 relative, so an exactly undetermined
+/// direction (a scale group) shows a singular value of that order, not zero; anything ten times
+/// above is taken as determined (`J^T J` conditioned up to 1e8) and widens the interval.
+const SINGULAR_CUTOFF: f64 = 1e-4;
+
+/// A gradient whose component along an undetermined direction exceeds this fraction of its
+/// norm has no standard deviation. Value: above the error of an undetermined direction
+/// computed from the differenced Jacobian (about 1e-5), far below a real dependence (of order
+/// one).
+const NULL_TOLERANCE: f64 = 1e-3;
+
+/// The covariance of the coefficients at a least-squares optimum.
+#[derive(Debug, Clone)]
+pub struct Covariance {
+    /// `Cov(c)` in the coefficients' units (pseudo-inverse: zero along undetermined directions).
+    pub matrix: DMatrix<f64>,
+    /// Residual variance `RSS / (n - rank)`.
+    pub sigma2: f64,
+    /// Lags of the residuals' autocorrelation counted in `Omega` ([`bandwidth`]).
+    pub bandwidth: usize,
+    /// Rank of the Jacobian (number of determined directions).
+    pub rank: usize,
+    /// Residuals used, `n`.
+    pub samples: usize,
+    /// Undetermined directions, in the coefficients' units (unit vectors after normalising
+    /// each coefficient by its Jacobian column's norm, see [`Covariance::std_dev_of`]).
+    null: Vec<DVector<f64>>,
+    /// Norm of each Jacobian column (the normalisation of `null`).
+    column_norms: Vec<f64>,
+}
+
+impl Covariance {
+    /// From the Jacobian `jac` (`n x p`, row `i` the derivatives of prediction `i`) and the
+    /// residuals at the optimum. `None` when there is nothing to estimate: non-finite entries,
+    /// no determined direction, or no more residuals than determined directions.
+    pub fn from_jacobian(jac: &DMatrix<f64>, residuals: &[f64]) -> Option<Covariance> {
+        let (n, p) = jac.shape();
+        if n != residuals.len() || p == 0 || n <= p {
+            return None;
+        }
+        if jac.iter().chain(residuals).any(|v| !v.is_finite()) {
+            return None;
+        }
+        // Column normalisation: coefficients of very different units (kg, N s/m, N/m) would
+        // otherwise look singular to a cutoff on raw singular values.
+        let column_norms: Vec<f64> = (0..p)
+            .map(|j| {
+                let norm = jac.column(j).norm();
+                if norm > 0.0 {
+                    norm
+                } else {
+                    1.0
+                }
+            })
+            .collect();
+        let mut scaled = jac.clone();
+        for (j, norm) in column_norms.iter().enumerate() {
+            scaled.column_mut(j).unscale_mut(*norm);
+        }
+        let svd = scaled.clone().svd(false, true);
+        let v_t = svd.v_t?;
+        let s_max = svd.singular_values.max();
+        if s_max.is_nan() || s_max <= 0.0 {
+            return None;
+        }
+        let mut rank = 0;
+        let mut pinv = DMatrix::zeros(p, p);
+        let mut null = Vec::new();
+        for (i, &s) in svd.singular_values.iter().enumerate() {
+            let v = v_t.row(i).transpose();
+            if s > SINGULAR_CUTOFF * s_max {
+                rank += 1;
+                pinv += &v * v.transpose() / (s * s);
+            } else {
+                null.push(v);
+            }
+        }
+        if n <= rank {
+            return None;
+        }
+        let rss: f64 = residuals.iter().map(|r| r * r).sum();
+        let sigma2 = rss / (n - rank) as f64;
+        let bandwidth = bandwidth(residuals);
+        // Omega in the normalised coordinates: Bartlett weights keep it positive semi-definite.
+        let mut omega = DMatrix::zeros(p, p);
+        for k in 0..=bandwidth {
+            let w = 1.0 - k as f64 / (bandwidth + 1) as f64;
+            let mut gamma = DMatrix::zeros(p, p);
+            for i in 0..n - k {
+                let rr = residuals[i] * residuals[i + k];
+                for a in 0..p {
+                    let sa = scaled[(i, a)] * rr;
+                    for b in 0..p {
+                        gamma[(a, b)] += sa * scaled[(i + k, b)];
+                    }
+                }
+            }
+            if k == 0 {
+                omega += gamma;
+            } else {
+                omega += (&gamma + gamma.transpose()) * w;
+            }
+        }
+        let dof = n as f64 / (n - rank) as f64;
+        // Back to the coefficients' units: x_j = norm_j * c_j, so Cov(c) = D^-1 Cov(x) D^-1.
+        let mut matrix = &pinv * omega * &pinv * dof;
+        for (j, norm) in column_norms.iter().enumerate() {
+            matrix.row_mut(j).unscale_mut(*norm);
+            matrix.column_mut(j).unscale_mut(*norm);
+        }
+        matrix.iter().all(|v| v.is_finite()).then_some(Covariance {
+            matrix,
+            sigma2,
+            bandwidth,
+            rank,
+            samples: n,
+            null,
+            column_norms,
+        })
+    }
+
+    /// Standard deviation of a figure `f(c)` with gradient `gradient` (delta method: `sqrt(g^T
+    /// Cov g)`). `None` when the gradient has the wrong length, is not finite, or depends on a
+    /// direction the data do not determine.
+    pub fn std_dev_of(&self, gradient: &[f64]) -> Option<f64> {
+        let p = self.matrix.nrows();
+        if gradient.len() != p || gradient.iter().any(|g| !g.is_finite()) {
+            return None;
+        }
+        let g = DVector::from_column_slice(gradient);
+        // The gradient in the normalised coordinates x_j = norm_j * c_j is g_j / norm_j.
+        let g_x = DVector::from_iterator(p, (0..p).map(|j| g[j] / self.column_norms[j]));
+        let g_norm = g_x.norm();
+        if self
+            .null
+            .iter()
+            .any(|v| v.dot(&g_x).abs() > NULL_TOLERANCE * g_norm)
+        {
+            return None;
+        }
+        let var = g.dot(&(&self.matrix * &g));
+        (var.is_finite() && var >= 0.0).then(|| var.sqrt())
+    }
+}
+
+/// The residuals' correlation length in samples: the largest lag up to `n / 4` whose
+/// autocorrelation exceeds `4 / sqrt(n)` in magnitude (0 when none does). Why this threshold:
+/// an autocorrelation of white residuals has a standard error of about `1 / sqrt(n)`, so four
+/// of them are rarely crossed by chance (a few percent over all lags of a 2000-sample window),
+/// while a narrow-band residual's oscillating autocorrelation keeps crossing it until its
+/// envelope has decayed, which is the length its errors stay coherent over.
+pub fn bandwidth(residuals: &[f64]) -> usize {
+    let n = residuals.len();
+    if n < 8 {
+        return 0;
+    }
+    let mean = residuals.iter().sum::<f64>() / n as f64;
+    let r0: f64 = residuals.iter().map(|r| (r - mean) * (r - mean)).sum();
+    if r0.is_nan() || r0 <= 0.0 {
+        return 0;
+    }
+    let threshold = 4.0 / (n as f64).sqrt();
+    let mut last = 0;
+    for k in 1..=n / 4 {
+        let rk: f64 = residuals[..n - k]
+            .iter()
+            .zip(&residuals[k..])
+            .map(|(a, b)| (a - mean) * (b - mean))
+            .sum();
+        if (rk / r0).abs() > threshold {
+            last = k;
+        }
+    }
+    last
+}
+
+/// Central-difference steps for coefficients `c` whose DE scales are `scales` (empty: 1):
+/// [`DIFFERENCE_STEP`] relative, and relative to a thousandth of the scale for a coefficient
+/// at or near zero.
+pub fn difference_steps(c: &[f64], scales: &[f64]) -> Vec<f64> {
+    c.iter()
+        .enumerate()
+        .map(|(j, cj)| {
+            let scale = scales.get(j).copied().unwrap_or(1.0).abs();
+            DIFFERENCE_STEP * cj.abs().max(1e-3 * scale).max(f64::MIN_POSITIVE)
+        })
+        .collect()
+}
+
+/// The covariance of `coefficients` fitted to all samples of `series` (the model's prediction
+/// of `output` from `init`, Dormand-Prince at [`COVARIANCE_RTOL`]), with central differences
+/// of `steps` ([`difference_steps`]). The initial conditions are held fixed. `None` when an
+/// integration fails or [`Covariance::from_jacobian`] has nothing to estimate. Costs `2p + 1`
+/// integrations.
+pub fn covariance(
+    model: &Model,
+    series: &TimeSeries,
+    coefficients: &[f64],
+    init: InitialValues,
+    output: Output,
+    steps: &[f64],
+) -> Option<Covariance> {
+    let p = coefficients.len();
+    if steps.len() != p {
+        return None;
+    }
+    let at = |c: &[f64]| predict(model, series, c, init, COVARIANCE_RTOL, output);
+    let prediction = at(coefficients)?;
+    let residuals: Vec<f64> = prediction
+        .iter()
+        .zip(&series.y)
+        .map(|(m, y)| y - m)
+        .collect();
+    let mut jac = DMatrix::zeros(series.len(), p);
+    let mut c = coefficients.to_vec();
+    for j in 0..p {
+        let h = steps[j];
+        c[j] = coefficients[j] + h;
+        let plus = at(&c)?;
+        c[j] = coefficients[j] - h;
+        let minus = at(&c)?;
+        c[j] = coefficients[j];
+        for (i, (a, b)) in plus.iter().zip(&minus).enumerate() {
+            jac[(i, j)] = (a - b) / (2.0 * h);
+        }
+    }
+    Covariance::from_jacobian(&jac, &residuals)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn straight_line_matches_the_textbook_standard_errors() {
+        // y = a + b x with known residuals: Cov = sigma^2 (X^T X)^-1 when they are uncorrelated
+        // (ten residuals: no autocorrelation can exceed 4 / sqrt(10), so no lag is counted).
+        let n = 10;
+        let x: Vec<f64> = (0..n).map(|i| i as f64).collect();
+        let jac = DMatrix::from_fn(n, 2, |i, j| if j == 0 { 1.0 } else { x[i] });
+        let residuals: Vec<f64> = (0..n)
+            .map(|i| if i % 2 == 0 { 0.1 } else { -0.1 })
+            .collect();
+        let cov = Covariance::from_jacobian(&jac, &residuals).unwrap();
+        assert_eq!(cov.bandwidth, 0);
+        let sigma2 = 0.1f64 * 0.1 * n as f64 / (n - 2) as f64;
+        approx::assert_relative_eq!(cov.sigma2, sigma2, max_relative = 1e-12);
+        let sxx: f64 = x.iter().map(|v| (v - 4.5) * (v - 4.5)).sum();
+        // Var(b) = sigma^2 / Sxx.
+        approx::assert_relative_eq!(cov.matrix[(1, 1)], sigma2 / sxx, max_relative = 1e-9);
+        let sd_b = cov.std_dev_of(&[0.0, 1.0]).unwrap();
+        approx::assert_relative_eq!(sd_b, (sigma2 / sxx).sqrt(), max_relative = 1e-9);
+    }
+
+    #[test]
+    fn a_figure_on_an_undetermined_direction_has_no_standard_deviation() {
+        // Columns 0 and 1 identical: only c0 + c1 is determined.
+        let n = 20;
+        let jac = DMatrix::from_fn(n, 3, |i, j| match j {
+            0 | 1 => (i as f64 * 0.3).sin(),
+            _ => (i as f64 * 0.7).cos(),
+        });
+        let residuals: Vec<f64> = (0..n).map(|i| 0.01 * ((i * 7) % 5) as f64 - 0.02).collect();
+        let cov = Covariance::from_jacobian(&jac, &residuals).unwrap();
+        assert_eq!(cov.rank, 2);
+        // c0 alone depends on the undetermined c0 - c1: no interval, not NaN.
+        assert_eq!(cov.std_dev_of(&[1.0, 0.0, 0.0]), None);
+        // c0 + c1 is determined: a finite, positive standard deviation.
+        let sd = cov.std_dev_of(&[1.0, 1.0, 0.0]).unwrap();
+        assert!(sd.is_finite() && sd > 0.0, "{sd}");
+        // Wrong length or non-finite gradient: None.
+        assert_eq!(cov.std_dev_of(&[1.0, 1.0]), None);
+        assert_eq!(cov.std_dev_of(&[f64::NAN, 1.0, 0.0]), None);
+    }
+
+    #[test]
+    fn nothing_to_estimate_gives_none() {
+        let zero = DMatrix::zeros(10, 2);
+        assert!(Covariance::from_jacobian(&zero, &[0.1; 10]).is_none());
+        let jac = DMatrix::from_fn(10, 2, |i, j| (i + j) as f64);
+        assert!(Covariance::from_jacobian(&jac, &[0.1; 9]).is_none());
+        let mut bad = vec![0.1; 10];
+        bad[3] = f64::NAN;
+        assert!(Covariance::from_jacobian(&jac, &bad).is_none());
+        let short = DMatrix::from_fn(2, 2, |i, j| (i * 2 + j + 1) as f64);
+        assert!(Covariance::from_jacobian(&short, &[0.1, 0.2]).is_none());
+    }
+
+    #[test]
+    fn narrow_band_residuals_widen_the_interval() {
+        // A sine fitted with its amplitude as the coefficient: white residuals give the
+        // textbook variance; residuals oscillating at the sine's own frequency (a forced
+        // response the model treats as error) are coherent with the Jacobian and must give a
+        // far larger one, not the white-noise figure.
+        let n = 2000;
+        let jac = DMatrix::from_fn(n, 1, |i, _| (i as f64 * 0.3).sin());
+        let mut state = 12345u64;
+        let white: Vec<f64> = (0..n)
+            .map(|_| {
+                // xorshift: deterministic white-ish residuals without a dependency.
+                state ^= state << 13;
+                state ^= state >> 7;
+                state ^= state << 17;
+                (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+            })
+            .collect();
+        let narrow: Vec<f64> = (0..n)
+            .map(|i| 0.3 * (i as f64 * 0.3 + 0.4 * (i as f64 * 0.002).sin()).cos())
+            .collect();
+        let cov_white = Covariance::from_jacobian(&jac, &white).unwrap();
+        let textbook = cov_white.sigma2 / jac.column(0).norm_squared();
+        let var_white = cov_white.matrix[(0, 0)];
+        assert!(
+            (var_white / textbook - 1.0).abs() < 0.3,
+            "white: {var_white} vs {textbook}, bandwidth {}",
+            cov_white.bandwidth
+        );
+        let cov_narrow = Covariance::from_jacobian(&jac, &narrow).unwrap();
+        let textbook = cov_narrow.sigma2 / jac.column(0).norm_squared();
+        assert!(cov_narrow.bandwidth > 100, "{}", cov_narrow.bandwidth);
+        assert!(
+            cov_narrow.matrix[(0, 0)] > 10.0 * textbook,
+            "{} vs {textbook}",
+            cov_narrow.matrix[(0, 0)]
+        );
+    }
+}
