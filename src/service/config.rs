@@ -340,7 +340,6 @@ impl Default for GateConfig {
     }
 }
 
-
 /// A configuration error; the message names the key (`gates.g1.rate_hz: must be > 0`).
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[error("{message}")]
