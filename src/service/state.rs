@@ -111,92 +111,10 @@ pub fn state_name(s: GateState) -> &'static str {
     s.as_str()
 }
 
-/// A gate as `GET /api/v1/gates/{id}` shows it.
-#[derive(Debug, Clone, Serialize)]
-pub struct GateView {
-    /// Gate id.
-    pub gate: String,
-    /// Displayed alert state (`ok`, `pending`, `firing`, `resolved`, `unknown`); may be
-    /// `unknown` while `GateNegativeDamping` still fires (see `firing`).
-    pub alert_state: &'static str,
-    /// Whether `GateNegativeDamping` is firing for this gate (the truth, whatever the display).
-    pub firing: bool,
-    /// The gate's firing alerts (`GateNegativeDamping`, `GateDataStale`).
-    pub alerts: Vec<Alert>,
-    /// Window statistics.
-    pub window: WindowView,
-    /// Latest identification (absent before the first).
-    pub identification: Option<IdentificationView>,
-    /// Message of the last failed identification, if the last one failed.
-    pub last_error: Option<String>,
-    /// Sample time (Unix s) of the last sample of the last window whose identification
-    /// finished, successfully or not (absent before the first).
-    pub analysed_until: Option<f64>,
-    /// Trend of `zeta0` over the recent windows with an interval: slope per second, predicted
-    /// crossing of `fire_below` (absent until enough windows).
-    pub trend: Option<TrendEstimate>,
-}
+mod expiry;
+mod view;
 
-/// A gate as `GET /api/v1/gates` lists it: a few fixed-size fields, so a page costs the same
-/// whatever the gate's alerts and identification hold (the full view is
-/// `GET /api/v1/gates/{id}`).
-#[derive(Debug, Clone, Serialize)]
-pub struct GateSummary {
-    /// Gate id.
-    pub gate: String,
-    /// Displayed alert state, as in [`GateView`].
-    pub alert_state: &'static str,
-    /// Whether `GateNegativeDamping` is firing.
-    pub firing: bool,
-    /// Whether `GateDataStale` is firing.
-    pub stale: bool,
-    /// Samples in the window.
-    pub samples: usize,
-    /// Time of the newest sample, Unix seconds.
-    pub last_sample_time: Option<f64>,
-    /// Damping ratio of the latest identification.
-    pub zeta0: Option<f64>,
-}
-
-/// Window statistics.
-#[derive(Debug, Clone, Serialize)]
-pub struct WindowView {
-    /// Samples held.
-    pub samples: usize,
-    /// Capacity.
-    pub capacity: usize,
-    /// Seconds spanned.
-    pub span_seconds: f64,
-    /// Held fraction.
-    pub fill: f64,
-    /// Time of the newest sample, Unix seconds.
-    pub last_sample_time: Option<f64>,
-    /// Samples accepted ever.
-    pub samples_total: u64,
-    /// Configured rate.
-    pub rate_hz: f64,
-}
-
-/// The latest identification.
-#[derive(Debug, Clone, Serialize)]
-pub struct IdentificationView {
-    /// Time of the identification, Unix seconds (wall clock).
-    pub time: f64,
-    /// Sample time of the window's first sample, Unix seconds.
-    pub window_start: f64,
-    /// Sample time of the window's last sample, Unix seconds.
-    pub window_end: f64,
-    /// Equation with numbers.
-    pub equation: String,
-    /// Coefficients.
-    pub coefficients: BTreeMap<String, f64>,
-    /// Damping figures.
-    pub damping: crate::analysis::DampingReport,
-    /// Wall time, seconds.
-    pub seconds: f64,
-    /// How the window was identified: "tracked" (the previous model refined) or "full".
-    pub path: crate::analysis::Path,
-}
+pub use view::{GateSummary, GateView, IdentificationView, WindowView};
 
 impl AppState {
     /// Creates the state, the notifier task and the worker pool. Needs a tokio runtime.
@@ -624,63 +542,6 @@ impl AppState {
                 }
             }
         }
-    }
-
-    /// Once a second: forgets expired unknown gates, raises GateDataStale for silent gates.
-    pub fn tick(&self, now: SystemTime) {
-        let mut inner = lock(&self.inner);
-        let (mut events, expired) = self.expire_unknown_gates(&mut inner, now);
-        events.extend(inner.alerts.check_stale(now));
-        for e in &events {
-            let g = e.alert().gate();
-            if expired.iter().any(|x| x == g) {
-                continue;
-            }
-            let state = inner.alerts.state(g).unwrap_or(GateState::Unknown);
-            self.metrics.set_alert_state(g, state_name(state));
-        }
-        let write = super::storage::states_write(self.persistence.as_deref(), &inner.alerts);
-        drop(inner);
-        self.notify_and_write(events, write);
-        // The resolved alerts' delivery sets their series once more: an expired gate leaves
-        // none behind (label cardinality stays bounded by the live gates).
-        for id in &expired {
-            self.metrics.remove_gate(id);
-        }
-    }
-
-    /// Forgets the gates created by `accept_unknown_gates` that sent nothing for
-    /// `server.unknown_gate_expiry_seconds` (0: never): their window, their alerts (resolved,
-    /// so no `GateDataStale` is left firing for a gate nobody sends) and their metric series.
-    /// Without it, anyone reaching an ingestion port could fill `max_gates` with junk gates
-    /// until a restart. Returns the resolved alerts' events and the expired gates.
-    fn expire_unknown_gates(
-        &self,
-        inner: &mut Inner,
-        now: SystemTime,
-    ) -> (Vec<AlertEvent>, Vec<String>) {
-        let expiry = self.config.server.unknown_gate_expiry_seconds;
-        if expiry <= 0.0 {
-            return (Vec::new(), Vec::new());
-        }
-        let expiry = Duration::from_secs_f64(expiry);
-        let expired: Vec<String> = inner
-            .gates
-            .iter()
-            .filter(|(_, e)| {
-                e.unknown && now.duration_since(e.last_data).unwrap_or(Duration::ZERO) >= expiry
-            })
-            .map(|(id, _)| id.clone())
-            .collect();
-        let mut events = Vec::new();
-        for id in &expired {
-            inner.gates.remove(id);
-            events.extend(inner.alerts.remove_gate(id, now));
-            self.metrics.remove_gate(id);
-            self.metrics.gates_expired.inc();
-            tracing::info!(gate = %id, "unknown gate expired (server.unknown_gate_expiry_seconds)");
-        }
-        (events, expired)
     }
 
     /// Alert state of a gate.

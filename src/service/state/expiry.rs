@@ -1,0 +1,65 @@
+//! The once-a-second tick: unknown gates that stopped sending expire, silent gates raise
+//! `GateDataStale`.
+
+#[allow(unused_imports)]
+use super::*;
+
+impl AppState {
+    /// Once a second: forgets expired unknown gates, raises GateDataStale for silent gates.
+    pub fn tick(&self, now: SystemTime) {
+        let mut inner = lock(&self.inner);
+        let (mut events, expired) = self.expire_unknown_gates(&mut inner, now);
+        events.extend(inner.alerts.check_stale(now));
+        for e in &events {
+            let g = e.alert().gate();
+            if expired.iter().any(|x| x == g) {
+                continue;
+            }
+            let state = inner.alerts.state(g).unwrap_or(GateState::Unknown);
+            self.metrics.set_alert_state(g, state_name(state));
+        }
+        let write =
+            crate::service::storage::states_write(self.persistence.as_deref(), &inner.alerts);
+        drop(inner);
+        self.notify_and_write(events, write);
+        // The resolved alerts' delivery sets their series once more: an expired gate leaves
+        // none behind (label cardinality stays bounded by the live gates).
+        for id in &expired {
+            self.metrics.remove_gate(id);
+        }
+    }
+
+    /// Forgets the gates created by `accept_unknown_gates` that sent nothing for
+    /// `server.unknown_gate_expiry_seconds` (0: never): their window, their alerts (resolved,
+    /// so no `GateDataStale` is left firing for a gate nobody sends) and their metric series.
+    /// Without it, anyone reaching an ingestion port could fill `max_gates` with junk gates
+    /// until a restart. Returns the resolved alerts' events and the expired gates.
+    fn expire_unknown_gates(
+        &self,
+        inner: &mut Inner,
+        now: SystemTime,
+    ) -> (Vec<AlertEvent>, Vec<String>) {
+        let expiry = self.config.server.unknown_gate_expiry_seconds;
+        if expiry <= 0.0 {
+            return (Vec::new(), Vec::new());
+        }
+        let expiry = Duration::from_secs_f64(expiry);
+        let expired: Vec<String> = inner
+            .gates
+            .iter()
+            .filter(|(_, e)| {
+                e.unknown && now.duration_since(e.last_data).unwrap_or(Duration::ZERO) >= expiry
+            })
+            .map(|(id, _)| id.clone())
+            .collect();
+        let mut events = Vec::new();
+        for id in &expired {
+            inner.gates.remove(id);
+            events.extend(inner.alerts.remove_gate(id, now));
+            self.metrics.remove_gate(id);
+            self.metrics.gates_expired.inc();
+            tracing::info!(gate = %id, "unknown gate expired (server.unknown_gate_expiry_seconds)");
+        }
+        (events, expired)
+    }
+}
