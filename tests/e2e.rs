@@ -114,6 +114,8 @@ impl Hook {
 }
 
 struct Daemon {
+    /// The daemon's own store file lives here (never a file shared with another test).
+    _dir: tempfile::TempDir,
     addr: SocketAddr,
     stop: tokio::sync::oneshot::Sender<()>,
     task: tokio::task::JoinHandle<anyhow::Result<()>>,
@@ -122,11 +124,16 @@ struct Daemon {
 
 async fn daemon(hook: SocketAddr, gate_toml: &str) -> Daemon {
     gatewatch::service::client::ensure_crypto_provider();
+    // `run` opens the store: each daemon its own file (tests run in parallel, and a shared file
+    // would carry one test's alert states into another)
+    let dir = tempfile::tempdir().unwrap();
     let cfg = Config::from_toml(&format!(
         "[server]\nlisten = \"127.0.0.1:0\"\nworker_threads = 1\nshutdown_grace_seconds = 5.0\n\
+         [storage]\npath = \"{}\"\n\
          [notify]\ninitial_backoff_ms = 50\nmax_backoff_ms = 500\n\
          [[notify.webhooks]]\nurl = \"http://{hook}/hook\"\n\
-         {gate_toml}\n"
+         {gate_toml}\n",
+        dir.path().join("gw.db").display()
     ))
     .unwrap();
     let http = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
@@ -136,6 +143,7 @@ async fn daemon(hook: SocketAddr, gate_toml: &str) -> Daemon {
         let _ = rx.await;
     }));
     Daemon {
+        _dir: dir,
         addr,
         stop,
         task,
