@@ -212,17 +212,12 @@ pub fn run(
     if search.solver == Method::Rk4 && series.uniform_step().is_none() {
         return Err(IdentifyError::NotUniform);
     }
-    // Only the displacement is blind to a common factor of M and R; a force output is R itself.
-    let scale_groups = match problem.output {
-        Output::Displacement => model.scale_groups(),
-        Output::Force => Vec::new(),
-    };
-    let (train, test) = split(series.len(), protocol.train_fraction, protocol.split_seed)?;
-    let mut is_train = vec![false; series.len()];
-    for &i in &train {
-        is_train[i] = true;
-    }
-    let fitness = Fitness::new(problem, is_train, search);
+    let Setup {
+        scale_groups,
+        train,
+        test,
+        fitness,
+    } = setup(problem, protocol, search)?;
     let spread = std_dev(&series.y);
     let mut runs = Vec::with_capacity(protocol.runs);
     // Budget of a run: twice the chapter's NP + G (NP + 1) evaluations. A run whose fit is poor
@@ -307,5 +302,38 @@ pub fn run(
         train,
         test,
         scale_groups,
+    })
+}
+/// What a search and a refinement share: the scale groups, the train/test split and the
+/// training objective on it.
+pub(crate) struct Setup<'a> {
+    pub(crate) scale_groups: Vec<ScaleGroup>,
+    pub(crate) train: Vec<usize>,
+    pub(crate) test: Vec<usize>,
+    pub(crate) fitness: Fitness<'a>,
+}
+
+pub(crate) fn setup<'a>(
+    problem: &Problem<'a>,
+    protocol: &Protocol,
+    search: &Search,
+) -> Result<Setup<'a>, IdentifyError> {
+    // Only the displacement is blind to a common factor of M and R; a force output is R itself.
+    let scale_groups = match problem.output {
+        Output::Displacement => problem.model.scale_groups(),
+        Output::Force => Vec::new(),
+    };
+    let n = problem.series.len();
+    let (train, test) = split(n, protocol.train_fraction, protocol.split_seed)?;
+    let mut is_train = vec![false; n];
+    for &i in &train {
+        is_train[i] = true;
+    }
+    let fitness = Fitness::new(problem, is_train, search);
+    Ok(Setup {
+        scale_groups,
+        train,
+        test,
+        fitness,
     })
 }

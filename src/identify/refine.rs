@@ -7,13 +7,11 @@
 //! (`analysis::tracking`), which runs the full identification when it is not.
 
 use super::config::{Protocol, Search};
-use super::fitness::Fitness;
+
 use super::polish::polish;
 use super::problem::{Initial, Problem};
-use super::split::{initial_from_data, split};
-use super::{
-    nmae, predict, summarize, Identification, IdentifyError, InitialValues, Output, RunResult,
-};
+use super::split::initial_from_data;
+use super::{nmae, predict, summarize, Identification, IdentifyError, InitialValues, RunResult};
 use crate::de::Objective;
 use crate::ode::Method;
 use std::time::Instant;
@@ -70,16 +68,12 @@ pub fn refine(
         });
     }
     let started = Instant::now();
-    let scale_groups = match problem.output {
-        Output::Displacement => model.scale_groups(),
-        Output::Force => Vec::new(),
-    };
-    let (train, test) = split(series.len(), protocol.train_fraction, protocol.split_seed)?;
-    let mut is_train = vec![false; series.len()];
-    for &i in &train {
-        is_train[i] = true;
-    }
-    let fitness = Fitness::new(problem, is_train, search);
+    let super::Setup {
+        scale_groups,
+        train,
+        test,
+        fitness,
+    } = super::setup(problem, protocol, search)?;
     // The polish's own solver and tolerance, as after a DE search.
     let fine = fitness.with_tolerance(Method::Dopri5, search.refine_rtol.min(search.rtol));
     let mut x0 = fine.pack(start);
