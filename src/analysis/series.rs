@@ -313,9 +313,14 @@ fn analyze(
     };
     let mut damping = damping_figures(&fitted, &data, trajectory.as_deref(), free.omega, opts);
     damping.fit_nmae = fit_nmae;
-    // Agreement with the model-free estimates: the same spectral analysis of the prediction.
+    // Agreement with the model-free estimates: the same spectral analysis of the prediction
+    // (peak and growth; `agrees` compares nothing else, so no ambient estimate of it).
+    let prediction_options = WindowOptions {
+        ambient: crate::spectral::AmbientMethod::Skip,
+        ..free.window_options
+    };
     let model_spec = match (spectral.as_mut(), prediction.as_ref()) {
-        (Some(sa), Some(p)) => sa.analyze_window(p, &free.window_options).ok(),
+        (Some(sa), Some(p)) => sa.analyze_window(p, &prediction_options).ok(),
         _ => None,
     };
     damping.agrees = agrees(free.spec.as_ref(), model_spec.as_ref());

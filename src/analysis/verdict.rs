@@ -82,48 +82,76 @@ fn regime_alarms(regime: Option<Regime>) -> bool {
 ///
 /// 0. limit-cycle regime with an envelope estimate: from the envelope; `SelfExcited` when its
 ///    whole interval is below zero, else `Unknown` (untrusted, with its honestly wide interval).
-///    On a limit cycle the equivalent damping is zero, so the model's and the AR's `zeta0` read
-///    about zero whatever the truth (issue 8); the envelope's relaxation is what still sees it.
-/// 1. model trusted (fits and agrees), `zeta0 < 0`: `SelfExcited`, from the model, unless the
-///    model contradicts the spectrum: a `Damped` regime (no growth, ambient interval above
-///    zero) whose ambient interval lies above zero. Then row 3 decides: a free-vibration model
-///    fitted to a noise-driven window can land on a slightly negative `c1` (issue 8: -1 to -3 %
-///    on a +1 % gate), while the whole ambient interval says the gate dissipates energy.
-/// 2. model trusted, `zeta0 >= 0`, the regime is no alarm: `Damped`, from the model;
-/// 3. ambient interval above zero, the regime is no alarm, and the model is not trusted or
-///    contradicted (row 1): `Damped`, ambient;
-/// 4. anything else: `Unknown`, untrusted, the model's `zeta0` for information only. This
+///    On a limit cycle the equivalent damping is zero, so the model's and the ambient `zeta0`
+///    read about zero whatever the truth (issue 8); the envelope's relaxation is what still sees
+///    it.
+/// 1. the envelope grows significantly (`SelfExcited` regime) and the model is trusted (fits and
+///    agrees) with `zeta0 < 0`: `SelfExcited`, from the model. A growing window is where a
+///    free-vibration fit is at its best: the growth dominates the turbulent forcing.
+/// 2. an ambient (SSI-COV) estimate on any other window but a limit cycle: from the ambient
+///    estimate, trusted, the verdict from its interval: `SelfExcited` below zero, `Damped` above
+///    zero (not on an alarm regime), `Unknown` across zero. An interval across zero is still
+///    evidence (the alerts read it as "cannot tell" and the trend uses it); only a positive
+///    interval on a window whose envelope grows contradicts itself and is untrusted. Why the
+///    ambient estimate and not the model on a noise-driven window: the free-vibration model
+///    treats the turbulent forcing as error and read -1 to -3 % on a stable +1 % gate (issue 8),
+///    while SSI-COV is unbiased under sensor noise and its interval covers the truth.
+/// 3. no ambient estimate, model trusted, `zeta0 < 0`: `SelfExcited`, from the model;
+/// 4. no ambient estimate, model trusted, `zeta0 >= 0`, the regime is no alarm: `Damped`, from
+///    the model;
+/// 5. anything else: `Unknown`, untrusted, the model's `zeta0` for information only. This
 ///    includes a trusted model with `zeta0 >= 0` on a self-excited or limit-cycle window: the
 ///    spectrum sees a vibration sustaining itself, so "damped" would be a false all-clear.
 pub fn decide(f: &VerdictFacts) -> Decision {
     let alarm = regime_alarms(f.regime);
-    if let (Some(Regime::LimitCycle), Some(e)) = (f.regime, f.envelope) {
-        let (verdict, trusted) = if e.high < 0.0 {
-            (Verdict::SelfExcited, true)
-        } else {
-            (Verdict::Unknown, false)
-        };
-        return Decision {
-            verdict,
-            trusted,
-            source: Zeta0Source::Envelope,
-        };
-    }
-    let ambient_damped = f.ambient.is_some_and(|a| a.low > 0.0) && !alarm;
-    let contradicted = f.zeta0_model.is_some_and(|z| z < 0.0)
-        && ambient_damped
-        && f.regime == Some(Regime::Damped);
-    let model_trusted = f.fit_nmae <= f.max_fit_nmae && f.agrees && !contradicted;
-    let (verdict, trusted, source) = match f.zeta0_model {
-        Some(z) if model_trusted && z < 0.0 => (Verdict::SelfExcited, true, Zeta0Source::Model),
-        Some(_) if model_trusted && !alarm => (Verdict::Damped, true, Zeta0Source::Model),
-        _ if !model_trusted && ambient_damped => (Verdict::Damped, true, Zeta0Source::Ambient),
-        _ => (Verdict::Unknown, false, Zeta0Source::Model),
-    };
-    Decision {
+    let decision = |verdict, trusted, source| Decision {
         verdict,
         trusted,
         source,
+    };
+    if let (Some(Regime::LimitCycle), Some(e)) = (f.regime, f.envelope) {
+        return if e.high < 0.0 {
+            decision(Verdict::SelfExcited, true, Zeta0Source::Envelope)
+        } else {
+            decision(Verdict::Unknown, false, Zeta0Source::Envelope)
+        };
+    }
+    let model_trusted = f.fit_nmae <= f.max_fit_nmae && f.agrees;
+    let model_negative = model_trusted && f.zeta0_model.is_some_and(|z| z < 0.0);
+    if model_negative && f.regime == Some(Regime::SelfExcited) {
+        return decision(Verdict::SelfExcited, true, Zeta0Source::Model);
+    }
+    match f.ambient {
+        Some(a) if f.regime != Some(Regime::LimitCycle) => {
+            return if a.high < 0.0 {
+                decision(Verdict::SelfExcited, true, Zeta0Source::Ambient)
+            } else if a.low > 0.0 {
+                decision(Verdict::Damped, true, Zeta0Source::Ambient).unknown_if(alarm)
+            } else {
+                decision(Verdict::Unknown, true, Zeta0Source::Ambient)
+            };
+        }
+        _ => {}
+    }
+    match f.zeta0_model {
+        Some(_) if model_negative => decision(Verdict::SelfExcited, true, Zeta0Source::Model),
+        Some(_) if model_trusted && !alarm => decision(Verdict::Damped, true, Zeta0Source::Model),
+        _ => decision(Verdict::Unknown, false, Zeta0Source::Model),
+    }
+}
+
+impl Decision {
+    /// This decision turned into an untrusted `Unknown` when `cond` holds.
+    fn unknown_if(self, cond: bool) -> Decision {
+        if cond {
+            Decision {
+                verdict: Verdict::Unknown,
+                trusted: false,
+                ..self
+            }
+        } else {
+            self
+        }
     }
 }
 
@@ -158,17 +186,22 @@ mod tests {
         }
     }
 
+    /// Rows 1 and 3: a trusted negative model decides on a growing window, and on any window
+    /// without an ambient estimate.
     #[test]
-    fn row_trusted_negative_zeta0_is_self_excited_whatever_the_regime() {
-        for regime in [
-            None,
-            Some(Regime::Undecided),
-            Some(Regime::SelfExcited),
-            Some(Regime::LimitCycle),
+    fn row_trusted_negative_zeta0_is_self_excited_on_growth_or_without_ambient() {
+        for (regime, ambient) in [
+            (Some(Regime::SelfExcited), Some(AMBIENT_DAMPED)),
+            (Some(Regime::SelfExcited), None),
+            (None, None),
+            (Some(Regime::Undecided), None),
+            (Some(Regime::LimitCycle), None),
+            (Some(Regime::LimitCycle), Some(AMBIENT_DAMPED)),
         ] {
             let f = VerdictFacts {
                 zeta0_model: Some(-0.01),
                 regime,
+                ambient,
                 ..facts()
             };
             assert_eq!(
@@ -195,7 +228,8 @@ mod tests {
                 "{z}"
             );
         }
-        // The ambient interval reaching zero does not contradict: the model decides.
+        // On a window whose envelope does not grow the ambient estimate decides even when its
+        // interval reaches zero: trusted evidence that cannot tell the sign.
         let f = VerdictFacts {
             zeta0_model: Some(-0.01),
             ambient: Some(AmbientZeta {
@@ -208,7 +242,7 @@ mod tests {
         };
         assert_eq!(
             decide(&f),
-            decision(Verdict::SelfExcited, true, Zeta0Source::Model)
+            decision(Verdict::Unknown, true, Zeta0Source::Ambient)
         );
         // Nor does a regime other than Damped (an onset whose envelope grows).
         let f = VerdictFacts {
@@ -258,11 +292,54 @@ mod tests {
             envelope: Some(negative),
             ..facts()
         };
-        assert_eq!(decide(&f).source, Zeta0Source::Model);
+        assert_eq!(decide(&f).source, Zeta0Source::Ambient);
+    }
+
+    /// Row 2: the ambient estimate's interval gives the verdict on a window that does not grow.
+    #[test]
+    fn row_ambient_interval_gives_the_verdict() {
+        let negative = AmbientZeta {
+            zeta: -0.008,
+            low: -0.014,
+            high: -0.002,
+        };
+        for (zeta0_model, fit_nmae) in [(Some(0.01), 0.05), (Some(-0.01), 0.5), (None, 0.5)] {
+            let base = VerdictFacts {
+                zeta0_model,
+                fit_nmae,
+                ..facts()
+            };
+            assert_eq!(
+                decide(&base),
+                decision(Verdict::Damped, true, Zeta0Source::Ambient)
+            );
+            for regime in [Some(Regime::SelfExcited), Some(Regime::Undecided), None] {
+                let f = VerdictFacts {
+                    ambient: Some(negative),
+                    regime,
+                    ..base
+                };
+                assert_eq!(
+                    decide(&f),
+                    decision(Verdict::SelfExcited, true, Zeta0Source::Ambient),
+                    "{f:?}"
+                );
+            }
+        }
+        // A positive interval on a growing window contradicts itself: untrusted.
+        let f = VerdictFacts {
+            fit_nmae: 0.5,
+            regime: Some(Regime::SelfExcited),
+            ..facts()
+        };
+        assert_eq!(
+            decide(&f),
+            decision(Verdict::Unknown, false, Zeta0Source::Ambient)
+        );
     }
 
     #[test]
-    fn row_trusted_non_negative_zeta0_is_damped() {
+    fn row_trusted_non_negative_zeta0_is_damped_without_ambient() {
         for (z, regime) in [
             (0.01, Some(Regime::Damped)),
             (0.0, Some(Regime::Damped)),
@@ -273,6 +350,7 @@ mod tests {
             let f = VerdictFacts {
                 zeta0_model: Some(z),
                 regime,
+                ambient: None,
                 ..facts()
             };
             assert_eq!(
@@ -284,6 +362,7 @@ mod tests {
         // The bound itself still fits.
         let f = VerdictFacts {
             fit_nmae: 0.2,
+            ambient: None,
             ..facts()
         };
         assert_eq!(decide(&f).verdict, Verdict::Damped);
@@ -330,20 +409,6 @@ mod tests {
                 ambient: None,
                 ..untrusted
             },
-            // Ambient interval reaching zero.
-            VerdictFacts {
-                ambient: Some(AmbientZeta {
-                    zeta: 0.002,
-                    low: 0.0,
-                    high: 0.004,
-                }),
-                ..untrusted
-            },
-            // Significant envelope growth vetoes the ambient fallback.
-            VerdictFacts {
-                regime: Some(Regime::SelfExcited),
-                ..untrusted
-            },
             // A trusted model with no oscillator at rest and no usable ambient estimate.
             VerdictFacts {
                 zeta0_model: None,
@@ -359,6 +424,7 @@ mod tests {
             // A trusted model saying "damped" on a window whose envelope grows significantly.
             VerdictFacts {
                 regime: Some(Regime::SelfExcited),
+                ambient: None,
                 ..facts()
             },
         ] {

@@ -47,7 +47,7 @@ pub struct AmbientDamping {
     pub zeta_stderr: f64,
     /// AR order used.
     pub order: usize,
-    /// Standard deviation of the one-step prediction residuals.
+    /// Standard deviation of the one-step prediction residuals (NaN from SSI-COV, which has none).
     pub residual_std: f64,
 }
 

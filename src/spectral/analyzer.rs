@@ -3,8 +3,8 @@
 
 use super::preprocess::{damping_from_growth, detrend_linear, hann, remove_moving_average};
 use super::{
-    ambient_damping, check_finite, classify, ArOptions, SpectralError, WindowOptions,
-    WindowSpectral,
+    ambient_damping, check_finite, classify, ssi_cov_damping, AmbientDamping, AmbientMethod,
+    ArOptions, SpectralError, WindowOptions, WindowSpectral,
 };
 use rustfft::num_complex::Complex;
 use rustfft::{Fft, FftPlanner};
@@ -387,8 +387,9 @@ impl SpectralAnalyzer {
 
     /// Pre-processes `x` (centred moving-average removal of `opts.moving_average` samples if
     /// `> 1`, else linear detrending) into an internal buffer and runs the whole model-free
-    /// analysis: dominant frequency, envelope growth, ambient AR damping near the dominant
-    /// frequency, and [`classify`]. Allocates only the AR fit's small `p x p` matrices.
+    /// analysis: dominant frequency, envelope growth, ambient damping near the dominant
+    /// frequency ([`AmbientMethod`], SSI-COV by default), and [`classify`]. Allocates only the
+    /// ambient estimator's small matrices.
     pub fn analyze_window(
         &mut self,
         x: &[f64],
@@ -405,11 +406,21 @@ impl SpectralAnalyzer {
         let result = (|| {
             let peak = self.dominant_frequency(&work, opts.min_freq_hz)?;
             let growth = self.growth_rate(&work, peak.frequency_hz, &opts.growth)?;
-            let ar = ArOptions {
-                frequency_hint_hz: Some(peak.frequency_hz),
-                ..opts.ar
+            let ambient = match opts.ambient {
+                AmbientMethod::Ssi(ssi) => {
+                    ssi_cov_damping(&work, self.rate_hz, peak.frequency_hz, &ssi)
+                        .ok()
+                        .map(AmbientDamping::from)
+                }
+                AmbientMethod::Ar(ar) => {
+                    let ar = ArOptions {
+                        frequency_hint_hz: Some(peak.frequency_hz),
+                        ..ar
+                    };
+                    ambient_damping(&work, self.rate_hz, &ar).ok()
+                }
+                AmbientMethod::Skip => None,
             };
-            let ambient = ambient_damping(&work, self.rate_hz, &ar).ok();
             let regime = classify(&growth, ambient.as_ref(), &opts.classify);
             Ok(WindowSpectral {
                 peak,

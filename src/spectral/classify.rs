@@ -1,7 +1,7 @@
 //! The model-free regime of a window (self-excited, limit cycle, damped, undecided) and the
 //! options and result of the whole window analysis.
 
-use super::{AmbientDamping, ArOptions, GrowthOptions, GrowthRate, Peak};
+use super::{AmbientDamping, ArOptions, GrowthOptions, GrowthRate, Peak, SsiOptions};
 
 /// Model-free regime of a window.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -88,8 +88,8 @@ pub struct WindowOptions {
     pub min_freq_hz: f64,
     /// Envelope growth options.
     pub growth: GrowthOptions,
-    /// AR options (the hint is replaced by the dominant frequency).
-    pub ar: ArOptions,
+    /// How the ambient damping is estimated (the dominant frequency picks the mode).
+    pub ambient: AmbientMethod,
     /// Classification thresholds.
     pub classify: ClassifyOptions,
 }
@@ -101,9 +101,36 @@ impl Default for WindowOptions {
             moving_average: 201,
             min_freq_hz: 1.0,
             growth: GrowthOptions::default(),
-            ar: ArOptions::default(),
+            ambient: AmbientMethod::default(),
             classify: ClassifyOptions::default(),
         }
+    }
+}
+
+/// How [`super::SpectralAnalyzer::analyze_window`] estimates the ambient (noise-driven) damping.
+///
+/// Why SSI-COV by default: white sensor noise lives only at lag zero of the correlation
+/// function, which covariance-driven SSI never uses, while an AR(p) fit treats it as part of the
+/// process and reads the damping too high (issue 8: +2 % read as +5.6 %; `docs/benchmarks.md`,
+/// "Ambient damping under sensor noise"). Its lengths are in periods of the dominant frequency,
+/// so one default serves any gate. SSI also holds when the damping is negative: the correlations
+/// of a noise-driven linear system obey `R(k + j) = A^j R(k)` whether it decays or grows, which
+/// is all the method uses.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum AmbientMethod {
+    /// Covariance-driven stochastic subspace identification ([`super::ssi_cov_damping`]).
+    Ssi(SsiOptions),
+    /// AR(p) least squares ([`super::ambient_damping`]), the hint replaced by the dominant
+    /// frequency: biased by sensor noise, kept for comparison.
+    Ar(ArOptions),
+    /// No ambient estimate (the analysis of a model's noise-free prediction, where only the peak
+    /// and the growth are compared).
+    Skip,
+}
+
+impl Default for AmbientMethod {
+    fn default() -> Self {
+        AmbientMethod::Ssi(SsiOptions::default())
     }
 }
 
@@ -114,7 +141,7 @@ pub struct WindowSpectral {
     pub peak: Peak,
     /// Envelope growth.
     pub growth: GrowthRate,
-    /// Ambient damping (`None` if the AR fit failed).
+    /// Ambient damping (`None` if the estimate failed or was skipped).
     pub ambient: Option<AmbientDamping>,
     /// The regime.
     pub regime: Regime,

@@ -31,7 +31,9 @@ mod tests;
 
 pub use ambient::{ambient_damping, normal_quantile, AmbientDamping, ArOptions};
 pub use analyzer::{GrowthOptions, GrowthRate, Peak, SpectralAnalyzer};
-pub use classify::{classify, ClassifyOptions, Regime, WindowOptions, WindowSpectral};
+pub use classify::{
+    classify, AmbientMethod, ClassifyOptions, Regime, WindowOptions, WindowSpectral,
+};
 pub use pool::{DampingPool, PoolOptions, PooledEstimate, WindowEstimate};
 pub use preprocess::{damping_from_growth, detrend_linear, hann, hann_into, remove_moving_average};
 pub use relaxation::{envelope_relaxation, EnvelopeRelaxation, RelaxationOptions};

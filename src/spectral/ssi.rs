@@ -127,6 +127,22 @@ pub struct SsiEstimate {
     pub cycles: f64,
 }
 
+impl From<SsiEstimate> for super::AmbientDamping {
+    /// The estimate in the shape the window analysis reports; SSI has no one-step residual, so
+    /// `residual_std` is NaN, and `order` is the model order the pole came from.
+    fn from(e: SsiEstimate) -> Self {
+        super::AmbientDamping {
+            frequency_hz: e.frequency_hz,
+            zeta: e.zeta,
+            zeta_low: e.zeta_interval.0,
+            zeta_high: e.zeta_interval.1,
+            zeta_stderr: e.zeta_stderr,
+            order: e.order,
+            residual_std: f64::NAN,
+        }
+    }
+}
+
 /// Why [`ssi_cov_damping`] could not give an estimate.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum SsiError {
