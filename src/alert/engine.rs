@@ -489,7 +489,7 @@ impl AlertEngine {
         out
     }
 
-    /// The firing alerts of one gate (damping first, then stale): what a per-gate view needs,
+    /// The firing alerts of one gate (damping first, then stale, then the declining warning): what a per-gate view needs,
     /// without copying every gate's alerts as [`AlertEngine::firing`] does.
     pub fn firing_of(&self, gate: &str) -> Vec<Alert> {
         let Some(track) = self.gates.get(gate) else {
@@ -500,6 +500,8 @@ impl AlertEngine {
             out.push(alert.clone());
         }
         out.extend(track.stale.clone());
+        // the warning too: the gate's view (API, bench) showed every firing alert but this one
+        out.extend(track.declining.alert().cloned());
         out
     }
 

@@ -22,6 +22,7 @@ mod analyzer;
 mod early_warning;
 mod linearisation;
 mod model_interval;
+mod pooling;
 mod population;
 mod report;
 mod series;
@@ -35,6 +36,7 @@ pub use analyzer::Analyzer;
 pub use early_warning::{kendall_tau, lag1_autocorrelation, rolling, variance, EwsIndicators};
 pub use linearisation::{equivalent_damping, limit_cycle, time_to_amplitude, Linearization};
 pub use model_interval::{zeta0_interval, FittedModel};
+pub use pooling::{PoolingSettings, ZetaPools};
 pub use population::{biased_population, SpectralTarget};
 pub use report::{AmbientZeta, DampingReport, Verdict, Zeta0Source};
 pub use series::{

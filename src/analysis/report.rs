@@ -127,6 +127,13 @@ pub struct DampingReport {
     pub trusted: bool,
     /// The conclusion.
     pub verdict: Verdict,
+    /// The model-free regime of the window (`None` without uniform sampling).
+    #[serde(default)]
+    pub regime: Option<crate::spectral::Regime>,
+    /// Windows whose ambient or envelope estimates were pooled into `zeta0` and its interval
+    /// (`None`: the window alone; `docs/damping.md`, "Pooling windows").
+    #[serde(default)]
+    pub zeta0_windows: Option<usize>,
 }
 
 impl DampingReport {
@@ -164,6 +171,8 @@ impl DampingReport {
             fit_nmae: f64::INFINITY,
             trusted: false,
             verdict: Verdict::Unknown,
+            regime: None,
+            zeta0_windows: None,
         }
     }
 }

@@ -686,4 +686,5 @@ fn conclude(
     damping.zeta0_source = zeta0.map(|_| decision.source);
     damping.trusted = decision.trusted;
     damping.verdict = decision.verdict;
+    damping.regime = regime;
 }

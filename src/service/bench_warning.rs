@@ -71,6 +71,10 @@ pub struct BenchWarningArgs {
     /// Identification worker threads of the daemon under test.
     #[arg(long, default_value_t = 1)]
     pub worker_threads: usize,
+    /// Print every window to stderr: truth, zeta0 with its interval and source, the trend's
+    /// slope and confident crossing, the firing alerts (for engineers checking a scenario).
+    #[arg(long)]
+    pub trace: bool,
 }
 
 /// What one run streams.
@@ -88,6 +92,9 @@ pub struct RunSpec {
     pub noise_rms: f64,
     /// Sample time streamed after the warm-up, s.
     pub duration_s: f64,
+    /// Print every window (estimate, interval, source, trend, alerts) to stderr (`--trace`).
+    #[serde(skip)]
+    pub trace: bool,
 }
 
 fn ser_scenario<S: serde::Serializer>(n: &ScenarioName, s: S) -> Result<S::Ok, S::Error> {
@@ -287,6 +294,38 @@ pub async fn run_stream(
         let mut firing: Vec<String> = view.alerts.iter().map(|a| a.name.clone()).collect();
         firing.sort();
         firing.dedup();
+        if spec.trace {
+            let trusted = view
+                .identification
+                .as_ref()
+                .is_some_and(|i| i.damping.trusted);
+            let facts = view.identification.as_ref().map(|i| {
+                let pct = |a: &crate::analysis::AmbientZeta| {
+                    let r = |v: f64| (v * 1e4).round() / 100.0;
+                    (r(a.zeta), r(a.low), r(a.high))
+                };
+                (
+                    i.damping.regime,
+                    i.damping.zeta0_windows,
+                    i.damping.ambient_zeta.as_ref().map(pct),
+                )
+            });
+            let trend = view.trend.as_ref().map(|t| {
+                (
+                    t.slope_per_second * 60.0 * 100.0,
+                    t.slope_upper * 60.0 * 100.0,
+                    t.crossing_seconds_confident,
+                )
+            });
+            eprintln!(
+                "t {end:7.1}  true {:+.2} %  zeta0 {:?} {:?} {:?} trusted {trusted}  trend \
+                 (%/min, upper %/min, confident crossing s) {trend:?}  firing {firing:?}  (regime, pooled, ssi) {facts:?}",
+                100.0 * truth_centre,
+                zeta0.map(|z| (z * 1e4).round() / 100.0),
+                interval.map(|(a, b)| ((a * 1e4).round() / 100.0, (b * 1e4).round() / 100.0)),
+                source,
+            );
+        }
         windows.push(WindowRecord {
             start,
             end,
@@ -362,6 +401,7 @@ pub fn plan(args: &BenchWarningArgs) -> anyhow::Result<Vec<RunSpec>> {
                     seed,
                     noise_rms: noise.rms(&p),
                     duration_s,
+                    trace: args.trace,
                 });
             }
         }

@@ -11,7 +11,9 @@ use serde::{Deserialize, Serialize};
 
 use crate::alert::notify::NotifyConfig;
 use crate::alert::AlertRules;
-use crate::analysis::{AnalysisError, AnalysisSettings, Analyzer, Signal, TrackingPolicy};
+use crate::analysis::{
+    AnalysisError, AnalysisSettings, Analyzer, PoolingSettings, Signal, TrackingPolicy,
+};
 
 /// The embedded default configuration (the documented example), used by `serve` without
 /// `--config` and by the demo.
@@ -316,6 +318,8 @@ pub struct GateConfig {
     /// When a window may refine the previous window's model instead of searching
     /// (`docs/design.md`, "Tracking between windows").
     pub tracking: TrackingPolicy,
+    /// Pooling of consecutive model-free estimates (`docs/damping.md`, "Pooling windows").
+    pub pooling: PoolingSettings,
 }
 
 impl Default for GateConfig {
@@ -336,6 +340,7 @@ impl Default for GateConfig {
             max_past_seconds: DEFAULT_MAX_PAST_SECONDS,
             alert: AlertRules::default(),
             tracking: TrackingPolicy::default(),
+            pooling: PoolingSettings::default(),
         }
     }
 }

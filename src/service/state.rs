@@ -25,7 +25,7 @@ use super::window::Window;
 use super::worker::{Job, JobOutcome, Submitted, WindowAnalyzer, WorkerPool};
 use crate::alert::notify::{spawn_notifier_with_ack, NotifierHandle};
 use crate::alert::{Alert, AlertEngine, AlertEvent, GateState, Observation};
-use crate::analysis::{AnalysisError, DampingTrend, TrendEstimate, WindowAnalysis};
+use crate::analysis::{AnalysisError, DampingTrend, TrendEstimate, WindowAnalysis, ZetaPools};
 
 /// Relative disagreement of a declared or implied sample rate with `rate_hz` that is refused.
 pub const RATE_TOLERANCE: f64 = 0.01;
@@ -68,6 +68,8 @@ struct GateEntry {
     trend: DampingTrend,
     /// Its latest estimate, for the API.
     trend_estimate: Option<TrendEstimate>,
+    /// The gate's pooled model-free estimates (`None`: pooling off).
+    pools: Option<ZetaPools>,
     /// Wall-clock time of the last samples (or of creation): gate expiry is counted from it.
     last_data: SystemTime,
     /// Created by `accept_unknown_gates` (not a `[gates.*]` table): such a gate expires after
@@ -227,6 +229,9 @@ impl AppState {
                 GateEntry {
                     window: Window::new(cfg.rate_hz, cfg.window_samples(), cfg.every_samples()),
                     trend: DampingTrend::new(cfg.alert.trend_horizon_seconds),
+                    // validated with the configuration: an error cannot happen here, and would
+                    // only mean no pooling
+                    pools: cfg.pooling.pools().ok().flatten(),
                     config: cfg,
                     latest: None,
                     last_identification: None,
@@ -451,7 +456,10 @@ impl AppState {
         };
         e.analysed_until = Some(window.1);
         match outcome {
-            JobOutcome::Done(a) => {
+            JobOutcome::Done(mut a) => {
+                if let Some(p) = e.pools.as_mut() {
+                    p.apply(window.0, window.1, &mut a.damping);
+                }
                 let d = &a.damping;
                 let set = |gv: &prometheus::GaugeVec, v: Option<f64>| {
                     if let Some(v) = v.filter(|v| v.is_finite()) {

@@ -125,6 +125,10 @@ impl GateConfig {
             let (key, msg) = e.split_once(": ").unwrap_or((&e, "invalid"));
             return err(&format!("tracking.{key}"), msg);
         }
+        if let Err(e) = self.pooling.pools() {
+            let (key, msg) = e.split_once(": ").unwrap_or((&e, "invalid"));
+            return err(&format!("pooling.{key}"), msg);
+        }
         // the model is compiled here as `serve` compiles it, so `check-config` refuses what
         // `serve` would refuse (a model that does not parse, has no `ydd` or no unknowns)
         if let Err(e) = Analyzer::new(self.analysis_settings()) {

@@ -14,7 +14,7 @@ pub struct GateView {
     pub alert_state: &'static str,
     /// Whether `GateNegativeDamping` is firing for this gate (the truth, whatever the display).
     pub firing: bool,
-    /// The gate's firing alerts (`GateNegativeDamping`, `GateDataStale`).
+    /// The gate's firing alerts (`GateNegativeDamping`, `GateDataStale`, `GateDampingDeclining`).
     pub alerts: Vec<Alert>,
     /// Window statistics.
     pub window: WindowView,
