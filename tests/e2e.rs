@@ -14,7 +14,9 @@ use std::time::Duration;
 use gatewatch::service::client::{simulate_with_source, Protocol, Scenario, SimulateArgs};
 use gatewatch::service::config::Config;
 use gatewatch::service::server::{run, Listeners};
-use gatewatch::simulate::{GateParams, GateSimulator, ZetaSchedule};
+use gatewatch::simulate::{
+    GateParams, GatePreset, GateSimulator, NoiseLevel, ScenarioName, ZetaSchedule,
+};
 use serde_json::Value;
 use tokio::sync::mpsc;
 
@@ -224,6 +226,10 @@ struct Step {
     trusted: bool,
     /// `GateNegativeDamping` firing after this window.
     firing: bool,
+    /// Every alert firing after this window, by name.
+    alerts: Vec<String>,
+    /// The window's `zeta0_interval`.
+    interval: Option<(f64, f64)>,
     state: String,
 }
 
@@ -281,6 +287,18 @@ async fn lockstep(
             zeta0: fresh.then(|| ident["damping"]["zeta0"].as_f64()).flatten(),
             trusted: fresh && ident["damping"]["trusted"].as_bool() == Some(true),
             firing: v["firing"].as_bool().unwrap(),
+            alerts: v["alerts"]
+                .as_array()
+                .into_iter()
+                .flatten()
+                .filter_map(|a| a["name"].as_str().map(String::from))
+                .collect(),
+            interval: fresh
+                .then(|| {
+                    let iv = &ident["damping"]["zeta0_interval"];
+                    Some((iv[0].as_f64()?, iv[1].as_f64()?))
+                })
+                .flatten(),
             state: v["alert_state"].as_str().unwrap_or("").to_string(),
         };
         eprintln!(
@@ -347,10 +365,12 @@ async fn onset_fires_negative_damping_and_recovery_resolves_it() {
         .iter()
         .find(|s| s.firing)
         .expect("GateNegativeDamping fired");
-    // KNOWN REGRESSION (issue 8, open): until the merge of the interval-based alert and the
-    // envelope estimator this fired within 15 s of -1 %; the growth windows now read "unknown"
-    // (untrusted model fits, envelope intervals touching zero) and it fires 35 s after. The
-    // bound below keeps the alert from getting later still; issue 8's target is before -1 %.
+    // KNOWN LIMIT (issue 8, open): on this ramp (0.04 % per second) the gate grows into its
+    // limit cycle within a few windows of zero; the growth windows read "unknown" (envelope
+    // intervals across zero, a positive ambient interval on a growing window) and the alert
+    // fires about 35 s after -1 %, while GateDampingDeclining warned before (see
+    // `slow_drift_warns_before_zero`). The bound keeps it from getting later still; issue 8's
+    // target is before -1 %.
     assert!(
         fired.end <= t_minus_1 + 40.0,
         "fired at {} s of stream time, more than 40 s after zeta reached -1 % at {t_minus_1} s",
@@ -457,5 +477,118 @@ async fn a_stopped_stream_fires_data_stale_and_new_data_resolves_it() {
         .unwrap_or(0.0);
     assert!(delivered >= 1.0, "delivered counter exported:\n{m}");
     d.stop().await;
+    hook.task.abort();
+}
+
+/// Samples of `def`'s warm-up (before `t = 0`), dropped so the stream starts at `t = 0`.
+fn skip_warmup(sim: &mut GateSimulator, warmup_s: f64) {
+    let mut warm = vec![0.0; (warmup_s * sim.params().rate_hz).round() as usize];
+    sim.fill(&mut warm);
+}
+
+/// Issue 8, "done when": on the slow drift (+2 % to -2 % over 20 minutes) of the lab gate with a
+/// load cell's noise floor, the trend warning `GateDampingDeclining` fires, and reaches the
+/// webhook, before the true damping crosses zero; `GateNegativeDamping` only after it.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn slow_drift_warns_before_zero() {
+    let mut hook = hook().await;
+    let (window, every) = (10.0, 5.0);
+    let d = daemon(
+        hook.addr,
+        "[defaults]\nrate_hz = 200.0\nmax_past_seconds = 0.0\n\
+         [defaults.alert]\nstale_after_seconds = 600.0\n",
+    )
+    .await;
+    let p = GatePreset::Lab.params();
+    let def = ScenarioName::SlowDrift.def(&p);
+    let mut sim = def.simulator(&p, NoiseLevel::Relative(0.125), 3).unwrap();
+    skip_warmup(&mut sim, def.warmup_s);
+    let t_zero = def
+        .zeta
+        .first_time_at_or_below(0.0, 0.0, def.duration_s, 0.5)
+        .unwrap();
+    let steps = lockstep(&d, "g1", &mut sim, t_zero + 30.0, window, every).await;
+    let warned = steps
+        .iter()
+        .find(|s| s.alerts.iter().any(|a| a == "GateDampingDeclining"))
+        .unwrap_or_else(|| panic!("GateDampingDeclining never fired up to {t_zero} s"));
+    assert!(
+        warned.end < t_zero,
+        "warned at {} s, after the zero crossing at {t_zero} s",
+        warned.end
+    );
+    // the warning comes from the trend, not from a negative reading: the gate was still damped
+    assert!(warned.true_zeta > 0.0, "{warned:?}");
+    assert!(
+        steps
+            .iter()
+            .filter(|s| s.end <= warned.end)
+            .all(|s| !s.firing),
+        "GateNegativeDamping fired before the warning"
+    );
+    hook.wait_for("firing", "GateDampingDeclining", "g1").await;
+    d.stop().await;
+    hook.task.abort();
+}
+
+/// Issue 8, "done when": a gate held on its -2 % limit cycle (lock gate, 2000 kg, 5 Hz, 100 Hz
+/// sampling, sensor noise) fires `GateNegativeDamping` and never resolves it, and the reported
+/// `zeta0` is right: median within 0.5 points of the truth, and the intervals cover it.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn held_limit_cycle_keeps_firing_with_the_right_zeta0() {
+    let mut hook = hook().await;
+    let (window, every) = (10.0, 5.0);
+    let p = GatePreset::Lock.params();
+    let d = daemon(
+        hook.addr,
+        &format!(
+            "[defaults]\nrate_hz = {}\nstiffness = {}\nmax_past_seconds = 0.0\n\
+             [defaults.alert]\nstale_after_seconds = 600.0\n",
+            p.rate_hz, p.stiffness
+        ),
+    )
+    .await;
+    let def = ScenarioName::LimitCycle.def(&p);
+    let mut sim = def.simulator(&p, NoiseLevel::Relative(0.125), 4).unwrap();
+    skip_warmup(&mut sim, def.warmup_s);
+    let steps = lockstep(&d, "g1", &mut sim, 180.0, window, every).await;
+    let fired = steps
+        .iter()
+        .position(|s| s.firing)
+        .expect("GateNegativeDamping fired on the held limit cycle");
+    assert!(
+        steps[fired..].iter().all(|s| s.firing),
+        "resolved on the held limit cycle: {:?}",
+        steps[fired..].iter().find(|s| !s.firing)
+    );
+    let mut errors: Vec<f64> = steps
+        .iter()
+        .filter_map(|s| s.zeta0.map(|z| (z - s.true_zeta).abs()))
+        .collect();
+    assert!(errors.len() * 10 >= steps.len() * 9, "{steps:?}");
+    errors.sort_by(f64::total_cmp);
+    let median = errors[errors.len() / 2];
+    assert!(median <= 0.005, "median |zeta0 error| {median}");
+    let with_interval: Vec<_> = steps
+        .iter()
+        .filter_map(|s| s.interval.map(|iv| (iv, s.true_zeta)))
+        .collect();
+    let covered = with_interval
+        .iter()
+        .filter(|((lo, hi), z)| lo <= z && z <= hi)
+        .count();
+    assert!(
+        covered * 10 >= with_interval.len() * 8,
+        "{covered} of {} intervals cover the truth",
+        with_interval.len()
+    );
+    hook.wait_for("firing", "GateNegativeDamping", "g1").await;
+    d.stop().await;
+    let got = hook.drain();
+    assert!(
+        !got.iter()
+            .any(|a| a.0 == "resolved" && a.1 == "GateNegativeDamping"),
+        "resolved: {got:?}"
+    );
     hook.task.abort();
 }
