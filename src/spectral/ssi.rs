@@ -76,8 +76,15 @@ pub struct SsiOptions {
     pub band: f64,
     /// Accepted damping ratios lie within `(-zeta_max, zeta_max)`: beyond, a pole is noise.
     pub zeta_max: f64,
-    /// Minimum block length for the interval, periods of the peak frequency.
+    /// Block length for the interval, periods of the peak frequency (longer records make more
+    /// blocks of this length, up to [`Self::max_blocks`]).
     pub block_cycles: f64,
+    /// Shortest block a short record may use, periods: a record of fewer than
+    /// `min_blocks * block_cycles` periods is cut into `min_blocks` blocks as long as each holds
+    /// this many. Default 4: a 10 s window of a 2 Hz barrier gate (20 periods) still gets an
+    /// estimate, with the wide interval that 3 degrees of freedom and Au's floor give it, instead
+    /// of none (issue 8: "what limits an estimate is the number of cycles").
+    pub min_block_cycles: f64,
     /// Minimum number of blocks: fewer and the record is too short for an interval.
     pub min_blocks: usize,
     /// Maximum number of blocks.
@@ -99,6 +106,7 @@ impl Default for SsiOptions {
             band: 0.25,
             zeta_max: 0.3,
             block_cycles: 10.0,
+            min_block_cycles: 4.0,
             min_blocks: 4,
             max_blocks: 20,
             confidence: 0.95,
@@ -239,17 +247,20 @@ pub fn ssi_cov_damping(
         .clamp(3, opts.max_block_rows.max(3));
     // One more row than the highest order for the shift invariance, and at least 2 orders.
     let n_max = (opts.max_order.min(i - 1)) & !1;
-    let n_blocks = ((cycles / opts.block_cycles).floor() as usize).min(opts.max_blocks);
+    let mut n_blocks = ((cycles / opts.block_cycles).floor() as usize).min(opts.max_blocks);
+    if n_blocks < opts.min_blocks && cycles >= opts.min_blocks as f64 * opts.min_block_cycles {
+        n_blocks = opts.min_blocks;
+    }
     let block_len = n / n_blocks.max(1);
     if n_blocks < opts.min_blocks || n < 8 * i || n_max < 2 {
         return Err(SsiError::TooShort {
             samples: n,
             cycles,
             f_peak_hz,
-            needed_cycles: (opts.min_blocks as f64 * opts.block_cycles)
+            needed_cycles: (opts.min_blocks as f64 * opts.min_block_cycles)
                 .max(8.0 * i as f64 / samples_per_cycle),
             min_blocks: opts.min_blocks,
-            block_cycles: opts.block_cycles,
+            block_cycles: opts.min_block_cycles,
         });
     }
 
@@ -358,8 +369,15 @@ fn validate(rate_hz: f64, f_peak_hz: f64, o: &SsiOptions) -> Result<(), SsiError
             rate_hz / 2.0
         ));
     }
-    if !(o.lag_cycles > 0.0 && o.block_cycles > 0.0 && o.band > 0.0 && o.zeta_max > 0.0) {
-        return bad("lag_cycles, block_cycles, band and zeta_max must be positive".into());
+    if !(o.lag_cycles > 0.0
+        && o.block_cycles > 0.0
+        && o.min_block_cycles > 0.0
+        && o.band > 0.0
+        && o.zeta_max > 0.0)
+    {
+        return bad(
+            "lag_cycles, block_cycles, min_block_cycles, band and zeta_max must be positive".into(),
+        );
     }
     if !(o.confidence > 0.0 && o.confidence < 1.0) {
         return bad(format!("confidence {}", o.confidence));
