@@ -126,8 +126,11 @@ pub struct WindowRecord {
     pub frequency_hz: f64,
     /// Regime of the window.
     pub regime: Regime,
-    /// Names of the gate's alerts firing after this window.
+    /// Names of the gate's alerts firing after this window (and the early-warning baseline's
+    /// [`score::EWS_VARIANCE`], marked by [`score::mark_ews`]).
     pub firing: Vec<String>,
+    /// Variance of the measured (noisy) signal over the window, for the early-warning baseline.
+    pub variance: f64,
 }
 
 /// One stream's record.
@@ -215,9 +218,11 @@ pub async fn run_stream(
     while sim.time() < -0.5 / rate {
         sim.next_sample();
     }
-    // per cadence chunk: (start time, sum of squares of the clean signal, samples), to
-    // classify a window's regime by its clean amplitude without keeping hours of samples
-    let mut chunks: Vec<(f64, f64, usize)> = Vec::new();
+    // per cadence chunk: (start time, sum of squares of the clean signal, samples, sum and sum
+    // of squares of the MEASURED signal), to classify a window's regime by its clean amplitude
+    // and give the early-warning baseline the variance an operator would see, without keeping
+    // hours of samples
+    let mut chunks: Vec<(f64, f64, usize, f64, f64)> = Vec::new();
     let total = (spec.duration_s * rate).round() as usize;
     let mut sent = 0usize;
     let mut windows = Vec::new();
@@ -225,15 +230,17 @@ pub async fn run_stream(
     while sent < total {
         let n = every.min(total - sent);
         buf.clear();
-        let mut sq = 0.0;
+        let (mut sq, mut m1, mut m2) = (0.0, 0.0, 0.0);
         let t_chunk = sent as f64 / rate;
         for i in 0..n {
             let v = sim.next_sample();
             let c = sim.last_clean();
             sq += c * c;
+            m1 += v;
+            m2 += v * v;
             buf.push((STREAM_EPOCH + (sent + i) as f64 / rate, v));
         }
-        chunks.push((t_chunk, sq, n));
+        chunks.push((t_chunk, sq, n, m1, m2));
         sent += n;
         let summary = state
             .ingest(vec![Batch {
@@ -286,10 +293,16 @@ pub async fn run_stream(
         let truth_centre = def.true_zeta(centre);
         let k_factor = def.stiffness_factor.as_ref().map_or(1.0, |k| k.at(centre));
         let frequency_hz = p.natural_frequency_hz() * k_factor.sqrt();
-        let (sq, count) = chunks
+        let (sq, count, m1, m2) = chunks
             .iter()
             .filter(|c| c.0 >= start - 0.5 / rate && c.0 < end)
-            .fold((0.0, 0usize), |a, c| (a.0 + c.1, a.1 + c.2));
+            .fold((0.0, 0usize, 0.0, 0.0), |a, c| {
+                (a.0 + c.1, a.1 + c.2, a.2 + c.3, a.3 + c.4)
+            });
+        let measured_variance = {
+            let n = count.max(1) as f64;
+            (m2 / n - (m1 / n).powi(2)).max(0.0)
+        };
         let amplitude = std::f64::consts::SQRT_2 * (sq / count.max(1) as f64).sqrt();
         let mut firing: Vec<String> = view.alerts.iter().map(|a| a.name.clone()).collect();
         firing.sort();
@@ -337,6 +350,7 @@ pub async fn run_stream(
             frequency_hz,
             regime: Regime::classify(&p, truth_centre, amplitude),
             firing,
+            variance: measured_variance,
         });
         // keep only the chunks a future window can reach
         let keep_from = end - 2.0 * window_s;
@@ -442,6 +456,9 @@ async fn bench(args: BenchWarningArgs) -> anyhow::Result<Report> {
             spec.duration_s
         );
         records.push(run_stream(spec, config, analyzer).await?);
+    }
+    for r in &mut records {
+        score::mark_ews(&mut r.windows, &score::EwsRule::default());
     }
     Ok(Report {
         regimes: regime_rows(&records),

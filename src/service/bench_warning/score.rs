@@ -227,6 +227,54 @@ pub fn regime_rows_with(records: &[RunRecord], targets: &Targets) -> Vec<RegimeR
         .collect()
 }
 
+/// Name of the model-free early-warning baseline in the alert rows.
+pub const EWS_VARIANCE: &str = "EWS baseline: variance trend";
+
+/// The critical-slowing-down baseline of issue 8 (as in `ewstools`): the variance of the
+/// measured signal rises as the damping falls (a linear oscillator's ambient variance goes as
+/// `1 / zeta`), so a steadily rising variance over the last minutes is the model-free warning
+/// that `GateDampingDeclining` must beat. Lag-1 autocorrelation, ewstools' other indicator, is
+/// left out: at the sample lag of a narrow-band oscillation it reads `cos(2 pi f / fs)` whatever
+/// the damping, and on a coarser grid it needs a resampling choice per gate.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EwsRule {
+    /// Trailing horizon of window variances, s of sample time (the trend's, 600 s).
+    pub horizon_s: f64,
+    /// The rule acts once its windows span this much, s (the trend's, 120 s).
+    pub min_span_s: f64,
+    /// It "fires" while Kendall's tau of the variances against time exceeds this (0.7, a
+    /// common choice in the early-warning literature).
+    pub tau: f64,
+}
+
+impl Default for EwsRule {
+    fn default() -> Self {
+        EwsRule {
+            horizon_s: 600.0,
+            min_span_s: 120.0,
+            tau: 0.7,
+        }
+    }
+}
+
+/// Adds [`EWS_VARIANCE`] to the `firing` list of every window where the baseline fires.
+pub fn mark_ews(windows: &mut [WindowRecord], rule: &EwsRule) {
+    let mut from = 0;
+    for i in 0..windows.len() {
+        let end = windows[i].end;
+        while windows[from].end <= end - rule.horizon_s {
+            from += 1;
+        }
+        if end - windows[from].end < rule.min_span_s {
+            continue;
+        }
+        let v: Vec<f64> = windows[from..=i].iter().map(|w| w.variance).collect();
+        if crate::analysis::kendall_tau(&v).is_some_and(|t| t > rule.tau) {
+            windows[i].firing.push(EWS_VARIANCE.to_string());
+        }
+    }
+}
+
 /// One row per scenario, gate and alert name.
 #[derive(Debug, Clone, Serialize)]
 pub struct AlertRow {

@@ -1,7 +1,9 @@
 //! The bench's bookkeeping: a stream through the real daemon state with an analyzer whose
 //! answers (and so whose alert times) are known, and the scores of synthetic sequences.
 
-use super::score::{au_limit, covers, fire_times, regime_rows_with};
+use super::score::{
+    au_limit, covers, fire_times, mark_ews, regime_rows_with, EwsRule, EWS_VARIANCE,
+};
 use super::*;
 use crate::analysis::{AnalysisError, DampingReport, Verdict, WindowAnalysis, WindowInput};
 
@@ -127,6 +129,7 @@ fn window(end: f64, zeta0: Option<f64>, interval: Option<(f64, f64)>, truth: f64
         frequency_hz: 10.0,
         regime: Regime::Ambient,
         firing: Vec::new(),
+        variance: 1.0,
     }
 }
 
@@ -240,4 +243,45 @@ fn plan_refuses_bad_arguments_naming_the_flag() {
     assert!(bad(&|a| a.gates = vec!["weir".into()]).contains("--gates"));
     assert!(bad(&|a| a.hours = 0.0).contains("--hours"));
     assert!(bad(&|a| a.noise_abs = Some(-1.0)).contains("--noise-abs"));
+}
+
+/// The early-warning baseline fires while the windows' variance rises steadily over the
+/// horizon, not before it spans `min_span_s`, and not on a flat or scattered variance.
+#[test]
+fn ews_baseline_marks_a_steadily_rising_variance_only() {
+    let rule = EwsRule::default();
+    // 5 s cadence: 40 windows flat (200 s), then 60 rising
+    let mut ws: Vec<WindowRecord> = (0..100)
+        .map(|k| {
+            let mut w = window(10.0 + 5.0 * k as f64, None, None, 0.01);
+            w.variance = if k < 40 {
+                1.0 + 0.01 * ((k * 7919) % 13) as f64
+            } else {
+                1.0 + 0.1 * (k - 39) as f64
+            };
+            w
+        })
+        .collect();
+    mark_ews(&mut ws, &rule);
+    let marked: Vec<f64> = ws
+        .iter()
+        .filter(|w| w.firing.iter().any(|n| n == EWS_VARIANCE))
+        .map(|w| w.end)
+        .collect();
+    assert!(!marked.is_empty(), "never marked");
+    assert!(
+        marked.iter().all(|&t| t > 10.0 + 5.0 * 40.0),
+        "marked during the flat part: {marked:?}"
+    );
+    assert!(marked.contains(&(10.0 + 5.0 * 99.0)), "{marked:?}");
+    // scattered, no trend: never
+    let mut flat: Vec<WindowRecord> = (0..100)
+        .map(|k| {
+            let mut w = window(10.0 + 5.0 * k as f64, None, None, 0.01);
+            w.variance = 1.0 + 0.5 * ((k * 7919) % 17) as f64 / 17.0;
+            w
+        })
+        .collect();
+    mark_ews(&mut flat, &rule);
+    assert!(flat.iter().all(|w| w.firing.is_empty()));
 }
