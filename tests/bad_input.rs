@@ -1481,6 +1481,18 @@ fn bad_configs() -> Vec<(&'static str, String, &'static str, Option<usize>)> {
             "server.listen",
             Some(2),
         ),
+        c(
+            "pooling min_cycles negative",
+            "[defaults.pooling]\nmin_cycles = -1.0\n",
+            "defaults.pooling.min_cycles",
+            Some(2),
+        ),
+        c(
+            "pooling unknown key",
+            "[defaults.pooling]\nmin_cycle = 100.0\n",
+            "defaults.pooling.min_cycle",
+            Some(2),
+        ),
     ]
 }
 
