@@ -281,6 +281,9 @@ mod tests {
         let problem = Problem::new(&model, &series).unwrap();
         let fit = Fitness::new(&problem, vec![true; 100], &Search::default());
         let got = polish(&fit, &[f64::NAN, 1.0], 60);
-        assert_eq!((got.x, got.spent, got.integrated, got.start), (None, 1, 1, None));
+        assert_eq!(
+            (got.x, got.spent, got.integrated, got.start),
+            (None, 1, 1, None)
+        );
     }
 }

@@ -2,8 +2,10 @@
 //!
 //! A gate's next window overlaps the last by half; while the gate does not change, the previous
 //! window's coefficients are already in the right basin, and the Levenberg-Marquardt polish
-//! converges from them in a few iterations. This skips the DE entirely (the DE, not the polish,
-//! is most of a window's cost). Whether the refined model is good enough is judged by the caller
+//! converges from them in a few iterations. This skips the DE entirely. (Measured, though, the
+//! polishes at the fine tolerance and not the RK4 generations are most of a full window's cost,
+//! and a tracked window is its polish's integrations: docs/benchmarks.md, "Where a tracked
+//! window's CPU goes".) Whether the refined model is good enough is judged by the caller
 //! (`analysis::tracking`), which runs the full identification when it is not.
 
 use super::config::{Protocol, Search};

@@ -477,7 +477,11 @@ fn substituted_equation_reparses_to_the_same_model() {
 fn a_coefficient_mass_is_read_directly_with_the_programs_value() {
     // The gate's force model: M = c1, read without running the mass program.
     let m = model_p("c1*ydd + (c2 + c3*yd^2)*yd + k*y = 0", &[("k", 81360.0)]);
-    assert!(matches!(m.mass_kind, MassKind::Coef(0)), "{:?}", m.mass_kind);
+    assert!(
+        matches!(m.mass_kind, MassKind::Coef(0)),
+        "{:?}",
+        m.mass_kind
+    );
     for (c, y, yd) in [
         ([19.0, -225.9, 5.8e7], 1e-4, 0.01),
         ([0.0, 1.0, 2.0], 0.5, -0.25),
