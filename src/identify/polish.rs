@@ -22,6 +22,9 @@ pub(super) struct Polished {
     pub end: Option<Vec<f64>>,
 }
 
+/// A point and its residuals (`None`: the integration did not complete).
+type Remembered = (Vec<f64>, Option<Vec<f64>>);
+
 /// The residuals of `fit` at a point, remembering the last point computed.
 ///
 /// Why: MINPACK's loop asks for the residuals at a point and, when the step is accepted, for the
@@ -32,7 +35,7 @@ pub(super) struct Polished {
 struct Residuals<'f, 'a> {
     fit: &'f Fitness<'a>,
     /// The last point integrated and its residuals (`None` when it did not complete).
-    last: RefCell<Option<(Vec<f64>, Option<Vec<f64>>)>>,
+    last: RefCell<Option<Remembered>>,
     spent: Cell<usize>,
     integrated: Cell<usize>,
 }
