@@ -291,14 +291,11 @@ fn analyze(
     let lin = Linearization::of(model, &c, t0, scale.y, scale.v);
     let trajectory =
         identify::trajectory(model, &data.t, &c, best.initial, config.protocol.test_rtol);
-    let prediction = identify::predict(
-        model,
-        &data,
-        &c,
-        best.initial,
-        config.protocol.test_rtol,
-        config.output,
-    );
+    // The prediction is the trajectory's output: one integration for both (what
+    // `identify::predict` would integrate again).
+    let prediction = trajectory
+        .as_ref()
+        .map(|tr| identify::output_of(model, &data.t, &c, tr, config.output));
     let fit_nmae = prediction
         .as_ref()
         .and_then(|p| identify::nmae(p.iter().copied().zip(data.y.iter().copied())))

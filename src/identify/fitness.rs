@@ -163,7 +163,9 @@ impl<'a> Fitness<'a> {
         (&buf[..nc], y0, v0)
     }
 
-    /// Integrates the model for `x` over the horizon and hands `(index, output)` to `each`.
+    /// Integrates the model for `x` over the horizon and hands `(index, output)` of every
+    /// training sample to `each` (the output at a test sample is never used by the fitness, and
+    /// a force output costs a model evaluation).
     fn run(
         &self,
         x: &[f64],
@@ -177,6 +179,9 @@ impl<'a> Fitness<'a> {
         };
         let times = &self.t[..self.horizon];
         ode::integrate(self.method, &sys, [y0, v0], times, &self.opts, |i, s| {
+            if !self.is_train[i] {
+                return ControlFlow::Continue(());
+            }
             let value = match self.output {
                 Output::Displacement => s[0],
                 Output::Force => self.model.residual(times[i], s[0], s[1], coeffs),
@@ -197,6 +202,13 @@ impl<'a> Fitness<'a> {
             ControlFlow::Continue(())
         });
         (o.is_complete() && out.iter().all(|v| v.is_finite())).then_some(out)
+    }
+
+    /// The training cost of a point from its [`Fitness::residuals`]: bit for bit
+    /// `cost(x, f64::INFINITY, ..)` when `r` is `residuals(x)` (the same absolute errors summed
+    /// in the same order over the same count), without integrating again.
+    pub fn cost_of_residuals(&self, r: &[f64]) -> f64 {
+        r.iter().fold(0.0, |sum, e| sum + e.abs()) / self.n_train as f64
     }
 
     /// Splits a DE vector into physical coefficients and initial conditions.
@@ -332,6 +344,9 @@ impl Fitness<'_> {
                 }
             }),
             _ => lanes::dopri5(&sys, &y0, live, times, &self.opts, |l, i, s| {
+                if !self.is_train[i] {
+                    return ControlFlow::Continue(());
+                }
                 let v = match self.output {
                     Output::Displacement => s[0],
                     Output::Force => {

@@ -53,7 +53,7 @@ mod stats;
 pub use config::{Config, Protocol, Search};
 pub use covariance::{bandwidth, covariance, difference_steps, Covariance, COVARIANCE_RTOL};
 pub use fitness::{Fitness, FitnessWorkspace, LANES};
-pub use predict::{predict, trajectory};
+pub use predict::{output_of, predict, trajectory};
 pub use problem::Problem;
 pub use problem::{Initial, Output};
 pub use refine::refine;

@@ -1,30 +1,184 @@
 //! The Levenberg-Marquardt polish of a DE winner.
 
 use super::fitness::Fitness;
+use std::cell::{Cell, RefCell};
+
+/// What [`polish`] found.
+#[derive(Debug, Clone, PartialEq)]
+pub(super) struct Polished {
+    /// The polished point (`None` when the residuals cannot be computed at the start or the
+    /// minimisation failed).
+    pub x: Option<Vec<f64>>,
+    /// Integrations charged: every residual vector the minimisation asked for, including the
+    /// ones answered from [`Residuals`]' memory, so that the search's evaluation budget and the
+    /// reported counts do not depend on the reuse (docs/benchmarks.md, "Tracking between
+    /// windows").
+    pub spent: usize,
+    /// Integrations actually performed (at most `spent`).
+    pub integrated: usize,
+    /// The residuals at the start point, when they could be computed.
+    pub start: Option<Vec<f64>>,
+    /// The residuals at the polished point, when the last integration was at that point.
+    pub end: Option<Vec<f64>>,
+}
+
+/// A point and its residuals (`None`: the integration did not complete).
+type Remembered = (Vec<f64>, Option<Vec<f64>>);
+
+/// The residuals of `fit` at a point, remembering the last point computed.
+///
+/// Why: MINPACK's loop asks for the residuals at a point and, when the step is accepted, for the
+/// Jacobian at the same point, whose forward differences need those residuals again; the polish's
+/// caller also needs the start and end points' training cost. Each is a full integration at the
+/// polish tolerance (most of a tracked window's cost). An integration is deterministic, so a
+/// remembered vector is bit for bit the one a new integration would give.
+struct Residuals<'f, 'a> {
+    fit: &'f Fitness<'a>,
+    /// The last point integrated and its residuals (`None` when it did not complete).
+    last: RefCell<Option<Remembered>>,
+    spent: Cell<usize>,
+    integrated: Cell<usize>,
+}
+
+impl<'f, 'a> Residuals<'f, 'a> {
+    fn new(fit: &'f Fitness<'a>) -> Self {
+        Residuals {
+            fit,
+            last: RefCell::new(None),
+            spent: Cell::new(0),
+            integrated: Cell::new(0),
+        }
+    }
+
+    /// The residuals at `x` (charged one integration), from memory when `x` is bit for bit the
+    /// last point.
+    fn at(&self, x: &[f64]) -> Option<Vec<f64>> {
+        self.spent.set(self.spent.get() + 1);
+        if let Some(r) = self.remembered(x) {
+            return r;
+        }
+        self.integrated.set(self.integrated.get() + 1);
+        let r = self.fit.residuals(x);
+        *self.last.borrow_mut() = Some((x.to_vec(), r.clone()));
+        r
+    }
+
+    /// The remembered residuals when `x` is the last point (not charged).
+    fn remembered(&self, x: &[f64]) -> Option<Option<Vec<f64>>> {
+        let last = self.last.borrow();
+        let (lx, r) = last.as_ref()?;
+        let same = lx.len() == x.len() && lx.iter().zip(x).all(|(a, b)| a.to_bits() == b.to_bits());
+        same.then(|| r.clone())
+    }
+
+    /// A column of the forward-difference Jacobian: a point the minimisation never revisits, so
+    /// it is integrated without replacing the memory.
+    fn column(&self, x: &[f64]) -> Option<Vec<f64>> {
+        self.spent.set(self.spent.get() + 1);
+        self.integrated.set(self.integrated.get() + 1);
+        self.fit.residuals(x)
+    }
+}
 
 /// Levenberg-Marquardt (MINPACK's algorithm, from the `levenberg-marquardt` crate) on the
 /// simulation residuals of the training samples, from the DE winner `x0`, with a
 /// forward-difference Jacobian. Returns the polished point (`None` when the residuals cannot be
-/// computed at `x0`) and the integrations spent (at most about `max_evaluations`).
+/// computed at `x0`), the integrations spent (at most about `max_evaluations`) and the residuals
+/// at the start and the end, which give the training cost there without another integration
+/// ([`Fitness::cost_of_residuals`]).
 ///
 /// Why least squares here: near the optimum the residuals are smooth in the coefficients, so a
 /// Gauss-Newton method converges in a handful of iterations (a few dozen integrations), where a
 /// simplex on the absolute error needs hundreds.
-pub(super) fn polish(
-    fine: &Fitness<'_>,
-    x0: &[f64],
-    max_evaluations: usize,
-) -> (Option<Vec<f64>>, usize) {
+pub(super) fn polish(fine: &Fitness<'_>, x0: &[f64], max_evaluations: usize) -> Polished {
     use levenberg_marquardt::{LeastSquaresProblem, LevenbergMarquardt};
     use nalgebra::{storage::Owned, DMatrix, DVector, Dyn};
-    use std::cell::Cell;
 
-    struct Problem<'f, 'a> {
+    struct Problem<'r, 'f, 'a> {
+        res: &'r Residuals<'f, 'a>,
+        x: DVector<f64>,
+    }
+    impl LeastSquaresProblem<f64, Dyn, Dyn> for Problem<'_, '_, '_> {
+        type ResidualStorage = Owned<f64, Dyn>;
+        type JacobianStorage = Owned<f64, Dyn, Dyn>;
+        type ParameterStorage = Owned<f64, Dyn>;
+        fn set_params(&mut self, x: &DVector<f64>) {
+            self.x.copy_from(x);
+        }
+        fn params(&self) -> DVector<f64> {
+            self.x.clone()
+        }
+        fn residuals(&self) -> Option<DVector<f64>> {
+            self.res.at(self.x.as_slice()).map(DVector::from_vec)
+        }
+        fn jacobian(&self) -> Option<DMatrix<f64>> {
+            // The crate asks for the Jacobian right after the residuals at the same point: this
+            // is answered from memory.
+            let r0 = self.residuals()?;
+            let mut jac = DMatrix::zeros(r0.len(), self.x.len());
+            let mut xp = self.x.clone();
+            for j in 0..self.x.len() {
+                // Large enough to stay above the solver's error, small enough for accuracy.
+                let h = 1e-6 * self.x[j].abs().max(1e-3);
+                xp[j] = self.x[j] + h;
+                let rp = self.res.column(xp.as_slice())?;
+                jac.set_column(j, &((DVector::from_vec(rp) - &r0) / h));
+                xp[j] = self.x[j];
+            }
+            Some(jac)
+        }
+    }
+
+    let d = x0.len();
+    let res = Residuals::new(fine);
+    let problem = Problem {
+        res: &res,
+        x: DVector::from_column_slice(x0),
+    };
+    let start = problem.res.at(x0);
+    let done = |x: Option<Vec<f64>>, start: Option<Vec<f64>>| {
+        let end = x.as_deref().and_then(|x| res.remembered(x)).flatten();
+        Polished {
+            x,
+            spent: res.spent.get(),
+            integrated: res.integrated.get(),
+            start,
+            end,
+        }
+    };
+    if start.is_none() {
+        return done(None, None);
+    }
+    // The crate bounds residual evaluations by patience * (d + 1); each also costs a Jacobian
+    // (d + 1 integrations here), hence the division.
+    let patience = (max_evaluations / ((d + 1) * (d + 2))).max(4);
+    let (problem, report) = LevenbergMarquardt::new()
+        .with_patience(patience)
+        .with_ftol(1e-12)
+        .with_xtol(1e-12)
+        .minimize(problem);
+    let ok = !report.termination.was_usage_issue() && report.objective_function.is_finite();
+    let x = ok.then(|| problem.x.as_slice().to_vec());
+    done(x, start)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::data::TimeSeries;
+    use crate::de::Objective;
+    use crate::identify::{Initial, Problem, Search};
+    use crate::model::Model;
+    use levenberg_marquardt::{LeastSquaresProblem, LevenbergMarquardt};
+    use nalgebra::{storage::Owned, DMatrix, DVector, Dyn};
+
+    /// The polish as it was before the residuals were remembered: every request integrates.
+    struct Plain<'f, 'a> {
         fit: &'f Fitness<'a>,
         x: DVector<f64>,
         evaluations: Cell<usize>,
     }
-    impl LeastSquaresProblem<f64, Dyn, Dyn> for Problem<'_, '_> {
+    impl LeastSquaresProblem<f64, Dyn, Dyn> for Plain<'_, '_> {
         type ResidualStorage = Owned<f64, Dyn>;
         type JacobianStorage = Owned<f64, Dyn, Dyn>;
         type ParameterStorage = Owned<f64, Dyn>;
@@ -43,7 +197,6 @@ pub(super) fn polish(
             let mut jac = DMatrix::zeros(r0.len(), self.x.len());
             let mut xp = self.x.clone();
             for j in 0..self.x.len() {
-                // Large enough to stay above the solver's error, small enough for accuracy.
                 let h = 1e-6 * self.x[j].abs().max(1e-3);
                 xp[j] = self.x[j] + h;
                 self.evaluations.set(self.evaluations.get() + 1);
@@ -55,24 +208,85 @@ pub(super) fn polish(
         }
     }
 
-    let d = x0.len();
-    let problem = Problem {
-        fit: fine,
-        x: DVector::from_column_slice(x0),
-        evaluations: Cell::new(0),
-    };
-    if problem.residuals().is_none() {
-        return (None, problem.evaluations.get());
+    fn plain(fit: &Fitness<'_>, x0: &[f64], max_evaluations: usize) -> (Option<Vec<f64>>, usize) {
+        let d = x0.len();
+        let p = Plain {
+            fit,
+            x: DVector::from_column_slice(x0),
+            evaluations: Cell::new(0),
+        };
+        if p.residuals().is_none() {
+            return (None, p.evaluations.get());
+        }
+        let patience = (max_evaluations / ((d + 1) * (d + 2))).max(4);
+        let (p, report) = LevenbergMarquardt::new()
+            .with_patience(patience)
+            .with_ftol(1e-12)
+            .with_xtol(1e-12)
+            .minimize(p);
+        let ok = !report.termination.was_usage_issue() && report.objective_function.is_finite();
+        (ok.then(|| p.x.as_slice().to_vec()), p.evaluations.get())
     }
-    // The crate bounds residual evaluations by patience * (d + 1); each also costs a Jacobian
-    // (d + 1 integrations here), hence the division.
-    let patience = (max_evaluations / ((d + 1) * (d + 2))).max(4);
-    let (problem, report) = LevenbergMarquardt::new()
-        .with_patience(patience)
-        .with_ftol(1e-12)
-        .with_xtol(1e-12)
-        .minimize(problem);
-    let spent = problem.evaluations.get();
-    let ok = !report.termination.was_usage_issue() && report.objective_function.is_finite();
-    (ok.then(|| problem.x.as_slice().to_vec()), spent)
+
+    #[test]
+    fn remembered_residuals_give_the_plain_polish_bit_for_bit_with_fewer_integrations() {
+        let model = Model::parse("ydd + (c1 + c2*y^2)*yd + c3*y = 0", &[]).unwrap();
+        let t: Vec<f64> = (0..400).map(|i| i as f64 * 0.02).collect();
+        // a decaying oscillation the model cannot fit exactly: a few LM iterations
+        let y: Vec<f64> = t
+            .iter()
+            .map(|t| (-0.05 * t).exp() * (3.0 * t).cos() + 0.01 * (7.0 * t).sin())
+            .collect();
+        let series = TimeSeries::new(t, y).unwrap();
+        let problem = Problem::new(&model, &series)
+            .unwrap()
+            .with_initial(Initial::Known { y0: 1.0, v0: 0.0 })
+            .unwrap();
+        let is_train: Vec<bool> = (0..series.len()).map(|i| i % 2 == 0).collect();
+        let fit = Fitness::new(&problem, is_train, &Search::default())
+            .with_tolerance(crate::ode::Method::Dopri5, 1e-8);
+        for (x0, budget) in [(vec![0.2, 0.1, 8.0], 60), (vec![0.0, 0.0, 10.0], 300)] {
+            let (want, want_spent) = plain(&fit, &x0, budget);
+            let got = polish(&fit, &x0, budget);
+            let bits = |x: &Option<Vec<f64>>| {
+                x.as_ref()
+                    .map(|x| x.iter().map(|v| v.to_bits()).collect::<Vec<_>>())
+            };
+            assert!(want.is_some());
+            assert_eq!(bits(&got.x), bits(&want), "{x0:?}");
+            // charged as before, integrated less: the start point once, the residuals at each
+            // accepted point once
+            assert_eq!(got.spent, want_spent, "{x0:?}");
+            assert!(got.integrated < got.spent, "{got:?}");
+            // the remembered residuals are the ones a new integration gives
+            assert_eq!(got.start, fit.residuals(&x0));
+            // (the end's are known only when the last integration was at the polished point,
+            // not at a refused trial step)
+            if let Some(end) = &got.end {
+                let x = got.x.as_ref().unwrap();
+                assert_eq!(Some(end.clone()), fit.residuals(x));
+                // and give the training cost bit for bit
+                let cost = fit.cost(x, f64::INFINITY, &mut fit.workspace());
+                assert_eq!(fit.cost_of_residuals(end).to_bits(), cost.to_bits());
+            }
+            let start = got.start.clone().unwrap();
+            let cost0 = fit.cost(&x0, f64::INFINITY, &mut fit.workspace());
+            assert_eq!(fit.cost_of_residuals(&start).to_bits(), cost0.to_bits());
+        }
+    }
+
+    #[test]
+    fn a_start_that_cannot_be_integrated_is_reported_without_a_point() {
+        let model = Model::parse("ydd + c1*yd + c2*y = 0", &[]).unwrap();
+        let t: Vec<f64> = (0..100).map(|i| i as f64 * 0.05).collect();
+        let y: Vec<f64> = t.iter().map(|t| t.cos()).collect();
+        let series = TimeSeries::new(t, y).unwrap();
+        let problem = Problem::new(&model, &series).unwrap();
+        let fit = Fitness::new(&problem, vec![true; 100], &Search::default());
+        let got = polish(&fit, &[f64::NAN, 1.0], 60);
+        assert_eq!(
+            (got.x, got.spent, got.integrated, got.start),
+            (None, 1, 1, None)
+        );
+    }
 }

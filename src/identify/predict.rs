@@ -55,14 +55,24 @@ pub fn predict(
     output: Output,
 ) -> Option<Vec<f64>> {
     let states = trajectory(model, &series.t, coefficients, init, rtol)?;
-    Some(
-        states
-            .iter()
-            .zip(&series.t)
-            .map(|(s, &t)| match output {
-                Output::Displacement => s[0],
-                Output::Force => model.residual(t, s[0], s[1], coefficients),
-            })
-            .collect(),
-    )
+    Some(output_of(model, &series.t, coefficients, &states, output))
+}
+
+/// The prediction from a [`trajectory`] at `times`: what [`predict`] returns, for a caller that
+/// needs both without integrating twice.
+pub fn output_of(
+    model: &Model,
+    times: &[f64],
+    coefficients: &[f64],
+    states: &[[f64; 2]],
+    output: Output,
+) -> Vec<f64> {
+    states
+        .iter()
+        .zip(times)
+        .map(|(s, &t)| match output {
+            Output::Displacement => s[0],
+            Output::Force => model.residual(t, s[0], s[1], coefficients),
+        })
+        .collect()
 }

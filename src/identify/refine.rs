@@ -2,8 +2,10 @@
 //!
 //! A gate's next window overlaps the last by half; while the gate does not change, the previous
 //! window's coefficients are already in the right basin, and the Levenberg-Marquardt polish
-//! converges from them in a few iterations. This skips the DE entirely (the DE, not the polish,
-//! is most of a window's cost). Whether the refined model is good enough is judged by the caller
+//! converges from them in a few iterations. This skips the DE entirely. (Measured, though, the
+//! polishes at the fine tolerance and not the RK4 generations are most of a full window's cost,
+//! and a tracked window is its polish's integrations: docs/benchmarks.md, "Where a tracked
+//! window's CPU goes".) Whether the refined model is good enough is judged by the caller
 //! (`analysis::tracking`), which runs the full identification when it is not.
 
 use super::config::{Protocol, Search};
@@ -88,12 +90,19 @@ pub fn refine(
         Some((_, v_scale)) => fine.with_fitted_initial(&x0, v_scale),
         None => (fine.clone(), x0),
     };
-    let start_cost = target.cost(&x0, f64::INFINITY, &mut target.workspace());
-    let (polished, spent) = polish(&target, &x0, max_evaluations);
-    let mut evaluations = spent + 1;
+    let polished = polish(&target, &x0, max_evaluations);
+    // The training costs at the start and the end come from the polish's residuals there when
+    // it has them (the same numbers as `target.cost(x, inf)`, without integrating again); each
+    // is charged one evaluation either way, so the count does not depend on it.
+    let cost_at = |x: &[f64], r: &Option<Vec<f64>>| match r {
+        Some(r) => target.cost_of_residuals(r),
+        None => target.cost(x, f64::INFINITY, &mut target.workspace()),
+    };
+    let start_cost = cost_at(&x0, &polished.start);
+    let mut evaluations = polished.spent + 1;
     let (mut x, mut train_cost) = (x0, start_cost);
-    if let Some(p) = polished {
-        let cost = target.cost(&p, f64::INFINITY, &mut target.workspace());
+    if let Some(p) = polished.x {
+        let cost = cost_at(&p, &polished.end);
         evaluations += 1;
         // As after a search: least squares may move slightly off the MAE optimum on noisy data.
         if cost <= 1.01 * start_cost || !start_cost.is_finite() {

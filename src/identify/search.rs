@@ -41,17 +41,22 @@ pub(super) fn attempt(
             Some((_, v_scale)) => fine.with_fitted_initial(&found.best, v_scale),
             None => (fine.clone(), found.best.clone()),
         };
-        let (polished, spent) = polish(&target, &x0, config.refine_evaluations);
-        refine_evaluations = spent;
-        evaluations += spent;
-        if let Some(p) = polished {
+        let polished = polish(&target, &x0, config.refine_evaluations);
+        refine_evaluations = polished.spent;
+        evaluations += polished.spent;
+        if let Some(p) = &polished.x {
             // Least squares and the DE's mean absolute error agree on noise-free data; on noisy
             // data their optima differ slightly. Accept the polish unless it fits clearly worse
-            // in the DE's own measure (a sign it left the DE's basin).
-            let cost = target.cost(&p, f64::INFINITY, &mut target.workspace());
+            // in the DE's own measure (a sign it left the DE's basin). The cost comes from the
+            // polish's last residuals when they are at `p` (the same number, one integration
+            // less); it is charged either way, so the budget does not depend on it.
+            let cost = match &polished.end {
+                Some(r) => target.cost_of_residuals(r),
+                None => target.cost(p, f64::INFINITY, &mut target.workspace()),
+            };
             evaluations += 1;
             if cost <= 1.01 * train_cost {
-                (coefficients, init) = target.unpack(&p);
+                (coefficients, init) = target.unpack(p);
                 train_cost = cost;
             }
         }
@@ -130,9 +135,9 @@ fn search(
             // horizon starts from a solution that is already phase-coherent over the shorter
             // one (over many periods a small frequency error is a large phase error).
             let fine = stage.with_tolerance(Method::Dopri5, config.refine_rtol.min(config.rtol));
-            let (polished, spent) = polish(&fine, &result.best, config.refine_evaluations);
-            evaluations += spent;
-            if let Some(p) = polished {
+            let polished = polish(&fine, &result.best, config.refine_evaluations);
+            evaluations += polished.spent;
+            if let Some(p) = polished.x {
                 let cost = stage.cost(&p, f64::INFINITY, &mut stage.workspace());
                 evaluations += 1;
                 if cost <= result.best_cost {

@@ -386,6 +386,14 @@ impl Program {
         }
     }
 
+    /// The coefficient index when the program is a single coefficient (`c1*ydd`'s mass).
+    pub fn coefficient(&self) -> Option<u32> {
+        match *self.ops {
+            [Op::Load(Leaf::Coef(i))] => Some(i),
+            _ => None,
+        }
+    }
+
     /// The executed form and the stack slots it needs, for the lane evaluator
     /// (`super::program_lanes`), which runs the same instructions on `L` candidates at once.
     pub(super) fn code(&self) -> (&[Instr], usize) {

@@ -185,6 +185,12 @@ impl Model {
         match self.mass_kind {
             MassKind::One => r.iter_mut().for_each(|v| *v = -*v),
             MassKind::Const(m) => r.iter_mut().for_each(|v| *v = -*v / m),
+            MassKind::Coef(i) => {
+                let m = c.get(i as usize).copied().unwrap_or([f64::NAN; L]);
+                for l in 0..L {
+                    r[l] = -r[l] / m[l];
+                }
+            }
             MassKind::Varying => {
                 let m = self.mass.eval_lanes(t, y, yd, c);
                 for l in 0..L {

@@ -472,3 +472,36 @@ fn substituted_equation_reparses_to_the_same_model() {
         );
     }
 }
+
+#[test]
+fn a_coefficient_mass_is_read_directly_with_the_programs_value() {
+    // The gate's force model: M = c1, read without running the mass program.
+    let m = model_p("c1*ydd + (c2 + c3*yd^2)*yd + k*y = 0", &[("k", 81360.0)]);
+    assert!(
+        matches!(m.mass_kind, MassKind::Coef(0)),
+        "{:?}",
+        m.mass_kind
+    );
+    for (c, y, yd) in [
+        ([19.0, -225.9, 5.8e7], 1e-4, 0.01),
+        ([0.0, 1.0, 2.0], 0.5, -0.25),
+        ([-2.5, f64::NAN, 1.0], 1.0, 1.0),
+    ] {
+        let want = -m.residual(0.0, y, yd, &c) / m.mass(0.0, y, yd, &c);
+        let got = m.accel(0.0, y, yd, &c);
+        assert!(
+            got.to_bits() == want.to_bits() || got.is_nan() && want.is_nan(),
+            "{got} vs {want}"
+        );
+        let lanes = m.accel_lanes(&[0.0; 4], &[y; 4], &[yd; 4], &c.map(|v| [v; 4]));
+        assert!(lanes
+            .iter()
+            .all(|v| v.to_bits() == got.to_bits() || v.is_nan() && got.is_nan()));
+    }
+    // a missing coefficient reads NaN, as the program would
+    assert!(m.accel(0.0, 1.0, 1.0, &[]).is_nan());
+    assert!(m
+        .accel_lanes(&[0.0; 4], &[1.0; 4], &[1.0; 4], &[])
+        .iter()
+        .all(|v| v.is_nan()));
+}

@@ -449,7 +449,8 @@ async fn capacity_run(
             l.starts_with("gatewatch_identifications_total{") && l.contains("path=\"tracked\"")
         })
         .filter_map(|l| l.rsplit(' ').next()?.parse::<f64>().ok())
-        .sum();
+        // not `sum()`: it starts at -0.0 and printed "-0" for no tracked window
+        .fold(0.0, |a, b| a + b);
     Ok(Capacity {
         identifications,
         replaced: metric_sum(&m, "gatewatch_identification_jobs_replaced_total"),
