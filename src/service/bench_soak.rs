@@ -140,6 +140,8 @@ pub struct Summary {
     pub requests: usize,
     /// Non-2xx answers to steady requests in all.
     pub non_2xx: u64,
+    /// The same, by status code.
+    pub non_2xx_by_status: std::collections::BTreeMap<u16, u64>,
     /// Identification jobs replaced in all.
     pub jobs_replaced: f64,
     /// Lines of the daemon's stderr containing "panicked".
@@ -157,6 +159,9 @@ pub struct Summary {
 struct Shared {
     latencies_ms: Mutex<Vec<f64>>,
     non_2xx: AtomicU64,
+    /// Every non-2xx answer to a steady request after the warm-up, by status code (the 30-minute
+    /// soak saw 77 without saying which).
+    statuses: Mutex<std::collections::BTreeMap<u16, u64>>,
     transport_errors: AtomicU64,
     stop: AtomicBool,
 }
@@ -411,11 +416,17 @@ async fn soak(args: &BenchSoakArgs, daemon: &mut Daemon) -> anyhow::Result<Vec<T
     for t in tasks {
         t.abort();
     }
+    *crate::service::sync::lock(&ALL_STATUSES) =
+        std::mem::take(&mut *crate::service::sync::lock(&shared.statuses));
     Ok(ticks)
 }
 
 /// Every record's latencies, kept for the overall p99 after the warm-up.
 static ALL_LATENCIES: Mutex<Vec<(f64, Vec<f64>)>> = Mutex::new(Vec::new());
+
+/// The steady requests' non-2xx answers by status, handed from the load to the summary.
+static ALL_STATUSES: Mutex<std::collections::BTreeMap<u16, u64>> =
+    Mutex::new(std::collections::BTreeMap::new());
 
 fn stop_daemon(daemon: &mut Daemon) -> Option<i32> {
     // SIGTERM through kill(1): the daemon's graceful path, as systemd stops it.
@@ -515,6 +526,7 @@ pub fn summarise(
         worst_interval_p99_ms: worst,
         requests: ticks.iter().map(|t| t.requests).sum(),
         non_2xx: ticks.iter().map(|t| t.non_2xx).sum(),
+        non_2xx_by_status: Default::default(),
         jobs_replaced: ticks.last().map_or(0.0, |t| t.jobs_replaced),
         panics,
         survived,
@@ -576,7 +588,8 @@ pub fn bench_soak(args: BenchSoakArgs) -> ExitCode {
     };
     let panics = count_panics(&daemon.stderr_path);
     let latencies = std::mem::take(&mut *crate::service::sync::lock(&ALL_LATENCIES));
-    let summary = summarise(&args, &ticks, &latencies, panics, survived, exit_code);
+    let mut summary = summarise(&args, &ticks, &latencies, panics, survived, exit_code);
+    summary.non_2xx_by_status = std::mem::take(&mut *crate::service::sync::lock(&ALL_STATUSES));
     if args.json {
         let out = serde_json::json!({"ticks": ticks, "summary": summary});
         println!("{out}");
@@ -600,6 +613,9 @@ pub fn bench_soak(args: BenchSoakArgs) -> ExitCode {
             summary.panics,
             summary.exit_code
         );
+        if !summary.non_2xx_by_status.is_empty() {
+            println!("  non-2xx by status: {:?}", summary.non_2xx_by_status);
+        }
         for (name, ok) in &summary.targets {
             println!("  {} {name}", if *ok { "PASS" } else { "FAIL" });
         }

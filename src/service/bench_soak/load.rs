@@ -87,9 +87,12 @@ pub(super) async fn http_gate(gate: HttpGate, shared: Arc<Shared>) {
                     crate::service::sync::lock(&shared.latencies_ms).push(ms);
                 }
             }
-            Ok(_) => {
+            Ok(r) => {
                 if record {
                     shared.non_2xx.fetch_add(1, Ordering::Relaxed);
+                    *crate::service::sync::lock(&shared.statuses)
+                        .entry(r.status().as_u16())
+                        .or_default() += 1;
                 }
             }
             Err(_) => {
