@@ -207,4 +207,52 @@ fn text_logs_to_a_file_have_no_colour_codes_and_plain_peers() {
     assert!(shown.contains("peer=127.0.0.1:"), "{shown}");
     assert!(!shown.contains("Some("), "{shown}");
     assert!(shown.contains("shut down"), "logs go to stderr:\n{shown}");
+    // loopback only: no plain-HTTP warning (see the next test)
+    assert!(!shown.contains("plain HTTP"), "{shown}");
+}
+
+/// Issue 12 point 10: `serve` on a non-loopback address warns at start that tokens and data
+/// cross the network in clear, and names the remedy (docs/security.md, "TLS").
+#[test]
+fn plain_http_on_a_non_loopback_address_is_a_logged_warning() {
+    let dir = tempfile::tempdir().unwrap();
+    let http = free_port();
+    let cfg = dir.path().join("gatewatch.toml");
+    std::fs::write(
+        &cfg,
+        format!(
+            "[server]\nlisten = \"0.0.0.0:{http}\"\nshutdown_grace_seconds = 2.0\n\
+             worker_threads = 1\n[log]\nformat = \"text\"\nlevel = \"info\"\n"
+        ),
+    )
+    .unwrap();
+    let log = dir.path().join("stderr.log");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_gatewatch"))
+        .args(["serve", "--config"])
+        .arg(&cfg)
+        .env_remove("RUST_LOG")
+        .stdout(Stdio::null())
+        .stderr(Stdio::from(std::fs::File::create(&log).unwrap()))
+        .spawn()
+        .unwrap();
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while !std::fs::read_to_string(&log)
+        .unwrap_or_default()
+        .contains("HTTP listener up")
+    {
+        assert!(Instant::now() < deadline, "the HTTP listener never came up");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let _ = Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status();
+    assert!(child.wait().unwrap().success());
+    let shown = std::fs::read_to_string(&log).unwrap();
+    let warning = shown
+        .lines()
+        .find(|l| l.contains("plain HTTP on a non-loopback address"))
+        .unwrap_or_else(|| panic!("no warning:\n{shown}"));
+    assert!(warning.contains("WARN"), "{warning}");
+    assert!(warning.contains(&format!("0.0.0.0:{http}")), "{warning}");
+    assert!(warning.contains("TLS reverse proxy"), "{warning}");
 }

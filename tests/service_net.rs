@@ -243,16 +243,52 @@ async fn a_silent_unknown_gate_expires_and_its_stale_alert_resolves() {
     assert!(state.gate_view("kept").is_some());
     assert_eq!(metric(&state, "gatewatch_gates_expired_total"), 1.0);
     let m = state.render_metrics();
-    // its alert series are removed (TODO: one other per-gate series was seen left, see the
-    // report of the net branch)
+    // none of its series is left
     let left: Vec<&str> = m.lines().filter(|l| l.contains("gate=\"junk\"")).collect();
-    assert!(
-        !left.iter().any(|l| l.starts_with("gatewatch_alert_")),
-        "{left:?}"
-    );
+    assert!(left.is_empty(), "{left:?}");
     // configured gates never expire
     state.tick(now + Duration::from_secs(86_400));
     assert!(state.gate_view("kept").is_some());
+}
+
+/// An expired gate that had been identified leaves no series in a scrape of /metrics: not its
+/// model coefficients (whose `coefficient` values depend on the model), intervals, counters,
+/// alert series or identification counts.
+#[tokio::test]
+async fn an_identified_gate_that_expires_leaves_no_series_in_metrics() {
+    let fake = Arc::new(Fake::default());
+    let (app, state) = app_with(config("unknown_gate_expiry_seconds = 600"), fake.clone());
+    let now = SystemTime::now();
+    let (s, _) = post_json(&app, uniform("junk", 0.0, 100)).await;
+    assert_eq!(s, StatusCode::NO_CONTENT);
+    wait_until(|| fake.calls.lock().unwrap().len() == 1 && state.pool().in_flight() == 0).await;
+    let scrape = || async {
+        let (s, v, _) = send(&app, "GET", "/metrics", Body::empty(), None).await;
+        assert_eq!(s, StatusCode::OK);
+        v.as_str().unwrap().to_string()
+    };
+    let before = scrape().await;
+    for series in [
+        "gatewatch_model_coefficient{coefficient=\"c1\",gate=\"junk\"}",
+        "gatewatch_model_coefficient{coefficient=\"c2\",gate=\"junk\"}",
+        "gatewatch_damping_ratio{gate=\"junk\"}",
+        "gatewatch_damping_ratio_lower{gate=\"junk\"}",
+        "gatewatch_damping_ratio_upper{gate=\"junk\"}",
+        "gatewatch_identifications_total{gate=\"junk\",path=\"full\"}",
+        "gatewatch_samples_ingested_total{gate=\"junk\"}",
+        "gatewatch_alert_state{gate=\"junk\",state=\"ok\"}",
+    ] {
+        assert!(before.contains(series), "{series} before the expiry");
+    }
+    state.tick(now + Duration::from_secs(601));
+    assert!(state.gate_view("junk").is_none());
+    let after = scrape().await;
+    let left: Vec<&str> = after
+        .lines()
+        .filter(|l| l.contains("gate=\"junk\""))
+        .collect();
+    assert!(left.is_empty(), "series left behind: {left:?}");
+    assert!(after.contains("gatewatch_gates_expired_total 1"), "{after}");
 }
 
 #[tokio::test]

@@ -13,15 +13,32 @@
 //!   request in progress, then closes; `serve` returns when every connection has ended (the
 //!   caller bounds that wait with the shutdown deadline).
 //!
+//! - an answer given before its request's body was read (a refusal: 413, 503 over the body
+//!   budget, 401, 415, 404, ...) says `Connection: close` ([`TrackedBody`]): the unread rest of
+//!   the body makes the connection unusable, and a keep-alive client that is not told sees its
+//!   next request fail.
+//! - lingering close ([`linger`]), as nginx's `lingering_close`: when a connection ends, its
+//!   write side is shut first (the client sees the end of the answer), then what the client
+//!   still sends is read and discarded for at most [`LINGER_TIME`], until the client closes.
+//!   hyper, left alone, closes the socket with the rest of a refused body unread; the kernel then
+//!   answers with a reset, and a reset also discards, on the client's side, the answer the
+//!   client had not read yet: a client still writing a 4 MB body saw "broken pipe" or
+//!   "connection reset" instead of its 503 and `Retry-After` (issue 12, point 7).
+//!
 //! HTTP/1 only, as before (axum was built without HTTP/2).
 
+use std::pin::Pin;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
+use std::task::{Context, Poll};
 use std::time::Duration;
 
+use axum::http::{header, HeaderValue};
 use axum::Router;
-use hyper::body::Incoming;
+use hyper::body::{Body, Bytes, Frame, Incoming, SizeHint};
 use hyper_util::rt::{TokioIo, TokioTimer};
-use tokio::net::TcpListener;
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::{watch, Semaphore};
 use tower::ServiceExt;
 
@@ -34,6 +51,17 @@ pub struct HttpLimits {
     /// (`server.http_header_read_timeout_seconds`).
     pub header_read_timeout: Duration,
 }
+
+/// Longest time a closing connection keeps reading (and discarding) what its client still
+/// sends, so that the client reads the answer instead of a reset (see the module
+/// documentation). On loopback or a LAN a client sends megabytes in it; a client that keeps
+/// sending longer still gets its reset, and meanwhile its connection holds a slot of
+/// `max_http_connections`, so the bound also caps what a flood of refused bodies can hold. nginx
+/// lingers up to 30 s (`lingering_time`); 5 s is its idle `lingering_timeout`.
+pub const LINGER_TIME: Duration = Duration::from_secs(5);
+
+/// Buffer of the lingering read: the discarded bytes go through it, on the connection task.
+const LINGER_BUF_BYTES: usize = 16 * 1024;
 
 /// Pause after a failed `accept` (typically EMFILE: out of file descriptors), so the loop does
 /// not spin while connections close.
@@ -77,22 +105,34 @@ pub async fn serve(
         let _ = stream.set_nodelay(true);
         let router = router.clone();
         let service = hyper::service::service_fn(move |req: hyper::Request<Incoming>| {
-            router.clone().oneshot(req)
+            let router = router.clone();
+            // boxed: `poll_without_shutdown` (below) wants an `Unpin` future
+            Box::pin(async move {
+                let (req, read) = TrackedBody::wrap(req);
+                let mut resp = router.oneshot(req).await?;
+                if !read.load(Ordering::Acquire) {
+                    resp.headers_mut()
+                        .insert(header::CONNECTION, HeaderValue::from_static("close"));
+                }
+                Ok::<_, std::convert::Infallible>(resp)
+            })
         });
-        let conn = builder.serve_connection(TokioIo::new(stream), service);
+        let mut conn = builder.serve_connection(TokioIo::new(stream), service);
         let mut stop = stop.clone();
         let open = open_rx.clone();
         tokio::spawn(async move {
-            let mut conn = std::pin::pin!(conn);
+            // without shutdown: the socket comes back to be closed by `linger`
             let ended = tokio::select! {
-                r = conn.as_mut() => r,
+                r = std::future::poll_fn(|cx| conn.poll_without_shutdown(cx)) => r,
                 _ = async { let _ = stop.wait_for(|s| *s).await; } => {
-                    conn.as_mut().graceful_shutdown();
-                    conn.await
+                    Pin::new(&mut conn).graceful_shutdown();
+                    std::future::poll_fn(|cx| conn.poll_without_shutdown(cx)).await
                 }
             };
-            if let Err(e) = ended {
-                tracing::debug!(%peer, error = %e, "http connection ended with an error");
+            match ended {
+                Ok(()) => linger(conn.into_parts().io.into_inner(), stop).await,
+                // a malformed request, a header timeout, a reset: nothing worth lingering for
+                Err(e) => tracing::debug!(%peer, error = %e, "http connection ended with an error"),
             }
             drop((slot, open));
         });
@@ -101,4 +141,64 @@ pub async fn serve(
     drop(listener);
     open_tx.closed().await;
     Ok(())
+}
+
+/// Closes `stream` after its HTTP exchange ended: shuts the write side (the client reads the
+/// whole answer and then end-of-file), then reads and discards what the client still sends
+/// until it closes, for at most [`LINGER_TIME`], and not past the stop signal (a connection
+/// closed by the shutdown has nothing unread). Closing a socket with unread data sends a reset
+/// instead of a clean end, and the reset destroys the answer not yet read by the client.
+async fn linger(mut stream: TcpStream, mut stop: watch::Receiver<bool>) {
+    if stream.shutdown().await.is_err() {
+        return;
+    }
+    let mut buf = vec![0u8; LINGER_BUF_BYTES];
+    let drain = async {
+        // end-of-file (the client closed) or an error ends it
+        while matches!(stream.read(&mut buf).await, Ok(n) if n > 0) {}
+    };
+    tokio::select! {
+        _ = tokio::time::timeout(LINGER_TIME, drain) => {}
+        _ = async { let _ = stop.wait_for(|s| *s).await; } => {}
+    }
+}
+
+/// A request body that records whether it was read to its end, so that an answer given before
+/// that says `Connection: close` (see the module documentation).
+struct TrackedBody {
+    inner: Incoming,
+    /// Set once the body has reached its end (at once for a request without a body).
+    read: Arc<AtomicBool>,
+}
+
+impl TrackedBody {
+    fn wrap(req: hyper::Request<Incoming>) -> (hyper::Request<TrackedBody>, Arc<AtomicBool>) {
+        let read = Arc::new(AtomicBool::new(req.body().is_end_stream()));
+        let flag = read.clone();
+        (req.map(|inner| TrackedBody { inner, read }), flag)
+    }
+}
+
+impl Body for TrackedBody {
+    type Data = Bytes;
+    type Error = hyper::Error;
+
+    fn poll_frame(
+        mut self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+    ) -> Poll<Option<Result<Frame<Bytes>, hyper::Error>>> {
+        let polled = Pin::new(&mut self.inner).poll_frame(cx);
+        if matches!(polled, Poll::Ready(None)) || self.inner.is_end_stream() {
+            self.read.store(true, Ordering::Release);
+        }
+        polled
+    }
+
+    fn is_end_stream(&self) -> bool {
+        self.inner.is_end_stream()
+    }
+
+    fn size_hint(&self) -> SizeHint {
+        self.inner.size_hint()
+    }
 }

@@ -10,6 +10,9 @@
 //! sample), `gatewatch_ingest_requests_rejected_total` counts whole requests refused before any
 //! sample could be read (body too large, unparseable, overloaded).
 
+use std::collections::HashMap;
+
+use prometheus::core::{Collector, MetricVec, MetricVecBuilder};
 use prometheus::{
     Encoder, GaugeVec, Histogram, HistogramOpts, HistogramVec, IntCounter, IntCounterVec, Opts,
     Registry, TextEncoder,
@@ -497,34 +500,37 @@ impl Metrics {
         );
     }
 
-    /// Removes a forgotten gate's series (label cardinality stays bounded by live gates).
-    /// A series that was never created is no error.
+    /// Removes a forgotten gate's series (label cardinality stays bounded by live gates): every
+    /// series of every vector with a `gate` label whose value is `gate`. The series are found
+    /// by reading each vector, not from a list of label values, because some values are not
+    /// known here: `coefficient` depends on the gate's model (an expired gate used to leave its
+    /// `gatewatch_model_coefficient` series behind). A series that was never created is no
+    /// error. Runs once per forgotten gate, not per request.
     pub fn remove_gate(&self, gate: &str) {
-        let _ = self.samples_ingested.remove_label_values(&[gate]);
-        let _ = self.window_gaps.remove_label_values(&[gate]);
-        let _ = self.window_fill_ratio.remove_label_values(&[gate]);
         for g in [
             &self.damping_ratio,
-            &self.equivalent_damping_ratio,
-            &self.frequency_hertz,
-            &self.fit_nmae,
-            &self.amplitude,
-            &self.last_identification,
             &self.damping_ratio_lower,
             &self.damping_ratio_upper,
             &self.damping_ratio_trend,
             &self.damping_zero_crossing,
+            &self.equivalent_damping_ratio,
+            &self.frequency_hertz,
+            &self.fit_nmae,
+            &self.model_coefficient,
+            &self.alert_state,
+            &self.alert_firing,
+            &self.amplitude,
+            &self.last_identification,
+            &self.window_fill_ratio,
         ] {
-            let _ = g.remove_label_values(&[gate]);
+            remove_series_of(g, gate);
         }
-        for path in ["tracked", "full"] {
-            let _ = self.identifications.remove_label_values(&[gate, path]);
-        }
-        for name in ALERT_NAMES {
-            let _ = self.alert_firing.remove_label_values(&[gate, name]);
-        }
-        for s in ALERT_STATES {
-            let _ = self.alert_state.remove_label_values(&[gate, s]);
+        for c in [
+            &self.samples_ingested,
+            &self.window_gaps,
+            &self.identifications,
+        ] {
+            remove_series_of(c, gate);
         }
     }
 
@@ -541,6 +547,23 @@ impl Metrics {
             self.alert_state
                 .with_label_values(&[gate, s])
                 .set(if *s == state { 1.0 } else { 0.0 });
+        }
+    }
+}
+
+/// Removes every series of `v` whose `gate` label is `gate`, whatever its other labels.
+fn remove_series_of<T: MetricVecBuilder>(v: &MetricVec<T>, gate: &str) {
+    for family in v.collect() {
+        for m in family.get_metric() {
+            let labels: HashMap<&str, &str> = m
+                .get_label()
+                .iter()
+                .map(|l| (l.name(), l.value()))
+                .collect();
+            if labels.get("gate") == Some(&gate) {
+                // Err only if the series went meanwhile: nothing left to remove
+                let _ = v.remove(&labels);
+            }
         }
     }
 }

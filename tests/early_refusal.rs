@@ -1,0 +1,167 @@
+//! A request refused before its body is read (413, 503 over the body budget, 401) while the
+//! client is still sending that body: the client must still read the answer, not a reset
+//! (issue 12, point 7). The server answers, then keeps reading and discarding for a bounded
+//! time before it closes (`service::listen`, "lingering close"); without that, the kernel
+//! answers the rest of the body with a reset, which also throws away the answer the client had
+//! not read yet. Real server on port 0, real clients (a raw socket writing its body in slow
+//! chunks and reading only at the end, as simple clients do; reqwest with a 4 MB body). The
+//! waits are guards against hanging, not timing assertions.
+
+mod service_common;
+
+use std::net::SocketAddr;
+use std::sync::Arc;
+use std::time::Duration;
+
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::TcpStream;
+
+use service_common::*;
+
+/// Body declared and sent by the slow writer: 512 KiB, over the 64 KiB limit of the 413 case.
+const BODY: usize = 512 * 1024;
+/// The slow writer's chunk, and its pause after each chunk.
+const CHUNK: usize = 16 * 1024;
+const PAUSE: Duration = Duration::from_millis(5);
+
+/// What a client that writes its whole body before reading gets.
+struct Outcome {
+    /// Whether every write of the body succeeded (a reset makes one fail).
+    wrote_all: Result<(), String>,
+    /// Everything read after the body, until the server closed (lower case).
+    answer: Result<String, String>,
+}
+
+/// POSTs a `BODY`-byte JSON body to `path` in slow chunks, writing everything before reading.
+async fn slow_post(addr: SocketAddr, path: &str, extra_headers: &str) -> Outcome {
+    let mut c = TcpStream::connect(addr).await.unwrap();
+    let head = format!(
+        "POST {path} HTTP/1.1\r\nhost: x\r\ncontent-type: application/json\r\n\
+         content-length: {BODY}\r\n{extra_headers}\r\n"
+    );
+    c.write_all(head.as_bytes()).await.unwrap();
+    let chunk = vec![b' '; CHUNK];
+    let wrote_all = async {
+        for _ in 0..BODY / CHUNK {
+            c.write_all(&chunk).await.map_err(|e| e.to_string())?;
+            tokio::time::sleep(PAUSE).await;
+        }
+        Ok(())
+    }
+    .await;
+    let mut out = Vec::new();
+    let answer = tokio::time::timeout(Duration::from_secs(10), c.read_to_end(&mut out))
+        .await
+        .expect("the server closes the connection")
+        .map(|_| String::from_utf8_lossy(&out).to_ascii_lowercase())
+        .map_err(|e| format!("{e} after {} bytes", out.len()));
+    Outcome { wrote_all, answer }
+}
+
+/// The answer of `o`, asserting the client could send its body and read the answer.
+fn answer_of(o: Outcome) -> String {
+    assert_eq!(o.wrote_all, Ok(()), "the body could not be sent");
+    let a = o.answer.expect("the answer could be read");
+    assert_eq!(a.matches("http/1.1 ").count(), 1, "{a}");
+    assert!(a.contains("connection: close"), "{a}");
+    a
+}
+
+#[tokio::test]
+async fn a_413_reaches_a_client_still_writing_its_body() {
+    let r = start("body_limit_bytes = 65536", Arc::new(Fake::default())).await;
+    let a = answer_of(slow_post(r.http, "/api/v1/samples", "").await);
+    assert!(a.starts_with("http/1.1 413"), "{a}");
+    assert!(a.contains("larger than 65536 bytes"), "{a}");
+    // the daemon still serves
+    assert_eq!(get(r.http, "/healthz").await.0, 200);
+    stop(r).await;
+}
+
+#[tokio::test]
+async fn a_401_reaches_a_client_still_writing_its_body() {
+    let r = start(
+        "auth_tokens = [\"s3cret-token-0123456789\"]",
+        Arc::new(Fake::default()),
+    )
+    .await;
+    for path in ["/api/v1/samples", "/api/v2/write"] {
+        let a = answer_of(slow_post(r.http, path, "authorization: Bearer wrong\r\n").await);
+        assert!(a.starts_with("http/1.1 401"), "{path}: {a}");
+    }
+    stop(r).await;
+}
+
+/// Holds the whole body budget (8 MiB) with a request that declares 8 MiB and sends a few
+/// bytes, and returns once a small POST is refused with 503.
+async fn hold_the_budget(addr: SocketAddr) -> TcpStream {
+    let mut holder = TcpStream::connect(addr).await.unwrap();
+    holder
+        .write_all(
+            b"POST /api/v1/samples HTTP/1.1\r\nhost: x\r\ncontent-type: application/json\r\n\
+              content-length: 8388608\r\n\r\n{\"gate\"",
+        )
+        .await
+        .unwrap();
+    tokio::time::timeout(Duration::from_secs(10), async {
+        loop {
+            let resp = reqwest::Client::new()
+                .post(format!("http://{addr}/api/v1/samples"))
+                .body(r#"{"gate":"p","start":1,"rate_hz":100,"values":[1]}"#)
+                .send()
+                .await
+                .unwrap();
+            if resp.status() == 503 {
+                break;
+            }
+            eprintln!("not yet held: {}", resp.status());
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    })
+    .await
+    .expect("the holder's reservation is made");
+    holder
+}
+
+/// An 8 MiB budget, all of it taken by one body at the limit.
+const BUDGET_8_MIB: &str = "body_limit_bytes = 8388608\nmax_body_bytes_in_flight = 8388608";
+
+#[tokio::test]
+async fn a_503_and_its_retry_after_reach_a_client_still_writing_its_body() {
+    let r = start(BUDGET_8_MIB, Arc::new(Fake::default())).await;
+    let holder = hold_the_budget(r.http).await;
+    for path in ["/api/v1/samples", "/api/v2/write"] {
+        let a = answer_of(slow_post(r.http, path, "").await);
+        assert!(a.starts_with("http/1.1 503"), "{path}: {a}");
+        assert!(a.contains("retry-after: 1"), "{path}: {a}");
+    }
+    drop(holder);
+    stop(r).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn reqwest_sending_4_mb_reads_the_503_and_its_retry_after() {
+    let r = start(BUDGET_8_MIB, Arc::new(Fake::default())).await;
+    let holder = hold_the_budget(r.http).await;
+    // 4 MB: far more than the socket buffers take, so the client is still writing when the
+    // answer comes
+    let body = axum::body::Bytes::from(vec![b' '; 4_000_000]);
+    let client = reqwest::Client::new();
+    for _ in 0..4 {
+        let resp = tokio::time::timeout(
+            Duration::from_secs(30),
+            client
+                .post(format!("http://{}/api/v1/samples", r.http))
+                .header("content-type", "application/json")
+                .body(body.clone())
+                .send(),
+        )
+        .await
+        .expect("an answer within 30 s")
+        .expect("the answer, not a broken pipe or a reset");
+        assert_eq!(resp.status(), 503);
+        assert_eq!(resp.headers()["retry-after"], "1");
+    }
+    drop(holder);
+    stop(r).await;
+}
