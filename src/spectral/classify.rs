@@ -32,7 +32,7 @@ pub struct ClassifyOptions {
     /// A limit cycle has an envelope CV below this (Rayleigh: 0.52).
     pub max_limit_cycle_cv: f64,
     /// ... and an ambient `zeta` (the point estimate) below this: its equivalent damping is
-    /// zero, and SSI-COV reads 0.00 to 0.02 % on the simulated limit cycles. The point, not the
+    /// zero, and SSI-COV reads 0.00 to 0.07 % on the simulated limit cycles (default 0.1 %). The point, not the
     /// interval's lower end: SSI's honest intervals on a noise-driven +1 % window often reach
     /// zero, and with the lower end a stable window whose envelope happened to be steady was
     /// taken for a limit cycle (a false alarm in `bench warning`, `stable`, lab gate).
@@ -46,7 +46,7 @@ impl Default for ClassifyOptions {
             min_growth_rate: 0.02,
             min_damped_zeta: 0.001,
             max_limit_cycle_cv: 0.3,
-            max_limit_cycle_zeta: 0.0005,
+            max_limit_cycle_zeta: 0.001,
         }
     }
 }
