@@ -11,9 +11,7 @@ use std::time::Duration;
 
 use gatewatch::service::config::Config;
 use gatewatch::service::server::{run, Listeners};
-use gatewatch::store::{
-    IdentificationRecord, SqliteStore, Store, WriteBatch, HISTORY_CSV_HEADER,
-};
+use gatewatch::store::{IdentificationRecord, SqliteStore, Store, WriteBatch, HISTORY_CSV_HEADER};
 use serde_json::Value;
 
 const BIN: &str = env!("CARGO_BIN_EXE_gatewatch");
@@ -219,7 +217,10 @@ async fn history_route_serves_json_and_csv_by_time_range_and_limit() {
     assert_eq!(rows.len(), 3);
     let col = |name: &str| HISTORY_CSV_HEADER.iter().position(|h| *h == name).unwrap();
     assert_eq!(rows[0][col("gate")], *"g1");
-    assert_eq!(rows[0][col("window_end")].parse::<f64>().ok(), Some(T0 + 600.0));
+    assert_eq!(
+        rows[0][col("window_end")].parse::<f64>().ok(),
+        Some(T0 + 600.0)
+    );
     let z = rows[0][col("zeta0")].parse::<f64>().expect("zeta0");
     assert!((z - zeta(20)).abs() < 1e-12, "{z}");
     let low = rows[0][col("zeta0_low")].parse::<f64>().expect("low");
@@ -249,7 +250,10 @@ async fn history_route_refuses_bad_parameters_naming_them_and_unknown_gates() {
             .get(&format!("/api/v1/gates/g1/history?{query}"), None)
             .await;
         assert_eq!(status, 400, "{query}: {body}");
-        assert!(body.contains(name), "{query}: the answer names `{name}`: {body}");
+        assert!(
+            body.contains(name),
+            "{query}: the answer names `{name}`: {body}"
+        );
     }
     let (status, _, body) = d.get("/api/v1/gates/nope/history", None).await;
     assert_eq!(status, 404, "{body}");
@@ -411,27 +415,71 @@ fn history_refuses_bad_input_naming_it_with_exit_code_2() {
     let missing = missing.to_str().unwrap();
     let pdf = svg.replace(".svg", ".pdf");
     let cases: Vec<(Vec<&str>, Vec<&str>)> = vec![
-        (vec!["--db", missing, "--gate", "g1"], vec!["missing.db", "no such file"]),
-        (vec!["--db", missing, "--gate", "g1", "--plot", svg], vec!["missing.db"]),
-        (vec!["--db", db, "--gate", "nope", "--plot", svg], vec!["unknown gate `nope`", "g1, g2"]),
-        (vec!["--db", db, "--gate", "nope"], vec!["unknown gate `nope`"]),
         (
-            vec!["--db", db, "--gate", "g1", "--from", "2030-01-01T00:00:00Z", "--plot", svg],
-            vec!["no identification between 2030-01-01T00:00:00Z", "nothing to plot"],
+            vec!["--db", missing, "--gate", "g1"],
+            vec!["missing.db", "no such file"],
         ),
-        (vec!["--db", db, "--gate", "g1", "--from", "noon", "--plot", svg], vec!["--from", "noon"]),
-        (vec!["--db", db, "--gate", "g1", "--to", "12:00"], vec!["--to", "12:00"]),
         (
-            vec!["--db", db, "--gate", "g1", "--from", "1714568400", "--to", "1714564800"],
+            vec!["--db", missing, "--gate", "g1", "--plot", svg],
+            vec!["missing.db"],
+        ),
+        (
+            vec!["--db", db, "--gate", "nope", "--plot", svg],
+            vec!["unknown gate `nope`", "g1, g2"],
+        ),
+        (
+            vec!["--db", db, "--gate", "nope"],
+            vec!["unknown gate `nope`"],
+        ),
+        (
+            vec![
+                "--db",
+                db,
+                "--gate",
+                "g1",
+                "--from",
+                "2030-01-01T00:00:00Z",
+                "--plot",
+                svg,
+            ],
+            vec![
+                "no identification between 2030-01-01T00:00:00Z",
+                "nothing to plot",
+            ],
+        ),
+        (
+            vec!["--db", db, "--gate", "g1", "--from", "noon", "--plot", svg],
+            vec!["--from", "noon"],
+        ),
+        (
+            vec!["--db", db, "--gate", "g1", "--to", "12:00"],
+            vec!["--to", "12:00"],
+        ),
+        (
+            vec![
+                "--db",
+                db,
+                "--gate",
+                "g1",
+                "--from",
+                "1714568400",
+                "--to",
+                "1714564800",
+            ],
             vec!["--from", "after --to"],
         ),
-        (vec!["--db", db, "--gate", "g1", "--limit", "0"], vec!["--limit"]),
+        (
+            vec!["--db", db, "--gate", "g1", "--limit", "0"],
+            vec!["--limit"],
+        ),
         (
             vec!["--db", db, "--gate", "g1", "--plot", &pdf],
             vec!["out.pdf", "svg or .png"],
         ),
         (
-            vec!["--db", db, "--gate", "g1", "--plot", svg, "--config", missing],
+            vec![
+                "--db", db, "--gate", "g1", "--plot", svg, "--config", missing,
+            ],
             vec!["--config", "missing.db"],
         ),
     ];

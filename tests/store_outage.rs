@@ -275,7 +275,9 @@ async fn onset_and_recovery(d: &Daemon) -> (Instant, Instant) {
             _ => {}
         }
     }
-    panic!("GateNegativeDamping did not fire and resolve within 420 s of stream (fired: {fired:?})");
+    panic!(
+        "GateNegativeDamping did not fire and resolve within 420 s of stream (fired: {fired:?})"
+    );
 }
 
 /// The whole scenario with an outage lasting `after_resolve` past the resolve.
@@ -296,7 +298,11 @@ async fn outage_during_onset_and_recovery(after_resolve: Duration) {
     })
     .await
     .expect("both transitions persisted in the outbox");
-    assert_eq!(rows, ["firing", "resolved"], "outbox while the receiver is down");
+    assert_eq!(
+        rows,
+        ["firing", "resolved"],
+        "outbox while the receiver is down"
+    );
 
     tokio::time::sleep(after_resolve).await;
     let outage = fired_at.elapsed();
@@ -304,7 +310,11 @@ async fn outage_during_onset_and_recovery(after_resolve: Duration) {
         outage > Duration::from_secs(16),
         "the outage ({outage:?}) must be longer than the old give-up time (~15 s)"
     );
-    assert_eq!(negative_damping(&d.db), ["firing", "resolved"], "nothing given up");
+    assert_eq!(
+        negative_damping(&d.db),
+        ["firing", "resolved"],
+        "nothing given up"
+    );
     let failed = "gatewatch_notifications_total{outcome=\"failed\",target=\"webhook\"}";
     assert_eq!(d.metric(failed).await, Some(0.0), "no give-up counted");
 
@@ -340,13 +350,20 @@ async fn outage_during_onset_and_recovery(after_resolve: Duration) {
         .iter()
         .map(|(_, a)| a["status"].as_str().unwrap_or(""))
         .collect();
-    assert_eq!(statuses, ["firing", "resolved"], "in order, once each: {seen:?}");
+    assert_eq!(
+        statuses,
+        ["firing", "resolved"],
+        "in order, once each: {seen:?}"
+    );
     let (firing, resolved) = (&seen[0].1, &seen[1].1);
     for a in [firing, resolved] {
         assert_eq!(a["labels"]["alertname"], "GateNegativeDamping", "{a}");
         assert_eq!(a["labels"]["gate"], "g1", "{a}");
     }
-    assert_eq!(firing["fingerprint"], resolved["fingerprint"], "the same alert");
+    assert_eq!(
+        firing["fingerprint"], resolved["fingerprint"],
+        "the same alert"
+    );
     assert_eq!(firing["startsAt"], resolved["startsAt"], "the same episode");
     assert!(resolved["endsAt"].is_string(), "{resolved}");
     // acknowledged: the outbox empties

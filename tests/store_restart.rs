@@ -340,7 +340,10 @@ async fn a_full_database_is_counted_and_logged_naming_the_file_and_ingestion_goe
     let deadline = Instant::now() + WAIT;
     let (identified, failed) = loop {
         let status = stream.send(&client, &url).await;
-        assert!(status == 0 || status < 300, "ingestion refused: HTTP {status}");
+        assert!(
+            status == 0 || status < 300,
+            "ingestion refused: HTTP {status}"
+        );
         let identified = metric(&client, &url, IDENTIFIED).await.unwrap_or(0.0);
         let failed = metric(&client, &url, WRITE_FAILED).await.unwrap_or(0.0);
         if identified >= 3.0 && failed >= 3.0 {
@@ -354,7 +357,10 @@ async fn a_full_database_is_counted_and_logged_naming_the_file_and_ingestion_goe
     };
     // still answering: ingestion accepted, the gate's identification readable
     let status = stream.send(&client, &url).await;
-    assert!((200..300).contains(&status), "ingestion refused: HTTP {status}");
+    assert!(
+        (200..300).contains(&status),
+        "ingestion refused: HTTP {status}"
+    );
     let gate: Value = client
         .get(format!("{url}/api/v1/gates/g1"))
         .send()
@@ -377,10 +383,16 @@ async fn a_full_database_is_counted_and_logged_naming_the_file_and_ingestion_goe
             |r| r.get(0),
         )
         .expect("count");
-    assert!((rows as f64) < identified, "{rows} rows of {identified} windows");
+    assert!(
+        (rows as f64) < identified,
+        "{rows} rows of {identified} windows"
+    );
     // the log names the file and SQLite's reason, once per 30 s (not once per write)
     let text = std::fs::read_to_string(&log).expect("log");
-    let errors: Vec<&str> = text.lines().filter(|l| l.contains("write failed")).collect();
+    let errors: Vec<&str> = text
+        .lines()
+        .filter(|l| l.contains("write failed"))
+        .collect();
     assert!(!errors.is_empty(), "no error logged:\n{text}");
     assert!(
         errors[0].contains(&db.display().to_string()) && errors[0].contains("full"),
@@ -443,7 +455,11 @@ async fn sigterm_flushes_the_last_identifications_into_the_database_file() {
         "{rows} rows in the file, {identified} identifications counted before SIGTERM"
     );
     let state: i64 = c
-        .query_row("SELECT count(*) FROM alert_state WHERE gate = 'g1'", [], |r| r.get(0))
+        .query_row(
+            "SELECT count(*) FROM alert_state WHERE gate = 'g1'",
+            [],
+            |r| r.get(0),
+        )
         .expect("alert state");
     assert_eq!(state, 1, "the gate's alert state too");
 }

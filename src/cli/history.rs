@@ -63,9 +63,7 @@ pub fn run(args: HistoryArgs) -> Result<(), CliError> {
     };
     if let (Some(f), Some(t)) = (query.from, query.to) {
         if f > t {
-            return Err(CliError::Input(format!(
-                "--from ({f}) is after --to ({t})"
-            )));
+            return Err(CliError::Input(format!("--from ({f}) is after --to ({t})")));
         }
     }
     // the thresholds before the database: a bad --config fails before any work
@@ -141,10 +139,7 @@ fn thresholds(path: &std::path::Path, gate: &str) -> Result<Thresholds, CliError
     }
     let config = crate::service::config::Config::from_file(path)
         .map_err(|e| CliError::Input(format!("--config {}: {e}", path.display())))?;
-    let rules = &config
-        .gate(gate)
-        .unwrap_or(&config.defaults)
-        .alert;
+    let rules = &config.gate(gate).unwrap_or(&config.defaults).alert;
     Ok(Thresholds {
         fire_below: rules.fire_below,
         clear_above: rules.clear_above,

@@ -157,7 +157,11 @@ impl Figure for HistoryFigure<'_> {
         }
         let zeta: Vec<(f64, f64)> = p
             .iter()
-            .filter_map(|q| q.zeta0.filter(|z| z.is_finite()).map(|z| (x(q.time), pct(z))))
+            .filter_map(|q| {
+                q.zeta0
+                    .filter(|z| z.is_finite())
+                    .map(|z| (x(q.time), pct(z)))
+            })
             .collect();
         let (xs, ys): (Vec<f64>, Vec<f64>) = zeta.iter().copied().unzip();
         chart
@@ -206,7 +210,10 @@ pub fn damping_history(
     thresholds: Option<Thresholds>,
 ) -> Result<(), PlotError> {
     if points.is_empty() {
-        return Err(no_data(path, format!("gate {gate} has no identification in the range")));
+        return Err(no_data(
+            path,
+            format!("gate {gate} has no identification in the range"),
+        ));
     }
     if points.iter().any(|q| !q.time.is_finite()) {
         return Err(no_data(path, "a window end time is not finite"));

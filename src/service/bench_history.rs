@@ -62,10 +62,8 @@ struct TempDir(PathBuf);
 
 impl TempDir {
     fn new() -> std::io::Result<TempDir> {
-        let dir = std::env::temp_dir().join(format!(
-            "gatewatch-bench-history-{}",
-            std::process::id()
-        ));
+        let dir =
+            std::env::temp_dir().join(format!("gatewatch-bench-history-{}", std::process::id()));
         std::fs::create_dir_all(&dir)?;
         Ok(TempDir(dir))
     }
@@ -185,7 +183,11 @@ fn bench(args: &BenchHistoryArgs) -> anyhow::Result<()> {
         let t = Instant::now();
         let got = store.history(&query)?;
         store_ms.push(t.elapsed().as_secs_f64() * 1e3);
-        anyhow::ensure!(got.len() == per_gate, "{} rows, expected {per_gate}", got.len());
+        anyhow::ensure!(
+            got.len() == per_gate,
+            "{} rows, expected {per_gate}",
+            got.len()
+        );
     }
     drop(store);
 

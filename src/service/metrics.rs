@@ -599,7 +599,10 @@ impl StoreCounts {
     /// Adds what the writer counted since the last call to `gatewatch_store_write_errors_total`.
     pub fn sync(&self, metrics: &Metrics, stats: &crate::store::StoreStats) {
         use std::sync::atomic::Ordering::Relaxed;
-        let now = (stats.write_failed.load(Relaxed), stats.queue_full.load(Relaxed));
+        let now = (
+            stats.write_failed.load(Relaxed),
+            stats.queue_full.load(Relaxed),
+        );
         let mut last = super::sync::lock(&self.last);
         for (reason, new, old) in [("failed", now.0, last.0), ("queue_full", now.1, last.1)] {
             metrics
