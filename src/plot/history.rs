@@ -137,7 +137,7 @@ impl Figure for HistoryFigure<'_> {
                     [(x0, pct(t.fire_below)), (x1, pct(t.fire_below))],
                     8,
                     6,
-                    ORANGE.stroke_width(2).into(),
+                    ORANGE.stroke_width(2),
                 ))?
                 .label(format!("fire below {} %", pct(t.fire_below)))
                 .legend(|(x, y)| {
@@ -148,7 +148,7 @@ impl Figure for HistoryFigure<'_> {
                     [(x0, pct(t.clear_above)), (x1, pct(t.clear_above))],
                     8,
                     6,
-                    GREEN.stroke_width(2).into(),
+                    GREEN.stroke_width(2),
                 ))?
                 .label(format!("clear above {} %", pct(t.clear_above)))
                 .legend(|(x, y)| {

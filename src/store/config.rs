@@ -27,8 +27,10 @@ pub struct StorageConfig {
     pub path: String,
     /// History older than this is deleted (default 30 days).
     pub retention_days: f64,
-    /// Bound on the history: beyond this many rows the oldest are deleted (default 5 000 000,
-    /// about 2 GB at the measured ~400 bytes a row; see docs/benchmarks.md).
+    /// Bound on the history: beyond this many rows the oldest are deleted (default 5 000 000).
+    /// A row with a real damping report is about 2 100 bytes of file (docs/benchmarks.md,
+    /// "History"), so 5 000 000 rows would be about 10.5 GB: above `max_size_mb`'s default,
+    /// which then binds first (docs/operations.md, "Size").
     pub max_history_rows: u64,
     /// Hard bound on the database file, in MiB (default 4096): SQLite's `max_page_count`.
     /// A write that would grow the file beyond it fails like a full disk: counted
