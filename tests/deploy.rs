@@ -93,10 +93,14 @@ fn http_get(port: u16, path: &str) -> Option<String> {
 fn serve_with_the_shipped_config_gets_ready_and_stops_on_sigterm() {
     // the Dockerfile's CMD and the systemd unit's ExecStart, on a free loopback port
     let port = free_port();
+    // the shipped config's store is `gatewatch.db` next to it, in the checkout: a file of
+    // this test's own instead (the systemd unit overrides it the same way)
+    let store = tempfile::tempdir().unwrap();
     let mut child = Command::new(BIN)
         .args(["serve", "--config"])
         .arg(Path::new(ROOT).join("config/gatewatch.toml"))
         .env("GATEWATCH_LISTEN", format!("127.0.0.1:{port}"))
+        .env("GATEWATCH_STORAGE_PATH", store.path().join("gatewatch.db"))
         .env("GATEWATCH_LOG_FORMAT", "json")
         .stdout(Stdio::null())
         .stderr(Stdio::null())

@@ -178,10 +178,14 @@ fn get(port: u16, path: &str) -> Option<String> {
 #[test]
 fn every_metric_the_dashboard_reads_is_exported() {
     let port = free_port();
+    // the shipped config's store is `gatewatch.db` next to it, in the checkout: a file of
+    // this test's own instead (the systemd unit overrides it the same way)
+    let store = tempfile::tempdir().unwrap();
     let mut child = Command::new(BIN)
         .args(["serve", "--config"])
         .arg(Path::new(ROOT).join("config/gatewatch.toml"))
         .env("GATEWATCH_LISTEN", format!("127.0.0.1:{port}"))
+        .env("GATEWATCH_STORAGE_PATH", store.path().join("gatewatch.db"))
         .stdout(Stdio::null())
         .stderr(Stdio::null())
         .spawn()

@@ -1,6 +1,8 @@
 //! The store through the REAL binary (`gatewatch serve`) and a real SQLite file: an alert
 //! survives kill -9 while its webhook receiver is down, with its original `startsAt`; a corrupt
-//! or unusable database file stops the start with an error naming it.
+//! or unusable database file stops the start with an error naming it; a full database
+//! (SQLite's real `SQLITE_FULL`, through `max_size_mb`) is counted and logged while ingestion
+//! and identification go on; SIGTERM flushes the identifications into the `.db` file.
 //!
 //! The alert is `GateDataStale` of a configured gate that never sends (stale after 1 s): a real
 //! firing alert without waiting for identifications. Every wait is bounded.
@@ -24,12 +26,17 @@ fn free_port() -> u16 {
 }
 
 fn write_config(dir: &Path, hook_port: u16) -> PathBuf {
+    write_config_with(dir, hook_port, "")
+}
+
+/// The test configuration, with `storage` lines added to `[storage]`.
+fn write_config_with(dir: &Path, hook_port: u16, storage: &str) -> PathBuf {
     let cfg = dir.join("gatewatch.toml");
     std::fs::write(
         &cfg,
         format!(
             "[server]\nlisten = \"127.0.0.1:{}\"\nworker_threads = 1\nshutdown_grace_seconds = 2.0\n\
-             [storage]\npath = \"gw.db\"\n\
+             [storage]\npath = \"gw.db\"\n{storage}\n\
              [notify]\ninitial_backoff_ms = 100\nmax_backoff_ms = 300\nresend_interval_seconds = 0\n\
              [[notify.webhooks]]\nurl = \"http://127.0.0.1:{hook_port}/hook\"\n\
              [defaults]\nrate_hz = 100.0\nwindow_seconds = 1.0\nidentify_every_seconds = 0.5\n\
@@ -184,4 +191,275 @@ fn a_corrupt_or_unusable_database_stops_the_start_naming_the_file() {
         err.contains("gw.db") && err.contains("is a directory"),
         "{err}"
     );
+}
+
+/// `http://127.0.0.1:PORT` of the daemon a test configuration starts.
+fn daemon_url(cfg: &Path) -> String {
+    let text = std::fs::read_to_string(cfg).expect("read config");
+    let addr = text
+        .lines()
+        .find_map(|l| l.strip_prefix("listen = \""))
+        .and_then(|l| l.strip_suffix('"'))
+        .expect("listen");
+    format!("http://{addr}")
+}
+
+/// The daemon with its log (info) in `log`.
+fn serve_logging(cfg: &Path, log: &Path) -> Child {
+    Command::new(BIN)
+        .args(["serve", "--config"])
+        .arg(cfg)
+        .env("GATEWATCH_LOG_LEVEL", "info")
+        .stdout(Stdio::null())
+        .stderr(std::fs::File::create(log).expect("log file"))
+        .spawn()
+        .expect("spawn gatewatch serve")
+}
+
+/// One metric's value (the first line starting with `line_start`), `None` while the daemon
+/// does not answer.
+async fn metric(client: &reqwest::Client, url: &str, line_start: &str) -> Option<f64> {
+    let text = client
+        .get(format!("{url}/metrics"))
+        .send()
+        .await
+        .ok()?
+        .text()
+        .await
+        .ok()?;
+    text.lines()
+        .find(|l| l.starts_with(line_start))
+        .and_then(|l| l.split_whitespace().last())
+        .and_then(|v| v.parse().ok())
+}
+
+const IDENTIFIED: &str = "gatewatch_identifications_total{gate=\"g1\",path=\"full\"}";
+const WRITE_FAILED: &str = "gatewatch_store_write_errors_total{reason=\"failed\"}";
+
+/// A simulated stable gate (100 Hz) streamed one second at a time, in sample time from 30 s
+/// ago on (consecutive: no gap restarts the window; ahead of the clock by less than the
+/// default `max_future_seconds`).
+struct Stream {
+    sim: gatewatch::simulate::GateSimulator,
+    next: f64,
+}
+
+impl Stream {
+    fn new() -> Stream {
+        let params = gatewatch::simulate::GateParams {
+            rate_hz: 100.0,
+            ..Default::default()
+        };
+        let now = SystemTime::now()
+            .duration_since(SystemTime::UNIX_EPOCH)
+            .expect("clock")
+            .as_secs_f64();
+        Stream {
+            sim: gatewatch::simulate::GateSimulator::scenario(
+                params,
+                gatewatch::simulate::Scenario::Stable,
+                7,
+            ),
+            next: now - 30.0,
+        }
+    }
+
+    /// Sends the next second; the HTTP status, or 0 while the daemon does not answer (then
+    /// the same second is sent again next time).
+    async fn send(&mut self, client: &reqwest::Client, url: &str) -> u16 {
+        let mut values = vec![0.0; 100];
+        self.sim.fill(&mut values);
+        let body = serde_json::json!({"gate": "g1", "start": self.next, "rate_hz": 100.0,
+            "values": values});
+        match client
+            .post(format!("{url}/api/v1/samples"))
+            .json(&body)
+            .send()
+            .await
+        {
+            Ok(r) => {
+                self.next += 1.0;
+                r.status().as_u16()
+            }
+            Err(_) => 0,
+        }
+    }
+}
+
+/// Fills the store at `db` (bounded to 1 MiB, as the daemon will open it) until SQLite says it
+/// is full: first large rows, then small ones into what is left.
+fn fill_to_the_brim(db: &Path) {
+    use gatewatch::store::{IdentificationRecord, SqliteStore, Store, WriteBatch};
+    let store = SqliteStore::open(db, 1).expect("open");
+    let now = SystemTime::now()
+        .duration_since(SystemTime::UNIX_EPOCH)
+        .expect("clock")
+        .as_secs_f64();
+    for size in [2000, 200, 10] {
+        for i in 0.. {
+            let r = IdentificationRecord {
+                gate: "old".into(),
+                time: now,
+                window_start: now - 1.0,
+                // recent: the retention at start does not free room
+                window_end: now + f64::from(i) * 1e-3,
+                equation: "x".repeat(size),
+                coefficients: Vec::new(),
+                damping: Value::Null,
+                verdict: "unknown".into(),
+                fit_nmae: 0.0,
+                path: "full".into(),
+            };
+            let batch = WriteBatch {
+                identifications: vec![r],
+                ..Default::default()
+            };
+            if let Err(e) = store.write(&batch) {
+                assert!(e.to_string().contains("full"), "{e}");
+                break;
+            }
+        }
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_full_database_is_counted_and_logged_naming_the_file_and_ingestion_goes_on() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    // max_size_mb = 1 is SQLite's max_page_count on the writer: its real SQLITE_FULL
+    let cfg = write_config_with(dir.path(), free_port(), "max_size_mb = 1");
+    let db = dir.path().join("gw.db");
+    fill_to_the_brim(&db);
+    let log = dir.path().join("gatewatch.log");
+    let mut child = serve_logging(&cfg, &log);
+    let url = daemon_url(&cfg);
+    gatewatch::service::client::ensure_crypto_provider();
+    let client = reqwest::Client::new();
+    let mut stream = Stream::new();
+
+    // stream until identifications went on while writes failed
+    let deadline = Instant::now() + WAIT;
+    let (identified, failed) = loop {
+        let status = stream.send(&client, &url).await;
+        assert!(
+            status == 0 || status < 300,
+            "ingestion refused: HTTP {status}"
+        );
+        let identified = metric(&client, &url, IDENTIFIED).await.unwrap_or(0.0);
+        let failed = metric(&client, &url, WRITE_FAILED).await.unwrap_or(0.0);
+        if identified >= 3.0 && failed >= 3.0 {
+            break (identified, failed);
+        }
+        assert!(
+            Instant::now() < deadline,
+            "identified {identified}, failed writes {failed}"
+        );
+        tokio::time::sleep(Duration::from_millis(300)).await;
+    };
+    // still answering: ingestion accepted, the gate's identification readable
+    let status = stream.send(&client, &url).await;
+    assert!(
+        (200..300).contains(&status),
+        "ingestion refused: HTTP {status}"
+    );
+    let gate: Value = client
+        .get(format!("{url}/api/v1/gates/g1"))
+        .send()
+        .await
+        .expect("gate")
+        .json()
+        .await
+        .expect("JSON");
+    assert!(gate["identification"]["window_end"].is_number(), "{gate}");
+    let _ = child.kill();
+    let _ = child.wait();
+
+    // nothing of the daemon's went into the full file
+    let c = rusqlite::Connection::open_with_flags(&db, rusqlite::OpenFlags::SQLITE_OPEN_READ_ONLY)
+        .expect("open");
+    let rows: i64 = c
+        .query_row(
+            "SELECT count(*) FROM identifications WHERE gate = 'g1'",
+            [],
+            |r| r.get(0),
+        )
+        .expect("count");
+    assert!(
+        (rows as f64) < identified,
+        "{rows} rows of {identified} windows"
+    );
+    // the log names the file and SQLite's reason, once per 30 s (not once per write)
+    let text = std::fs::read_to_string(&log).expect("log");
+    let errors: Vec<&str> = text
+        .lines()
+        .filter(|l| l.contains("write failed"))
+        .collect();
+    assert!(!errors.is_empty(), "no error logged:\n{text}");
+    assert!(
+        errors[0].contains(&db.display().to_string()) && errors[0].contains("full"),
+        "{}",
+        errors[0]
+    );
+    assert!(
+        (errors.len() as f64) < failed,
+        "{} lines for {failed} failed writes",
+        errors.len()
+    );
+    assert!(!text.contains("panicked"), "{text}");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn sigterm_flushes_the_last_identifications_into_the_database_file() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let cfg = write_config(dir.path(), free_port());
+    let url = daemon_url(&cfg);
+    let mut child = serve(&cfg);
+    gatewatch::service::client::ensure_crypto_provider();
+    let client = reqwest::Client::new();
+    let mut stream = Stream::new();
+    let deadline = Instant::now() + WAIT;
+    // a burst of samples, then SIGTERM right after the daemon counted the identifications
+    let identified = loop {
+        stream.send(&client, &url).await;
+        let n = metric(&client, &url, IDENTIFIED).await.unwrap_or(0.0);
+        if n >= 4.0 {
+            break n;
+        }
+        assert!(Instant::now() < deadline, "identified {n}");
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    };
+    let term = Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status()
+        .expect("kill -TERM");
+    assert!(term.success());
+    let status = tokio::task::spawn_blocking(move || child.wait())
+        .await
+        .expect("join")
+        .expect("wait");
+    assert_eq!(status.code(), Some(0), "clean exit on SIGTERM");
+
+    // the .db file ALONE holds them (the WAL was checkpointed at shutdown)
+    let copy = dir.path().join("copy");
+    std::fs::create_dir(&copy).expect("mkdir");
+    std::fs::copy(dir.path().join("gw.db"), copy.join("gw.db")).expect("copy the .db alone");
+    let c = rusqlite::Connection::open(copy.join("gw.db")).expect("open the copy");
+    let rows: i64 = c
+        .query_row(
+            "SELECT count(*) FROM identifications WHERE gate = 'g1'",
+            [],
+            |r| r.get(0),
+        )
+        .expect("count");
+    assert!(
+        rows as f64 >= identified,
+        "{rows} rows in the file, {identified} identifications counted before SIGTERM"
+    );
+    let state: i64 = c
+        .query_row(
+            "SELECT count(*) FROM alert_state WHERE gate = 'g1'",
+            [],
+            |r| r.get(0),
+        )
+        .expect("alert state");
+    assert_eq!(state, 1, "the gate's alert state too");
 }

@@ -1,11 +1,15 @@
-//! `gatewatch history --db FILE --gate ID [--from] [--to] [--limit] [--csv]`: a gate's
-//! identification history from the daemon's store, for engineers who work offline. The file is
-//! opened read-only (also while the daemon writes to it: WAL).
+//! `gatewatch history --db FILE --gate ID [--from] [--to] [--limit] [--csv] [--plot FILE.svg]`:
+//! a gate's identification history from the daemon's store, for engineers who work offline.
+//! The file is opened read-only (also while the daemon writes to it: WAL).
 
 use std::path::PathBuf;
 
 use super::CliError;
-use crate::store::{history_csv, parse_time, HistoryQuery, SqliteStore, Store, MAX_HISTORY_LIMIT};
+use crate::plot::{DampingPoint, Thresholds};
+use crate::store::{
+    history_csv, parse_time, HistoryQuery, IdentificationRecord, SqliteStore, Store,
+    MAX_HISTORY_LIMIT,
+};
 
 /// Arguments of `gatewatch history`.
 #[derive(Debug, clap::Args)]
@@ -26,11 +30,19 @@ pub struct HistoryArgs {
     #[arg(long, default_value_t = MAX_HISTORY_LIMIT)]
     pub limit: usize,
     /// CSV instead of JSON lines.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "plot")]
     pub csv: bool,
+    /// Draw the damping over time (zeta0 with its 95 % interval, verdict changes) into this
+    /// file (.svg or .png) instead of printing the rows.
+    #[arg(long)]
+    pub plot: Option<PathBuf>,
+    /// The daemon's configuration: the plot then shows the gate's alert thresholds
+    /// (`fire_below`, `clear_above`).
+    #[arg(long, requires = "plot")]
+    pub config: Option<PathBuf>,
 }
 
-/// Prints the history on stdout.
+/// Prints the history on stdout, or draws it with `--plot`.
 pub fn run(args: HistoryArgs) -> Result<(), CliError> {
     let time = |name: &str, v: &Option<String>| -> Result<Option<f64>, CliError> {
         v.as_deref()
@@ -49,10 +61,54 @@ pub fn run(args: HistoryArgs) -> Result<(), CliError> {
         to: time("to", &args.to)?,
         limit: args.limit,
     };
+    if let (Some(f), Some(t)) = (query.from, query.to) {
+        if f > t {
+            return Err(CliError::Input(format!("--from ({f}) is after --to ({t})")));
+        }
+    }
+    // the thresholds before the database: a bad --config fails before any work
+    let thresholds = match &args.config {
+        Some(path) => Some(thresholds(path, &args.gate)?),
+        None => None,
+    };
     let store =
         SqliteStore::open_read_only(&args.db).map_err(|e| CliError::Input(e.to_string()))?;
     let rows = store.history(&query).map_err(anyhow::Error::from)?;
-    if args.csv {
+    if rows.is_empty() {
+        let gates = store.gates().map_err(anyhow::Error::from)?;
+        if !gates.contains(&args.gate) {
+            return Err(CliError::Input(format!(
+                "unknown gate `{}`: {} has no identification of it (gates: {})",
+                args.gate,
+                args.db.display(),
+                if gates.is_empty() {
+                    "none".to_string()
+                } else {
+                    gates.join(", ")
+                }
+            )));
+        }
+        if args.plot.is_some() {
+            return Err(CliError::Input(format!(
+                "gate `{}` has no identification between {} and {} in {}: nothing to plot",
+                args.gate,
+                args.from.as_deref().unwrap_or("the first"),
+                args.to.as_deref().unwrap_or("the last"),
+                args.db.display()
+            )));
+        }
+    }
+    if let Some(path) = &args.plot {
+        let points: Vec<DampingPoint> = rows.iter().map(point).collect();
+        crate::plot::damping_history(path, &args.gate, &points, thresholds)
+            .map_err(|e| CliError::Input(format!("--plot: {e}")))?;
+        eprintln!(
+            "gatewatch: wrote {} ({} windows of gate {})",
+            path.display(),
+            rows.len(),
+            args.gate
+        );
+    } else if args.csv {
         print!("{}", history_csv(&rows).map_err(anyhow::Error::msg)?);
     } else {
         for r in &rows {
@@ -60,4 +116,32 @@ pub fn run(args: HistoryArgs) -> Result<(), CliError> {
         }
     }
     Ok(())
+}
+
+/// What the picture needs of a stored identification.
+fn point(r: &IdentificationRecord) -> DampingPoint {
+    DampingPoint {
+        time: r.window_end,
+        zeta0: r.zeta0(),
+        interval: r.zeta0_interval(),
+        verdict: r.verdict.clone(),
+    }
+}
+
+/// The gate's alert thresholds from the daemon's configuration file (its own `[gates.ID]`
+/// table, or the defaults).
+fn thresholds(path: &std::path::Path, gate: &str) -> Result<Thresholds, CliError> {
+    if !path.is_file() {
+        return Err(CliError::Input(format!(
+            "--config {}: no such file",
+            path.display()
+        )));
+    }
+    let config = crate::service::config::Config::from_file(path)
+        .map_err(|e| CliError::Input(format!("--config {}: {e}", path.display())))?;
+    let rules = &config.gate(gate).unwrap_or(&config.defaults).alert;
+    Ok(Thresholds {
+        fire_below: rules.fire_below,
+        clear_above: rules.clear_above,
+    })
 }

@@ -76,6 +76,9 @@ enum BenchCommand {
     /// How well the daemon warns: each scenario streamed through the daemon in sample time,
     /// scored against the simulator's true damping (delays, false alarms, error, coverage).
     Warning(crate::service::bench_warning::BenchWarningArgs),
+    /// A day of history for 16 gates through the real store: database size, and the time of
+    /// `GET /api/v1/gates/{id}/history` for one gate's day.
+    History(crate::service::bench_history::BenchHistoryArgs),
 }
 
 pub(crate) fn parse_param(s: &str) -> Result<(String, f64), String> {
@@ -151,6 +154,9 @@ pub fn main() -> ExitCode {
         }
         Command::Bench(BenchCommand::Soak(args)) => {
             return crate::service::bench_soak::bench_soak(args)
+        }
+        Command::Bench(BenchCommand::History(args)) => {
+            return crate::service::bench_history::bench_history(args)
         }
         Command::Completions(args) => {
             use clap::CommandFactory;

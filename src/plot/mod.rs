@@ -8,7 +8,9 @@
 //!   Figure 8.15);
 //! - [`convergence`]: the DE's best-so-far cost per generation on a log scale, ending after the
 //!   polish;
-//! - [`stability_map`]: the stability map of a coefficient plane (Figure 8.13).
+//! - [`stability_map`]: the stability map of a coefficient plane (Figure 8.13);
+//! - [`damping_history`]: a gate's damping over time from the store's history, with its
+//!   interval band, the alert thresholds and the verdict changes (`gatewatch history --plot`).
 //!
 //! [`identification`] writes the pictures of an identification (`gatewatch identify --plot`).
 //!
@@ -20,7 +22,7 @@
 //! `mod.rs` holds the error, format, units and the drawing helpers every figure shares;
 //! `series` the fit, phase and hysteresis figures; `zoom` the zoomed fit with its residual;
 //! `convergence` the DE curve; `map` the
-//! stability map; `report` the pictures of an identification.
+//! stability map; `report` the pictures of an identification; `history` the damping over time.
 
 use plotters::coord::Shift;
 use plotters::prelude::*;
@@ -30,6 +32,7 @@ use std::sync::Once;
 
 mod convergence;
 mod damping;
+mod history;
 mod map;
 mod report;
 mod series;
@@ -39,6 +42,7 @@ mod zoom;
 
 pub use convergence::convergence;
 pub use damping::damping_curve;
+pub use history::{damping_history, DampingPoint, Thresholds};
 pub use map::stability_map;
 pub use report::{identification, prepare_dir, trajectory};
 pub use series::{fit, hysteresis, phase, Loop};

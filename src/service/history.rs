@@ -66,6 +66,22 @@ fn bad(message: String, field: &str) -> HttpError {
     HttpError::BadRequest(BadRequest::new(message).field(field.to_string()))
 }
 
+/// Whether the store has any row of `gate` (one indexed lookup).
+async fn has_history(p: &Arc<super::storage::Persistence>, gate: &str) -> Result<bool, HttpError> {
+    let p = p.clone();
+    let q = HistoryQuery {
+        gate: gate.to_string(),
+        from: None,
+        to: None,
+        limit: 1,
+    };
+    let rows = tokio::task::spawn_blocking(move || p.store.history(&q))
+        .await
+        .map_err(|e| HttpError::Internal(format!("history task failed: {e}")))?
+        .map_err(|e| HttpError::Internal(e.to_string()))?;
+    Ok(!rows.is_empty())
+}
+
 /// The handler.
 pub async fn get_history(
     State(state): State<Arc<AppState>>,
@@ -78,7 +94,11 @@ pub async fn get_history(
             "no history: this daemon runs without a store".into(),
         ));
     };
-    if state.config.gate(&id).is_none() && !state.gate_ids().contains(&id) {
+    // A gate is known when it is configured, live, or has stored rows (an expired gate of
+    // `accept_unknown_gates` keeps its history); an empty answer is reserved for known gates
+    // with nothing in the range, so a typo in the id is a 404, not an empty day.
+    let known = state.config.gates.contains_key(&id) || state.gate_ids().contains(&id);
+    if !known && state.config.gate(&id).is_none() {
         return Err(HttpError::NotFound(format!("unknown gate `{id}`")));
     }
     let q = query(&id, &params)?;
@@ -89,10 +109,17 @@ pub async fn get_history(
     let Ok(permit) = PERMITS.try_acquire() else {
         return Err(HttpError::Overloaded);
     };
-    let rows = tokio::task::spawn_blocking(move || p.store.history(&q))
+    let reader = p.clone();
+    let rows = tokio::task::spawn_blocking(move || reader.store.history(&q))
         .await
         .map_err(|e| HttpError::Internal(format!("history task failed: {e}")))?
         .map_err(|e| HttpError::Internal(e.to_string()))?;
+    // (the lookup holds the same permit)
+    if rows.is_empty() && !known && !has_history(&p, &id).await? {
+        return Err(HttpError::NotFound(format!(
+            "unknown gate `{id}`: not configured, not live, and nothing stored"
+        )));
+    }
     drop(permit);
     if csv {
         let body = history_csv(&rows).map_err(HttpError::Internal)?;

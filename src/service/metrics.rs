@@ -98,6 +98,8 @@ pub struct Metrics {
     /// `gatewatch_gates_expired_total`: gates created by `accept_unknown_gates` forgotten after
     /// `server.unknown_gate_expiry_seconds` of silence.
     pub gates_expired: IntCounter,
+    /// `gatewatch_store_write_errors_total{reason}`: store writes lost ([`STORE_WRITE_ERRORS`]).
+    pub store_write_errors: IntCounterVec,
 }
 
 /// Why samples were rejected or dropped: the `reason` label of
@@ -189,6 +191,12 @@ pub const ALERT_NAMES: &[&str] = &[
 /// Reasons of `gatewatch_identification_failures_total`: the analysis refused its settings
 /// or the window, the analysis panicked, or the job queue was full.
 pub const IDENTIFICATION_FAILURES: &[&str] = &["settings", "window", "panic", "queue_full"];
+
+/// Reasons of `gatewatch_store_write_errors_total`, in write requests (one identification, or
+/// one alert transition with its state): `failed` when SQLite refused the transaction (disk
+/// full, I/O error, the `storage.max_size_mb` bound), `queue_full` when the writer's queue
+/// (`store::STORE_QUEUE_CAPACITY`) had no room. Either way the daemon goes on from memory.
+pub const STORE_WRITE_ERRORS: &[&str] = &["failed", "queue_full"];
 
 /// Outcomes of `gatewatch_notifications_total`, per target and batch: `delivered`, `failed`
 /// (given up after retries, or refused) and `dropped` (queue full, or abandoned at the shutdown
@@ -415,6 +423,11 @@ impl Metrics {
             tcp_connections_rejected,
             http_connections_rejected,
             gates_expired,
+            store_write_errors: counter(
+                "gatewatch_store_write_errors_total",
+                "Store write requests lost (history, alert state, outbox), by reason; the daemon goes on from memory.",
+                &["reason"],
+            ),
             registry,
         };
         m.build_info
@@ -436,6 +449,9 @@ impl Metrics {
         }
         for r in IDENTIFICATION_FAILURES {
             m.identification_failures.with_label_values(&[r]);
+        }
+        for r in STORE_WRITE_ERRORS {
+            m.store_write_errors.with_label_values(&[r]);
         }
         m
     }
@@ -590,6 +606,32 @@ impl NotificationCounts {
                     .with_label_values(&[target.as_str(), outcome])
                     .inc_by(new.saturating_sub(old));
             }
+        }
+        *last = now;
+    }
+}
+
+/// The store writer's error counters as last exported, to turn its totals into counter
+/// increments (the store does not know Prometheus).
+#[derive(Debug, Default)]
+pub struct StoreCounts {
+    last: std::sync::Mutex<(u64, u64)>,
+}
+
+impl StoreCounts {
+    /// Adds what the writer counted since the last call to `gatewatch_store_write_errors_total`.
+    pub fn sync(&self, metrics: &Metrics, stats: &crate::store::StoreStats) {
+        use std::sync::atomic::Ordering::Relaxed;
+        let now = (
+            stats.write_failed.load(Relaxed),
+            stats.queue_full.load(Relaxed),
+        );
+        let mut last = super::sync::lock(&self.last);
+        for (reason, new, old) in [("failed", now.0, last.0), ("queue_full", now.1, last.1)] {
+            metrics
+                .store_write_errors
+                .with_label_values(&[reason])
+                .inc_by(new.saturating_sub(old));
         }
         *last = now;
     }

@@ -18,6 +18,7 @@
 //! - [`cli`]: command-line entry points; [`client`]: the simulate client (talks to a daemon
 //!   over the network only, and installs the TLS crypto provider its HTTP client needs).
 //! - [`bench`]: `gatewatch bench daemon`, load measurements.
+//! - [`bench_history`]: `gatewatch bench history`, a day of history: file size, route time.
 //! - [`bench_warning`]: `gatewatch bench warning`, the scenarios streamed through [`state`] in
 //!   sample time and scored against the simulator's truth.
 //! - [`demo`]: `gatewatch demo`, daemon + webhook receiver + simulated gate in one process.
@@ -35,6 +36,7 @@
 
 pub mod api;
 pub mod bench;
+pub mod bench_history;
 pub mod bench_soak;
 pub mod bench_warning;
 pub mod cli;

@@ -287,6 +287,9 @@ impl AppState {
     pub fn render_metrics(&self) -> String {
         self.notification_counts
             .sync(&self.metrics, self.notifier.stats().snapshot());
+        if let Some(p) = &self.persistence {
+            p.sync_metrics(&self.metrics);
+        }
         self.metrics.render()
     }
 

@@ -13,6 +13,7 @@ use std::sync::{Arc, Mutex};
 use std::time::SystemTime;
 
 use super::clock::unix_seconds;
+use super::metrics::{Metrics, StoreCounts};
 use super::sync::lock;
 use crate::alert::notify::outbox::{self, OutboxEntry, TargetInfo};
 use crate::alert::notify::NotifierHandle;
@@ -35,6 +36,8 @@ pub struct Persistence {
     written: Mutex<HashMap<String, String>>,
     /// The SQLite store behind `store`, for its checkpoint.
     sqlite: Option<Arc<SqliteStore>>,
+    /// The writer's error counters as last exported to Prometheus.
+    counts: StoreCounts,
 }
 
 impl std::fmt::Debug for Persistence {
@@ -67,7 +70,13 @@ impl Persistence {
             batch: AtomicU64::new(1),
             written: Mutex::new(HashMap::new()),
             sqlite: None,
+            counts: StoreCounts::default(),
         }
+    }
+
+    /// Brings `gatewatch_store_write_errors_total` up to date with the writer's counters.
+    pub fn sync_metrics(&self, metrics: &Metrics) {
+        self.counts.sync(metrics, &self.writer.stats());
     }
 
     /// Writes the WAL into the database file (at shutdown, after [`StoreWriter::close`]), so a

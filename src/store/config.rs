@@ -8,7 +8,7 @@ use serde::{Deserialize, Serialize};
 /// Capacity of the writer thread's queue, in write requests. One identification or one alert
 /// transition is one request; 4096 is minutes of 16 gates at a window a second, far more than
 /// a healthy disk ever lets pile up. When it is full the write is dropped, counted
-/// (`StoreStats::queue_full`; not yet a Prometheus metric) and logged: ingestion and alert
+/// (`gatewatch_store_write_errors_total{reason="queue_full"}`) and logged: ingestion and alert
 /// delivery go on from memory.
 pub const STORE_QUEUE_CAPACITY: usize = 4096;
 
@@ -27,12 +27,14 @@ pub struct StorageConfig {
     pub path: String,
     /// History older than this is deleted (default 30 days).
     pub retention_days: f64,
-    /// Bound on the history: beyond this many rows the oldest are deleted (default 5 000 000,
-    /// about 2 GB at the measured ~400 bytes a row; see docs/benchmarks.md).
+    /// Bound on the history: beyond this many rows the oldest are deleted (default 5 000 000).
+    /// A row with a real damping report is about 2 100 bytes of file (docs/benchmarks.md,
+    /// "History"), so 5 000 000 rows would be about 10.5 GB: above `max_size_mb`'s default,
+    /// which then binds first (docs/operations.md, "Size").
     pub max_history_rows: u64,
     /// Hard bound on the database file, in MiB (default 4096): SQLite's `max_page_count`.
     /// A write that would grow the file beyond it fails like a full disk: counted
-    /// (`StoreStats::write_failed`) and logged, and ingestion goes on.
+    /// (`gatewatch_store_write_errors_total{reason="failed"}`) and logged, and ingestion goes on.
     pub max_size_mb: u64,
     /// A notification is retried for as long as it is younger than this, then given up,
     /// counted and logged (default 86400 s = 24 h).

@@ -187,6 +187,12 @@ pub struct Pruned {
 /// The seam between the daemon and its persistence. Every method is blocking: callers on the
 /// async runtime go through [`StoreWriter`] (writes) or `spawn_blocking` (reads).
 pub trait Store: Send + Sync + 'static {
+    /// Where the store keeps its data (the file, the server), for the logs: a failed write
+    /// names it.
+    fn location(&self) -> String {
+        "the store".to_string()
+    }
+
     /// Applies a batch in one transaction. Returns the ids given to `batch.outbox`, in order.
     fn write(&self, batch: &WriteBatch) -> Result<Vec<i64>, StoreError>;
 

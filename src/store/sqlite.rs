@@ -201,6 +201,20 @@ impl SqliteStore {
         Ok((count.max(0) as u64) * (size.max(0) as u64))
     }
 
+    /// The gates that have at least one identification, sorted (for `gatewatch history`'s
+    /// "unknown gate" message). A scan of the `(gate, window_end)` index.
+    pub fn gates(&self) -> Result<Vec<String>, StoreError> {
+        let c = lock(&self.read);
+        let mut stmt = c
+            .prepare("SELECT DISTINCT gate FROM identifications ORDER BY gate")
+            .map_err(sq("list of the gates"))?;
+        let rows = stmt
+            .query_map([], |r| r.get(0))
+            .map_err(sq("list of the gates"))?;
+        rows.collect::<Result<_, _>>()
+            .map_err(sq("list of the gates"))
+    }
+
     /// Writes the WAL back into the database file (`PRAGMA wal_checkpoint(TRUNCATE)`), so a
     /// copy of the `.db` file alone is complete. Called at shutdown.
     pub fn checkpoint(&self) -> Result<(), StoreError> {
@@ -278,6 +292,10 @@ fn insert_outbox(tx: &rusqlite::Transaction<'_>, r: &NewOutboxRow) -> rusqlite::
 }
 
 impl Store for SqliteStore {
+    fn location(&self) -> String {
+        self.path.clone()
+    }
+
     fn write(&self, batch: &WriteBatch) -> Result<Vec<i64>, StoreError> {
         let mut c = lock(&self.write);
         let tx = c.transaction().map_err(sq("write"))?;

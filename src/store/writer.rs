@@ -6,9 +6,11 @@
 //! (retention and size bound) once at start and every [`PRUNE_INTERVAL`].
 //!
 //! A write that fails (disk full, I/O error) or does not fit in the queue is counted in
-//! [`StoreStats`] and logged (at most one warning per [`WARN_EVERY`], with the number
-//! suppressed); its callback is told, so the notifier still delivers the notification from
-//! memory. Nothing waits for the disk.
+//! [`StoreStats`] (exported as `gatewatch_store_write_errors_total`) and logged as an error
+//! naming the file (at most one per [`WARN_EVERY`], with the number suppressed: a full disk
+//! fails every write, and one line a second per gate would bury the rest of the log); its
+//! callback is told, so the notifier still delivers the notification from memory. Nothing
+//! waits for the disk.
 
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::mpsc::{self, RecvTimeoutError, SyncSender, TrySendError};
@@ -24,7 +26,7 @@ pub const PRUNE_INTERVAL: Duration = Duration::from_secs(3600);
 /// Requests merged into one transaction at most (a burst commits in one fsync).
 const MAX_MERGED: usize = 256;
 
-/// A failing store logs at most one warning this often.
+/// A failing store logs at most one error this often.
 const WARN_EVERY: Duration = Duration::from_secs(30);
 
 /// What a write's callback is told: the outbox ids, or why nothing was written.
@@ -61,6 +63,8 @@ pub struct StoreWriter {
     thread: Arc<Mutex<Option<JoinHandle<()>>>>,
     stats: Arc<StoreStats>,
     warn: Arc<Mutex<(Option<Instant>, u64)>>,
+    /// [`Store::location`], so the log of a failed write names the file.
+    location: Arc<str>,
 }
 
 impl std::fmt::Debug for StoreWriter {
@@ -86,6 +90,7 @@ impl StoreWriter {
             thread: Arc::new(Mutex::new(None)),
             stats: stats.clone(),
             warn: warn.clone(),
+            location: store.location().into(),
         };
         let w = writer.clone();
         let thread = std::thread::Builder::new()
@@ -272,14 +277,16 @@ impl StoreWriter {
         let mut w = self.warn.lock().unwrap_or_else(|p| p.into_inner());
         let now = Instant::now();
         if w.0.is_none_or(|t| now.duration_since(t) >= WARN_EVERY) {
-            tracing::warn!(
-                suppressed_since_last_warning = w.1,
-                "store write failed, ingestion and alerting go on from memory: {msg}"
+            tracing::error!(
+                store = %self.location,
+                suppressed_since_last_error = w.1,
+                "store {}: write failed, ingestion and alerting go on from memory: {msg}",
+                self.location
             );
             *w = (Some(now), 0);
         } else {
             w.1 += 1;
-            tracing::debug!("store write failed: {msg}");
+            tracing::debug!(store = %self.location, "store write failed: {msg}");
         }
     }
 }

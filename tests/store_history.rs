@@ -1,0 +1,507 @@
+//! The history of the store as users read it, from a REAL SQLite file written by the store:
+//! `GET /api/v1/gates/{id}/history` on a real daemon (`server::run` on a loopback port, real
+//! HTTP client) and `gatewatch history` (the real binary), including `--plot`.
+//!
+//! The file holds 200 windows of gate g1, one every 30 s from 2024-05-01T12:00:00Z, with zeta0
+//! falling from +2 % through zero (verdict `damped`, then `self_excited`), and 3 of gate g2.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::Duration;
+
+use gatewatch::service::config::Config;
+use gatewatch::service::server::{run, Listeners};
+use gatewatch::store::{IdentificationRecord, SqliteStore, Store, WriteBatch, HISTORY_CSV_HEADER};
+use serde_json::Value;
+
+const BIN: &str = env!("CARGO_BIN_EXE_gatewatch");
+/// 2024-05-01T12:00:00Z.
+const T0: f64 = 1_714_564_800.0;
+const N: usize = 200;
+
+fn zeta(i: usize) -> f64 {
+    0.02 - 0.0003 * i as f64
+}
+
+fn record(gate: &str, i: usize) -> IdentificationRecord {
+    let z = zeta(i);
+    let end = T0 + 30.0 * i as f64;
+    IdentificationRecord {
+        gate: gate.into(),
+        time: end + 1.5,
+        window_start: end - 10.0,
+        window_end: end,
+        equation: format!("ydd + {:.5}*yd + 88.8*y = 0", 2.0 * z * 9.42),
+        coefficients: vec![("c1".into(), 2.0 * z * 9.42), ("c3".into(), 88.8)],
+        damping: serde_json::json!({"zeta0": z, "zeta0_interval": [z - 0.004, z + 0.004],
+            "trusted": true, "frequency_hz": 1.5}),
+        verdict: if z < 0.0 { "self_excited" } else { "damped" }.into(),
+        fit_nmae: 0.03,
+        path: "full".into(),
+    }
+}
+
+/// The database: written through the store itself, closed (checkpointed) before use.
+fn database(dir: &Path) -> PathBuf {
+    let path = dir.join("gw.db");
+    let store = SqliteStore::open(&path, 64).expect("open the store");
+    store
+        .write(&WriteBatch {
+            identifications: (0..N)
+                .map(|i| record("g1", i))
+                .chain((0..3).map(|i| record("g2", i)))
+                .collect(),
+            ..Default::default()
+        })
+        .expect("write the history");
+    store.checkpoint().expect("checkpoint");
+    path
+}
+
+// ------------------------------------------------------------------ the HTTP route
+
+struct Daemon {
+    url: String,
+    stop: tokio::sync::oneshot::Sender<()>,
+    task: tokio::task::JoinHandle<anyhow::Result<()>>,
+    client: reqwest::Client,
+}
+
+/// The real daemon on `db`. The retention is a century: the rows are from 2024, and the
+/// writer's pruning at start would otherwise delete them under the test.
+async fn daemon(db: &Path) -> Daemon {
+    gatewatch::service::client::ensure_crypto_provider();
+    let cfg = Config::from_toml(&format!(
+        "[server]\nlisten = \"127.0.0.1:0\"\nworker_threads = 1\nshutdown_grace_seconds = 2.0\n\
+         [storage]\npath = \"{}\"\nretention_days = 36500.0\n\
+         [defaults.alert]\nstale_after_seconds = 3600.0\n\
+         [gates.g1]\n[gates.g2]\n[gates.quiet]\n",
+        db.display()
+    ))
+    .expect("config");
+    let http = tokio::net::TcpListener::bind("127.0.0.1:0")
+        .await
+        .expect("bind");
+    let url = format!("http://{}", http.local_addr().expect("addr"));
+    let (stop, rx) = tokio::sync::oneshot::channel::<()>();
+    let task = tokio::spawn(run(cfg, Listeners { http, tcp: None }, async move {
+        let _ = rx.await;
+    }));
+    Daemon {
+        url,
+        stop,
+        task,
+        client: reqwest::Client::new(),
+    }
+}
+
+impl Daemon {
+    /// `(status, content type, body)` of `GET {path}`, with `Accept: accept` when given.
+    async fn get(&self, path: &str, accept: Option<&str>) -> (u16, String, String) {
+        let mut req = self.client.get(format!("{}{path}", self.url));
+        if let Some(a) = accept {
+            req = req.header("accept", a);
+        }
+        // the daemon opens its store off the executor: retry until it listens
+        let resp = tokio::time::timeout(Duration::from_secs(30), async {
+            loop {
+                match req.try_clone().expect("clonable").send().await {
+                    Ok(r) => return r,
+                    Err(_) => tokio::time::sleep(Duration::from_millis(50)).await,
+                }
+            }
+        })
+        .await
+        .expect("the daemon answers");
+        let status = resp.status().as_u16();
+        let ct = resp
+            .headers()
+            .get("content-type")
+            .and_then(|v| v.to_str().ok())
+            .unwrap_or("")
+            .to_string();
+        (status, ct, resp.text().await.expect("body"))
+    }
+
+    async fn json(&self, path: &str) -> Value {
+        let (status, _, body) = self.get(path, None).await;
+        assert_eq!(status, 200, "{path}: {body}");
+        serde_json::from_str(&body).expect("JSON")
+    }
+
+    async fn stop(self) {
+        let _ = self.stop.send(());
+        tokio::time::timeout(Duration::from_secs(30), self.task)
+            .await
+            .expect("stopped in time")
+            .expect("joined")
+            .expect("clean exit");
+    }
+}
+
+fn ends(v: &Value) -> Vec<f64> {
+    v["identifications"]
+        .as_array()
+        .expect("identifications")
+        .iter()
+        .map(|r| r["window_end"].as_f64().expect("window_end"))
+        .collect()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn history_route_serves_json_and_csv_by_time_range_and_limit() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let db = database(dir.path());
+    let d = daemon(&db).await;
+
+    // everything, oldest first, the full record
+    let all = d.json("/api/v1/gates/g1/history").await;
+    assert_eq!(all["gate"], "g1");
+    assert_eq!(all["count"], N);
+    let e = ends(&all);
+    assert_eq!(e.len(), N);
+    assert_eq!(e[0], T0);
+    assert!(e.windows(2).all(|w| w[0] < w[1]), "oldest first");
+    let first = &all["identifications"][0];
+    let stored: Value = serde_json::to_value(record("g1", 0)).expect("record as JSON");
+    assert_eq!(first, &stored, "the record as stored");
+
+    // from/to in RFC 3339 and in Unix seconds: inclusive bounds on the window end
+    let rfc = d
+        .json("/api/v1/gates/g1/history?from=2024-05-01T12:10:00Z&to=2024-05-01T12:20:00Z")
+        .await;
+    let unix = d
+        .json(&format!(
+            "/api/v1/gates/g1/history?from={}&to={}",
+            T0 + 600.0,
+            T0 + 1200.0
+        ))
+        .await;
+    let expected: Vec<f64> = (20..=40).map(|i| T0 + 30.0 * f64::from(i)).collect();
+    assert_eq!(ends(&rfc), expected);
+    assert_eq!(ends(&unix), expected);
+    // a fraction of a second is honoured (window 20 ends at T0 + 600, excluded)
+    let frac = d
+        .json(&format!("/api/v1/gates/g1/history?from={}", T0 + 600.5))
+        .await;
+    assert_eq!(ends(&frac).first(), Some(&(T0 + 630.0)));
+
+    // limit: the first rows of the range
+    let some = d.json("/api/v1/gates/g1/history?limit=5").await;
+    assert_eq!(some["count"], 5, "{some}");
+    assert_eq!(some["limit"], 5);
+    assert_eq!(ends(&some), &e[..5]);
+
+    // the other gate's rows stay apart; a configured gate without rows answers empty
+    assert_eq!(d.json("/api/v1/gates/g2/history").await["count"], 3);
+    assert_eq!(d.json("/api/v1/gates/quiet/history").await["count"], 0);
+
+    // CSV with Accept: text/csv
+    let (status, ct, body) = d
+        .get(
+            "/api/v1/gates/g1/history?from=2024-05-01T12:10:00Z&limit=3",
+            Some("text/csv"),
+        )
+        .await;
+    assert_eq!(status, 200, "{body}");
+    assert!(ct.starts_with("text/csv"), "{ct}");
+    let mut csv = csv::Reader::from_reader(body.as_bytes());
+    let header: Vec<String> = csv
+        .headers()
+        .expect("header")
+        .iter()
+        .map(String::from)
+        .collect();
+    assert_eq!(header, HISTORY_CSV_HEADER);
+    let rows: Vec<csv::StringRecord> = csv.records().map(|r| r.expect("row")).collect();
+    assert_eq!(rows.len(), 3);
+    let col = |name: &str| HISTORY_CSV_HEADER.iter().position(|h| *h == name).unwrap();
+    assert_eq!(rows[0][col("gate")], *"g1");
+    assert_eq!(
+        rows[0][col("window_end")].parse::<f64>().ok(),
+        Some(T0 + 600.0)
+    );
+    let z = rows[0][col("zeta0")].parse::<f64>().expect("zeta0");
+    assert!((z - zeta(20)).abs() < 1e-12, "{z}");
+    let low = rows[0][col("zeta0_low")].parse::<f64>().expect("low");
+    assert!((low - (zeta(20) - 0.004)).abs() < 1e-12, "{low}");
+    assert_eq!(rows[0][col("verdict")], *"damped");
+    assert_eq!(rows[0][col("trusted")], *"true");
+
+    d.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn history_route_refuses_bad_parameters_naming_them_and_unknown_gates() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let db = database(dir.path());
+    let d = daemon(&db).await;
+    for (query, name) in [
+        ("from=yesterday", "from"),
+        ("to=2024-13-45T00:00:00Z", "to"),
+        ("from=nan", "from"),
+        ("limit=0", "limit"),
+        ("limit=20001", "limit"),
+        ("limit=many", "limit"),
+        (&*format!("from={}&to={}", T0 + 10.0, T0), "from"),
+        ("color=blue", "color"),
+    ] {
+        let (status, _, body) = d
+            .get(&format!("/api/v1/gates/g1/history?{query}"), None)
+            .await;
+        assert_eq!(status, 400, "{query}: {body}");
+        assert!(
+            body.contains(name),
+            "{query}: the answer names `{name}`: {body}"
+        );
+    }
+    let (status, _, body) = d.get("/api/v1/gates/nope/history", None).await;
+    assert_eq!(status, 404, "{body}");
+    assert!(body.contains("nope"), "{body}");
+    d.stop().await;
+}
+
+// ------------------------------------------------------------------ gatewatch history
+
+fn history(args: &[&str]) -> (i32, String, String) {
+    let out = Command::new(BIN)
+        .arg("history")
+        .args(args)
+        .output()
+        .expect("run gatewatch history");
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+/// A minimal XML well-formedness check (no XML crate in the tree): every element closes in
+/// order, attributes are quoted, nothing follows the root. Enough to catch a truncated or
+/// garbled file.
+fn well_formed(svg: &str) -> Result<(), String> {
+    let mut stack: Vec<String> = Vec::new();
+    let mut rest = svg.trim_start();
+    if let Some(r) = rest.strip_prefix("<?xml") {
+        rest = &r[r.find("?>").ok_or("unterminated XML declaration")? + 2..];
+    }
+    let mut seen_root = false;
+    while let Some(open) = rest.find('<') {
+        if stack.is_empty() && seen_root && !rest[..open].trim().is_empty() {
+            return Err("text after the root element".into());
+        }
+        rest = &rest[open + 1..];
+        let close = rest.find('>').ok_or("unterminated tag")?;
+        let tag = &rest[..close];
+        rest = &rest[close + 1..];
+        if tag.starts_with("!--") {
+            continue;
+        }
+        if tag.matches('"').count() % 2 != 0 {
+            return Err(format!("unbalanced quotes in <{tag}>"));
+        }
+        if let Some(name) = tag.strip_prefix('/') {
+            match stack.pop() {
+                Some(open) if open == name.trim() => {}
+                other => return Err(format!("</{name}> closes {other:?}")),
+            }
+        } else if !tag.ends_with('/') {
+            let name = tag.split_whitespace().next().ok_or("empty tag")?;
+            stack.push(name.to_string());
+            seen_root = true;
+        } else {
+            seen_root = true;
+        }
+    }
+    if stack.is_empty() && seen_root {
+        Ok(())
+    } else {
+        Err(format!("unclosed elements {stack:?}"))
+    }
+}
+
+/// `(x, text)` of every `<text>` element.
+fn texts(svg: &str) -> Vec<String> {
+    svg.split("<text ")
+        .skip(1)
+        .filter_map(|t| {
+            let body = &t[t.find('>')? + 1..];
+            Some(body[..body.find("</text>")?].trim().to_string())
+        })
+        .collect()
+}
+
+#[test]
+fn history_plot_draws_the_damping_over_time_from_a_real_database() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let db = database(dir.path());
+    let cfg = dir.path().join("gatewatch.toml");
+    std::fs::write(
+        &cfg,
+        "[defaults.alert]\nfire_below = 0.0\nclear_above = 0.005\n\
+         [gates.g1.alert]\nfire_below = -0.002\nclear_above = 0.008\n",
+    )
+    .expect("config");
+    let svg_path = dir.path().join("g1.svg");
+    let (code, _, err) = history(&[
+        "--db",
+        db.to_str().unwrap(),
+        "--gate",
+        "g1",
+        "--plot",
+        svg_path.to_str().unwrap(),
+        "--config",
+        cfg.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    assert!(err.contains("200 windows"), "{err}");
+    let svg = std::fs::read_to_string(&svg_path).expect("the picture");
+    well_formed(&svg).expect("well-formed SVG");
+    let t = texts(&svg);
+    let has = |s: &str| t.iter().any(|x| x.contains(s));
+    // the series and the gate's own thresholds (not the defaults)
+    assert!(has("zeta0 (200 windows)"), "{t:?}");
+    assert!(has("95 % interval of zeta0"), "{t:?}");
+    assert!(has("fire below -0.2 %"), "{t:?}");
+    assert!(has("clear above 0.8 %"), "{t:?}");
+    // one verdict change: damped to self_excited where zeta0 crosses 0 (window 67)
+    assert!(has("verdict change (1)"), "{t:?}");
+    assert!(has("self_excited"), "{t:?}");
+    // the time axis spans the rows: 199 windows of 30 s = 99.5 min, named in its title
+    assert!(
+        has("min since 2024-05-01T12:00:00Z (to 2024-05-01T13:39:30Z, 200 windows)"),
+        "{t:?}"
+    );
+    let ticks: Vec<f64> = t.iter().filter_map(|x| x.parse::<f64>().ok()).collect();
+    assert!(ticks.contains(&0.0), "{ticks:?}");
+    assert!(
+        ticks.iter().any(|v| (90.0..=99.5).contains(v)),
+        "a tick near the end of the 99.5 min: {ticks:?}"
+    );
+    // the zeta0 line: a polyline of the series' blue with (nearly) a point per window
+    let longest = svg
+        .split("<polyline ")
+        .skip(1)
+        .filter(|p| p.contains("stroke=\"#0072B2\" stroke-width=\"2\""))
+        .filter_map(|p| p.split("points=\"").nth(1)?.split('"').next())
+        .map(|p| p.split_whitespace().count())
+        .max();
+    assert!(longest.is_some_and(|n| n >= 150), "{longest:?}");
+
+    // without --config: no thresholds
+    let (code, _, err) = history(&[
+        "--db",
+        db.to_str().unwrap(),
+        "--gate",
+        "g2",
+        "--plot",
+        svg_path.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let svg = std::fs::read_to_string(&svg_path).expect("the picture");
+    well_formed(&svg).expect("well-formed SVG");
+    assert!(!svg.contains("fire below"));
+    assert!(svg.contains("zeta0 (3 windows)"));
+}
+
+#[test]
+fn history_refuses_bad_input_naming_it_with_exit_code_2() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let db = database(dir.path());
+    let db = db.to_str().unwrap();
+    let svg = dir.path().join("out.svg");
+    let svg = svg.to_str().unwrap();
+    let missing = dir.path().join("missing.db");
+    let missing = missing.to_str().unwrap();
+    let pdf = svg.replace(".svg", ".pdf");
+    let cases: Vec<(Vec<&str>, Vec<&str>)> = vec![
+        (
+            vec!["--db", missing, "--gate", "g1"],
+            vec!["missing.db", "no such file"],
+        ),
+        (
+            vec!["--db", missing, "--gate", "g1", "--plot", svg],
+            vec!["missing.db"],
+        ),
+        (
+            vec!["--db", db, "--gate", "nope", "--plot", svg],
+            vec!["unknown gate `nope`", "g1, g2"],
+        ),
+        (
+            vec!["--db", db, "--gate", "nope"],
+            vec!["unknown gate `nope`"],
+        ),
+        (
+            vec![
+                "--db",
+                db,
+                "--gate",
+                "g1",
+                "--from",
+                "2030-01-01T00:00:00Z",
+                "--plot",
+                svg,
+            ],
+            vec![
+                "no identification between 2030-01-01T00:00:00Z",
+                "nothing to plot",
+            ],
+        ),
+        (
+            vec!["--db", db, "--gate", "g1", "--from", "noon", "--plot", svg],
+            vec!["--from", "noon"],
+        ),
+        (
+            vec!["--db", db, "--gate", "g1", "--to", "12:00"],
+            vec!["--to", "12:00"],
+        ),
+        (
+            vec![
+                "--db",
+                db,
+                "--gate",
+                "g1",
+                "--from",
+                "1714568400",
+                "--to",
+                "1714564800",
+            ],
+            vec!["--from", "after --to"],
+        ),
+        (
+            vec!["--db", db, "--gate", "g1", "--limit", "0"],
+            vec!["--limit"],
+        ),
+        (
+            vec!["--db", db, "--gate", "g1", "--plot", &pdf],
+            vec!["out.pdf", "svg or .png"],
+        ),
+        (
+            vec![
+                "--db", db, "--gate", "g1", "--plot", svg, "--config", missing,
+            ],
+            vec!["--config", "missing.db"],
+        ),
+    ];
+    for (args, wanted) in cases {
+        let (code, out, err) = history(&args);
+        assert_eq!(code, 2, "{args:?}: exit code; stderr {err}");
+        assert!(out.is_empty(), "{args:?}: nothing on stdout: {out}");
+        assert!(!err.contains("panicked"), "{args:?}: {err}");
+        for w in wanted {
+            assert!(err.contains(w), "{args:?}: stderr names `{w}`: {err}");
+        }
+    }
+    // an empty range without --plot is no error: nothing to print
+    let (code, out, err) = history(&["--db", db, "--gate", "g1", "--from", "2030-01-01T00:00:00Z"]);
+    assert_eq!((code, out.as_str()), (0, ""), "{err}");
+    // and the plain listing works on the same file: JSON lines, oldest first
+    let (code, out, err) = history(&["--db", db, "--gate", "g2"]);
+    assert_eq!(code, 0, "{err}");
+    let lines: Vec<Value> = out
+        .lines()
+        .map(|l| serde_json::from_str(l).expect("JSON line"))
+        .collect();
+    assert_eq!(lines.len(), 3);
+    assert_eq!(lines[0]["window_end"], T0);
+}
