@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 pub enum Zeta0Source {
     /// The linearised identified model (for information only when the report is untrusted).
     Model,
-    /// The AR fit of a noise-driven window whose free-vibration model does not fit.
+    /// The ambient (SSI-COV) estimate of a window that does not grow (`docs/damping.md`).
     Ambient,
     /// The relaxation of the envelope's perturbations on a limit cycle
     /// ([`crate::spectral::envelope_relaxation`]).
@@ -33,7 +33,7 @@ impl std::fmt::Display for Zeta0Source {
     }
 }
 
-/// The model-free damping ratio of a noise-driven window (AR fit) with its 95 % interval.
+/// The model-free damping ratio of a noise-driven window (SSI-COV, or AR when so configured) with its 95 % interval.
 /// Serialised as the array `[zeta, low, high]`, as the API has always shown it.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(from = "(f64, f64, f64)", into = "(f64, f64, f64)")]
@@ -104,7 +104,7 @@ pub struct DampingReport {
     pub growth_rate: Option<f64>,
     /// Standard error of `growth_rate`.
     pub growth_rate_stderr: Option<f64>,
-    /// Model-free damping ratio of a noise-driven window (AR fit) and its 95 % interval.
+    /// Model-free damping ratio of a noise-driven window (SSI-COV) before pooling and its 95 % interval.
     pub ambient_zeta: Option<AmbientZeta>,
     /// `zeta0` of a limit-cycle window from the relaxation of its envelope, with its 95 %
     /// interval (`[zeta, low, high]`; `docs/damping.md`, "The limit cycle").

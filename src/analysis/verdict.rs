@@ -53,7 +53,7 @@ pub struct VerdictFacts {
     pub agrees: bool,
     /// The model's damping ratio at rest, when its rest position is an oscillator.
     pub zeta0_model: Option<f64>,
-    /// The ambient (AR) damping of the window, when the fit succeeded.
+    /// The ambient (SSI-COV) damping of the window, when the estimate succeeded.
     pub ambient: Option<AmbientZeta>,
     /// `zeta0` from the envelope's relaxation, on a limit-cycle window where it succeeded.
     pub envelope: Option<AmbientZeta>,
