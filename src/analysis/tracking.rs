@@ -169,7 +169,8 @@ pub enum Rejection {
     /// Its frequency or growth disagrees with the model-free estimates, where the previous
     /// model agreed.
     Disagrees,
-    /// Its verdict differs from the previous window's: a change is always confirmed by a search.
+    /// It is self-excited where the previous window was not, or the reverse: a change of regime
+    /// is always confirmed by a search (`Damped` and `Unknown` are not told apart here).
     VerdictChanged,
     /// Its fit NMAE is above the limit derived from the last full search.
     Fit {
@@ -216,7 +217,12 @@ pub fn accept(
     if !r.trusted {
         return Err(Rejection::Untrusted);
     }
-    if r.verdict != previous.verdict {
+    // A change of regime is a change between self-excited and not. Since the ambient SSI-COV
+    // estimate decides noise-driven windows, their verdict flips between `Damped` and `Unknown`
+    // (an interval across zero) from window to window without any change in the gate: that is
+    // no reason to search again.
+    let alarm = |v: Verdict| v == Verdict::SelfExcited;
+    if alarm(r.verdict) != alarm(previous.verdict) {
         return Err(Rejection::VerdictChanged);
     }
     if let Some(measured_hz) = r.frequency_hz {
