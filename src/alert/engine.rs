@@ -240,8 +240,9 @@ pub fn rfc3339(t: SystemTime) -> String {
 enum Reading {
     /// Untrusted, or no (finite) damping ratio, or no (finite) interval: no evidence.
     Unknown,
-    /// The interval lies below `fire_below` (or `P(zeta0 < fire_below) >= fire_probability`).
-    Negative,
+    /// The interval lies below `fire_below` (or `P(zeta0 < fire_below) >= fire_probability`);
+    /// `at_once` when `P(zeta0 < fire_below) >= fire_at_once_probability`.
+    Negative { at_once: bool },
     /// Neither negative nor good: hysteresis band, or an interval too wide to tell.
     Band,
     /// The interval lies at or above `clear_above` (and the window is not negative).
@@ -260,7 +261,9 @@ fn classify(obs: &Observation, rules: &AlertRules) -> Reading {
         None => high < rules.fire_below,
     };
     if negative {
-        Reading::Negative
+        Reading::Negative {
+            at_once: rules.fires_at_once(low, high),
+        }
     } else if low >= rules.clear_above {
         Reading::Good
     } else {
@@ -348,9 +351,9 @@ impl AlertEngine {
                     Phase::Ok => {}
                 }
             }
-            Reading::Negative => match &mut track.phase {
+            Reading::Negative { at_once } => match &mut track.phase {
                 Phase::Ok => {
-                    if rules.for_windows() <= 1 {
+                    if rules.for_windows() <= 1 || at_once {
                         let alert = damping_alert(gate, rules, obs, now);
                         events.push(AlertEvent::Firing(alert.clone()));
                         track.phase = Phase::Firing { alert, good: 0 };
@@ -365,7 +368,7 @@ impl AlertEngine {
                 }
                 Phase::Pending { negatives, since } => {
                     *negatives = negatives.saturating_add(1);
-                    if *negatives >= rules.for_windows() {
+                    if *negatives >= rules.for_windows() || at_once {
                         let alert = damping_alert(gate, rules, obs, *since);
                         events.push(AlertEvent::Firing(alert.clone()));
                         track.phase = Phase::Firing { alert, good: 0 };

@@ -21,7 +21,7 @@ fn obs(z: f64, low: f64, high: f64) -> Observation<'static> {
 }
 
 fn engine() -> AlertEngine {
-    AlertEngine::new(AlertRules::default())
+    AlertEngine::new(AlertRules::counting())
 }
 
 #[test]
@@ -123,7 +123,7 @@ fn probability_of_the_normal_approximation() {
 fn probability_rule_fires_on_a_straddling_interval() {
     let rules = AlertRules {
         fire_probability: Some(0.9),
-        ..AlertRules::default()
+        ..AlertRules::counting()
     };
     assert!(rules.validate().is_ok());
     // P(zeta0 < 0) = Phi(0.004 / 0.00408) = 0.84 < 0.9: no
@@ -143,6 +143,54 @@ fn probability_rule_fires_on_a_straddling_interval() {
     }
 }
 
+/// One window far below `fire_below` fires at once under the default rules; one that is
+/// negative but not that far waits for `for_windows`; 1 disables the shortcut.
+#[test]
+fn a_window_far_below_fires_at_once() {
+    let rules = AlertRules::default();
+    assert_eq!(rules.for_windows, 2);
+    // P(zeta0 < 0) = Phi(0.0043 / 0.00051) ~ 1: the fast onset's first confident window
+    let far = obs(-0.0043, -0.0053, -0.0033);
+    // P = Phi(0.004 / 0.00179) = 0.987: below zero (high < 0) but not 0.999
+    let near = obs(-0.004, -0.0075, -0.0005);
+    assert!(AlertRules::probability_below(-0.0075, -0.0005, 0.0) < 0.999);
+    let mut e = AlertEngine::new(rules.clone());
+    let ev = e.observe("g", &far, t(0));
+    assert_eq!(ev.len(), 1, "{ev:?}");
+    assert!(matches!(&ev[0], AlertEvent::Firing(a) if a.starts_at == t(0)));
+    assert_eq!(e.state("g"), Some(GateState::Firing));
+    // a near window waits: pending, then fires on the second
+    let mut e = AlertEngine::new(rules.clone());
+    assert!(e.observe("g", &near, t(0)).is_empty());
+    assert_eq!(e.state("g"), Some(GateState::Pending));
+    assert_eq!(e.observe("g", &near, t(5)).len(), 1);
+    // a pending streak completed early by a far window keeps its start
+    let mut e = AlertEngine::new(AlertRules {
+        for_windows: 4,
+        ..rules.clone()
+    });
+    assert!(e.observe("g", &near, t(0)).is_empty());
+    let ev = e.observe("g", &far, t(5));
+    assert!(
+        matches!(&ev[..], [AlertEvent::Firing(a)] if a.starts_at == t(0)),
+        "{ev:?}"
+    );
+    // disabled: even a zero-width interval far below waits for for_windows
+    let mut e = AlertEngine::new(AlertRules {
+        fire_at_once_probability: 1.0,
+        ..rules
+    });
+    assert!(e.observe("g", &obs(-0.02, -0.02, -0.02), t(0)).is_empty());
+    assert_eq!(e.observe("g", &obs(-0.02, -0.02, -0.02), t(5)).len(), 1);
+    // an untrusted window far below is no evidence
+    let mut e = engine();
+    let untrusted = Observation {
+        trusted: false,
+        ..far
+    };
+    assert!(e.observe("g", &untrusted, t(0)).is_empty());
+}
+
 #[test]
 fn validate_rejects_bad_trend_rules() {
     let bad = |f: fn(&mut AlertRules)| {
@@ -154,6 +202,16 @@ fn validate_rejects_bad_trend_rules() {
         bad(|r| r.fire_probability = Some(1.0)),
         RulesError::BadProbability(1.0)
     );
+    for p in [0.5, 1.01, f64::NAN] {
+        let r = AlertRules {
+            fire_at_once_probability: p,
+            ..AlertRules::default()
+        };
+        assert!(matches!(
+            r.validate(),
+            Err(RulesError::BadAtOnceProbability(_))
+        ));
+    }
     assert_eq!(
         bad(|r| r.warn_lead_seconds = 0.0),
         RulesError::BadSeconds("warn_lead_seconds", 0.0)
@@ -287,7 +345,7 @@ fn stream(
 /// Feeds a stream through a gate's trend and the engine, as the daemon does; returns the
 /// sample times at which each alert fired.
 fn run(stream: impl Iterator<Item = (f64, f64, f64)>) -> (Vec<f64>, Vec<f64>) {
-    let rules = AlertRules::default();
+    let rules = AlertRules::counting();
     let mut e = AlertEngine::new(rules.clone());
     let mut tr = DampingTrend::new(rules.trend_horizon_seconds);
     let (mut negative, mut declining) = (Vec::new(), Vec::new());

@@ -179,14 +179,14 @@ mod tests {
     fn reborn(e: &AlertEngine, gate: &str, now: SystemTime) -> AlertEngine {
         let json = serde_json::to_string(&e.export_gate(gate).expect("known")).expect("json");
         let snap: GateSnapshot = serde_json::from_str(&json).expect("parse");
-        let mut fresh = AlertEngine::new(AlertRules::default());
+        let mut fresh = AlertEngine::new(AlertRules::counting());
         fresh.restore_gate(gate, snap, now);
         fresh
     }
 
     #[test]
     fn a_firing_alert_resumes_with_its_start_and_resolves_only_after_resolve_windows() {
-        let mut e = AlertEngine::new(AlertRules::default());
+        let mut e = AlertEngine::new(AlertRules::counting());
         e.data_seen("g", t(0));
         e.observe("g", &obs(-0.02), t(5));
         let fired = e.observe("g", &obs(-0.02), t(10));
@@ -213,14 +213,14 @@ mod tests {
             other => panic!("expected one resolve, got {other:?}"),
         }
         // without the export the restarted engine would have had nothing to resolve
-        let mut amnesic = AlertEngine::new(AlertRules::default());
+        let mut amnesic = AlertEngine::new(AlertRules::counting());
         amnesic.observe("g", &obs(0.03), t(610));
         assert!(amnesic.observe("g", &obs(0.03), t(615)).is_empty());
     }
 
     #[test]
     fn a_pending_streak_and_a_stale_alert_survive() {
-        let mut e = AlertEngine::new(AlertRules::default());
+        let mut e = AlertEngine::new(AlertRules::counting());
         e.data_seen("g", t(0));
         e.observe("g", &obs(-0.02), t(5));
         let stale = e.check_stale(t(100));
@@ -242,7 +242,7 @@ mod tests {
 
     #[test]
     fn the_staleness_clock_restarts_at_restore_when_not_stale() {
-        let mut e = AlertEngine::new(AlertRules::default());
+        let mut e = AlertEngine::new(AlertRules::counting());
         e.data_seen("g", t(0));
         let mut r = reborn(&e, "g", t(1000));
         assert!(r.check_stale(t(1010)).is_empty(), "grace after restart");

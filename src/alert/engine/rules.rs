@@ -23,6 +23,14 @@ pub struct AlertRules {
     pub fire_probability: Option<f64>,
     /// Consecutive negative trusted windows before firing (default 2; 0 acts as 1).
     pub for_windows: u32,
+    /// One trusted window with `P(zeta0 < fire_below)` at or above this fires at once, without
+    /// waiting for `for_windows` (default 0.999, i.e. a 99.8 % two-sided interval below
+    /// `fire_below`; 1 disables it). Why: at 10 Hz a gate goes from zero damping to -1 % and
+    /// its limit cycle within three 5 s hops, and the window before the first confident one
+    /// straddles zero by physics, so two confident windows come only after -1 %. A window this
+    /// far below is what `for_windows` waits for; under honest intervals its chance on a
+    /// +0.5 % gate is about 1e-6 (docs/alerts.md).
+    pub fire_at_once_probability: f64,
     /// Consecutive windows with the interval above `clear_above` before resolving (default 2;
     /// 0 acts as 1).
     pub resolve_windows: u32,
@@ -56,6 +64,7 @@ impl Default for AlertRules {
             clear_above: 0.005,
             fire_probability: None,
             for_windows: 2,
+            fire_at_once_probability: 0.999,
             resolve_windows: 2,
             trend_horizon_seconds: 600.0,
             trend_min_span_seconds: 120.0,
@@ -88,6 +97,9 @@ pub enum RulesError {
     /// `fire_probability` is not strictly between 0 and 1.
     #[error("alert rule fire_probability must be in (0, 1), got {0}")]
     BadProbability(f64),
+    /// `fire_at_once_probability` is not in (0.5, 1].
+    #[error("alert rule fire_at_once_probability must be in (0.5, 1], got {0}")]
+    BadAtOnceProbability(f64),
     /// A duration of the trend is not a positive finite number of seconds.
     #[error("alert rule `{0}` must be a positive finite number of seconds, got {1}")]
     BadSeconds(&'static str, f64),
@@ -120,6 +132,10 @@ impl AlertRules {
                 return Err(RulesError::BadProbability(p));
             }
         }
+        let p = self.fire_at_once_probability;
+        if !(p > 0.5 && p <= 1.0) {
+            return Err(RulesError::BadAtOnceProbability(p));
+        }
         for (name, v) in [
             ("trend_horizon_seconds", self.trend_horizon_seconds),
             ("warn_lead_seconds", self.warn_lead_seconds),
@@ -139,6 +155,23 @@ impl AlertRules {
 
     pub(super) fn for_windows(&self) -> u32 {
         self.for_windows.max(1)
+    }
+
+    /// The default rules with `fire_at_once_probability` disabled: for tests about the
+    /// counting of windows, whose observations carry point-like intervals.
+    #[cfg(test)]
+    pub(crate) fn counting() -> Self {
+        AlertRules {
+            fire_at_once_probability: 1.0,
+            ..AlertRules::default()
+        }
+    }
+
+    /// Whether one window's interval is far enough below `fire_below` to fire at once
+    /// (`fire_at_once_probability`; 1 disables, even for a zero-width interval).
+    pub(super) fn fires_at_once(&self, low: f64, high: f64) -> bool {
+        self.fire_at_once_probability < 1.0
+            && Self::probability_below(low, high, self.fire_below) >= self.fire_at_once_probability
     }
 
     pub(super) fn resolve_windows(&self) -> u32 {

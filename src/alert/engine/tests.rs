@@ -37,7 +37,7 @@ const GOOD: f64 = 0.02;
 const BAND: f64 = 0.002; // between fire_below 0 and clear_above 0.005
 
 fn engine() -> AlertEngine {
-    AlertEngine::new(AlertRules::default())
+    AlertEngine::new(AlertRules::counting())
 }
 
 /// Drive `g1` to firing with the default rules (2 negative windows) at t(0), t(1).
@@ -166,7 +166,7 @@ fn for_windows_three_needs_three() {
         "g1",
         AlertRules {
             for_windows: 3,
-            ..AlertRules::default()
+            ..AlertRules::counting()
         },
     );
     assert!(e.observe("g1", &win(NEG), t(0)).is_empty());
@@ -181,7 +181,7 @@ fn for_windows_one_and_zero_fire_immediately() {
     for fw in [0, 1] {
         let mut e = AlertEngine::new(AlertRules {
             for_windows: fw,
-            ..AlertRules::default()
+            ..AlertRules::counting()
         });
         let ev = e.observe("g1", &win(NEG), t(3));
         assert_eq!(ev.len(), 1, "for_windows {fw}");
@@ -475,7 +475,7 @@ fn per_gate_rules_override() {
         AlertRules {
             fire_below: -0.02,
             severity: "warning".into(),
-            ..AlertRules::default()
+            ..AlertRules::counting()
         },
     );
     assert_eq!(e.rules("g2").severity, "warning");
@@ -557,14 +557,14 @@ fn stale_per_gate_threshold_and_disabled() {
         "slow",
         AlertRules {
             stale_after_seconds: 300.0,
-            ..AlertRules::default()
+            ..AlertRules::counting()
         },
     );
     e.set_rules(
         "off",
         AlertRules {
             stale_after_seconds: 0.0,
-            ..AlertRules::default()
+            ..AlertRules::counting()
         },
     );
     for g in ["fast", "slow", "off"] {

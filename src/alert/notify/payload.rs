@@ -214,7 +214,7 @@ mod tests {
     /// Firing event for g1 (first negative window at t(0), fired at t(5)) and its resolution at
     /// t(20).
     fn events() -> (AlertEvent, AlertEvent) {
-        let mut e = AlertEngine::new(AlertRules::default());
+        let mut e = AlertEngine::new(AlertRules::counting());
         e.observe("g1", &obs(-0.012), t(0));
         let fired = e.observe("g1", &obs(-0.012), t(5)).remove(0);
         e.observe("g1", &obs(0.02), t(10));
@@ -269,7 +269,7 @@ mod tests {
 
     #[test]
     fn webhook_payload_mixed_batch() {
-        let mut e = AlertEngine::new(AlertRules::default());
+        let mut e = AlertEngine::new(AlertRules::counting());
         e.data_seen("g1", t(0));
         e.data_seen("g2", t(0));
         let ev = e.check_stale(t(100));

@@ -144,6 +144,10 @@ impl GateConfig {
                 return err("alert.fire_probability", "must be in (0, 1)");
             }
         }
+        let p = a.fire_at_once_probability;
+        if !(p > 0.5 && p <= 1.0) {
+            return err("alert.fire_at_once_probability", "must be in (0.5, 1]");
+        }
         for (key, v) in [
             ("alert.trend_horizon_seconds", a.trend_horizon_seconds),
             ("alert.warn_lead_seconds", a.warn_lead_seconds),

@@ -69,6 +69,14 @@ fn errors_name_the_key() {
     for (toml, key) in [
         ("fire_probability = 1.0", "gates.g1.alert.fire_probability"),
         (
+            "fire_at_once_probability = 0.5",
+            "gates.g1.alert.fire_at_once_probability",
+        ),
+        (
+            "fire_at_once_probability = 1.5",
+            "gates.g1.alert.fire_at_once_probability",
+        ),
+        (
             "warn_lead_seconds = 0.0",
             "gates.g1.alert.warn_lead_seconds",
         ),
