@@ -365,12 +365,14 @@ async fn onset_fires_negative_damping_and_recovery_resolves_it() {
         .iter()
         .find(|s| s.firing)
         .expect("GateNegativeDamping fired");
+    eprintln!("fired at {} s, -1 % at {t_minus_1} s", fired.end);
     // KNOWN LIMIT (issue 8, open): on this ramp (0.04 % per second) the gate grows into its
-    // limit cycle within a few windows of zero; the growth windows read "unknown" (envelope
-    // intervals across zero, a positive ambient interval on a growing window) and the alert
-    // fires about 35 s after -1 %, while GateDampingDeclining warned before (see
-    // `slow_drift_warns_before_zero`). The bound keeps it from getting later still; issue 8's
-    // target is before -1 %.
+    // limit cycle within a few windows of zero. With seed 11 the window ending at 105 s
+    // (true -0.6 %) reads -0.06 % (-0.10, -0.02): negative, but P(zeta0 < 0) = 0.9986 falls
+    // just short of `fire_at_once_probability` (0.999), and the limit-cycle windows after it
+    // read "unknown" (envelope intervals across zero) until 145 s, so the alert fires 35 s
+    // after -1 %, while GateDampingDeclining warned before (see `slow_drift_warns_before_zero`).
+    // The bound keeps it from getting later still; issue 8's target is before -1 %.
     assert!(
         fired.end <= t_minus_1 + 40.0,
         "fired at {} s of stream time, more than 40 s after zeta reached -1 % at {t_minus_1} s",

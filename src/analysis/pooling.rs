@@ -105,8 +105,17 @@ impl ZetaPools {
             return;
         };
         if p.windows < 2 {
-            // alone in its pool: the window's own (possibly asymmetric) interval and verdict
+            // alone in its pool: the window's own (possibly asymmetric) interval and verdict ...
             d.zeta0_windows = Some(1);
+            if source == Some(Zeta0Source::Envelope) {
+                // ... but a lone limit-cycle window is no evidence yet: a limit cycle is a state
+                // a gate stays in, and a noise-driven +0.5 % window whose envelope happens to be
+                // steady (and whose SSI point happens to be below 0.1 %) is classified as one
+                // about once in a few hundred windows; its envelope relaxation then read
+                // -1.8 % (-3.4, -0.2) on the lab gate (`bench warning`, stable-low).
+                d.verdict = Verdict::Unknown;
+                d.trusted = false;
+            }
             return;
         }
         d.zeta0 = Some(p.zeta);
@@ -283,5 +292,38 @@ mod tests {
         }
         assert_eq!((last.verdict, last.trusted), (Verdict::SelfExcited, true));
         assert!(last.zeta0_interval.unwrap().1 < 0.0);
+    }
+
+    /// A lone envelope estimate (the first limit-cycle window after ambient ones) is untrusted
+    /// even when its interval lies below zero; the second one, pooled, decides.
+    #[test]
+    fn a_lone_limit_cycle_window_is_no_evidence() {
+        let mut pools = ZetaPools::new(PoolOptions::default()).unwrap();
+        let envelope = || DampingReport {
+            zeta0: Some(-0.018),
+            zeta0_interval: Some((-0.034, -0.002)),
+            zeta0_source: Some(Zeta0Source::Envelope),
+            frequency_hz: Some(10.0),
+            trusted: true,
+            verdict: Verdict::SelfExcited,
+            regime: Some(Regime::LimitCycle),
+            ..DampingReport::unknown()
+        };
+        let mut d = ambient(0.005, 0.006);
+        pools.apply(0.0, 10.0, &mut d);
+        let mut d = envelope();
+        pools.apply(5.0, 15.0, &mut d);
+        assert_eq!(d.zeta0_windows, Some(1));
+        assert_eq!((d.verdict, d.trusted), (Verdict::Unknown, false));
+        let mut d = envelope();
+        pools.apply(10.0, 20.0, &mut d);
+        assert_eq!(d.zeta0_windows, Some(2));
+        assert_eq!((d.verdict, d.trusted), (Verdict::SelfExcited, true));
+        // an ambient window empties the envelope pool: the next envelope window is alone again
+        let mut d = ambient(0.005, 0.006);
+        pools.apply(15.0, 25.0, &mut d);
+        let mut d = envelope();
+        pools.apply(20.0, 30.0, &mut d);
+        assert_eq!((d.verdict, d.trusted), (Verdict::Unknown, false));
     }
 }
