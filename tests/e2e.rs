@@ -368,8 +368,9 @@ async fn onset_fires_negative_damping_and_recovery_resolves_it() {
     eprintln!("fired at {} s, -1 % at {t_minus_1} s", fired.end);
     // KNOWN LIMIT (issue 8, open): on this ramp (0.04 % per second) the gate grows into its
     // limit cycle within a few windows of zero. With seed 11 the window ending at 105 s
-    // (true -0.6 %) reads -0.06 % (-0.10, -0.02): negative, but P(zeta0 < 0) = 0.9986 falls
-    // just short of `fire_at_once_probability` (0.999), and the limit-cycle windows after it
+    // (true -0.6 %) reads -0.06 % (-0.10, -0.02): negative, but one window does not fire
+    // (`for_windows = 2`; even `fire_at_once_probability = 0.999`, off by default, would not:
+    // P(zeta0 < 0) = 0.9986), and the limit-cycle windows after it
     // read "unknown" (envelope intervals across zero) until 145 s, so the alert fires 35 s
     // after -1 %, while GateDampingDeclining warned before (see `slow_drift_warns_before_zero`).
     // The bound keeps it from getting later still; issue 8's target is before -1 %.

@@ -143,11 +143,14 @@ fn probability_rule_fires_on_a_straddling_interval() {
     }
 }
 
-/// One window far below `fire_below` fires at once under the default rules; one that is
-/// negative but not that far waits for `for_windows`; 1 disables the shortcut.
+/// With `fire_at_once_probability = 0.999` one window far below `fire_below` fires at once;
+/// one that is negative but not that far waits for `for_windows`; 1 (the default) disables it.
 #[test]
 fn a_window_far_below_fires_at_once() {
-    let rules = AlertRules::default();
+    let rules = AlertRules {
+        fire_at_once_probability: 0.999,
+        ..AlertRules::default()
+    };
     assert_eq!(rules.for_windows, 2);
     // P(zeta0 < 0) = Phi(0.0043 / 0.00051) ~ 1: the fast onset's first confident window
     let far = obs(-0.0043, -0.0053, -0.0033);
@@ -182,8 +185,14 @@ fn a_window_far_below_fires_at_once() {
     });
     assert!(e.observe("g", &obs(-0.02, -0.02, -0.02), t(0)).is_empty());
     assert_eq!(e.observe("g", &obs(-0.02, -0.02, -0.02), t(5)).len(), 1);
+    // the default is off
+    let mut e = AlertEngine::new(AlertRules::default());
+    assert!(e.observe("g", &far, t(0)).is_empty());
     // an untrusted window far below is no evidence
-    let mut e = engine();
+    let mut e = AlertEngine::new(AlertRules {
+        fire_at_once_probability: 0.999,
+        ..AlertRules::default()
+    });
     let untrusted = Observation {
         trusted: false,
         ..far

@@ -24,12 +24,11 @@ pub struct AlertRules {
     /// Consecutive negative trusted windows before firing (default 2; 0 acts as 1).
     pub for_windows: u32,
     /// One trusted window with `P(zeta0 < fire_below)` at or above this fires at once, without
-    /// waiting for `for_windows` (default 0.999, i.e. a 99.8 % two-sided interval below
-    /// `fire_below`; 1 disables it). Why: at 10 Hz a gate goes from zero damping to -1 % and
-    /// its limit cycle within three 5 s hops, and the window before the first confident one
-    /// straddles zero by physics, so two confident windows come only after -1 %. A window this
-    /// far below is what `for_windows` waits for; under honest intervals its chance on a
-    /// +0.5 % gate is about 1e-6 (docs/alerts.md).
+    /// waiting for `for_windows` (default 1: off; e.g. 0.999 is a 99.8 % two-sided interval
+    /// below `fire_below`). Why it exists: at 10 Hz a gate goes from zero damping to -1 % and
+    /// its limit cycle within three 5 s hops, so two confident windows come only after -1 %.
+    /// Why it is off: on a stable +0.5 % lock gate a model-sourced window read -2.5 %
+    /// (-2.8, -2.1) once in 8.7 h of stream, and 0.999 fired on it (docs/alerts.md).
     pub fire_at_once_probability: f64,
     /// Consecutive windows with the interval above `clear_above` before resolving (default 2;
     /// 0 acts as 1).
@@ -64,7 +63,7 @@ impl Default for AlertRules {
             clear_above: 0.005,
             fire_probability: None,
             for_windows: 2,
-            fire_at_once_probability: 0.999,
+            fire_at_once_probability: 1.0,
             resolve_windows: 2,
             trend_horizon_seconds: 600.0,
             trend_min_span_seconds: 120.0,
