@@ -234,8 +234,10 @@ fn the_size_bound_prunes_the_oldest_history_and_no_write_fails() {
                 let _ = tx.send(res.is_ok());
             })),
         );
-        if i % 200 == 199 {
-            // the queue is bounded: let the writer keep up rather than count queue_full
+        if i % 20 == 19 {
+            // at most 20 requests merged into one transaction (80 rows, 100 kB): the margin
+            // between the high watermark and the bound (10 %, 100 kB of this 1 MiB) must hold
+            // one transaction; the daemon's bound is gigabytes, its transactions 256 requests
             assert!(writer.flush(Duration::from_secs(60)), "flushed");
         }
     }
