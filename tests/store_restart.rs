@@ -365,11 +365,9 @@ async fn a_full_database_is_counted_and_logged_naming_the_file_and_ingestion_goe
     let c = rusqlite::Connection::open_with_flags(&db, rusqlite::OpenFlags::SQLITE_OPEN_READ_ONLY)
         .expect("open");
     let rows: i64 = c
-        .query_row(
-            "SELECT count(*) FROM history WHERE gate = 'g1'",
-            [],
-            |r| r.get(0),
-        )
+        .query_row("SELECT count(*) FROM history WHERE gate = 'g1'", [], |r| {
+            r.get(0)
+        })
         .expect("count");
     assert!(
         (rows as f64) < identified,
@@ -432,11 +430,9 @@ async fn sigterm_flushes_the_last_identifications_into_the_database_file() {
     std::fs::copy(dir.path().join("gw.db"), copy.join("gw.db")).expect("copy the .db alone");
     let c = rusqlite::Connection::open(copy.join("gw.db")).expect("open the copy");
     let rows: i64 = c
-        .query_row(
-            "SELECT count(*) FROM history WHERE gate = 'g1'",
-            [],
-            |r| r.get(0),
-        )
+        .query_row("SELECT count(*) FROM history WHERE gate = 'g1'", [], |r| {
+            r.get(0)
+        })
         .expect("count");
     assert!(
         rows as f64 >= identified,
