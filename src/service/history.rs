@@ -158,21 +158,20 @@ fn csv_chunk(rows: &[HistoryRow], first: bool, out: &mut Vec<u8>) -> Result<(), 
     history_csv_rows(rows, first, out)
 }
 
+/// Writes a chunk of rows (`true`: the first chunk) into the buffer.
+type Render = fn(&[HistoryRow], bool, &mut Vec<u8>) -> Result<(), String>;
+
 /// A body streamed in chunks of [`HISTORY_CHUNK_ROWS`] rows, each written when the client
 /// takes it (the rows are read and the read connection released before: a slow client holds
 /// no lock), after `head` and before the tail.
 struct Streamed {
     rows: Arc<Vec<HistoryRow>>,
-    render: fn(&[HistoryRow], bool, &mut Vec<u8>) -> Result<(), String>,
+    render: Render,
     head: Vec<u8>,
     tail: Vec<u8>,
 }
 
-fn stream(
-    rows: Vec<HistoryRow>,
-    render: fn(&[HistoryRow], bool, &mut Vec<u8>) -> Result<(), String>,
-    head: Vec<u8>,
-) -> Streamed {
+fn stream(rows: Vec<HistoryRow>, render: Render, head: Vec<u8>) -> Streamed {
     Streamed {
         rows: Arc::new(rows),
         render,
