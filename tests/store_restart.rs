@@ -289,29 +289,16 @@ impl Stream {
 /// Fills the store at `db` (bounded to 1 MiB, as the daemon will open it) until SQLite says it
 /// is full: first large rows, then small ones into what is left.
 fn fill_to_the_brim(db: &Path) {
-    use gatewatch::store::{IdentificationRecord, SqliteStore, Store, WriteBatch};
+    use gatewatch::store::{SqliteStore, Store, WriteBatch};
+    // alert states: what the size bound never prunes (it prunes the oldest history), so the
+    // file stays full and the daemon's writes meet SQLite's real SQLITE_FULL
     let store = SqliteStore::open(db, 1).expect("open");
-    let now = SystemTime::now()
-        .duration_since(SystemTime::UNIX_EPOCH)
-        .expect("clock")
-        .as_secs_f64();
-    for size in [2000, 200, 10] {
-        for i in 0.. {
-            let r = IdentificationRecord {
-                gate: "old".into(),
-                time: now,
-                window_start: now - 1.0,
-                // recent: the retention at start does not free room
-                window_end: now + f64::from(i) * 1e-3,
-                equation: "x".repeat(size),
-                coefficients: Vec::new(),
-                damping: Value::Null,
-                verdict: "unknown".into(),
-                fit_nmae: 0.0,
-                path: "full".into(),
-            };
+    let mut n = 0;
+    for size in [100_000, 10_000, 1000, 100] {
+        loop {
+            n += 1;
             let batch = WriteBatch {
-                identifications: vec![r],
+                alert_states: vec![(format!("old{n}"), "x".repeat(size))],
                 ..Default::default()
             };
             if let Err(e) = store.write(&batch) {
@@ -320,6 +307,7 @@ fn fill_to_the_brim(db: &Path) {
             }
         }
     }
+    store.checkpoint().expect("checkpoint");
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -377,11 +365,9 @@ async fn a_full_database_is_counted_and_logged_naming_the_file_and_ingestion_goe
     let c = rusqlite::Connection::open_with_flags(&db, rusqlite::OpenFlags::SQLITE_OPEN_READ_ONLY)
         .expect("open");
     let rows: i64 = c
-        .query_row(
-            "SELECT count(*) FROM identifications WHERE gate = 'g1'",
-            [],
-            |r| r.get(0),
-        )
+        .query_row("SELECT count(*) FROM history WHERE gate = 'g1'", [], |r| {
+            r.get(0)
+        })
         .expect("count");
     assert!(
         (rows as f64) < identified,
@@ -444,11 +430,9 @@ async fn sigterm_flushes_the_last_identifications_into_the_database_file() {
     std::fs::copy(dir.path().join("gw.db"), copy.join("gw.db")).expect("copy the .db alone");
     let c = rusqlite::Connection::open(copy.join("gw.db")).expect("open the copy");
     let rows: i64 = c
-        .query_row(
-            "SELECT count(*) FROM identifications WHERE gate = 'g1'",
-            [],
-            |r| r.get(0),
-        )
+        .query_row("SELECT count(*) FROM history WHERE gate = 'g1'", [], |r| {
+            r.get(0)
+        })
         .expect("count");
     assert!(
         rows as f64 >= identified,

@@ -181,7 +181,7 @@ fn bench(args: &BenchHistoryArgs) -> anyhow::Result<()> {
     let mut store_ms = Vec::new();
     for _ in 0..args.queries {
         let t = Instant::now();
-        let got = store.history(&query)?;
+        let got = store.history_rows(&query)?;
         store_ms.push(t.elapsed().as_secs_f64() * 1e3);
         anyhow::ensure!(
             got.len() == per_gate,
@@ -216,7 +216,7 @@ fn bench(args: &BenchHistoryArgs) -> anyhow::Result<()> {
         per_gate as f64 * args.every_seconds / 3600.0,
         args.queries
     );
-    line("store query (SqliteStore::history)", &store_ms);
+    line("store query (SqliteStore::history_rows)", &store_ms);
     line(
         &format!("GET .../history JSON ({:.1} MB)", bytes.0 as f64 / 1e6),
         &json_ms,

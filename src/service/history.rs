@@ -3,17 +3,23 @@
 
 use std::sync::Arc;
 
+use axum::body::{Body, Bytes};
 use axum::extract::{Path, Query, State};
 use axum::http::{header, HeaderMap};
 use axum::response::{IntoResponse, Response};
-use axum::Json;
 use serde::Deserialize;
 use tokio::sync::Semaphore;
 
 use super::api::HttpError;
 use super::ingest::BadRequest;
 use super::state::AppState;
-use crate::store::{history_csv, parse_time, HistoryQuery, MAX_HISTORY_LIMIT};
+use crate::store::{
+    history_csv_rows, history_json_rows, parse_time, HistoryQuery, HistoryRow, MAX_HISTORY_LIMIT,
+};
+
+/// Rows per chunk of a streamed answer: about 0.4 MB of JSON, so a day of one gate is sent
+/// in about 35 chunks and the daemon never holds the whole body (`docs/api.md`).
+pub const HISTORY_CHUNK_ROWS: usize = 512;
 
 /// History queries read the database at once at most this many: each holds a blocking thread
 /// and the store's read connection; more wait for none and get 503 (the client retries).
@@ -75,7 +81,7 @@ async fn has_history(p: &Arc<super::storage::Persistence>, gate: &str) -> Result
         to: None,
         limit: 1,
     };
-    let rows = tokio::task::spawn_blocking(move || p.store.history(&q))
+    let rows = tokio::task::spawn_blocking(move || p.store.history_rows(&q))
         .await
         .map_err(|e| HttpError::Internal(format!("history task failed: {e}")))?
         .map_err(|e| HttpError::Internal(e.to_string()))?;
@@ -110,7 +116,7 @@ pub async fn get_history(
         return Err(HttpError::Overloaded);
     };
     let reader = p.clone();
-    let rows = tokio::task::spawn_blocking(move || reader.store.history(&q))
+    let rows = tokio::task::spawn_blocking(move || reader.store.history_rows(&q))
         .await
         .map_err(|e| HttpError::Internal(format!("history task failed: {e}")))?
         .map_err(|e| HttpError::Internal(e.to_string()))?;
@@ -121,15 +127,89 @@ pub async fn get_history(
         )));
     }
     drop(permit);
+    let limit = params.limit.unwrap_or(MAX_HISTORY_LIMIT);
     if csv {
-        let body = history_csv(&rows).map_err(HttpError::Internal)?;
-        return Ok(([(header::CONTENT_TYPE, "text/csv; charset=utf-8")], body).into_response());
+        return Ok((
+            [(header::CONTENT_TYPE, "text/csv; charset=utf-8")],
+            stream(rows, csv_chunk, Vec::new()),
+        )
+            .into_response());
     }
-    Ok(Json(serde_json::json!({
-        "gate": id,
-        "count": rows.len(),
-        "limit": params.limit.unwrap_or(MAX_HISTORY_LIMIT),
-        "identifications": rows,
-    }))
-    .into_response())
+    // the keys in the order serde_json's map gives them, as before the body was streamed
+    let head = format!(
+        "{{\"count\":{},\"gate\":{},\"identifications\":[",
+        rows.len(),
+        serde_json::to_string(&id).map_err(|e| HttpError::Internal(e.to_string()))?
+    );
+    let tail = format!("],\"limit\":{limit}}}");
+    Ok((
+        [(header::CONTENT_TYPE, "application/json")],
+        stream(rows, json_chunk, head.into_bytes()).with_tail(tail),
+    )
+        .into_response())
+}
+
+fn json_chunk(rows: &[HistoryRow], first: bool, out: &mut Vec<u8>) -> Result<(), String> {
+    history_json_rows(rows, first, out);
+    Ok(())
+}
+
+fn csv_chunk(rows: &[HistoryRow], first: bool, out: &mut Vec<u8>) -> Result<(), String> {
+    history_csv_rows(rows, first, out)
+}
+
+/// Writes a chunk of rows (`true`: the first chunk) into the buffer.
+type Render = fn(&[HistoryRow], bool, &mut Vec<u8>) -> Result<(), String>;
+
+/// A body streamed in chunks of [`HISTORY_CHUNK_ROWS`] rows, each written when the client
+/// takes it (the rows are read and the read connection released before: a slow client holds
+/// no lock), after `head` and before the tail.
+struct Streamed {
+    rows: Arc<Vec<HistoryRow>>,
+    render: Render,
+    head: Vec<u8>,
+    tail: Vec<u8>,
+}
+
+fn stream(rows: Vec<HistoryRow>, render: Render, head: Vec<u8>) -> Streamed {
+    Streamed {
+        rows: Arc::new(rows),
+        render,
+        head,
+        tail: Vec::new(),
+    }
+}
+
+impl Streamed {
+    fn with_tail(mut self, tail: String) -> Streamed {
+        self.tail = tail.into_bytes();
+        self
+    }
+}
+
+impl IntoResponse for Streamed {
+    fn into_response(self) -> Response {
+        let Streamed {
+            rows,
+            render,
+            head,
+            tail,
+        } = self;
+        let n = rows.len().div_ceil(HISTORY_CHUNK_ROWS);
+        let chunks = (0..n.max(1)).map(move |i| {
+            let mut out = if i == 0 { head.clone() } else { Vec::new() };
+            let from = (i * HISTORY_CHUNK_ROWS).min(rows.len());
+            let to = (from + HISTORY_CHUNK_ROWS).min(rows.len());
+            if let Err(e) = render(&rows[from..to], i == 0, &mut out) {
+                // the status is sent already: the client sees a cut body, the log says why
+                tracing::error!("history: {e}");
+                return Err(std::io::Error::other(e));
+            }
+            if i + 1 >= n.max(1) {
+                out.extend_from_slice(&tail);
+            }
+            Ok(Bytes::from(out))
+        });
+        Body::from_stream(futures_util::stream::iter(chunks)).into_response()
+    }
 }

@@ -100,6 +100,8 @@ pub struct Metrics {
     pub gates_expired: IntCounter,
     /// `gatewatch_store_write_errors_total{reason}`: store writes lost ([`STORE_WRITE_ERRORS`]).
     pub store_write_errors: IntCounterVec,
+    /// `gatewatch_store_pruned_rows_total{reason}`: history rows deleted ([`STORE_PRUNE_REASONS`]).
+    pub store_pruned_rows: IntCounterVec,
 }
 
 /// Why samples were rejected or dropped: the `reason` label of
@@ -197,6 +199,10 @@ pub const IDENTIFICATION_FAILURES: &[&str] = &["settings", "window", "panic", "q
 /// full, I/O error, the `storage.max_size_mb` bound), `queue_full` when the writer's queue
 /// (`store::STORE_QUEUE_CAPACITY`) had no room. Either way the daemon goes on from memory.
 pub const STORE_WRITE_ERRORS: &[&str] = &["failed", "queue_full"];
+
+/// Reasons of `gatewatch_store_pruned_rows_total`: `age` (`retention_days`), `rows`
+/// (`max_history_rows`), `size` (`max_size_mb`: the oldest history pruned to stay under it).
+pub const STORE_PRUNE_REASONS: &[&str] = &["age", "rows", "size"];
 
 /// Outcomes of `gatewatch_notifications_total`, per target and batch: `delivered`, `failed`
 /// (given up after retries, or refused) and `dropped` (queue full, or abandoned at the shutdown
@@ -428,6 +434,11 @@ impl Metrics {
                 "Store write requests lost (history, alert state, outbox), by reason; the daemon goes on from memory.",
                 &["reason"],
             ),
+            store_pruned_rows: counter(
+                "gatewatch_store_pruned_rows_total",
+                "History rows deleted by the store's bounds: age (retention), rows, size.",
+                &["reason"],
+            ),
             registry,
         };
         m.build_info
@@ -452,6 +463,9 @@ impl Metrics {
         }
         for r in STORE_WRITE_ERRORS {
             m.store_write_errors.with_label_values(&[r]);
+        }
+        for r in STORE_PRUNE_REASONS {
+            m.store_pruned_rows.with_label_values(&[r]);
         }
         m
     }
@@ -606,32 +620,6 @@ impl NotificationCounts {
                     .with_label_values(&[target.as_str(), outcome])
                     .inc_by(new.saturating_sub(old));
             }
-        }
-        *last = now;
-    }
-}
-
-/// The store writer's error counters as last exported, to turn its totals into counter
-/// increments (the store does not know Prometheus).
-#[derive(Debug, Default)]
-pub struct StoreCounts {
-    last: std::sync::Mutex<(u64, u64)>,
-}
-
-impl StoreCounts {
-    /// Adds what the writer counted since the last call to `gatewatch_store_write_errors_total`.
-    pub fn sync(&self, metrics: &Metrics, stats: &crate::store::StoreStats) {
-        use std::sync::atomic::Ordering::Relaxed;
-        let now = (
-            stats.write_failed.load(Relaxed),
-            stats.queue_full.load(Relaxed),
-        );
-        let mut last = super::sync::lock(&self.last);
-        for (reason, new, old) in [("failed", now.0, last.0), ("queue_full", now.1, last.1)] {
-            metrics
-                .store_write_errors
-                .with_label_values(&[reason])
-                .inc_by(new.saturating_sub(old));
         }
         *last = now;
     }

@@ -13,7 +13,7 @@ use std::sync::{Arc, Mutex};
 use std::time::SystemTime;
 
 use super::clock::unix_seconds;
-use super::metrics::{Metrics, StoreCounts};
+use super::metrics::Metrics;
 use super::sync::lock;
 use crate::alert::notify::outbox::{self, OutboxEntry, TargetInfo};
 use crate::alert::notify::NotifierHandle;
@@ -74,7 +74,7 @@ impl Persistence {
         }
     }
 
-    /// Brings `gatewatch_store_write_errors_total` up to date with the writer's counters.
+    /// Brings `gatewatch_store_write_errors_total` and `gatewatch_store_pruned_rows_total` up to date with the writer's counters.
     pub fn sync_metrics(&self, metrics: &Metrics) {
         self.counts.sync(metrics, &self.writer.stats());
     }
@@ -335,5 +335,41 @@ pub fn states_write(p: Option<&Persistence>, engine: &AlertEngine) -> WriteBatch
             .filter_map(|g| p.changed_state(engine, g))
             .collect(),
         ..Default::default()
+    }
+}
+
+/// The store writer's counters as last exported, to turn its totals into counter increments
+/// (the store does not know Prometheus).
+#[derive(Debug, Default)]
+pub struct StoreCounts {
+    last: std::sync::Mutex<[u64; 5]>,
+}
+
+impl StoreCounts {
+    /// Adds what the writer counted since the last call to `gatewatch_store_write_errors_total`
+    /// and `gatewatch_store_pruned_rows_total`.
+    pub fn sync(&self, metrics: &Metrics, stats: &crate::store::StoreStats) {
+        use std::sync::atomic::Ordering::Relaxed;
+        let now = [
+            stats.write_failed.load(Relaxed),
+            stats.queue_full.load(Relaxed),
+            stats.expired_rows.load(Relaxed),
+            stats.over_size_rows.load(Relaxed),
+            stats.over_bytes_rows.load(Relaxed),
+        ];
+        let mut last = super::sync::lock(&self.last);
+        let counters = [
+            (&metrics.store_write_errors, "failed"),
+            (&metrics.store_write_errors, "queue_full"),
+            (&metrics.store_pruned_rows, "age"),
+            (&metrics.store_pruned_rows, "rows"),
+            (&metrics.store_pruned_rows, "size"),
+        ];
+        for (i, (counter, reason)) in counters.into_iter().enumerate() {
+            counter
+                .with_label_values(&[reason])
+                .inc_by(now[i].saturating_sub(last[i]));
+        }
+        *last = now;
     }
 }

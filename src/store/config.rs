@@ -27,14 +27,17 @@ pub struct StorageConfig {
     pub path: String,
     /// History older than this is deleted (default 30 days).
     pub retention_days: f64,
-    /// Bound on the history: beyond this many rows the oldest are deleted (default 5 000 000).
-    /// A row with a real damping report is about 2 100 bytes of file (docs/benchmarks.md,
-    /// "History"), so 5 000 000 rows would be about 10.5 GB: above `max_size_mb`'s default,
-    /// which then binds first (docs/operations.md, "Size").
+    /// Bound on the history: beyond this many rows the oldest are deleted (default
+    /// 10 000 000; 30 days of 16 gates at a window every 5 s are 8.3 million, so the retention
+    /// binds first: docs/operations.md, "Size").
     pub max_history_rows: u64,
-    /// Hard bound on the database file, in MiB (default 4096): SQLite's `max_page_count`.
-    /// A write that would grow the file beyond it fails like a full disk: counted
-    /// (`gatewatch_store_write_errors_total{reason="failed"}`) and logged, and ingestion goes on.
+    /// Bound on the database file, in MiB (default 12288). Past 90 % of it the oldest history
+    /// is pruned down to 80 % (`Store::make_room`, counted in
+    /// `gatewatch_store_pruned_rows_total{reason="size"}`); SQLite's `max_page_count` is the
+    /// hard stop, reached only when alert state and outbox alone fill it: then a write fails
+    /// like a full disk, counted (`gatewatch_store_write_errors_total{reason="failed"}`) and
+    /// logged, and ingestion goes on. A row is about 1 225 bytes of file (docs/benchmarks.md,
+    /// "History"): 30 days of 16 gates are about 9.5 GiB.
     pub max_size_mb: u64,
     /// A notification is retried for as long as it is younger than this, then given up,
     /// counted and logged (default 86400 s = 24 h).
@@ -46,8 +49,8 @@ impl Default for StorageConfig {
         StorageConfig {
             path: "gatewatch.db".to_string(),
             retention_days: 30.0,
-            max_history_rows: 5_000_000,
-            max_size_mb: 4096,
+            max_history_rows: 10_000_000,
+            max_size_mb: 12_288,
             notification_max_age_seconds: 86_400.0,
         }
     }

@@ -3,7 +3,7 @@
 
 use std::time::UNIX_EPOCH;
 
-use super::IdentificationRecord;
+use super::{HistoryRow, IdentificationRecord};
 
 /// The CSV header, one column per field an engineer plots or filters on. Times in Unix
 /// seconds (spreadsheets and pandas convert them), the interval as two columns.
@@ -85,4 +85,69 @@ pub fn history_csv(records: &[IdentificationRecord]) -> Result<String, String> {
         .into_inner()
         .map_err(|e| format!("cannot write CSV: {e}"))?;
     String::from_utf8(bytes).map_err(|e| format!("CSV is not UTF-8: {e}"))
+}
+
+/// Appends `rows` as CSV (with the header when `header`) to `out`, from the summary columns:
+/// no JSON parsed. The same text as [`history_csv`] for the same records.
+pub fn history_csv_rows(
+    rows: &[HistoryRow],
+    header: bool,
+    out: &mut Vec<u8>,
+) -> Result<(), String> {
+    let err = |e: csv::Error| format!("cannot write CSV: {e}");
+    let mut w = csv::Writer::from_writer(out);
+    if header {
+        w.write_record(HISTORY_CSV_HEADER).map_err(err)?;
+    }
+    for r in rows {
+        w.write_record([
+            r.gate.as_str(),
+            &r.time.to_string(),
+            &r.window_start.to_string(),
+            &r.window_end.to_string(),
+            &opt(r.zeta0),
+            &opt(r.zeta0_interval.map(|i| i.0)),
+            &opt(r.zeta0_interval.map(|i| i.1)),
+            &opt(r.frequency_hz),
+            if r.trusted { "true" } else { "false" },
+            &r.verdict,
+            &r.fit_nmae.to_string(),
+            &r.path,
+            &r.equation,
+        ])
+        .map_err(err)?;
+    }
+    w.flush().map_err(|e| format!("cannot write CSV: {e}"))
+}
+
+/// Appends `rows` to `out` as the JSON objects of [`IdentificationRecord`] (keys in the order
+/// `serde_json::Value` gives them), each preceded by a comma unless `first` and it is the
+/// first. The stored JSON (damping report, coefficients) is copied as it is, never parsed:
+/// the store wrote it with `serde_json`, so it is valid JSON.
+pub fn history_json_rows(rows: &[HistoryRow], first: bool, out: &mut Vec<u8>) {
+    // serde_json never fails to write a string or a number into a Vec
+    fn put<T: serde::Serialize + ?Sized>(out: &mut Vec<u8>, key: &str, v: &T) {
+        out.extend_from_slice(b",\"");
+        out.extend_from_slice(key.as_bytes());
+        out.extend_from_slice(b"\":");
+        let _ = serde_json::to_writer(&mut *out, v);
+    }
+    for (i, r) in rows.iter().enumerate() {
+        if i > 0 || !first {
+            out.push(b',');
+        }
+        out.extend_from_slice(b"{\"coefficients\":");
+        out.extend_from_slice(r.coefficients.as_bytes());
+        out.extend_from_slice(b",\"damping\":");
+        out.extend_from_slice(r.damping.as_bytes());
+        put(out, "equation", &r.equation);
+        put(out, "fit_nmae", &r.fit_nmae);
+        put(out, "gate", &r.gate);
+        put(out, "path", &r.path);
+        put(out, "time", &r.time);
+        put(out, "verdict", &r.verdict);
+        put(out, "window_end", &r.window_end);
+        put(out, "window_start", &r.window_start);
+        out.push(b'}');
+    }
 }

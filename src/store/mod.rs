@@ -10,7 +10,11 @@
 //! # Layout
 //! - this file: the trait, the records it keeps, its error type;
 //! - `config`: [`StorageConfig`] (`[storage]`) and the bounds;
-//! - `sqlite`: [`SqliteStore`] and its migrations;
+//! - `sqlite`: [`SqliteStore`]: the queries, the pruning and the size bound;
+//! - `schema`: the schema and its migrations (version 2 clusters a gate's rows and keeps the
+//!   summary in columns; `docs/design.md`, "The history table");
+//! - `row`: [`HistoryRow`], a stored identification as the history route serves it, and the
+//!   compaction of a record before it is stored;
 //! - `writer`: [`StoreWriter`], the dedicated thread that takes every write off the callers'
 //!   threads through a bounded queue;
 //! - `history`: time parsing (`RFC 3339` or Unix seconds) and the CSV form of the history,
@@ -18,12 +22,18 @@
 
 mod config;
 mod history;
+mod row;
+mod schema;
 mod sqlite;
 mod writer;
 
 pub use config::{StorageConfig, MAX_HISTORY_LIMIT, STORE_QUEUE_CAPACITY};
-pub use history::{history_csv, parse_time, HISTORY_CSV_HEADER};
-pub use sqlite::{SqliteStore, SCHEMA_VERSION};
+pub use history::{
+    history_csv, history_csv_rows, history_json_rows, parse_time, HISTORY_CSV_HEADER,
+};
+pub use row::{HistoryRow, CURVE_STORED_DIGITS, CURVE_STORED_POINTS};
+pub use schema::SCHEMA_VERSION;
+pub use sqlite::{SqliteStore, PRUNE_BATCH_ROWS, SIZE_HIGH_WATERMARK, SIZE_LOW_WATERMARK};
 pub use writer::{StoreStats, StoreWriter};
 
 use serde::{Deserialize, Serialize};
@@ -56,6 +66,20 @@ pub enum StoreError {
         /// Why it does not decode.
         message: String,
     },
+}
+
+impl StoreError {
+    /// Whether the store refused the write because it is full: its size bound
+    /// (`max_size_mb`) or the disk (SQLite's `SQLITE_FULL`).
+    pub fn is_full(&self) -> bool {
+        matches!(
+            self,
+            StoreError::Sqlite {
+                source: rusqlite::Error::SqliteFailure(e, _),
+                ..
+            } if e.code == rusqlite::ErrorCode::DiskFull
+        )
+    }
 }
 
 /// One identified window of a gate, as the history keeps it.
@@ -180,7 +204,7 @@ impl WriteBatch {
 pub struct Pruned {
     /// History rows older than the retention.
     pub expired: u64,
-    /// Oldest history rows beyond the size bound.
+    /// Oldest history rows beyond `max_history_rows`.
     pub over_size: u64,
 }
 
@@ -196,8 +220,17 @@ pub trait Store: Send + Sync + 'static {
     /// Applies a batch in one transaction. Returns the ids given to `batch.outbox`, in order.
     fn write(&self, batch: &WriteBatch) -> Result<Vec<i64>, StoreError>;
 
-    /// One gate's history, oldest first.
-    fn history(&self, query: &HistoryQuery) -> Result<Vec<IdentificationRecord>, StoreError>;
+    /// One gate's history, oldest first, as stored: the summary columns and the stored JSON
+    /// (damping report, coefficients) as text, not parsed. What the HTTP route serves.
+    fn history_rows(&self, query: &HistoryQuery) -> Result<Vec<HistoryRow>, StoreError>;
+
+    /// One gate's history, oldest first, each record's JSON parsed.
+    fn history(&self, query: &HistoryQuery) -> Result<Vec<IdentificationRecord>, StoreError> {
+        self.history_rows(query)?
+            .into_iter()
+            .map(HistoryRow::into_record)
+            .collect()
+    }
 
     /// Every gate's persisted alert state, `(gate, JSON)`.
     fn alert_states(&self) -> Result<Vec<(String, String)>, StoreError>;
@@ -208,6 +241,15 @@ pub trait Store: Send + Sync + 'static {
     /// Deletes history rows whose window ended before `cutoff` (Unix seconds), then the oldest
     /// rows beyond `max_rows`.
     fn prune(&self, cutoff: f64, max_rows: u64) -> Result<Pruned, StoreError>;
+
+    /// The size bound: when the store is above its high watermark (or `force`, after a write
+    /// refused as full), deletes the oldest history, in batches, until it is below its low
+    /// watermark. Alert state and outbox are never deleted. Returns the rows deleted. A store
+    /// without a size bound does nothing.
+    fn make_room(&self, force: bool) -> Result<u64, StoreError> {
+        let _ = force;
+        Ok(0)
+    }
 }
 
 #[cfg(test)]

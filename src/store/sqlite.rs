@@ -1,60 +1,43 @@
-//! [`SqliteStore`]: the embedded store, one SQLite file in WAL mode.
+//! [`SqliteStore`]: the embedded store, one SQLite file in WAL mode. The schema and its
+//! migrations are in `schema`.
 //!
-//! Migrations are versioned in code with SQLite's own `PRAGMA user_version` (a header field of
-//! the file made for this): [`MIGRATIONS`] is a list of SQL scripts, the file's version is the
-//! number applied, and each script runs in the same transaction as the version bump. That is
-//! what `rusqlite_migration` does too; doing it in twenty lines avoids a crate that pins our
-//! rusqlite version. A file from a newer gatewatch (version above ours) is refused rather than
-//! written in a schema we do not know.
+//! The size bound (`max_size_mb`) is kept by pruning, not by failing: SQLite's
+//! `max_page_count` is set to the bound, and after each commit the writer thread calls
+//! [`Store::make_room`], which deletes the oldest history when the pages in use pass
+//! [`SIZE_HIGH_WATERMARK`] of the bound, until they are under [`SIZE_LOW_WATERMARK`]. The
+//! pages freed are reused by the next rows, so the file stops growing there. A write refused
+//! as full all the same (one transaction larger than the margin, a full disk) makes room and
+//! is retried once (`writer`).
 
 use std::path::Path;
 use std::sync::Mutex;
 
 use rusqlite::{params, Connection, OpenFlags};
 
+use super::row::{compact_damping, HistoryRow, Summary};
+use super::schema::{insert_row, migrate, NewRow, SCHEMA_VERSION};
 use super::{
     HistoryQuery, IdentificationRecord, NewOutboxRow, OutboxRow, Pruned, Store, StoreError,
     WriteBatch, MAX_HISTORY_LIMIT,
 };
 
-/// The schema scripts, in order; the file's `user_version` counts those applied.
-const MIGRATIONS: &[&str] = &[
-    // 1: history, alert state, outbox.
-    "CREATE TABLE identifications (
-        id INTEGER PRIMARY KEY,
-        gate TEXT NOT NULL,
-        time REAL NOT NULL,
-        window_start REAL NOT NULL,
-        window_end REAL NOT NULL,
-        equation TEXT NOT NULL,
-        coefficients TEXT NOT NULL,
-        damping TEXT NOT NULL,
-        verdict TEXT NOT NULL,
-        fit_nmae REAL NOT NULL,
-        path TEXT NOT NULL
-    );
-    CREATE INDEX identifications_gate_end ON identifications (gate, window_end);
-    CREATE INDEX identifications_end ON identifications (window_end);
-    CREATE TABLE alert_state (
-        gate TEXT PRIMARY KEY,
-        state TEXT NOT NULL
-    );
-    -- AUTOINCREMENT: ids never reused, so the id order is the order of the transitions even
-    -- after deletions.
-    CREATE TABLE outbox (
-        id INTEGER PRIMARY KEY AUTOINCREMENT,
-        target TEXT NOT NULL,
-        fingerprint TEXT NOT NULL,
-        status TEXT NOT NULL,
-        created REAL NOT NULL,
-        batch INTEGER NOT NULL,
-        payload TEXT NOT NULL
-    );
-    CREATE INDEX outbox_target_fingerprint ON outbox (target, fingerprint);",
-];
+/// Page size of a new file. 8 KiB rather than SQLite's 4 KiB: the history is a `WITHOUT ROWID`
+/// table, whose rows stay on their page only up to about a quarter of it (2 030 bytes here,
+/// 1 002 with 4 KiB pages), and a stored identification is about 800 bytes; an old file keeps
+/// its 4 KiB pages (changing them needs a `VACUUM`, a copy of the whole file).
+const PAGE_SIZE: u32 = 8192;
 
-/// The schema version this build writes (the number of [`MIGRATIONS`]).
-pub const SCHEMA_VERSION: i64 = MIGRATIONS.len() as i64;
+/// The size bound starts pruning when the pages in use pass this fraction of `max_size_mb`...
+pub const SIZE_HIGH_WATERMARK: f64 = 0.9;
+
+/// ...and prunes until they are under this fraction. The gap (10 % of the bound) is what one
+/// pruning frees, so it does not run at every commit; the margin above the high mark is room
+/// for the writes between two checks (one merged transaction: at most 256 requests).
+pub const SIZE_LOW_WATERMARK: f64 = 0.8;
+
+/// History rows deleted by one pruning transaction: the writer thread does not hold one
+/// transaction long (the history route reads meanwhile, WAL), and each batch frees pages.
+pub const PRUNE_BATCH_ROWS: u64 = 2000;
 
 /// How long a statement waits for a lock held by another connection (the daemon's writer, a
 /// `gatewatch history` reader) before failing.
@@ -67,6 +50,8 @@ pub struct SqliteStore {
     path: String,
     write: Mutex<Connection>,
     read: Mutex<Connection>,
+    /// The size bound in bytes (`max_size_mb`); `None` read-only.
+    max_bytes: Option<u64>,
 }
 
 fn lock(m: &Mutex<Connection>) -> std::sync::MutexGuard<'_, Connection> {
@@ -103,6 +88,10 @@ impl SqliteStore {
             });
         }
         write.busy_timeout(BUSY_TIMEOUT).map_err(open_err)?;
+        // before WAL: a page size can only be chosen for a new, empty file (a no-op otherwise)
+        write
+            .execute_batch(&format!("PRAGMA page_size = {PAGE_SIZE}"))
+            .map_err(open_err)?;
         // WAL: readers (the history route, `gatewatch history` in another process) never block
         // the writer. synchronous=FULL: a committed transition survives a power cut, not only a
         // crash of the process; at a few commits a second the fsync costs nothing that matters.
@@ -140,6 +129,7 @@ impl SqliteStore {
             path: name,
             write: Mutex::new(write),
             read: Mutex::new(read),
+            max_bytes: Some(pages * page_size),
         })
     }
 
@@ -181,6 +171,7 @@ impl SqliteStore {
             path: name,
             write: Mutex::new(write),
             read: Mutex::new(read),
+            max_bytes: None,
         })
     }
 
@@ -202,11 +193,11 @@ impl SqliteStore {
     }
 
     /// The gates that have at least one identification, sorted (for `gatewatch history`'s
-    /// "unknown gate" message). A scan of the `(gate, window_end)` index.
+    /// "unknown gate" message). A skip through the table's key, which starts with the gate.
     pub fn gates(&self) -> Result<Vec<String>, StoreError> {
         let c = lock(&self.read);
         let mut stmt = c
-            .prepare("SELECT DISTINCT gate FROM identifications ORDER BY gate")
+            .prepare("SELECT DISTINCT gate FROM history ORDER BY gate")
             .map_err(sq("list of the gates"))?;
         let rows = stmt
             .query_map([], |r| r.get(0))
@@ -224,51 +215,49 @@ impl SqliteStore {
     }
 }
 
-/// Brings the schema to [`SCHEMA_VERSION`]; the message says why it cannot.
-fn migrate(c: &mut Connection) -> Result<(), String> {
-    let version: i64 = c
-        .query_row("PRAGMA user_version", [], |r| r.get(0))
-        .map_err(|e| e.to_string())?;
-    if version > SCHEMA_VERSION {
-        return Err(format!(
-            "schema version {version} is newer than this gatewatch's ({SCHEMA_VERSION}): \
-             written by a newer release"
-        ));
-    }
-    for (i, script) in MIGRATIONS.iter().enumerate().skip(version.max(0) as usize) {
-        let to = i + 1;
-        let tx = c.transaction().map_err(|e| e.to_string())?;
-        tx.execute_batch(script)
-            .and_then(|()| tx.execute_batch(&format!("PRAGMA user_version = {to}")))
-            .and_then(|()| tx.commit())
-            .map_err(|e| format!("migration to schema version {to}: {e}"))?;
-    }
-    Ok(())
-}
-
 fn insert_identification(
     tx: &rusqlite::Transaction<'_>,
     r: &IdentificationRecord,
 ) -> rusqlite::Result<()> {
     let coefficients = serde_json::to_string(&r.coefficients).unwrap_or_else(|_| "[]".into());
-    tx.prepare_cached(
-        "INSERT INTO identifications (gate, time, window_start, window_end, equation,
-            coefficients, damping, verdict, fit_nmae, path)
-         VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10)",
-    )?
-    .execute(params![
-        r.gate,
-        r.time,
-        r.window_start,
-        r.window_end,
-        r.equation,
-        coefficients,
-        r.damping.to_string(),
-        r.verdict,
-        r.fit_nmae,
-        r.path,
-    ])?;
-    Ok(())
+    let damping = compact_damping(&r.damping);
+    insert_row(
+        tx,
+        &NewRow {
+            gate: &r.gate,
+            window_end: r.window_end,
+            time: r.time,
+            window_start: r.window_start,
+            summary: Summary::of(&damping),
+            verdict: &r.verdict,
+            fit_nmae: r.fit_nmae,
+            path: &r.path,
+            equation: &r.equation,
+            coefficients: &coefficients,
+            damping: &damping.to_string(),
+        },
+        None,
+    )
+}
+
+/// Pages in use (the file's pages less the free ones), in bytes.
+fn used_bytes(c: &Connection) -> rusqlite::Result<u64> {
+    let pages: i64 = c.query_row("PRAGMA page_count", [], |r| r.get(0))?;
+    let free: i64 = c.query_row("PRAGMA freelist_count", [], |r| r.get(0))?;
+    let size: i64 = c.query_row("PRAGMA page_size", [], |r| r.get(0))?;
+    Ok((pages - free).max(0) as u64 * size.max(0) as u64)
+}
+
+/// Deletes the oldest `n` history rows (by window end, across gates) in one transaction.
+fn delete_oldest(c: &mut Connection, n: u64) -> rusqlite::Result<u64> {
+    let tx = c.transaction()?;
+    let deleted = tx.execute(
+        "DELETE FROM history WHERE (gate, window_end, seq) IN (
+            SELECT gate, window_end, seq FROM history ORDER BY window_end LIMIT ?1)",
+        params![n.min(i64::MAX as u64) as i64],
+    )? as u64;
+    tx.commit()?;
+    Ok(deleted)
 }
 
 fn insert_outbox(tx: &rusqlite::Transaction<'_>, r: &NewOutboxRow) -> rusqlite::Result<i64> {
@@ -328,15 +317,16 @@ impl Store for SqliteStore {
         Ok(ids)
     }
 
-    fn history(&self, q: &HistoryQuery) -> Result<Vec<IdentificationRecord>, StoreError> {
+    fn history_rows(&self, q: &HistoryQuery) -> Result<Vec<HistoryRow>, StoreError> {
         let c = lock(&self.read);
+        // one range of the table's key (gate, window_end): the gate's rows are together
         let mut stmt = c
             .prepare_cached(
                 "SELECT gate, time, window_start, window_end, equation, coefficients, damping,
-                    verdict, fit_nmae, path
-                 FROM identifications
+                    verdict, fit_nmae, path, zeta0, zeta0_low, zeta0_high, frequency_hz, trusted
+                 FROM history
                  WHERE gate = ?1 AND window_end >= ?2 AND window_end <= ?3
-                 ORDER BY window_end, id LIMIT ?4",
+                 ORDER BY window_end, seq LIMIT ?4",
             )
             .map_err(sq("history"))?;
         let limit = q.limit.min(MAX_HISTORY_LIMIT) as i64;
@@ -349,43 +339,28 @@ impl Store for SqliteStore {
                     limit
                 ],
                 |r| {
-                    Ok((
-                        r.get::<_, String>(0)?,
-                        r.get::<_, f64>(1)?,
-                        r.get::<_, f64>(2)?,
-                        r.get::<_, f64>(3)?,
-                        r.get::<_, String>(4)?,
-                        r.get::<_, String>(5)?,
-                        r.get::<_, String>(6)?,
-                        r.get::<_, String>(7)?,
-                        r.get::<_, f64>(8)?,
-                        r.get::<_, String>(9)?,
-                    ))
+                    let low: Option<f64> = r.get(11)?;
+                    let high: Option<f64> = r.get(12)?;
+                    Ok(HistoryRow {
+                        gate: r.get(0)?,
+                        time: r.get(1)?,
+                        window_start: r.get(2)?,
+                        window_end: r.get(3)?,
+                        equation: r.get(4)?,
+                        coefficients: r.get(5)?,
+                        damping: r.get(6)?,
+                        verdict: r.get(7)?,
+                        fit_nmae: r.get(8)?,
+                        path: r.get(9)?,
+                        zeta0: r.get(10)?,
+                        zeta0_interval: low.zip(high),
+                        frequency_hz: r.get(13)?,
+                        trusted: r.get(14)?,
+                    })
                 },
             )
             .map_err(sq("history"))?;
-        let mut out = Vec::new();
-        for row in rows {
-            let (gate, time, ws, we, equation, coef, damping, verdict, fit, path) =
-                row.map_err(sq("history"))?;
-            let decode = |what: &str, e: serde_json::Error| StoreError::Decode {
-                operation: "history",
-                message: format!("{what} of gate {gate} at {we}: {e}"),
-            };
-            out.push(IdentificationRecord {
-                coefficients: serde_json::from_str(&coef).map_err(|e| decode("coefficients", e))?,
-                damping: serde_json::from_str(&damping).map_err(|e| decode("damping", e))?,
-                gate,
-                time,
-                window_start: ws,
-                window_end: we,
-                equation,
-                verdict,
-                fit_nmae: fit,
-                path,
-            });
-        }
-        Ok(out)
+        rows.collect::<Result<_, _>>().map_err(sq("history"))
     }
 
     fn alert_states(&self) -> Result<Vec<(String, String)>, StoreError> {
@@ -430,26 +405,54 @@ impl Store for SqliteStore {
 
     fn prune(&self, cutoff: f64, max_rows: u64) -> Result<Pruned, StoreError> {
         let mut c = lock(&self.write);
-        let tx = c.transaction().map_err(sq("prune"))?;
-        let expired = tx
-            .execute(
-                "DELETE FROM identifications WHERE window_end < ?1",
-                params![cutoff],
-            )
-            .map_err(sq("prune"))? as u64;
-        let count: i64 = tx
-            .query_row("SELECT count(*) FROM identifications", [], |r| r.get(0))
+        let expired = {
+            let tx = c.transaction().map_err(sq("prune"))?;
+            let n = tx
+                .execute("DELETE FROM history WHERE window_end < ?1", params![cutoff])
+                .map_err(sq("prune"))? as u64;
+            tx.commit().map_err(sq("prune"))?;
+            n
+        };
+        let count: i64 = c
+            .query_row("SELECT count(*) FROM history", [], |r| r.get(0))
             .map_err(sq("prune"))?;
-        let excess = (count.max(0) as u64).saturating_sub(max_rows);
-        // the oldest by window end, through the window_end index
-        let over_size = tx
-            .execute(
-                "DELETE FROM identifications WHERE id IN (
-                    SELECT id FROM identifications ORDER BY window_end, id LIMIT ?1)",
-                params![excess.min(i64::MAX as u64) as i64],
-            )
-            .map_err(sq("prune"))? as u64;
-        tx.commit().map_err(sq("prune"))?;
+        let mut excess = (count.max(0) as u64).saturating_sub(max_rows);
+        let mut over_size = 0;
+        // the oldest by window end, through the window_end index, in batches
+        while excess > 0 {
+            let n = delete_oldest(&mut c, excess.min(PRUNE_BATCH_ROWS)).map_err(sq("prune"))?;
+            if n == 0 {
+                break;
+            }
+            over_size += n;
+            excess = excess.saturating_sub(n);
+        }
         Ok(Pruned { expired, over_size })
+    }
+
+    fn make_room(&self, force: bool) -> Result<u64, StoreError> {
+        let Some(max) = self.max_bytes else {
+            return Ok(0);
+        };
+        let high = (max as f64 * SIZE_HIGH_WATERMARK) as u64;
+        let low = (max as f64 * SIZE_LOW_WATERMARK) as u64;
+        let mut c = lock(&self.write);
+        let mut used = used_bytes(&c).map_err(sq("size bound"))?;
+        if used <= high && !force {
+            return Ok(0);
+        }
+        let mut deleted = 0;
+        // forced (a write was refused as full): at least one batch, even under the low mark
+        let mut first = force;
+        while used > low || first {
+            first = false;
+            let n = delete_oldest(&mut c, PRUNE_BATCH_ROWS).map_err(sq("size bound"))?;
+            if n == 0 {
+                break; // no history left: the rest is alert state and outbox, never pruned
+            }
+            deleted += n;
+            used = used_bytes(&c).map_err(sq("size bound"))?;
+        }
+        Ok(deleted)
     }
 }

@@ -197,39 +197,195 @@ fn a_newer_schema_is_refused() {
 }
 
 #[test]
-fn a_full_database_fails_the_write_and_the_writer_counts_it() {
+fn the_size_bound_prunes_the_oldest_history_and_no_write_fails() {
     let dir = tempfile::tempdir().expect("tempdir");
-    // 1 MiB: the bound is SQLite's max_page_count, the same error as a full disk
-    let store = Arc::new(SqliteStore::open(&dir.path().join("gw.db"), 1).expect("open"));
-    let writer =
-        StoreWriter::start(store.clone(), Duration::from_secs(86_400), 1_000_000).expect("writer");
+    let path = dir.path().join("gw.db");
+    // 1 MiB: SQLite's max_page_count, the same error as a full disk if it were reached
+    let store = Arc::new(SqliteStore::open(&path, 1).expect("open"));
+    let writer = StoreWriter::start(store.clone(), Duration::from_secs(u64::MAX / 4), 1_000_000)
+        .expect("writer");
+    // alert state and an undelivered notification, before the history fills the file
+    writer.submit(
+        WriteBatch {
+            alert_states: vec![("g0".into(), "{\"state\":\"firing\"}".into())],
+            outbox: vec![outbox_row("webhook a", "f1", "firing", false)],
+            ..Default::default()
+        },
+        None,
+    );
     let (tx, rx) = std::sync::mpsc::channel();
-    for i in 0..2000 {
+    const STEPS: u32 = 1500;
+    for i in 0..STEPS {
+        // 4 gates interleaved, about 1.3 kB a row: 6 000 rows are 8 MiB, 8 times the bound
         let tx = tx.clone();
-        let mut r = record("g", f64::from(i), 0.0);
-        r.equation = "x".repeat(2000);
+        let batch = WriteBatch {
+            identifications: (0..4)
+                .map(|g| {
+                    let mut r = record(&format!("g{g}"), f64::from(i), 0.01);
+                    r.equation = "x".repeat(1000);
+                    r
+                })
+                .collect(),
+            ..Default::default()
+        };
         writer.submit(
-            WriteBatch {
-                identifications: vec![r],
-                ..Default::default()
-            },
+            batch,
             Some(Box::new(move |res| {
                 let _ = tx.send(res.is_ok());
             })),
         );
+        if i % 20 == 19 {
+            // at most 20 requests merged into one transaction (80 rows, 100 kB): the margin
+            // between the high watermark and the bound (10 %, 100 kB of this 1 MiB) must hold
+            // one transaction; the daemon's bound is gigabytes, its transactions 256 requests
+            assert!(writer.flush(Duration::from_secs(60)), "flushed");
+        }
     }
-    assert!(writer.close(Duration::from_secs(30)), "flushed");
+    assert!(writer.close(Duration::from_secs(60)), "flushed");
     let results: Vec<bool> = rx.try_iter().collect();
-    assert_eq!(results.len(), 2000, "every callback ran");
+    assert_eq!(results.len(), STEPS as usize, "every callback ran");
+    assert!(results.iter().all(|ok| *ok), "no write failed");
     let stats = writer.stats();
-    let failed = stats
-        .write_failed
-        .load(std::sync::atomic::Ordering::Relaxed);
-    let lost_in_queue = stats.queue_full.load(std::sync::atomic::Ordering::Relaxed);
-    assert!(failed > 0, "the full database failed some writes");
+    let load = |c: &std::sync::atomic::AtomicU64| c.load(std::sync::atomic::Ordering::Relaxed);
+    assert_eq!(load(&stats.write_failed), 0);
+    assert_eq!(load(&stats.queue_full), 0);
+    let pruned = load(&stats.over_bytes_rows);
+    assert!(pruned > 4000, "the size bound pruned {pruned} rows");
+    store.checkpoint().expect("checkpoint");
+    let size = std::fs::metadata(&path).expect("file").len();
+    assert!(size <= 1024 * 1024, "file {size} bytes");
+    let q = |gate: &str| HistoryQuery {
+        gate: gate.into(),
+        from: None,
+        to: None,
+        limit: 10_000,
+    };
+    for g in 0..4 {
+        let rows = store.history(&q(&format!("g{g}"))).expect("history");
+        // the newest kept, the oldest gone, the same span for every gate (fair)
+        assert_eq!(
+            rows.last().map(|r| r.window_end),
+            Some(f64::from(STEPS - 1))
+        );
+        assert!(rows[0].window_end > 1000.0, "{}", rows[0].window_end);
+        assert!(rows
+            .windows(2)
+            .all(|w| w[1].window_end - w[0].window_end == 1.0));
+        let first = store.history(&q("g0")).expect("history")[0].window_end;
+        assert!(
+            (rows[0].window_end - first).abs() <= 1.0,
+            "fair across gates"
+        );
+    }
     assert_eq!(
-        results.iter().filter(|ok| !**ok).count() as u64,
-        failed + lost_in_queue
+        store.alert_states().expect("states"),
+        [("g0".to_string(), "{\"state\":\"firing\"}".to_string())]
     );
-    assert!(store.size_bytes().expect("size") <= 1024 * 1024);
+    assert_eq!(
+        store.outbox().expect("outbox").len(),
+        1,
+        "the outbox is never pruned"
+    );
+}
+
+#[test]
+fn a_file_of_schema_1_is_migrated_in_place_keeping_every_row() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("old.db");
+    // a real file in the old schema, written as version 1 wrote it (4 KiB pages, WAL)
+    let curve: Vec<serde_json::Value> = (0..17)
+        .map(|i| serde_json::json!([0.001 * f64::from(i), 0.0123456789 - 0.001 * f64::from(i)]))
+        .collect();
+    {
+        let mut c = rusqlite::Connection::open(&path).expect("raw open");
+        c.execute_batch("PRAGMA journal_mode = WAL").expect("wal");
+        super::schema::migrate_to(&mut c, 1).expect("schema 1");
+        for (i, gate) in ["b", "a", "b", "a", "b"].iter().enumerate() {
+            let mut r = record(gate, 100.0 + i as f64, [0.0, 0.01, 0.02, 0.03, 0.04][i]);
+            r.damping["zeta_eq_curve"] = serde_json::Value::Array(curve.clone());
+            c.execute(
+                "INSERT INTO identifications (gate, time, window_start, window_end, equation,
+                    coefficients, damping, verdict, fit_nmae, path)
+                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10)",
+                rusqlite::params![
+                    r.gate,
+                    r.time,
+                    r.window_start,
+                    r.window_end,
+                    r.equation,
+                    serde_json::to_string(&r.coefficients).expect("json"),
+                    r.damping.to_string(),
+                    r.verdict,
+                    r.fit_nmae,
+                    r.path
+                ],
+            )
+            .expect("insert v1");
+        }
+        c.execute(
+            "INSERT INTO alert_state (gate, state) VALUES ('a', 'firing')",
+            [],
+        )
+        .expect("state");
+        c.execute_batch("PRAGMA wal_checkpoint(TRUNCATE)")
+            .expect("checkpoint");
+    }
+    // version 1 is refused read-only (not migrated behind the daemon's back)
+    let e = SqliteStore::open_read_only(&path).expect_err("old schema");
+    assert!(e.to_string().contains("schema version 1"), "{e}");
+    let s = SqliteStore::open(&path, 64).expect("migrated");
+    let c = rusqlite::Connection::open(&path).expect("raw open");
+    let version: i64 = c
+        .query_row("PRAGMA user_version", [], |r| r.get(0))
+        .expect("version");
+    assert_eq!(version, SCHEMA_VERSION);
+    assert_eq!(SCHEMA_VERSION, 2);
+    let old: i64 = c
+        .query_row(
+            "SELECT count(*) FROM sqlite_master WHERE name = 'identifications'",
+            [],
+            |r| r.get(0),
+        )
+        .expect("tables");
+    assert_eq!(old, 0, "the old table is dropped");
+    let q = |gate: &str| HistoryQuery {
+        gate: gate.into(),
+        from: None,
+        to: None,
+        limit: 100,
+    };
+    let b = s.history(&q("b")).expect("history");
+    assert_eq!(
+        b.iter().map(|r| r.window_end).collect::<Vec<_>>(),
+        [100.0, 102.0, 104.0]
+    );
+    let a = s.history_rows(&q("a")).expect("rows");
+    assert_eq!(a.len(), 2);
+    // the summary columns are filled from the old reports
+    assert_eq!(a[1].zeta0, Some(0.03));
+    assert_eq!(a[1].zeta0_interval, Some((0.03 - 0.01, 0.03 + 0.01)));
+    assert_eq!(a[1].frequency_hz, Some(1.5));
+    assert!(a[1].trusted);
+    // the figures exact, the curve thinned
+    let r = s.history(&q("a")).expect("history").remove(1);
+    let mut expected = record("a", 103.0, 0.03);
+    expected.damping["zeta_eq_curve"] = r.damping["zeta_eq_curve"].clone();
+    assert_eq!(r, expected);
+    assert_eq!(r.damping["zeta_eq_curve"].as_array().map(Vec::len), Some(9));
+    assert_eq!(
+        s.alert_states().expect("states").len(),
+        1,
+        "alert state kept"
+    );
+    // the migrated file takes new rows after the old ones
+    s.write(&WriteBatch {
+        identifications: vec![record("a", 103.0, 0.5)],
+        ..Default::default()
+    })
+    .expect("write");
+    let a = s.history(&q("a")).expect("history");
+    assert_eq!(
+        a.iter().map(|r| r.zeta0()).collect::<Vec<_>>(),
+        [Some(0.01), Some(0.03), Some(0.5)]
+    );
 }

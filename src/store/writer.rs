@@ -2,8 +2,11 @@
 //!
 //! SQLite calls block (a commit waits for an fsync), so they never run on the async runtime nor
 //! under the daemon's state lock: callers hand a [`WriteBatch`] to this thread through a
-//! bounded queue ([`STORE_QUEUE_CAPACITY`]) and go on. The thread also prunes the history
-//! (retention and size bound) once at start and every [`PRUNE_INTERVAL`].
+//! bounded queue ([`STORE_QUEUE_CAPACITY`]) and go on. The thread also prunes the history:
+//! retention and `max_history_rows` once at start and every [`PRUNE_INTERVAL`]; the size bound
+//! (`max_size_mb`, [`Store::make_room`]) after every commit, so the bound prunes the oldest
+//! history instead of failing writes. A write refused as full all the same makes room and is
+//! retried once.
 //!
 //! A write that fails (disk full, I/O error) or does not fit in the queue is counted in
 //! [`StoreStats`] (exported as `gatewatch_store_write_errors_total`) and logged as an error
@@ -52,8 +55,10 @@ pub struct StoreStats {
     pub write_failed: AtomicU64,
     /// History rows deleted by the retention.
     pub expired_rows: AtomicU64,
-    /// History rows deleted by the size bound.
+    /// History rows deleted by `max_history_rows`.
     pub over_size_rows: AtomicU64,
+    /// History rows deleted by the size bound (`max_size_mb`).
+    pub over_bytes_rows: AtomicU64,
 }
 
 /// Handle to the writer thread. Cheap to clone.
@@ -100,6 +105,7 @@ impl StoreWriter {
                 loop {
                     if Instant::now() >= next_prune {
                         w.prune(store.as_ref(), retention, max_rows);
+                        w.make_room(store.as_ref(), false);
                         next_prune = Instant::now() + PRUNE_INTERVAL;
                     }
                     let first = match rx.recv_timeout(next_prune - Instant::now()) {
@@ -219,9 +225,17 @@ impl StoreWriter {
             merged.append(b);
             thens.push(then);
         }
-        match store.write(&merged) {
+        let mut result = store.write(&merged);
+        if result.as_ref().is_err_and(super::StoreError::is_full) {
+            // the size bound's margin did not suffice, or the disk is full: free the oldest
+            // history and try once more (alert state and outbox are never pruned)
+            self.make_room(store, true);
+            result = store.write(&merged);
+        }
+        match result {
             Ok(ids) => {
                 self.stats.commits.fetch_add(1, Ordering::Relaxed);
+                self.make_room(store, false);
                 let mut ids = ids.into_iter();
                 for (n, then) in splits.into_iter().zip(thens) {
                     let mine: Vec<i64> = ids.by_ref().take(n).collect();
@@ -263,6 +277,22 @@ impl StoreWriter {
                         "store: history pruned"
                     );
                 }
+            }
+            Err(e) => self.warn(&e.to_string()),
+        }
+    }
+
+    /// The size bound ([`Store::make_room`]): counted and logged when it deleted rows.
+    fn make_room(&self, store: &dyn Store, force: bool) {
+        match store.make_room(force) {
+            Ok(0) => {}
+            Ok(n) => {
+                self.stats.over_bytes_rows.fetch_add(n, Ordering::Relaxed);
+                tracing::info!(
+                    store = %self.location,
+                    rows = n,
+                    "store: oldest history pruned to stay under storage.max_size_mb"
+                );
             }
             Err(e) => self.warn(&e.to_string()),
         }
