@@ -127,6 +127,21 @@ impl<'f, 'a> Residuals<'f, 'a> {
 /// Gauss-Newton method converges in a handful of iterations (a few dozen integrations), where a
 /// simplex on the absolute error needs hundreds.
 pub(super) fn polish(fine: &Fitness<'_>, x0: &[f64], max_evaluations: usize) -> Polished {
+    polish_with(fine, x0, max_evaluations, false)
+}
+
+/// [`polish`] whose only limit is the budget (the crate's patience never binds first): the
+/// tracked refinement's, where the budget is small and the minimisation should use all of it.
+pub(super) fn polish_to_budget(fine: &Fitness<'_>, x0: &[f64], max_evaluations: usize) -> Polished {
+    polish_with(fine, x0, max_evaluations, true)
+}
+
+fn polish_with(
+    fine: &Fitness<'_>,
+    x0: &[f64],
+    max_evaluations: usize,
+    budget_only: bool,
+) -> Polished {
     use levenberg_marquardt::{LeastSquaresProblem, LevenbergMarquardt};
     use nalgebra::{storage::Owned, DMatrix, DVector, Dyn};
 
@@ -209,7 +224,12 @@ pub(super) fn polish(fine: &Fitness<'_>, x0: &[f64], max_evaluations: usize) -> 
     // floor of 4 let a 60-integration budget spend up to 4 * 6 * 7 = 168 with d = 5. The budget
     // itself is enforced by `Residuals` (a Jacobian is refused when a trial step could not
     // follow it, a residual request when nothing is left), so `max_evaluations` is a hard cap.
-    let patience = (max_evaluations / ((d + 1) * (d + 2))).max(1);
+    let patience = if budget_only {
+        // at most `max_evaluations` trial steps: never reached before the cap
+        max_evaluations.max(1)
+    } else {
+        (max_evaluations / ((d + 1) * (d + 2))).max(1)
+    };
     let (problem, report) = LevenbergMarquardt::new()
         .with_patience(patience)
         .with_ftol(1e-12)

@@ -10,7 +10,7 @@
 
 use super::config::{Protocol, Search};
 
-use super::polish::polish;
+use super::polish::polish_to_budget;
 use super::problem::{Initial, Problem};
 use super::split::initial_from_data;
 use super::{nmae, predict, summarize, Identification, IdentifyError, InitialValues, RunResult};
@@ -94,7 +94,7 @@ pub fn refine(
     };
     // The two training costs below are charged one integration each: the polish gets the rest,
     // so that the refinement never charges more than `max_evaluations`.
-    let polished = polish(&target, &x0, max_evaluations.saturating_sub(2).max(1));
+    let polished = polish_to_budget(&target, &x0, max_evaluations.saturating_sub(2).max(1));
     // The training costs at the start and the end come from the polish's residuals there when
     // it has them (the same numbers as `target.cost(x, inf)`, without integrating again); each
     // is charged one evaluation either way, so the count does not depend on it.
