@@ -25,6 +25,9 @@ pub(super) struct Polished {
 /// A point and its residuals (`None`: the integration did not complete).
 type Remembered = (Vec<f64>, Option<Vec<f64>>);
 
+/// A point, its residuals and their sum of squares.
+type Scored = (Vec<f64>, Vec<f64>, f64);
+
 /// The residuals of `fit` at a point, remembering the last point computed.
 ///
 /// Why: MINPACK's loop asks for the residuals at a point and, when the step is accepted, for the
@@ -39,7 +42,7 @@ struct Residuals<'f, 'a> {
     /// The point with the smallest sum of squares seen by [`Residuals::at`], its residuals and
     /// that sum: what the polish returns when the budget stops the minimisation mid-iteration
     /// (the crate's own point is then an untried trial step).
-    best: RefCell<Option<(Vec<f64>, Vec<f64>, f64)>>,
+    best: RefCell<Option<Scored>>,
     /// Integrations that may be charged in all (`spent` never exceeds it).
     budget: usize,
     /// Whether a request was refused because the budget was spent.
