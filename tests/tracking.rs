@@ -210,3 +210,30 @@ fn tracking_off_always_searches() {
     let ws = track(&a, &signal, 3);
     assert!(ws.iter().all(|w| w.a.path == Path::Full));
 }
+
+#[test]
+fn a_tracked_window_never_charges_more_than_the_refinement_budget() {
+    // Before the budget was a hard cap, the default 60 let tracked windows of this gate charge
+    // 105 to 141 integrations (docs/benchmarks.md, "Where a tracked window's CPU goes").
+    let mut sim = GateSimulator::scenario(GateParams::default(), Scenario::Stable, 7);
+    let windows = 8;
+    let signal = samples(&mut sim, WINDOW + (windows - 1) * HOP);
+    for budget in [TrackingPolicy::default().refine_evaluations, 12] {
+        let a = analyzer(TrackingPolicy {
+            refine_evaluations: budget,
+            ..TrackingPolicy::default()
+        });
+        let ws = track(&a, &signal, windows);
+        let s = summary(&ws);
+        let tracked: Vec<_> = ws.iter().filter(|w| w.a.path == Path::Tracked).collect();
+        assert!(!tracked.is_empty(), "budget {budget}: none tracked\n{s}");
+        for w in tracked {
+            assert!(
+                w.a.evaluations <= budget && w.a.evaluations >= 2,
+                "budget {budget}: {} charged at t0 = {}\n{s}",
+                w.a.evaluations,
+                w.t0
+            );
+        }
+    }
+}

@@ -149,7 +149,7 @@ impl Analyzer {
         let series = TimeSeries::new(t, input.values.to_vec())
             .map_err(|e| AnalysisError::Window(e.to_string()))?;
         let s = &self.settings;
-        let opts = SeriesOptions {
+        let mut opts = SeriesOptions {
             signal: s.signal,
             stiffness: s.stiffness,
             identify: identify::Config {
@@ -176,6 +176,10 @@ impl Analyzer {
             fft_bias,
             ..SeriesOptions::default()
         };
+        if let Start::Refine(..) = start {
+            // The tracked refinement's own tolerance (`tracking.refine_rtol`).
+            opts.identify.search.refine_rtol = self.tracking.refine_rtol;
+        }
         // Borrow a spectral analyzer (the lock is held only to pop and push, never during the
         // analysis; a poisoned pool just means planning afresh).
         let mut spectral = self.spectral_pool.lock().ok().and_then(|mut p| p.pop());

@@ -37,8 +37,12 @@ pub struct TrackingPolicy {
     /// The refined model's frequency at rest may differ from the window's measured dominant
     /// frequency by at most this fraction.
     pub frequency_tolerance: f64,
-    /// Integrations the refinement may spend (bounds a tracked window's cost).
+    /// Integrations the refinement may charge (`WindowAnalysis::evaluations` of a tracked
+    /// window never exceeds it): bounds a tracked window's cost.
     pub refine_evaluations: usize,
+    /// Relative tolerance of the refinement's Dormand-Prince integrations (the full search's
+    /// polish uses `identify::Search::refine_rtol`, 1e-8).
+    pub refine_rtol: f64,
 }
 
 impl Default for TrackingPolicy {
@@ -49,6 +53,7 @@ impl Default for TrackingPolicy {
             fit_tolerance: 1.5,
             frequency_tolerance: 0.05,
             refine_evaluations: 60,
+            refine_rtol: 1e-8,
         }
     }
 }
@@ -67,6 +72,9 @@ impl TrackingPolicy {
         }
         if self.refine_evaluations < 4 {
             return Err("refine_evaluations: must be >= 4".into());
+        }
+        if !(self.refine_rtol > 0.0 && self.refine_rtol < 1.0) {
+            return Err("refine_rtol: must be in (0, 1)".into());
         }
         Ok(())
     }
@@ -417,6 +425,13 @@ mod tests {
             ..TrackingPolicy::default()
         };
         assert!(bad.validate().unwrap_err().starts_with("fit_tolerance"));
+        for refine_rtol in [0.0, 1.0, f64::NAN] {
+            let bad = TrackingPolicy {
+                refine_rtol,
+                ..TrackingPolicy::default()
+            };
+            assert!(bad.validate().unwrap_err().starts_with("refine_rtol"));
+        }
         assert_eq!(TrackingPolicy::default().validate(), Ok(()));
     }
 }

@@ -25,6 +25,9 @@ pub(super) struct Polished {
 /// A point and its residuals (`None`: the integration did not complete).
 type Remembered = (Vec<f64>, Option<Vec<f64>>);
 
+/// A point, its residuals and their sum of squares.
+type Scored = (Vec<f64>, Vec<f64>, f64);
+
 /// The residuals of `fit` at a point, remembering the last point computed.
 ///
 /// Why: MINPACK's loop asks for the residuals at a point and, when the step is accepted, for the
@@ -36,29 +39,61 @@ struct Residuals<'f, 'a> {
     fit: &'f Fitness<'a>,
     /// The last point integrated and its residuals (`None` when it did not complete).
     last: RefCell<Option<Remembered>>,
+    /// The point with the smallest sum of squares seen by [`Residuals::at`], its residuals and
+    /// that sum: what the polish returns when the budget stops the minimisation mid-iteration
+    /// (the crate's own point is then an untried trial step).
+    best: RefCell<Option<Scored>>,
+    /// Integrations that may be charged in all (`spent` never exceeds it).
+    budget: usize,
+    /// Whether a request was refused because the budget was spent.
+    exhausted: Cell<bool>,
     spent: Cell<usize>,
     integrated: Cell<usize>,
 }
 
 impl<'f, 'a> Residuals<'f, 'a> {
-    fn new(fit: &'f Fitness<'a>) -> Self {
+    fn new(fit: &'f Fitness<'a>, budget: usize) -> Self {
         Residuals {
             fit,
             last: RefCell::new(None),
+            best: RefCell::new(None),
+            budget,
+            exhausted: Cell::new(false),
             spent: Cell::new(0),
             integrated: Cell::new(0),
         }
     }
 
+    /// Whether `n` more integrations may be charged; when not, the budget counts as exhausted
+    /// (the minimisation stops at its next request).
+    fn affords(&self, n: usize) -> bool {
+        let ok = self.spent.get() + n <= self.budget;
+        if !ok {
+            self.exhausted.set(true);
+        }
+        ok
+    }
+
     /// The residuals at `x` (charged one integration), from memory when `x` is bit for bit the
-    /// last point.
+    /// last point; `None` also when the budget is spent.
     fn at(&self, x: &[f64]) -> Option<Vec<f64>> {
+        if !self.affords(1) {
+            return None;
+        }
         self.spent.set(self.spent.get() + 1);
         if let Some(r) = self.remembered(x) {
             return r;
         }
         self.integrated.set(self.integrated.get() + 1);
         let r = self.fit.residuals(x);
+        if let Some(r) = &r {
+            let ssq: f64 = r.iter().map(|v| v * v).sum();
+            let mut best = self.best.borrow_mut();
+            // NaN never replaces a point (the comparison is false).
+            if best.as_ref().is_none_or(|b| ssq < b.2) {
+                *best = Some((x.to_vec(), r.clone(), ssq));
+            }
+        }
         *self.last.borrow_mut() = Some((x.to_vec(), r.clone()));
         r
     }
@@ -74,6 +109,9 @@ impl<'f, 'a> Residuals<'f, 'a> {
     /// A column of the forward-difference Jacobian: a point the minimisation never revisits, so
     /// it is integrated without replacing the memory.
     fn column(&self, x: &[f64]) -> Option<Vec<f64>> {
+        if !self.affords(1) {
+            return None;
+        }
         self.spent.set(self.spent.get() + 1);
         self.integrated.set(self.integrated.get() + 1);
         self.fit.residuals(x)
@@ -83,7 +121,8 @@ impl<'f, 'a> Residuals<'f, 'a> {
 /// Levenberg-Marquardt (MINPACK's algorithm, from the `levenberg-marquardt` crate) on the
 /// simulation residuals of the training samples, from the DE winner `x0`, with a
 /// forward-difference Jacobian. Returns the polished point (`None` when the residuals cannot be
-/// computed at `x0`), the integrations spent (at most about `max_evaluations`) and the residuals
+/// computed at `x0`), the integrations charged (never more than `max_evaluations`, at least 1)
+/// and the residuals
 /// at the start and the end, which give the training cost there without another integration
 /// ([`Fitness::cost_of_residuals`]).
 ///
@@ -91,6 +130,21 @@ impl<'f, 'a> Residuals<'f, 'a> {
 /// Gauss-Newton method converges in a handful of iterations (a few dozen integrations), where a
 /// simplex on the absolute error needs hundreds.
 pub(super) fn polish(fine: &Fitness<'_>, x0: &[f64], max_evaluations: usize) -> Polished {
+    polish_with(fine, x0, max_evaluations, false)
+}
+
+/// [`polish`] whose only limit is the budget (the crate's patience never binds first): the
+/// tracked refinement's, where the budget is small and the minimisation should use all of it.
+pub(super) fn polish_to_budget(fine: &Fitness<'_>, x0: &[f64], max_evaluations: usize) -> Polished {
+    polish_with(fine, x0, max_evaluations, true)
+}
+
+fn polish_with(
+    fine: &Fitness<'_>,
+    x0: &[f64],
+    max_evaluations: usize,
+    budget_only: bool,
+) -> Polished {
     use levenberg_marquardt::{LeastSquaresProblem, LevenbergMarquardt};
     use nalgebra::{storage::Owned, DMatrix, DVector, Dyn};
 
@@ -114,6 +168,11 @@ pub(super) fn polish(fine: &Fitness<'_>, x0: &[f64], max_evaluations: usize) -> 
         fn jacobian(&self) -> Option<DMatrix<f64>> {
             // The crate asks for the Jacobian right after the residuals at the same point: this
             // is answered from memory.
+            // A Jacobian is worth its d + 1 charged integrations only when a trial step can
+            // follow it: otherwise stop here, at the current (accepted) point.
+            if !self.res.affords(self.x.len() + 2) {
+                return None;
+            }
             let r0 = self.residuals()?;
             let mut jac = DMatrix::zeros(r0.len(), self.x.len());
             let mut xp = self.x.clone();
@@ -130,7 +189,7 @@ pub(super) fn polish(fine: &Fitness<'_>, x0: &[f64], max_evaluations: usize) -> 
     }
 
     let d = x0.len();
-    let res = Residuals::new(fine);
+    let res = Residuals::new(fine, max_evaluations.max(1));
     let problem = Problem {
         res: &res,
         x: DVector::from_column_slice(x0),
@@ -138,6 +197,19 @@ pub(super) fn polish(fine: &Fitness<'_>, x0: &[f64], max_evaluations: usize) -> 
     let start = problem.res.at(x0);
     let done = |x: Option<Vec<f64>>, start: Option<Vec<f64>>| {
         let end = x.as_deref().and_then(|x| res.remembered(x)).flatten();
+        // When the budget stopped it, the best point seen and its residuals (the crate may hold
+        // an untried or refused trial step).
+        if res.exhausted.get() {
+            if let Some((bx, br, _)) = res.best.borrow().clone() {
+                return Polished {
+                    x: Some(bx),
+                    spent: res.spent.get(),
+                    integrated: res.integrated.get(),
+                    start,
+                    end: Some(br),
+                };
+            }
+        }
         Polished {
             x,
             spent: res.spent.get(),
@@ -149,9 +221,18 @@ pub(super) fn polish(fine: &Fitness<'_>, x0: &[f64], max_evaluations: usize) -> 
     if start.is_none() {
         return done(None, None);
     }
-    // The crate bounds residual evaluations by patience * (d + 1); each also costs a Jacobian
-    // (d + 1 integrations here), hence the division.
-    let patience = (max_evaluations / ((d + 1) * (d + 2))).max(4);
+    // The patience from the real cost: the crate bounds residual evaluations (trial steps) by
+    // patience * (d + 1), and each accepted step also costs a Jacobian (d + 1 charged
+    // integrations here), hence the division. The floor is 1 (the crate's minimum): the former
+    // floor of 4 let a 60-integration budget spend up to 4 * 6 * 7 = 168 with d = 5. The budget
+    // itself is enforced by `Residuals` (a Jacobian is refused when a trial step could not
+    // follow it, a residual request when nothing is left), so `max_evaluations` is a hard cap.
+    let patience = if budget_only {
+        // at most `max_evaluations` trial steps: never reached before the cap
+        max_evaluations.max(1)
+    } else {
+        (max_evaluations / ((d + 1) * (d + 2))).max(1)
+    };
     let (problem, report) = LevenbergMarquardt::new()
         .with_patience(patience)
         .with_ftol(1e-12)
@@ -218,7 +299,7 @@ mod tests {
         if p.residuals().is_none() {
             return (None, p.evaluations.get());
         }
-        let patience = (max_evaluations / ((d + 1) * (d + 2))).max(4);
+        let patience = (max_evaluations / ((d + 1) * (d + 2))).max(1);
         let (p, report) = LevenbergMarquardt::new()
             .with_patience(patience)
             .with_ftol(1e-12)
@@ -272,6 +353,54 @@ mod tests {
             let start = got.start.clone().unwrap();
             let cost0 = fit.cost(&x0, f64::INFINITY, &mut fit.workspace());
             assert_eq!(fit.cost_of_residuals(&start).to_bits(), cost0.to_bits());
+        }
+    }
+
+    #[test]
+    fn the_budget_is_a_hard_cap_and_the_best_point_is_returned() {
+        let model = Model::parse("ydd + (c1 + c2*y^2)*yd + c3*y = 0", &[]).unwrap();
+        let t: Vec<f64> = (0..400).map(|i| i as f64 * 0.02).collect();
+        let y: Vec<f64> = t
+            .iter()
+            .map(|t| (-0.05 * t).exp() * (3.0 * t).cos() + 0.01 * (7.0 * t).sin())
+            .collect();
+        let series = TimeSeries::new(t, y).unwrap();
+        let problem = Problem::new(&model, &series)
+            .unwrap()
+            .with_initial(Initial::Known { y0: 1.0, v0: 0.0 })
+            .unwrap();
+        let is_train: Vec<bool> = (0..series.len()).map(|i| i % 2 == 0).collect();
+        let fit = Fitness::new(&problem, is_train, &Search::default())
+            .with_tolerance(crate::ode::Method::Dopri5, 1e-8);
+        let x0 = [0.0, 0.0, 10.0];
+        let cost = |x: &[f64]| fit.cost(x, f64::INFINITY, &mut fit.workspace());
+        // Unbounded, this start takes more than 30 integrations (42 measured), all of which the
+        // old patience floor of 4 allowed under a budget of 20 (up to 4 * 4 * 5 + 2 = 82 with
+        // d = 3).
+        let free = polish(&fit, &x0, 10_000);
+        assert!(free.spent > 30, "{}", free.spent);
+        let mut last = cost(&x0);
+        for budget in [1, 2, 5, 6, 7, 12, 20, 30, 45, 60] {
+            let got = polish(&fit, &x0, budget);
+            assert!(
+                got.spent <= budget,
+                "budget {budget}: {} charged",
+                got.spent
+            );
+            assert!(got.integrated <= got.spent);
+            let x = got.x.expect("a point");
+            // the best point seen, with its residuals: never worse than the start, and (with
+            // deterministic steps) no worse than with a smaller budget
+            let c = cost(&x);
+            assert!(
+                c <= cost(&x0) && c <= last * (1.0 + 1e-12),
+                "budget {budget}: {c} > {last}"
+            );
+            last = c;
+            // (known when the budget stopped it, or the last integration was at the point)
+            if let Some(end) = got.end {
+                assert_eq!(fit.cost_of_residuals(&end).to_bits(), c.to_bits());
+            }
         }
     }
 

@@ -10,7 +10,7 @@
 
 use super::config::{Protocol, Search};
 
-use super::polish::polish;
+use super::polish::polish_to_budget;
 use super::problem::{Initial, Problem};
 use super::split::initial_from_data;
 use super::{nmae, predict, summarize, Identification, IdentifyError, InitialValues, RunResult};
@@ -19,8 +19,10 @@ use crate::ode::Method;
 use std::time::Instant;
 
 /// Refines `start` (physical coefficients `c1..cN`, e.g. the previous window's) on `problem` by
-/// the Levenberg-Marquardt polish alone, with at most about `max_evaluations` integrations, on
-/// the same train/test split and with the same polish tolerance as [`super::run`]. Returns one
+/// the Levenberg-Marquardt polish alone, charging at most `max_evaluations` integrations (at
+/// least 2: the training cost at the start and at the end; `evaluations` of the run), on
+/// the same train/test split as [`super::run`], at the polish tolerance `search.refine_rtol`
+/// (the daemon's tracked path sets its own, `tracking.refine_rtol`). Returns one
 /// run (seed `protocol.seed`, no history); its training MAE is the DE's measure, so it compares
 /// with a full run's.
 ///
@@ -90,7 +92,9 @@ pub fn refine(
         Some((_, v_scale)) => fine.with_fitted_initial(&x0, v_scale),
         None => (fine.clone(), x0),
     };
-    let polished = polish(&target, &x0, max_evaluations);
+    // The two training costs below are charged one integration each: the polish gets the rest,
+    // so that the refinement never charges more than `max_evaluations`.
+    let polished = polish_to_budget(&target, &x0, max_evaluations.saturating_sub(2).max(1));
     // The training costs at the start and the end come from the polish's residuals there when
     // it has them (the same numbers as `target.cost(x, inf)`, without integrating again); each
     // is charged one evaluation either way, so the count does not depend on it.
