@@ -5,8 +5,9 @@
 //! (t - t_last)` by iteratively reweighted least squares:
 //!
 //! - each window weighs `1 / var`, its variance read off its interval (`half width / 1.96`), so a
-//!   confident window counts more than a vague one; a window without an interval is no evidence
-//!   and is not kept at all;
+//!   confident window counts more than a vague one, but never more than four times the horizon's
+//!   median window (an interval far narrower than its peers' is more likely wrong than right); a window
+//!   without an interval is no evidence and is not kept at all;
 //! - Huber weights on the standardised residuals (`k = 1.345`, 95 % efficiency under normal
 //!   errors) make a window that is wildly off (a bad fit that was still trusted) count as if it
 //!   were only `k` standard deviations off, so one outlier cannot fake a trend;
@@ -240,8 +241,18 @@ fn fit(
     if t_last <= t_first {
         return None;
     }
-    // Each window's prior precision from its interval.
-    let sd = |p: &TrendPoint| ((p.high - p.low) / (2.0 * Z95_TWO_SIDED)).max(MIN_SD);
+    // Each window's prior precision from its interval, never above four times that of the
+    // horizon's (lower) median window (sd floored at half the median sd). Why: a model-sourced
+    // window whose interval was ten times too narrow (-0.62 % (-0.71, -0.53) on a stable
+    // +0.5 % lock gate) took the weight of 7 ordinary windows even after Huber's down-weighting,
+    // at the line's end, and faked a confident decline (`bench warning`, 24 h of `stable-low`).
+    // The floor at the median itself cost the slow drift's warning 55 s on the lab gate; half
+    // of it costs nothing there (docs/benchmarks.md).
+    let raw_sd = |p: &TrendPoint| ((p.high - p.low) / (2.0 * Z95_TWO_SIDED)).max(MIN_SD);
+    let mut sds: Vec<f64> = points.clone().map(|p| raw_sd(&p)).collect();
+    sds.sort_by(f64::total_cmp);
+    let median_sd = sds[(sds.len() - 1) / 2]; // the lower median
+    let sd = |p: &TrendPoint| raw_sd(p).max(0.5 * median_sd);
     let mut level = 0.0;
     let mut slope = 0.0;
     let mut sw = 0.0;

@@ -104,6 +104,25 @@ fn one_wild_window_does_not_make_a_trend() {
 }
 
 #[test]
+fn one_overconfident_window_does_not_make_a_trend() {
+    // a steady +0.5 % lock gate (windows +- 1 point) and, at the newest end, one model window
+    // reading -0.62 % (-0.71, -0.53): ten times narrower than its peers and wrong (24 h of
+    // `bench warning --scenarios stable-low --gates lock`, where it fired GateDampingDeclining)
+    for seed in 0..20 {
+        let mut pts = series(seed, 120, 0.005, |_| 0.005);
+        let last = pts.len() - 1;
+        pts[last] = TrendPoint {
+            t: pts[last].t,
+            zeta0: -0.0062,
+            low: -0.0071,
+            high: -0.0053,
+        };
+        let e = fit_trend(&pts, 0.0).unwrap();
+        assert!(!e.crosses_within(600.0), "seed {seed}: {e:?}");
+    }
+}
+
+#[test]
 fn wide_windows_weigh_less() {
     // alternate sharp windows on a flat +1 % with vague windows saying -5 %: the sharp ones win
     let pts: Vec<_> = (0..40)
