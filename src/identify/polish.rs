@@ -309,16 +309,20 @@ mod tests {
         (ok.then(|| p.x.as_slice().to_vec()), p.evaluations.get())
     }
 
-    #[test]
-    fn remembered_residuals_give_the_plain_polish_bit_for_bit_with_fewer_integrations() {
-        let model = Model::parse("ydd + (c1 + c2*y^2)*yd + c3*y = 0", &[]).unwrap();
+    /// A decaying oscillation the test model cannot fit exactly: a few LM iterations.
+    fn decaying_series() -> TimeSeries {
         let t: Vec<f64> = (0..400).map(|i| i as f64 * 0.02).collect();
-        // a decaying oscillation the model cannot fit exactly: a few LM iterations
         let y: Vec<f64> = t
             .iter()
             .map(|t| (-0.05 * t).exp() * (3.0 * t).cos() + 0.01 * (7.0 * t).sin())
             .collect();
-        let series = TimeSeries::new(t, y).unwrap();
+        TimeSeries::new(t, y).unwrap()
+    }
+
+    #[test]
+    fn remembered_residuals_give_the_plain_polish_bit_for_bit_with_fewer_integrations() {
+        let model = Model::parse("ydd + (c1 + c2*y^2)*yd + c3*y = 0", &[]).unwrap();
+        let series = decaying_series();
         let problem = Problem::new(&model, &series)
             .unwrap()
             .with_initial(Initial::Known { y0: 1.0, v0: 0.0 })
@@ -359,12 +363,7 @@ mod tests {
     #[test]
     fn the_budget_is_a_hard_cap_and_the_best_point_is_returned() {
         let model = Model::parse("ydd + (c1 + c2*y^2)*yd + c3*y = 0", &[]).unwrap();
-        let t: Vec<f64> = (0..400).map(|i| i as f64 * 0.02).collect();
-        let y: Vec<f64> = t
-            .iter()
-            .map(|t| (-0.05 * t).exp() * (3.0 * t).cos() + 0.01 * (7.0 * t).sin())
-            .collect();
-        let series = TimeSeries::new(t, y).unwrap();
+        let series = decaying_series();
         let problem = Problem::new(&model, &series)
             .unwrap()
             .with_initial(Initial::Known { y0: 1.0, v0: 0.0 })
