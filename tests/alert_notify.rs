@@ -142,6 +142,7 @@ fn obs(z: f64) -> Observation<'static> {
         time_to_limit: Some(12.0),
         equation: "ydd + c1*yd + c2*y = 0",
         trend: None,
+        ambient_ratio: None,
     }
 }
 

@@ -11,6 +11,7 @@
 //!   analysis, force-mode scaling, initial population, identification, damping figures.
 //! - `verdict`: agreement with the spectrum and the verdict table of `docs/damping.md`.
 //! - `report`: the damping report and its parts.
+//! - `ambient_level`: the gate's ambient level; a limit-cycle window at it is noise-driven.
 //! - `tracking`: when a window may refine the previous window's model instead of searching.
 //! - `analyzer`: the daemon's per-gate [`Analyzer`].
 //! - `trend`: the robust weighted trend of `zeta0` over recent windows and its predicted
@@ -18,6 +19,7 @@
 //! - `early_warning`: the model-free critical-slowing-down indicators (rolling variance, lag-1
 //!   autocorrelation, Kendall tau), the baseline the trend is compared against.
 
+mod ambient_level;
 mod analyzer;
 mod early_warning;
 mod linearisation;
@@ -32,6 +34,9 @@ pub mod tracking;
 mod trend;
 mod verdict;
 
+pub use ambient_level::{
+    AmbientLevel, AMBIENT_LEVEL_MIN_WINDOWS, AMBIENT_LEVEL_WINDOWS, LIMIT_CYCLE_OVER_AMBIENT,
+};
 pub use analyzer::Analyzer;
 pub use early_warning::{kendall_tau, lag1_autocorrelation, rolling, variance, EwsIndicators};
 pub use linearisation::{equivalent_damping, limit_cycle, time_to_amplitude, Linearization};

@@ -134,6 +134,17 @@ pub struct DampingReport {
     /// (`None`: the window alone; `docs/damping.md`, "Pooling windows").
     #[serde(default)]
     pub zeta0_windows: Option<usize>,
+    /// Standard deviation of the window's signal about its mean, in the signal's unit (`None`
+    /// without a model-free analysis): what the gate's memory compares with its ambient level
+    /// before it believes a limit cycle (`docs/damping.md`, "A limit cycle stands above the
+    /// ambient level").
+    #[serde(default)]
+    pub signal_rms: Option<f64>,
+    /// `signal_rms` over the gate's ambient level (the median RMS of its last noise-driven
+    /// windows); `None` until the gate has one. A window far above it shows the gate has left
+    /// its ambient state, what one window needs before it may fire an alert at once.
+    #[serde(default)]
+    pub ambient_ratio: Option<f64>,
 }
 
 impl DampingReport {
@@ -173,6 +184,8 @@ impl DampingReport {
             verdict: Verdict::Unknown,
             regime: None,
             zeta0_windows: None,
+            signal_rms: None,
+            ambient_ratio: None,
         }
     }
 }

@@ -326,6 +326,7 @@ fn analyze(
         damping.growth_rate = Some(s.growth.sigma);
         damping.growth_rate_stderr = Some(s.growth.stderr);
         damping.ambient_zeta = s.ambient.as_ref().map(AmbientZeta::from);
+        damping.signal_rms = Some(identify::std_dev(&data.y)).filter(|r| r.is_finite());
     }
     damping.envelope_zeta = free.relaxation.as_ref().map(AmbientZeta::from);
     let runs_zeta = identification

@@ -25,7 +25,9 @@ use super::window::Window;
 use super::worker::{Job, JobOutcome, Submitted, WindowAnalyzer, WorkerPool};
 use crate::alert::notify::{spawn_notifier_with_ack, NotifierHandle};
 use crate::alert::{Alert, AlertEngine, AlertEvent, GateState, Observation};
-use crate::analysis::{AnalysisError, DampingTrend, TrendEstimate, WindowAnalysis, ZetaPools};
+use crate::analysis::{
+    AmbientLevel, AnalysisError, DampingTrend, TrendEstimate, WindowAnalysis, ZetaPools,
+};
 
 /// Relative disagreement of a declared or implied sample rate with `rate_hz` that is refused.
 pub const RATE_TOLERANCE: f64 = 0.01;
@@ -68,6 +70,8 @@ struct GateEntry {
     trend: DampingTrend,
     /// Its latest estimate, for the API.
     trend_estimate: Option<TrendEstimate>,
+    /// The gate's ambient level: a limit-cycle window at it is read as noise-driven.
+    level: AmbientLevel,
     /// The gate's pooled model-free estimates (`None`: pooling off).
     pools: Option<ZetaPools>,
     /// Wall-clock time of the last samples (or of creation): gate expiry is counted from it.
@@ -231,6 +235,7 @@ impl AppState {
                     trend: DampingTrend::new(cfg.alert.trend_horizon_seconds),
                     // validated with the configuration: an error cannot happen here, and would
                     // only mean no pooling
+                    level: AmbientLevel::default(),
                     pools: cfg.pooling.pools().ok().flatten(),
                     config: cfg,
                     latest: None,
@@ -460,6 +465,7 @@ impl AppState {
         e.analysed_until = Some(window.1);
         match outcome {
             JobOutcome::Done(mut a) => {
+                e.level.check(&mut a.damping);
                 if let Some(p) = e.pools.as_mut() {
                     p.apply(window.0, window.1, &mut a.damping);
                 }
@@ -504,6 +510,7 @@ impl AppState {
                         zeta0_interval: d.zeta0_interval,
                         trend,
                         trusted: d.trusted,
+                        ambient_ratio: d.ambient_ratio,
                         frequency_hz: d.frequency_hz,
                         limit_cycle_amplitude: d.limit_cycle_amplitude,
                         time_to_limit: d.time_to_limit,

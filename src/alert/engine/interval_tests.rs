@@ -144,7 +144,8 @@ fn probability_rule_fires_on_a_straddling_interval() {
 }
 
 /// With `fire_at_once_probability = 0.999` one window far below `fire_below` fires at once;
-/// one that is negative but not that far waits for `for_windows`; 1 (the default) disables it.
+/// one that is negative but not that far, or that stands at the gate's ambient level, waits for
+/// `for_windows`; 1 disables it.
 #[test]
 fn a_window_far_below_fires_at_once() {
     let rules = AlertRules {
@@ -152,8 +153,12 @@ fn a_window_far_below_fires_at_once() {
         ..AlertRules::default()
     };
     assert_eq!(rules.for_windows, 2);
-    // P(zeta0 < 0) = Phi(0.0043 / 0.00051) ~ 1: the fast onset's first confident window
-    let far = obs(-0.0043, -0.0053, -0.0033);
+    // P(zeta0 < 0) = Phi(0.0043 / 0.00051) ~ 1: the fast onset's first confident window,
+    // five times the gate's ambient level
+    let far = Observation {
+        ambient_ratio: Some(5.0),
+        ..obs(-0.0043, -0.0053, -0.0033)
+    };
     // P = Phi(0.004 / 0.00179) = 0.987: below zero (high < 0) but not 0.999
     let near = obs(-0.004, -0.0075, -0.0005);
     assert!(AlertRules::probability_below(-0.0075, -0.0005, 0.0) < 0.999);
@@ -178,16 +183,31 @@ fn a_window_far_below_fires_at_once() {
         matches!(&ev[..], [AlertEvent::Firing(a)] if a.starts_at == t(0)),
         "{ev:?}"
     );
+    // the same window at the gate's ambient level, or on a gate without a level yet, waits
+    // for for_windows: one window alone is not enough where a noise-driven one looks the same
+    for ambient_ratio in [None, Some(1.0), Some(AT_ONCE_MIN_AMBIENT_RATIO - 0.01)] {
+        let mut e = AlertEngine::new(rules.clone());
+        let o = Observation {
+            ambient_ratio,
+            ..far
+        };
+        assert!(e.observe("g", &o, t(0)).is_empty(), "{ambient_ratio:?}");
+        assert_eq!(e.state("g"), Some(GateState::Pending));
+        assert_eq!(e.observe("g", &o, t(5)).len(), 1);
+    }
     // disabled: even a zero-width interval far below waits for for_windows
     let mut e = AlertEngine::new(AlertRules {
         fire_at_once_probability: 1.0,
         ..rules
     });
-    assert!(e.observe("g", &obs(-0.02, -0.02, -0.02), t(0)).is_empty());
-    assert_eq!(e.observe("g", &obs(-0.02, -0.02, -0.02), t(5)).len(), 1);
-    // the default is off
-    let mut e = AlertEngine::new(AlertRules::default());
-    assert!(e.observe("g", &far, t(0)).is_empty());
+    let point = Observation {
+        ambient_ratio: Some(5.0),
+        ..obs(-0.02, -0.02, -0.02)
+    };
+    assert!(e.observe("g", &point, t(0)).is_empty());
+    assert_eq!(e.observe("g", &point, t(5)).len(), 1);
+    // the default is 0.999
+    assert_eq!(AlertRules::default().fire_at_once_probability, 0.999);
     // an untrusted window far below is no evidence
     let mut e = AlertEngine::new(AlertRules {
         fire_at_once_probability: 0.999,

@@ -15,6 +15,7 @@ fn win(z: f64) -> Observation<'static> {
         time_to_limit: Some(12.5),
         equation: "ydd + (-0.8 + 2*yd^2)*yd + 4270*y = 0",
         trend: None,
+        ambient_ratio: None,
     }
 }
 
@@ -392,6 +393,7 @@ fn firing_annotations_and_refresh() {
         trusted: true,
         zeta0_interval: Some((-0.03, -0.03)),
         trend: None,
+        ambient_ratio: None,
     };
     e.observe("g1", &obs, t(2));
     let f = &e.firing()[0];

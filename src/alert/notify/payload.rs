@@ -208,6 +208,7 @@ mod tests {
             time_to_limit: None,
             equation: "ydd + c1*yd + c2*y = 0",
             trend: None,
+            ambient_ratio: None,
         }
     }
 
