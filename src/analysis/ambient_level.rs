@@ -63,13 +63,7 @@ impl AmbientLevel {
             return None;
         }
         let mut v: Vec<f64> = self.recent.iter().copied().collect();
-        v.sort_by(f64::total_cmp);
-        let n = v.len();
-        Some(if n % 2 == 1 {
-            v[n / 2]
-        } else {
-            0.5 * (v[n / 2 - 1] + v[n / 2])
-        })
+        crate::identify::median(&mut v)
     }
 
     /// Checks a window's report after [`decide`], in window order: a limit-cycle window below

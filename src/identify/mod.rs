@@ -59,7 +59,7 @@ pub use problem::{Initial, Output};
 pub use refine::refine;
 pub use search::STALL_GENERATIONS_PER_UNKNOWN;
 pub use split::{initial_from_data, split};
-pub use stats::{nmae, std_dev, summarize};
+pub use stats::{median, nmae, std_dev, summarize};
 
 use search::{attempt, Attempt};
 use stats::noise_mae;

@@ -24,6 +24,21 @@ pub fn std_dev(y: &[f64]) -> f64 {
     (y.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n).sqrt()
 }
 
+/// Median of `v` (sorted in place, NaN last); `None` when empty. The crate's one median: the
+/// run summaries, a gate's ambient level and the benches' tables use it.
+pub fn median(v: &mut [f64]) -> Option<f64> {
+    if v.is_empty() {
+        return None;
+    }
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    Some(if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    })
+}
+
 pub(super) fn magnitude(y: &[f64]) -> f64 {
     let m = y.iter().fold(0.0f64, |m, v| m.max(v.abs()));
     if m > 0.0 {
@@ -43,12 +58,7 @@ pub fn summarize(values: impl Iterator<Item = f64>) -> Summary {
     } else {
         0.0
     };
-    v.sort_by(f64::total_cmp);
-    let median = if v.len() % 2 == 1 {
-        v[v.len() / 2]
-    } else {
-        0.5 * (v[v.len() / 2 - 1] + v[v.len() / 2])
-    };
+    let median = median(&mut v).unwrap_or(f64::NAN);
     Summary {
         mean,
         std,
@@ -70,4 +80,21 @@ pub(super) fn noise_mae(y: &[f64]) -> f64 {
         .map(|w| w[4] - 4.0 * w[3] + 6.0 * w[2] - 4.0 * w[1] + w[0])
         .collect();
     std_dev(&d4) / 70f64.sqrt() * (2.0 / std::f64::consts::PI).sqrt()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn median_of_odd_even_and_empty_sets_and_the_summary_uses_it() {
+        assert_eq!(median(&mut []), None);
+        assert_eq!(median(&mut [3.0]), Some(3.0));
+        assert_eq!(median(&mut [5.0, 1.0, 3.0]), Some(3.0));
+        assert_eq!(median(&mut [4.0, 1.0, 3.0, 2.0]), Some(2.5));
+        // NaN sorts last (total order), so one NaN of three leaves the middle finite
+        assert_eq!(median(&mut [f64::NAN, 1.0, 2.0]), Some(2.0));
+        let s = summarize([4.0, 1.0, 3.0, 2.0].into_iter());
+        assert_eq!((s.min, s.median, s.mean), (1.0, 2.5, 2.5));
+    }
 }

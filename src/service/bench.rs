@@ -341,16 +341,7 @@ fn latency(windows: usize) -> anyhow::Result<Vec<LatencyRow>> {
 }
 
 fn median(mut v: Vec<f64>) -> f64 {
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    v.sort_by(f64::total_cmp);
-    let m = v.len() / 2;
-    if v.len() % 2 == 1 {
-        v[m]
-    } else {
-        0.5 * (v[m - 1] + v[m])
-    }
+    crate::identify::median(&mut v).unwrap_or(f64::NAN)
 }
 
 /// What one gate count of the capacity measurement gave.

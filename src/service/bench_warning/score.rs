@@ -97,16 +97,7 @@ pub fn au_limit(zeta: f64, cycles: f64) -> Option<f64> {
 }
 
 fn median(mut v: Vec<f64>) -> Option<f64> {
-    if v.is_empty() {
-        return None;
-    }
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    Some(if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    })
+    crate::identify::median(&mut v)
 }
 
 /// One row per scenario, gate and regime, over every seed.
