@@ -15,7 +15,6 @@
 //! `ten_minute_webhook_outage_...` (ignored; `GATEWATCH_OUTAGE_MINUTES`, default 10) is the
 //! issue's 10 minutes: `cargo test --release --test store_outage -- --ignored --nocapture`.
 
-use std::net::TcpListener as StdListener;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
@@ -23,7 +22,9 @@ use std::time::{Duration, Instant};
 use gatewatch::service::client::{simulate_with_source, Protocol, Scenario, SimulateArgs};
 use gatewatch::simulate::{GateParams, GateSimulator, ZetaSchedule};
 use serde_json::Value;
-use tokio::sync::mpsc;
+
+mod store_common;
+use store_common::{free_port, outbox_rows, receiver};
 
 const BIN: &str = env!("CARGO_BIN_EXE_gatewatch");
 /// Longest wait for the daemon to answer, or for one window's identification.
@@ -35,13 +36,6 @@ const START: f64 = 1_700_000_000.0;
 const RATE: f64 = 200.0;
 const WINDOW: f64 = 10.0;
 const EVERY: f64 = 5.0;
-
-fn free_port() -> u16 {
-    StdListener::bind("127.0.0.1:0")
-        .and_then(|l| l.local_addr())
-        .map(|a| a.port())
-        .expect("free port")
-}
 
 struct Daemon {
     child: Child,
@@ -163,27 +157,12 @@ impl Daemon {
     }
 }
 
-/// `(alertname, status)` of the persisted outbox rows, oldest first (read-only, while the
-/// daemon runs: WAL).
+/// `(alertname, status)` of the persisted outbox rows, oldest first.
 fn outbox(db: &Path) -> Vec<(String, String)> {
-    let Ok(c) =
-        rusqlite::Connection::open_with_flags(db, rusqlite::OpenFlags::SQLITE_OPEN_READ_ONLY)
-    else {
-        return Vec::new();
-    };
-    let Ok(mut s) = c.prepare("SELECT status, payload FROM outbox ORDER BY id") else {
-        return Vec::new();
-    };
-    s.query_map([], |r| Ok((r.get::<_, String>(0)?, r.get::<_, String>(1)?)))
-        .map(|rows| {
-            rows.filter_map(Result::ok)
-                .map(|(status, payload)| {
-                    let v: Value = serde_json::from_str(&payload).unwrap_or(Value::Null);
-                    (v["name"].as_str().unwrap_or("").to_string(), status)
-                })
-                .collect()
-        })
-        .unwrap_or_default()
+    outbox_rows(db)
+        .into_iter()
+        .map(|(status, v)| (v["name"].as_str().unwrap_or("").to_string(), status))
+        .collect()
 }
 
 /// The statuses of `GateNegativeDamping` in the outbox (the trend warning,
@@ -194,32 +173,6 @@ fn negative_damping(db: &Path) -> Vec<String> {
         .filter(|(name, _)| name == "GateNegativeDamping")
         .map(|(_, status)| status)
         .collect()
-}
-
-/// The receiver on `port`: every payload with the time it arrived, through a bounded queue.
-async fn receiver(port: u16) -> mpsc::Receiver<(Instant, Value)> {
-    let (tx, rx) = mpsc::channel::<(Instant, Value)>(256);
-    let app = axum::Router::new()
-        .route(
-            "/hook",
-            axum::routing::post(
-                |axum::extract::State(tx): axum::extract::State<mpsc::Sender<(Instant, Value)>>,
-                 axum::Json(v): axum::Json<Value>| async move {
-                    match tx.try_send((Instant::now(), v)) {
-                        Ok(()) => axum::http::StatusCode::OK,
-                        Err(_) => axum::http::StatusCode::SERVICE_UNAVAILABLE,
-                    }
-                },
-            ),
-        )
-        .with_state(tx);
-    let l = tokio::net::TcpListener::bind(("127.0.0.1", port))
-        .await
-        .expect("bind the receiver");
-    tokio::spawn(async move {
-        let _ = axum::serve(l, app).await;
-    });
-    rx
 }
 
 /// Streams the onset and recovery in lockstep until the daemon has fired

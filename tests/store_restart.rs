@@ -7,23 +7,17 @@
 //! The alert is `GateDataStale` of a configured gate that never sends (stale after 1 s): a real
 //! firing alert without waiting for identifications. Every wait is bounded.
 
-use std::net::TcpListener as StdListener;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant, SystemTime};
 
 use serde_json::Value;
-use tokio::sync::mpsc;
+
+mod store_common;
+use store_common::{free_port, outbox_rows, receiver};
 
 const BIN: &str = env!("CARGO_BIN_EXE_gatewatch");
 const WAIT: Duration = Duration::from_secs(60);
-
-fn free_port() -> u16 {
-    StdListener::bind("127.0.0.1:0")
-        .and_then(|l| l.local_addr())
-        .map(|a| a.port())
-        .expect("free port")
-}
 
 fn write_config(dir: &Path, hook_port: u16) -> PathBuf {
     write_config_with(dir, hook_port, "")
@@ -60,53 +54,6 @@ fn serve(cfg: &Path) -> Child {
         .expect("spawn gatewatch serve")
 }
 
-/// `(status, startsAt)` of the persisted outbox rows (the daemon's file, read-only, while it
-/// runs: WAL).
-fn outbox(db: &Path) -> Vec<(String, String)> {
-    let Ok(c) =
-        rusqlite::Connection::open_with_flags(db, rusqlite::OpenFlags::SQLITE_OPEN_READ_ONLY)
-    else {
-        return Vec::new();
-    };
-    let Ok(mut s) = c.prepare("SELECT status, payload FROM outbox ORDER BY id") else {
-        return Vec::new();
-    };
-    s.query_map([], |r| Ok((r.get::<_, String>(0)?, r.get::<_, String>(1)?)))
-        .map(|rows| {
-            rows.filter_map(Result::ok)
-                .map(|(st, p)| {
-                    let v: Value = serde_json::from_str(&p).unwrap_or(Value::Null);
-                    (st, v["starts_at"].to_string())
-                })
-                .collect()
-        })
-        .unwrap_or_default()
-}
-
-/// A webhook receiver on `port`: every payload, through a bounded queue.
-async fn receiver(port: u16) -> mpsc::Receiver<Value> {
-    let (tx, rx) = mpsc::channel::<Value>(256);
-    let app = axum::Router::new()
-        .route(
-            "/hook",
-            axum::routing::post(
-                |axum::extract::State(tx): axum::extract::State<mpsc::Sender<Value>>,
-                 axum::Json(v): axum::Json<Value>| async move {
-                    let _ = tx.try_send(v);
-                    axum::http::StatusCode::OK
-                },
-            ),
-        )
-        .with_state(tx);
-    let l = tokio::net::TcpListener::bind(("127.0.0.1", port))
-        .await
-        .expect("bind the receiver");
-    tokio::spawn(async move {
-        let _ = axum::serve(l, app).await;
-    });
-    rx
-}
-
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn kill_9_while_firing_with_the_receiver_down_delivers_the_original_alert_after_restart() {
     let dir = tempfile::tempdir().expect("tempdir");
@@ -117,7 +64,7 @@ async fn kill_9_while_firing_with_the_receiver_down_delivers_the_original_alert_
     let mut first = serve(&cfg);
     let deadline = Instant::now() + WAIT;
     let persisted = loop {
-        let rows = outbox(&db);
+        let rows = outbox_rows(&db);
         if let Some(r) = rows.iter().find(|r| r.0 == "firing") {
             break r.clone();
         }
@@ -134,7 +81,7 @@ async fn kill_9_while_firing_with_the_receiver_down_delivers_the_original_alert_
     // the receiver comes up after the restart
     tokio::time::sleep(Duration::from_millis(500)).await;
     let mut rx = receiver(hook_port).await;
-    let payload = tokio::time::timeout(WAIT, rx.recv())
+    let (_, payload) = tokio::time::timeout(WAIT, rx.recv())
         .await
         .expect("a delivery after the restart")
         .expect("receiver open");
@@ -152,7 +99,7 @@ async fn kill_9_while_firing_with_the_receiver_down_delivers_the_original_alert_
         "the ORIGINAL startsAt ({starts_at}), not one from after the restart"
     );
     // the same instant as the persisted one (seconds + nanoseconds in the store)
-    let v: Value = serde_json::from_str(&persisted.1).expect("stored time");
+    let v = &persisted.1["starts_at"];
     let secs = v["secs_since_epoch"].as_u64().expect("secs");
     let stored = SystemTime::UNIX_EPOCH + Duration::from_secs(secs);
     let diff = starts
