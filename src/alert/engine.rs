@@ -240,12 +240,12 @@ pub fn rfc3339(t: SystemTime) -> String {
 }
 
 /// How far above its ambient level a window must stand before it alone may fire
-/// `GateNegativeDamping` (`fire_at_once_probability`): the ratio at which a steady window stops
-/// being read as noise-driven ([`crate::analysis::LIMIT_CYCLE_OVER_AMBIENT`]). Why: on a stable
+/// `GateNegativeDamping` (`fire_at_once_probability`): the ratio at which a window shows that the
+/// gate has left its ambient state ([`crate::analysis::DEPARTED_FROM_AMBIENT`]). Why: on a stable
 /// +0.5 % lock gate a free-vibration model read -0.6 to -2.5 % with intervals 0.2 to 0.7 points
 /// wide on about one window an hour at the ambient level (`docs/alerts.md`, "One window at
 /// once"); a gate that self-excites leaves its ambient level within the window that shows it.
-pub const AT_ONCE_MIN_AMBIENT_RATIO: f64 = crate::analysis::LIMIT_CYCLE_OVER_AMBIENT;
+pub const AT_ONCE_MIN_AMBIENT_RATIO: f64 = crate::analysis::DEPARTED_FROM_AMBIENT;
 
 /// How one window reads under a gate's rules.
 #[derive(Debug, Clone, Copy, PartialEq)]

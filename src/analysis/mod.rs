@@ -11,7 +11,7 @@
 //!   analysis, force-mode scaling, initial population, identification, damping figures.
 //! - `verdict`: agreement with the spectrum and the verdict table of `docs/damping.md`.
 //! - `report`: the damping report and its parts.
-//! - `ambient_level`: the gate's ambient level; a limit-cycle window at it is noise-driven.
+//! - `ambient_level`: the gate's ambient level and how far a window stands above it.
 //! - `tracking`: when a window may refine the previous window's model instead of searching.
 //! - `analyzer`: the daemon's per-gate [`Analyzer`].
 //! - `trend`: the robust weighted trend of `zeta0` over recent windows and its predicted
@@ -35,7 +35,7 @@ mod trend;
 mod verdict;
 
 pub use ambient_level::{
-    AmbientLevel, AMBIENT_LEVEL_MIN_WINDOWS, AMBIENT_LEVEL_WINDOWS, LIMIT_CYCLE_OVER_AMBIENT,
+    AmbientLevel, AMBIENT_LEVEL_MIN_WINDOWS, AMBIENT_LEVEL_WINDOWS, DEPARTED_FROM_AMBIENT,
 };
 pub use analyzer::Analyzer;
 pub use early_warning::{kendall_tau, lag1_autocorrelation, rolling, variance, EwsIndicators};

@@ -136,8 +136,7 @@ pub struct DampingReport {
     pub zeta0_windows: Option<usize>,
     /// Standard deviation of the window's signal about its mean, in the signal's unit (`None`
     /// without a model-free analysis): what the gate's memory compares with its ambient level
-    /// before it believes a limit cycle (`docs/damping.md`, "A limit cycle stands above the
-    /// ambient level").
+    /// (`docs/damping.md`, "The gate's ambient level").
     #[serde(default)]
     pub signal_rms: Option<f64>,
     /// `signal_rms` over the gate's ambient level (the median RMS of its last noise-driven

@@ -70,7 +70,7 @@ struct GateEntry {
     trend: DampingTrend,
     /// Its latest estimate, for the API.
     trend_estimate: Option<TrendEstimate>,
-    /// The gate's ambient level: a limit-cycle window at it is read as noise-driven.
+    /// The gate's ambient level (each report's `ambient_ratio`).
     level: AmbientLevel,
     /// The gate's pooled model-free estimates (`None`: pooling off).
     pools: Option<ZetaPools>,
@@ -465,7 +465,7 @@ impl AppState {
         e.analysed_until = Some(window.1);
         match outcome {
             JobOutcome::Done(mut a) => {
-                e.level.check(&mut a.damping);
+                e.level.observe(&mut a.damping);
                 if let Some(p) = e.pools.as_mut() {
                     p.apply(window.0, window.1, &mut a.damping);
                 }
