@@ -418,6 +418,36 @@ fn start_time(v: Scalar, field: &str) -> Result<f64, BadRequest> {
     }
 }
 
+/// The visits of everything but an array, shared by the array visitors ([`Numbers`],
+/// [`Pairs`]): each refuses naming the field and what it got (an object is read to its end
+/// first, so the error is the visitor's, not the parser's).
+macro_rules! refuse_all_but_arrays {
+    ($de:lifetime) => {
+        fn visit_map<A: MapAccess<$de>>(self, mut a: A) -> Result<Self::Value, A::Error> {
+            while a.next_entry::<IgnoredAny, IgnoredAny>()?.is_some() {}
+            Err(not_array(self.fault, self.field, "an object"))
+        }
+        fn visit_bool<E: de::Error>(self, _: bool) -> Result<Self::Value, E> {
+            Err(not_array(self.fault, self.field, "a boolean"))
+        }
+        fn visit_i64<E: de::Error>(self, _: i64) -> Result<Self::Value, E> {
+            Err(not_array(self.fault, self.field, "a number"))
+        }
+        fn visit_u64<E: de::Error>(self, _: u64) -> Result<Self::Value, E> {
+            Err(not_array(self.fault, self.field, "a number"))
+        }
+        fn visit_f64<E: de::Error>(self, _: f64) -> Result<Self::Value, E> {
+            Err(not_array(self.fault, self.field, "a number"))
+        }
+        fn visit_str<E: de::Error>(self, _: &str) -> Result<Self::Value, E> {
+            Err(not_array(self.fault, self.field, "a string"))
+        }
+        fn visit_unit<E: de::Error>(self) -> Result<Self::Value, E> {
+            Err(not_array(self.fault, self.field, "null"))
+        }
+    };
+}
+
 /// `values`: an array of numbers, read as `(index, value)`.
 struct Numbers<'a> {
     field: &'a str,
@@ -449,28 +479,7 @@ impl<'de> Visitor<'de> for Numbers<'_> {
         }
         Ok(out)
     }
-    fn visit_map<A: MapAccess<'de>>(self, mut a: A) -> Result<Self::Value, A::Error> {
-        while a.next_entry::<IgnoredAny, IgnoredAny>()?.is_some() {}
-        Err(not_array(self.fault, self.field, "an object"))
-    }
-    fn visit_bool<E: de::Error>(self, _: bool) -> Result<Self::Value, E> {
-        Err(not_array(self.fault, self.field, "a boolean"))
-    }
-    fn visit_i64<E: de::Error>(self, _: i64) -> Result<Self::Value, E> {
-        Err(not_array(self.fault, self.field, "a number"))
-    }
-    fn visit_u64<E: de::Error>(self, _: u64) -> Result<Self::Value, E> {
-        Err(not_array(self.fault, self.field, "a number"))
-    }
-    fn visit_f64<E: de::Error>(self, _: f64) -> Result<Self::Value, E> {
-        Err(not_array(self.fault, self.field, "a number"))
-    }
-    fn visit_str<E: de::Error>(self, _: &str) -> Result<Self::Value, E> {
-        Err(not_array(self.fault, self.field, "a string"))
-    }
-    fn visit_unit<E: de::Error>(self) -> Result<Self::Value, E> {
-        Err(not_array(self.fault, self.field, "null"))
-    }
+    refuse_all_but_arrays!('de);
 }
 
 fn not_array<E: de::Error>(fault: &mut Option<BadRequest>, field: &str, got: &str) -> E {
@@ -574,28 +583,7 @@ impl<'de> Visitor<'de> for Pairs<'_> {
         }
         Ok(out)
     }
-    fn visit_map<A: MapAccess<'de>>(self, mut a: A) -> Result<Self::Value, A::Error> {
-        while a.next_entry::<IgnoredAny, IgnoredAny>()?.is_some() {}
-        Err(not_array(self.fault, self.field, "an object"))
-    }
-    fn visit_bool<E: de::Error>(self, _: bool) -> Result<Self::Value, E> {
-        Err(not_array(self.fault, self.field, "a boolean"))
-    }
-    fn visit_i64<E: de::Error>(self, _: i64) -> Result<Self::Value, E> {
-        Err(not_array(self.fault, self.field, "a number"))
-    }
-    fn visit_u64<E: de::Error>(self, _: u64) -> Result<Self::Value, E> {
-        Err(not_array(self.fault, self.field, "a number"))
-    }
-    fn visit_f64<E: de::Error>(self, _: f64) -> Result<Self::Value, E> {
-        Err(not_array(self.fault, self.field, "a number"))
-    }
-    fn visit_str<E: de::Error>(self, _: &str) -> Result<Self::Value, E> {
-        Err(not_array(self.fault, self.field, "a string"))
-    }
-    fn visit_unit<E: de::Error>(self) -> Result<Self::Value, E> {
-        Err(not_array(self.fault, self.field, "null"))
-    }
+    refuse_all_but_arrays!('de);
 }
 
 #[cfg(test)]
