@@ -626,6 +626,32 @@ mod tests {
         assert_eq!(b[0].samples, vec![(10.0, 5.0), (10.5, 6.0)]);
     }
 
+    /// `values` and `samples` that are not arrays are refused naming the field and what came
+    /// instead, for each kind of JSON value (the shared visits of both array visitors), and a
+    /// later batch's field carries its index.
+    #[test]
+    fn a_field_that_is_not_an_array_is_refused_naming_what_it_is() {
+        for (value, got) in [
+            (r#"{"a":[1,2]}"#, "an object"),
+            ("true", "a boolean"),
+            ("-3", "a number"),
+            ("7", "a number"),
+            ("2.5", "a number"),
+            (r#""1,2,3""#, "a string"),
+            ("null", "null"),
+        ] {
+            for (field, rest) in [("values", r#""start":1,"rate_hz":4"#), ("samples", "")] {
+                let sep = if rest.is_empty() { "" } else { "," };
+                let body = format!(
+                    r#"[{{"gate":"g","samples":[[1,2]]}},{{"gate":"g"{sep}{rest},"{field}":{value}}}]"#
+                );
+                let e = parse(body.as_bytes()).expect_err(&body);
+                assert_eq!(e.field, Some(format!("[1].{field}")), "{body}");
+                assert_eq!(e.error, format!("expected an array, got {got}"), "{body}");
+            }
+        }
+    }
+
     #[test]
     fn uniform_times() {
         let b = parse(br#"{"gate":"g","start":10,"rate_hz":4,"values":[1,2,3]}"#).unwrap();
