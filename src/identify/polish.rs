@@ -450,7 +450,11 @@ mod tests {
             let end = got.end.expect("its residuals");
             assert_eq!(Some(end.clone()), fit.residuals(&x), "{x0:?}");
             let c = cost(&x);
-            assert!(c.is_finite() && c < cost(&x0), "{x0:?}: {c} vs {}", cost(&x0));
+            assert!(
+                c.is_finite() && c < cost(&x0),
+                "{x0:?}: {c} vs {}",
+                cost(&x0)
+            );
             assert_eq!(fit.cost_of_residuals(&end).to_bits(), c.to_bits());
         }
     }
