@@ -31,10 +31,16 @@ struct Window {
 /// Analyses `windows` half-overlapping windows of `signal` as the worker pool does (the memory
 /// carried from window to window, the seed from the window's index).
 fn track(analyzer: &Analyzer, signal: &[f64], windows: usize) -> Vec<Window> {
+    track_every(analyzer, signal, windows, 1)
+}
+
+/// [`track`] where only every `stride`-th window is analysed: a busy worker pool whose
+/// pending jobs were replaced `stride - 1` times in a row.
+fn track_every(analyzer: &Analyzer, signal: &[f64], windows: usize, stride: usize) -> Vec<Window> {
     let mut previous: Option<Previous> = None;
     let mut out = Vec::new();
     for w in 0..windows {
-        let start = w * HOP;
+        let start = w * stride * HOP;
         let values = &signal[start..start + WINDOW];
         let t0 = start as f64 / RATE;
         let a = analyzer
@@ -236,4 +242,53 @@ fn a_tracked_window_never_charges_more_than_the_refinement_budget() {
             );
         }
     }
+}
+
+#[test]
+fn replaced_jobs_still_track_and_a_shift_across_the_gap_falls_back_within_one_window() {
+    let a = analyzer(TrackingPolicy::default());
+    let before = GateParams::default();
+    let after = GateParams {
+        mass: before.mass / 1.44,
+        ..before.clone()
+    };
+    // Two jobs replaced between analysed windows: each window starts 15 s after the last, 5 s
+    // after its end (0.5 window lengths of gap, within the default max_gap_windows = 2; before
+    // the option every such window ran the full search).
+    let stride = 3;
+    let windows = 8;
+    let change = 5 * stride * HOP;
+    let mut sim_a = GateSimulator::scenario(before, Scenario::Stable, 3);
+    let mut sim_b = GateSimulator::scenario(after, Scenario::Stable, 4);
+    let mut signal = samples(&mut sim_a, change);
+    samples(&mut sim_b, 10 * WINDOW);
+    signal.extend(samples(
+        &mut sim_b,
+        WINDOW + (windows - 1) * stride * HOP - change,
+    ));
+    let ws = track_every(&a, &signal, windows, stride);
+    let s = summary(&ws);
+    let k = first_after(&ws, change as f64 / RATE);
+    assert_eq!(k, 5, "{s}");
+    assert!(
+        ws[1..k].iter().any(|w| w.a.path == Path::Tracked),
+        "the first regime tracks across the gaps\n{s}"
+    );
+    assert_eq!(ws[k].a.path, Path::Full, "window {k}\n{s}");
+    let (m0, m1) = (ws[0].a.warm_start[0], ws[k].a.warm_start[0]);
+    assert!(
+        (m0 / m1 / 1.44 - 1.0).abs() < 0.05,
+        "mass {m0} -> {m1}\n{s}"
+    );
+    // with no gap allowed, the same windows all search
+    let strict = analyzer(TrackingPolicy {
+        max_gap_windows: 0.0,
+        ..TrackingPolicy::default()
+    });
+    let ws = track_every(&strict, &signal, k, stride);
+    assert!(
+        ws.iter().all(|w| w.a.path == Path::Full),
+        "{}",
+        summary(&ws)
+    );
 }

@@ -3,8 +3,9 @@
 //!
 //! Two pure decisions, so that each branch is testable without numerics:
 //! - [`plan`], before the window is analysed: the full search runs when tracking is off, the
-//!   gate is new, the previous window's model was not trusted, the windows do not overlap (a
-//!   gap), or the schedule says so (every `full_every` windows);
+//!   gate is new, the previous window's model was not trusted, the new window starts more than
+//!   `max_gap_windows` window lengths after the previous one's end (a long gap), or the schedule
+//!   says so (every `full_every` windows);
 //! - [`accept`], after the refinement: the refined window stands only when it is still trusted,
 //!   gives the same verdict as the previous window, the model's frequency at rest is within a
 //!   tolerance of the measured dominant frequency, the model still agrees with the model-free
@@ -21,6 +22,11 @@ use serde::{Deserialize, Serialize};
 /// last full fit by this much. Value: half the chapter's success criterion (NMAE 0.01); without
 /// it a nearly perfect full fit (NMAE 1e-4 on clean data) would make any noise a "regime change".
 pub const FIT_SLACK: f64 = 0.005;
+
+/// Upper bound of [`TrackingPolicy::max_gap_windows`]: beyond a few windows the gate may have
+/// changed in ways the acceptance test was not designed to catch (it compares with the last
+/// window, not with the history).
+pub const MAX_GAP_WINDOWS: f64 = 10.0;
 
 /// How a gate's windows are tracked (`[defaults.tracking]` in the daemon's configuration).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -43,6 +49,12 @@ pub struct TrackingPolicy {
     /// Relative tolerance of the refinement's Dormand-Prince integrations (the full search's
     /// polish uses `identify::Search::refine_rtol`, 1e-8).
     pub refine_rtol: f64,
+    /// Longest gap the tracked path may bridge: the new window may start at most this many
+    /// window lengths (the previous window's duration) after the previous window's end. 0: the
+    /// windows must overlap. Why: a replaced job (a busy worker) or a short data gap does not
+    /// change the gate, and [`accept`] still guards the refined model; forcing the full search
+    /// there made a backlog feed itself (docs/design.md, "Tracking between windows").
+    pub max_gap_windows: f64,
 }
 
 impl Default for TrackingPolicy {
@@ -54,6 +66,7 @@ impl Default for TrackingPolicy {
             frequency_tolerance: 0.05,
             refine_evaluations: 60,
             refine_rtol: 1e-8,
+            max_gap_windows: 2.0,
         }
     }
 }
@@ -75,6 +88,13 @@ impl TrackingPolicy {
         }
         if !(self.refine_rtol > 0.0 && self.refine_rtol < 1.0) {
             return Err("refine_rtol: must be in (0, 1)".into());
+        }
+        if !(self.max_gap_windows.is_finite()
+            && (0.0..=MAX_GAP_WINDOWS).contains(&self.max_gap_windows))
+        {
+            return Err(format!(
+                "max_gap_windows: must be a number in [0, {MAX_GAP_WINDOWS}]"
+            ));
         }
         Ok(())
     }
@@ -152,7 +172,8 @@ pub enum FullReason {
     NewGate,
     /// The previous window's model was not trusted: nothing worth following.
     Untrusted,
-    /// The window does not overlap the previous one (data missing, jobs replaced, time reset).
+    /// The window starts before the previous one (time reset) or more than
+    /// `max_gap_windows` window lengths after its end (data missing, many jobs replaced).
     Gap,
     /// `full_every` windows since the last full search.
     Schedule,
@@ -203,8 +224,10 @@ pub fn plan<'a>(
     if !p.trusted {
         return Err(FullReason::Untrusted);
     }
-    // Overlap: the new window starts inside the previous one (after its start, before its end).
-    if t_start.is_nan() || t_start <= p.t_start || t_start > p.t_end {
+    // After the previous window's start, and no more than `max_gap_windows` window lengths
+    // after its end (0: inside it).
+    let reach = p.t_end + policy.max_gap_windows * (p.t_end - p.t_start).max(0.0);
+    if t_start.is_nan() || t_start <= p.t_start || t_start > reach {
         return Err(FullReason::Gap);
     }
     if p.since_full + 1 >= policy.full_every {
@@ -292,6 +315,23 @@ mod tests {
     }
 
     #[test]
+    fn plan_tracks_across_a_gap_of_up_to_max_gap_windows() {
+        let p = previous();
+        let policy = TrackingPolicy::default();
+        // the previous window is 9.995 s long and ends at 109.995: 5 jobs replaced at a 5 s
+        // cadence (the next window starts at 130) is 2.0 window lengths after its end
+        for t in [110.0, 115.0, 125.0, 129.9] {
+            assert_eq!(plan(&policy, Some(&p), t), Ok(&p), "{t}");
+        }
+        let one = TrackingPolicy {
+            max_gap_windows: 1.0,
+            ..TrackingPolicy::default()
+        };
+        assert_eq!(plan(&one, Some(&p), 119.9), Ok(&p));
+        assert_eq!(plan(&one, Some(&p), 120.1), Err(FullReason::Gap));
+    }
+
+    #[test]
     fn plan_runs_the_full_search_when_disabled_new_untrusted_gap_or_due() {
         let policy = TrackingPolicy::default();
         let off = TrackingPolicy {
@@ -309,9 +349,16 @@ mod tests {
             plan(&policy, Some(&untrusted), 105.0),
             Err(FullReason::Untrusted)
         );
-        // after the previous window's end, and before its start (time reset)
-        assert_eq!(plan(&policy, Some(&p), 110.5), Err(FullReason::Gap));
+        // more than max_gap_windows (2) window lengths after the previous window's end, and
+        // before its start (time reset)
+        assert_eq!(plan(&policy, Some(&p), 130.5), Err(FullReason::Gap));
         assert_eq!(plan(&policy, Some(&p), 90.0), Err(FullReason::Gap));
+        // with no gap allowed, just after the previous window's end
+        let overlap_only = TrackingPolicy {
+            max_gap_windows: 0.0,
+            ..TrackingPolicy::default()
+        };
+        assert_eq!(plan(&overlap_only, Some(&p), 110.5), Err(FullReason::Gap));
         let due = Previous {
             since_full: policy.full_every - 1,
             ..previous()
@@ -431,6 +478,13 @@ mod tests {
                 ..TrackingPolicy::default()
             };
             assert!(bad.validate().unwrap_err().starts_with("refine_rtol"));
+        }
+        for max_gap_windows in [-1.0, MAX_GAP_WINDOWS + 1.0, f64::NAN, f64::INFINITY] {
+            let bad = TrackingPolicy {
+                max_gap_windows,
+                ..TrackingPolicy::default()
+            };
+            assert!(bad.validate().unwrap_err().starts_with("max_gap_windows"));
         }
         assert_eq!(TrackingPolicy::default().validate(), Ok(()));
     }
