@@ -173,23 +173,29 @@ fn an_onset_falls_back_to_the_full_search_within_one_window() {
     assert_ne!(ws[k].a.damping.verdict, Verdict::Damped, "{s}");
 }
 
-#[test]
-fn a_frequency_shift_of_20_percent_falls_back_within_one_window() {
-    let a = analyzer(TrackingPolicy::default());
+/// `len` samples of the stable lab gate whose frequency rises by 20 % at sample `change` (the
+/// mass divided by 1.2^2; the installed stiffness is the model's k), the second gate settled
+/// into its stationary response first.
+fn frequency_shift(change: usize, len: usize) -> Vec<f64> {
     let before = GateParams::default();
-    // +20 % frequency: the mass divided by 1.2^2 (the installed stiffness is the model's k).
     let after = GateParams {
         mass: before.mass / 1.44,
         ..before.clone()
     };
     let mut sim_a = GateSimulator::scenario(before, Scenario::Stable, 3);
     let mut sim_b = GateSimulator::scenario(after, Scenario::Stable, 4);
+    let mut signal = samples(&mut sim_a, change);
+    samples(&mut sim_b, 10 * WINDOW);
+    signal.extend(samples(&mut sim_b, len - change));
+    signal
+}
+
+#[test]
+fn a_frequency_shift_of_20_percent_falls_back_within_one_window() {
+    let a = analyzer(TrackingPolicy::default());
     let windows = 12;
     let change = 8 * HOP;
-    let mut signal = samples(&mut sim_a, change);
-    // let the second gate settle into its stationary response first
-    samples(&mut sim_b, 10 * WINDOW);
-    signal.extend(samples(&mut sim_b, WINDOW + (windows - 1) * HOP - change));
+    let signal = frequency_shift(change, WINDOW + (windows - 1) * HOP);
     let ws = track(&a, &signal, windows);
     let s = summary(&ws);
     let k = first_after(&ws, change as f64 / RATE);
@@ -247,25 +253,13 @@ fn a_tracked_window_never_charges_more_than_the_refinement_budget() {
 #[test]
 fn replaced_jobs_still_track_and_a_shift_across_the_gap_falls_back_within_one_window() {
     let a = analyzer(TrackingPolicy::default());
-    let before = GateParams::default();
-    let after = GateParams {
-        mass: before.mass / 1.44,
-        ..before.clone()
-    };
     // Two jobs replaced between analysed windows: each window starts 15 s after the last, 5 s
     // after its end (0.5 window lengths of gap, within the default max_gap_windows = 2; before
     // the option every such window ran the full search).
     let stride = 3;
     let windows = 8;
     let change = 5 * stride * HOP;
-    let mut sim_a = GateSimulator::scenario(before, Scenario::Stable, 3);
-    let mut sim_b = GateSimulator::scenario(after, Scenario::Stable, 4);
-    let mut signal = samples(&mut sim_a, change);
-    samples(&mut sim_b, 10 * WINDOW);
-    signal.extend(samples(
-        &mut sim_b,
-        WINDOW + (windows - 1) * stride * HOP - change,
-    ));
+    let signal = frequency_shift(change, WINDOW + (windows - 1) * stride * HOP);
     let ws = track_every(&a, &signal, windows, stride);
     let s = summary(&ws);
     let k = first_after(&ws, change as f64 / RATE);
