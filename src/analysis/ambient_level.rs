@@ -15,21 +15,33 @@
 //! each report's `ambient_ratio`; the alert rule lets one window fire at once only at 3 times the
 //! level or more (`alert::AT_ONCE_MIN_AMBIENT_RATIO`).
 //!
-//! # Why the level does not reclassify windows
+//! # Why the level does not reclassify windows, but overrules the model below it
 //! Tried and measured (session 18): reading a limit-cycle window below 3 times the level as
 //! noise-driven removed the chance windows, but a limit cycle reached by a slow drift grows out
 //! of an ambient response that is itself large near zero damping (its RMS grows as
 //! `1 / sqrt(zeta)`): on the slow drift the cycle stood only 1.5 to 3 times above the level
 //! until `zeta0 = -1 %`, SSI read those windows as about zero, and the limit-cycle coverage fell
-//! from 90 to 73 % (lab gate) and from 93 to 60 % (lock gate). Amplitude alone separates the fast
-//! departure of an onset, not a slow one, so it gates the one-window shortcut and nothing else.
+//! from 90 to 73 % (lab gate) and from 93 to 60 % (lock gate). So a limit-cycle window keeps its
+//! regime and its envelope estimate whatever its level.
+//!
+//! The free-vibration model is another matter (session 19). It decides a window only when the
+//! envelope grows significantly or a limit-cycle window has no envelope estimate, and its
+//! interval counts the turbulent forcing as measurement error: the chance windows above were
+//! all such model windows, -0.6 to -2.5 % with intervals 0.1 to 0.9 points wide, while SSI on
+//! the same windows read about zero (e.g. -0.03 % (-0.73, +0.67) beside the model's
+//! -2.15 % (-2.58, -1.72)). Below 3 times the level the turbulence is at least a ninth of the
+//! window's power, so such a window is read by its ambient estimate instead
+//! ([`read_model_window_as_noise_driven`]): the gauge shows what SSI can tell, usually "about
+//! zero, cannot tell the sign", instead of a confident self-excitation. Above the level, where a
+//! real onset's first confident windows stand (3.9 to 8.2 times), the model keeps deciding.
 //!
 //! Only windows the ambient estimate decided (regime damped or undecided, trusted) feed the
 //! level, never a self-excited or limit-cycle one: the level is the gate's ambient state.
 
 use std::collections::VecDeque;
 
-use super::report::{DampingReport, Zeta0Source};
+use super::report::{DampingReport, Verdict, Zeta0Source};
+use super::verdict::ambient_decision;
 use crate::spectral::Regime;
 
 /// Noise-driven windows the level is the median of: one minute at the daemon's 5 s cadence,
@@ -76,6 +88,11 @@ impl AmbientLevel {
             return;
         };
         d.ambient_ratio = self.level().map(|level| rms / level);
+        match d.ambient_ratio {
+            Some(r) if r < DEPARTED_FROM_AMBIENT => read_model_window_as_noise_driven(d),
+            Some(_) => read_departed_window_by_the_model(d),
+            None => {}
+        }
         let noise_driven = matches!(d.regime, Some(Regime::Damped | Regime::Undecided))
             && d.trusted
             && d.zeta0_source == Some(Zeta0Source::Ambient);
@@ -86,6 +103,52 @@ impl AmbientLevel {
             self.recent.push_back(rms);
         }
     }
+}
+
+/// A window the free-vibration model decided (a growing or a limit-cycle window without an
+/// envelope estimate), on a gate that has not left its ambient level, takes its `zeta0` from
+/// its ambient (SSI-COV) estimate instead, when there is one; the verdict and `trusted` follow
+/// that estimate ([`ambient_decision`], row 2 of `analysis::decide`). Other windows are left
+/// as they are. See the module's "why": at the ambient level the turbulence is most of the
+/// response, which the model's interval counts as measurement error.
+fn read_model_window_as_noise_driven(d: &mut DampingReport) {
+    let (Some(Zeta0Source::Model), Some(a)) = (d.zeta0_source, d.ambient_zeta) else {
+        return;
+    };
+    let decision = ambient_decision(a, d.regime);
+    d.zeta0 = Some(a.zeta);
+    d.zeta0_interval = Some((a.low, a.high));
+    d.zeta0_source = Some(decision.source);
+    d.verdict = decision.verdict;
+    d.trusted = decision.trusted;
+}
+
+/// A window the ambient estimate decided, on a gate that has left its ambient level, where the
+/// trusted model reads `zeta0 < 0` (with an interval), takes its `zeta0` from the model:
+/// `SelfExcited`, trusted, as a growing window does (row 1 of `analysis::decide`). At 3 times
+/// the level the gate's own vibration is at least eight ninths of the window's power, so the
+/// free-vibration fit is at its best, while SSI-COV on such a fast-growing, non-stationary
+/// window is wide and, pooled with the ambient windows before it, lags (the lock gate's onset
+/// ramp: pooled +1.28 % (-0.17, +2.73) at a true -0.67 %, `docs/benchmarks.md`). A limit-cycle
+/// window keeps its envelope estimate.
+fn read_departed_window_by_the_model(d: &mut DampingReport) {
+    let (Some(Zeta0Source::Ambient), Some(m)) = (d.zeta0_source, d.model_zeta) else {
+        return;
+    };
+    if m.zeta >= 0.0 || d.regime == Some(Regime::LimitCycle) {
+        return;
+    }
+    d.zeta0 = Some(m.zeta);
+    d.zeta0_interval = Some((m.low, m.high));
+    d.zeta0_source = Some(Zeta0Source::Model);
+    d.verdict = Verdict::SelfExcited;
+    d.trusted = true;
+}
+
+/// Whether the window stands at least [`DEPARTED_FROM_AMBIENT`] times above the gate's ambient
+/// level (set by [`AmbientLevel::observe`]): the gate has left its ambient state.
+pub fn departed(d: &DampingReport) -> bool {
+    d.ambient_ratio.is_some_and(|r| r >= DEPARTED_FROM_AMBIENT)
 }
 
 #[cfg(test)]
@@ -163,9 +226,9 @@ mod tests {
         assert_eq!(level.level(), Some(2.0));
     }
 
-    /// The ratio is the window's RMS over the level before it, and the report is otherwise
-    /// unchanged: a limit-cycle window at the ambient level stays what the verdict made it
-    /// (the level only gates the alert's one-window shortcut; see the module's "why").
+    /// The ratio is the window's RMS over the level before it, and a window without an ambient
+    /// estimate is otherwise unchanged: a model-decided limit-cycle window at the ambient level
+    /// has nothing to be read by instead.
     #[test]
     fn the_ratio_is_set_and_nothing_else_changes() {
         let mut level = AmbientLevel::default();
@@ -184,5 +247,132 @@ mod tests {
         no_rms.signal_rms = None;
         level.observe(&mut no_rms);
         assert_eq!(no_rms.ambient_ratio, None);
+    }
+
+    /// A model-decided window below `DEPARTED_FROM_AMBIENT` times the level is read by its
+    /// ambient estimate (verdict by row 2: across zero `Unknown` trusted, above zero on an alarm
+    /// regime `Unknown` untrusted, below zero `SelfExcited`); at or above it, without a level,
+    /// or when the envelope decided, the window is unchanged.
+    #[test]
+    fn a_model_window_at_the_ambient_level_is_read_by_its_ambient_estimate() {
+        let primed = || {
+            let mut level = AmbientLevel::default();
+            for _ in 0..AMBIENT_LEVEL_MIN_WINDOWS {
+                level.observe(&mut ambient_window(5.0));
+            }
+            level
+        };
+        let ssi = |zeta: f64, low: f64, high: f64| AmbientZeta { zeta, low, high };
+        let with_ssi = |rms: f64, regime: Regime, a: AmbientZeta| DampingReport {
+            ambient_zeta: Some(a),
+            regime: Some(regime),
+            ..limit_cycle_window(rms)
+        };
+        let cases = [
+            // (ratio, regime, SSI, expected verdict, trusted)
+            (
+                1.5,
+                Regime::LimitCycle,
+                ssi(-0.0003, -0.0073, 0.0067),
+                Verdict::Unknown,
+                true,
+            ),
+            (
+                2.9,
+                Regime::SelfExcited,
+                ssi(0.004, 0.001, 0.007),
+                Verdict::Unknown,
+                false,
+            ),
+            (
+                1.2,
+                Regime::SelfExcited,
+                ssi(-0.01, -0.02, -0.002),
+                Verdict::SelfExcited,
+                true,
+            ),
+        ];
+        for (ratio, regime, a, verdict, trusted) in cases {
+            let mut d = with_ssi(ratio * 5.0, regime, a);
+            primed().observe(&mut d);
+            assert_eq!(d.zeta0, Some(a.zeta), "ratio {ratio}, {regime:?}");
+            assert_eq!(d.zeta0_interval, Some((a.low, a.high)));
+            assert_eq!(d.zeta0_source, Some(Zeta0Source::Ambient));
+            assert_eq!((d.verdict, d.trusted), (verdict, trusted), "ratio {ratio}");
+            assert_eq!(d.regime, Some(regime), "the regime is kept");
+        }
+        let unchanged = |mut d: DampingReport, level: &mut AmbientLevel| {
+            let before = d.clone();
+            level.observe(&mut d);
+            d.ambient_ratio = None;
+            assert_eq!(d, before);
+        };
+        let a = ssi(-0.0003, -0.0073, 0.0067);
+        unchanged(with_ssi(3.0 * 5.0, Regime::LimitCycle, a), &mut primed());
+        unchanged(
+            with_ssi(1.0, Regime::LimitCycle, a),
+            &mut AmbientLevel::default(),
+        );
+        let envelope = DampingReport {
+            zeta0_source: Some(Zeta0Source::Envelope),
+            ..with_ssi(5.0, Regime::LimitCycle, a)
+        };
+        unchanged(envelope, &mut primed());
+    }
+
+    /// An ambient-decided window 3 or more times above the level, where the trusted model reads
+    /// zeta0 < 0, takes the model's zeta0 and interval (self-excited, trusted); below the level,
+    /// with a non-negative or no model, or on a limit-cycle window it is unchanged.
+    #[test]
+    fn a_window_that_left_the_ambient_level_is_read_by_a_trusted_negative_model() {
+        let primed = || {
+            let mut level = AmbientLevel::default();
+            for _ in 0..AMBIENT_LEVEL_MIN_WINDOWS {
+                level.observe(&mut ambient_window(5.0));
+            }
+            level
+        };
+        let model = |zeta: f64| {
+            Some(AmbientZeta {
+                zeta,
+                low: zeta - 0.001,
+                high: zeta + 0.001,
+            })
+        };
+        let window = |rms: f64, m: Option<AmbientZeta>| DampingReport {
+            model_zeta: m,
+            ..ambient_window(rms)
+        };
+        let m = model(-0.0127).unwrap();
+        let mut d = window(3.0 * 5.0, Some(m));
+        primed().observe(&mut d);
+        assert_eq!(d.zeta0, Some(m.zeta));
+        assert_eq!(d.zeta0_interval, Some((m.low, m.high)));
+        assert_eq!(d.zeta0_source, Some(Zeta0Source::Model));
+        assert_eq!((d.verdict, d.trusted), (Verdict::SelfExcited, true));
+        assert_eq!(
+            level_after(primed(), &mut d.clone()),
+            4,
+            "it does not feed the level"
+        );
+        let unchanged = |mut d: DampingReport| {
+            let before = d.clone();
+            primed().observe(&mut d);
+            d.ambient_ratio = None;
+            assert_eq!(d, before);
+        };
+        unchanged(window(2.9 * 5.0, model(-0.0127)));
+        unchanged(window(4.0 * 5.0, model(0.004)));
+        unchanged(window(4.0 * 5.0, None));
+        unchanged(DampingReport {
+            regime: Some(Regime::LimitCycle),
+            ..window(4.0 * 5.0, model(-0.0127))
+        });
+    }
+
+    /// Windows feeding the level after `d` was observed.
+    fn level_after(mut level: AmbientLevel, d: &mut DampingReport) -> usize {
+        level.observe(d);
+        level.recent.len()
     }
 }

@@ -35,7 +35,7 @@ mod trend;
 mod verdict;
 
 pub use ambient_level::{
-    AmbientLevel, AMBIENT_LEVEL_MIN_WINDOWS, AMBIENT_LEVEL_WINDOWS, DEPARTED_FROM_AMBIENT,
+    departed, AmbientLevel, AMBIENT_LEVEL_MIN_WINDOWS, AMBIENT_LEVEL_WINDOWS, DEPARTED_FROM_AMBIENT,
 };
 pub use analyzer::Analyzer;
 pub use early_warning::{kendall_tau, lag1_autocorrelation, rolling, variance, EwsIndicators};
@@ -53,7 +53,7 @@ pub use trend::{
     fit_trend, DampingTrend, TrendError, TrendEstimate, TrendPoint, MAX_TREND_POINTS,
     MIN_TREND_POINTS,
 };
-pub use verdict::{decide, Decision, VerdictFacts};
+pub use verdict::{ambient_decision, decide, Decision, VerdictFacts};
 
 use serde::{Deserialize, Serialize};
 

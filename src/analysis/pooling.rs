@@ -12,11 +12,15 @@
 //! the pooled ones. It runs on the gate's memory, in window order, after [`super::decide`] chose
 //! the source; the verdict is then re-read from the pooled interval by the same rows.
 //!
-//! A model-based window, or an untrusted one, empties both pools: the regime changed (growth)
-//! or the estimate is no evidence, and a pool must never carry a stale regime into the next.
+//! A model-based window, an untrusted one, or an ambient one that left the gate's ambient level
+//! (`analysis::departed`) empties both pools: the regime changed (growth) or the estimate is no
+//! evidence, and a pool must never carry a stale regime into the next. (The last: on the lock
+//! gate's onset ramp the ambient pool of the +1 % windows read +1.28 % (-0.17, +2.73) at a true
+//! -0.67 % on a window 3.5 times above the level.)
 
 use serde::{Deserialize, Serialize};
 
+use super::ambient_level::departed;
 use super::report::{DampingReport, Verdict, Zeta0Source};
 use crate::spectral::{self, DampingPool, PoolOptions, Regime, WindowEstimate};
 
@@ -84,12 +88,16 @@ impl ZetaPools {
 
     /// Pools the report of the window `[t_start, t_end]` (sample time) into its source's pool
     /// and rewrites `zeta0`, its interval, `zeta0_windows`, the verdict and `trusted` from the
-    /// pooled estimate. Reports from the model, untrusted ambient ones and reports without a
-    /// frequency pass unchanged and empty the pools.
+    /// pooled estimate. Reports from the model, untrusted ambient ones, ambient ones from a
+    /// window that left the gate's ambient level ([`departed`]: another regime, which the
+    /// ambient windows before it must not average away) and reports without a frequency pass
+    /// unchanged and empty the pools.
     pub fn apply(&mut self, t_start: f64, t_end: f64, d: &mut DampingReport) {
         let source = d.zeta0_source;
         let pooled = match (source, d.zeta0, d.zeta0_interval, d.frequency_hz) {
-            (Some(Zeta0Source::Ambient), Some(z), Some(iv), Some(f)) if d.trusted => {
+            (Some(Zeta0Source::Ambient), Some(z), Some(iv), Some(f))
+                if d.trusted && !departed(d) =>
+            {
                 self.envelope.clear();
                 push(&mut self.ambient, t_start, t_end, z, iv, f)
             }
@@ -264,6 +272,28 @@ mod tests {
         let mut d = ambient(0.02, 0.03);
         pools.apply(25.0, 35.0, &mut d);
         assert_eq!(d.zeta0_windows, Some(1), "the pools were emptied");
+    }
+
+    /// An ambient window that left the gate's ambient level (ratio 3 or more) is reported alone
+    /// and empties the pool: the windows before it belong to another regime.
+    #[test]
+    fn a_window_that_left_the_ambient_level_is_not_pooled() {
+        let mut pools = ZetaPools::new(PoolOptions::default()).unwrap();
+        for k in 0..4 {
+            let t0 = 5.0 * k as f64;
+            let mut d = ambient(0.01, 0.01);
+            d.ambient_ratio = Some(1.5);
+            pools.apply(t0, t0 + 10.0, &mut d);
+        }
+        let mut departed = ambient(0.005, 0.04);
+        departed.ambient_ratio = Some(3.5);
+        let before = departed.clone();
+        pools.apply(20.0, 30.0, &mut departed);
+        assert_eq!(departed, before, "the departed window passes unchanged");
+        let mut next = ambient(0.01, 0.01);
+        next.ambient_ratio = Some(2.9);
+        pools.apply(25.0, 35.0, &mut next);
+        assert_eq!(next.zeta0_windows, Some(1), "the pools were emptied");
     }
 
     /// The envelope estimates of a limit cycle pool too, and a negative pooled interval makes

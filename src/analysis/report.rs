@@ -110,6 +110,12 @@ pub struct DampingReport {
     /// interval (`[zeta, low, high]`; `docs/damping.md`, "The limit cycle").
     #[serde(default)]
     pub envelope_zeta: Option<AmbientZeta>,
+    /// The trusted model's `zeta0` with its 95 % interval (`[zeta, low, high]`), whatever the
+    /// window's source; `None` when the model is not trusted or its interval is undetermined.
+    /// What the gate's memory needs to let the model decide a window that left the ambient
+    /// level (`docs/damping.md`, "The gate's ambient level").
+    #[serde(default)]
+    pub model_zeta: Option<AmbientZeta>,
     /// The model's equivalent damping ratio over the amplitudes the window visited: points
     /// `(amplitude in the signal's unit, zeta_eq)`, amplitude increasing; empty without a model
     /// oscillator at rest.
@@ -174,6 +180,7 @@ impl DampingReport {
             growth_rate_stderr: None,
             ambient_zeta: None,
             envelope_zeta: None,
+            model_zeta: None,
             zeta_eq_curve: Vec::new(),
             model_frequency_hz: None,
             amplitude: None,

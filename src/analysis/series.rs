@@ -653,7 +653,8 @@ fn hull(a: Option<(f64, f64)>, b: Option<(f64, f64)>) -> Option<(f64, f64)> {
 }
 
 /// Fills in the verdict, `trusted` and `zeta0` with its interval and source from the report's
-/// fit, agreement and ambient estimate ([`decide`]).
+/// fit, agreement and ambient estimate ([`decide`]), and `model_zeta` when the model is trusted
+/// (its interval is computed at most once, and only when the model is trusted or decides).
 fn conclude(
     damping: &mut DampingReport,
     zeta0_model: Option<f64>,
@@ -661,7 +662,7 @@ fn conclude(
     regime: Option<crate::spectral::Regime>,
     max_fit_nmae: f64,
 ) {
-    let decision = decide(&VerdictFacts {
+    let facts = VerdictFacts {
         fit_nmae: damping.fit_nmae,
         max_fit_nmae,
         agrees: damping.agrees,
@@ -669,7 +670,19 @@ fn conclude(
         ambient: damping.ambient_zeta,
         envelope: damping.envelope_zeta,
         regime,
+    };
+    let decision = decide(&facts);
+    let model_trusted = facts.model_trusted();
+    let model = zeta0_model.map(|z| {
+        let interval = (model_trusted || decision.source == Zeta0Source::Model)
+            .then(model_interval)
+            .flatten();
+        (z, interval)
     });
+    damping.model_zeta = match model {
+        Some((zeta, Some((low, high)))) if model_trusted => Some(AmbientZeta { zeta, low, high }),
+        _ => None,
+    };
     let model_free = match decision.source {
         Zeta0Source::Ambient => damping.ambient_zeta,
         Zeta0Source::Envelope => damping.envelope_zeta,
@@ -677,7 +690,7 @@ fn conclude(
     };
     let (zeta0, interval) = match model_free {
         Some(a) => (Some(a.zeta), Some((a.low, a.high))),
-        None => (zeta0_model, zeta0_model.and_then(|_| model_interval())),
+        None => (zeta0_model, model.and_then(|m| m.1)),
     };
     damping.zeta0 = zeta0;
     damping.zeta0_interval = interval;

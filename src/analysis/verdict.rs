@@ -61,6 +61,14 @@ pub struct VerdictFacts {
     pub regime: Option<Regime>,
 }
 
+impl VerdictFacts {
+    /// Whether the model may be believed at all: it fits (`fit_nmae <= max_fit_nmae`) and
+    /// agrees with the model-free estimates.
+    pub fn model_trusted(&self) -> bool {
+        self.fit_nmae <= self.max_fit_nmae && self.agrees
+    }
+}
+
 /// What [`decide`] concludes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Decision {
@@ -116,27 +124,39 @@ pub fn decide(f: &VerdictFacts) -> Decision {
             decision(Verdict::Unknown, false, Zeta0Source::Envelope)
         };
     }
-    let model_trusted = f.fit_nmae <= f.max_fit_nmae && f.agrees;
+    let model_trusted = f.model_trusted();
     let model_negative = model_trusted && f.zeta0_model.is_some_and(|z| z < 0.0);
     if model_negative && f.regime == Some(Regime::SelfExcited) {
         return decision(Verdict::SelfExcited, true, Zeta0Source::Model);
     }
     match f.ambient {
-        Some(a) if f.regime != Some(Regime::LimitCycle) => {
-            return if a.high < 0.0 {
-                decision(Verdict::SelfExcited, true, Zeta0Source::Ambient)
-            } else if a.low > 0.0 {
-                decision(Verdict::Damped, true, Zeta0Source::Ambient).unknown_if(alarm)
-            } else {
-                decision(Verdict::Unknown, true, Zeta0Source::Ambient)
-            };
-        }
+        Some(a) if f.regime != Some(Regime::LimitCycle) => return ambient_decision(a, f.regime),
         _ => {}
     }
     match f.zeta0_model {
         Some(_) if model_negative => decision(Verdict::SelfExcited, true, Zeta0Source::Model),
         Some(_) if model_trusted && !alarm => decision(Verdict::Damped, true, Zeta0Source::Model),
         _ => decision(Verdict::Unknown, false, Zeta0Source::Model),
+    }
+}
+
+/// Row 2 of [`decide`]: what an ambient (SSI-COV) estimate concludes on its own, trusted:
+/// `SelfExcited` when its interval lies below zero, `Damped` above zero (untrusted `Unknown` on
+/// an alarm regime: a positive interval on a window that grows contradicts itself), `Unknown`
+/// across zero. Also used after the fact on a model window at the gate's ambient level
+/// (`AmbientLevel::observe`).
+pub fn ambient_decision(a: AmbientZeta, regime: Option<Regime>) -> Decision {
+    let decision = |verdict, trusted| Decision {
+        verdict,
+        trusted,
+        source: Zeta0Source::Ambient,
+    };
+    if a.high < 0.0 {
+        decision(Verdict::SelfExcited, true)
+    } else if a.low > 0.0 {
+        decision(Verdict::Damped, true).unknown_if(regime_alarms(regime))
+    } else {
+        decision(Verdict::Unknown, true)
     }
 }
 
