@@ -68,6 +68,16 @@ impl From<&crate::spectral::EnvelopeRelaxation> for AmbientZeta {
     }
 }
 
+impl From<&crate::spectral::EnvelopeDrift> for AmbientZeta {
+    fn from(e: &crate::spectral::EnvelopeDrift) -> Self {
+        AmbientZeta {
+            zeta: e.zeta0,
+            low: e.zeta0_interval.0,
+            high: e.zeta0_interval.1,
+        }
+    }
+}
+
 impl From<&crate::spectral::AmbientDamping> for AmbientZeta {
     fn from(a: &crate::spectral::AmbientDamping) -> Self {
         AmbientZeta {
@@ -106,7 +116,8 @@ pub struct DampingReport {
     pub growth_rate_stderr: Option<f64>,
     /// Model-free damping ratio of a noise-driven window (SSI-COV) before pooling and its 95 % interval.
     pub ambient_zeta: Option<AmbientZeta>,
-    /// `zeta0` of a limit-cycle window from the relaxation of its envelope, with its 95 %
+    /// `zeta0` of a limit-cycle window from the relaxation of its envelope, or from its drift
+    /// where the relaxation refused the window (not on a saturated cycle), with its 95 %
     /// interval (`[zeta, low, high]`; `docs/damping.md`, "The limit cycle").
     #[serde(default)]
     pub envelope_zeta: Option<AmbientZeta>,

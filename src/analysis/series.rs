@@ -328,7 +328,7 @@ fn analyze(
         damping.ambient_zeta = s.ambient.as_ref().map(AmbientZeta::from);
         damping.signal_rms = Some(identify::std_dev(&data.y)).filter(|r| r.is_finite());
     }
-    damping.envelope_zeta = free.relaxation.as_ref().map(AmbientZeta::from);
+    damping.envelope_zeta = free.relaxation;
     let runs_zeta = identification
         .runs
         .iter()
@@ -349,6 +349,7 @@ fn analyze(
     };
     conclude(
         &mut damping,
+        free.drift,
         lin.zeta0(),
         model_interval,
         free.spec.map(|s| s.regime),
@@ -393,7 +394,9 @@ struct ModelFree {
     /// Envelope growth rate when it is a clean exponential, 1/s.
     sigma_clean: Option<f64>,
     /// `zeta0` from the envelope's relaxation, on a limit-cycle window.
-    relaxation: Option<crate::spectral::EnvelopeRelaxation>,
+    relaxation: Option<AmbientZeta>,
+    /// `zeta0` from the envelope's drift, on a limit-cycle window the relaxation refused.
+    drift: Option<AmbientZeta>,
 }
 
 /// The model-free analysis (uniform sampling only), with the analyzer replaced when it does not
@@ -435,19 +438,25 @@ fn model_free(data: &TimeSeries, spectral: &mut Option<SpectralAnalyzer>) -> Mod
             .then_some(g.sigma)
     });
     // On a limit cycle the equivalent damping is zero; the envelope's relaxation still sees
-    // zeta0 (docs/damping.md, "The limit cycle"). The same pre-processing as the window's.
-    let relaxation = match (&spec, spectral.as_mut()) {
+    // zeta0 (docs/damping.md, "The limit cycle"), and where the window is not on a saturated
+    // cycle (the end of a growth, a shrinking cycle: the relaxation refuses it) the envelope's
+    // drift across the amplitudes it visits does. The same pre-processing as the window's.
+    let (relaxation, drift) = match (&spec, spectral.as_mut()) {
         (Some(s), Some(sa)) if s.regime == crate::spectral::Regime::LimitCycle => {
             let mut work = data.y.clone();
             crate::spectral::detrend_linear(&mut work);
-            sa.envelope_relaxation(
-                &work,
-                s.peak.frequency_hz,
-                &crate::spectral::RelaxationOptions::default(),
-            )
-            .ok()
+            let f = s.peak.frequency_hz;
+            let relax = crate::spectral::RelaxationOptions::default();
+            match sa.envelope_relaxation(&work, f, &relax) {
+                Ok(r) => (Some(AmbientZeta::from(&r)), None),
+                Err(_) => {
+                    let opts = crate::spectral::DriftOptions::default();
+                    let d = sa.envelope_drift(&work, f, relax.band, &opts).ok();
+                    (None, d.as_ref().map(AmbientZeta::from))
+                }
+            }
         }
-        _ => None,
+        _ => (None, None),
     };
     ModelFree {
         window_options,
@@ -455,6 +464,7 @@ fn model_free(data: &TimeSeries, spectral: &mut Option<SpectralAnalyzer>) -> Mod
         omega: peak_hz.map(|f| 2.0 * PI * f),
         sigma_clean,
         relaxation,
+        drift,
     }
 }
 
@@ -653,10 +663,11 @@ fn hull(a: Option<(f64, f64)>, b: Option<(f64, f64)>) -> Option<(f64, f64)> {
 }
 
 /// Fills in the verdict, `trusted` and `zeta0` with its interval and source from the report's
-/// fit, agreement and ambient estimate ([`decide`]), and `model_zeta` when the model is trusted
+/// fit, agreement, ambient and envelope estimates and the envelope's `drift` ([`decide`]), and `model_zeta` when the model is trusted
 /// (its interval is computed at most once, and only when the model is trusted or decides).
 fn conclude(
     damping: &mut DampingReport,
+    drift: Option<AmbientZeta>,
     zeta0_model: Option<f64>,
     model_interval: impl FnOnce() -> Option<(f64, f64)>,
     regime: Option<crate::spectral::Regime>,
@@ -669,9 +680,12 @@ fn conclude(
         zeta0_model,
         ambient: damping.ambient_zeta,
         envelope: damping.envelope_zeta,
+        envelope_drift: drift,
         regime,
     };
     let decision = decide(&facts);
+    // the report's envelope estimate is the relaxation's, or the drift's where it refused
+    damping.envelope_zeta = damping.envelope_zeta.or(drift);
     let model_trusted = facts.model_trusted();
     let model = zeta0_model.map(|z| {
         let interval = (model_trusted || decision.source == Zeta0Source::Model)

@@ -57,6 +57,9 @@ pub struct VerdictFacts {
     pub ambient: Option<AmbientZeta>,
     /// `zeta0` from the envelope's relaxation, on a limit-cycle window where it succeeded.
     pub envelope: Option<AmbientZeta>,
+    /// `zeta0` from the envelope's drift, on a limit-cycle window the relaxation refused (not
+    /// on a saturated cycle: the end of a growth, a shrinking cycle).
+    pub envelope_drift: Option<AmbientZeta>,
     /// The model-free regime of the window (`None` without uniform sampling).
     pub regime: Option<Regime>,
 }
@@ -93,6 +96,12 @@ fn regime_alarms(regime: Option<Regime>) -> bool {
 ///    On a limit cycle the equivalent damping is zero, so the model's and the ambient `zeta0`
 ///    read about zero whatever the truth (issue 8); the envelope's relaxation is what still sees
 ///    it.
+///    A limit-cycle regime without a relaxation estimate, where the model is not a trusted
+///    negative one, takes the envelope's drift the same way (row 0b). Where the model is
+///    trusted and negative it keeps deciding (row 3): on the end of an onset's growth it read
+///    the sign right, and the drift's honestly wide interval would have delayed
+///    `GateNegativeDamping` by 25 to 30 s (`docs/benchmarks.md`); where it is not, the model's
+///    narrow interval near zero was what missed the truth (recovery, a shrinking cycle).
 /// 1. the envelope grows significantly (`SelfExcited` regime) and the model is trusted (fits and
 ///    agrees) with `zeta0 < 0`: `SelfExcited`, from the model. A growing window is where a
 ///    free-vibration fit is at its best: the growth dominates the turbulent forcing.
@@ -128,6 +137,14 @@ pub fn decide(f: &VerdictFacts) -> Decision {
     let model_negative = model_trusted && f.zeta0_model.is_some_and(|z| z < 0.0);
     if model_negative && f.regime == Some(Regime::SelfExcited) {
         return decision(Verdict::SelfExcited, true, Zeta0Source::Model);
+    }
+    if let (Some(Regime::LimitCycle), Some(d), false) = (f.regime, f.envelope_drift, model_negative)
+    {
+        return if d.high < 0.0 {
+            decision(Verdict::SelfExcited, true, Zeta0Source::Envelope)
+        } else {
+            decision(Verdict::Unknown, false, Zeta0Source::Envelope)
+        };
     }
     match f.ambient {
         Some(a) if f.regime != Some(Regime::LimitCycle) => return ambient_decision(a, f.regime),
@@ -194,6 +211,7 @@ mod tests {
             zeta0_model: Some(0.01),
             ambient: Some(AMBIENT_DAMPED),
             envelope: None,
+            envelope_drift: None,
             regime: Some(Regime::Damped),
         }
     }
@@ -313,6 +331,51 @@ mod tests {
             ..facts()
         };
         assert_eq!(decide(&f).source, Zeta0Source::Ambient);
+    }
+
+    /// Row 0b: a limit-cycle window without a relaxation estimate takes the envelope's drift
+    /// (negative: self-excited; reaching zero: unknown, untrusted) unless the model is trusted
+    /// and negative; the drift is used only on a limit cycle.
+    #[test]
+    fn limit_cycle_without_relaxation_takes_the_drift_unless_the_model_is_trusted_negative() {
+        let negative = AmbientZeta {
+            zeta: -0.015,
+            low: -0.035,
+            high: -0.001,
+        };
+        let wide = AmbientZeta {
+            zeta: -0.005,
+            low: -0.03,
+            high: 0.02,
+        };
+        let lc = |zeta0_model, fit_nmae, drift| VerdictFacts {
+            zeta0_model,
+            fit_nmae,
+            envelope_drift: Some(drift),
+            regime: Some(Regime::LimitCycle),
+            ..facts()
+        };
+        for (model, fit) in [(Some(0.002), 0.05), (Some(-0.01), 0.6), (None, 0.05)] {
+            assert_eq!(
+                decide(&lc(model, fit, negative)),
+                decision(Verdict::SelfExcited, true, Zeta0Source::Envelope),
+                "model {model:?}, fit {fit}"
+            );
+            assert_eq!(
+                decide(&lc(model, fit, wide)),
+                decision(Verdict::Unknown, false, Zeta0Source::Envelope)
+            );
+        }
+        assert_eq!(
+            decide(&lc(Some(-0.01), 0.05, wide)),
+            decision(Verdict::SelfExcited, true, Zeta0Source::Model),
+            "a trusted negative model keeps deciding"
+        );
+        let damped = VerdictFacts {
+            envelope_drift: Some(negative),
+            ..facts()
+        };
+        assert_eq!(decide(&damped).source, Zeta0Source::Ambient);
     }
 
     /// Row 2: the ambient estimate's interval gives the verdict on a window that does not grow.

@@ -16,12 +16,15 @@
 //!   enough cycles, flushed on a regime change.
 //! - `relaxation`: [`envelope_relaxation`], `zeta0` of a limit cycle from the relaxation of the
 //!   envelope's perturbations (stochastic averaging).
+//! - `drift`: [`envelope_drift`], `zeta0` from the envelope's drift across the amplitudes a
+//!   window visits (stochastic averaging; the end of a growth, a shrinking cycle).
 //! - `classify`: [`classify`] and the options and result of
 //!   [`SpectralAnalyzer::analyze_window`], the building blocks put together.
 
 mod ambient;
 mod analyzer;
 mod classify;
+mod drift;
 mod pool;
 mod preprocess;
 mod relaxation;
@@ -34,6 +37,7 @@ pub use analyzer::{GrowthOptions, GrowthRate, Peak, SpectralAnalyzer};
 pub use classify::{
     classify, AmbientMethod, ClassifyOptions, Regime, WindowOptions, WindowSpectral,
 };
+pub use drift::{envelope_drift, DriftOptions, EnvelopeDrift};
 pub use pool::{DampingPool, PoolOptions, PooledEstimate, WindowEstimate};
 pub use preprocess::{damping_from_growth, detrend_linear, hann, hann_into, remove_moving_average};
 pub use relaxation::{envelope_relaxation, EnvelopeRelaxation, RelaxationOptions};
