@@ -317,7 +317,12 @@ fn batched_residuals_equal_scalar_on_every_seed_case() {
                             r.as_ref()
                                 .map(|r| r.iter().map(|v| v.to_bits()).collect::<Vec<_>>())
                         };
-                        assert_eq!(bits(got), bits(&want), "{} {output:?} {method} n {n} point {k}", case.id);
+                        assert_eq!(
+                            bits(got),
+                            bits(&want),
+                            "{} {output:?} {method} n {n} point {k}",
+                            case.id
+                        );
                         compared += 1;
                         failed += usize::from(want.is_none());
                     }
@@ -325,7 +330,10 @@ fn batched_residuals_equal_scalar_on_every_seed_case() {
             }
         }
     }
-    assert!(compared > 0 && failed > 0, "compared {compared}, failed {failed}");
+    assert!(
+        compared > 0 && failed > 0,
+        "compared {compared}, failed {failed}"
+    );
 }
 
 /// Everything a run reports, as bits.
