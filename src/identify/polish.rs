@@ -531,15 +531,16 @@ mod tests {
             let c = cost(&x);
             assert!(c < cost(&x0), "{x0:?}: {c} vs {}", cost(&x0));
             assert_eq!(fit.cost_of_residuals(&r).to_bits(), c.to_bits());
-            // and the minimisation went on past the failure: at least as good as the best point
-            // the crate had reached when it stopped there
+            // and the minimisation went on past the failure: a sum of squares (what it
+            // minimises) at least as small as the best the crate had reached when it stopped
+            let ssq = r.iter().map(|v| v * v).sum::<f64>();
             let before = polish_stopping_at_the_first_failure(&fit, &x0, 200);
-            assert!(c <= before * (1.0 + 1e-12), "{x0:?}: {c} vs {before}");
+            assert!(ssq <= before * (1.0 + 1e-9), "{x0:?}: {ssq} vs {before}");
         }
     }
 
-    /// The training cost of the best point seen by a polish that ends at its first failed
-    /// integration (the behaviour before the penalty, with the best point returned).
+    /// The smallest sum of squares seen by a polish that ends at its first failed integration
+    /// (the behaviour before the penalty, with the best point returned).
     fn polish_stopping_at_the_first_failure(fit: &Fitness<'_>, x0: &[f64], budget: usize) -> f64 {
         struct Stop<'f, 'a> {
             res: Residuals<'f, 'a>,
@@ -583,6 +584,6 @@ mod tests {
             .with_xtol(1e-12)
             .minimize(p);
         let best = p.res.best.borrow().clone().expect("the start integrates");
-        fit.cost(&best.0, f64::INFINITY, &mut fit.workspace())
+        best.2
     }
 }
