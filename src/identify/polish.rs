@@ -48,9 +48,6 @@ struct Residuals<'f, 'a> {
     budget: usize,
     /// Whether a request was refused because the budget was spent.
     exhausted: Cell<bool>,
-    /// The largest sum of squares of a completed integration (sets [`Residuals::trial`]'s
-    /// penalty).
-    ceiling: Cell<f64>,
     spent: Cell<usize>,
     integrated: Cell<usize>,
 }
@@ -63,7 +60,6 @@ impl<'f, 'a> Residuals<'f, 'a> {
             best: RefCell::new(None),
             budget,
             exhausted: Cell::new(false),
-            ceiling: Cell::new(0.0),
             spent: Cell::new(0),
             integrated: Cell::new(0),
         }
@@ -93,7 +89,6 @@ impl<'f, 'a> Residuals<'f, 'a> {
         let r = self.fit.residuals(x);
         if let Some(r) = &r {
             let ssq: f64 = r.iter().map(|v| v * v).sum();
-            self.ceiling.set(self.ceiling.get().max(ssq));
             let mut best = self.best.borrow_mut();
             // NaN never replaces a point (the comparison is false).
             if best.as_ref().is_none_or(|b| ssq < b.2) {
@@ -102,36 +97,6 @@ impl<'f, 'a> Residuals<'f, 'a> {
         }
         *self.last.borrow_mut() = Some((x.to_vec(), r.clone()));
         r
-    }
-
-    /// The residuals at a trial step of the minimisation: [`Residuals::at`], except that a
-    /// trial whose integration fails gets a finite penalty vector (every residual ten times the
-    /// root mean square of the best point's) instead of `None`.
-    ///
-    /// Why: the crate ends the minimisation on `None` with its parameters at the failed trial
-    /// step, so the polish used to return a point that cannot be integrated and its caller fell
-    /// back to the unpolished start; and ending there also gave up the minimisation at the first
-    /// step that left the region where the model integrates (a cubic damping driven negative, a
-    /// mass through zero). A penalty far above the current residuals makes the crate refuse the
-    /// step and shrink its trust region, as MINPACK does for any step that increases the sum of
-    /// squares, so the minimisation goes on from its accepted point. The penalty is never
-    /// remembered as the best point. `None` still comes when the budget is spent (the crate stops;
-    /// [`polish_with`] returns the best point) or when no point has integrated yet.
-    fn trial(&self, x: &[f64]) -> Option<Vec<f64>> {
-        if let Some(r) = self.at(x) {
-            return Some(r);
-        }
-        if self.exhausted.get() {
-            return None;
-        }
-        let m = self.best.borrow().as_ref()?.1.len();
-        // Ten times the largest norm seen, which is at least the crate's current point's (its
-        // start is among them and it only accepts decreases): the crate then sees no reduction
-        // at all (its test is `0.1 * new < current`) and refuses the step.
-        let level = 10.0 * (self.ceiling.get() / m.max(1) as f64).sqrt();
-        // A perfect fit (all residuals 0) still needs a penalty above it.
-        let level = if level > 0.0 { level } else { 1.0 };
-        level.is_finite().then(|| vec![level; m])
     }
 
     /// The remembered residuals when `x` is the last point (not charged).
@@ -143,26 +108,19 @@ impl<'f, 'a> Residuals<'f, 'a> {
     }
 
     /// The columns of the forward-difference Jacobian at the points `xs` (rows of the
-    /// dimension), integrated in lanes, each charged; like [`Residuals::column`].
+    /// dimension), integrated in lanes; a point the minimisation never revisits, so the memory is kept.
     fn columns(&self, xs: &[f64]) -> Vec<Option<Vec<f64>>> {
         let n = xs.len() / self.fit.dimension().max(1);
         if !self.affords(n) {
             return vec![None; n];
         }
-        self.spent.set(self.spent.get() + n);
+        let r = self.fit.residuals_batch(xs);
+        // Charged as one by one, which stops at the first failed column: the counts (and so the
+        // budget's effect) are the same bit for bit; all n were integrated.
+        let charged = r.iter().position(Option::is_none).map_or(n, |k| k + 1);
+        self.spent.set(self.spent.get() + charged);
         self.integrated.set(self.integrated.get() + n);
-        self.fit.residuals_batch(xs)
-    }
-
-    /// A column of the forward-difference Jacobian: a point the minimisation never revisits, so
-    /// it is integrated without replacing the memory.
-    fn column(&self, x: &[f64]) -> Option<Vec<f64>> {
-        if !self.affords(1) {
-            return None;
-        }
-        self.spent.set(self.spent.get() + 1);
-        self.integrated.set(self.integrated.get() + 1);
-        self.fit.residuals(x)
+        r
     }
 }
 
@@ -211,7 +169,7 @@ fn polish_with(
             self.x.clone()
         }
         fn residuals(&self) -> Option<DVector<f64>> {
-            self.res.trial(self.x.as_slice()).map(DVector::from_vec)
+            self.res.at(self.x.as_slice()).map(DVector::from_vec)
         }
         fn jacobian(&self) -> Option<DMatrix<f64>> {
             // The crate asks for the Jacobian right after the residuals at the same point: this
@@ -234,21 +192,11 @@ fn polish_with(
             }
             let forward = self.res.columns(&points);
             let mut jac = DMatrix::zeros(r0.len(), d);
-            let mut xp = self.x.clone();
             for (j, rp) in forward.into_iter().enumerate() {
-                let h = h(j);
-                let column = match rp {
-                    Some(rp) => (DVector::from_vec(rp) - &r0) / h,
-                    // The forward point failed (the accepted point integrates, so it sits at the
-                    // edge of the region that does): the backward difference, one integration
-                    // more, rather than ending the polish at this point.
-                    None => {
-                        xp[j] = self.x[j] - h;
-                        (&r0 - DVector::from_vec(self.res.column(xp.as_slice())?)) / h
-                    }
-                };
-                jac.set_column(j, &column);
-                xp[j] = self.x[j];
+                // A failed column ends the minimisation at the current point (its caller then
+                // judges that point).
+                let rp = DVector::from_vec(rp?);
+                jac.set_column(j, &((rp - &r0) / h(j)));
             }
             Some(jac)
         }
@@ -305,26 +253,8 @@ fn polish_with(
         .with_xtol(1e-12)
         .minimize(problem);
     let ok = !report.termination.was_usage_issue() && report.objective_function.is_finite();
-    // Never a point whose integration failed (the crate holds the last trial step when it ends on
-    // a refused request): the best point seen instead.
-    let x = ok
-        .then(|| problem.x.as_slice().to_vec())
-        .filter(|x| !matches!(res.remembered(x), Some(None)));
-    match x {
-        Some(x) => done(Some(x), start),
-        None if ok => {
-            let best = res.best.borrow().clone();
-            let (x, end) = best.map(|(x, r, _)| (x, r)).unzip();
-            Polished {
-                x,
-                spent: res.spent.get(),
-                integrated: res.integrated.get(),
-                start,
-                end,
-            }
-        }
-        None => done(None, start),
-    }
+    let x = ok.then(|| problem.x.as_slice().to_vec());
+    done(x, start)
 }
 
 #[cfg(test)]
@@ -500,90 +430,5 @@ mod tests {
             (got.x, got.spent, got.integrated, got.start),
             (None, 1, 1, None)
         );
-    }
-
-    #[test]
-    fn a_failed_integration_mid_polish_is_a_refused_step_not_the_answer() {
-        // A softening cubic escapes to infinity when c3 is too negative for c2: some trial steps
-        // from these starts land there and their integration fails.
-        let model = Model::parse("ydd + c1*yd + c2*y + c3*y^3 = 0", &[]).unwrap();
-        let series = decaying_series();
-        let problem = Problem::new(&model, &series)
-            .unwrap()
-            .with_initial(Initial::Known { y0: 1.0, v0: 0.0 })
-            .unwrap();
-        let is_train: Vec<bool> = (0..series.len()).map(|i| i % 2 == 0).collect();
-        let fit = Fitness::new(&problem, is_train, &Search::default())
-            .with_tolerance(crate::ode::Method::Dopri5, 1e-8);
-        let cost = |x: &[f64]| fit.cost(x, f64::INFINITY, &mut fit.workspace());
-        for x0 in [[0.1, 6.0, -2.0], [0.1, 9.0, -5.0], [0.1, 3.0, 0.0]] {
-            // the crate alone stops at the failed trial step (what the polish used to return)
-            let (crate_x, _) = plain(&fit, &x0, 200);
-            assert_eq!(fit.residuals(&crate_x.unwrap()), None, "{x0:?}");
-            let got = polish(&fit, &x0, 200);
-            assert!(got.spent <= 200, "{x0:?}: {}", got.spent);
-            let x = got.x.expect("a polished point");
-            // a point that integrates, better than the start, with its residuals when reported
-            let r = fit.residuals(&x).expect("the returned point integrates");
-            if let Some(end) = &got.end {
-                assert_eq!(end, &r, "{x0:?}");
-            }
-            let c = cost(&x);
-            assert!(c < cost(&x0), "{x0:?}: {c} vs {}", cost(&x0));
-            assert_eq!(fit.cost_of_residuals(&r).to_bits(), c.to_bits());
-            // and the minimisation went on past the failure: a sum of squares (what it
-            // minimises) at least as small as the best the crate had reached when it stopped
-            let ssq = r.iter().map(|v| v * v).sum::<f64>();
-            let before = polish_stopping_at_the_first_failure(&fit, &x0, 200);
-            assert!(ssq <= before * (1.0 + 1e-9), "{x0:?}: {ssq} vs {before}");
-        }
-    }
-
-    /// The smallest sum of squares seen by a polish that ends at its first failed integration
-    /// (the behaviour before the penalty, with the best point returned).
-    fn polish_stopping_at_the_first_failure(fit: &Fitness<'_>, x0: &[f64], budget: usize) -> f64 {
-        struct Stop<'f, 'a> {
-            res: Residuals<'f, 'a>,
-            x: DVector<f64>,
-        }
-        impl LeastSquaresProblem<f64, Dyn, Dyn> for Stop<'_, '_> {
-            type ResidualStorage = Owned<f64, Dyn>;
-            type JacobianStorage = Owned<f64, Dyn, Dyn>;
-            type ParameterStorage = Owned<f64, Dyn>;
-            fn set_params(&mut self, x: &DVector<f64>) {
-                self.x.copy_from(x);
-            }
-            fn params(&self) -> DVector<f64> {
-                self.x.clone()
-            }
-            fn residuals(&self) -> Option<DVector<f64>> {
-                self.res.at(self.x.as_slice()).map(DVector::from_vec)
-            }
-            fn jacobian(&self) -> Option<DMatrix<f64>> {
-                let r0 = DVector::from_vec(self.res.at(self.x.as_slice())?);
-                let mut jac = DMatrix::zeros(r0.len(), self.x.len());
-                let mut xp = self.x.clone();
-                for j in 0..self.x.len() {
-                    let h = 1e-6 * self.x[j].abs().max(1e-3);
-                    xp[j] = self.x[j] + h;
-                    let rp = DVector::from_vec(self.res.column(xp.as_slice())?);
-                    jac.set_column(j, &((rp - &r0) / h));
-                    xp[j] = self.x[j];
-                }
-                Some(jac)
-            }
-        }
-        let d = x0.len();
-        let p = Stop {
-            res: Residuals::new(fit, budget),
-            x: DVector::from_column_slice(x0),
-        };
-        let (p, _) = LevenbergMarquardt::new()
-            .with_patience((budget / ((d + 1) * (d + 2))).max(1))
-            .with_ftol(1e-12)
-            .with_xtol(1e-12)
-            .minimize(p);
-        let best = p.res.best.borrow().clone().expect("the start integrates");
-        best.2
     }
 }
