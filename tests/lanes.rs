@@ -279,6 +279,63 @@ fn batched_fitness_equals_scalar_on_every_seed_case() {
     );
 }
 
+/// The residual vectors of a batch (the polish's forward-difference Jacobian, integrated in
+/// lanes) equal the scalar ones bit for bit on every seed case, both outputs, both solvers, at
+/// the polish tolerance, with batches of 3 (4 lanes), 5 and 11 (8 lanes, padded) points, failing
+/// points among them.
+#[test]
+fn batched_residuals_equal_scalar_on_every_seed_case() {
+    let mut rng = ChaCha8Rng::seed_from_u64(5);
+    let (mut compared, mut failed) = (0, 0);
+    for case in cases::CASES.iter() {
+        let model = case.compiled().unwrap();
+        let data = case.generate().unwrap();
+        for output in [Output::Displacement, Output::Force] {
+            for method in [Method::Rk4, Method::Dopri5] {
+                let (problem, is_train, search) = fitness_for(case, &model, &data, output, method);
+                let f = Fitness::new(&problem, is_train, &search).with_tolerance(method, 1e-8);
+                let d = f.dimension();
+                for n in [3, 5, 11] {
+                    let mut xs = Vec::new();
+                    for b in 0..2 {
+                        for x in candidates::<8>(case, &mut rng, b) {
+                            if xs.len() == n * d {
+                                break;
+                            }
+                            xs.extend(x);
+                            if d > case.truth.len() {
+                                xs.extend([case.y0 * rng.random_range(0.9..1.1), case.v0]);
+                            }
+                        }
+                    }
+                    xs.truncate(n * d);
+                    let batch = f.residuals_batch(&xs);
+                    assert_eq!(batch.len(), xs.len() / d);
+                    for (k, got) in batch.iter().enumerate() {
+                        let want = f.residuals(&xs[k * d..(k + 1) * d]);
+                        let bits = |r: &Option<Vec<f64>>| {
+                            r.as_ref()
+                                .map(|r| r.iter().map(|v| v.to_bits()).collect::<Vec<_>>())
+                        };
+                        assert_eq!(
+                            bits(got),
+                            bits(&want),
+                            "{} {output:?} {method} n {n} point {k}",
+                            case.id
+                        );
+                        compared += 1;
+                        failed += usize::from(want.is_none());
+                    }
+                }
+            }
+        }
+    }
+    assert!(
+        compared > 0 && failed > 0,
+        "compared {compared}, failed {failed}"
+    );
+}
+
 /// Everything a run reports, as bits.
 fn fingerprint(r: &identify::Identification) -> String {
     let runs: Vec<_> = r

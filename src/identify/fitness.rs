@@ -204,6 +204,95 @@ impl<'a> Fitness<'a> {
         (o.is_complete() && out.iter().all(|v| v.is_finite())).then_some(out)
     }
 
+    /// [`Fitness::residuals`] of each point in `xs` (rows of [`Objective::dimension`] values),
+    /// the points integrated up to 8 at a time in lockstep by the lane integrators: the same
+    /// vectors bit for bit (each lane performs its scalar integration's operations in the same
+    /// order), in less time. The Levenberg-Marquardt polish's forward-difference Jacobian is such
+    /// a batch: `d` integrations of nearby points at the polish tolerance, most of a full
+    /// window's cost (docs/benchmarks.md, "Where a cold window's CPU goes").
+    pub fn residuals_batch(&self, xs: &[f64]) -> Vec<Option<Vec<f64>>> {
+        let d = self.dimension().max(1);
+        let rows = xs.len() / d;
+        let mut out = Vec::with_capacity(rows);
+        if rows < 2 || matches!(self.method, Method::Rosenbrock) {
+            out.extend(xs.chunks_exact(d).map(|x| self.residuals(x)));
+            return out;
+        }
+        for chunk in xs[..rows * d].chunks(LANES * d) {
+            if chunk.len() <= 4 * d {
+                self.residuals_lanes::<4>(chunk, &mut out);
+            } else {
+                self.residuals_lanes::<LANES>(chunk, &mut out);
+            }
+        }
+        out
+    }
+
+    /// [`Fitness::residuals`] of up to `L` points (rows of `xs`) in lockstep, appended to `out`.
+    fn residuals_lanes<const L: usize>(&self, xs: &[f64], out: &mut Vec<Option<Vec<f64>>>) {
+        let d = self.dimension();
+        let n = xs.len() / d;
+        let nc = self.model.n_coeffs();
+        let mut c = vec![[0.0; L]; nc];
+        let mut y0 = [[0.0; L]; 2];
+        let mut live = [false; L];
+        for l in 0..L {
+            // Padding lanes repeat the first point, so they compute on ordinary numbers.
+            let x = &xs[(if l < n { l } else { 0 }) * d..][..d];
+            live[l] = l < n;
+            for (k, ck) in c.iter_mut().enumerate() {
+                ck[l] = x[k] * self.scales[k];
+            }
+            (y0[0][l], y0[1][l]) = match self.initial {
+                Initial::Known { y0, v0 } => (y0, v0),
+                _ => (x[nc] * self.scales[nc], x[nc + 1] * self.scales[nc + 1]),
+            };
+        }
+        let mut res: Vec<Vec<f64>> = (0..n).map(|_| Vec::with_capacity(self.n_train)).collect();
+        let mut buf = vec![0.0; nc];
+        let c: &[[f64; L]] = &c;
+        let sys = BoundLanes {
+            model: self.model,
+            coeffs: c,
+        };
+        let times = &self.t[..self.horizon];
+        let outcomes = match self.method {
+            Method::Rk4 => lanes::rk4(&sys, &y0, live, times, &self.opts, |i, s, live| {
+                if !self.is_train[i] {
+                    return;
+                }
+                let v = match self.output {
+                    Output::Displacement => s[0],
+                    Output::Force => self.model.residual_lanes(&[times[i]; L], &s[0], &s[1], c),
+                };
+                for (l, r) in res.iter_mut().enumerate() {
+                    if live[l] {
+                        r.push(v[l] - self.y[i]);
+                    }
+                }
+            }),
+            _ => lanes::dopri5(&sys, &y0, live, times, &self.opts, |l, i, s| {
+                if !self.is_train[i] {
+                    return ControlFlow::Continue(());
+                }
+                let v = match self.output {
+                    Output::Displacement => s[0],
+                    Output::Force => {
+                        for (b, ck) in buf.iter_mut().zip(c) {
+                            *b = ck[l];
+                        }
+                        self.model.residual(times[i], s[0], s[1], &buf)
+                    }
+                };
+                res[l].push(v - self.y[i]);
+                ControlFlow::Continue(())
+            }),
+        };
+        for (r, o) in res.into_iter().zip(&outcomes) {
+            out.push((o.is_complete() && r.iter().all(|v| v.is_finite())).then_some(r));
+        }
+    }
+
     /// The training cost of a point from its [`Fitness::residuals`]: bit for bit
     /// `cost(x, f64::INFINITY, ..)` when `r` is `residuals(x)` (the same absolute errors summed
     /// in the same order over the same count), without integrating again.

@@ -1,6 +1,7 @@
 //! The Levenberg-Marquardt polish of a DE winner.
 
 use super::fitness::Fitness;
+use crate::de::Objective;
 use std::cell::{Cell, RefCell};
 
 /// What [`polish`] found.
@@ -106,15 +107,20 @@ impl<'f, 'a> Residuals<'f, 'a> {
         same.then(|| r.clone())
     }
 
-    /// A column of the forward-difference Jacobian: a point the minimisation never revisits, so
-    /// it is integrated without replacing the memory.
-    fn column(&self, x: &[f64]) -> Option<Vec<f64>> {
-        if !self.affords(1) {
-            return None;
+    /// The columns of the forward-difference Jacobian at the points `xs` (rows of the
+    /// dimension), integrated in lanes; a point the minimisation never revisits, so the memory is kept.
+    fn columns(&self, xs: &[f64]) -> Vec<Option<Vec<f64>>> {
+        let n = xs.len() / self.fit.dimension().max(1);
+        if !self.affords(n) {
+            return vec![None; n];
         }
-        self.spent.set(self.spent.get() + 1);
-        self.integrated.set(self.integrated.get() + 1);
-        self.fit.residuals(x)
+        let r = self.fit.residuals_batch(xs);
+        // Charged as one by one, which stops at the first failed column: the counts (and so the
+        // budget's effect) are the same bit for bit; all n were integrated.
+        let charged = r.iter().position(Option::is_none).map_or(n, |k| k + 1);
+        self.spent.set(self.spent.get() + charged);
+        self.integrated.set(self.integrated.get() + n);
+        r
     }
 }
 
@@ -173,16 +179,24 @@ fn polish_with(
             if !self.res.affords(self.x.len() + 2) {
                 return None;
             }
-            let r0 = self.residuals()?;
-            let mut jac = DMatrix::zeros(r0.len(), self.x.len());
-            let mut xp = self.x.clone();
-            for j in 0..self.x.len() {
-                // Large enough to stay above the solver's error, small enough for accuracy.
-                let h = 1e-6 * self.x[j].abs().max(1e-3);
-                xp[j] = self.x[j] + h;
-                let rp = self.res.column(xp.as_slice())?;
-                jac.set_column(j, &((DVector::from_vec(rp) - &r0) / h));
-                xp[j] = self.x[j];
+            let r0 = DVector::from_vec(self.res.at(self.x.as_slice())?);
+            let d = self.x.len();
+            // Large enough to stay above the solver's error, small enough for accuracy.
+            let h = |j: usize| 1e-6 * self.x[j].abs().max(1e-3);
+            // The d forward points, integrated together (`Fitness::residuals_batch`: the same
+            // residuals as one by one, bit for bit).
+            let mut points = Vec::with_capacity(d * d);
+            for j in 0..d {
+                points.extend_from_slice(self.x.as_slice());
+                points[j * d + j] = self.x[j] + h(j);
+            }
+            let forward = self.res.columns(&points);
+            let mut jac = DMatrix::zeros(r0.len(), d);
+            for (j, rp) in forward.into_iter().enumerate() {
+                // A failed column ends the minimisation at the current point (its caller then
+                // judges that point).
+                let rp = DVector::from_vec(rp?);
+                jac.set_column(j, &((rp - &r0) / h(j)));
             }
             Some(jac)
         }
