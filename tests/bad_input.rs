@@ -1283,6 +1283,13 @@ fn bad_configs() -> Vec<(&'static str, String, &'static str, Option<usize>)> {
             None,
         ),
         c(
+            // the error is at the end of the text, past its final newline: the last line is named
+            "TOML syntax: unclosed multi-line string at the end",
+            "[server]\nmax_gates = 3\n\"\"\"\n",
+            "line 3",
+            None,
+        ),
+        c(
             "TOML syntax: bare string",
             "[server]\nlisten = 127.0.0.1\n",
             "line 2",

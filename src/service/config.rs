@@ -369,7 +369,13 @@ fn toml_error(text: &str, e: toml::de::Error) -> ConfigError {
         return ConfigError::new(msg);
     };
     let start = span.start.min(text.len());
-    let line = text[..start].matches('\n').count() + 1;
+    // an error at the end of the text (an unclosed `"""`) points past its final newline and
+    // any blank lines: name the last line that has text, which is what a user can fix
+    let line = if start >= text.trim_end().len() {
+        text.trim_end().lines().count().max(1)
+    } else {
+        text[..start].matches('\n').count() + 1
+    };
     // the key a duplicate-key error points at, or the text of the line at fault
     let at = text.get(span.clone()).map(str::trim).unwrap_or("");
     if msg.starts_with("duplicate key") && !at.is_empty() && !at.contains('\n') {
