@@ -290,13 +290,6 @@ mod tests {
     /// or when the envelope decided, the window is unchanged.
     #[test]
     fn a_model_window_at_the_ambient_level_is_read_by_its_ambient_estimate() {
-        let primed = || {
-            let mut level = AmbientLevel::default();
-            for _ in 0..AMBIENT_LEVEL_MIN_WINDOWS {
-                level.observe(&mut ambient_window(5.0));
-            }
-            level
-        };
         let ssi = |zeta: f64, low: f64, high: f64| AmbientZeta { zeta, low, high };
         let with_ssi = |rms: f64, regime: Regime, a: AmbientZeta| DampingReport {
             ambient_zeta: Some(a),
@@ -329,7 +322,7 @@ mod tests {
         ];
         for (ratio, regime, a, verdict, trusted) in cases {
             let mut d = with_ssi(ratio * 5.0, regime, a);
-            primed().observe(&mut d);
+            primed_at_5().observe(&mut d);
             assert_eq!(d.zeta0, Some(a.zeta), "ratio {ratio}, {regime:?}");
             assert_eq!(d.zeta0_interval, Some((a.low, a.high)));
             assert_eq!(d.zeta0_source, Some(Zeta0Source::Ambient));
@@ -343,7 +336,10 @@ mod tests {
             assert_eq!(d, before);
         };
         let a = ssi(-0.0003, -0.0073, 0.0067);
-        unchanged(with_ssi(3.0 * 5.0, Regime::LimitCycle, a), &mut primed());
+        unchanged(
+            with_ssi(3.0 * 5.0, Regime::LimitCycle, a),
+            &mut primed_at_5(),
+        );
         unchanged(
             with_ssi(1.0, Regime::LimitCycle, a),
             &mut AmbientLevel::default(),
@@ -358,7 +354,7 @@ mod tests {
             verdict: Verdict::Unknown,
             ..with_ssi(5.0, Regime::LimitCycle, a)
         };
-        let mut level = primed();
+        let mut level = primed_at_5();
         let mut first = envelope();
         level.observe(&mut first);
         assert_eq!(first.zeta0, Some(a.zeta));
@@ -372,13 +368,6 @@ mod tests {
     /// with a non-negative or no model, or on a limit-cycle window it is unchanged.
     #[test]
     fn a_window_that_left_the_ambient_level_is_read_by_a_trusted_negative_model() {
-        let primed = || {
-            let mut level = AmbientLevel::default();
-            for _ in 0..AMBIENT_LEVEL_MIN_WINDOWS {
-                level.observe(&mut ambient_window(5.0));
-            }
-            level
-        };
         let model = |zeta: f64| {
             Some(AmbientZeta {
                 zeta,
@@ -392,19 +381,19 @@ mod tests {
         };
         let m = model(-0.0127).unwrap();
         let mut d = window(3.0 * 5.0, Some(m));
-        primed().observe(&mut d);
+        primed_at_5().observe(&mut d);
         assert_eq!(d.zeta0, Some(m.zeta));
         assert_eq!(d.zeta0_interval, Some((m.low, m.high)));
         assert_eq!(d.zeta0_source, Some(Zeta0Source::Model));
         assert_eq!((d.verdict, d.trusted), (Verdict::SelfExcited, true));
         assert_eq!(
-            level_after(primed(), &mut d.clone()),
+            level_after(primed_at_5(), &mut d.clone()),
             4,
             "it does not feed the level"
         );
         let unchanged = |mut d: DampingReport| {
             let before = d.clone();
-            primed().observe(&mut d);
+            primed_at_5().observe(&mut d);
             d.ambient_ratio = None;
             assert_eq!(d, before);
         };
@@ -436,10 +425,7 @@ mod tests {
             signal_rms: Some(60.0),
             ..DampingReport::unknown()
         };
-        let mut level = AmbientLevel::default();
-        for _ in 0..AMBIENT_LEVEL_MIN_WINDOWS {
-            level.observe(&mut ambient_window(5.0));
-        }
+        let mut level = primed_at_5();
         let mut first = envelope();
         level.observe(&mut first);
         assert_eq!(first.zeta0, Some(m.zeta));
@@ -455,6 +441,15 @@ mod tests {
         let mut third = envelope();
         level.observe(&mut third);
         assert_eq!(third.zeta0, Some(-0.0092), "after an envelope window");
+    }
+
+    /// A level of 5.0 from the fewest ambient windows that set one.
+    fn primed_at_5() -> AmbientLevel {
+        let mut level = AmbientLevel::default();
+        for _ in 0..AMBIENT_LEVEL_MIN_WINDOWS {
+            level.observe(&mut ambient_window(5.0));
+        }
+        level
     }
 
     /// Windows feeding the level after `d` was observed.
