@@ -228,16 +228,20 @@ impl<'a> Fitness<'a> {
         out
     }
 
-    /// [`Fitness::residuals`] of up to `L` points (rows of `xs`) in lockstep, appended to `out`.
-    fn residuals_lanes<const L: usize>(&self, xs: &[f64], out: &mut Vec<Option<Vec<f64>>>) {
+    /// Loads the first `n` points (rows of `xs`) into the lanes: their scaled coefficients into
+    /// `c`, and returns their initial states and which lanes are live. Padding lanes repeat the
+    /// first point, so they compute on ordinary numbers.
+    fn load_lanes<const L: usize>(
+        &self,
+        xs: &[f64],
+        n: usize,
+        c: &mut [[f64; L]],
+    ) -> ([[f64; L]; 2], [bool; L]) {
         let d = self.dimension();
-        let n = xs.len() / d;
         let nc = self.model.n_coeffs();
-        let mut c = vec![[0.0; L]; nc];
         let mut y0 = [[0.0; L]; 2];
         let mut live = [false; L];
         for l in 0..L {
-            // Padding lanes repeat the first point, so they compute on ordinary numbers.
             let x = &xs[(if l < n { l } else { 0 }) * d..][..d];
             live[l] = l < n;
             for (k, ck) in c.iter_mut().enumerate() {
@@ -248,6 +252,16 @@ impl<'a> Fitness<'a> {
                 _ => (x[nc] * self.scales[nc], x[nc + 1] * self.scales[nc + 1]),
             };
         }
+        (y0, live)
+    }
+
+    /// [`Fitness::residuals`] of up to `L` points (rows of `xs`) in lockstep, appended to `out`.
+    fn residuals_lanes<const L: usize>(&self, xs: &[f64], out: &mut Vec<Option<Vec<f64>>>) {
+        let d = self.dimension();
+        let n = xs.len() / d;
+        let nc = self.model.n_coeffs();
+        let mut c = vec![[0.0; L]; nc];
+        let (y0, live) = self.load_lanes(xs, n, &mut c);
         let mut res: Vec<Vec<f64>> = (0..n).map(|_| Vec::with_capacity(self.n_train)).collect();
         let mut buf = vec![0.0; nc];
         let c: &[[f64; L]] = &c;
@@ -393,22 +407,8 @@ impl Fitness<'_> {
         buf: &mut [f64],
     ) {
         let n = out.len();
-        let d = self.dimension();
         let nc = self.model.n_coeffs();
-        let mut y0 = [[0.0; L]; 2];
-        let mut live = [false; L];
-        for l in 0..L {
-            // Padding lanes repeat the first candidate, so they compute on ordinary numbers.
-            let x = &xs[(if l < n { l } else { 0 }) * d..][..d];
-            live[l] = l < n;
-            for (k, ck) in c.iter_mut().enumerate() {
-                ck[l] = x[k] * self.scales[k];
-            }
-            (y0[0][l], y0[1][l]) = match self.initial {
-                Initial::Known { y0, v0 } => (y0, v0),
-                _ => (x[nc] * self.scales[nc], x[nc + 1] * self.scales[nc + 1]),
-            };
-        }
+        let (y0, live) = self.load_lanes(xs, n, c);
         let mut tally: [Tally; L] =
             std::array::from_fn(|l| Tally::new(bounds[l.min(n - 1)], self.n_train));
         let c: &[[f64; L]] = c;
