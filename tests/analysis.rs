@@ -15,6 +15,7 @@ fn analyzer() -> Analyzer {
         generations: 40,
         amplitude_limit: Some(400.0),
         max_fit_nmae: 0.2,
+        polish_rtol: gatewatch::analysis::DEFAULT_POLISH_RTOL,
     })
     .unwrap()
 }

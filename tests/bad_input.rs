@@ -1495,6 +1495,12 @@ fn bad_configs() -> Vec<(&'static str, String, &'static str, Option<usize>)> {
             Some(2),
         ),
         c(
+            "polish_rtol 1",
+            "[gates.g1]\npolish_rtol = 1.0\n",
+            "gates.g1.polish_rtol",
+            Some(2),
+        ),
+        c(
             "pooling unknown key",
             "[defaults.pooling]\nmin_cycle = 100.0\n",
             "defaults.pooling.min_cycle",

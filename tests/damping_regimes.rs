@@ -211,6 +211,7 @@ fn analyzer_reports_the_limit_cycle_from_the_envelope() {
             generations: 40,
             amplitude_limit: None,
             max_fit_nmae: 0.2,
+            polish_rtol: gatewatch::analysis::DEFAULT_POLISH_RTOL,
         })
         .unwrap();
         let mut zetas = Vec::new();

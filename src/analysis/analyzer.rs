@@ -157,9 +157,10 @@ impl Analyzer {
                     population: s.population,
                     generations: s.generations,
                     // One RK4 step per sample: three times cheaper than dopri5 over a long
-                    // window; the polish (dopri5 at 1e-8) sets the final accuracy.
+                    // window; the polish (dopri5 at `polish_rtol`) sets the final accuracy.
                     solver: crate::ode::Method::Rk4,
                     substeps: 1,
+                    refine_rtol: s.polish_rtol,
                     ..identify::Search::default()
                 },
                 protocol: identify::Protocol {

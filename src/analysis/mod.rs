@@ -87,7 +87,22 @@ pub struct AnalysisSettings {
     pub amplitude_limit: Option<f64>,
     /// A window whose fit NMAE exceeds this is not trusted (never raises an alarm).
     pub max_fit_nmae: f64,
+    /// Relative tolerance of the Dormand-Prince integrations of the full search's
+    /// Levenberg-Marquardt polish ([`DEFAULT_POLISH_RTOL`]; the tracked refinement has its own,
+    /// [`TrackingPolicy::refine_rtol`]).
+    pub polish_rtol: f64,
 }
+
+/// Default [`AnalysisSettings::polish_rtol`] of a daemon window: 1e-6.
+///
+/// Why not the library's 1e-8 (`identify::Search::refine_rtol`, which takes the noise-free seed
+/// cases to an NMAE of ~1e-5): a gate's window fits to an NMAE of about 0.5 (the turbulent
+/// forcing a free-vibration model cannot follow), so the solver's 1e-6 is five orders below what
+/// the fit can resolve, and it halves a cold window's CPU (Dormand-Prince needs about
+/// `100^(1/5) = 2.5` times fewer steps; docs/benchmarks.md, "A looser polish for noisy
+/// windows"). The difference step of the polish's Jacobian follows the tolerance
+/// (`identify::polish::fd_step`), which is what made 1e-6 lose accuracy before.
+pub const DEFAULT_POLISH_RTOL: f64 = 1e-6;
 
 /// One uniformly sampled window.
 #[derive(Debug, Clone, Copy)]

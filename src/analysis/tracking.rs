@@ -46,8 +46,8 @@ pub struct TrackingPolicy {
     /// Integrations the refinement may charge (`WindowAnalysis::evaluations` of a tracked
     /// window never exceeds it): bounds a tracked window's cost.
     pub refine_evaluations: usize,
-    /// Relative tolerance of the refinement's Dormand-Prince integrations (the full search's
-    /// polish uses `identify::Search::refine_rtol`, 1e-8).
+    /// Relative tolerance of the refinement's Dormand-Prince integrations (1e-6, as the daemon's
+    /// full search's polish: `AnalysisSettings::polish_rtol`).
     pub refine_rtol: f64,
     /// Longest gap the tracked path may bridge: the new window may start at most this many
     /// window lengths (the previous window's duration) after the previous window's end. 0: the
@@ -65,7 +65,7 @@ impl Default for TrackingPolicy {
             fit_tolerance: 1.5,
             frequency_tolerance: 0.05,
             refine_evaluations: 60,
-            refine_rtol: 1e-8,
+            refine_rtol: 1e-6,
             max_gap_windows: 2.0,
         }
     }

@@ -125,6 +125,11 @@ impl<'a> Fitness<'a> {
         f
     }
 
+    /// The solver's relative tolerance.
+    pub fn rtol(&self) -> f64 {
+        self.opts.rtol
+    }
+
     /// The same objective on the first `samples` samples only (at least 2).
     pub fn with_horizon(&self, samples: usize) -> Fitness<'a> {
         let mut f = self.clone();

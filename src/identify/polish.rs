@@ -124,6 +124,22 @@ impl<'f, 'a> Residuals<'f, 'a> {
     }
 }
 
+/// The relative step of the forward-difference Jacobian for a solver at relative tolerance
+/// `rtol`: 10 times the tolerance, never below 1e-6 (so 1e-6 at the library's 1e-8, as before).
+///
+/// Why: a column is `(r(x + h) - r(x)) / h`, and each residual carries the solver's error (about
+/// `rtol`, and not smooth in `x`: the step-size sequence changes with it), so the column's noise
+/// is about `rtol / h` relative. A fixed 1e-6 at the daemon's 1e-6 made that 100 %: many
+/// refinements did not move and a steady gate's tracked mass drifted (docs/design.md, "Tracking
+/// between windows"). At 10 times the tolerance the noise is about 10 %, which Gauss-Newton
+/// steps tolerate, and the forward difference's truncation error (about `h`) stays far below.
+/// Measured (docs/benchmarks.md, "A looser polish for noisy windows"): over 20 seeds of the
+/// stable lab gate, factors 10, 30 and 100 gave tracked masses as close to the truth as the
+/// refinement at 1e-8.
+pub(super) fn fd_step(rtol: f64) -> f64 {
+    (10.0 * rtol).max(1e-6)
+}
+
 /// Levenberg-Marquardt (MINPACK's algorithm, from the `levenberg-marquardt` crate) on the
 /// simulation residuals of the training samples, from the DE winner `x0`, with a
 /// forward-difference Jacobian. Returns the polished point (`None` when the residuals cannot be
@@ -182,7 +198,8 @@ fn polish_with(
             let r0 = DVector::from_vec(self.res.at(self.x.as_slice())?);
             let d = self.x.len();
             // Large enough to stay above the solver's error, small enough for accuracy.
-            let h = |j: usize| 1e-6 * self.x[j].abs().max(1e-3);
+            let rel = fd_step(self.res.fit.rtol());
+            let h = |j: usize| rel * self.x[j].abs().max(1e-3);
             // The d forward points, integrated together (`Fitness::residuals_batch`: the same
             // residuals as one by one, bit for bit).
             let mut points = Vec::with_capacity(d * d);

@@ -303,6 +303,8 @@ pub struct GateConfig {
     pub amplitude_limit: Option<f64>,
     /// Windows fitting worse than this NMAE are not trusted.
     pub max_fit_nmae: f64,
+    /// Relative tolerance of the full search's polish integrations.
+    pub polish_rtol: f64,
     /// Window length, seconds of sample time.
     pub window_seconds: f64,
     /// Identification cadence, seconds of new sample time.
@@ -334,6 +336,7 @@ impl Default for GateConfig {
             generations: 40,
             amplitude_limit: None,
             max_fit_nmae: 0.2,
+            polish_rtol: crate::analysis::DEFAULT_POLISH_RTOL,
             window_seconds: 10.0,
             identify_every_seconds: 5.0,
             max_future_seconds: DEFAULT_MAX_FUTURE_SECONDS,

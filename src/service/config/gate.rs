@@ -33,6 +33,7 @@ impl GateConfig {
             generations: self.generations,
             amplitude_limit: self.amplitude_limit,
             max_fit_nmae: self.max_fit_nmae,
+            polish_rtol: self.polish_rtol,
         }
     }
 
@@ -69,6 +70,9 @@ impl GateConfig {
         }
         if !(self.max_fit_nmae.is_finite() && self.max_fit_nmae > 0.0) {
             return err("max_fit_nmae", "must be > 0");
+        }
+        if !(self.polish_rtol > 0.0 && self.polish_rtol < 1.0) {
+            return err("polish_rtol", "must be in (0, 1)");
         }
         if !(self.window_seconds.is_finite() && self.window_seconds > 0.0) {
             return err("window_seconds", "must be > 0");
