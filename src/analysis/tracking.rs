@@ -163,6 +163,37 @@ impl Previous {
     }
 }
 
+impl Previous {
+    /// The memory after a gate's first window, its schedule shifted by a phase taken from the
+    /// gate's name: `since_full` starts at `phase(gate) % full_every` instead of 0, so the first
+    /// scheduled full search comes 0 to `full_every - 1` windows early, and never late.
+    ///
+    /// Why: gates that start together (every gate after a restart) otherwise search together
+    /// every `full_every` windows, a burst of full searches (about 0.12 s each) that a worker
+    /// cannot absorb within one cadence: with 64 gates started at once `gatewatch bench daemon`
+    /// replaced 16 jobs after the first round, in bunches every minute. The name, not a random
+    /// draw, so that a replay gives the same schedule.
+    pub fn first_of(self, gate: &str, policy: &TrackingPolicy) -> Self {
+        let phase = gate_phase(gate) % policy.full_every.max(1) as u64;
+        Previous {
+            since_full: phase as usize,
+            ..self
+        }
+    }
+}
+
+/// FNV-1a of the gate's name, mixed (splitmix64's finaliser): a stable per-gate number.
+fn gate_phase(gate: &str) -> u64 {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for b in gate.bytes() {
+        h ^= u64::from(b);
+        h = h.wrapping_mul(0x0100_0000_01b3);
+    }
+    h = (h ^ (h >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    h = (h ^ (h >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    h ^ (h >> 31)
+}
+
 /// Why a window runs the full search.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum FullReason {
@@ -369,6 +400,35 @@ mod tests {
             ..TrackingPolicy::default()
         };
         assert_eq!(plan(&always, Some(&p), 105.0), Err(FullReason::Schedule));
+    }
+
+    #[test]
+    fn gates_started_together_are_scheduled_apart() {
+        let policy = TrackingPolicy::default(); // full_every 12
+        let mut first_full = std::collections::BTreeMap::new();
+        for g in 0..64 {
+            let gate = format!("g{g}");
+            let mut p = Some(previous().first_of(&gate, &policy));
+            // the same name, the same phase
+            assert_eq!(p, Some(previous().first_of(&gate, &policy)));
+            // windows until the schedule asks for the full search: never more than full_every
+            let mut n = 1;
+            while plan(&policy, p.as_ref(), 100.0 + 5.0 * n as f64).is_ok() {
+                let q = p.take().unwrap();
+                p = Some(Previous {
+                    since_full: q.since_full + 1,
+                    t_start: q.t_start + 5.0,
+                    t_end: q.t_end + 5.0,
+                    ..q
+                });
+                n += 1;
+            }
+            assert!(n <= policy.full_every, "{gate}: {n}");
+            *first_full.entry(n).or_insert(0) += 1;
+        }
+        // 64 gates over 12 phases: each phase has some, none has a quarter of them
+        assert_eq!(first_full.len(), policy.full_every, "{first_full:?}");
+        assert!(first_full.values().all(|&k| k < 16), "{first_full:?}");
     }
 
     #[test]

@@ -41,6 +41,20 @@ pub trait WindowAnalyzer: Send + Sync + 'static {
         let warm = previous.map(|p| p.coefficients.as_slice());
         self.analyze(gate, input, warm, seed)
     }
+
+    /// What `gate` remembers after window `a` covering `[t_start, t_end]`; the default is
+    /// [`Previous::after`].
+    fn remember(
+        &self,
+        gate: &str,
+        before: Option<&Previous>,
+        a: &WindowAnalysis,
+        t_start: f64,
+        t_end: f64,
+    ) -> Previous {
+        let _ = gate;
+        Previous::after(before, a, t_start, t_end)
+    }
 }
 
 /// One [`Analyzer`] per configured gate, and the defaults' analyzer for the others.
@@ -91,6 +105,26 @@ impl WindowAnalyzer for AnalyzerMap {
             .get(gate)
             .unwrap_or(&self.default)
             .analyze_tracked(input, previous, seed)
+    }
+
+    /// [`Previous::after`], and for a gate's first window its schedule's phase
+    /// ([`Previous::first_of`]) so that gates started together do not search together.
+    fn remember(
+        &self,
+        gate: &str,
+        before: Option<&Previous>,
+        a: &WindowAnalysis,
+        t_start: f64,
+        t_end: f64,
+    ) -> Previous {
+        let next = Previous::after(before, a, t_start, t_end);
+        match before {
+            Some(_) => next,
+            None => {
+                let analyzer = self.gates.get(gate).unwrap_or(&self.default);
+                next.first_of(gate, analyzer.tracking())
+            }
+        }
     }
 }
 
@@ -321,7 +355,10 @@ fn worker_loop(shared: Arc<Shared>) {
         let outcome = match result {
             Ok(Ok(a)) => {
                 let t_end = job.t0 + job.values.len().saturating_sub(1) as f64 / job.rate_hz;
-                let next = Previous::after(previous.as_ref(), &a, job.t0, t_end);
+                let next =
+                    shared
+                        .analyzer
+                        .remember(&job.gate, previous.as_ref(), &a, job.t0, t_end);
                 lock(&shared.sched).previous.insert(job.gate.clone(), next);
                 JobOutcome::Done(Box::new(a))
             }
