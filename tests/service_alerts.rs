@@ -106,6 +106,7 @@ async fn metrics_exposition_is_valid() {
     let text = v.as_str().unwrap().to_string();
     for name in [
         "gatewatch_damping_ratio",
+        "gatewatch_damping_trusted",
         "gatewatch_equivalent_damping_ratio",
         "gatewatch_frequency_hertz",
         "gatewatch_fit_nmae",
@@ -122,6 +123,11 @@ async fn metrics_exposition_is_valid() {
         assert!(text.contains(&format!("# TYPE {name} ")), "missing {name}");
     }
     assert!(text.contains("route=\"/api/v1/samples\""));
+    // the fake's windows are trusted
+    assert!(
+        text.contains("gatewatch_damping_trusted{gate=\"g1\"} 1\n"),
+        "{text}"
+    );
     if let Some(p) = promtool() {
         let dir = tempfile::tempdir().unwrap();
         let f = dir.path().join("metrics.txt");

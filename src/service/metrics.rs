@@ -34,6 +34,10 @@ pub struct Metrics {
     registry: Registry,
     /// `gatewatch_damping_ratio{gate}`.
     pub damping_ratio: GaugeVec,
+    /// `gatewatch_damping_trusted{gate}`: 1 when the latest window's `zeta0` is trusted, 0 when
+    /// not (an untrusted window still sets `gatewatch_damping_ratio`, which a rule or a panel
+    /// should then not read as the gate's damping).
+    pub damping_trusted: GaugeVec,
     /// `gatewatch_damping_ratio_lower{gate}`: lower end of zeta0's 95 % interval.
     pub damping_ratio_lower: GaugeVec,
     /// `gatewatch_damping_ratio_upper{gate}`: upper end of zeta0's 95 % interval.
@@ -307,6 +311,11 @@ impl Metrics {
             // its labels must stay meaningful (Prometheus naming guide), a rule can say
             // `gatewatch_damping_ratio_upper < 0` without label matching, and Grafana fills the
             // band between two series directly.
+            damping_trusted: gauge(
+                "gatewatch_damping_trusted",
+                "1 when the latest window's damping ratio is trusted, 0 when not.",
+                &["gate"],
+            ),
             damping_ratio_lower: gauge(
                 "gatewatch_damping_ratio_lower",
                 "Lower end of the 95 % interval of the damping ratio at rest (absent without an interval).",
@@ -539,6 +548,7 @@ impl Metrics {
     pub fn remove_gate(&self, gate: &str) {
         for g in [
             &self.damping_ratio,
+            &self.damping_trusted,
             &self.damping_ratio_lower,
             &self.damping_ratio_upper,
             &self.damping_ratio_trend,

@@ -476,6 +476,10 @@ impl AppState {
                     }
                 };
                 set(&self.metrics.damping_ratio, d.zeta0);
+                set(
+                    &self.metrics.damping_trusted,
+                    Some(if d.trusted { 1.0 } else { 0.0 }),
+                );
                 set(&self.metrics.equivalent_damping_ratio, d.zeta_eq);
                 set(&self.metrics.frequency_hertz, d.frequency_hz);
                 set(&self.metrics.fit_nmae, Some(d.fit_nmae));
