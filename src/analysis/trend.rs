@@ -11,8 +11,10 @@
 //! - Huber weights on the standardised residuals (`k = 1.345`, 95 % efficiency under normal
 //!   errors) make a window that is wildly off (a bad fit that was still trusted) count as if it
 //!   were only `k` standard deviations off, so one outlier cannot fake a trend;
-//! - the slope's standard error is inflated when the residuals scatter more than the intervals
-//!   claim (scale `max(1, chi2 / (n - 2))`) and for the correlation between overlapping windows
+//! - the slope's standard error is scaled by how the residuals scatter against what the
+//!   intervals claim (scale `max(0.5, chi2 / (n - 2))`: wider when they scatter more, narrower,
+//!   at most by half, when the intervals were conservative) and inflated for the correlation
+//!   between overlapping windows
 //!   (lag-1 autocorrelation `r` of the residuals: factor `sqrt((1 + r) / (1 - r))`, the AR(1)
 //!   variance inflation), so the intervals' optimism and the overlap both widen it.
 //!
@@ -44,6 +46,20 @@ const Z95_ONE_SIDED: f64 = 1.644_853_626_951_472_2;
 const HUBER_K: f64 = 1.345;
 /// IRLS iterations: the weights settle in a few; a fixed count keeps the cost fixed.
 const IRLS_ITERATIONS: usize = 10;
+/// Least scale of the slope's variance: the residuals may say the windows' intervals are too
+/// wide, but at most by a factor of 2 in variance.
+///
+/// Why not 1 (the intervals taken as a floor): the windows' intervals are conservative (the
+/// pooled ambient estimates covered the truth in 97 to 100 % of the windows, against 95 %
+/// claimed; `bench warning`), and the overlap factor below already widens the slope for the
+/// correlation between windows, so a floor of 1 counted the same caution twice. On the 5 Hz lock
+/// gate the residuals scattered at 0.2 to 0.7 times the claimed variance (median 0.3 on a steady
+/// +0.5 % gate, 0.4 on the slow drift), the overlap factor was 9 to 14, and the warning came 25 s
+/// after the zero crossing on one seed of the slow drift. Why not lower (the scatter alone): with
+/// about 120 windows correlated at 0.85 the scatter rests on about 10 independent values, and
+/// trusting it fully fired one warning in 24 h of that steady gate (docs/benchmarks.md, "The
+/// trend's scale", session 20).
+const MIN_SCALE: f64 = 0.5;
 /// Floor of a window's standard deviation (0.01 percentage point): an interval of zero width
 /// would otherwise take all the weight.
 const MIN_SD: f64 = 1e-4;
@@ -283,7 +299,8 @@ fn fit(
         level = (sy - s1 * slope) / s0;
         (sw, sx, sxx) = (s0, s1, s2);
     }
-    // Scale: how much more the residuals scatter than the intervals say (never less).
+    // Scale: how much more (or less) the residuals scatter than the intervals say, never below
+    // MIN_SCALE.
     let mut chi2 = 0.0;
     let (mut r_prev, mut c0, mut c1) = (None::<f64>, 0.0, 0.0);
     for p in points.clone() {
@@ -296,7 +313,7 @@ fn fit(
         }
         r_prev = Some(r);
     }
-    let scale = (chi2 / (n - 2) as f64).max(1.0);
+    let scale = (chi2 / (n - 2) as f64).max(MIN_SCALE);
     // Residuals at rounding level (a perfect line) carry no correlation to speak of.
     let rho = if c0 > 1e-6 * n as f64 {
         (c1 / c0).clamp(0.0, 0.9)

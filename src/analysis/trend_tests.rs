@@ -46,6 +46,41 @@ fn exact_line_is_recovered() {
     assert!(e.crossing_seconds_confident.unwrap() >= e.crossing_seconds.unwrap());
     assert_eq!(e.windows, 20);
     assert_relative_eq!(e.span_seconds, 190.0);
+    // no scatter at all: the intervals count at half their variance (MIN_SCALE), not less;
+    // sd = 0.002 / 1.96 each, sum of (t - mean t)^2 = 100 * 665
+    let sd = 0.002 / Z95_TWO_SIDED;
+    assert_relative_eq!(
+        e.slope_stderr,
+        (MIN_SCALE * sd * sd / 66_500.0).sqrt(),
+        max_relative = 1e-9
+    );
+}
+
+#[test]
+fn conservative_intervals_narrow_the_slope_at_most_by_half_its_variance() {
+    // The estimates scatter by 0.3 points but claim 0.6. With the claim as a floor (scale 1) the
+    // slope's error would be twice the honest one; the scatter alone would make it about the
+    // same; the floor of half the claimed variance makes it sqrt(0.5) * 2 = 1.41 times.
+    // A steady gate still never predicts a crossing.
+    let widen = |pts: Vec<TrendPoint>| -> Vec<TrendPoint> {
+        pts.into_iter()
+            .map(|p| TrendPoint {
+                low: p.zeta0 - 2.0 * (p.zeta0 - p.low),
+                high: p.zeta0 + 2.0 * (p.high - p.zeta0),
+                ..p
+            })
+            .collect()
+    };
+    let mut ratios = Vec::new();
+    for seed in 0..200 {
+        let honest = fit_trend(&series(seed, 120, 0.003, |_| 0.005), 0.0).unwrap();
+        let wide = fit_trend(&widen(series(seed, 120, 0.003, |_| 0.005)), 0.0).unwrap();
+        assert!(!wide.crosses_within(600.0), "seed {seed}: {wide:?}");
+        ratios.push(wide.slope_stderr / honest.slope_stderr);
+    }
+    ratios.sort_by(f64::total_cmp);
+    let median = ratios[ratios.len() / 2];
+    assert!((1.25..1.6).contains(&median), "median ratio {median}");
 }
 
 #[test]
