@@ -48,7 +48,7 @@ pub use series::{
     analyze_series, analyze_series_with, pre_run, term_scales, track_series_with, SeriesAnalysis,
     SeriesOptions, DAMPING_FORCE_FRACTION,
 };
-pub use tracking::{Path, Previous, TrackingPolicy};
+pub use tracking::{gate_hash, Path, Previous, TrackingPolicy};
 pub use trend::{
     fit_trend, DampingTrend, TrendError, TrendEstimate, TrendPoint, MAX_TREND_POINTS,
     MIN_TREND_POINTS,

@@ -174,7 +174,7 @@ impl Previous {
     /// replaced 16 jobs after the first round, in bunches every minute. The name, not a random
     /// draw, so that a replay gives the same schedule.
     pub fn first_of(self, gate: &str, policy: &TrackingPolicy) -> Self {
-        let phase = gate_phase(gate) % policy.full_every.max(1) as u64;
+        let phase = gate_hash(gate, 0) % policy.full_every.max(1) as u64;
         Previous {
             since_full: phase as usize,
             ..self
@@ -182,16 +182,20 @@ impl Previous {
     }
 }
 
-/// FNV-1a of the gate's name, mixed (splitmix64's finaliser): a stable per-gate number.
-fn gate_phase(gate: &str) -> u64 {
+/// A stable number from a gate's name and an index: FNV-1a of the name, combined with the index
+/// and mixed by splitmix64's finaliser. The daemon's window seeds (`service::worker::window_seed`,
+/// index = the window's last sample) and the schedule's phase ([`Previous::first_of`], index 0)
+/// both come from it; the same inputs give the same number on every machine and build.
+pub fn gate_hash(gate: &str, index: u64) -> u64 {
     let mut h: u64 = 0xcbf2_9ce4_8422_2325;
     for b in gate.bytes() {
         h ^= u64::from(b);
         h = h.wrapping_mul(0x0100_0000_01b3);
     }
-    h = (h ^ (h >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-    h = (h ^ (h >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-    h ^ (h >> 31)
+    let mut z = h ^ index.wrapping_mul(0x9e37_79b9_7f4a_7c15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    z ^ (z >> 31)
 }
 
 /// Why a window runs the full search.
@@ -400,6 +404,15 @@ mod tests {
             ..TrackingPolicy::default()
         };
         assert_eq!(plan(&always, Some(&p), 105.0), Err(FullReason::Schedule));
+    }
+
+    #[test]
+    fn gate_hash_is_the_daemon_s_window_seed_of_before() {
+        // values of the hash as `service::worker::window_seed` computed it before it moved here
+        // (FNV-1a, splitmix64), from an independent implementation: every window's seed, and so
+        // every daemon result, is unchanged
+        assert_eq!(gate_hash("g1", 100), 13_601_181_542_038_338_142);
+        assert_eq!(gate_hash("weir-north", 0), 9_865_485_673_146_758_496);
     }
 
     #[test]

@@ -130,16 +130,7 @@ impl WindowAnalyzer for AnalyzerMap {
 
 /// Reproducible seed of a window: FNV-1a of the gate id, mixed with the window's end index.
 pub fn window_seed(gate: &str, end_index: u64) -> u64 {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    for b in gate.bytes() {
-        h ^= u64::from(b);
-        h = h.wrapping_mul(0x0100_0000_01b3);
-    }
-    // splitmix64 finaliser of the combination
-    let mut z = h ^ end_index.wrapping_mul(0x9e37_79b9_7f4a_7c15);
-    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-    z ^ (z >> 31)
+    crate::analysis::gate_hash(gate, end_index)
 }
 
 /// One identification job.
