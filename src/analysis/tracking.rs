@@ -23,6 +23,14 @@ use serde::{Deserialize, Serialize};
 /// it a nearly perfect full fit (NMAE 1e-4 on clean data) would make any noise a "regime change".
 pub const FIT_SLACK: f64 = 0.005;
 
+/// Largest full-search NMAE the fit test takes as its reference. Value: predicting the signal's
+/// mean scores about 0.8 (noise) to 0.9 (a sinusoid) in this NMAE (mean absolute error over the
+/// standard deviation), so a full search that fit worse than 1, or not at all (NaN, infinite:
+/// its model diverged over the window, about 1 window in 60 on a stable gate), says nothing
+/// about how well the gate's model can fit, and must not let any refinement pass: with such a
+/// reference the limit was infinite or NaN, and refinements with an infinite NMAE were accepted.
+pub const MAX_REFERENCE_NMAE: f64 = 1.0;
+
 /// Upper bound of [`TrackingPolicy::max_gap_windows`]: beyond a few windows the gate may have
 /// changed in ways the acceptance test was not designed to catch (it compares with the last
 /// window, not with the history).
@@ -304,7 +312,9 @@ pub fn accept(
     if previous.agrees && !r.agrees {
         return Err(Rejection::Disagrees);
     }
-    let limit = policy.fit_tolerance * previous.full_fit_nmae + FIT_SLACK;
+    // f64::min ignores NaN: a NaN reference becomes the ceiling too
+    let reference = previous.full_fit_nmae.min(MAX_REFERENCE_NMAE);
+    let limit = policy.fit_tolerance * reference + FIT_SLACK;
     if r.fit_nmae.is_nan() || r.fit_nmae > limit {
         return Err(Rejection::Fit {
             nmae: r.fit_nmae,
@@ -404,6 +414,31 @@ mod tests {
             ..TrackingPolicy::default()
         };
         assert_eq!(plan(&always, Some(&p), 105.0), Err(FullReason::Schedule));
+    }
+
+    #[test]
+    fn a_full_search_that_did_not_fit_is_no_reference() {
+        let policy = TrackingPolicy::default(); // fit_tolerance 1.5: limit 1.505 at the ceiling
+        for full in [f64::NAN, f64::INFINITY, 75.0] {
+            let p = Previous {
+                full_fit_nmae: full,
+                ..previous()
+            };
+            let with_fit = |fit_nmae| DampingReport {
+                fit_nmae,
+                ..report()
+            };
+            assert_eq!(accept(&policy, &p, &with_fit(0.9)), Ok(()), "{full}");
+            for bad in [1.6, 80.0, f64::INFINITY, f64::NAN] {
+                assert!(
+                    matches!(
+                        accept(&policy, &p, &with_fit(bad)),
+                        Err(Rejection::Fit { limit, .. }) if (limit - 1.505).abs() < 1e-12
+                    ),
+                    "reference {full}, refined {bad}"
+                );
+            }
+        }
     }
 
     #[test]
