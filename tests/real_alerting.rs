@@ -15,7 +15,7 @@
 //! shipped ones. Without the binaries the test is skipped, except under CI (`CI` set), where
 //! `.ci/run` installs them and a missing one is a failure.
 
-use serde_json::Value;
+use serde_json::{json, Value};
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::{TcpListener, TcpStream};
 use std::path::{Path, PathBuf};
@@ -497,4 +497,115 @@ fn onset_restart_and_recovery_through_prometheus_and_alertmanager() {
         || resolved("GateSelfExcited").then_some(()),
     );
     assert!(gw_proc.terminate(Duration::from_secs(15)));
+}
+
+/// POST a JSON body over HTTP/1.0: the status.
+fn http_post_json(port: u16, path: &str, body: &str) -> Option<u16> {
+    let mut s = TcpStream::connect(("127.0.0.1", port)).ok()?;
+    s.set_read_timeout(Some(Duration::from_secs(5))).ok()?;
+    write!(
+        s,
+        "POST {path} HTTP/1.0\r\nHost: 127.0.0.1\r\nContent-Type: application/json\r\n\
+         Content-Length: {}\r\n\r\n{body}",
+        body.len()
+    )
+    .ok()?;
+    let mut out = String::new();
+    s.read_to_string(&mut out).ok()?;
+    out.split(' ').nth(1)?.parse().ok()
+}
+
+/// The shipped `deploy/alertmanager/alertmanager.yml`, run by the real Alertmanager: a gate's
+/// `GateDampingDeclining` is inhibited while its `GateNegativeDamping` fires, another gate's is
+/// not. The alerts carry the labels gatewatch sends (`alertname`, `gate`, `severity`).
+#[test]
+fn the_shipped_alertmanager_config_inhibits_the_warning_under_the_critical_alert() {
+    if !have(ALERTMANAGER) {
+        assert!(
+            std::env::var_os("CI").is_none(),
+            "CI must install Debian's prometheus-alertmanager"
+        );
+        eprintln!("skipped: {ALERTMANAGER} not installed");
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let (am, am_cluster) = (free_port(), free_port());
+    let am_proc = Proc::spawn(
+        "alertmanager",
+        Command::new(ALERTMANAGER)
+            .arg(format!(
+                "--config.file={}",
+                Path::new(ROOT)
+                    .join("deploy/alertmanager/alertmanager.yml")
+                    .display()
+            ))
+            .arg(format!("--storage.path={}", d.join("am-data").display()))
+            .arg(format!("--web.listen-address=127.0.0.1:{am}"))
+            .arg(format!("--cluster.listen-address=127.0.0.1:{am_cluster}")),
+        d,
+    );
+    wait_until("Alertmanager ready", Duration::from_secs(30), || {
+        http_get(am, "/-/ready").filter(|(s, _)| *s == 200)
+    });
+    let alert = |name: &str, gate: &str, severity: &str| {
+        json!({"labels": {"alertname": name, "gate": gate, "severity": severity},
+               "annotations": {"summary": format!("{name} on {gate}")}})
+    };
+    let body = json!([
+        alert("GateNegativeDamping", "g1", "critical"),
+        alert("GateDampingDeclining", "g1", "warning"),
+        alert("GateDampingDeclining", "g2", "warning"),
+    ])
+    .to_string();
+    assert_eq!(
+        http_post_json(am, "/api/v2/alerts", &body),
+        Some(200),
+        "{}",
+        am_proc.log_tail()
+    );
+    // state of each (alertname, gate) as Alertmanager reports it
+    let states = wait_until(
+        "the three alerts in Alertmanager",
+        Duration::from_secs(30),
+        || {
+            let v = get_json(am, "/api/v2/alerts")?;
+            let s: Vec<(String, String, String, usize)> = v
+                .as_array()?
+                .iter()
+                .map(|a| {
+                    (
+                        a["labels"]["alertname"].as_str().unwrap_or("").to_string(),
+                        a["labels"]["gate"].as_str().unwrap_or("").to_string(),
+                        a["status"]["state"].as_str().unwrap_or("").to_string(),
+                        a["status"]["inhibitedBy"].as_array().map_or(0, Vec::len),
+                    )
+                })
+                .collect();
+            // inhibition is evaluated as the alerts arrive; wait until the warning shows it
+            (s.len() == 3 && s.iter().any(|a| a.2 == "suppressed")).then_some(s)
+        },
+    );
+    let state = |name: &str, gate: &str| {
+        states
+            .iter()
+            .find(|a| a.0 == name && a.1 == gate)
+            .map(|a| (a.2.as_str(), a.3))
+            .unwrap_or_else(|| panic!("{name} {gate} missing: {states:?}"))
+    };
+    assert_eq!(
+        state("GateNegativeDamping", "g1"),
+        ("active", 0),
+        "{states:?}"
+    );
+    assert_eq!(
+        state("GateDampingDeclining", "g1"),
+        ("suppressed", 1),
+        "{states:?}"
+    );
+    assert_eq!(
+        state("GateDampingDeclining", "g2"),
+        ("active", 0),
+        "{states:?}"
+    );
 }
