@@ -100,6 +100,23 @@ impl Drop for Proc {
     }
 }
 
+/// Debian's Alertmanager on `port` (its cluster listener on a free port) with `config`, its data
+/// in `dir`.
+fn spawn_alertmanager(config: &Path, port: u16, dir: &Path) -> Proc {
+    Proc::spawn(
+        "alertmanager",
+        Command::new(ALERTMANAGER)
+            .arg(format!("--config.file={}", config.display()))
+            .arg(format!("--storage.path={}", dir.join("am-data").display()))
+            .arg(format!("--web.listen-address=127.0.0.1:{port}"))
+            .arg(format!(
+                "--cluster.listen-address=127.0.0.1:{}",
+                free_port()
+            )),
+        dir,
+    )
+}
+
 /// GET over HTTP/1.0 (no chunked encoding, connection closed by the server): status and body.
 fn http_get(port: u16, path: &str) -> Option<(u16, String)> {
     let mut s = TcpStream::connect(("127.0.0.1", port)).ok()?;
@@ -277,7 +294,7 @@ fn onset_restart_and_recovery_through_prometheus_and_alertmanager() {
     }
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let (gw, prom, am, am_cluster) = (free_port(), free_port(), free_port(), free_port());
+    let (gw, prom, am) = (free_port(), free_port(), free_port());
     let (hook, seen) = receiver();
 
     // Alertmanager: one route to the test's receiver, resolved notifications on.
@@ -291,18 +308,7 @@ fn onset_restart_and_recovery_through_prometheus_and_alertmanager() {
         ),
     )
     .unwrap();
-    let am_proc = Proc::spawn(
-        "alertmanager",
-        Command::new(ALERTMANAGER)
-            .arg(format!(
-                "--config.file={}",
-                d.join("alertmanager.yml").display()
-            ))
-            .arg(format!("--storage.path={}", d.join("am-data").display()))
-            .arg(format!("--web.listen-address=127.0.0.1:{am}"))
-            .arg(format!("--cluster.listen-address=127.0.0.1:{am_cluster}")),
-        d,
-    );
+    let am_proc = spawn_alertmanager(&d.join("alertmanager.yml"), am, d);
     std::fs::write(d.join("prometheus.yml"), test_prometheus_yml(gw, am)).unwrap();
     std::fs::write(d.join("gatewatch-rules.yml"), test_rules()).unwrap();
     let prom_proc = Proc::spawn(
@@ -530,21 +536,9 @@ fn the_shipped_alertmanager_config_inhibits_the_warning_under_the_critical_alert
     }
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let (am, am_cluster) = (free_port(), free_port());
-    let am_proc = Proc::spawn(
-        "alertmanager",
-        Command::new(ALERTMANAGER)
-            .arg(format!(
-                "--config.file={}",
-                Path::new(ROOT)
-                    .join("deploy/alertmanager/alertmanager.yml")
-                    .display()
-            ))
-            .arg(format!("--storage.path={}", d.join("am-data").display()))
-            .arg(format!("--web.listen-address=127.0.0.1:{am}"))
-            .arg(format!("--cluster.listen-address=127.0.0.1:{am_cluster}")),
-        d,
-    );
+    let am = free_port();
+    let shipped = Path::new(ROOT).join("deploy/alertmanager/alertmanager.yml");
+    let am_proc = spawn_alertmanager(&shipped, am, d);
     wait_until("Alertmanager ready", Duration::from_secs(30), || {
         http_get(am, "/-/ready").filter(|(s, _)| *s == 200)
     });
