@@ -321,6 +321,79 @@ fn explore_relaxation_options() {
     }
 }
 
+/// The envelope's relaxation across `zeta0` (the held limit cycle of the bench is only -2 %):
+/// per gate and value, 60 ten-second windows (3 seeds), the single windows' median estimate,
+/// median |error| and coverage, and the same for the estimates pooled as the daemon pools them
+/// ([`DampingPool`], from the fifth window on). Options from the environment for experiments:
+/// `BAND`, `FIT_DECAY`, `MIN_LAG` (periods). Figures in docs/benchmarks.md ("The limit cycle
+/// across zeta0").
+///
+/// `cargo test --release --test damping_regimes explore_relaxation_across_zeta -- --ignored --nocapture`
+#[test]
+#[ignore]
+fn explore_relaxation_across_zeta() {
+    use gatewatch::spectral::{DampingPool, PoolOptions, WindowEstimate};
+    let env = |k: &str, d: f64| std::env::var(k).map_or(d, |v| v.parse().expect(k));
+    let d = RelaxationOptions::default();
+    let opts = RelaxationOptions {
+        band: env("BAND", d.band),
+        fit_decay: env("FIT_DECAY", d.fit_decay),
+        min_lag_periods: env("MIN_LAG", d.min_lag_periods),
+        ..d
+    };
+    println!("{opts:?}");
+    println!("| gate | zeta0 | windows | refused | median | median abs err | coverage | correlation times | pooled abs err | pooled coverage |");
+    println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
+    for (name, p) in [("lab", lab_gate()), ("lock", lock_gate())] {
+        for zeta in [-0.005, -0.0075, -0.01, -0.015, -0.02, -0.03] {
+            let (mut est, mut corr, mut pooled_err) = (Vec::new(), Vec::new(), Vec::new());
+            let (mut refused, mut cov, mut pooled_cov) = (0, 0, 0);
+            for seed in 1..=3u64 {
+                let ws = limit_cycle_windows(p.clone(), zeta, 20, 10.0, seed);
+                let mut sa = SpectralAnalyzer::new(ws[0].len(), p.rate_hz).unwrap();
+                let mut pool = DampingPool::new(PoolOptions::default()).unwrap();
+                for (i, x) in ws.iter().enumerate() {
+                    let f = sa.dominant_frequency(x, 1.0).unwrap().frequency_hz;
+                    let Ok(e) = sa.envelope_relaxation(x, f, &opts) else {
+                        refused += 1;
+                        continue;
+                    };
+                    est.push(e.zeta0);
+                    corr.push(e.correlation_times);
+                    cov += usize::from(e.zeta0_interval.0 <= zeta && zeta <= e.zeta0_interval.1);
+                    let t = 10.0 * i as f64;
+                    let pe = pool
+                        .push(WindowEstimate {
+                            t_start: t,
+                            t_end: t + 10.0,
+                            zeta: e.zeta0,
+                            stderr: e.zeta0_stderr,
+                            frequency_hz: f,
+                        })
+                        .unwrap();
+                    if i >= 4 {
+                        pooled_err.push((pe.zeta - zeta).abs());
+                        pooled_cov += usize::from(pe.interval.0 <= zeta && zeta <= pe.interval.1);
+                    }
+                }
+            }
+            let n = est.len();
+            let errs = est.iter().map(|v| (v - zeta).abs()).collect();
+            let np = pooled_err.len();
+            println!(
+                "| {name} | {:+.2} % | {n} | {refused} | {:+.2} % | {:.2} | {:.0} % | {:.1} | {:.2} | {:.0} % |",
+                100.0 * zeta,
+                100.0 * median(est),
+                100.0 * median(errs),
+                100.0 * cov as f64 / n as f64,
+                median(corr),
+                100.0 * median(pooled_err),
+                100.0 * pooled_cov as f64 / np as f64,
+            );
+        }
+    }
+}
+
 /// The envelope-drift estimator on the onset ramp (+2 % to -2 % in 60 s from 120 s), both
 /// gates, three seeds: on the windows that reach zero damping and that the relaxation refuses
 /// (the end of the growth: the envelope's CV is too large) it gives an estimate whose interval
