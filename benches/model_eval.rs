@@ -1,5 +1,6 @@
 //! Cost of one right-hand-side evaluation (`Model::accel`), the innermost call of every
-//! identification: the integrators call it millions of times per fit.
+//! identification: the integrators call it millions of times per fit. Also the lockstep form
+//! (`Model::accel_lanes`, 8 candidates per call) on the daemon's model.
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use gatewatch::model::Model;
@@ -38,5 +39,31 @@ fn accel(c: &mut Criterion) {
     }
 }
 
-criterion_group!(benches, accel);
+/// The daemon's model (`config/gatewatch.toml`) for 8 candidates at once, as the lockstep
+/// integrators call it (`Model::accel_lanes`): ns per call of 8 lanes.
+fn accel_lanes(c: &mut Criterion) {
+    let model = Model::parse(
+        "c1*ydd + (c2 + c3*yd^2)*yd + k*y = 0",
+        &[("k".to_string(), 81_000.0)],
+    )
+    .expect("benchmark equation parses");
+    let coeffs: Vec<[f64; 8]> = (0..3)
+        .map(|k| std::array::from_fn(|l| 1.0 + 0.01 * (8 * k + l) as f64))
+        .collect();
+    let t = [0.25; 8];
+    let y: [f64; 8] = std::array::from_fn(|l| 0.3 + 0.01 * l as f64);
+    let yd: [f64; 8] = std::array::from_fn(|l| -0.7 + 0.01 * l as f64);
+    c.bench_function("accel_lanes/daemon_model_8_lanes", |b| {
+        b.iter(|| {
+            model.accel_lanes::<8>(
+                black_box(&t),
+                black_box(&y),
+                black_box(&yd),
+                black_box(&coeffs),
+            )
+        })
+    });
+}
+
+criterion_group!(benches, accel, accel_lanes);
 criterion_main!(benches);
