@@ -325,8 +325,9 @@ fn explore_relaxation_options() {
 /// per gate and value, 60 ten-second windows (3 seeds), the single windows' median estimate,
 /// median |error| and coverage, and the same for the estimates pooled as the daemon pools them
 /// ([`DampingPool`], from the fifth window on). Options from the environment for experiments:
-/// `BAND`, `FIT_DECAY`, `MIN_LAG` (periods). Figures in docs/benchmarks.md ("The limit cycle
-/// across zeta0").
+/// `BAND`, `FIT_DECAY`, `MIN_LAG` (periods), and `WINDOW_CYCLES` (each gate's window holds that
+/// many cycles instead of 10 s). Figures in docs/benchmarks.md ("The limit cycle across
+/// zeta0").
 ///
 /// `cargo test --release --test damping_regimes explore_relaxation_across_zeta -- --ignored --nocapture`
 #[test]
@@ -344,12 +345,16 @@ fn explore_relaxation_across_zeta() {
     println!("{opts:?}");
     println!("| gate | zeta0 | windows | refused | median | median abs err | coverage | correlation times | pooled abs err | pooled coverage |");
     println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
+    let cycles = std::env::var("WINDOW_CYCLES")
+        .ok()
+        .map(|v| v.parse::<f64>().expect("cycles"));
     for (name, p) in [("lab", lab_gate()), ("lock", lock_gate())] {
+        let secs = cycles.map_or(10.0, |c| c / p.natural_frequency_hz());
         for zeta in [-0.005, -0.0075, -0.01, -0.015, -0.02, -0.03] {
             let (mut est, mut corr, mut pooled_err) = (Vec::new(), Vec::new(), Vec::new());
             let (mut refused, mut cov, mut pooled_cov) = (0, 0, 0);
             for seed in 1..=3u64 {
-                let ws = limit_cycle_windows(p.clone(), zeta, 20, 10.0, seed);
+                let ws = limit_cycle_windows(p.clone(), zeta, 20, secs, seed);
                 let mut sa = SpectralAnalyzer::new(ws[0].len(), p.rate_hz).unwrap();
                 let mut pool = DampingPool::new(PoolOptions::default()).unwrap();
                 for (i, x) in ws.iter().enumerate() {
@@ -361,11 +366,11 @@ fn explore_relaxation_across_zeta() {
                     est.push(e.zeta0);
                     corr.push(e.correlation_times);
                     cov += usize::from(e.zeta0_interval.0 <= zeta && zeta <= e.zeta0_interval.1);
-                    let t = 10.0 * i as f64;
+                    let t = secs * i as f64;
                     let pe = pool
                         .push(WindowEstimate {
                             t_start: t,
-                            t_end: t + 10.0,
+                            t_end: t + secs,
                             zeta: e.zeta0,
                             stderr: e.zeta0_stderr,
                             frequency_hz: f,
