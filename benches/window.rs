@@ -30,6 +30,7 @@ fn bench(c: &mut Criterion) {
         t0: (w * hop) as f64 / rate,
         rate_hz: rate,
         values: &signal[w * hop..w * hop + n],
+        history: &[],
     };
     // The memory after the first windows, as the worker pool carries it; the window benched as
     // tracked is the first after it that takes the tracked path.

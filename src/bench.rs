@@ -376,6 +376,7 @@ pub fn run_gate_example(opts: &GateExampleOptions) -> Result<Vec<GateExampleRun>
                 t0: 0.0,
                 rate_hz: ex.rate_hz,
                 values: &ex.force,
+                history: &[],
             };
             let a = if opts.fft_bias {
                 analyzer.analyze(input, None, seed)

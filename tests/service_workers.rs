@@ -37,6 +37,7 @@ async fn slow_workers_replace_pending_jobs_instead_of_queueing() {
         t0: i as f64,
         rate_hz: 100.0,
         values: vec![0.0; 10],
+        history: vec![],
         end_index: i,
     };
     let mut replaced = 0;
@@ -79,6 +80,7 @@ async fn queue_bound_and_one_in_flight_per_gate() {
         t0: 0.0,
         rate_hz: 100.0,
         values: vec![0.0; 4],
+        history: vec![],
         end_index: 1,
     };
     let mut full = 0;

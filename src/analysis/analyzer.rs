@@ -188,6 +188,7 @@ impl Analyzer {
             Start::Search(warm) => analyze_series_with(
                 &self.model,
                 &series,
+                input.history,
                 &opts,
                 warm,
                 &mut spectral,
@@ -196,6 +197,7 @@ impl Analyzer {
             Start::Refine(from, evaluations) => track_series_with(
                 &self.model,
                 &series,
+                input.history,
                 &opts,
                 from,
                 evaluations,

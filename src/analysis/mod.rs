@@ -113,6 +113,11 @@ pub struct WindowInput<'a> {
     pub rate_hz: f64,
     /// The samples, oldest first.
     pub values: &'a [f64],
+    /// The gate's contiguous samples up to the window's end (the window is their tail), oldest
+    /// first, for the estimates that need more cycles than the window holds (a limit cycle's
+    /// envelope relaxation, docs/damping.md). Empty, or not longer than `values`: the window
+    /// alone.
+    pub history: &'a [f64],
 }
 
 /// The result of analysing one window.

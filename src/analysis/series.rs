@@ -174,21 +174,32 @@ pub fn analyze_series(
     warm: Option<&[f64]>,
     progress: impl FnMut(usize, usize, f64),
 ) -> Result<SeriesAnalysis, AnalysisError> {
-    analyze_series_with(model, series, opts, warm, &mut None, progress)
+    analyze_series_with(model, series, &[], opts, warm, &mut None, progress)
 }
 
 /// [`analyze_series`] with a reusable spectral analyzer: `spectral` is used when it fits the
 /// series' length and rate, and replaced by a new one (FFT plans and buffers) otherwise, so a
-/// caller that analyses windows of one length plans its FFTs once.
+/// caller that analyses windows of one length plans its FFTs once. `history`: the gate's raw
+/// samples up to the series' end at its rate, for a limit cycle's envelope relaxation
+/// ([`crate::analysis::WindowInput::history`]; empty: the series alone).
 pub fn analyze_series_with(
     model: &Model,
     series: &TimeSeries,
+    history: &[f64],
     opts: &SeriesOptions,
     warm: Option<&[f64]>,
     spectral: &mut Option<SpectralAnalyzer>,
     progress: impl FnMut(usize, usize, f64),
 ) -> Result<SeriesAnalysis, AnalysisError> {
-    analyze(model, series, opts, Start::Search(warm), spectral, progress)
+    analyze(
+        model,
+        series,
+        history,
+        opts,
+        Start::Search(warm),
+        spectral,
+        progress,
+    )
 }
 
 /// [`analyze_series_with`] without the DE search: the coefficients `from` (physical units, e.g.
@@ -199,6 +210,7 @@ pub fn analyze_series_with(
 pub fn track_series_with(
     model: &Model,
     series: &TimeSeries,
+    history: &[f64],
     opts: &SeriesOptions,
     from: &[f64],
     max_evaluations: usize,
@@ -207,6 +219,7 @@ pub fn track_series_with(
     analyze(
         model,
         series,
+        history,
         opts,
         Start::Refine(from, max_evaluations),
         spectral,
@@ -226,6 +239,7 @@ enum Start<'a> {
 fn analyze(
     model: &Model,
     series: &TimeSeries,
+    history: &[f64],
     opts: &SeriesOptions,
     start: Start<'_>,
     spectral: &mut Option<SpectralAnalyzer>,
@@ -237,7 +251,7 @@ fn analyze(
     }
     let t0 = series.t[0];
     let data = preprocess(series, opts);
-    let free = model_free(&data, spectral);
+    let free = model_free(&data, history, opts, spectral);
 
     let mut config = opts.identify.clone();
     let scale = scale_problem(model, &data, opts, &free, &mut config)?;
@@ -401,7 +415,12 @@ struct ModelFree {
 
 /// The model-free analysis (uniform sampling only), with the analyzer replaced when it does not
 /// fit the window's length and rate.
-fn model_free(data: &TimeSeries, spectral: &mut Option<SpectralAnalyzer>) -> ModelFree {
+fn model_free(
+    data: &TimeSeries,
+    history: &[f64],
+    opts: &SeriesOptions,
+    spectral: &mut Option<SpectralAnalyzer>,
+) -> ModelFree {
     let n = data.len();
     let fs = data.uniform_step().map(|h| 1.0 / h);
     let duration = data.t[n - 1] - data.t[0];
@@ -447,7 +466,12 @@ fn model_free(data: &TimeSeries, spectral: &mut Option<SpectralAnalyzer>) -> Mod
             crate::spectral::detrend_linear(&mut work);
             let f = s.peak.frequency_hz;
             let relax = crate::spectral::RelaxationOptions::default();
-            match sa.envelope_relaxation(&work, f, &relax) {
+            let relaxation = match fs.and_then(|fs| relaxation_record(history, fs, f, n, opts)) {
+                Some((record, fs)) => SpectralAnalyzer::new(record.len(), fs)
+                    .and_then(|mut long| long.envelope_relaxation(&record, f, &relax)),
+                None => sa.envelope_relaxation(&work, f, &relax),
+            };
+            match relaxation {
                 Ok(r) => (Some(AmbientZeta::from(&r)), None),
                 Err(_) => {
                     let opts = crate::spectral::DriftOptions::default();
@@ -466,6 +490,35 @@ fn model_free(data: &TimeSeries, spectral: &mut Option<SpectralAnalyzer>) -> Mod
         relaxation,
         drift,
     }
+}
+
+/// Cycles of a limit cycle that the envelope relaxation reads when the gate's history holds
+/// them. Why: its error is set by the record's length in cycles, not seconds; a 5 Hz gate's
+/// 10 s window (50 cycles) read -1 % as -1.6 %, and the same gate with 104 cycles as -1.2 %,
+/// like the 10.4 Hz lab gate's 10 s window (docs/benchmarks.md, "The limit cycle across
+/// zeta0"). 100 cycles are 10 s at 10 Hz, 20 s at 5 Hz, 50 s at 2 Hz.
+pub const RELAXATION_CYCLES: f64 = 100.0;
+
+/// The record the relaxation reads: the last `RELAXATION_CYCLES` cycles of `history` (as much as
+/// it holds), pre-processed and detrended as the window is; `None` when that is not longer
+/// than the window's `n` samples (then the window itself is read).
+fn relaxation_record(
+    history: &[f64],
+    fs: f64,
+    frequency_hz: f64,
+    n: usize,
+    opts: &SeriesOptions,
+) -> Option<(Vec<f64>, f64)> {
+    let want = (RELAXATION_CYCLES * fs / frequency_hz).ceil() as usize;
+    let len = want.min(history.len());
+    if len <= n || !history.iter().all(|v| v.is_finite()) {
+        return None;
+    }
+    let raw = &history[history.len() - len..];
+    let series = TimeSeries::new((0..len).map(|i| i as f64 / fs).collect(), raw.to_vec()).ok()?;
+    let mut work = preprocess(&series, opts).y;
+    crate::spectral::detrend_linear(&mut work);
+    Some((work, fs))
 }
 
 /// Displacement and velocity scales of the problem (steps of the linearisation, bias targets).

@@ -322,6 +322,7 @@ fn latency(windows: usize) -> anyhow::Result<Vec<LatencyRow>> {
             t0,
             rate_hz: rate,
             values: &values,
+            history: &[],
         };
         let seed = (w * every + n) as u64;
         let (cold, cold_s) = timed(|| analyzer.analyze(input, None, seed));

@@ -246,6 +246,7 @@ fn templates(config: &Config) -> anyhow::Result<Vec<WindowAnalysis>> {
             t0: 0.0,
             rate_hz: rate,
             values: &values,
+            history: &[],
         };
         out.push(analyzer.analyze("g00", input, None, seed)?);
     }

@@ -21,7 +21,7 @@ use super::ingest::{BadRequest, Batch};
 use super::metrics::{Metrics, NotificationCounts, RejectReason};
 use super::storage::{identification_record, Persistence};
 use super::sync::lock;
-use super::window::Window;
+use super::window::{history_samples, Window};
 use super::worker::{Job, JobOutcome, Submitted, WindowAnalyzer, WorkerPool};
 use crate::alert::notify::{spawn_notifier_with_ack, NotifierHandle};
 use crate::alert::{Alert, AlertEngine, AlertEvent, GateState, Observation};
@@ -231,7 +231,12 @@ impl AppState {
             inner.gates.insert(
                 id.to_string(),
                 GateEntry {
-                    window: Window::new(cfg.rate_hz, cfg.window_samples(), cfg.every_samples()),
+                    window: Window::with_history(
+                        cfg.rate_hz,
+                        cfg.window_samples(),
+                        cfg.every_samples(),
+                        history_samples(cfg.window_samples()),
+                    ),
                     trend: DampingTrend::new(cfg.alert.trend_horizon_seconds),
                     // validated with the configuration: an error cannot happen here, and would
                     // only mean no pooling
@@ -356,6 +361,7 @@ impl AppState {
                         t0: w.t0,
                         rate_hz: rate,
                         values: w.values,
+                        history: w.history,
                         end_index: w.end_index,
                     });
                 }

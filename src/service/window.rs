@@ -1,9 +1,12 @@
 //! The sliding window of one gate: a preallocated ring buffer of the last `window_seconds` of
-//! samples, with the identification cadence counted in SAMPLE time.
+//! samples (and a longer contiguous history behind it), with the identification cadence counted
+//! in SAMPLE time.
 //!
 //! Memory: the buffer keeps values only (8 bytes per sample; the time of every sample follows
 //! from the time of the newest and the rate since the window is uniform and contiguous), so a
-//! gate costs `8 * window_seconds * rate_hz` bytes, 16 KB at 10 s and 200 Hz.
+//! gate costs 8 bytes per sample kept: three windows (`HISTORY_WINDOWS`), 48 KB at 10 s and
+//! 200 Hz, and never more than the window plus 100 000 samples (`MAX_HISTORY_EXTRA`). The history is what a limit cycle's envelope
+//! relaxation reads (about 100 cycles, docs/damping.md); the identification sees the window.
 //!
 //! Times are never accumulated: the first sample's time is derived from the newest sample's
 //! actual time, `t_last - (len - 1) / rate_hz`. Adding the period sample after sample would
@@ -42,6 +45,18 @@ pub struct PushStats {
     pub gaps: u64,
 }
 
+/// Windows of contiguous history the daemon keeps, the window included (see the module doc) ...
+pub const HISTORY_WINDOWS: usize = 3;
+/// ... but never more than this many samples beyond the window (800 KB a gate), so a very long
+/// window does not triple a gate's memory.
+pub const MAX_HISTORY_EXTRA: usize = 100_000;
+
+/// The samples a gate keeps for a window of `window` samples: [`HISTORY_WINDOWS`] windows, at
+/// most [`MAX_HISTORY_EXTRA`] beyond the window.
+pub fn history_samples(window: usize) -> usize {
+    window + ((HISTORY_WINDOWS - 1) * window).min(MAX_HISTORY_EXTRA)
+}
+
 /// A full window ready for identification.
 #[derive(Debug, Clone, PartialEq)]
 pub struct DueWindow {
@@ -49,6 +64,9 @@ pub struct DueWindow {
     pub t0: f64,
     /// The samples.
     pub values: Vec<f64>,
+    /// The contiguous samples held up to the window's end, oldest first (the window is its
+    /// tail): at least the window, at most the history's capacity.
+    pub history: Vec<f64>,
     /// Index (over all samples ever accepted for the gate, from 0) of the sample after the last.
     pub end_index: u64,
 }
@@ -58,6 +76,8 @@ pub struct DueWindow {
 pub struct Window {
     rate_hz: f64,
     capacity: usize,
+    /// Samples kept: the window and the history behind it (at least `capacity`).
+    history: usize,
     every: usize,
     values: VecDeque<f64>,
     /// Time of the newest sample (the window's times are derived from it, see the module doc).
@@ -75,11 +95,20 @@ pub struct Window {
 impl Window {
     /// A window of `capacity` samples at `rate_hz`, due every `every` new samples.
     pub fn new(rate_hz: f64, capacity: usize, every: usize) -> Window {
+        Window::with_history(rate_hz, capacity, every, capacity)
+    }
+
+    /// [`Window::new`] keeping up to `history` contiguous samples (at least the window), handed
+    /// out with each due window ([`DueWindow::history`]).
+    pub fn with_history(rate_hz: f64, capacity: usize, every: usize, history: usize) -> Window {
+        let capacity = capacity.max(1);
+        let history = history.max(capacity);
         Window {
             rate_hz,
-            capacity: capacity.max(1),
+            capacity,
+            history,
             every: every.max(1),
-            values: VecDeque::with_capacity(capacity.max(1)),
+            values: VecDeque::with_capacity(history),
             t_last: None,
             accepted: 0,
             since_due: 0,
@@ -117,7 +146,7 @@ impl Window {
                     self.due_once = false;
                 }
             }
-            if self.values.len() == self.capacity {
+            if self.values.len() == self.history {
                 self.values.pop_front();
             }
             self.values.push_back(v);
@@ -126,14 +155,16 @@ impl Window {
             self.accepted += 1;
             self.since_due += 1;
             stats.accepted += 1;
-            if self.values.len() == self.capacity
+            if self.values.len() >= self.capacity
                 && (!self.due_once || self.since_due >= self.every)
             {
                 self.due_once = true;
                 self.since_due = 0;
+                let skip = self.values.len() - self.capacity;
                 due.push(DueWindow {
                     t0: t - (self.capacity - 1) as f64 * period,
-                    values: self.values.iter().copied().collect(),
+                    values: self.values.iter().skip(skip).copied().collect(),
+                    history: self.values.iter().copied().collect(),
                     end_index: self.accepted,
                 });
             }
@@ -141,9 +172,9 @@ impl Window {
         (stats, due)
     }
 
-    /// Samples held.
+    /// Samples held in the window (the history behind it not counted).
     pub fn len(&self) -> usize {
-        self.values.len()
+        self.values.len().min(self.capacity)
     }
 
     /// Whether no sample is held.
@@ -158,12 +189,12 @@ impl Window {
 
     /// Held fraction of a full window.
     pub fn fill_ratio(&self) -> f64 {
-        self.values.len() as f64 / self.capacity as f64
+        self.len() as f64 / self.capacity as f64
     }
 
-    /// Seconds spanned by the held samples.
+    /// Seconds spanned by the window's held samples.
     pub fn span_seconds(&self) -> f64 {
-        self.values.len().saturating_sub(1) as f64 / self.rate_hz
+        self.len().saturating_sub(1) as f64 / self.rate_hz
     }
 
     /// Time of the newest sample.
@@ -327,5 +358,45 @@ mod tests {
                 proptest::prop_assert_eq!(d.values.len(), 20);
             }
         }
+    }
+
+    #[test]
+    fn the_history_is_three_windows_with_a_cap() {
+        assert_eq!(history_samples(2_000), 6_000);
+        assert_eq!(history_samples(10_000_000), 10_100_000);
+    }
+
+    #[test]
+    fn the_history_behind_the_window_is_handed_out_and_restarts_at_a_gap() {
+        let data = stream(1_000, 100.0);
+        let mut w = Window::with_history(100.0, 300, 50, 900);
+        let due = w.push(data.iter().copied()).1;
+        // the windows are the plain window's, whatever history is kept
+        let plain = Window::new(100.0, 300, 50).push(data.iter().copied()).1;
+        assert_eq!(due.len(), plain.len());
+        for (d, p) in due.iter().zip(&plain) {
+            assert_eq!(
+                (d.t0, &d.values, d.end_index),
+                (p.t0, &p.values, p.end_index)
+            );
+            assert_eq!(p.history, p.values);
+            // the window is the history's tail, and the history is contiguous up to its end
+            assert!(d.history.len() >= 300 && d.history.len() <= 900);
+            assert_eq!(&d.history[d.history.len() - 300..], &d.values[..]);
+            let first = d.end_index as usize - d.history.len();
+            let want: Vec<f64> = data[first..d.end_index as usize]
+                .iter()
+                .map(|s| s.1)
+                .collect();
+            assert_eq!(d.history, want);
+        }
+        assert_eq!(due.last().unwrap().history.len(), 900);
+        // the window's fill does not count the history
+        assert_eq!((w.len(), w.fill_ratio()), (300, 1.0));
+        // a gap restarts the history with the window
+        let later: Vec<(f64, f64)> = (0..400).map(|i| (2000.0 + i as f64 / 100.0, 1.0)).collect();
+        let due = w.push(later).1;
+        assert_eq!(due[0].history.len(), 300);
+        assert!(due.iter().all(|d| d.history.iter().all(|v| *v == 1.0)));
     }
 }

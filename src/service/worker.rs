@@ -144,6 +144,9 @@ pub struct Job {
     pub rate_hz: f64,
     /// Samples.
     pub values: Vec<f64>,
+    /// The contiguous samples up to the window's end, oldest first ([`WindowInput::history`];
+    /// empty: the window alone).
+    pub history: Vec<f64>,
     /// Index of the sample after the window's last (seeds the job).
     pub end_index: u64,
 }
@@ -337,6 +340,7 @@ fn worker_loop(shared: Arc<Shared>) {
                     t0: job.t0,
                     rate_hz: job.rate_hz,
                     values: &job.values,
+                    history: &job.history,
                 },
                 previous.as_ref(),
                 seed,
