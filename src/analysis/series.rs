@@ -518,8 +518,21 @@ fn relaxation_record(
     let series = TimeSeries::new((0..len).map(|i| i as f64 / fs).collect(), raw.to_vec()).ok()?;
     let mut work = preprocess(&series, opts).y;
     crate::spectral::detrend_linear(&mut work);
-    Some((work, fs))
+    // The relaxation assumes a stationary cycle: a history whose level differs from the
+    // window's (the end of a growth, a ramp of the damping) is not read.
+    let rms = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt();
+    let ratio = rms(&work[..len - n]) / rms(&work[len - n..]);
+    (ratio.is_finite()
+        && (1.0 / MAX_HISTORY_LEVEL_CHANGE..=MAX_HISTORY_LEVEL_CHANGE).contains(&ratio))
+    .then_some((work, fs))
 }
+
+/// Largest ratio of the RMS level of the history before the window to the window's for the
+/// relaxation to read the history. Why 1.25: a held cycle's 5 s level moves by a few percent
+/// (envelope CV 0.1 to 0.3 over about ten correlation times), while on the onset ramp the cycle
+/// grows by about 30 % in the 10 s the history adds on a 5 Hz gate (the amplitude follows
+/// `sqrt(-zeta0)`), and that lag cost the ramp's limit-cycle windows their coverage.
+const MAX_HISTORY_LEVEL_CHANGE: f64 = 1.25;
 
 /// Displacement and velocity scales of the problem (steps of the linearisation, bias targets).
 #[derive(Debug, Clone, Copy)]
