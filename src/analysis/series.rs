@@ -502,7 +502,7 @@ pub const RELAXATION_CYCLES: f64 = 100.0;
 /// The record the relaxation reads: the last `RELAXATION_CYCLES` cycles of `history` (as much as
 /// it holds), pre-processed and detrended as the window is; `None` when that is not longer
 /// than the window's `n` samples (then the window itself is read).
-fn relaxation_record(
+pub(super) fn relaxation_record(
     history: &[f64],
     fs: f64,
     frequency_hz: f64,

@@ -130,3 +130,35 @@ fn zeta0_source_and_ambient_zeta_serialise_as_before() {
     assert!(none["zeta0_source"].is_null());
     assert!(none["ambient_zeta"].is_null());
 }
+
+/// The relaxation's record: the last 100 cycles of the history when they are longer than the
+/// window and the cycle's level held; else the window alone (`None`).
+#[test]
+fn the_relaxation_reads_the_history_only_over_a_steady_cycle() {
+    let (fs, f, n) = (100.0, 5.0, 1000);
+    let opts = series::SeriesOptions {
+        signal: Signal::Displacement,
+        ..series::SeriesOptions::default()
+    };
+    let wave = |amp_before: f64| -> Vec<f64> {
+        (0..3000)
+            .map(|i| {
+                let amp = if i < 2000 { amp_before } else { 1.0 };
+                amp * (2.0 * std::f64::consts::PI * f * i as f64 / fs).sin()
+            })
+            .collect()
+    };
+    // steady: the last 100 cycles (2000 samples at 20 per cycle) of the 3000 held
+    let (record, rate) = series::relaxation_record(&wave(1.1), fs, f, n, &opts).unwrap();
+    assert_eq!((record.len(), rate), (2000, fs));
+    // the cycle grew by half within the history: the window alone
+    assert!(series::relaxation_record(&wave(0.6), fs, f, n, &opts).is_none());
+    assert!(series::relaxation_record(&wave(1.5), fs, f, n, &opts).is_none());
+    // no history beyond the window, or a gate fast enough for its window: the window alone
+    assert!(series::relaxation_record(&wave(1.0)[2000..], fs, f, n, &opts).is_none());
+    assert!(series::relaxation_record(&wave(1.0), fs, 10.4, 2000, &opts).is_none());
+    // a non-finite sample in the history: the window alone
+    let mut bad = wave(1.0);
+    bad[10] = f64::NAN;
+    assert!(series::relaxation_record(&bad, fs, f, n, &opts).is_none());
+}
