@@ -195,25 +195,31 @@ fn limit_cycle_envelope_lock_gate_pooled() {
     );
 }
 
+/// The daemon's analyzer for gate `p` with the default force model and search.
+fn force_analyzer(p: &GateParams) -> gatewatch::analysis::Analyzer {
+    use gatewatch::analysis::{AnalysisSettings, Analyzer, Signal};
+    Analyzer::new(AnalysisSettings {
+        signal: Signal::Force,
+        stiffness: Some(p.stiffness),
+        model: "c1*ydd + (c2 + c3*yd^2)*yd + k*y = 0".into(),
+        params: vec![("k".into(), p.stiffness)],
+        population: 20,
+        generations: 40,
+        amplitude_limit: None,
+        max_fit_nmae: 0.2,
+        polish_rtol: gatewatch::analysis::DEFAULT_POLISH_RTOL,
+    })
+    .unwrap()
+}
+
 /// The daemon's analyzer on the lab and lock gates held on their limit cycle at -2 %: the report's
 /// `zeta0` comes from the envelope and is right (issue 8: it read about -0.3 %, the demo +0.41 %).
 /// Six windows per gate keep it CI-sized; `limit_cycle_envelope_*` above cover the statistics.
 #[test]
 fn analyzer_reports_the_limit_cycle_from_the_envelope() {
-    use gatewatch::analysis::{AnalysisSettings, Analyzer, Signal, WindowInput, Zeta0Source};
+    use gatewatch::analysis::{WindowInput, Zeta0Source};
     for (name, p, seed) in [("lab gate", lab_gate(), 5), ("lock gate", lock_gate(), 6)] {
-        let analyzer = Analyzer::new(AnalysisSettings {
-            signal: Signal::Force,
-            stiffness: Some(p.stiffness),
-            model: "c1*ydd + (c2 + c3*yd^2)*yd + k*y = 0".into(),
-            params: vec![("k".into(), p.stiffness)],
-            population: 20,
-            generations: 40,
-            amplitude_limit: None,
-            max_fit_nmae: 0.2,
-            polish_rtol: gatewatch::analysis::DEFAULT_POLISH_RTOL,
-        })
-        .unwrap();
+        let analyzer = force_analyzer(&p);
         let mut zetas = Vec::new();
         let mut covered = 0;
         let mut warm: Option<Vec<f64>> = None;
@@ -329,21 +335,10 @@ fn explore_relaxation_options() {
 /// Windows of 10 s every 5 s over one stream, 30 s of history each, as the daemon has them.
 #[test]
 fn analyzer_reads_a_slow_gates_limit_cycle_over_its_history() {
-    use gatewatch::analysis::{AnalysisSettings, Analyzer, Signal, WindowInput};
+    use gatewatch::analysis::WindowInput;
     let p = lock_gate();
     let zeta = -0.01;
-    let analyzer = Analyzer::new(AnalysisSettings {
-        signal: Signal::Force,
-        stiffness: Some(p.stiffness),
-        model: "c1*ydd + (c2 + c3*yd^2)*yd + k*y = 0".into(),
-        params: vec![("k".into(), p.stiffness)],
-        population: 20,
-        generations: 40,
-        amplitude_limit: None,
-        max_fit_nmae: 0.2,
-        polish_rtol: gatewatch::analysis::DEFAULT_POLISH_RTOL,
-    })
-    .unwrap();
+    let analyzer = force_analyzer(&p);
     let rate = p.rate_hz;
     let (w, step, hist) = (
         (10.0 * rate) as usize,
