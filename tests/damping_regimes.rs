@@ -403,8 +403,9 @@ fn analyzer_reads_a_slow_gates_limit_cycle_over_its_history() {
 /// per gate and value, 60 ten-second windows (3 seeds), the single windows' median estimate,
 /// median |error| and coverage, and the same for the estimates pooled as the daemon pools them
 /// ([`DampingPool`], from the fifth window on). Options from the environment for experiments:
-/// `BAND`, `FIT_DECAY`, `MIN_LAG` (periods), and `WINDOW_CYCLES` (each gate's window holds that
-/// many cycles instead of 10 s). Figures in docs/benchmarks.md ("The limit cycle across
+/// `BAND`, `FIT_DECAY`, `MIN_LAG` (periods), `SE_INFLATION`, `WINDOW_CYCLES` (each gate's window
+/// holds that many cycles instead of 10 s), and `ESTIMATOR=whittle` (the experimental
+/// `envelope_relaxation_whittle` instead of the daemon's estimator). Figures in docs/benchmarks.md ("The limit cycle across
 /// zeta0").
 ///
 /// `cargo test --release --test damping_regimes explore_relaxation_across_zeta -- --ignored --nocapture`
@@ -418,9 +419,12 @@ fn explore_relaxation_across_zeta() {
         band: env("BAND", d.band),
         fit_decay: env("FIT_DECAY", d.fit_decay),
         min_lag_periods: env("MIN_LAG", d.min_lag_periods),
+        se_inflation: env("SE_INFLATION", d.se_inflation),
         ..d
     };
-    println!("{opts:?}");
+    // ESTIMATOR=whittle: the experimental debiased Whittle fit (not the daemon's)
+    let whittle = std::env::var("ESTIMATOR").is_ok_and(|v| v == "whittle");
+    println!("{opts:?}, whittle {whittle}");
     println!("| gate | zeta0 | windows | refused | median | median abs err | coverage | correlation times | pooled abs err | pooled coverage |");
     println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
     let cycles = std::env::var("WINDOW_CYCLES")
@@ -437,7 +441,12 @@ fn explore_relaxation_across_zeta() {
                 let mut pool = DampingPool::new(PoolOptions::default()).unwrap();
                 for (i, x) in ws.iter().enumerate() {
                     let f = sa.dominant_frequency(x, 1.0).unwrap().frequency_hz;
-                    let Ok(e) = sa.envelope_relaxation(x, f, &opts) else {
+                    let e = if whittle {
+                        sa.envelope_relaxation_whittle(x, f, &opts)
+                    } else {
+                        sa.envelope_relaxation(x, f, &opts)
+                    };
+                    let Ok(e) = e else {
                         refused += 1;
                         continue;
                     };

@@ -271,14 +271,7 @@ impl SpectralAnalyzer {
                 0.0
             };
             let weight = if band.is_some() && gain > 0.0 {
-                let d = (k as f64 * df - centre).abs();
-                if d <= 0.5 * half_width {
-                    1.0
-                } else if d < half_width {
-                    0.5 * (1.0 + (PI * (d - 0.5 * half_width) / (0.5 * half_width)).cos())
-                } else {
-                    0.0
-                }
+                band_gain(k as f64 * df - centre, half_width)
             } else {
                 1.0
             };
@@ -291,6 +284,42 @@ impl SpectralAnalyzer {
             *e = b.norm() * scale;
         }
         Ok(&self.env)
+    }
+
+    /// Two-sided density (units squared per Hz) of the white noise on `x`, from the median of
+    /// its Hann-tapered periodogram between `lo_hz` and `hi_hz` (divided by `ln 2`: the median of an
+    /// exponential ordinate); `None` without at least 8 ordinates there below the Nyquist
+    /// frequency or on a bad `x`.
+    pub fn noise_density(&mut self, x: &[f64], lo_hz: f64, hi_hz: f64) -> Option<f64> {
+        self.check(x).ok()?;
+        let n = self.n;
+        let m = 2 * n;
+        // Hann-tapered: the rectangular window's side lobes of a strong mode (a limit cycle) fall
+        // only as 1/df^2 and outweigh a sensor's floor one or two frequencies away
+        let mut energy = 0.0;
+        for (i, b) in self.buf.iter_mut().enumerate() {
+            let v = if i < n {
+                let w = 0.5 - 0.5 * (2.0 * PI * i as f64 / n as f64).cos();
+                energy += w * w;
+                w * x[i]
+            } else {
+                0.0
+            };
+            *b = Complex::new(v, 0.0);
+        }
+        self.fwd2
+            .process_with_scratch(&mut self.buf, &mut self.scratch);
+        let df = self.rate_hz / m as f64;
+        let hi = hi_hz.min(0.95 * self.rate_hz / 2.0);
+        let mut p: Vec<f64> = (1..m / 2)
+            .filter(|&k| (lo_hz..=hi).contains(&(k as f64 * df)))
+            .map(|k| self.buf[k].norm_sqr() / (energy * self.rate_hz))
+            .collect();
+        if p.len() < 8 {
+            return None;
+        }
+        p.sort_by(f64::total_cmp);
+        Some(p[p.len() / 2] / std::f64::consts::LN_2)
     }
 
     /// Envelope growth rate of `x` oscillating at `frequency_hz`: least-squares slope of
@@ -431,5 +460,18 @@ impl SpectralAnalyzer {
         })();
         self.work = work;
         result
+    }
+}
+
+/// Gain of [`SpectralAnalyzer::envelope`]'s band-pass at `offset` Hz from the band's centre:
+/// flat over the inner half of `half_width`, a raised cosine to zero at `half_width`.
+pub(super) fn band_gain(offset: f64, half_width: f64) -> f64 {
+    let d = offset.abs();
+    if d <= 0.5 * half_width {
+        1.0
+    } else if d < half_width {
+        0.5 * (1.0 + (PI * (d - 0.5 * half_width) / (0.5 * half_width)).cos())
+    } else {
+        0.0
     }
 }

@@ -16,6 +16,8 @@
 //!   enough cycles, flushed on a regime change.
 //! - `relaxation`: [`envelope_relaxation`], `zeta0` of a limit cycle from the relaxation of the
 //!   envelope's perturbations (stochastic averaging).
+//! - `whittle`: the debiased Whittle fit of an OU spectrum through a known filter, behind the
+//!   relaxation's experimental estimator ([`envelope_relaxation_whittle`]).
 //! - `drift`: [`envelope_drift`], `zeta0` from the envelope's drift across the amplitudes a
 //!   window visits (stochastic averaging; the end of a growth, a shrinking cycle).
 //! - `classify`: [`classify`] and the options and result of
@@ -31,6 +33,7 @@ mod relaxation;
 mod ssi;
 #[cfg(test)]
 mod tests;
+mod whittle;
 
 pub use ambient::{ambient_damping, normal_quantile, AmbientDamping, ArOptions};
 pub use analyzer::{GrowthOptions, GrowthRate, Peak, SpectralAnalyzer};
@@ -40,7 +43,10 @@ pub use classify::{
 pub use drift::{envelope_drift, DriftOptions, EnvelopeDrift};
 pub use pool::{DampingPool, PoolOptions, PooledEstimate, WindowEstimate};
 pub use preprocess::{damping_from_growth, detrend_linear, hann, hann_into, remove_moving_average};
-pub use relaxation::{envelope_relaxation, EnvelopeRelaxation, RelaxationOptions};
+pub use relaxation::{
+    envelope_relaxation, envelope_relaxation_whittle, EnvelopeRelaxation, RelaxationOptions,
+    NOISE_BAND,
+};
 pub use ssi::{ssi_cov_damping, t_quantile, SsiError, SsiEstimate, SsiOptions};
 
 /// Why a spectral computation could not be done.
