@@ -403,9 +403,10 @@ fn analyzer_reads_a_slow_gates_limit_cycle_over_its_history() {
 /// per gate and value, 60 ten-second windows (3 seeds), the single windows' median estimate,
 /// median |error| and coverage, and the same for the estimates pooled as the daemon pools them
 /// ([`DampingPool`], from the fifth window on). Options from the environment for experiments:
-/// `BAND`, `FIT_DECAY`, `MIN_LAG` (periods), `SE_INFLATION`, `WINDOW_CYCLES` (each gate's window
-/// holds that many cycles instead of 10 s), and `ESTIMATOR=whittle` (the experimental
-/// `envelope_relaxation_whittle` instead of the daemon's estimator). Figures in docs/benchmarks.md ("The limit cycle across
+/// `BAND`, `FIT_DECAY`, `MIN_LAG`, `EDGE` (periods), `SE_INFLATION`, `WINDOW_CYCLES` (each gate's
+/// window holds that many cycles instead of 10 s), and `ESTIMATOR=whittle` (the experimental
+/// `envelope_relaxation_whittle` with `RelaxationOptions::whittle()` instead of the daemon's
+/// estimator). Figures in docs/benchmarks.md ("The limit cycle across
 /// zeta0").
 ///
 /// `cargo test --release --test damping_regimes explore_relaxation_across_zeta -- --ignored --nocapture`
@@ -414,16 +415,22 @@ fn analyzer_reads_a_slow_gates_limit_cycle_over_its_history() {
 fn explore_relaxation_across_zeta() {
     use gatewatch::spectral::{DampingPool, PoolOptions, WindowEstimate};
     let env = |k: &str, d: f64| std::env::var(k).map_or(d, |v| v.parse().expect(k));
-    let d = RelaxationOptions::default();
+    // ESTIMATOR=whittle: the experimental debiased Whittle fit (not the daemon's), with its
+    // measured options
+    let whittle = std::env::var("ESTIMATOR").is_ok_and(|v| v == "whittle");
+    let d = if whittle {
+        RelaxationOptions::whittle()
+    } else {
+        RelaxationOptions::default()
+    };
     let opts = RelaxationOptions {
+        edge_periods: env("EDGE", d.edge_periods),
         band: env("BAND", d.band),
         fit_decay: env("FIT_DECAY", d.fit_decay),
         min_lag_periods: env("MIN_LAG", d.min_lag_periods),
         se_inflation: env("SE_INFLATION", d.se_inflation),
         ..d
     };
-    // ESTIMATOR=whittle: the experimental debiased Whittle fit (not the daemon's)
-    let whittle = std::env::var("ESTIMATOR").is_ok_and(|v| v == "whittle");
     println!("{opts:?}, whittle {whittle}");
     println!("| gate | zeta0 | windows | refused | median | median abs err | coverage | correlation times | pooled abs err | pooled coverage |");
     println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
