@@ -165,6 +165,24 @@ fn autocov(e: &[f64], k: usize) -> f64 {
         / n as f64
 }
 
+/// The refusals both estimators share: an envelope too spread for the OU linearisation, or a
+/// record of too few correlation times.
+fn check_record(cv: f64, corr_times: f64, opts: &RelaxationOptions) -> Result<(), SpectralError> {
+    if cv > opts.max_cv {
+        return Err(SpectralError::NoResult(format!(
+            "envelope CV {cv:.2} above {}: not a saturated limit cycle",
+            opts.max_cv
+        )));
+    }
+    if corr_times < opts.min_correlation_times {
+        return Err(SpectralError::TooShort(format!(
+            "{corr_times:.1} correlation times of the envelope in the record, need {}",
+            opts.min_correlation_times
+        )));
+    }
+    Ok(())
+}
+
 /// Estimates `zeta0` from the envelope `env` (e.g. [`super::SpectralAnalyzer::envelope`] with
 /// the band `(1 +- band) frequency_hz`), sampled at `rate_hz`, of a gate on its limit cycle at
 /// `frequency_hz`. See the module documentation for the derivation and the assumptions.
@@ -246,18 +264,7 @@ pub fn envelope_relaxation(
     let v0 = ln_r0.exp();
     let cv = v0.sqrt() / mean;
     let corr_times = -lambda * t_rec;
-    if cv > opts.max_cv {
-        return Err(SpectralError::NoResult(format!(
-            "envelope CV {cv:.2} above {}: not a saturated limit cycle",
-            opts.max_cv
-        )));
-    }
-    if corr_times < opts.min_correlation_times {
-        return Err(SpectralError::TooShort(format!(
-            "{corr_times:.1} correlation times of the envelope in the record, need {}",
-            opts.min_correlation_times
-        )));
-    }
+    check_record(cv, corr_times, opts)?;
     let w = 2.0 * PI * frequency_hz;
     let factor = (1.0 - cv * cv) / (opts.exponent * w);
     let zeta0 = lambda * factor;
@@ -352,18 +359,7 @@ pub fn envelope_relaxation_whittle(
     let lambda = -fit.lambda;
     let cv = fit.variance.sqrt() / mean;
     let corr_times = fit.lambda * t_rec;
-    if cv > opts.max_cv {
-        return Err(SpectralError::NoResult(format!(
-            "envelope CV {cv:.2} above {}: not a saturated limit cycle",
-            opts.max_cv
-        )));
-    }
-    if corr_times < opts.min_correlation_times {
-        return Err(SpectralError::TooShort(format!(
-            "{corr_times:.1} correlation times of the envelope in the record, need {}",
-            opts.min_correlation_times
-        )));
-    }
+    check_record(cv, corr_times, opts)?;
     let factor = (1.0 - cv * cv) / (opts.exponent * w);
     let zeta0 = lambda * factor;
     let s = opts.se_inflation * fit.ln_lambda_se;
