@@ -154,6 +154,7 @@ fn limit_cycle_envelope_lock_gate_pooled() {
                 zeta: e.zeta0,
                 stderr: e.zeta0_stderr,
                 frequency_hz: f,
+                record_seconds: 0.0,
             })
             .unwrap();
         eprintln!(
@@ -468,6 +469,7 @@ fn explore_relaxation_across_zeta() {
                             zeta: e.zeta0,
                             stderr: e.zeta0_stderr,
                             frequency_hz: f,
+                            record_seconds: 0.0,
                         })
                         .unwrap();
                     if i >= 4 {

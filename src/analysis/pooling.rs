@@ -99,11 +99,16 @@ impl ZetaPools {
                 if d.trusted && !departed(d) =>
             {
                 self.envelope.clear();
-                push(&mut self.ambient, t_start, t_end, z, iv, f)
+                push(&mut self.ambient, (t_start, t_end, 0.0), z, iv, f)
             }
             (Some(Zeta0Source::Envelope), Some(z), Some(iv), Some(f)) => {
                 self.ambient.clear();
-                push(&mut self.envelope, t_start, t_end, z, iv, f)
+                // the relaxation reads RELAXATION_CYCLES of the gate's history when it holds them:
+                // consecutive estimates share that record, not only their windows' overlap (a
+                // drift estimate, which reads the window, is then counted as more correlated
+                // than it is: its pooled interval wider, on the safe side)
+                let record = super::series::RELAXATION_CYCLES / f;
+                push(&mut self.envelope, (t_start, t_end, record), z, iv, f)
             }
             _ => None,
         };
@@ -144,12 +149,12 @@ impl ZetaPools {
     }
 }
 
-/// Pushes one window's estimate; `None` when the pool refuses it (then the pools are emptied and
+/// Pushes one window's estimate (the window's span and the seconds of record the estimate read, 0
+/// for the window's); `None` when the pool refuses it (then the pools are emptied and
 /// the window stands alone).
 fn push(
     pool: &mut DampingPool,
-    t_start: f64,
-    t_end: f64,
+    (t_start, t_end, record_seconds): (f64, f64, f64),
     zeta: f64,
     (low, high): (f64, f64),
     frequency_hz: f64,
@@ -164,6 +169,7 @@ fn push(
         zeta,
         stderr,
         frequency_hz,
+        record_seconds,
     })
     .ok()
 }

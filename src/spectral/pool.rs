@@ -77,6 +77,18 @@ pub struct WindowEstimate {
     pub stderr: f64,
     /// Frequency of the mode, Hz.
     pub frequency_hz: f64,
+    /// Seconds of record the estimate read, ending at `t_end`: the window's, or more where it
+    /// read the gate's history (a limit cycle's relaxation). Two estimates are correlated by the
+    /// overlap of their records, not of their windows; a value below the window's length counts
+    /// as the window's.
+    pub record_seconds: f64,
+}
+
+impl WindowEstimate {
+    /// Start of the record the estimate read.
+    fn record_start(&self) -> f64 {
+        self.t_start.min(self.t_end - self.record_seconds)
+    }
 }
 
 /// The pooled estimate after a window.
@@ -141,9 +153,16 @@ impl DampingPool {
     /// estimate. A window that is not finite, has a non-positive standard error or ends before
     /// it starts is refused with the reason.
     pub fn push(&mut self, e: WindowEstimate) -> Result<PooledEstimate, SpectralError> {
-        let finite = [e.t_start, e.t_end, e.zeta, e.stderr, e.frequency_hz]
-            .iter()
-            .all(|v| v.is_finite());
+        let finite = [
+            e.t_start,
+            e.t_end,
+            e.zeta,
+            e.stderr,
+            e.frequency_hz,
+            e.record_seconds,
+        ]
+        .iter()
+        .all(|v| v.is_finite());
         if !(finite && e.stderr > 0.0 && e.t_end > e.t_start && e.frequency_hz > 0.0) {
             return Err(SpectralError::Invalid(format!("window estimate {e:?}")));
         }
@@ -212,8 +231,9 @@ impl DampingPool {
         let mut var = 0.0;
         for (i, a) in self.entries.iter().enumerate() {
             for (j, b) in self.entries.iter().enumerate() {
-                let shared = (a.t_end.min(b.t_end) - a.t_start.max(b.t_start)).max(0.0);
-                let rho = shared / ((a.t_end - a.t_start) * (b.t_end - b.t_start)).sqrt();
+                let (sa, sb) = (a.record_start(), b.record_start());
+                let shared = (a.t_end.min(b.t_end) - sa.max(sb)).max(0.0);
+                let rho = shared / ((a.t_end - sa) * (b.t_end - sb)).sqrt();
                 var += w[i] * w[j] * rho * a.stderr * b.stderr;
             }
         }
@@ -256,6 +276,7 @@ mod tests {
             zeta,
             stderr,
             frequency_hz: 10.0,
+            record_seconds: 0.0,
         }
     }
 
@@ -313,6 +334,38 @@ mod tests {
             slow.push(e).unwrap();
         }
         assert_eq!(slow.len(), 12);
+    }
+
+    /// Estimates that read longer records than their windows share more of them: two 10 s windows
+    /// 5 s apart that each read 40 s share 35 s (rho 0.875), not 5 s (0.5), and the pooled error
+    /// says so.
+    #[test]
+    fn overlapping_records_count_as_correlated() {
+        let pooled = |record_seconds: f64| {
+            let mut p = DampingPool::new(PoolOptions::default()).unwrap();
+            p.push(WindowEstimate {
+                record_seconds,
+                ..est(0.0, 0.02, 0.004)
+            })
+            .unwrap();
+            p.push(WindowEstimate {
+                record_seconds,
+                ..est(5.0, 0.02, 0.004)
+            })
+            .unwrap()
+        };
+        let (window, record) = (pooled(0.0), pooled(40.0));
+        assert_relative_eq!(
+            window.stderr,
+            0.004 * (0.5f64 * 1.5).sqrt(),
+            epsilon = 1e-12
+        );
+        assert_relative_eq!(
+            record.stderr,
+            0.004 * (0.5f64 * 1.875).sqrt(),
+            epsilon = 1e-12
+        );
+        assert_eq!((window.windows, record.windows), (2, 2));
     }
 
     /// A regime change (the damping drops from +2 % to -1 %) flushes the pool at once instead of
