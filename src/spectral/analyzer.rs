@@ -287,8 +287,8 @@ impl SpectralAnalyzer {
     }
 
     /// Two-sided density (units squared per Hz) of the white noise on `x`, from the median of
-    /// its Hann-tapered periodogram between `lo_hz` and `hi_hz` (divided by `ln 2`: the median of an
-    /// exponential ordinate); `None` without at least 8 ordinates there below the Nyquist
+    /// its Hann-tapered periodogram between `lo_hz` and `hi_hz` (divided by `ln 2`: the median of
+    /// an exponential ordinate); `None` without at least 8 ordinates there below the Nyquist
     /// frequency or on a bad `x`.
     pub fn noise_density(&mut self, x: &[f64], lo_hz: f64, hi_hz: f64) -> Option<f64> {
         self.check(x).ok()?;

@@ -165,6 +165,18 @@ fn autocov(e: &[f64], k: usize) -> f64 {
         / n as f64
 }
 
+/// Samples per period, after the checks both estimators share: a frequency below the Nyquist
+/// frequency, a finite envelope.
+fn check_inputs(env: &[f64], rate_hz: f64, frequency_hz: f64) -> Result<f64, SpectralError> {
+    if !(rate_hz > 0.0 && frequency_hz > 0.0 && frequency_hz < rate_hz / 2.0) {
+        return Err(SpectralError::Invalid(format!(
+            "rate {rate_hz} Hz, frequency {frequency_hz} Hz"
+        )));
+    }
+    super::check_finite(env)?;
+    Ok(rate_hz / frequency_hz)
+}
+
 /// The refusals both estimators share: an envelope too spread for the OU linearisation, or a
 /// record of too few correlation times.
 fn check_record(cv: f64, corr_times: f64, opts: &RelaxationOptions) -> Result<(), SpectralError> {
@@ -192,13 +204,7 @@ pub fn envelope_relaxation(
     frequency_hz: f64,
     opts: &RelaxationOptions,
 ) -> Result<EnvelopeRelaxation, SpectralError> {
-    if !(rate_hz > 0.0 && frequency_hz > 0.0 && frequency_hz < rate_hz / 2.0) {
-        return Err(SpectralError::Invalid(format!(
-            "rate {rate_hz} Hz, frequency {frequency_hz} Hz"
-        )));
-    }
-    super::check_finite(env)?;
-    let per = rate_hz / frequency_hz; // samples per period
+    let per = check_inputs(env, rate_hz, frequency_hz)?;
     let edge = (opts.edge_periods * per).ceil() as usize;
     let min_lag = ((opts.min_lag_periods * per).round() as usize).max(1);
     if env.len() < 2 * edge + 8 * min_lag {
@@ -299,8 +305,9 @@ const FIT_FRACTION: f64 = 0.75;
 /// gives it, but `lambda` from the debiased Whittle likelihood of the envelope's periodogram
 /// (`whittle`), which models the record's length and the band-pass instead of fitting the log
 /// autocovariance: unbiased on the test gates from -0.5 % to -3 %, where the log-covariance fit
-/// is compressed towards -1.5 %. The interval is symmetric in `ln(-zeta0)`. Reads `band`, `edge_periods`, `exponent`,
-/// `max_cv`, `min_correlation_times`, `se_inflation` and `confidence` of `opts`
+/// is compressed towards -1.5 %. The interval is symmetric in `ln(-zeta0)`. Reads `band`,
+/// `edge_periods`, `exponent`, `max_cv`, `min_correlation_times`, `se_inflation` and
+/// `confidence` of `opts`
 /// ([`RelaxationOptions::whittle`] the measured values).
 ///
 /// `noise_psd` is the two-sided density (signal units squared per Hz) of the additive white
@@ -313,16 +320,10 @@ pub fn envelope_relaxation_whittle(
     noise_psd: f64,
     opts: &RelaxationOptions,
 ) -> Result<EnvelopeRelaxation, SpectralError> {
-    if !(rate_hz > 0.0 && frequency_hz > 0.0 && frequency_hz < rate_hz / 2.0) {
-        return Err(SpectralError::Invalid(format!(
-            "rate {rate_hz} Hz, frequency {frequency_hz} Hz"
-        )));
-    }
     if !(opts.band > 0.0 && opts.band < 1.0) {
         return Err(SpectralError::Invalid(format!("band {}", opts.band)));
     }
-    super::check_finite(env)?;
-    let per = rate_hz / frequency_hz; // samples per period
+    let per = check_inputs(env, rate_hz, frequency_hz)?;
     let edge = (opts.edge_periods * per).ceil() as usize;
     // two samples per period: the band-passed envelope holds nothing above `band f`
     let step = ((per / 2.0).floor() as usize).max(1);

@@ -3,11 +3,12 @@
 //!
 //! # Why
 //! The limit cycle's envelope perturbations are an OU process (`relaxation`), and what carries
-//! `zeta0` is their rate `lambda`. A fit to the log autocovariance at a few lags (what the daemon
-//! uses, `envelope_relaxation`) is biased two ways, both scale-free: removing a short record's mean steepens the
-//! far lags (slow relaxation read too fast), and the band-pass in front of the envelope rounds
-//! the near lags (fast relaxation read too slow). Together they compressed every estimate towards
-//! about -1.5 % (docs/benchmarks.md, "The limit cycle across zeta0").
+//! `zeta0` is their rate `lambda`. A fit to the log autocovariance at a few lags (what the
+//! daemon uses, `envelope_relaxation`) is biased two ways, both scale-free: removing a short
+//! record's mean steepens the far lags (slow relaxation read too fast), and the band-pass in
+//! front of the envelope rounds the near lags (fast relaxation read too slow). Together they
+//! compressed every estimate towards about -1.5 % (docs/benchmarks.md, "The limit cycle across
+//! zeta0").
 //!
 //! The debiased Whittle likelihood (Sykulski, Olhede, Guillaumin, Lilly and Early, "The
 //! debiased Whittle likelihood", Biometrika 106, 2019) removes both at their source: the model
@@ -18,14 +19,14 @@
 //! model, and the band-pass is modelled, not undone.
 //!
 //! # What is fitted
-//! Ordinates `j = 1..=J` of the record's periodogram, `J` the last below `max_hz`,
-//! against `v * a_j(lambda) + b_j`, `a_j` the expected periodogram of a unit-variance OU process
-//! through the filter, `b_j` the floor's; `v` is profiled out, `ln lambda` found by a grid
-//! and a golden-section search. A white floor of known density (the sensor's noise, measured
-//! by the caller away from the mode) is added through the same filter and kernel; `v` is then
-//! profiled by Newton's method. The standard error of `ln lambda` is the Whittle Fisher
-//! information's, `v` profiled. The ordinates are close to independent exponentials only for long records; the
-//! caller inflates the error (value measured there).
+//! Ordinates `j = 1..=J` of the record's periodogram, `J` the last below `max_hz`, against
+//! `v * a_j(lambda) + b_j`: `a_j` the expected periodogram of a unit-variance OU process through
+//! the filter, `b_j` that of a white floor of known density (the sensor's noise, measured by the
+//! caller away from the mode) through the same filter and kernel. `v` is profiled out (Newton's
+//! method), `ln lambda` found by a grid and a golden-section search. The standard error of
+//! `ln lambda` is the Whittle Fisher information's, `v` profiled. The ordinates are close to
+//! independent exponentials only for long records; the caller inflates the error (value measured
+//! there).
 //!
 //! Written by hand: no crate fits a filtered parametric spectrum by the debiased Whittle
 //! likelihood (the authors' code is MATLAB and Python).
