@@ -386,13 +386,23 @@ impl super::SpectralAnalyzer {
         frequency_hz: f64,
         opts: &RelaxationOptions,
     ) -> Result<EnvelopeRelaxation, SpectralError> {
-        let b = opts.band.clamp(0.01, 0.99);
         let rate = self.rate_hz();
-        let env = self.envelope(
+        let env = self.band_envelope(x, frequency_hz, opts.band)?;
+        envelope_relaxation(env, rate, frequency_hz, opts)
+    }
+
+    /// The envelope of the band `(1 +- band) frequency_hz` of `x` (`band` clamped to 0.01..0.99).
+    fn band_envelope(
+        &mut self,
+        x: &[f64],
+        frequency_hz: f64,
+        band: f64,
+    ) -> Result<&[f64], SpectralError> {
+        let b = band.clamp(0.01, 0.99);
+        self.envelope(
             x,
             Some((frequency_hz * (1.0 - b), frequency_hz * (1.0 + b))),
-        )?;
-        envelope_relaxation(env, rate, frequency_hz, opts)
+        )
     }
 
     /// [`envelope_relaxation_whittle`] of `x` (experimental): the envelope as for
@@ -404,14 +414,10 @@ impl super::SpectralAnalyzer {
         frequency_hz: f64,
         opts: &RelaxationOptions,
     ) -> Result<EnvelopeRelaxation, SpectralError> {
-        let b = opts.band.clamp(0.01, 0.99);
         let rate = self.rate_hz();
         let (lo, hi) = (NOISE_BAND.0 * frequency_hz, NOISE_BAND.1 * frequency_hz);
         let noise = self.noise_density(x, lo, hi).unwrap_or(0.0);
-        let env = self.envelope(
-            x,
-            Some((frequency_hz * (1.0 - b), frequency_hz * (1.0 + b))),
-        )?;
+        let env = self.band_envelope(x, frequency_hz, opts.band)?;
         envelope_relaxation_whittle(env, rate, frequency_hz, noise, opts)
     }
 }
