@@ -53,8 +53,6 @@ pub(crate) struct OuFit {
     pub variance: f64,
     /// Standard error of `ln lambda` (Whittle Fisher information, `ln v` profiled).
     pub ln_lambda_se: f64,
-    /// Periodogram ordinates fitted.
-    pub bins: usize,
 }
 
 /// Fits `lambda` in `[lambda_min, lambda_max]` (1/s) to the deviations `e` (mean removed)
@@ -210,7 +208,6 @@ pub(crate) fn fit_ou_spectrum(
         lambda: ln_lambda.exp(),
         variance,
         ln_lambda_se: 1.0 / info.sqrt(),
-        bins,
     })
 }
 
