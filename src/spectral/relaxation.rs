@@ -51,6 +51,11 @@
 //!    `2 v / (|lambda| T)` for an OU process; the fit adds that back and is repeated (this
 //!    removes the dominant `-2/T`-like bias of short records, which would read the damping too
 //!    negative by about `1 / (w T)`).
+//!    On a cycle that drifts (the damping still ramping after an onset's growth: the amplitude
+//!    follows `sqrt(-zeta0)`) the envelope's least-squares line is removed instead of its mean
+//!    when its slope is significant against the OU wandering about it
+//!    ([`RelaxationOptions::detrend_significance`]); the line takes twice the mean's variance
+//!    from the autocovariance, and the fit adds that back the same way.
 //! 4. Standard error from the OU estimator's asymptotic variance `2 |lambda| / T` (Fisher
 //!    information of a continuous record), times [`RelaxationOptions::se_inflation`] for the
 //!    inefficiency of the log-covariance fit; the interval is normal.
@@ -98,6 +103,15 @@ pub struct RelaxationOptions {
     pub se_inflation: f64,
     /// Two-sided confidence level of the interval.
     pub confidence: f64,
+    /// The envelope's least-squares line is removed (not only its mean) when its slope exceeds
+    /// this many of its standard errors under the OU fitted about the line (`f64::INFINITY`:
+    /// never). Why: on a cycle whose damping still ramps (the onset after its growth) the
+    /// amplitude follows `sqrt(-zeta0)` by tens of percent per window, and that trend read as
+    /// a relaxation too slow to fit (refused, or about zero); a stationary cycle's line is
+    /// rarely significant, and there the mean alone is removed as before. Value:
+    /// `tests/damping_regimes.rs` (`ramping_limit_cycle_*`) and `bench warning` (2 and 2.5 gave
+    /// the same onset windows, docs/benchmarks.md). The Whittle fit does not read it.
+    pub detrend_significance: f64,
 }
 
 impl RelaxationOptions {
@@ -131,6 +145,7 @@ impl Default for RelaxationOptions {
             min_correlation_times: 2.0,
             se_inflation: 1.5,
             confidence: 0.95,
+            detrend_significance: 2.5,
         }
     }
 }
@@ -222,23 +237,102 @@ pub fn envelope_relaxation(
     if mean.is_nan() || mean <= 0.0 {
         return Err(SpectralError::NoResult("zero envelope".into()));
     }
-    let e: Vec<f64> = x.iter().map(|v| v - mean).collect();
-    // Lags on a grid of a quarter period (enough points for the fit, cost n per lag).
+    let centred: Vec<f64> = x.iter().map(|v| v - mean).collect();
     let step = ((per / 4.0).round() as usize).max(1);
+    let (lambda, ln_r0) = fit_relaxation(&centred, rate_hz, min_lag, step, opts)?;
+    let v0 = ln_r0.exp();
+    let cv = v0.sqrt() / mean;
+    let corr_times = -lambda * t_rec;
+    check_record(cv, corr_times, opts)?;
+    let w = 2.0 * PI * frequency_hz;
+    let factor = (1.0 - cv * cv) / (opts.exponent * w);
+    let zeta0 = lambda * factor;
+    let se_lambda = opts.se_inflation * (2.0 * -lambda / t_rec).sqrt();
+    let se = se_lambda * factor;
+    let q = super::normal_quantile(0.5 + opts.confidence / 2.0);
+    Ok(EnvelopeRelaxation {
+        zeta0,
+        zeta0_interval: (zeta0 - q * se, zeta0 + q * se),
+        zeta0_stderr: se,
+        lambda,
+        amplitude: mean,
+        cv,
+        correlation_times: corr_times,
+    })
+}
+
+/// `(lambda, ln r0)` of the envelope `centred` (its mean removed): about its least-squares line
+/// when the line's slope is significant ([`RelaxationOptions::detrend_significance`]) under the
+/// OU fitted about it, else about its mean.
+fn fit_relaxation(
+    centred: &[f64],
+    rate_hz: f64,
+    min_lag: usize,
+    step: usize,
+    opts: &RelaxationOptions,
+) -> Result<(f64, f64), SpectralError> {
+    let about_mean = || fit_log_covariance(centred, rate_hz, min_lag, step, 2.0, opts);
+    if !opts.detrend_significance.is_finite() {
+        return about_mean();
+    }
+    let n = centred.len();
+    let tc = (n as f64 - 1.0) / 2.0;
+    let (mut sxy, mut sxx) = (0.0, 0.0);
+    for (i, v) in centred.iter().enumerate() {
+        let d = i as f64 - tc;
+        sxy += d * v;
+        sxx += d * d;
+    }
+    let slope = sxy / sxx; // per sample
+    let about_line: Vec<f64> = centred
+        .iter()
+        .enumerate()
+        .map(|(i, v)| v - slope * (i as f64 - tc))
+        .collect();
+    // The fitted line takes twice the mean's variance from the autocovariance: the mean's
+    // 2 v / (|lambda| T), and the slope's Var(b) T^2 / 12 = 2 v / (|lambda| T) on average.
+    match fit_log_covariance(&about_line, rate_hz, min_lag, step, 4.0, opts) {
+        Ok((lambda, ln_r0)) => {
+            // Var(b) = S(0) / sum (t - tc)^2 with the OU's S(0) = 2 v / |lambda| (per second;
+            // here per sample, hence one factor of the rate).
+            let var_slope = 2.0 * ln_r0.exp() / (-lambda) * rate_hz / sxx;
+            if slope.abs() > opts.detrend_significance * var_slope.sqrt() {
+                Ok((lambda, ln_r0))
+            } else {
+                about_mean()
+            }
+        }
+        Err(_) => about_mean(),
+    }
+}
+
+/// `(lambda, ln r0)` of the least-squares fit of `ln r(tau)` for the residual envelope `e`, lags
+/// from `min_lag` on a grid of `step` samples, adding back `removed` times the OU's variance of
+/// the mean (2 for the mean, 4 for a line), refitted.
+fn fit_log_covariance(
+    e: &[f64],
+    rate_hz: f64,
+    min_lag: usize,
+    step: usize,
+    removed: f64,
+    opts: &RelaxationOptions,
+) -> Result<(f64, f64), SpectralError> {
+    let n = e.len();
+    let t_rec = n as f64 / rate_hz;
     let max_lag = n / 4;
     let lags: Vec<usize> = (0..)
         .map(|j| min_lag + j * step)
         .take_while(|&k| k <= max_lag)
         .collect();
-    let raw: Vec<f64> = lags.iter().map(|&k| autocov(&e, k)).collect();
-    if raw[0] <= 0.0 {
+    let raw: Vec<f64> = lags.iter().map(|&k| autocov(e, k)).collect();
+    if raw.first().is_none_or(|&r| r <= 0.0) {
         return Err(SpectralError::NoResult(
             "the envelope is uncorrelated at one period: no relaxation to fit".into(),
         ));
     }
     // Fit, add back the variance of the mean, refit.
     let mut offset = 0.0;
-    let mut fit = (0.0, 0.0, 0usize); // (lambda, ln r0, points)
+    let mut fit = (0.0, 0.0);
     for _ in 0..4 {
         let r: Vec<f64> = raw.iter().map(|v| v + offset).collect();
         let stop = r[0] * (-opts.fit_decay).exp();
@@ -263,29 +357,10 @@ pub fn envelope_relaxation(
                 "the envelope's autocovariance does not decay (slope {lambda:.3} 1/s)"
             )));
         }
-        fit = (lambda, ln_r0, used);
-        offset = 2.0 * ln_r0.exp() / (-lambda * t_rec);
+        fit = (lambda, ln_r0);
+        offset = removed * ln_r0.exp() / (-lambda * t_rec);
     }
-    let (lambda, ln_r0, _) = fit;
-    let v0 = ln_r0.exp();
-    let cv = v0.sqrt() / mean;
-    let corr_times = -lambda * t_rec;
-    check_record(cv, corr_times, opts)?;
-    let w = 2.0 * PI * frequency_hz;
-    let factor = (1.0 - cv * cv) / (opts.exponent * w);
-    let zeta0 = lambda * factor;
-    let se_lambda = opts.se_inflation * (2.0 * -lambda / t_rec).sqrt();
-    let se = se_lambda * factor;
-    let q = super::normal_quantile(0.5 + opts.confidence / 2.0);
-    Ok(EnvelopeRelaxation {
-        zeta0,
-        zeta0_interval: (zeta0 - q * se, zeta0 + q * se),
-        zeta0_stderr: se,
-        lambda,
-        amplitude: mean,
-        cv,
-        correlation_times: corr_times,
-    })
+    Ok(fit)
 }
 
 /// Where [`super::SpectralAnalyzer::envelope_relaxation_whittle`] measures the additive noise's
