@@ -355,6 +355,8 @@ fn analyze(
             scales: &scales,
             initial: best.initial,
             output: config.output,
+            initial_estimated: config.polish_initial.is_some()
+                || !matches!(config.initial, identify::Initial::Known { .. }),
         };
         hull(
             zeta0_interval(&fit, &data, t0, scale.y, scale.v),

@@ -224,9 +224,12 @@ pub fn difference_steps(c: &[f64], scales: &[f64]) -> Vec<f64> {
 
 /// The covariance of `coefficients` fitted to all samples of `series` (the model's prediction
 /// of `output` from `init`, Dormand-Prince at [`COVARIANCE_RTOL`]), with central differences
-/// of `steps` ([`difference_steps`]). The initial conditions are held fixed. `None` when an
-/// integration fails or [`Covariance::from_jacobian`] has nothing to estimate. Costs `2p + 1`
-/// integrations.
+/// of `steps` ([`difference_steps`]). The initial conditions are held fixed, or, with
+/// `initial_steps` (the steps of `y0` and `v0`), counted as two more unknowns after the
+/// coefficients (the covariance is then `(p + 2) x (p + 2)`, a figure's gradient has two more
+/// entries, zero for a figure of the coefficients alone). `None` when an integration fails or
+/// [`Covariance::from_jacobian`] has nothing to estimate. Costs `2p + 1` integrations, 4 more
+/// with the initial conditions.
 pub fn covariance(
     model: &Model,
     series: &TimeSeries,
@@ -234,6 +237,7 @@ pub fn covariance(
     init: InitialValues,
     output: Output,
     steps: &[f64],
+    initial_steps: Option<(f64, f64)>,
 ) -> Option<Covariance> {
     let p = coefficients.len();
     if steps.len() != p {
@@ -246,7 +250,32 @@ pub fn covariance(
         .zip(&series.y)
         .map(|(m, y)| y - m)
         .collect();
-    let mut jac = DMatrix::zeros(series.len(), p);
+    let extra = if initial_steps.is_some() { 2 } else { 0 };
+    let mut jac = DMatrix::zeros(series.len(), p + extra);
+    if let Some((hy, hv)) = initial_steps {
+        let from = |init: InitialValues| {
+            predict(model, series, coefficients, init, COVARIANCE_RTOL, output)
+        };
+        let y = |d: f64| InitialValues {
+            y0: init.y0 + d,
+            ..init
+        };
+        let v = |d: f64| InitialValues {
+            v0: init.v0 + d,
+            ..init
+        };
+        for (j, (plus, minus, h)) in [
+            (from(y(hy))?, from(y(-hy))?, hy),
+            (from(v(hv))?, from(v(-hv))?, hv),
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            for (i, (a, b)) in plus.iter().zip(&minus).enumerate() {
+                jac[(i, p + j)] = (a - b) / (2.0 * h);
+            }
+        }
+    }
     let mut c = coefficients.to_vec();
     for j in 0..p {
         let h = steps[j];

@@ -307,6 +307,8 @@ pub async fn run_stream(
         let mut firing: Vec<String> = view.alerts.iter().map(|a| a.name.clone()).collect();
         firing.sort();
         firing.dedup();
+        let regime = Regime::classify(&p, truth_centre, amplitude);
+        let truth_mean = def.mean_zeta(start, end);
         if spec.trace {
             let trusted = view
                 .identification
@@ -334,11 +336,13 @@ pub async fn run_stream(
             });
             eprintln!(
                 "t {end:7.1}  true {:+.2} %  zeta0 {:?} {:?} {:?} trusted {trusted}  trend \
-                 (%/min, upper %/min, confident crossing s) {trend:?}  firing {firing:?}  (regime, pooled, ssi, ambient ratio, model) {facts:?}",
+                 (%/min, upper %/min, confident crossing s) {trend:?}  firing {firing:?}  (regime, pooled, ssi, ambient ratio, model) {facts:?}  scored {} (true mean {:+.2} %)",
                 100.0 * truth_centre,
                 zeta0.map(|z| (z * 1e4).round() / 100.0),
                 interval.map(|(a, b)| ((a * 1e4).round() / 100.0, (b * 1e4).round() / 100.0)),
                 source,
+                regime.as_str(),
+                100.0 * truth_mean,
             );
         }
         windows.push(WindowRecord {
@@ -348,9 +352,9 @@ pub async fn run_stream(
             interval,
             source,
             truth_centre,
-            truth_mean: def.mean_zeta(start, end),
+            truth_mean,
             frequency_hz,
-            regime: Regime::classify(&p, truth_centre, amplitude),
+            regime,
             firing,
             variance: measured_variance,
         });
