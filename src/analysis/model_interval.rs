@@ -167,7 +167,9 @@ mod tests {
     #[test]
     fn estimated_initial_conditions_widen_the_interval_and_it_still_covers() {
         // The same decays, with the initial conditions counted as unknowns: every interval at
-        // least as wide as with them held fixed (a Schur complement can only add variance),
+        // least as wide as with them held fixed (with white residuals the coefficients' block
+        // of the larger covariance is a Schur complement: it only adds variance; the
+        // Newey-West sandwich of coloured residuals can come out narrower, docs/damping.md),
         // and still covering at the nominal rate.
         let model = Model::parse("ydd + c1*yd + c2*y = 0", &[]).unwrap();
         let truth = [2.0 * ZETA * OMEGA, OMEGA * OMEGA];
