@@ -26,7 +26,7 @@ pub struct FittedModel<'a> {
     pub coefficients: &'a [f64],
     /// The DE scales of the coefficients (empty: 1).
     pub scales: &'a [f64],
-    /// The initial conditions of the fit (held fixed).
+    /// The initial conditions of the fit.
     pub initial: InitialValues,
     /// What the fit compared with the data.
     pub output: Output,

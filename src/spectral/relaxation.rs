@@ -238,6 +238,7 @@ pub fn envelope_relaxation(
         return Err(SpectralError::NoResult("zero envelope".into()));
     }
     let centred: Vec<f64> = x.iter().map(|v| v - mean).collect();
+    // Lags on a grid of a quarter period (enough points for the fit, cost n per lag).
     let step = ((per / 4.0).round() as usize).max(1);
     let (lambda, ln_r0) = fit_relaxation(&centred, rate_hz, min_lag, step, opts)?;
     let v0 = ln_r0.exp();
