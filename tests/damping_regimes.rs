@@ -430,6 +430,8 @@ fn explore_relaxation_across_zeta() {
         fit_decay: env("FIT_DECAY", d.fit_decay),
         min_lag_periods: env("MIN_LAG", d.min_lag_periods),
         se_inflation: env("SE_INFLATION", d.se_inflation),
+        // DETREND=inf: the mean alone removed (before session 23)
+        detrend_significance: env("DETREND", d.detrend_significance),
         ..d
     };
     println!("{opts:?}, whittle {whittle}");
