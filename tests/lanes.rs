@@ -295,6 +295,7 @@ fn batched_residuals_equal_scalar_on_every_seed_case() {
                 let (problem, is_train, search) = fitness_for(case, &model, &data, output, method);
                 let f = Fitness::new(&problem, is_train, &search).with_tolerance(method, 1e-8);
                 let d = f.dimension();
+                let mut ws = f.workspace();
                 for n in [3, 5, 11] {
                     let mut xs = Vec::new();
                     for b in 0..2 {
@@ -312,7 +313,19 @@ fn batched_residuals_equal_scalar_on_every_seed_case() {
                     let batch = f.residuals_batch(&xs);
                     assert_eq!(batch.len(), xs.len() / d);
                     for (k, got) in batch.iter().enumerate() {
-                        let want = f.residuals(&xs[k * d..(k + 1) * d]);
+                        let x = &xs[k * d..(k + 1) * d];
+                        let want = f.residuals(x);
+                        // The residuals (a force output's evaluated after the integration, 8
+                        // samples at a time) sum to the cost (evaluated sample by sample as
+                        // the integrator passes them), bit for bit.
+                        if let Some(w) = &want {
+                            assert_eq!(
+                                f.cost_of_residuals(w).to_bits(),
+                                f.cost(x, f64::INFINITY, &mut ws).to_bits(),
+                                "{} {output:?} {method} point {k}",
+                                case.id
+                            );
+                        }
                         let bits = |r: &Option<Vec<f64>>| {
                             r.as_ref()
                                 .map(|r| r.iter().map(|v| v.to_bits()).collect::<Vec<_>>())

@@ -200,13 +200,57 @@ impl<'a> Fitness<'a> {
     pub fn residuals(&self, x: &[f64]) -> Option<Vec<f64>> {
         let mut buf = vec![0.0; self.dimension()];
         let mut out = Vec::with_capacity(self.n_train);
-        let o = self.run(x, &mut buf, |i, v| {
-            if self.is_train[i] {
-                out.push(v - self.y[i]);
+        let o = match self.output {
+            Output::Displacement => self.run(x, &mut buf, |i, v| {
+                if self.is_train[i] {
+                    out.push(v - self.y[i]);
+                }
+                ControlFlow::Continue(())
+            }),
+            Output::Force => {
+                // The states first, the model's force at them afterwards, 8 samples at a time.
+                let mut states = Vec::with_capacity(self.n_train);
+                let (coeffs, y0, v0) = self.physical(x, &mut buf);
+                let sys = Bound {
+                    model: self.model,
+                    coeffs,
+                };
+                let times = &self.t[..self.horizon];
+                let o = ode::integrate(self.method, &sys, [y0, v0], times, &self.opts, |i, s| {
+                    if self.is_train[i] {
+                        states.push((i, s[0], s[1]));
+                    }
+                    ControlFlow::Continue(())
+                });
+                self.force_residuals(coeffs, &states, &mut out);
+                o
             }
-            ControlFlow::Continue(())
-        });
+        };
         (o.is_complete() && out.iter().all(|v| v.is_finite())).then_some(out)
+    }
+
+    /// Appends `R(t_i, y, yd) - data_i` for every `(i, y, yd)` of `states`, the model evaluated
+    /// on 8 samples at once (one coefficient vector in every lane).
+    ///
+    /// Why: a force output is one model evaluation per training sample, and evaluated as the
+    /// integrator passes each sample it is a scalar interpreter call per sample (the lane
+    /// integrators pass a sample at a different moment in every lane). Deferred, the samples
+    /// share the lane evaluator, whose lanes equal the scalar evaluator bit for bit.
+    fn force_residuals(&self, coeffs: &[f64], states: &[(usize, f64, f64)], out: &mut Vec<f64>) {
+        const W: usize = 8;
+        let c: Vec<[f64; W]> = coeffs.iter().map(|v| [*v; W]).collect();
+        for chunk in states.chunks(W) {
+            let (mut t, mut y, mut yd) = ([0.0; W], [0.0; W], [0.0; W]);
+            for l in 0..W {
+                // A short last chunk repeats its last sample in the unused lanes.
+                let (i, a, b) = chunk[l.min(chunk.len() - 1)];
+                (t[l], y[l], yd[l]) = (self.t[i], a, b);
+            }
+            let v = self.model.residual_lanes(&t, &y, &yd, &c);
+            for (l, &(i, _, _)) in chunk.iter().enumerate() {
+                out.push(v[l] - self.y[i]);
+            }
+        }
     }
 
     /// [`Fitness::residuals`] of each point in `xs` (rows of [`Objective::dimension`] values),
@@ -268,7 +312,11 @@ impl<'a> Fitness<'a> {
         let mut c = vec![[0.0; L]; nc];
         let (y0, live) = self.load_lanes(xs, n, &mut c);
         let mut res: Vec<Vec<f64>> = (0..n).map(|_| Vec::with_capacity(self.n_train)).collect();
-        let mut buf = vec![0.0; nc];
+        // Dormand-Prince with a force output: each lane's states, the forces afterwards.
+        let defer = !matches!(self.method, Method::Rk4) && matches!(self.output, Output::Force);
+        let mut states: Vec<Vec<(usize, f64, f64)>> = (0..if defer { n } else { 0 })
+            .map(|_| Vec::with_capacity(self.n_train))
+            .collect();
         let c: &[[f64; L]] = &c;
         let sys = BoundLanes {
             model: self.model,
@@ -294,19 +342,22 @@ impl<'a> Fitness<'a> {
                 if !self.is_train[i] {
                     return ControlFlow::Continue(());
                 }
-                let v = match self.output {
-                    Output::Displacement => s[0],
-                    Output::Force => {
-                        for (b, ck) in buf.iter_mut().zip(c) {
-                            *b = ck[l];
-                        }
-                        self.model.residual(times[i], s[0], s[1], &buf)
-                    }
-                };
-                res[l].push(v - self.y[i]);
+                match self.output {
+                    Output::Displacement => res[l].push(s[0] - self.y[i]),
+                    Output::Force => states[l].push((i, s[0], s[1])),
+                }
                 ControlFlow::Continue(())
             }),
         };
+        if defer {
+            let mut coeffs = vec![0.0; nc];
+            for (l, (r, st)) in res.iter_mut().zip(&states).enumerate() {
+                for (b, ck) in coeffs.iter_mut().zip(c) {
+                    *b = ck[l];
+                }
+                self.force_residuals(&coeffs, st, r);
+            }
+        }
         for (r, o) in res.into_iter().zip(&outcomes) {
             out.push((o.is_complete() && r.iter().all(|v| v.is_finite())).then_some(r));
         }
