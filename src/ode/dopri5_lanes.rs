@@ -25,6 +25,10 @@ use std::ops::ControlFlow;
 /// `y0[i][l]` is lane `l`'s initial state; `live[l]` says which lanes to integrate (a lane not
 /// live on entry keeps a default outcome, `reached 0` without failure, and is never observed).
 /// `observe(lane, index, state)` receives each lane's outputs in order; `Break` stops that lane.
+// Inlined into its caller, so that the caller's observer (the fitness's per-sample tally)
+// inlines into the dense-output loop: left to LLVM's heuristics it once became a call per
+// sample and the batched fitness 20 % slower (docs/benchmarks.md, "Lanes without the overhead").
+#[inline(always)]
 pub fn dopri5<const L: usize, const N: usize, S, F>(
     sys: &S,
     y0: &[[f64; L]; N],
