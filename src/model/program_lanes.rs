@@ -26,35 +26,24 @@ impl Program {
         c: &[[f64; L]],
     ) -> [f64; L] {
         let mut out = [0.0; L];
-        self.eval_lanes_into(t, y, yd, c, &mut out);
+        self.eval_lanes_then(t, y, yd, c, &mut out, |_| {});
         out
     }
 
-    /// [`Self::eval_lanes`] into `out`.
+    /// [`Self::eval_lanes`] into `out`, with `finish` applied to the result before it is written
+    /// (`|_| {}` for the plain value).
     ///
     /// Why an out-parameter: a returned `[f64; L]` is written through the caller's return slot,
     /// and LLVM then kept the evaluator's accumulator in that memory, so every instruction
     /// stored and reloaded it on the critical path. Accumulating in a local and writing `out`
     /// once keeps it in registers: 1.3 times faster (38 -> 29 ns for 8 lanes of the daemon's model,
     /// `cargo bench --bench model_eval`), with the same operations in the same order.
-    #[inline]
-    pub fn eval_lanes_into<const L: usize>(
-        &self,
-        t: &[f64; L],
-        y: &[f64; L],
-        yd: &[f64; L],
-        c: &[[f64; L]],
-        out: &mut [f64; L],
-    ) {
-        self.eval_lanes_then(t, y, yd, c, out, |_| {})
-    }
-
-    /// [`Self::eval_lanes_into`], with `finish` applied to the result before it is written.
     ///
-    /// Why: the acceleration is `-R / M`, and negating and dividing `out` after it was written
-    /// stored the result, loaded it back and stored it again on every right-hand-side evaluation
-    /// (17 % of a batched RK4 step of van_der_pol_2 under `perf`). Applied to the accumulator it
-    /// stays in registers. `finish` performs the same operations, so results are unchanged.
+    /// Why `finish`: the acceleration is `-R / M`, and negating and dividing `out` after it was
+    /// written stored the result, loaded it back and stored it again on every right-hand-side
+    /// evaluation (17 % of a batched RK4 step of van_der_pol_2 under `perf`). Applied to the
+    /// accumulator it stays in registers. `finish` performs the same operations, so results are
+    /// unchanged.
     ///
     /// The stack tier follows the program's depth: the stack is zeroed on every call, and most
     /// models need one slot or none (van_der_pol_2, the daemon's model and forced_linear: one).
@@ -236,7 +225,7 @@ impl Model {
         r
     }
 
-    /// [`Self::accel_lanes`] into `r` (see [`Program::eval_lanes_into`] for why).
+    /// [`Self::accel_lanes`] into `r` (see [`Program::eval_lanes_then`] for why).
     #[inline]
     pub fn accel_lanes_into<const L: usize>(
         &self,
@@ -262,7 +251,7 @@ impl Model {
                 })
             }
             MassKind::Varying => {
-                self.residual.eval_lanes_into(t, y, yd, c, r);
+                self.residual.eval_lanes_then(t, y, yd, c, r, |_| {});
                 let m = self.mass.eval_lanes(t, y, yd, c);
                 for l in 0..L {
                     r[l] = -r[l] / m[l];
