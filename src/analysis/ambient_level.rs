@@ -107,16 +107,33 @@ impl AmbientLevel {
             None => {}
         }
         self.previous_source = d.zeta0_source;
-        let noise_driven = matches!(d.regime, Some(Regime::Damped | Regime::Undecided))
-            && d.trusted
-            && d.zeta0_source == Some(Zeta0Source::Ambient);
-        if noise_driven {
+        self.record(d);
+    }
+
+    /// Lets window `d` feed the level when it is noise-driven ([`decided_by_ambient`]) and its
+    /// RMS was measured; nothing else. [`AmbientLevel::observe`] calls it after its own reading;
+    /// the tracking memory (`analysis::tracking::Previous`) calls it alone, on the analysis's
+    /// report.
+    pub fn record(&mut self, d: &DampingReport) {
+        let Some(rms) = d.signal_rms.filter(|r| r.is_finite() && *r > 0.0) else {
+            return;
+        };
+        if decided_by_ambient(d) {
             if self.recent.len() == AMBIENT_LEVEL_WINDOWS {
                 self.recent.pop_front();
             }
             self.recent.push_back(rms);
         }
     }
+}
+
+/// Whether the ambient estimate decided window `d` as noise-driven: a damped or undecided
+/// model-free regime, trusted, `zeta0` from the ambient estimate. Only such windows feed a
+/// gate's level: the level is the gate's ambient state.
+pub fn decided_by_ambient(d: &DampingReport) -> bool {
+    matches!(d.regime, Some(Regime::Damped | Regime::Undecided))
+        && d.trusted
+        && d.zeta0_source == Some(Zeta0Source::Ambient)
 }
 
 /// A window the free-vibration model decided (a growing or a limit-cycle window without an

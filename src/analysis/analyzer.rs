@@ -100,8 +100,20 @@ impl Analyzer {
             let start = Start::Refine(&p.coefficients, self.tracking.refine_evaluations);
             if let Ok(a) = self.analyze_with(input, start, seed, true) {
                 if tracking::accept(&self.tracking, p, &a.damping).is_ok() {
+                    // A window accepted without the fit tests (`waive_fit_on_noise`) does not
+                    // move the next refinement's start: chained, the refinements of the noise
+                    // random-walked (docs/design.md, "Tracking between windows").
+                    let waived = self.tracking.waive_fit_on_noise
+                        && tracking::noise_driven(p, &a.damping)
+                        && !tracking::passes_fit_tests(&self.tracking, p, &a.damping);
+                    let warm_start = if waived {
+                        p.coefficients.clone()
+                    } else {
+                        a.warm_start
+                    };
                     return Ok(WindowAnalysis {
                         path: Path::Tracked,
+                        warm_start,
                         ..a
                     });
                 }
