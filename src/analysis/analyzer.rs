@@ -99,17 +99,13 @@ impl Analyzer {
         if let Ok(p) = tracking::plan(&self.tracking, previous, input.t0) {
             let start = Start::Refine(&p.coefficients, self.tracking.refine_evaluations);
             if let Ok(a) = self.analyze_with(input, start, seed, true) {
-                if tracking::accept(&self.tracking, p, &a.damping).is_ok() {
-                    // A window accepted without the fit tests (`waive_fit_on_noise`) does not
-                    // move the next refinement's start: chained, the refinements of the noise
-                    // random-walked (docs/design.md, "Tracking between windows").
-                    let waived = self.tracking.waive_fit_on_noise
-                        && tracking::noise_driven(p, &a.damping)
-                        && !tracking::passes_fit_tests(&self.tracking, p, &a.damping);
-                    let warm_start = if waived {
-                        p.coefficients.clone()
-                    } else {
-                        a.warm_start
+                if let Ok(how) = tracking::accept(&self.tracking, p, &a.damping) {
+                    // A window accepted without the fit tests does not move the next
+                    // refinement's start: chained, the refinements of the noise random-walked
+                    // (docs/design.md, "Tracking between windows").
+                    let warm_start = match how {
+                        tracking::Acceptance::Waived => p.coefficients.clone(),
+                        tracking::Acceptance::Fitted => a.warm_start,
                     };
                     return Ok(WindowAnalysis {
                         path: Path::Tracked,

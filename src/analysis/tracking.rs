@@ -10,8 +10,8 @@
 //!   gives the same verdict as the previous window, the model's frequency at rest is within a
 //!   tolerance of the measured dominant frequency, the model still agrees with the model-free
 //!   estimates (frequency, envelope growth) when the previous one did, and it fits within a
-//!   tolerance of the last full search's fit. On a noise-driven window (below) the last two
-//!   tests are waived.
+//!   tolerance of the last full search's fit. With `waive_fit_on_noise` (off by default) the
+//!   last two tests are waived on a noise-driven window (below).
 //!
 //! # Why the fit tests are waived on a noise-driven window
 //! A window the model-free analysis calls damped or undecided, whose `zeta0` the ambient
@@ -29,7 +29,7 @@
 //! [`DEPARTED_FROM_AMBIENT`] times the gate's ambient level (as in `ambient_level`), or risen
 //! more than [`NOISE_DRIVEN_MAX_RISE`] times since the last window, is the first sign of an
 //! onset or a burst, and keeps every test. The schedule (`full_every`) still refreshes the
-//! model, and a waived window does not move the next refinement's start ([`Previous::after`]).
+//! model, and a waived window does not move the next refinement's start ([`Acceptance::Waived`]).
 //!
 //! The per-gate [`Previous`] lives in the service (the worker pool keeps one per gate).
 
@@ -93,7 +93,7 @@ pub struct TrackingPolicy {
     /// there made a backlog feed itself (docs/design.md, "Tracking between windows").
     pub max_gap_windows: f64,
     /// Waive the fit and agreement tests on a noise-driven window ([`noise_driven`], the module
-    /// docs): fewer full searches on a stable gate (about 2 times the gates per worker), at the
+    /// docs): fewer full searches on a stable gate (about half the CPU per window), at the
     /// price of a looser published model on such windows. Off by default (docs/design.md,
     /// "Tracking between windows": the measured trade-off).
     pub waive_fit_on_noise: bool,
@@ -341,7 +341,7 @@ pub fn accept(
     policy: &TrackingPolicy,
     previous: &Previous,
     r: &DampingReport,
-) -> Result<(), Rejection> {
+) -> Result<Acceptance, Rejection> {
     if !r.trusted {
         return Err(Rejection::Untrusted);
     }
@@ -363,16 +363,22 @@ pub fn accept(
             });
         }
     }
-    if policy.waive_fit_on_noise && noise_driven(previous, r) {
-        return Ok(());
+    match fit_tests(policy, previous, r) {
+        Ok(()) => Ok(Acceptance::Fitted),
+        Err(_) if policy.waive_fit_on_noise && noise_driven(previous, r) => Ok(Acceptance::Waived),
+        Err(e) => Err(e),
     }
-    fit_tests(policy, previous, r)
 }
 
-/// Whether `r` passes the agreement and fit tests of [`accept`] (those a noise-driven window may
-/// be spared).
-pub fn passes_fit_tests(policy: &TrackingPolicy, previous: &Previous, r: &DampingReport) -> bool {
-    fit_tests(policy, previous, r).is_ok()
+/// How [`accept`] took a refined model.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Acceptance {
+    /// It passed every test.
+    Fitted,
+    /// It failed the agreement or fit test on a noise-driven window, which
+    /// `waive_fit_on_noise` spares them: it stands for the window, but the next refinement
+    /// starts where this one did.
+    Waived,
 }
 
 fn fit_tests(
@@ -531,7 +537,11 @@ mod tests {
                 fit_nmae,
                 ..report()
             };
-            assert_eq!(accept(&policy, &p, &with_fit(0.9)), Ok(()), "{full}");
+            assert_eq!(
+                accept(&policy, &p, &with_fit(0.9)),
+                Ok(Acceptance::Fitted),
+                "{full}"
+            );
             for bad in [1.6, 80.0, f64::INFINITY, f64::NAN] {
                 assert!(
                     matches!(
@@ -586,7 +596,7 @@ mod tests {
     fn accept_takes_a_refined_model_that_still_fits() {
         assert_eq!(
             accept(&TrackingPolicy::default(), &previous(), &report()),
-            Ok(())
+            Ok(Acceptance::Fitted)
         );
     }
 
@@ -608,7 +618,10 @@ mod tests {
             agrees: false,
             ..previous()
         };
-        assert_eq!(accept(&policy, &p_disagreed, &disagrees), Ok(()));
+        assert_eq!(
+            accept(&policy, &p_disagreed, &disagrees),
+            Ok(Acceptance::Fitted)
+        );
         // a 20 % frequency shift, and a model that is no oscillator at rest
         let shifted = DampingReport {
             frequency_hz: Some(12.5),
@@ -675,19 +688,32 @@ mod tests {
     fn a_noise_driven_window_is_not_refused_for_its_fit_or_agreement() {
         let (policy, p) = (waiving(), previous()); // rms 1.0, fit limit 0.035
         assert!(noise_driven(&p, &noise_window(1.5)));
+        // a noise-driven window that passes the fit tests is simply fitted
+        let fits = DampingReport {
+            agrees: true,
+            fit_nmae: 0.02,
+            ..noise_window(1.5)
+        };
+        assert_eq!(accept(&policy, &p, &fits), Ok(Acceptance::Fitted));
         // off by default: the fit tests decide as for any window
         assert_eq!(
             accept(&TrackingPolicy::default(), &p, &noise_window(1.5)),
             Err(Rejection::Disagrees)
         );
-        assert_eq!(accept(&policy, &p, &noise_window(1.5)), Ok(()));
-        assert_eq!(accept(&policy, &p, &noise_window(2.0)), Ok(()));
+        assert_eq!(
+            accept(&policy, &p, &noise_window(1.5)),
+            Ok(Acceptance::Waived)
+        );
+        assert_eq!(
+            accept(&policy, &p, &noise_window(2.0)),
+            Ok(Acceptance::Waived)
+        );
         let damped = DampingReport {
             regime: Some(Regime::Damped),
             verdict: Verdict::Damped,
             ..noise_window(0.5)
         };
-        assert_eq!(accept(&policy, &p, &damped), Ok(()));
+        assert_eq!(accept(&policy, &p, &damped), Ok(Acceptance::Waived));
         // what tells a change of the gate is still tested: a frequency shift, trust
         let shifted = DampingReport {
             frequency_hz: Some(12.5),
