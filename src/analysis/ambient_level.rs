@@ -71,6 +71,8 @@ pub struct AmbientLevel {
     previous_source: Option<Zeta0Source>,
     /// The previous window's model-free regime.
     previous_regime: Option<Regime>,
+    /// The previous window's `zeta0` interval (after this memory's own reading).
+    previous_interval: Option<(f64, f64)>,
 }
 
 impl AmbientLevel {
@@ -88,6 +90,7 @@ impl AmbientLevel {
     /// Call in window order, after the window's verdict and before pooling.
     pub fn observe(&mut self, d: &mut DampingReport) {
         let previous = self.previous_source.take();
+        let previous_interval = self.previous_interval.take();
         let first_cycle = self
             .previous_regime
             .replace(d.regime.unwrap_or(Regime::Undecided))
@@ -96,6 +99,7 @@ impl AmbientLevel {
         let Some(rms) = d.signal_rms.filter(|r| r.is_finite() && *r > 0.0) else {
             d.ambient_ratio = None;
             self.previous_source = d.zeta0_source;
+            self.previous_interval = d.zeta0_interval;
             return;
         };
         d.ambient_ratio = self.level().map(|level| rms / level);
@@ -103,10 +107,14 @@ impl AmbientLevel {
             Some(r) if r < DEPARTED_FROM_AMBIENT => {
                 read_model_window_as_noise_driven(d, first_cycle)
             }
-            Some(_) => read_departed_window_by_the_model(d, previous),
+            Some(_) => {
+                read_departed_window_by_the_model(d, previous);
+                span_the_change(d, previous_interval);
+            }
             None => {}
         }
         self.previous_source = d.zeta0_source;
+        self.previous_interval = d.zeta0_interval;
         self.record(d);
     }
 
@@ -195,6 +203,35 @@ fn read_departed_window_by_the_model(d: &mut DampingReport, previous: Option<Zet
     d.zeta0_source = Some(Zeta0Source::Model);
     d.verdict = Verdict::SelfExcited;
     d.trusted = true;
+}
+
+/// Smallest [`DampingReport::rms_swing`] of a window that holds two states of the gate. Why 4:
+/// on 2 hours of each bench gate at +1 % and +0.5 % the swing's 99th percentile was 3.0 to 3.8
+/// (largest 6.6), on a held limit cycle at most 1.07, and on the windows a burst of
+/// `bench warning --scenarios bursting` began or ended in 3.9 to 18.6 (`docs/damping.md`, "A
+/// window that holds two states"). The noise-driven windows that reach it stay below
+/// [`DEPARTED_FROM_AMBIENT`], and only windows above it are tested.
+pub const STATE_CHANGE_SWING: f64 = 4.0;
+
+/// A window that left the ambient level, whose response changed abruptly inside it
+/// ([`STATE_CHANGE_SWING`]) and whose ambient (SSI-COV) estimate cannot tell the sign (verdict
+/// `Unknown`), holds two states of the gate: the end of a burst (the limit cycle, then the
+/// decay) or its start (the ambient response, then the growth). SSI-COV assumes one stationary
+/// state and reads such a window as about zero with a narrow interval (0.04 % (-0.47, +0.55)
+/// where the truth went from -3 % to +1 %): a confident reading of a state the gate was never
+/// in. The window overlaps the previous one by half, which saw the first state; the interval
+/// becomes the hull of both (`spans_change`), so it says "somewhere across these" instead.
+/// The point and the verdict stay: the widened interval still crosses zero, so no alert changes.
+fn span_the_change(d: &mut DampingReport, previous: Option<(f64, f64)>) {
+    let two_states = d.zeta0_source == Some(Zeta0Source::Ambient)
+        && d.verdict == Verdict::Unknown
+        && d.regime != Some(Regime::LimitCycle)
+        && d.rms_swing.is_some_and(|s| s >= STATE_CHANGE_SWING);
+    let (true, Some((lo, hi)), Some((plo, phi))) = (two_states, d.zeta0_interval, previous) else {
+        return;
+    };
+    d.zeta0_interval = Some((lo.min(plo), hi.max(phi)));
+    d.spans_change = true;
 }
 
 /// Whether the window stands at least [`DEPARTED_FROM_AMBIENT`] times above the gate's ambient
@@ -458,6 +495,74 @@ mod tests {
         let mut third = envelope();
         level.observe(&mut third);
         assert_eq!(third.zeta0, Some(-0.0092), "after an envelope window");
+    }
+
+    /// A window 3 or more times above the level, whose thirds' RMS differ by
+    /// `STATE_CHANGE_SWING` or more and whose ambient estimate cannot tell the sign, widens its
+    /// interval to the hull with the previous window's (point and verdict kept); a steadier
+    /// window, one below the level, a decided one, or one without a previous interval is
+    /// unchanged.
+    #[test]
+    fn a_window_that_holds_two_states_spans_the_previous_reading() {
+        // the end of a burst: the previous window read the limit cycle, this one SSI's ~0
+        let previous = || DampingReport {
+            zeta0: Some(-0.0207),
+            zeta0_interval: Some((-0.0381, -0.0033)),
+            zeta0_source: Some(Zeta0Source::Envelope),
+            regime: Some(Regime::LimitCycle),
+            signal_rms: Some(75.0),
+            ..DampingReport::unknown()
+        };
+        let straddling = |rms: f64, swing: f64| DampingReport {
+            rms_swing: Some(swing),
+            ..ambient_window(rms)
+        };
+        let observed = |d: &mut DampingReport| {
+            let mut level = primed_at_5();
+            level.observe(&mut previous());
+            level.observe(d);
+        };
+        let mut d = straddling(56.0, 12.4);
+        observed(&mut d);
+        assert_eq!(d.zeta0_interval, Some((-0.0381, 0.011)));
+        assert!(d.spans_change);
+        assert_eq!(
+            (d.zeta0, d.verdict, d.trusted),
+            (Some(0.004), Verdict::Unknown, true)
+        );
+        assert_eq!(d.zeta0_source, Some(Zeta0Source::Ambient));
+
+        let unchanged = |mut d: DampingReport| {
+            let before = d.clone();
+            observed(&mut d);
+            assert_eq!(d.zeta0_interval, before.zeta0_interval, "{before:?}");
+            assert!(!d.spans_change);
+        };
+        unchanged(straddling(56.0, STATE_CHANGE_SWING - 0.01));
+        unchanged(straddling(2.9 * 5.0, 12.4));
+        unchanged(DampingReport {
+            rms_swing: None,
+            ..straddling(56.0, 12.4)
+        });
+        // a decided window (its interval above zero) keeps it: a decay read by SSI is right
+        unchanged(DampingReport {
+            zeta0_interval: Some((0.002, 0.02)),
+            verdict: Verdict::Damped,
+            ..straddling(56.0, 12.4)
+        });
+        unchanged(DampingReport {
+            regime: Some(Regime::LimitCycle),
+            ..straddling(56.0, 12.4)
+        });
+        // nothing to span without a previous window's interval
+        let mut level = primed_at_5();
+        let mut bare = previous();
+        bare.zeta0_interval = None;
+        level.observe(&mut bare);
+        let mut d = straddling(56.0, 12.4);
+        level.observe(&mut d);
+        assert_eq!(d.zeta0_interval, Some((-0.003, 0.011)));
+        assert!(!d.spans_change);
     }
 
     /// A level of 5.0 from the fewest ambient windows that set one.

@@ -161,6 +161,17 @@ pub struct DampingReport {
     /// its ambient state, what one window needs before it may fire an alert at once.
     #[serde(default)]
     pub ambient_ratio: Option<f64>,
+    /// Largest over smallest standard deviation of the window's three thirds (`None` without a
+    /// model-free analysis): near 1 on a stationary response, far above it where the gate
+    /// changed state inside the window (a burst beginning or ending in it).
+    #[serde(default)]
+    pub rms_swing: Option<f64>,
+    /// Whether the window holds two states of the gate: it left the ambient level, its response
+    /// changed abruptly inside it (`rms_swing`) and its own estimate could not tell the sign, so
+    /// `zeta0_interval` also spans the previous window's reading, which saw the first state
+    /// (`docs/damping.md`, "A window that holds two states").
+    #[serde(default)]
+    pub spans_change: bool,
 }
 
 impl DampingReport {
@@ -203,6 +214,8 @@ impl DampingReport {
             zeta0_windows: None,
             signal_rms: None,
             ambient_ratio: None,
+            rms_swing: None,
+            spans_change: false,
         }
     }
 }

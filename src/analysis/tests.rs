@@ -162,3 +162,21 @@ fn the_relaxation_reads_the_history_only_over_a_steady_cycle() {
     bad[10] = f64::NAN;
     assert!(series::relaxation_record(&bad, fs, f, n, &opts).is_none());
 }
+
+/// `rms_swing`: about 1 on a steady oscillation, the ratio of the amplitudes where the third
+/// with the largest and the one with the smallest differ; none without three usable thirds.
+#[test]
+fn rms_swing_is_the_largest_over_the_smallest_third() {
+    let wave = |a: f64, i: usize| a * (i as f64 * 0.7).sin();
+    let steady: Vec<f64> = (0..600).map(|i| wave(2.0, i)).collect();
+    assert_relative_eq!(rms_swing(&steady).unwrap(), 1.0, max_relative = 0.02);
+    // a burst that ends: 10 times the amplitude in the first third
+    let ending: Vec<f64> = (0..600)
+        .map(|i| wave(if i < 200 { 10.0 } else { 1.0 }, i))
+        .collect();
+    assert_relative_eq!(rms_swing(&ending).unwrap(), 10.0, max_relative = 0.05);
+    assert_eq!(rms_swing(&[1.0, 2.0, 3.0, 4.0, 5.0]), None);
+    let mut flat_start = steady.clone();
+    flat_start[..200].fill(3.0);
+    assert_eq!(rms_swing(&flat_start), None, "a constant third");
+}
