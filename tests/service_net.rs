@@ -280,8 +280,18 @@ async fn an_identified_gate_that_expires_leaves_no_series_in_metrics() {
     ] {
         assert!(before.contains(series), "{series} before the expiry");
     }
+    assert_eq!(
+        state.pool().remembered_gates(),
+        1,
+        "the pool keeps its tracking memory"
+    );
     state.tick(now + Duration::from_secs(601));
     assert!(state.gate_view("junk").is_none());
+    assert_eq!(
+        state.pool().remembered_gates(),
+        0,
+        "an expired gate leaves no tracking memory in the pool"
+    );
     let after = scrape().await;
     let left: Vec<&str> = after
         .lines()

@@ -225,3 +225,62 @@ async fn a_day_of_samples_keeps_the_reported_times_true() {
         );
     }
 }
+
+/// `forget` drops a gate's pending job and its tracking memory, and the memory of a job of it
+/// that was in flight is not kept when that job ends; other gates keep theirs.
+#[tokio::test]
+async fn a_forgotten_gate_leaves_no_memory_even_with_a_job_in_flight() {
+    let fake = Arc::new(Fake {
+        sleep: Duration::from_millis(300),
+        ..Default::default()
+    });
+    let done = Arc::new(AtomicUsize::new(0));
+    let d = done.clone();
+    let pool = WorkerPool::start(
+        1,
+        8,
+        fake.clone(),
+        Arc::new(move |_: &Job, _, _| {
+            d.fetch_add(1, Ordering::SeqCst);
+        }),
+    )
+    .unwrap();
+    let job = |gate: &str, i: u64| Job {
+        gate: gate.into(),
+        t0: i as f64,
+        rate_hz: 100.0,
+        values: vec![0.0; 10],
+        history: vec![],
+        end_index: i,
+    };
+    assert_eq!(pool.submit(job("kept", 0)), Submitted::Queued);
+    wait_until(|| done.load(Ordering::SeqCst) == 1).await;
+    assert_eq!(pool.remembered_gates(), 1);
+    // "gone" in flight, and a pending job of it behind "kept"'s
+    assert_eq!(pool.submit(job("gone", 1)), Submitted::Queued);
+    wait_until(|| pool.in_flight() == 1).await;
+    assert_eq!(pool.submit(job("kept", 2)), Submitted::Queued);
+    assert_eq!(pool.submit(job("gone", 3)), Submitted::Queued);
+    assert_eq!(pool.pending(), 2);
+    pool.forget("gone");
+    assert_eq!(pool.pending(), 1, "its pending job is dropped");
+    wait_until(|| done.load(Ordering::SeqCst) == 3 && pool.in_flight() == 0).await;
+    assert_eq!(
+        pool.remembered_gates(),
+        1,
+        "the in-flight job of a forgotten gate leaves no memory"
+    );
+    let calls = fake.calls.lock().unwrap().clone();
+    assert_eq!(
+        calls.iter().map(|c| c.gate.as_str()).collect::<Vec<_>>(),
+        ["kept", "gone", "kept"]
+    );
+    // forgetting it again, or a gate never seen, is harmless; a new job of it starts afresh
+    pool.forget("gone");
+    pool.forget("never");
+    assert_eq!(pool.submit(job("gone", 4)), Submitted::Queued);
+    wait_until(|| done.load(Ordering::SeqCst) == 4).await;
+    assert_eq!(fake.calls.lock().unwrap().last().unwrap().warm, None);
+    assert_eq!(pool.remembered_gates(), 2);
+    pool.shutdown(Duration::from_secs(5)).await;
+}

@@ -251,8 +251,7 @@ pub fn identification_record(
             .and_then(|v| v.as_str().map(String::from))
             .unwrap_or_default(),
         fit_nmae: d.fit_nmae,
-        // issue 9 adds the tracked path; every identification is a full one until then
-        path: "full".to_string(),
+        path: a.path.as_str().to_string(),
     }
 }
 
@@ -371,5 +370,31 @@ impl StoreCounts {
                 .inc_by(now[i].saturating_sub(last[i]));
         }
         *last = now;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::analysis::{DampingReport, Path};
+
+    /// The history row says which path identified the window (it said `full` for every window
+    /// until session 26, tracked ones included).
+    #[test]
+    fn the_record_keeps_the_identification_path() {
+        for (path, name) in [(Path::Full, "full"), (Path::Tracked, "tracked")] {
+            let a = WindowAnalysis {
+                equation: "ydd + 0.1*yd + y = 0".into(),
+                coefficients: vec![("c1".into(), 0.1)],
+                damping: DampingReport::unknown(),
+                evaluations: 1,
+                seconds: 0.0,
+                warm_start: vec![0.1],
+                path,
+            };
+            let r = identification_record("g", SystemTime::UNIX_EPOCH, (0.0, 10.0), &a);
+            assert_eq!(r.path, name);
+            assert_eq!((r.window_start, r.window_end), (0.0, 10.0));
+        }
     }
 }

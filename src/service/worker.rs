@@ -183,8 +183,11 @@ struct Sched {
     pending: HashMap<String, Job>,
     order: VecDeque<String>,
     in_flight: HashSet<String>,
-    /// Each gate's tracking memory (bounded by the gates, as `pending`).
+    /// Each gate's tracking memory (bounded by the live gates: an expired gate's is forgotten,
+    /// [`WorkerPool::forget`]).
     previous: HashMap<String, Previous>,
+    /// Gates forgotten while their job was in flight: that job's memory is not kept.
+    forgotten: HashSet<String>,
     closed: bool,
     running_workers: usize,
 }
@@ -264,6 +267,26 @@ impl WorkerPool {
         drop(s);
         self.shared.cv.notify_one();
         outcome
+    }
+
+    /// Forgets `gate` (an expired gate): its pending job and its tracking memory, and the memory
+    /// of a job of it still in flight. Without it every gate name ever seen kept its memory (a
+    /// model and an ambient level) until a restart: the pool's memory is bounded by the live
+    /// gates only if expired ones leave it.
+    pub fn forget(&self, gate: &str) {
+        let mut s = lock(&self.shared.sched);
+        s.previous.remove(gate);
+        if s.pending.remove(gate).is_some() {
+            s.order.retain(|g| g != gate);
+        }
+        if s.in_flight.contains(gate) {
+            s.forgotten.insert(gate.to_string());
+        }
+    }
+
+    /// Gates whose tracking memory the pool holds.
+    pub fn remembered_gates(&self) -> usize {
+        lock(&self.shared.sched).previous.len()
     }
 
     /// Workers still running.
@@ -354,7 +377,10 @@ fn worker_loop(shared: Arc<Shared>) {
                     shared
                         .analyzer
                         .remember(&job.gate, previous.as_ref(), &a, job.t0, t_end);
-                lock(&shared.sched).previous.insert(job.gate.clone(), next);
+                let mut s = lock(&shared.sched);
+                if !s.forgotten.remove(&job.gate) {
+                    s.previous.insert(job.gate.clone(), next);
+                }
                 JobOutcome::Done(Box::new(a))
             }
             Ok(Err(e)) => JobOutcome::Failed(e),
@@ -372,7 +398,12 @@ fn worker_loop(shared: Arc<Shared>) {
         if catch_unwind(AssertUnwindSafe(|| sink(&job, outcome, elapsed))).is_err() {
             tracing::error!(gate = %job.gate, "result handler panicked");
         }
-        lock(&shared.sched).in_flight.remove(&job.gate);
+        {
+            let mut s = lock(&shared.sched);
+            s.in_flight.remove(&job.gate);
+            // a failed or panicked job of a forgotten gate left nothing to drop
+            s.forgotten.remove(&job.gate);
+        }
         shared.cv.notify_all();
     }
 }

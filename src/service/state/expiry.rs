@@ -55,6 +55,7 @@ impl AppState {
         let mut events = Vec::new();
         for id in &expired {
             inner.gates.remove(id);
+            self.pool().forget(id);
             events.extend(inner.alerts.remove_gate(id, now));
             self.metrics.remove_gate(id);
             self.metrics.gates_expired.inc();
