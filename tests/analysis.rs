@@ -188,3 +188,26 @@ fn saturated_limit_cycle_is_never_called_damped() {
         }
     }
 }
+
+/// `describes`: a window's stored equation and coefficients are of this analyzer's model only
+/// when putting the coefficients into the model gives the same text (what a restart checks
+/// before it refines a stored model); another model, another count, or a non-finite
+/// coefficient is not.
+#[test]
+fn an_analyzer_recognises_the_windows_of_its_model() {
+    let a = analyzer();
+    let c = [19.28179343627504, 89.0794893297186, -8409626.505674751];
+    let stored = "19.2818*ydd + (89.0795 + (-8.40963e6)*yd^2)*yd + k*y = 0";
+    assert!(a.describes(stored, &c));
+    // a JSON round trip of the coefficients, as the store does it, still matches
+    let json = serde_json::to_string(&c).unwrap();
+    let back: Vec<f64> = serde_json::from_str(&json).unwrap();
+    assert!(a.describes(stored, &back));
+    assert!(
+        !a.describes(stored, &c[..2]),
+        "another number of coefficients"
+    );
+    assert!(!a.describes(stored, &[19.3, 89.0794893297186, -8409626.5]));
+    assert!(!a.describes("19.2818*ydd + 89.0795*yd + (-8.40963e6)*y = 0", &c));
+    assert!(!a.describes(stored, &[f64::NAN, c[1], c[2]]));
+}

@@ -118,6 +118,22 @@ impl AmbientLevel {
         self.record(d);
     }
 
+    /// The memory as windows `reports` (oldest first, as [`AmbientLevel::observe`] and the
+    /// pooling left them, e.g. the stored history) leave it: what a restart rebuilds. The one
+    /// difference from the live memory: the previous window's interval is the pooled one (the
+    /// live memory keeps it before pooling), which only [`span_the_change`] reads, for the first
+    /// window after the restart.
+    pub fn resume<'a>(reports: impl IntoIterator<Item = &'a DampingReport>) -> AmbientLevel {
+        let mut level = AmbientLevel::default();
+        for d in reports {
+            level.record(d);
+            level.previous_source = d.zeta0_source;
+            level.previous_regime = Some(d.regime.unwrap_or(Regime::Undecided));
+            level.previous_interval = d.zeta0_interval;
+        }
+        level
+    }
+
     /// Lets window `d` feed the level when it is noise-driven ([`decided_by_ambient`]) and its
     /// RMS was measured; nothing else. [`AmbientLevel::observe`] calls it after its own reading;
     /// the tracking memory (`analysis::tracking::Previous`) calls it alone, on the analysis's
@@ -563,6 +579,35 @@ mod tests {
         level.observe(&mut d);
         assert_eq!(d.zeta0_interval, Some((-0.003, 0.011)));
         assert!(!d.spans_change);
+    }
+
+    /// Resumed from the reports `observe` left, the memory is the one `observe` built: the same
+    /// level, and the same reading of the next window (the first limit-cycle window after
+    /// ambient ones is read by SSI; a departed window that holds two states spans the previous
+    /// window's interval).
+    #[test]
+    fn resumed_from_the_reports_the_memory_reads_the_next_window_alike() {
+        let mut live = AmbientLevel::default();
+        let mut reports = Vec::new();
+        for rms in [5.0, 6.0, 5.5, 6.5, 5.8, 50.0] {
+            let mut d = ambient_window(rms);
+            live.observe(&mut d);
+            reports.push(d);
+        }
+        let mut resumed = AmbientLevel::resume(&reports);
+        assert_eq!(resumed, live);
+        // the median of the six (the departed one is ambient-decided: it feeds the level)
+        assert_eq!(resumed.level(), Some(5.9));
+        let next = || DampingReport {
+            rms_swing: Some(10.0),
+            ..ambient_window(40.0)
+        };
+        let (mut a, mut b) = (next(), next());
+        live.observe(&mut a);
+        resumed.observe(&mut b);
+        assert_eq!(a, b);
+        assert!(a.spans_change);
+        assert_eq!(AmbientLevel::resume([]), AmbientLevel::default());
     }
 
     /// A level of 5.0 from the fewest ambient windows that set one.

@@ -66,6 +66,16 @@ impl Analyzer {
         &self.tracking
     }
 
+    /// Whether `equation` is this analyzer's model with `coefficients` put in (what
+    /// [`WindowAnalysis::equation`] holds): a stored window of the same model, whose
+    /// coefficients may start a refinement. A changed model, or another number of
+    /// coefficients, is not.
+    pub fn describes(&self, equation: &str, coefficients: &[f64]) -> bool {
+        coefficients.len() == self.model.n_coeffs()
+            && coefficients.iter().all(|c| c.is_finite())
+            && self.model.substitute(coefficients) == equation
+    }
+
     /// The settings this analyzer was made with.
     pub fn settings(&self) -> &AnalysisSettings {
         &self.settings

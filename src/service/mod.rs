@@ -23,14 +23,16 @@
 //!   sample time and scored against the simulator's truth.
 //! - [`demo`]: `gatewatch demo`, daemon + webhook receiver + simulated gate in one process.
 //! - [`storage`]: the daemon's side of the store ([`crate::store`]): restore at start, writes
-//!   of the history, the alert states and the outbox; [`history`]: `GET .../history`.
+//!   of the history, the alert states and the outbox; [`history`]: `GET .../history`;
+//!   [`resume`]: each gate's analysis memory (trend, ambient level, tracking model) rebuilt
+//!   from its latest stored windows at start.
 //! - [`clock`], [`sync`]: Unix seconds and the poison-tolerant lock, shared by the above.
 //!
 //! Imports go one way (no circle): `cli` -> `server`, `demo`, `client`, `shutdown`; `demo`,
 //! `bench` -> `server`, `client`; `bench_warning` -> `state`, `worker`, `ingest`, `config`;
 //! `server` -> `api`, `listen`, `tcp`, `state`, `worker`; `api`, `tcp` -> `state`, `ingest`,
 //! `metrics`, `limits`; `state` -> `worker`, `window`, `ingest`, `ingest_checks`, `metrics`,
-//! `config`; `ingest_checks` -> `ingest`, `metrics`, `config`;
+//! `config`, `resume`; `resume` -> `worker`, `config`; `ingest_checks` -> `ingest`, `metrics`, `config`;
 //! `ingest`, `worker` -> `config`; and `config`, `window`, `clock`, `sync` import nothing of
 //! the service.
 
@@ -50,6 +52,7 @@ pub mod ingest_checks;
 pub mod limits;
 pub mod listen;
 pub mod metrics;
+pub mod resume;
 pub mod server;
 pub mod shutdown;
 pub mod state;

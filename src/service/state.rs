@@ -84,6 +84,12 @@ struct GateEntry {
 struct Inner {
     gates: BTreeMap<String, GateEntry>,
     alerts: AlertEngine,
+    /// Memories rebuilt from the store at start for gates without an entry yet (unknown gates
+    /// until they send again), at most `max_gates`; taken by `ensure_gate`, and dropped at the
+    /// first tick `server.unknown_gate_expiry_seconds` after the start.
+    resumed: BTreeMap<String, super::resume::GateMemory>,
+    /// When the start was (for dropping `resumed`).
+    started: SystemTime,
 }
 
 /// The state shared by handlers, listeners and workers.
@@ -164,6 +170,8 @@ impl AppState {
                 inner: Mutex::new(Inner {
                     gates: BTreeMap::new(),
                     alerts: AlertEngine::new(config.defaults.alert.clone()),
+                    resumed: BTreeMap::new(),
+                    started: SystemTime::now(),
                 }),
                 pool: OnceLock::new(),
                 notifier,
@@ -177,6 +185,14 @@ impl AppState {
             }
         });
         let weak = Arc::downgrade(&state);
+        // before the configured gates get their entries, which take their memories
+        let resumed = match &state.persistence {
+            Some(p) if config.storage.resume_analysis => {
+                super::resume::read(p.store.as_ref(), &config, analyzer.as_ref())
+            }
+            _ => BTreeMap::new(),
+        };
+        lock(&state.inner).resumed = resumed;
         let pool = WorkerPool::start(
             threads,
             queue,
@@ -222,6 +238,20 @@ impl AppState {
         if !inner.gates.contains_key(id) {
             let cfg = self.config.gate(id)?.clone();
             inner.alerts.set_rules(id, cfg.alert.clone());
+            let memory = inner.resumed.remove(id);
+            let (trend, trend_estimate, level) = match memory {
+                Some(m) => {
+                    if let Some(p) = m.previous {
+                        self.pool().restore(id, p);
+                    }
+                    (m.trend, m.trend_estimate, m.level)
+                }
+                None => (
+                    DampingTrend::new(cfg.alert.trend_horizon_seconds),
+                    None,
+                    AmbientLevel::default(),
+                ),
+            };
             self.metrics.init_gate(id);
             // the sensor counts as seen at creation, so a gate that never sends goes stale
             let events = inner.alerts.data_seen(id, now);
@@ -237,10 +267,10 @@ impl AppState {
                         cfg.every_samples(),
                         history_samples(cfg.window_samples()),
                     ),
-                    trend: DampingTrend::new(cfg.alert.trend_horizon_seconds),
+                    trend,
+                    level,
                     // validated with the configuration: an error cannot happen here, and would
                     // only mean no pooling
-                    level: AmbientLevel::default(),
                     pools: cfg.pooling.pools().ok().flatten(),
                     config: cfg,
                     latest: None,
@@ -248,7 +278,7 @@ impl AppState {
                     latest_window: None,
                     analysed_until: None,
                     last_error: None,
-                    trend_estimate: None,
+                    trend_estimate,
                     last_data: now,
                     unknown: !self.config.gates.contains_key(id),
                 },

@@ -55,6 +55,27 @@ pub trait WindowAnalyzer: Send + Sync + 'static {
         let _ = gate;
         Previous::after(before, a, t_start, t_end)
     }
+
+    /// Whether stored window `a` of `gate` was identified with the model `gate` has now, so
+    /// that its coefficients may start the next refinement after a restart; the default
+    /// (analyzers without a model of their own) says yes.
+    fn same_model(&self, gate: &str, a: &WindowAnalysis) -> bool {
+        let _ = (gate, a);
+        true
+    }
+}
+
+/// What a gate's tracking memory would be after `windows` (oldest first, each with its span),
+/// as [`WindowAnalyzer::remember`] builds it: what a restart rebuilds from the stored history.
+/// `None` without windows.
+pub fn replay(
+    analyzer: &dyn WindowAnalyzer,
+    gate: &str,
+    windows: &[(WindowAnalysis, f64, f64)],
+) -> Option<Previous> {
+    windows.iter().fold(None, |before, (a, t0, t1)| {
+        Some(analyzer.remember(gate, before.as_ref(), a, *t0, *t1))
+    })
 }
 
 /// One [`Analyzer`] per configured gate, and the defaults' analyzer for the others.
@@ -105,6 +126,13 @@ impl WindowAnalyzer for AnalyzerMap {
             .get(gate)
             .unwrap_or(&self.default)
             .analyze_tracked(input, previous, seed)
+    }
+
+    fn same_model(&self, gate: &str, a: &WindowAnalysis) -> bool {
+        self.gates
+            .get(gate)
+            .unwrap_or(&self.default)
+            .describes(&a.equation, &a.warm_start)
     }
 
     /// [`Previous::after`], and for a gate's first window its schedule's phase
@@ -282,6 +310,14 @@ impl WorkerPool {
         if s.in_flight.contains(gate) {
             s.forgotten.insert(gate.to_string());
         }
+    }
+
+    /// Gives `gate` the tracking memory `p` (rebuilt at a restart) unless it has one already.
+    pub fn restore(&self, gate: &str, p: Previous) {
+        lock(&self.shared.sched)
+            .previous
+            .entry(gate.to_string())
+            .or_insert(p);
     }
 
     /// Gates whose tracking memory the pool holds.

@@ -42,6 +42,10 @@ pub struct StorageConfig {
     /// A notification is retried for as long as it is younger than this, then given up,
     /// counted and logged (default 86400 s = 24 h).
     pub notification_max_age_seconds: f64,
+    /// At start, rebuild each gate's analysis memory (the trend of zeta0, the ambient level, the
+    /// tracking model) from its latest stored windows (default true; `service::resume`,
+    /// docs/operations.md, "Restarts"). False: every gate starts afresh, as without a store.
+    pub resume_analysis: bool,
 }
 
 impl Default for StorageConfig {
@@ -52,6 +56,7 @@ impl Default for StorageConfig {
             max_history_rows: 10_000_000,
             max_size_mb: 12_288,
             notification_max_age_seconds: 86_400.0,
+            resume_analysis: true,
         }
     }
 }

@@ -224,6 +224,13 @@ pub trait Store: Send + Sync + 'static {
     /// (damping report, coefficients) as text, not parsed. What the HTTP route serves.
     fn history_rows(&self, query: &HistoryQuery) -> Result<Vec<HistoryRow>, StoreError>;
 
+    /// The newest `n` rows of one gate's history (at most [`MAX_HISTORY_LIMIT`]), oldest first:
+    /// what a restart rebuilds the gate's analysis memory from.
+    fn latest_history_rows(&self, gate: &str, n: usize) -> Result<Vec<HistoryRow>, StoreError>;
+
+    /// The gates that have history, by name, at most `limit`.
+    fn history_gates(&self, limit: usize) -> Result<Vec<String>, StoreError>;
+
     /// One gate's history, oldest first, each record's JSON parsed.
     fn history(&self, query: &HistoryQuery) -> Result<Vec<IdentificationRecord>, StoreError> {
         self.history_rows(query)?

@@ -280,6 +280,32 @@ fn insert_outbox(tx: &rusqlite::Transaction<'_>, r: &NewOutboxRow) -> rusqlite::
     Ok(tx.last_insert_rowid())
 }
 
+/// The columns of a [`HistoryRow`], in the order [`history_row`] reads them.
+const HISTORY_COLUMNS: &str = "gate, time, window_start, window_end, equation, coefficients, \
+     damping, verdict, fit_nmae, path, zeta0, zeta0_low, zeta0_high, frequency_hz, trusted";
+
+/// A [`HistoryRow`] from a row of [`HISTORY_COLUMNS`].
+fn history_row(r: &rusqlite::Row<'_>) -> rusqlite::Result<HistoryRow> {
+    let low: Option<f64> = r.get(11)?;
+    let high: Option<f64> = r.get(12)?;
+    Ok(HistoryRow {
+        gate: r.get(0)?,
+        time: r.get(1)?,
+        window_start: r.get(2)?,
+        window_end: r.get(3)?,
+        equation: r.get(4)?,
+        coefficients: r.get(5)?,
+        damping: r.get(6)?,
+        verdict: r.get(7)?,
+        fit_nmae: r.get(8)?,
+        path: r.get(9)?,
+        zeta0: r.get(10)?,
+        zeta0_interval: low.zip(high),
+        frequency_hz: r.get(13)?,
+        trusted: r.get(14)?,
+    })
+}
+
 impl Store for SqliteStore {
     fn location(&self) -> String {
         self.path.clone()
@@ -321,13 +347,11 @@ impl Store for SqliteStore {
         let c = lock(&self.read);
         // one range of the table's key (gate, window_end): the gate's rows are together
         let mut stmt = c
-            .prepare_cached(
-                "SELECT gate, time, window_start, window_end, equation, coefficients, damping,
-                    verdict, fit_nmae, path, zeta0, zeta0_low, zeta0_high, frequency_hz, trusted
-                 FROM history
+            .prepare_cached(&format!(
+                "SELECT {HISTORY_COLUMNS} FROM history
                  WHERE gate = ?1 AND window_end >= ?2 AND window_end <= ?3
-                 ORDER BY window_end, seq LIMIT ?4",
-            )
+                 ORDER BY window_end, seq LIMIT ?4"
+            ))
             .map_err(sq("history"))?;
         let limit = q.limit.min(MAX_HISTORY_LIMIT) as i64;
         let rows = stmt
@@ -338,29 +362,41 @@ impl Store for SqliteStore {
                     q.to.unwrap_or(f64::MAX),
                     limit
                 ],
-                |r| {
-                    let low: Option<f64> = r.get(11)?;
-                    let high: Option<f64> = r.get(12)?;
-                    Ok(HistoryRow {
-                        gate: r.get(0)?,
-                        time: r.get(1)?,
-                        window_start: r.get(2)?,
-                        window_end: r.get(3)?,
-                        equation: r.get(4)?,
-                        coefficients: r.get(5)?,
-                        damping: r.get(6)?,
-                        verdict: r.get(7)?,
-                        fit_nmae: r.get(8)?,
-                        path: r.get(9)?,
-                        zeta0: r.get(10)?,
-                        zeta0_interval: low.zip(high),
-                        frequency_hz: r.get(13)?,
-                        trusted: r.get(14)?,
-                    })
-                },
+                history_row,
             )
             .map_err(sq("history"))?;
         rows.collect::<Result<_, _>>().map_err(sq("history"))
+    }
+
+    fn latest_history_rows(&self, gate: &str, n: usize) -> Result<Vec<HistoryRow>, StoreError> {
+        let c = lock(&self.read);
+        // the same range of the key, read from its end
+        let mut stmt = c
+            .prepare_cached(&format!(
+                "SELECT {HISTORY_COLUMNS} FROM history WHERE gate = ?1
+                 ORDER BY window_end DESC, seq DESC LIMIT ?2"
+            ))
+            .map_err(sq("latest history"))?;
+        let limit = n.min(MAX_HISTORY_LIMIT) as i64;
+        let rows = stmt
+            .query_map(params![gate, limit], history_row)
+            .map_err(sq("latest history"))?;
+        let mut rows: Vec<HistoryRow> = rows
+            .collect::<Result<_, _>>()
+            .map_err(sq("latest history"))?;
+        rows.reverse();
+        Ok(rows)
+    }
+
+    fn history_gates(&self, limit: usize) -> Result<Vec<String>, StoreError> {
+        let c = lock(&self.read);
+        let mut stmt = c
+            .prepare_cached("SELECT DISTINCT gate FROM history ORDER BY gate LIMIT ?1")
+            .map_err(sq("history gates"))?;
+        let rows = stmt
+            .query_map(params![limit.min(i64::MAX as usize) as i64], |r| r.get(0))
+            .map_err(sq("history gates"))?;
+        rows.collect::<Result<_, _>>().map_err(sq("history gates"))
     }
 
     fn alert_states(&self) -> Result<Vec<(String, String)>, StoreError> {

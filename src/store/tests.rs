@@ -37,6 +37,37 @@ fn open(dir: &tempfile::TempDir) -> SqliteStore {
     SqliteStore::open(&dir.path().join("gw.db"), 64).expect("open")
 }
 
+/// The newest rows of a gate come oldest first, capped at `n` (and at `MAX_HISTORY_LIMIT`);
+/// the gates with history come by name, capped at `limit`.
+#[test]
+fn the_latest_rows_of_a_gate_and_the_gates_with_history() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let s = open(&dir);
+    let batch = WriteBatch {
+        identifications: (0..10)
+            .map(|i| record("g1", 1000.0 + 5.0 * f64::from(i), 0.01))
+            .chain([record("g0", 990.0, -0.02), record("g2", 2000.0, 0.03)])
+            .collect(),
+        ..Default::default()
+    };
+    s.write(&batch).expect("write");
+    let ends = |rows: Vec<HistoryRow>| rows.iter().map(|r| r.window_end).collect::<Vec<_>>();
+    assert_eq!(
+        ends(s.latest_history_rows("g1", 3).expect("latest")),
+        [1035.0, 1040.0, 1045.0]
+    );
+    assert_eq!(
+        ends(s.latest_history_rows("g1", 100).expect("all")).len(),
+        10
+    );
+    assert!(s.latest_history_rows("nobody", 3).expect("none").is_empty());
+    let g0 = s.latest_history_rows("g0", 1).expect("g0");
+    assert_eq!(g0[0].zeta0, Some(-0.02));
+    assert_eq!(g0[0].zeta0_interval, Some((-0.03, -0.01)));
+    assert_eq!(s.history_gates(10).expect("gates"), ["g0", "g1", "g2"]);
+    assert_eq!(s.history_gates(2).expect("gates"), ["g0", "g1"]);
+}
+
 #[test]
 fn history_survives_reopening_and_is_filtered_by_gate_range_and_limit() {
     let dir = tempfile::tempdir().expect("tempdir");

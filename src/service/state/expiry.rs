@@ -9,6 +9,7 @@ impl AppState {
     pub fn tick(&self, now: SystemTime) {
         let mut inner = lock(&self.inner);
         let (mut events, expired) = self.expire_unknown_gates(&mut inner, now);
+        self.drop_unclaimed_memories(&mut inner, now);
         events.extend(inner.alerts.check_stale(now));
         for e in &events {
             let g = e.alert().gate();
@@ -26,6 +27,24 @@ impl AppState {
         // none behind (label cardinality stays bounded by the live gates).
         for id in &expired {
             self.metrics.remove_gate(id);
+        }
+    }
+
+    /// Drops the memories rebuilt at start that no gate took within
+    /// `server.unknown_gate_expiry_seconds` (0: never): a gate silent that long would have
+    /// expired, and its tracking model would be past `tracking.max_gap_windows` anyway.
+    fn drop_unclaimed_memories(&self, inner: &mut Inner, now: SystemTime) {
+        let expiry = self.config.server.unknown_gate_expiry_seconds;
+        if inner.resumed.is_empty() || expiry <= 0.0 {
+            return;
+        }
+        let since = now.duration_since(inner.started).unwrap_or(Duration::ZERO);
+        if since >= Duration::from_secs_f64(expiry) {
+            tracing::info!(
+                gates = inner.resumed.len(),
+                "memories rebuilt at start that no gate took are dropped"
+            );
+            inner.resumed.clear();
         }
     }
 

@@ -1,0 +1,219 @@
+//! A gate's analysis memory across a restart (`service::resume`): the REAL daemon
+//! (`server::run`, real analyzers, a real SQLite file) identifies a stable lab gate for a
+//! minute of sample time, stops, and starts again on the same file. The trend it showed comes
+//! back before any new sample, and the first window after the restart already has the gate's
+//! ambient level and the tracking model; with `storage.resume_analysis = false` none of that
+//! survives. Streams run in lockstep with the daemon (sample time); every wait is bounded.
+
+use std::net::SocketAddr;
+use std::path::Path;
+use std::time::Duration;
+
+use gatewatch::service::client::{simulate_with_source, Protocol, Scenario, SimulateArgs};
+use gatewatch::service::config::Config;
+use gatewatch::service::server::{run, Listeners};
+use gatewatch::simulate::{GatePreset, GateSimulator, NoiseLevel, ScenarioName};
+use serde_json::Value;
+
+/// Longest wait for one window's identification.
+const WINDOW_TIMEOUT: Duration = Duration::from_secs(180);
+const RATE: f64 = 200.0;
+
+/// Start of the stream, Unix seconds: ten minutes ago, whole seconds, so that the store's
+/// retention (30 days, pruned at each start) keeps the windows.
+fn start() -> f64 {
+    let now = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .as_secs();
+    (now - 600) as f64
+}
+
+struct Daemon {
+    start: f64,
+    addr: SocketAddr,
+    stop: tokio::sync::oneshot::Sender<()>,
+    task: tokio::task::JoinHandle<anyhow::Result<()>>,
+    client: reqwest::Client,
+}
+
+/// The daemon on its store file `dir/gw.db`, the lab gate `g1` (10 s windows every 5 s).
+async fn daemon(dir: &Path, resume: bool, start: f64) -> Daemon {
+    gatewatch::service::client::ensure_crypto_provider();
+    let cfg = Config::from_toml(&format!(
+        "[server]\nlisten = \"127.0.0.1:0\"\nworker_threads = 1\nshutdown_grace_seconds = 5.0\n\
+         [storage]\npath = \"{}\"\nresume_analysis = {resume}\n\
+         [defaults]\nrate_hz = {RATE}\nmax_past_seconds = 0.0\n\
+         [defaults.alert]\nstale_after_seconds = 600.0\n\
+         [gates.g1]\n",
+        dir.join("gw.db").display()
+    ))
+    .unwrap();
+    let http = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let addr = http.local_addr().unwrap();
+    let (stop, rx) = tokio::sync::oneshot::channel::<()>();
+    let task = tokio::spawn(run(cfg, Listeners { http, tcp: None }, async move {
+        let _ = rx.await;
+    }));
+    let d = Daemon {
+        start,
+        addr,
+        stop,
+        task,
+        client: reqwest::Client::new(),
+    };
+    tokio::time::timeout(Duration::from_secs(30), async {
+        while d.gate("g1").await.is_null() {
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    })
+    .await
+    .expect("the daemon serves its configured gate");
+    d
+}
+
+impl Daemon {
+    async fn gate(&self, gate: &str) -> Value {
+        match self
+            .client
+            .get(format!("http://{}/api/v1/gates/{gate}", self.addr))
+            .send()
+            .await
+        {
+            Ok(r) => r.json().await.unwrap_or(Value::Null),
+            Err(_) => Value::Null,
+        }
+    }
+
+    /// Sends samples `first..first + n` of `sim` and waits until the window ending with the
+    /// last one is identified; returns the gate's view then.
+    async fn step(&self, sim: &mut GateSimulator, first: u64, n: u64) -> Value {
+        let args = SimulateArgs {
+            url: format!("http://{}", self.addr),
+            tcp_addr: String::new(),
+            gate: "g1".into(),
+            scenario: Scenario::Stable, // unused: the source is `sim`
+            speed: 0.0,
+            duration: n as f64 / RATE,
+            seed: 0,
+            protocol: Protocol::Json,
+            rate: RATE,
+            token: None,
+            chunk_seconds: n as f64 / RATE,
+            start: Some(self.start + first as f64 / RATE),
+            onset_hold: 0.0,
+            onset_ramp: 0.0,
+            sensor: Default::default(),
+        };
+        let sent = tokio::time::timeout(
+            Duration::from_secs(60),
+            simulate_with_source(&args, |b: &mut [f64]| sim.fill(b)),
+        )
+        .await
+        .expect("samples accepted in time")
+        .expect("samples accepted");
+        assert_eq!(sent, n);
+        let end = self.start + (first + n - 1) as f64 / RATE;
+        tokio::time::timeout(WINDOW_TIMEOUT, async {
+            loop {
+                let v = self.gate("g1").await;
+                if v["analysed_until"]
+                    .as_f64()
+                    .is_some_and(|t| t >= end - 0.5 / RATE)
+                {
+                    return v;
+                }
+                tokio::time::sleep(Duration::from_millis(20)).await;
+            }
+        })
+        .await
+        .unwrap_or_else(|_| panic!("window ending at {} s not analysed", end - self.start))
+    }
+
+    async fn stop(self) {
+        let _ = self.stop.send(());
+        tokio::time::timeout(Duration::from_secs(30), self.task)
+            .await
+            .expect("shutdown within the deadline")
+            .unwrap()
+            .unwrap();
+    }
+}
+
+/// Streams `sim` from sample `from` for `seconds`: the first window whole if the daemon has no
+/// samples yet (`fresh`), then one 5 s cadence step at a time. Returns the views and the next
+/// sample index.
+async fn stream(
+    d: &Daemon,
+    sim: &mut GateSimulator,
+    from: u64,
+    seconds: f64,
+    fresh: bool,
+) -> (Vec<Value>, u64) {
+    let (window, every) = ((10.0 * RATE) as u64, (5.0 * RATE) as u64);
+    let end = from + (seconds * RATE) as u64;
+    let mut sent = from;
+    let mut views = Vec::new();
+    let mut first = fresh;
+    while sent < end {
+        let n = if first { window } else { every };
+        first = false;
+        views.push(d.step(sim, sent, n).await);
+        sent += n;
+    }
+    (views, sent)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_restart_keeps_the_trend_the_ambient_level_and_the_tracking_model() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = GatePreset::Lab.params();
+    let def = ScenarioName::Stable.def(&p);
+    let mut sim = def.simulator(&p, NoiseLevel::Relative(0.125), 7).unwrap();
+    let mut warm = vec![0.0; (def.warmup_s * RATE).round() as usize];
+    sim.fill(&mut warm);
+
+    let t0 = start();
+    let d = daemon(dir.path(), true, t0).await;
+    // 9 windows (10 s every 5 s up to 50 s); the windows ending at 35 to 60 s are tracked
+    let (views, next) = stream(&d, &mut sim, 0, 50.0, true).await;
+    let before = views.last().unwrap().clone();
+    assert!(
+        before["trend"].is_object(),
+        "9 windows make a trend: {}",
+        before["trend"]
+    );
+    assert!(before["identification"]["damping"]["ambient_ratio"].is_number());
+    d.stop().await;
+
+    // restarted on the same file: the trend is back before any sample, exactly
+    let d = daemon(dir.path(), true, t0).await;
+    let resumed = d.gate("g1").await;
+    assert_eq!(resumed["trend"], before["trend"]);
+    assert!(resumed["identification"].is_null(), "no window yet");
+    // the first window after the restart (10 s of new samples) has the level and the model
+    let (views, next) = stream(&d, &mut sim, next, 10.0, true).await;
+    let first = &views[0]["identification"];
+    eprintln!(
+        "after the restart: path {} ratio {} trend {}",
+        first["path"], first["damping"]["ambient_ratio"], views[0]["trend"]
+    );
+    assert!(
+        first["damping"]["ambient_ratio"].is_number(),
+        "the ambient level survived: {}",
+        first["damping"]
+    );
+    assert_eq!(first["path"], "tracked", "the tracking model survived");
+    assert!(views[0]["trend"].is_object());
+    d.stop().await;
+
+    // without the resumption: the same file, but every gate starts afresh
+    let d = daemon(dir.path(), false, t0).await;
+    assert!(d.gate("g1").await["trend"].is_null());
+    let (views, _) = stream(&d, &mut sim, next, 10.0, true).await;
+    let first = &views[0]["identification"];
+    assert!(first["damping"]["ambient_ratio"].is_null(), "{first}");
+    assert_eq!(first["path"], "full");
+    assert!(views[0]["trend"].is_null());
+    d.stop().await;
+}
