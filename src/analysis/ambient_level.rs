@@ -71,8 +71,11 @@ pub struct AmbientLevel {
     previous_source: Option<Zeta0Source>,
     /// The previous window's model-free regime.
     previous_regime: Option<Regime>,
-    /// The previous window's `zeta0` interval (after this memory's own reading).
+    /// The previous window's `zeta0` interval (after this memory's own reading, before a
+    /// widening by [`span_the_change`]: a hull is never taken of a hull).
     previous_interval: Option<(f64, f64)>,
+    /// Sample time of the previous window's last sample (`None`: not known).
+    previous_end: Option<f64>,
 }
 
 impl AmbientLevel {
@@ -87,10 +90,27 @@ impl AmbientLevel {
 
     /// Sets the report's `ambient_ratio` against the level before this window, then lets a
     /// window the ambient estimate decided (damped or undecided regime, trusted) feed the level.
-    /// Call in window order, after the window's verdict and before pooling.
+    /// Call in window order, after the window's verdict and before pooling. Without the
+    /// window's span ([`AmbientLevel::observe_span`]) consecutive windows count as overlapping.
     pub fn observe(&mut self, d: &mut DampingReport) {
+        self.observe_inner(d, None);
+    }
+
+    /// [`AmbientLevel::observe`] for the window covering `[t_start, t_end]` (sample time): the
+    /// previous window's reading is spanned by a window that holds two states only when the
+    /// two windows overlap (not after a gap, replaced jobs or a long restart).
+    pub fn observe_span(&mut self, d: &mut DampingReport, t_start: f64, t_end: f64) {
+        self.observe_inner(d, Some((t_start, t_end)));
+    }
+
+    fn observe_inner(&mut self, d: &mut DampingReport, span: Option<(f64, f64)>) {
         let previous = self.previous_source.take();
-        let previous_interval = self.previous_interval.take();
+        let overlaps = match (self.previous_end.take(), span) {
+            (Some(end), Some((start, _))) => start <= end,
+            _ => true,
+        };
+        self.previous_end = span.map(|(_, end)| end);
+        let previous_interval = self.previous_interval.take().filter(|_| overlaps);
         let first_cycle = self
             .previous_regime
             .replace(d.regime.unwrap_or(Regime::Undecided))
@@ -109,7 +129,11 @@ impl AmbientLevel {
             }
             Some(_) => {
                 read_departed_window_by_the_model(d, previous);
+                self.previous_interval = d.zeta0_interval;
                 span_the_change(d, previous_interval);
+                self.previous_source = d.zeta0_source;
+                self.record(d);
+                return;
             }
             None => {}
         }
@@ -118,18 +142,20 @@ impl AmbientLevel {
         self.record(d);
     }
 
-    /// The memory as windows `reports` (oldest first, as [`AmbientLevel::observe`] and the
-    /// pooling left them, e.g. the stored history) leave it: what a restart rebuilds. The one
-    /// difference from the live memory: the previous window's interval is the pooled one (the
-    /// live memory keeps it before pooling), which only [`span_the_change`] reads, for the first
-    /// window after the restart.
-    pub fn resume<'a>(reports: impl IntoIterator<Item = &'a DampingReport>) -> AmbientLevel {
+    /// The memory as windows `reports` (oldest first, each with the sample time of its last
+    /// sample, as [`AmbientLevel::observe_span`] and the pooling left them, e.g. the stored
+    /// history) leave it: what a restart rebuilds. Where it differs from the live memory: the
+    /// previous window's interval is the pooled one (the live memory keeps it before pooling),
+    /// and none after a window whose interval was widened ([`span_the_change`]; its own is not
+    /// stored). Only [`span_the_change`] reads it, for the first window after the restart.
+    pub fn resume<'a>(reports: impl IntoIterator<Item = (&'a DampingReport, f64)>) -> AmbientLevel {
         let mut level = AmbientLevel::default();
-        for d in reports {
+        for (d, end) in reports {
             level.record(d);
             level.previous_source = d.zeta0_source;
             level.previous_regime = Some(d.regime.unwrap_or(Regime::Undecided));
-            level.previous_interval = d.zeta0_interval;
+            level.previous_interval = d.zeta0_interval.filter(|_| !d.spans_change);
+            level.previous_end = Some(end);
         }
         level
     }
@@ -230,22 +256,28 @@ fn read_departed_window_by_the_model(d: &mut DampingReport, previous: Option<Zet
 pub const STATE_CHANGE_SWING: f64 = 4.0;
 
 /// A window that left the ambient level, whose response changed abruptly inside it
-/// ([`STATE_CHANGE_SWING`]) and whose ambient (SSI-COV) estimate cannot tell the sign (verdict
-/// `Unknown`), holds two states of the gate: the end of a burst (the limit cycle, then the
-/// decay) or its start (the ambient response, then the growth). SSI-COV assumes one stationary
-/// state and reads such a window as about zero with a narrow interval (0.04 % (-0.47, +0.55)
-/// where the truth went from -3 % to +1 %): a confident reading of a state the gate was never
-/// in. The window overlaps the previous one by half, which saw the first state; the interval
-/// becomes the hull of both (`spans_change`), so it says "somewhere across these" instead.
-/// The point and the verdict stay: the widened interval still crosses zero, so no alert changes.
+/// ([`STATE_CHANGE_SWING`]) and whose trusted ambient (SSI-COV) estimate cannot tell the sign
+/// (its interval crosses zero), holds two states of the gate: the end of a burst (the limit
+/// cycle, then the decay) or its start (the ambient response, then the growth). SSI-COV assumes
+/// one stationary state and reads such a window as about zero with a narrow interval
+/// (0.04 % (-0.47, +0.55) where the truth went from -3 % to +1 %): a confident reading of a
+/// state the gate was never in. The window overlaps the previous one (`previous` is `None`
+/// when it does not), which saw the first state; the interval becomes the hull of both
+/// (`spans_change`), so it says "somewhere across these" instead. The point and the verdict
+/// stay (the widened interval still crosses zero), so the window neither fires nor resolves an
+/// alert it would not have; the trend weighs it less.
 fn span_the_change(d: &mut DampingReport, previous: Option<(f64, f64)>) {
     let two_states = d.zeta0_source == Some(Zeta0Source::Ambient)
+        && d.trusted
         && d.verdict == Verdict::Unknown
         && d.regime != Some(Regime::LimitCycle)
         && d.rms_swing.is_some_and(|s| s >= STATE_CHANGE_SWING);
     let (true, Some((lo, hi)), Some((plo, phi))) = (two_states, d.zeta0_interval, previous) else {
         return;
     };
+    if !(lo <= 0.0 && 0.0 <= hi) {
+        return; // decided after all (an alarm regime's untrusted Unknown is excluded above)
+    }
     d.zeta0_interval = Some((lo.min(plo), hi.max(phi)));
     d.spans_change = true;
 }
@@ -579,6 +611,49 @@ mod tests {
         level.observe(&mut d);
         assert_eq!(d.zeta0_interval, Some((-0.003, 0.011)));
         assert!(!d.spans_change);
+        // an untrusted Unknown (an alarm regime's interval above zero) is no two-state window
+        unchanged(DampingReport {
+            zeta0_interval: Some((0.002, 0.02)),
+            trusted: false,
+            ..straddling(56.0, 12.4)
+        });
+    }
+
+    /// The previous reading is spanned only when the windows overlap, and a widened interval is
+    /// not what the next window spans (no hull of a hull).
+    #[test]
+    fn only_an_overlapping_previous_window_is_spanned_and_never_a_hull() {
+        let lc = DampingReport {
+            zeta0_interval: Some((-0.038, -0.003)),
+            zeta0_source: Some(Zeta0Source::Envelope),
+            regime: Some(Regime::LimitCycle),
+            signal_rms: Some(75.0),
+            ..DampingReport::unknown()
+        };
+        let straddling = || DampingReport {
+            rms_swing: Some(12.0),
+            ..ambient_window(56.0)
+        };
+        // [0, 10] then [5, 15]: overlapping; [0, 10] then [11, 21]: a gap
+        for (start, spanned) in [(5.0, true), (10.0, true), (11.0, false)] {
+            let mut level = primed_at_5();
+            level.observe_span(&mut lc.clone(), 0.0, 10.0);
+            let mut d = straddling();
+            level.observe_span(&mut d, start, start + 10.0);
+            assert_eq!(d.spans_change, spanned, "start {start}");
+        }
+        let mut level = primed_at_5();
+        level.observe_span(&mut lc.clone(), 0.0, 10.0);
+        let mut first = straddling();
+        level.observe_span(&mut first, 5.0, 15.0);
+        assert_eq!(first.zeta0_interval, Some((-0.038, 0.011)));
+        let mut second = straddling();
+        level.observe_span(&mut second, 10.0, 20.0);
+        assert_eq!(
+            second.zeta0_interval,
+            Some((-0.003, 0.011)),
+            "the hull of its own and the first window's own interval"
+        );
     }
 
     /// Resumed from the reports `observe` left, the memory is the one `observe` built: the same
@@ -589,12 +664,13 @@ mod tests {
     fn resumed_from_the_reports_the_memory_reads_the_next_window_alike() {
         let mut live = AmbientLevel::default();
         let mut reports = Vec::new();
-        for rms in [5.0, 6.0, 5.5, 6.5, 5.8, 50.0] {
+        for (k, rms) in [5.0, 6.0, 5.5, 6.5, 5.8, 50.0].into_iter().enumerate() {
             let mut d = ambient_window(rms);
-            live.observe(&mut d);
-            reports.push(d);
+            let start = 5.0 * k as f64;
+            live.observe_span(&mut d, start, start + 10.0);
+            reports.push((d, start + 10.0));
         }
-        let mut resumed = AmbientLevel::resume(&reports);
+        let mut resumed = AmbientLevel::resume(reports.iter().map(|(d, end)| (d, *end)));
         assert_eq!(resumed, live);
         // the median of the six (the departed one is ambient-decided: it feeds the level)
         assert_eq!(resumed.level(), Some(5.9));
@@ -603,11 +679,14 @@ mod tests {
             ..ambient_window(40.0)
         };
         let (mut a, mut b) = (next(), next());
-        live.observe(&mut a);
-        resumed.observe(&mut b);
+        live.observe_span(&mut a, 30.0, 40.0);
+        resumed.observe_span(&mut b, 30.0, 40.0);
         assert_eq!(a, b);
         assert!(a.spans_change);
-        assert_eq!(AmbientLevel::resume([]), AmbientLevel::default());
+        assert_eq!(
+            AmbientLevel::resume(std::iter::empty()),
+            AmbientLevel::default()
+        );
     }
 
     /// A level of 5.0 from the fewest ambient windows that set one.

@@ -25,7 +25,7 @@ use std::time::{Duration, Instant};
 use tokio::io::AsyncWriteExt;
 
 use super::config::Config;
-use super::server::{run_with_analyzer, Listeners};
+use super::server::{run_with_persistence, Listeners};
 use super::worker::{AnalyzerMap, WindowAnalyzer};
 use crate::analysis::{
     AnalysisError, Analyzer, DampingReport, Path, Previous, Verdict, WindowAnalysis, WindowInput,
@@ -63,6 +63,12 @@ pub struct BenchDaemonArgs {
     /// Skip measurements: any of ingest, latency, capacity.
     #[arg(long, value_delimiter = ',')]
     pub skip: Vec<String>,
+    /// Capacity with a store, then a restart: each gate count runs with a store file (in a
+    /// temporary directory), then a second daemon starts on that file and the same gates stream
+    /// on for `--seconds` (its first round finds each gate's analysis memory rebuilt from the
+    /// store, `storage.resume_analysis`).
+    #[arg(long)]
+    pub restart: bool,
 }
 
 /// An analyzer that does nothing: isolates the ingestion path.
@@ -103,18 +109,38 @@ struct Running {
 }
 
 async fn start(config_text: &str, analyzer: Arc<dyn WindowAnalyzer>) -> anyhow::Result<Running> {
+    start_with(config_text, analyzer, false).await
+}
+
+/// [`start`], with the store of the configuration's `[storage]` when `store` is set.
+async fn start_with(
+    config_text: &str,
+    analyzer: Arc<dyn WindowAnalyzer>,
+    store: bool,
+) -> anyhow::Result<Running> {
     let cfg = Config::from_toml(config_text)?;
+    let persistence = if store {
+        let storage = cfg.storage.clone();
+        let path = std::path::PathBuf::from(&storage.path);
+        Some(
+            tokio::task::spawn_blocking(move || super::storage::Persistence::open(&path, &storage))
+                .await??,
+        )
+    } else {
+        None
+    };
     let http = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
     let tcp = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
     let (h, t) = (http.local_addr()?, tcp.local_addr()?);
     let (stop, rx) = tokio::sync::oneshot::channel::<()>();
-    let task = tokio::spawn(run_with_analyzer(
+    let task = tokio::spawn(run_with_persistence(
         cfg,
         Listeners {
             http,
             tcp: Some(tcp),
         },
         analyzer,
+        persistence,
         async move {
             let _ = rx.await;
         },
@@ -366,23 +392,41 @@ struct Capacity {
     workers: usize,
 }
 
-/// One gate count: streams `gates` gates at real-time pace; returns
-/// (identifications, replaced, dropped, failures).
+/// The simulated gates of a capacity run and the samples each has streamed, so that a
+/// restarted daemon can be fed what comes next.
+struct Streams {
+    sims: Vec<GateSimulator>,
+    sent: usize,
+}
+
+/// One gate count: streams `gates` gates at real-time pace. With `store`, the daemon keeps its
+/// store in that file; with `resume`, the gates go on from where that run left them (a restart:
+/// every gate's buffer is empty again, so each starts with a full window at once).
 async fn capacity_run(
     gates: usize,
     seconds: f64,
     worker_threads: usize,
-) -> anyhow::Result<Capacity> {
+    store: Option<&std::path::Path>,
+    resume: Option<Streams>,
+) -> anyhow::Result<(Capacity, Streams)> {
+    let storage = match store {
+        // the replayed sample times are of 2023: a retention that keeps them
+        Some(p) => format!(
+            "[storage]\npath = {:?}\nretention_days = 36500.0\n",
+            p.display().to_string()
+        ),
+        None => String::new(),
+    };
     let text = format!(
         "[server]\nworker_threads = {worker_threads}\nmax_gates = {}\n\
          [defaults]\n# replayed synthetic times: no time bounds\nmax_past_seconds = 0.0\n\
-         max_future_seconds = 0.0\n",
+         max_future_seconds = 0.0\n{storage}",
         gates.max(1)
     );
     let config = Config::from_toml(&text)?;
     let workers = config.server.effective_worker_threads();
     let analyzer: Arc<dyn WindowAnalyzer> = Arc::new(AnalyzerMap::from_config(&config)?);
-    let r = start(&text, analyzer).await?;
+    let r = start_with(&text, analyzer, store.is_some()).await?;
     let client = reqwest::Client::new();
     let rate = 200.0;
     let cpu0 = process_cpu_seconds();
@@ -391,9 +435,17 @@ async fn capacity_run(
     let chunk = if gates <= 32 { 20usize } else { 200 };
     let start_t = 1_700_000_000.0;
     let backfill = 2000usize; // one full window at once, so identification starts at once
-    let mut sims: Vec<GateSimulator> = (0..gates)
-        .map(|g| GateSimulator::scenario(GateParams::default(), Scenario::Stable, g as u64))
-        .collect();
+    let (mut sims, base) = match resume {
+        Some(s) => (s.sims, s.sent),
+        None => (
+            (0..gates)
+                .map(|g| GateSimulator::scenario(GateParams::default(), Scenario::Stable, g as u64))
+                .collect(),
+            0,
+        ),
+    };
+    // sample time of the run's first sample
+    let start_t = start_t + base as f64 / rate;
     let post = |gate: usize, t0: f64, values: Vec<f64>| {
         let client = client.clone();
         let url = format!("http://{}/api/v1/samples", r.http);
@@ -455,6 +507,10 @@ async fn capacity_run(
     let cpu = process_cpu_seconds();
     let rss = rss_mib();
     r.stop().await;
+    let streams = Streams {
+        sims,
+        sent: base + sent,
+    };
     let identifications = metric_sum(&m, "gatewatch_identification_duration_seconds_count");
     let tracked: f64 = m
         .lines()
@@ -464,7 +520,7 @@ async fn capacity_run(
         .filter_map(|l| l.rsplit(' ').next()?.parse::<f64>().ok())
         // not `sum()`: it starts at -0.0 and printed "-0" for no tracked window
         .fold(0.0, |a, b| a + b);
-    Ok(Capacity {
+    let capacity = Capacity {
         identifications,
         replaced: metric_sum(&m, "gatewatch_identification_jobs_replaced_total"),
         warm_up,
@@ -480,7 +536,8 @@ async fn capacity_run(
         },
         rss,
         workers,
-    })
+    };
+    Ok((capacity, streams))
 }
 
 async fn bench(args: BenchDaemonArgs) -> anyhow::Result<()> {
@@ -564,29 +621,35 @@ async fn bench(args: BenchDaemonArgs) -> anyhow::Result<()> {
         let mut best = 0usize;
         let mut best_steady = 0usize;
         for gates in counts {
-            let c = capacity_run(gates, args.seconds, args.worker_threads).await?;
-            let clean = c.dropped == 0.0 && c.failures == 0.0 && c.identifications > 0.0;
-            let ok = clean && c.replaced == 0.0;
-            // Steady: no job replaced once every gate had its first window (the first round
-            // must end within the run for this to say anything).
-            let steady = clean && c.warm_up.is_some_and(|(_, before)| c.replaced == before);
-            println!(
-                "| {gates} | {} | {:.1} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
-                c.workers,
-                gates as f64 / c.workers.max(1) as f64,
-                c.identifications,
-                c.tracked,
-                c.replaced,
-                c.warm_up
-                    .map_or("never".into(), |(s, n)| format!("{s:.0} ({n})")),
-                c.dropped,
-                c.failures,
-                c.cpu_per_window.map_or("-".into(), |v| format!("{v:.4}")),
-                c.rss
-                    .map_or("-".into(), |(r, p)| format!("{r:.0} ({p:.0})")),
-                if ok { "yes" } else { "no" },
-                if steady { "sustained" } else { "no" }
-            );
+            // a directory of this process for the store file (removed after the count)
+            let dir = std::env::temp_dir()
+                .join(format!("gatewatch-bench-{}-{gates}", std::process::id()));
+            if args.restart {
+                std::fs::create_dir_all(&dir)?;
+            }
+            let db = dir.join("gatewatch.db");
+            let store = args.restart.then_some(db.as_path());
+            let (c, streams) =
+                capacity_run(gates, args.seconds, args.worker_threads, store, None).await?;
+            let mut runs = vec![(gates.to_string(), c)];
+            if args.restart {
+                let (again, _) = capacity_run(
+                    gates,
+                    args.seconds,
+                    args.worker_threads,
+                    store,
+                    Some(streams),
+                )
+                .await?;
+                runs.push((format!("{gates}, restarted"), again));
+                let _ = std::fs::remove_dir_all(&dir);
+            }
+            let (mut ok, mut steady) = (true, true);
+            for (label, c) in &runs {
+                let (o, s) = capacity_row(label, gates, c);
+                ok &= o;
+                steady &= s;
+            }
             if steady {
                 best_steady = best_steady.max(gates);
             }
@@ -602,6 +665,37 @@ async fn bench(args: BenchDaemonArgs) -> anyhow::Result<()> {
         );
     }
     Ok(())
+}
+
+/// Prints one row of the capacity table; returns (sustained, sustained after the first round).
+fn capacity_row(label: &str, gates: usize, c: &Capacity) -> (bool, bool) {
+    {
+        {
+            let clean = c.dropped == 0.0 && c.failures == 0.0 && c.identifications > 0.0;
+            let ok = clean && c.replaced == 0.0;
+            // Steady: no job replaced once every gate had its first window (the first round
+            // must end within the run for this to say anything).
+            let steady = clean && c.warm_up.is_some_and(|(_, before)| c.replaced == before);
+            println!(
+                "| {label} | {} | {:.1} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
+                c.workers,
+                gates as f64 / c.workers.max(1) as f64,
+                c.identifications,
+                c.tracked,
+                c.replaced,
+                c.warm_up
+                    .map_or("never".into(), |(s, n)| format!("{s:.0} ({n})")),
+                c.dropped,
+                c.failures,
+                c.cpu_per_window.map_or("-".into(), |v| format!("{v:.4}")),
+                c.rss
+                    .map_or("-".into(), |(r, p)| format!("{r:.0} ({p:.0})")),
+                if ok { "yes" } else { "no" },
+                if steady { "sustained" } else { "no" }
+            );
+            (ok, steady)
+        }
+    }
 }
 
 /// `gatewatch bench daemon`.

@@ -18,6 +18,18 @@
 //! more than `tracking.max_gap_windows` windows after the last stored one goes to the full
 //! search, and the trend drops what fell out of its horizon.
 //!
+//! Where the rebuilt memory differs from the live one: the trend and the level are exactly what
+//! they were (they were fed the reports as stored). The tracking memory is replayed from the
+//! stored reports, which the service's level and pools had already read, while the live pool
+//! remembered the analysis's own report; and the stored coefficients are the window's model,
+//! while with `tracking.waive_fit_on_noise` a waived window remembered the start it was refined
+//! from. So the last window's trust and verdict may differ (a lone limit-cycle window the pool
+//! made untrusted; a departed window the model read as self-excited), and the first window after
+//! the restart may go to the full search where the live memory would have refined it, or be
+//! refined where it would not; `tracking::accept` still decides whether the refined model
+//! stands. Rows written before the path was stored right (session 26) all say `full`: the first
+//! restart after the upgrade counts the windows since the last full search from the last one.
+//!
 //! A gate whose newest stored window is older than the trend's horizon (wall clock) starts
 //! afresh ([`rebuild`]). Not rebuilt: the pools of consecutive estimates (the first window after a restart stands
 //! alone, with its own, wider interval) and the latest identification shown by the API. The
@@ -32,10 +44,11 @@ use crate::store::HistoryRow;
 
 use super::worker::{replay, WindowAnalyzer};
 
-/// Latest stored windows the level and the tracking memory are rebuilt from (the trend reads
-/// its horizon). The level is the median of the last 12 noise-driven windows, and the tracking
-/// memory counts the windows since the last full search (at most `tracking.full_every`, 12 by
-/// default): 48 windows hold both with room for departed ones, which feed neither.
+/// Fewest latest stored windows read, and most the tracking memory is replayed over (the trend
+/// reads its horizon, the level every window read). The level is the median of the last 12
+/// noise-driven windows, and the tracking memory counts the windows since the last full search
+/// (at most `tracking.full_every`, 12 by default): 48 windows hold both with room for departed
+/// ones, which feed neither.
 pub const RESUME_MODEL_WINDOWS: usize = 48;
 
 /// What a gate remembers after a restart, for its entry in the daemon's state.
@@ -100,14 +113,17 @@ pub fn rebuild(
             rules.fire_below,
         );
     }
-    let tail = &rows[rows.len().saturating_sub(RESUME_MODEL_WINDOWS)..];
-    let decoded: Vec<(WindowAnalysis, f64, f64)> = tail.iter().filter_map(window_of).collect();
-    let level = AmbientLevel::resume(decoded.iter().map(|(a, _, _)| &a.damping));
-    // the windows since the model last changed: a model changed in the configuration leaves its
-    // older windows out, and a gate whose latest window is of another model starts afresh
+    let decoded: Vec<(WindowAnalysis, f64, f64)> = rows.iter().filter_map(window_of).collect();
+    // every window read: a gate held on its limit cycle for minutes still finds the
+    // noise-driven windows before it
+    let level = AmbientLevel::resume(decoded.iter().map(|(a, _, end)| (&a.damping, *end)));
+    // the windows since the model last changed (a model changed in the configuration leaves
+    // its older windows out, and a gate whose latest window is of another model starts
+    // afresh), at most RESUME_MODEL_WINDOWS of them
     let same = decoded
         .iter()
         .rev()
+        .take(RESUME_MODEL_WINDOWS)
         .take_while(|(a, _, _)| analyzer.same_model(gate, a))
         .count();
     let previous = replay(analyzer, gate, &decoded[decoded.len() - same..]);
@@ -117,7 +133,7 @@ pub fn rebuild(
         level,
         previous,
         windows: rows.len(),
-        skipped: tail.len() - decoded.len(),
+        skipped: rows.len() - decoded.len(),
     })
 }
 
@@ -152,18 +168,25 @@ pub fn read(
     analyzer: &dyn WindowAnalyzer,
 ) -> std::collections::BTreeMap<String, GateMemory> {
     let mut memories = std::collections::BTreeMap::new();
-    let gates = match store.history_gates(config.server.max_gates) {
-        Ok(g) => g,
-        Err(e) => {
-            tracing::error!("cannot read the gates' history, every gate starts afresh: {e}");
-            return memories;
+    // the configured gates first, by name; then, where unknown gates are accepted, the other
+    // gates with history, up to `max_gates` in all
+    let mut gates: Vec<String> = config.gates.keys().cloned().collect();
+    if config.server.accept_unknown_gates && gates.len() < config.server.max_gates {
+        match store.history_gates(config.server.max_gates) {
+            Ok(stored) => gates.extend(
+                stored
+                    .into_iter()
+                    .filter(|g| !config.gates.contains_key(g))
+                    .take(config.server.max_gates - gates.len()),
+            ),
+            Err(e) => tracing::error!("cannot list the gates with history: {e}"),
         }
-    };
+    }
     let (mut windows, mut skipped) = (0, 0);
     let now = super::clock::unix_seconds(std::time::SystemTime::now());
     for gate in gates {
         let Some(cfg) = config.gate(&gate) else {
-            continue; // no longer configured, and unknown gates are not accepted
+            continue;
         };
         let n = windows_to_read(&cfg.alert, cfg.identify_every_seconds);
         match store.latest_history_rows(&gate, n) {
@@ -216,15 +239,15 @@ mod tests {
         }
     }
 
-    /// A stored noise-driven window ending at `end` (identified 1 s later), of the model
-    /// written `equation`, taken on `path`.
-    fn row(end: f64, zeta: f64, equation: &str, path: &str) -> HistoryRow {
+    /// A noise-driven window ending at `end`, of the model written `equation`, taken on `path`,
+    /// as the analysis reports it.
+    fn analysis(end: f64, zeta: f64, equation: &str, path: Path) -> WindowAnalysis {
         let a = AmbientZeta {
             zeta,
             low: zeta - 0.004,
             high: zeta + 0.004,
         };
-        let d = DampingReport {
+        let damping = DampingReport {
             zeta0: Some(zeta),
             zeta0_interval: Some((a.low, a.high)),
             zeta0_source: Some(Zeta0Source::Ambient),
@@ -236,22 +259,53 @@ mod tests {
             fit_nmae: 0.5,
             ..DampingReport::unknown()
         };
-        HistoryRow {
-            gate: "g".into(),
-            time: end + 1.0,
-            window_start: end - 10.0,
-            window_end: end,
+        WindowAnalysis {
             equation: equation.into(),
-            coefficients: serde_json::to_string(&[("c1", zeta), ("c2", 1.0)]).unwrap(),
-            damping: serde_json::to_string(&d).unwrap(),
-            verdict: "damped".into(),
-            fit_nmae: 0.5,
-            path: path.into(),
-            zeta0: Some(zeta),
-            zeta0_interval: Some((a.low, a.high)),
-            frequency_hz: Some(10.0),
-            trusted: true,
+            coefficients: vec![("c1".into(), zeta), ("c2".into(), 1.0)],
+            damping,
+            evaluations: 100,
+            seconds: 0.1,
+            warm_start: vec![zeta, 1.0],
+            path,
         }
+    }
+
+    /// The history row the daemon stores for `a` (its report as the service left it), the
+    /// window ending at `end` and identified 1 s later.
+    fn stored(a: &WindowAnalysis, end: f64) -> HistoryRow {
+        let r = crate::service::storage::identification_record(
+            "g",
+            std::time::UNIX_EPOCH + std::time::Duration::from_secs_f64(end + 1.0),
+            (end - 10.0, end),
+            a,
+        );
+        let d = &a.damping;
+        HistoryRow {
+            gate: r.gate,
+            time: r.time,
+            window_start: r.window_start,
+            window_end: r.window_end,
+            equation: r.equation,
+            coefficients: serde_json::to_string(&r.coefficients).unwrap(),
+            damping: r.damping.to_string(),
+            verdict: r.verdict,
+            fit_nmae: r.fit_nmae,
+            path: r.path,
+            zeta0: d.zeta0,
+            zeta0_interval: d.zeta0_interval,
+            frequency_hz: d.frequency_hz,
+            trusted: d.trusted,
+        }
+    }
+
+    /// A stored window of the series below (for the tests that need rows only).
+    fn row(end: f64, zeta: f64, equation: &str, path: &str) -> HistoryRow {
+        let path = if path == "tracked" {
+            Path::Tracked
+        } else {
+            Path::Full
+        };
+        stored(&analysis(end, zeta, equation, path), end)
     }
 
     fn rules() -> AlertRules {
@@ -262,38 +316,41 @@ mod tests {
         }
     }
 
-    /// The rebuilt memory is what the live code builds from the same windows: the trend fed
-    /// the stored figures, the level of the stored reports, and the tracking memory of the
-    /// windows since the model last changed (their coefficients, their count since the last
-    /// full search).
+    /// The rebuilt memory is what the live code built from the same windows: the trend fed
+    /// each window's figures, the level `observe_span` built, and the tracking memory the pool
+    /// built with `remember` over the windows since the model last changed.
     #[test]
     fn the_memory_is_what_the_windows_built_live() {
-        let rows: Vec<HistoryRow> = (0..20)
-            .map(|i| {
-                let end = 1000.0 + 5.0 * f64::from(i);
-                let zeta = 0.02 - 0.0005 * f64::from(i);
-                // the model changed at the 15th window; windows 17 to 19 were tracked
-                let eq = if i < 15 { "old" } else { "new" };
-                let path = if i >= 17 { "tracked" } else { "full" };
-                row(end, zeta, &format!("{eq} {zeta}"), path)
-            })
-            .collect();
-        let m = rebuild("g", &rows, &rules(), &Remembers { known: "new" }, 1100.0).unwrap();
-        let mut live = DampingTrend::new(600.0);
-        let mut estimate = None;
-        for r in &rows {
-            estimate = live.observe(r.window_end, r.zeta0, r.zeta0_interval, true, 0.0);
+        let analyzer = Remembers { known: "new" };
+        let (mut trend, mut estimate) = (DampingTrend::new(600.0), None);
+        let mut level = AmbientLevel::default();
+        let mut previous: Option<Previous> = None;
+        let mut rows = Vec::new();
+        for i in 0..20 {
+            let end = 1000.0 + 5.0 * f64::from(i);
+            let zeta = 0.02 - 0.0005 * f64::from(i);
+            // the model changed at the 15th window; windows 17 to 19 were tracked
+            let eq = if i < 15 { "old" } else { "new" };
+            let path = if i >= 17 { Path::Tracked } else { Path::Full };
+            let mut a = analysis(end, zeta, &format!("{eq} {zeta}"), path);
+            // the pool remembers the analysis's report; the service then reads it and stores it
+            previous = if i < 15 {
+                None
+            } else {
+                Some(analyzer.remember("g", previous.as_ref(), &a, end - 10.0, end))
+            };
+            level.observe_span(&mut a.damping, end - 10.0, end);
+            let d = &a.damping;
+            estimate = trend.observe(end, d.zeta0, d.zeta0_interval, d.trusted, 0.0);
+            rows.push(stored(&a, end));
         }
+        let m = rebuild("g", &rows, &rules(), &analyzer, 1100.0).unwrap();
         assert_eq!(m.trend_estimate, estimate);
-        assert!(m.trend_estimate.is_some_and(|e| e.slope_per_second < 0.0));
-        let reports: Vec<DampingReport> = rows
-            .iter()
-            .map(|r| serde_json::from_str(&r.damping).unwrap())
-            .collect();
-        assert_eq!(m.level, AmbientLevel::resume(&reports));
+        assert!(estimate.is_some_and(|e| e.slope_per_second < 0.0));
+        assert_eq!(m.level, level);
         assert!(m.level.level().is_some());
+        assert_eq!(m.previous, previous);
         let p = m.previous.expect("windows of the gate's model");
-        assert_eq!(p.coefficients, [0.02 - 0.0005 * 19.0, 1.0]);
         assert_eq!(
             p.since_full, 3,
             "3 tracked windows since the last full search"
@@ -303,7 +360,6 @@ mod tests {
         // a gate whose latest window is of another model keeps no tracking memory
         let other = rebuild("g", &rows, &rules(), &Remembers { known: "old" }, 1100.0).unwrap();
         assert_eq!(other.previous, None);
-        assert_eq!(other.level, m.level);
     }
 
     /// No windows, or a newest window older than the trend's horizon: the gate starts afresh.
@@ -324,6 +380,53 @@ mod tests {
         let m = rebuild("g", &broken, &rules(), &analyzer, 1006.0).unwrap();
         assert_eq!((m.windows, m.skipped), (2, 1));
         assert_eq!(m.previous.map(|p| p.t_end), Some(1005.0));
+    }
+
+    /// `read` takes the configured gates first, then other gates with history where unknown
+    /// gates are accepted, `max_gates` in all: a stored gate that sorts first does not push a
+    /// configured one out; a gate the configuration no longer accepts is not read.
+    #[test]
+    fn configured_gates_are_resumed_first() {
+        use crate::store::{SqliteStore, Store, WriteBatch};
+        let dir = tempfile::tempdir().unwrap();
+        let store = SqliteStore::open(&dir.path().join("gw.db"), 64).unwrap();
+        let now = crate::service::clock::unix_seconds(std::time::SystemTime::now());
+        let mut identifications = Vec::new();
+        for gate in ["a_old", "g1", "zz_other"] {
+            for i in 0..3 {
+                let end = now - 30.0 + 5.0 * f64::from(i);
+                let a = analysis(end, 0.01, "m", Path::Full);
+                identifications.push(crate::service::storage::identification_record(
+                    gate,
+                    std::time::SystemTime::now(),
+                    (end - 10.0, end),
+                    &a,
+                ));
+            }
+        }
+        store
+            .write(&WriteBatch {
+                identifications,
+                ..Default::default()
+            })
+            .unwrap();
+        let analyzer = Remembers { known: "m" };
+        let gates = |toml: &str| {
+            let config = crate::service::config::Config::from_toml(toml).unwrap();
+            read(&store, &config, &analyzer)
+                .into_keys()
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(gates("[server]\nmax_gates = 1\n[gates.g1]\n"), ["g1"]);
+        assert_eq!(
+            gates("[server]\nmax_gates = 2\n[gates.g1]\n"),
+            ["a_old", "g1"]
+        );
+        assert_eq!(
+            gates("[server]\nmax_gates = 8\naccept_unknown_gates = false\n[gates.g1]\n"),
+            ["g1"]
+        );
+        assert_eq!(gates("[server]\nmax_gates = 8\n").len(), 3);
     }
 
     /// The trend's horizon at the gate's cadence, clamped to what the level and the model need

@@ -501,7 +501,7 @@ impl AppState {
         e.analysed_until = Some(window.1);
         match outcome {
             JobOutcome::Done(mut a) => {
-                e.level.observe(&mut a.damping);
+                e.level.observe_span(&mut a.damping, window.0, window.1);
                 if let Some(p) = e.pools.as_mut() {
                     p.apply(window.0, window.1, &mut a.damping);
                 }

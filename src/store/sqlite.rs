@@ -390,8 +390,18 @@ impl Store for SqliteStore {
 
     fn history_gates(&self, limit: usize) -> Result<Vec<String>, StoreError> {
         let c = lock(&self.read);
+        // a loose scan of the key (gate, window_end, seq): one lookup per gate, where DISTINCT
+        // reads the whole table
         let mut stmt = c
-            .prepare_cached("SELECT DISTINCT gate FROM history ORDER BY gate LIMIT ?1")
+            .prepare_cached(
+                "WITH RECURSIVE g(name) AS (
+                     SELECT min(gate) FROM history
+                     UNION ALL
+                     SELECT (SELECT min(gate) FROM history WHERE gate > g.name)
+                     FROM g WHERE g.name IS NOT NULL
+                 )
+                 SELECT name FROM g WHERE name IS NOT NULL LIMIT ?1",
+            )
             .map_err(sq("history gates"))?;
         let rows = stmt
             .query_map(params![limit.min(i64::MAX as usize) as i64], |r| r.get(0))
