@@ -9,12 +9,15 @@
 //!    gate's memory, as the daemon runs it), with the path each window took.
 //! 3. Gates sustained: N gates at 200 Hz, 10 s windows, identified every 5 s, streamed at real-time
 //!    pace for `--seconds`; sustained when no job was replaced, none dropped and none failed.
-//!    Every gate arrives with a full window at once (as after a restart), so the first round of
+//!    Every gate arrives with a full window at once (as at a first start), so the first round of
 //!    full searches is a burst; the seconds until as many windows were identified as there are
 //!    gates, and the jobs replaced until then, are reported apart, and "after the first round"
 //!    says whether any job was replaced later (the steady state).
 //!    N doubles until neither holds (or `--max-gates`), or runs through `--gates`; each
 //!    count reports the tracked share, the process CPU per identified window and the RSS.
+//!    With `--restart` each count runs with a store file and then again on a second daemon
+//!    started on that file (the gates' analysis memory rebuilt from it, `service::resume`); a
+//!    count holds only when both runs do.
 
 use std::net::SocketAddr;
 use std::panic::{catch_unwind, AssertUnwindSafe};
@@ -466,9 +469,9 @@ async fn capacity_run(
     let began = tokio::time::Instant::now();
     let mut sent = backfill;
     let total = backfill + (seconds * rate) as usize;
-    // The first round: every gate arrives with a full window at once and needs a full search.
-    // A restarted daemon meets the same burst; what a worker sustains afterwards is the
-    // steady state, so the replaced jobs are counted apart before and after it.
+    // The first round: every gate arrives with a full window at once and needs a full search
+    // (after a restart with the store's memory, a refinement); what a worker sustains
+    // afterwards is the steady state, so the replaced jobs are counted apart before and after.
     let mut warm_up = None;
     let mut next_check = backfill;
     while sent < total {
