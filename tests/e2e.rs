@@ -8,10 +8,11 @@
 //! skipped, whatever the machine's speed, and the results are in stream time. Every wait is
 //! bounded by a timeout; nothing asserts on wall-clock durations.
 
+mod stream_common;
+
 use std::net::SocketAddr;
 use std::time::Duration;
 
-use gatewatch::service::client::{simulate_with_source, Protocol, Scenario, SimulateArgs};
 use gatewatch::service::config::Config;
 use gatewatch::service::server::{run, Listeners};
 use gatewatch::simulate::{
@@ -178,31 +179,9 @@ impl Daemon {
 
     /// Sends `seconds` of samples of `sim` from sample `first` on (one request).
     async fn send(&self, gate: &str, sim: &mut GateSimulator, first: u64, seconds: f64) -> u64 {
-        let rate = sim.params().rate_hz;
-        let args = SimulateArgs {
-            url: format!("http://{}", self.addr),
-            tcp_addr: String::new(),
-            gate: gate.into(),
-            scenario: Scenario::Stable, // unused: the source is `sim`
-            speed: 0.0,
-            duration: seconds,
-            seed: 0,
-            protocol: Protocol::Json,
-            rate,
-            token: None,
-            chunk_seconds: seconds,
-            start: Some(START + first as f64 / rate),
-            onset_hold: 0.0,
-            onset_ramp: 0.0,
-            sensor: Default::default(),
-        };
-        tokio::time::timeout(
-            Duration::from_secs(60),
-            simulate_with_source(&args, |b: &mut [f64]| sim.fill(b)),
-        )
-        .await
-        .expect("samples accepted in time")
-        .expect("samples accepted")
+        let n = (seconds * sim.params().rate_hz).round() as u64;
+        let url = format!("http://{}", self.addr);
+        stream_common::send(&url, gate, sim, START, first, n).await
     }
 
     async fn stop(self) {

@@ -9,11 +9,12 @@ use std::net::SocketAddr;
 use std::path::Path;
 use std::time::Duration;
 
-use gatewatch::service::client::{simulate_with_source, Protocol, Scenario, SimulateArgs};
 use gatewatch::service::config::Config;
 use gatewatch::service::server::{run, Listeners};
 use gatewatch::simulate::{GatePreset, GateSimulator, NoiseLevel, ScenarioName};
 use serde_json::Value;
+
+mod stream_common;
 
 /// Longest wait for one window's identification.
 const WINDOW_TIMEOUT: Duration = Duration::from_secs(180);
@@ -88,30 +89,8 @@ impl Daemon {
     /// Sends samples `first..first + n` of `sim` and waits until the window ending with the
     /// last one is identified; returns the gate's view then.
     async fn step(&self, sim: &mut GateSimulator, first: u64, n: u64) -> Value {
-        let args = SimulateArgs {
-            url: format!("http://{}", self.addr),
-            tcp_addr: String::new(),
-            gate: "g1".into(),
-            scenario: Scenario::Stable, // unused: the source is `sim`
-            speed: 0.0,
-            duration: n as f64 / RATE,
-            seed: 0,
-            protocol: Protocol::Json,
-            rate: RATE,
-            token: None,
-            chunk_seconds: n as f64 / RATE,
-            start: Some(self.start + first as f64 / RATE),
-            onset_hold: 0.0,
-            onset_ramp: 0.0,
-            sensor: Default::default(),
-        };
-        let sent = tokio::time::timeout(
-            Duration::from_secs(60),
-            simulate_with_source(&args, |b: &mut [f64]| sim.fill(b)),
-        )
-        .await
-        .expect("samples accepted in time")
-        .expect("samples accepted");
+        let url = format!("http://{}", self.addr);
+        let sent = stream_common::send(&url, "g1", sim, self.start, first, n).await;
         assert_eq!(sent, n);
         let end = self.start + (first + n - 1) as f64 / RATE;
         tokio::time::timeout(WINDOW_TIMEOUT, async {

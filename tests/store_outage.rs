@@ -15,11 +15,12 @@
 //! `ten_minute_webhook_outage_...` (ignored; `GATEWATCH_OUTAGE_MINUTES`, default 10) is the
 //! issue's 10 minutes: `cargo test --release --test store_outage -- --ignored --nocapture`.
 
+mod stream_common;
+
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use gatewatch::service::client::{simulate_with_source, Protocol, Scenario, SimulateArgs};
 use gatewatch::simulate::{GateParams, GateSimulator, ZetaSchedule};
 use serde_json::Value;
 
@@ -129,30 +130,7 @@ impl Daemon {
 
     /// Sends `n` samples of `sim` from sample `first` on (one request).
     async fn send(&self, sim: &mut GateSimulator, first: u64, n: u64) {
-        let args = SimulateArgs {
-            url: self.url.clone(),
-            tcp_addr: String::new(),
-            gate: "g1".into(),
-            scenario: Scenario::Stable, // unused: the source is `sim`
-            speed: 0.0,
-            duration: n as f64 / RATE,
-            seed: 0,
-            protocol: Protocol::Json,
-            rate: RATE,
-            token: None,
-            chunk_seconds: n as f64 / RATE,
-            start: Some(START + first as f64 / RATE),
-            onset_hold: 0.0,
-            onset_ramp: 0.0,
-            sensor: Default::default(),
-        };
-        let got = tokio::time::timeout(
-            Duration::from_secs(60),
-            simulate_with_source(&args, |b: &mut [f64]| sim.fill(b)),
-        )
-        .await
-        .expect("samples accepted in time")
-        .expect("samples accepted");
+        let got = stream_common::send(&self.url, "g1", sim, START, first, n).await;
         assert_eq!(got, n);
     }
 }

@@ -1,0 +1,47 @@
+//! Streaming a simulated gate into a daemon through `POST /api/v1/samples` (the `simulate`
+//! client with the simulator as its source): shared by the end-to-end tests that drive the
+//! daemon in lockstep, in sample time.
+
+use std::time::Duration;
+
+use gatewatch::service::client::{simulate_with_source, Protocol, Scenario, SimulateArgs};
+use gatewatch::simulate::GateSimulator;
+
+/// Sends `n` samples of `sim` for `gate` to the daemon at `url` in one request, the first of
+/// them sample `first` of a stream that starts at `start` (Unix seconds); returns the samples
+/// the daemon accepted. Panics when the daemon does not accept them within 60 s.
+pub async fn send(
+    url: &str,
+    gate: &str,
+    sim: &mut GateSimulator,
+    start: f64,
+    first: u64,
+    n: u64,
+) -> u64 {
+    let rate = sim.params().rate_hz;
+    let seconds = n as f64 / rate;
+    let args = SimulateArgs {
+        url: url.to_string(),
+        tcp_addr: String::new(),
+        gate: gate.into(),
+        scenario: Scenario::Stable, // unused: the source is `sim`
+        speed: 0.0,
+        duration: seconds,
+        seed: 0,
+        protocol: Protocol::Json,
+        rate,
+        token: None,
+        chunk_seconds: seconds,
+        start: Some(start + first as f64 / rate),
+        onset_hold: 0.0,
+        onset_ramp: 0.0,
+        sensor: Default::default(),
+    };
+    tokio::time::timeout(
+        Duration::from_secs(60),
+        simulate_with_source(&args, |b: &mut [f64]| sim.fill(b)),
+    )
+    .await
+    .expect("samples accepted in time")
+    .expect("samples accepted")
+}
