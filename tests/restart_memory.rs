@@ -109,6 +109,17 @@ impl Daemon {
         .unwrap_or_else(|_| panic!("window ending at {} s not analysed", end - self.start))
     }
 
+    async fn metrics(&self) -> String {
+        self.client
+            .get(format!("http://{}/metrics", self.addr))
+            .send()
+            .await
+            .unwrap()
+            .text()
+            .await
+            .unwrap()
+    }
+
     async fn stop(self) {
         let _ = self.stop.send(());
         tokio::time::timeout(Duration::from_secs(30), self.task)
@@ -169,6 +180,15 @@ async fn a_restart_keeps_the_trend_the_ambient_level_and_the_tracking_model() {
     let d = daemon(dir.path(), true, t0).await;
     let resumed = d.gate("g1").await;
     assert_eq!(resumed["trend"], before["trend"]);
+    // and on the dashboard: the trend's gauge, before any window
+    let slope = before["trend"]["slope_per_second"].as_f64().unwrap();
+    let metrics = d.metrics().await;
+    let gauge = metrics
+        .lines()
+        .find(|l| l.starts_with("gatewatch_damping_ratio_trend_per_second{gate=\"g1\"}"))
+        .and_then(|l| l.rsplit(' ').next()?.parse::<f64>().ok())
+        .unwrap_or_else(|| panic!("no trend gauge after the restart:\n{metrics}"));
+    assert_eq!(gauge, slope);
     assert!(resumed["identification"].is_null(), "no window yet");
     // the first window after the restart (10 s of new samples) has the level and the model
     let (views, next) = stream(&d, &mut sim, next, 10.0, true).await;

@@ -31,9 +31,10 @@
 //! restart after the upgrade counts the windows since the last full search from the last one.
 //!
 //! A gate whose newest stored window is older than the trend's horizon (wall clock) starts
-//! afresh ([`rebuild`]). Not rebuilt: the pools of consecutive estimates (the first window after a restart stands
-//! alone, with its own, wider interval) and the latest identification shown by the API. The
-//! alert states have their own rows (`storage::resume`).
+//! afresh ([`rebuild`]). Not rebuilt: the pools of consecutive estimates (the first window
+//! after a restart stands alone, with its own, wider interval), the latest identification shown
+//! by the API and the damping's gauges (the trend's gauges are set from the rebuilt trend when
+//! the gate's entry is made). The alert states have their own rows (`storage::resume`).
 
 use crate::alert::AlertRules;
 use crate::analysis::{

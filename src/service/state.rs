@@ -253,6 +253,10 @@ impl AppState {
                 ),
             };
             self.metrics.init_gate(id);
+            if trend_estimate.is_some() {
+                // the restored trend on the dashboard before the first window, as in the API
+                self.metrics.set_trend(id, None, trend_estimate.as_ref());
+            }
             // the sensor counts as seen at creation, so a gate that never sends goes stale
             let events = inner.alerts.data_seen(id, now);
             let state = inner.alerts.state(id).unwrap_or(GateState::Unknown);
