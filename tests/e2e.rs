@@ -241,20 +241,10 @@ async fn lockstep(
         let end = START + (sent - 1) as f64 / rate;
         // sample times are sums of floats near 1.7e9: compare to half a sample period
         let half = 0.5 / rate;
-        let v = tokio::time::timeout(WINDOW_TIMEOUT, async {
-            loop {
-                let v = d.gate(gate).await;
-                if v["analysed_until"]
-                    .as_f64()
-                    .is_some_and(|t| t >= end - half)
-                {
-                    return v;
-                }
-                tokio::time::sleep(Duration::from_millis(20)).await;
-            }
-        })
-        .await
-        .unwrap_or_else(|_| panic!("window ending at {} s not analysed", end - START));
+        let url = format!("http://{}", d.addr);
+        let v =
+            stream_common::wait_analysed(&d.client, &url, gate, (START, end, half), WINDOW_TIMEOUT)
+                .await;
         let ident = &v["identification"];
         let fresh = ident["window_end"]
             .as_f64()

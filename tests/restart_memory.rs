@@ -75,15 +75,8 @@ async fn daemon(dir: &Path, resume: bool, start: f64) -> Daemon {
 
 impl Daemon {
     async fn gate(&self, gate: &str) -> Value {
-        match self
-            .client
-            .get(format!("http://{}/api/v1/gates/{gate}", self.addr))
-            .send()
-            .await
-        {
-            Ok(r) => r.json().await.unwrap_or(Value::Null),
-            Err(_) => Value::Null,
-        }
+        let url = format!("http://{}", self.addr);
+        stream_common::gate_view(&self.client, &url, gate).await
     }
 
     /// Sends samples `first..first + n` of `sim` and waits until the window ending with the
@@ -93,20 +86,9 @@ impl Daemon {
         let sent = stream_common::send(&url, "g1", sim, self.start, first, n).await;
         assert_eq!(sent, n);
         let end = self.start + (first + n - 1) as f64 / RATE;
-        tokio::time::timeout(WINDOW_TIMEOUT, async {
-            loop {
-                let v = self.gate("g1").await;
-                if v["analysed_until"]
-                    .as_f64()
-                    .is_some_and(|t| t >= end - 0.5 / RATE)
-                {
-                    return v;
-                }
-                tokio::time::sleep(Duration::from_millis(20)).await;
-            }
-        })
-        .await
-        .unwrap_or_else(|_| panic!("window ending at {} s not analysed", end - self.start))
+        let url = format!("http://{}", self.addr);
+        let span = (self.start, end, 0.5 / RATE);
+        stream_common::wait_analysed(&self.client, &url, "g1", span, WINDOW_TIMEOUT).await
     }
 
     async fn metrics(&self) -> String {

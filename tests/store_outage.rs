@@ -100,18 +100,6 @@ async fn daemon(hook_port: u16) -> Daemon {
 }
 
 impl Daemon {
-    async fn gate(&self) -> Value {
-        match self
-            .client
-            .get(format!("{}/api/v1/gates/g1", self.url))
-            .send()
-            .await
-        {
-            Ok(r) => r.json().await.unwrap_or(Value::Null),
-            Err(_) => Value::Null,
-        }
-    }
-
     async fn metric(&self, line_start: &str) -> Option<f64> {
         let text = self
             .client
@@ -179,20 +167,8 @@ async fn onset_and_recovery(d: &Daemon) -> (Instant, Instant) {
         d.send(&mut sim, sent, n).await;
         sent += n;
         let end = START + (sent - 1) as f64 / RATE;
-        let v = tokio::time::timeout(WINDOW_TIMEOUT, async {
-            loop {
-                let v = d.gate().await;
-                if v["analysed_until"]
-                    .as_f64()
-                    .is_some_and(|t| t >= end - 0.5 / RATE)
-                {
-                    return v;
-                }
-                tokio::time::sleep(Duration::from_millis(20)).await;
-            }
-        })
-        .await
-        .unwrap_or_else(|_| panic!("window ending at {} s not analysed", end - START));
+        let span = (START, end, 0.5 / RATE);
+        let v = stream_common::wait_analysed(&d.client, &d.url, "g1", span, WINDOW_TIMEOUT).await;
         let firing = v["firing"].as_bool().unwrap_or(false);
         eprintln!(
             "t {:6.1} s  true {:+.4}  zeta0 {}  firing {firing}",

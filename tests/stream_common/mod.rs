@@ -45,3 +45,42 @@ pub async fn send(
     .expect("samples accepted in time")
     .expect("samples accepted")
 }
+
+/// `GET /api/v1/gates/{gate}` of the daemon at `url` as JSON (`Null` when it does not answer or
+/// the gate does not exist).
+pub async fn gate_view(client: &reqwest::Client, url: &str, gate: &str) -> serde_json::Value {
+    match client
+        .get(format!("{url}/api/v1/gates/{gate}"))
+        .send()
+        .await
+    {
+        Ok(r) => r.json().await.unwrap_or(serde_json::Value::Null),
+        Err(_) => serde_json::Value::Null,
+    }
+}
+
+/// Waits until the daemon at `url` has analysed `gate` up to sample time `end` (its
+/// `analysed_until` within half a sample period `half` of it: sample times are sums of floats
+/// near 1.7e9) and returns the gate's view then; panics after `timeout`, naming `end - start`.
+pub async fn wait_analysed(
+    client: &reqwest::Client,
+    url: &str,
+    gate: &str,
+    (start, end, half): (f64, f64, f64),
+    timeout: Duration,
+) -> serde_json::Value {
+    tokio::time::timeout(timeout, async {
+        loop {
+            let v = gate_view(client, url, gate).await;
+            if v["analysed_until"]
+                .as_f64()
+                .is_some_and(|t| t >= end - half)
+            {
+                return v;
+            }
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    })
+    .await
+    .unwrap_or_else(|_| panic!("window ending at {} s not analysed", end - start))
+}
