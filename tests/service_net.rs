@@ -301,6 +301,46 @@ async fn an_identified_gate_that_expires_leaves_no_series_in_metrics() {
     assert!(after.contains("gatewatch_gates_expired_total 1"), "{after}");
 }
 
+/// A gate that expires while its window is being identified, and sends again before that job
+/// ends, is a new gate: the old job's result (a window of its earlier life) is not reported on
+/// it, nor stored in the pool's memory for it.
+#[tokio::test]
+async fn a_job_of_an_expired_gate_does_not_report_on_the_gate_that_comes_back() {
+    let fake = Arc::new(Fake {
+        sleep: Duration::from_millis(600),
+        ..Fake::default()
+    });
+    let (app, state) = app_with(config("unknown_gate_expiry_seconds = 600"), fake.clone());
+    let now = SystemTime::now();
+    let (s, _) = post_json(&app, uniform("junk", 0.0, 100)).await;
+    assert_eq!(s, StatusCode::NO_CONTENT);
+    wait_until(|| state.pool().in_flight() == 1).await;
+    state.tick(now + Duration::from_secs(601));
+    assert!(state.gate_view("junk").is_none(), "expired");
+    // back, with fewer samples than a window: no job of its own yet
+    let (s, _) = post_json(&app, uniform("junk", 100.0, 10)).await;
+    assert_eq!(s, StatusCode::NO_CONTENT);
+    wait_until(|| fake.calls.lock().unwrap().len() == 1 && state.pool().in_flight() == 0).await;
+    let v = state.gate_view("junk").expect("the gate is back");
+    assert!(
+        v.identification.is_none(),
+        "the old life's window reported on the new gate: {:?}",
+        v.identification
+    );
+    assert_eq!(
+        state.pool().remembered_gates(),
+        0,
+        "nor kept as its tracking memory"
+    );
+    assert_eq!(
+        metric(
+            &state,
+            "gatewatch_identifications_total{gate=\"junk\",path=\"full\"}"
+        ),
+        0.0
+    );
+}
+
 #[tokio::test]
 async fn the_gate_list_is_paginated_and_visits_every_gate_once() {
     let (app, state) = make_app("max_gates = 2000");

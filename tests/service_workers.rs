@@ -39,6 +39,7 @@ async fn slow_workers_replace_pending_jobs_instead_of_queueing() {
         values: vec![0.0; 10],
         history: vec![],
         end_index: i,
+        generation: 0,
     };
     let mut replaced = 0;
     let mut queued = 0;
@@ -82,6 +83,7 @@ async fn queue_bound_and_one_in_flight_per_gate() {
         values: vec![0.0; 4],
         history: vec![],
         end_index: 1,
+        generation: 0,
     };
     let mut full = 0;
     for g in ["a", "b", "c", "d", "e", "f"] {
@@ -252,6 +254,7 @@ async fn a_forgotten_gate_leaves_no_memory_even_with_a_job_in_flight() {
         values: vec![0.0; 10],
         history: vec![],
         end_index: i,
+        generation: 0,
     };
     assert_eq!(pool.submit(job("kept", 0)), Submitted::Queued);
     wait_until(|| done.load(Ordering::SeqCst) == 1).await;

@@ -79,6 +79,10 @@ struct GateEntry {
     /// Created by `accept_unknown_gates` (not a `[gates.*]` table): such a gate expires after
     /// `server.unknown_gate_expiry_seconds` of silence, configured gates never do.
     unknown: bool,
+    /// Which life of the gate this entry is ([`Job::generation`]): an expired gate that sends
+    /// again gets a new entry with a new number, so a job of its earlier life still in flight
+    /// reports on nothing.
+    generation: u64,
 }
 
 struct Inner {
@@ -90,6 +94,8 @@ struct Inner {
     resumed: BTreeMap<String, super::resume::GateMemory>,
     /// When the start was (for dropping `resumed`).
     started: SystemTime,
+    /// The generation of the next gate entry made (`GateEntry::generation`).
+    next_generation: u64,
 }
 
 /// The state shared by handlers, listeners and workers.
@@ -172,6 +178,7 @@ impl AppState {
                     alerts: AlertEngine::new(config.defaults.alert.clone()),
                     resumed: BTreeMap::new(),
                     started: SystemTime::now(),
+                    next_generation: 0,
                 }),
                 pool: OnceLock::new(),
                 notifier,
@@ -262,9 +269,12 @@ impl AppState {
             let state = inner.alerts.state(id).unwrap_or(GateState::Unknown);
             self.metrics.set_alert_state(id, state_name(state));
             self.notify(events);
+            let generation = inner.next_generation;
+            inner.next_generation += 1;
             inner.gates.insert(
                 id.to_string(),
                 GateEntry {
+                    generation,
                     window: Window::with_history(
                         cfg.rate_hz,
                         cfg.window_samples(),
@@ -397,6 +407,7 @@ impl AppState {
                         values: w.values,
                         history: w.history,
                         end_index: w.end_index,
+                        generation: entry.generation,
                     });
                 }
                 let events = inner.alerts.data_seen(g, now);
@@ -499,8 +510,14 @@ impl AppState {
             job.t0 + job.values.len().saturating_sub(1) as f64 / job.rate_hz,
         );
         let mut inner = lock(&self.inner);
-        let Some(e) = inner.gates.get_mut(g) else {
-            return; // the gate expired while its job ran: nothing to report on
+        let Some(e) = inner
+            .gates
+            .get_mut(g)
+            .filter(|e| e.generation == job.generation)
+        else {
+            // the gate expired while its job ran (and may have come back since, as a new gate
+            // with a new window of its own): nothing to report on
+            return;
         };
         e.analysed_until = Some(window.1);
         match outcome {

@@ -177,6 +177,10 @@ pub struct Job {
     pub history: Vec<f64>,
     /// Index of the sample after the window's last (seeds the job).
     pub end_index: u64,
+    /// The life of the gate the window belongs to (the service numbers each gate entry it
+    /// makes): a result is reported only to the entry that asked for it, not to a gate of the
+    /// same name made after the first expired. 0 where there is only one life.
+    pub generation: u64,
 }
 
 /// How a job ended.
