@@ -167,14 +167,7 @@ impl Daemon {
     }
 
     async fn metrics(&self) -> String {
-        self.client
-            .get(format!("http://{}/metrics", self.addr))
-            .send()
-            .await
-            .unwrap()
-            .text()
-            .await
-            .unwrap()
+        stream_common::metrics(&self.client, &format!("http://{}", self.addr)).await
     }
 
     /// Sends `seconds` of samples of `sim` from sample `first` on (one request).

@@ -92,14 +92,7 @@ impl Daemon {
     }
 
     async fn metrics(&self) -> String {
-        self.client
-            .get(format!("http://{}/metrics", self.addr))
-            .send()
-            .await
-            .unwrap()
-            .text()
-            .await
-            .unwrap()
+        stream_common::metrics(&self.client, &format!("http://{}", self.addr)).await
     }
 
     async fn stop(self) {

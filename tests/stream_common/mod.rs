@@ -59,6 +59,20 @@ pub async fn gate_view(client: &reqwest::Client, url: &str, gate: &str) -> serde
     }
 }
 
+/// `GET /metrics` of the daemon at `url`: the Prometheus text. (`store_outage` reads its
+/// metrics from a daemon that may be down, with its own fallible form.)
+#[allow(dead_code)]
+pub async fn metrics(client: &reqwest::Client, url: &str) -> String {
+    client
+        .get(format!("{url}/metrics"))
+        .send()
+        .await
+        .expect("the daemon answers /metrics")
+        .text()
+        .await
+        .expect("a text body")
+}
+
 /// Waits until the daemon at `url` has analysed `gate` up to sample time `end` (its
 /// `analysed_until` within half a sample period `half` of it: sample times are sums of floats
 /// near 1.7e9) and returns the gate's view then; panics after `timeout`, naming `end - start`.
