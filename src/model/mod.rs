@@ -45,6 +45,7 @@ mod program_lanes;
 mod scaling;
 #[cfg(test)]
 mod tests;
+pub mod trig;
 
 use crate::ode::System;
 use lexer::{Tok, Token};

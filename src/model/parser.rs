@@ -70,8 +70,8 @@ impl Func {
     #[inline(always)]
     pub fn apply1(self, x: f64) -> f64 {
         match self {
-            Func::Sin => x.sin(),
-            Func::Cos => x.cos(),
+            Func::Sin => super::trig::sin(x),
+            Func::Cos => super::trig::cos(x),
             Func::Tan => x.tan(),
             Func::Exp => x.exp(),
             Func::Ln => x.ln(),

@@ -6,7 +6,8 @@
 //! arithmetic. Each lane performs exactly the operations of the scalar evaluator in the same
 //! order (no reassociation, no fused multiply-add: Rust never contracts `a * b + c`), so a lane's
 //! result is bit-identical to `Program::eval` on that lane's inputs. Functions without a vector
-//! form (`sin`, `powf`, ...) are applied lane by lane with the scalar routine.
+//! form (`powf`, `exp`, ...) are applied lane by lane with the scalar routine; `sin` and `cos`
+//! are the vector routines of [`super::trig`], which the scalar evaluator shares.
 
 use super::linear::pow;
 use super::parser::{max, min, sign, step};
@@ -181,8 +182,8 @@ fn run<const L: usize, const N: usize>(
             Instr::Square => each!(|a| a * a),
             Instr::Cube => each!(|a| a * a * a),
             Instr::Powi(n) => each!(|a| a.powi(n)),
-            Instr::Sin => each!(|a| a.sin()),
-            Instr::Cos => each!(|a| a.cos()),
+            Instr::Sin => super::trig::sin_lanes(&mut acc),
+            Instr::Cos => super::trig::cos_lanes(&mut acc),
             Instr::Tan => each!(|a| a.tan()),
             Instr::Exp => each!(|a| a.exp()),
             Instr::Ln => each!(|a| a.ln()),

@@ -505,3 +505,95 @@ fn a_coefficient_mass_is_read_directly_with_the_programs_value() {
         .iter()
         .all(|v| v.is_nan()));
 }
+
+/// `trig::sin` / `cos` against the C library's: within 2 units in the last place of the larger of
+/// the result and 2^-53 for `|x|` up to the reduction limit (near a zero of the function the
+/// reduction's absolute error, not the result's size, is what a model sees), exact agreement
+/// beyond it and for NaN and infinities, and lanes equal to the scalar routine bit for bit.
+mod trig_accuracy {
+    use crate::model::trig;
+    use rand::{RngExt, SeedableRng};
+
+    fn ulps(got: f64, want: f64) -> f64 {
+        let unit = f64::EPSILON * want.abs().max(1.0 / 2f64.powi(53) / f64::EPSILON);
+        (got - want).abs() / unit
+    }
+
+    #[test]
+    fn within_two_ulps_of_the_c_library_inside_the_reduction_limit() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
+        let mut worst = (0.0f64, 0.0f64);
+        for scale in [1.0, 10.0, 1e3, 1e6] {
+            for _ in 0..100_000 {
+                let x: f64 = rng.random_range(-scale..scale);
+                worst.0 = worst.0.max(ulps(trig::sin(x), x.sin()));
+                worst.1 = worst.1.max(ulps(trig::cos(x), x.cos()));
+            }
+        }
+        // The quadrant boundaries and the zeros of sin and cos, where the reduction cancels.
+        for k in -2000i32..=2000 {
+            let x = f64::from(k) * std::f64::consts::FRAC_PI_4;
+            for x in [x, x.next_up(), x.next_down()] {
+                worst.0 = worst.0.max(ulps(trig::sin(x), x.sin()));
+                worst.1 = worst.1.max(ulps(trig::cos(x), x.cos()));
+            }
+        }
+        eprintln!("worst ulps (sin, cos): {worst:?}");
+        assert!(worst.0 <= 2.0 && worst.1 <= 2.0, "worst ulps {worst:?}");
+    }
+
+    #[test]
+    fn outside_the_limit_and_on_non_finite_input_it_is_the_c_library() {
+        for x in [
+            trig::REDUCTION_LIMIT.next_up(),
+            -2e6,
+            1e15,
+            -3.7e300,
+            f64::MAX,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+        ] {
+            assert_eq!(trig::sin(x).to_bits(), x.sin().to_bits(), "sin({x})");
+            assert_eq!(trig::cos(x).to_bits(), x.cos().to_bits(), "cos({x})");
+        }
+        assert!(trig::sin(f64::NAN).is_nan() && trig::cos(f64::NAN).is_nan());
+        assert_eq!(trig::sin(0.0), 0.0);
+        assert_eq!(trig::cos(0.0), 1.0);
+    }
+
+    #[test]
+    fn every_lane_width_gives_the_scalar_value_bit_for_bit() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(2);
+        for _ in 0..2000 {
+            let mut x = [0.0f64; 8];
+            for v in &mut x {
+                // Mostly in range, some far outside and some non-finite.
+                *v = match rng.random_range(0..10) {
+                    0 => rng.random_range(-1e9..1e9),
+                    1 => f64::NAN,
+                    _ => rng.random_range(-50.0..50.0),
+                };
+            }
+            let (mut s8, mut c8) = (x, x);
+            trig::sin_lanes(&mut s8);
+            trig::cos_lanes(&mut c8);
+            let mut s5 = [x[0], x[1], x[2], x[3], x[4]];
+            trig::sin_lanes(&mut s5);
+            for l in 0..8 {
+                assert_eq!(
+                    s8[l].to_bits(),
+                    trig::sin(x[l]).to_bits(),
+                    "sin lane {l} of {x:?}"
+                );
+                assert_eq!(
+                    c8[l].to_bits(),
+                    trig::cos(x[l]).to_bits(),
+                    "cos lane {l} of {x:?}"
+                );
+            }
+            for l in 0..5 {
+                assert_eq!(s5[l].to_bits(), s8[l].to_bits(), "5 lanes, lane {l}");
+            }
+        }
+    }
+}
