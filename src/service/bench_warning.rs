@@ -307,7 +307,12 @@ pub async fn run_stream(
         let mut firing: Vec<String> = view.alerts.iter().map(|a| a.name.clone()).collect();
         firing.sort();
         firing.dedup();
-        let regime = Regime::classify(&p, truth_centre, amplitude);
+        // The truth's largest change between instants 50 ms apart within the window (a step
+        // shows as one jump).
+        let steps = ((end - start) / 0.05).ceil().max(1.0) as usize;
+        let at = |i: usize| def.true_zeta(start + (end - start) * i as f64 / steps as f64);
+        let jump = (1..=steps).fold(0.0f64, |j, i| j.max((at(i) - at(i - 1)).abs()));
+        let regime = Regime::classify_with_jump(&p, truth_centre, amplitude, jump);
         let truth_mean = def.mean_zeta(start, end);
         if spec.trace {
             let trusted = view

@@ -290,3 +290,39 @@ fn ews_baseline_marks_a_steadily_rising_variance_only() {
     mark_ews(&mut flat, &rule);
     assert!(flat.iter().all(|w| w.firing.is_empty()));
 }
+
+#[test]
+fn a_window_across_a_step_is_mixed_scored_against_its_mean_and_has_no_target() {
+    let p = GatePreset::Lab.params();
+    // the step scenario's window across the step: a jump of 4 points, whatever its amplitude
+    let ambient = std::f64::consts::SQRT_2 * p.stationary_force_std(0.02);
+    for amplitude in [ambient, 10.0 * ambient] {
+        assert_eq!(
+            Regime::classify_with_jump(&p, 0.02, amplitude, 0.04),
+            Regime::Mixed
+        );
+    }
+    // the onset ramp moves 0.003 points in 50 ms: classified by its centre, as before
+    assert_eq!(
+        Regime::classify_with_jump(&p, 0.02, ambient, 0.04 / 60.0 * 0.05),
+        Regime::classify(&p, 0.02, ambient)
+    );
+    // two mixed windows: truth +2 % at the centre, 0 on average; the estimates read 0.1 % and
+    // -0.3 %: errors 0.1 and 0.3 points against the mean (1.9 and 2.3 against the centre)
+    let mut ws = Vec::new();
+    for (end, z) in [(125.0, 0.001), (130.0, -0.003)] {
+        let mut w = window(end, Some(z), Some((z - 0.01, z + 0.01)), 0.02);
+        w.truth_mean = 0.0;
+        w.regime = Regime::Mixed;
+        ws.push(w);
+    }
+    let rows = regime_rows_with(&[record(ScenarioName::Step, ws, 1.0)], &Targets::ISSUE_8);
+    let r = &rows[0];
+    assert_eq!((r.regime, r.windows), (Regime::Mixed, 2));
+    assert!(
+        (r.median_abs_error_pts.unwrap() - 0.2).abs() < 1e-9,
+        "{r:?}"
+    );
+    assert_eq!((r.pass_error, r.pass_coverage), (None, None));
+    assert_eq!(r.coverage, Some(1.0));
+}
