@@ -330,6 +330,9 @@ pub async fn run_stream(
                     i.damping.ambient_zeta.as_ref().map(pct),
                     i.damping.ambient_ratio.map(|r| (r * 100.0).round() / 100.0),
                     i.damping.model_zeta.as_ref().map(pct),
+                    (i.damping.fit_nmae * 1000.0).round() / 1000.0,
+                    i.damping.agrees,
+                    i.damping.rms_swing.map(|r| (r * 100.0).round() / 100.0),
                 )
             });
             let trend = view.trend.as_ref().map(|t| {
@@ -341,7 +344,7 @@ pub async fn run_stream(
             });
             eprintln!(
                 "t {end:7.1}  true {:+.2} %  zeta0 {:?} {:?} {:?} trusted {trusted}  trend \
-                 (%/min, upper %/min, confident crossing s) {trend:?}  firing {firing:?}  (regime, pooled, ssi, ambient ratio, model) {facts:?}  scored {} (true mean {:+.2} %)",
+                 (%/min, upper %/min, confident crossing s) {trend:?}  firing {firing:?}  (regime, pooled, ssi, ambient ratio, model, fit nmae, agrees, rms swing) {facts:?}  scored {} (true mean {:+.2} %)",
                 100.0 * truth_centre,
                 zeta0.map(|z| (z * 1e4).round() / 100.0),
                 interval.map(|(a, b)| ((a * 1e4).round() / 100.0, (b * 1e4).round() / 100.0)),
