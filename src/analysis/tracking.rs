@@ -432,11 +432,11 @@ pub fn leaves_ambient(previous: &Previous, r: &DampingReport) -> bool {
     let rose = previous
         .signal_rms
         .is_some_and(|before| before > 0.0 && now > NOISE_DRIVEN_MAX_RISE * before);
-    let departed = previous.level.level().is_some_and(|level| {
-        let before = previous.signal_rms.unwrap_or(0.0);
-        now >= DEPARTED_FROM_AMBIENT * level && before < DEPARTED_FROM_AMBIENT * level
-    });
-    rose || departed
+    let was_below = previous
+        .level
+        .level()
+        .is_some_and(|level| previous.signal_rms.unwrap_or(0.0) < DEPARTED_FROM_AMBIENT * level);
+    rose || (was_below && above_ambient(previous, r))
 }
 
 /// Whether window `r` stands at least [`DEPARTED_FROM_AMBIENT`] times above the gate's ambient
@@ -460,10 +460,7 @@ pub fn noise_driven(previous: &Previous, r: &DampingReport) -> bool {
     let calm = previous
         .signal_rms
         .is_some_and(|before| before > 0.0 && now <= NOISE_DRIVEN_MAX_RISE * before);
-    let at_level = previous
-        .level
-        .level()
-        .is_some_and(|level| now < DEPARTED_FROM_AMBIENT * level);
+    let at_level = previous.level.level().is_some() && !above_ambient(previous, r);
     calm && at_level && decided_by_ambient(r) && r.verdict != Verdict::SelfExcited
 }
 
