@@ -255,9 +255,9 @@ fn read_departed_window_by_the_model(
     d.trusted = true;
 }
 
-/// Smallest [`DampingReport::rms_swing`] of the first limit-cycle window after an
-/// ambient-decided one for the model to read it ([`read_departed_window_by_the_model`]): the gate
-/// grew onto its cycle inside that window. Why 1.25: a held cycle's thirds differ by at most
+/// Smallest [`DampingReport::rms_swing`] of the first limit-cycle window (after an
+/// ambient-decided one, or one that was no cycle) for the model to read it
+/// ([`read_departed_window_by_the_model`]): the gate grew onto its cycle inside that window. Why 1.25: a held cycle's thirds differ by at most
 /// 7 % (swing 1.07 at most, `docs/damping.md`), while the first cycle windows of the bursts and
 /// onsets of `bench warning`, which held the growth, swung 1.5 to 4. Below it the growth was
 /// in the window before (read by SSI-COV, which missed it), the window is a saturated cycle,

@@ -10,9 +10,10 @@
 //!   gives the same verdict as the previous window, the model's frequency at rest is within a
 //!   tolerance of the measured dominant frequency, the model still agrees with the model-free
 //!   estimates (frequency, envelope growth) when the previous one did, and it fits within a
-//!   tolerance of the last full search's fit, and the window does not leave the gate's ambient
-//!   level ([`leaves_ambient`]: an onset's or a burst's first window). With `waive_fit_on_noise` (off by default) the
-//!   last two tests are waived on a noise-driven window (below).
+//!   tolerance of the last full search's fit; and the window does not leave the gate's ambient
+//!   level ([`leaves_ambient`]: an onset's or a burst's first window), nor stand 3 times above
+//!   it without a trusted model. With `waive_fit_on_noise` (off by default) the fit and
+//!   agreement tests are waived on a noise-driven window (below).
 //!
 //! # Why the fit tests are waived on a noise-driven window
 //! A window the model-free analysis calls damped or undecided, whose `zeta0` the ambient
@@ -695,7 +696,7 @@ mod tests {
             ..report()
         };
         assert_eq!(accept(&policy, &p, &risen), Err(Rejection::LeavesAmbient));
-        let on_a_cycle = Previous {
+        let rising = Previous {
             signal_rms: Some(1.6),
             ..previous()
         };
@@ -704,7 +705,7 @@ mod tests {
             ..report()
         };
         assert_eq!(
-            accept(&policy, &on_a_cycle, &departed),
+            accept(&policy, &rising, &departed),
             Err(Rejection::LeavesAmbient)
         );
         // ... but a window that stays above it (a held cycle) may be tracked, when its model
