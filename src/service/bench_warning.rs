@@ -333,6 +333,7 @@ pub async fn run_stream(
                     (i.damping.fit_nmae * 1000.0).round() / 1000.0,
                     i.damping.agrees,
                     i.damping.rms_swing.map(|r| (r * 100.0).round() / 100.0),
+                    i.path,
                 )
             });
             let trend = view.trend.as_ref().map(|t| {
@@ -344,7 +345,7 @@ pub async fn run_stream(
             });
             eprintln!(
                 "t {end:7.1}  true {:+.2} %  zeta0 {:?} {:?} {:?} trusted {trusted}  trend \
-                 (%/min, upper %/min, confident crossing s) {trend:?}  firing {firing:?}  (regime, pooled, ssi, ambient ratio, model, fit nmae, agrees, rms swing) {facts:?}  scored {} (true mean {:+.2} %)",
+                 (%/min, upper %/min, confident crossing s) {trend:?}  firing {firing:?}  (regime, pooled, ssi, ambient ratio, model, fit nmae, agrees, rms swing, path) {facts:?}  scored {} (true mean {:+.2} %)",
                 100.0 * truth_centre,
                 zeta0.map(|z| (z * 1e4).round() / 100.0),
                 interval.map(|(a, b)| ((a * 1e4).round() / 100.0, (b * 1e4).round() / 100.0)),
