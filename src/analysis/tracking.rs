@@ -496,6 +496,15 @@ mod tests {
         level
     }
 
+    /// A trusted model's zeta0 with its interval (`DampingReport::model_zeta`).
+    fn fitted_model() -> Option<crate::analysis::AmbientZeta> {
+        Some(crate::analysis::AmbientZeta {
+            zeta: -0.02,
+            low: -0.025,
+            high: -0.015,
+        })
+    }
+
     fn report() -> DampingReport {
         DampingReport {
             fit_nmae: 0.025,
@@ -719,11 +728,7 @@ mod tests {
             Err(Rejection::UnfittedAboveAmbient)
         );
         let fitted = DampingReport {
-            model_zeta: Some(crate::analysis::AmbientZeta {
-                zeta: -0.02,
-                low: -0.025,
-                high: -0.015,
-            }),
+            model_zeta: fitted_model(),
             ..departed.clone()
         };
         assert_eq!(accept(&policy, &held, &fitted), Ok(Acceptance::Fitted));
@@ -897,11 +902,7 @@ mod tests {
         };
         let agreeing = DampingReport {
             agrees: true,
-            model_zeta: Some(crate::analysis::AmbientZeta {
-                zeta: -0.02,
-                low: -0.025,
-                high: -0.015,
-            }),
+            model_zeta: fitted_model(),
             ..noise_window(3.0)
         };
         assert!(matches!(
