@@ -3,7 +3,10 @@
 //! 200 Hz) and on a 2000 kg, 5 Hz lock gate sampled at 100 Hz, both with an absolute sensor
 //! noise floor. Nothing here is tuned per gate: the same options serve both.
 
-use gatewatch::simulate::{GateParams, GateSimulator, ZetaSchedule};
+use gatewatch::analysis::{relaxation_detrend_degree, BEND_DEGREE};
+use gatewatch::simulate::{
+    GateParams, GatePreset, GateSimulator, NoiseLevel, ScenarioName, ZetaSchedule,
+};
 use gatewatch::spectral::{RelaxationOptions, SpectralAnalyzer};
 
 /// The lab gate with the turbulent forcing (about 5.6 N RMS response at +2 %) and a load
@@ -432,6 +435,9 @@ fn explore_relaxation_across_zeta() {
         se_inflation: env("SE_INFLATION", d.se_inflation),
         // DETREND=inf: the mean alone removed (before session 23)
         detrend_significance: env("DETREND", d.detrend_significance),
+        // DEGREE=1: a line at most (before session 30); the analyzer allows BEND_DEGREE where
+        // the level moved
+        detrend_max_degree: env("DEGREE", BEND_DEGREE as f64) as usize,
         ..d
     };
     println!("{opts:?}, whittle {whittle}");
@@ -454,7 +460,22 @@ fn explore_relaxation_across_zeta() {
                     let e = if whittle {
                         sa.envelope_relaxation_whittle(x, f, &opts)
                     } else {
-                        sa.envelope_relaxation(x, f, &opts)
+                        // The analyzer's rule: a bend only where the level moved (the
+                        // previous window is the record before this one).
+                        let deg = if i > 0 {
+                            let pair = [ws[i - 1].as_slice(), x.as_slice()].concat();
+                            relaxation_detrend_degree(&pair, x.len()).min(opts.detrend_max_degree)
+                        } else {
+                            1
+                        };
+                        sa.envelope_relaxation(
+                            x,
+                            f,
+                            &RelaxationOptions {
+                                detrend_max_degree: deg,
+                                ..opts
+                            },
+                        )
                     };
                     let Ok(e) = e else {
                         refused += 1;
@@ -659,5 +680,65 @@ fn explore_ramping_limit_cycle() {
                 100.0 * e
             );
         }
+    }
+}
+
+/// (estimates, covered) of the relaxation over the onset scenario's cycle windows (10 s windows
+/// ending every 5 s from 160 to 195 s: the cycle reached while the damping still ramps, and the
+/// window the ramp ends in) on a bench preset, scored against the window's mean truth.
+fn ramp_end_scores(preset: &str, seeds: u64, opts: &RelaxationOptions) -> (usize, usize) {
+    let p = GatePreset::parse(preset).unwrap().params();
+    let def = ScenarioName::parse("onset").unwrap().def(&p);
+    let rate = p.rate_hz;
+    let n = (10.0 * rate) as usize;
+    let mut sa = SpectralAnalyzer::new(n, rate).unwrap();
+    let (mut estimates, mut covered) = (0, 0);
+    for seed in 1..=seeds {
+        let mut sim = def
+            .simulator(&p, NoiseLevel::Relative(0.125), seed)
+            .unwrap();
+        let mut warm = vec![0.0; (def.warmup_s * rate).round() as usize];
+        sim.fill(&mut warm);
+        let mut all = vec![0.0; (195.0 * rate) as usize];
+        sim.fill(&mut all);
+        for end in (160..=195).step_by(5) {
+            let e = (end as f64 * rate) as usize;
+            let mut w = all[e - n..e].to_vec();
+            gatewatch::spectral::detrend_linear(&mut w);
+            let truth = def.mean_zeta(end as f64 - 10.0, end as f64);
+            let f = sa.dominant_frequency(&w, 1.0).unwrap().frequency_hz;
+            // The analyzer's rule: a bend only where the level moved against the 10 s before.
+            let opts = RelaxationOptions {
+                detrend_max_degree: relaxation_detrend_degree(&all[e - 2 * n..e], n)
+                    .min(opts.detrend_max_degree),
+                ..*opts
+            };
+            if let Ok(r) = sa.envelope_relaxation(&w, f, &opts) {
+                estimates += 1;
+                covered += usize::from(r.zeta0_interval.0 <= truth && truth <= r.zeta0_interval.1);
+            }
+        }
+    }
+    (estimates, covered)
+}
+
+/// The window an onset's ramp ends in: the envelope rises, then levels off, and the bend left
+/// about a line read as a relaxation too slow (the lab gate at -1.9 % read -0.3 to -0.6 % in 7
+/// of 12 seeds). With a polynomial up to `BEND_DEGREE` where the level moved (the analyzer's
+/// rule) the bend is removed. Measured (12 seeds, 8 windows each): lab 71 of 82 read windows
+/// covered with a line, 76 of 84 with the bend; lock 72 of 73 and 76 of 76.
+#[test]
+fn ramp_end_is_read_about_its_bend() {
+    let bend = RelaxationOptions {
+        detrend_max_degree: BEND_DEGREE,
+        ..RelaxationOptions::default()
+    };
+    for (preset, gain) in [("lab", 4), ("lock", 2)] {
+        let (n1, c1) = ramp_end_scores(preset, 12, &RelaxationOptions::default());
+        let (n, c) = ramp_end_scores(preset, 12, &bend);
+        eprintln!("{preset}: line {c1} of {n1} covered, cubic {c} of {n}");
+        assert!(n >= n1, "{preset}: {n} read, {n1} with a line");
+        assert!(c >= c1 + gain, "{preset}: {c} covered, {c1} with a line");
+        assert!(10 * c >= 9 * n, "{preset}: {c} of {n} covered");
     }
 }

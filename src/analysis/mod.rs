@@ -45,8 +45,9 @@ pub use pooling::{PoolingSettings, ZetaPools};
 pub use population::{biased_population, SpectralTarget};
 pub use report::{AmbientZeta, DampingReport, Verdict, Zeta0Source};
 pub use series::{
-    analyze_series, analyze_series_with, pre_run, rms_swing, term_scales, track_series_with,
-    SeriesAnalysis, SeriesOptions, DAMPING_FORCE_FRACTION,
+    analyze_series, analyze_series_with, pre_run, relaxation_detrend_degree, rms_swing,
+    term_scales, track_series_with, SeriesAnalysis, SeriesOptions, BEND_DEGREE, BEND_LEVEL_CHANGE,
+    DAMPING_FORCE_FRACTION,
 };
 pub use tracking::{gate_hash, Path, Previous, TrackingPolicy};
 pub use trend::{

@@ -468,7 +468,10 @@ fn model_free(
             let mut work = data.y.clone();
             crate::spectral::detrend_linear(&mut work);
             let f = s.peak.frequency_hz;
-            let relax = crate::spectral::RelaxationOptions::default();
+            let relax = crate::spectral::RelaxationOptions {
+                detrend_max_degree: relaxation_detrend_degree(history, n),
+                ..crate::spectral::RelaxationOptions::default()
+            };
             let relaxation = match fs.and_then(|fs| relaxation_record(history, fs, f, n, opts)) {
                 Some((record, fs)) => SpectralAnalyzer::new(record.len(), fs)
                     .and_then(|mut long| long.envelope_relaxation(&record, f, &relax)),
@@ -514,6 +517,41 @@ pub fn rms_swing(y: &[f64]) -> Option<f64> {
         (lo.min(v), hi.max(v))
     });
     (lo > 0.0 && hi.is_finite()).then(|| hi / lo)
+}
+
+/// Change of the RMS level between the window and the record before it beyond which the
+/// envelope relaxation may remove a bend (a polynomial up to [`BEND_DEGREE`]), not only a line.
+/// Why 1.2: the cycle's amplitude follows `sqrt(-zeta0)`, so a level a fifth higher means a
+/// damping that moved by about 44 % in 10 s, the onset's ramp (20 to 40 % a window); a held
+/// cycle at -2 % moves its 10 s level by a few percent. A weak one (-0.5 %) wanders by tens of
+/// percent, and there the bend is removed too often: measured in docs/damping.md ("A cycle that
+/// bends"), 1.1 cost that cycle's pooled coverage 10 points, 1.2 two.
+pub const BEND_LEVEL_CHANGE: f64 = 1.2;
+
+/// Highest polynomial degree the relaxation removes where the level moved (a cubic: the rise
+/// and the levelling-off of the window an onset's ramp ends in; docs/damping.md).
+pub const BEND_DEGREE: usize = 3;
+
+/// The relaxation's `detrend_max_degree` for the window that ends `history` (`n` samples):
+/// [`BEND_DEGREE`] when the standard deviation of the window and of the `n` samples before it
+/// differ by more than [`BEND_LEVEL_CHANGE`], else 1 (a line at most). Without `2 n` samples
+/// of history nothing says the level moved: 1.
+pub fn relaxation_detrend_degree(history: &[f64], n: usize) -> usize {
+    let len = history.len();
+    if n < 2 || len < 2 * n {
+        return 1;
+    }
+    let before = identify::std_dev(&history[len - 2 * n..len - n]);
+    let now = identify::std_dev(&history[len - n..]);
+    let ratio = now / before;
+    let moved = ratio.is_finite()
+        && ratio > 0.0
+        && !(1.0 / BEND_LEVEL_CHANGE..=BEND_LEVEL_CHANGE).contains(&ratio);
+    if moved {
+        BEND_DEGREE
+    } else {
+        1
+    }
 }
 
 /// Cycles of a limit cycle that the envelope relaxation reads when the gate's history holds

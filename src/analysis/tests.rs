@@ -180,3 +180,33 @@ fn rms_swing_is_the_largest_over_the_smallest_third() {
     flat_start[..200].fill(3.0);
     assert_eq!(rms_swing(&flat_start), None, "a constant third");
 }
+
+/// The relaxation may remove a bend only where the window's level moved by more than
+/// `BEND_LEVEL_CHANGE` against the record before it, either way; without that record, or with a
+/// flat one, a line at most.
+#[test]
+fn a_bend_is_removed_only_where_the_level_moved() {
+    let n = 400;
+    let sine = |amp: f64, from: usize| -> Vec<f64> {
+        (from..from + n)
+            .map(|i| amp * (0.3 * i as f64).sin())
+            .collect()
+    };
+    let history = |a0: f64, a1: f64| [sine(a0, 0), sine(a1, n)].concat();
+    assert_eq!(relaxation_detrend_degree(&history(1.0, 1.0), n), 1);
+    assert_eq!(relaxation_detrend_degree(&history(1.0, 1.15), n), 1);
+    assert_eq!(
+        relaxation_detrend_degree(&history(1.0, 1.3), n),
+        BEND_DEGREE
+    );
+    assert_eq!(
+        relaxation_detrend_degree(&history(1.3, 1.0), n),
+        BEND_DEGREE
+    );
+    // Only the `n` samples before the window count: an older level is not looked at.
+    let older = [sine(5.0, 0), history(1.0, 1.0)].concat();
+    assert_eq!(relaxation_detrend_degree(&older, n), 1);
+    // No record before the window, or a flat one: no evidence that the level moved.
+    assert_eq!(relaxation_detrend_degree(&sine(1.0, 0), n), 1);
+    assert_eq!(relaxation_detrend_degree(&history(0.0, 1.0), n), 1);
+}
