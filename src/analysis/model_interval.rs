@@ -13,9 +13,6 @@ use crate::model::Model;
 /// and velocity scales (the coefficients' relative step in `identify::covariance`).
 const DIFFERENCE_STEP_IC: f64 = 1e-4;
 
-/// Two-sided 95 % normal quantile.
-const Z95: f64 = 1.959_963_984_540_054;
-
 /// A fitted model as the interval needs it: the model, its coefficients, their DE scales (for
 /// the difference steps), the initial conditions and the output that was fitted.
 #[derive(Debug, Clone, Copy)]
@@ -75,7 +72,10 @@ pub fn zeta0_interval(
         gradient.resize(cov.matrix.nrows(), 0.0);
     }
     let sd = cov.std_dev_of(&gradient)?;
-    let (lo, hi) = (z - Z95 * sd, z + Z95 * sd);
+    // The fixed-b value, not 1.96: the residuals of a forced window stay coherent over much of
+    // it, and the Newey-West sum is then too small and too random for a normal quantile.
+    let half = cov.critical_value_95() * sd;
+    let (lo, hi) = (z - half, z + half);
     (lo.is_finite() && hi.is_finite()).then_some((lo, hi))
 }
 
