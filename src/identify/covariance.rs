@@ -404,7 +404,12 @@ mod tests {
                     let mean = x.iter().sum::<f64>() / n as f64;
                     let u: Vec<f64> = x.iter().map(|v| v - mean).collect();
                     let gamma = |k: usize| -> f64 {
-                        u[..n - k].iter().zip(&u[k..]).map(|(a, b)| a * b).sum::<f64>() / n as f64
+                        u[..n - k]
+                            .iter()
+                            .zip(&u[k..])
+                            .map(|(a, b)| a * b)
+                            .sum::<f64>()
+                            / n as f64
                     };
                     let omega = gamma(0)
                         + (1..m)
@@ -455,9 +460,7 @@ mod tests {
             }
             let x = &x[200..];
             // Least squares of x on the two columns; residuals at the optimum.
-            let beta = (jac.transpose() * &jac)
-                .try_inverse()
-                .unwrap()
+            let beta = (jac.transpose() * &jac).try_inverse().unwrap()
                 * jac.transpose()
                 * DVector::from_column_slice(x);
             let fit = &jac * &beta;
@@ -475,7 +478,10 @@ mod tests {
         // and 1.96 covering 315 (79 %). Not 95 % either way: a Bartlett sum cut at the
         // correlation length still misses part of the long-run variance (docs/damping.md).
         let share = |k: usize| k as f64 / reps as f64;
-        assert!(share(capped) > 0.25, "bandwidth capped in {capped} of {reps}");
+        assert!(
+            share(capped) > 0.25,
+            "bandwidth capped in {capped} of {reps}"
+        );
         assert!(
             share(fixed_b) >= 0.85,
             "fixed-b {fixed_b}, normal {normal} of {reps}"

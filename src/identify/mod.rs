@@ -51,7 +51,9 @@ mod split;
 mod stats;
 
 pub use config::{Config, Protocol, Search};
-pub use covariance::{bandwidth, covariance, difference_steps, Covariance, COVARIANCE_RTOL};
+pub use covariance::{
+    bandwidth, covariance, difference_steps, fixed_b_critical_value_95, Covariance, COVARIANCE_RTOL,
+};
 pub use fitness::{Fitness, FitnessWorkspace, LANES};
 pub use predict::{output_of, predict, trajectory};
 pub use problem::Problem;
