@@ -2,7 +2,8 @@
 //! answers (and so whose alert times) are known, and the scores of synthetic sequences.
 
 use super::score::{
-    au_limit, covers, fire_times, mark_ews, regime_rows_with, EwsRule, EWS_VARIANCE,
+    au_limit, coverage_interval, covers, fire_times, mark_ews, regime_rows_with, render, EwsRule,
+    EWS_VARIANCE,
 };
 use super::*;
 use crate::analysis::{AnalysisError, DampingReport, Verdict, WindowAnalysis, WindowInput};
@@ -325,4 +326,46 @@ fn a_window_across_a_step_is_mixed_scored_against_its_mean_and_has_no_target() {
     );
     assert_eq!((r.pass_error, r.pass_coverage), (None, None));
     assert_eq!(r.coverage, Some(1.0));
+}
+
+#[test]
+fn coverage_interval_follows_the_seeds_not_the_window_count() {
+    // identical seeds: nothing varies between them, the interval is the point
+    assert_eq!(
+        coverage_interval(&[(9, 10), (9, 10), (9, 10), (9, 10)]),
+        Some((0.9, 0.9))
+    );
+    // one seed of three missed everything: 67 % pooled, and a resample can hold it 0 to 3
+    // times, so the interval spans most of [0, 1]; a binomial interval over 30 windows would
+    // be about 48-82 %
+    let (lo, hi) = coverage_interval(&[(10, 10), (10, 10), (0, 10)]).unwrap();
+    assert!(lo <= 0.34 && hi >= 0.99, "({lo}, {hi})");
+    // the same answer every time (a fixed seed): the table is a function of the runs
+    assert_eq!(
+        coverage_interval(&[(10, 10), (10, 10), (0, 10)]),
+        Some((lo, hi))
+    );
+    // fewer than two seeds with windows in the regime: no interval
+    assert_eq!(coverage_interval(&[(3, 4)]), None);
+    assert_eq!(coverage_interval(&[(3, 4), (0, 0)]), None);
+    // and the row carries it, in the table too
+    let seed = |covered: usize| {
+        let ws: Vec<WindowRecord> = (0..4)
+            .map(|i| {
+                let interval = if i < covered {
+                    (0.008, 0.012)
+                } else {
+                    (0.02, 0.03)
+                };
+                window(10.0 * i as f64, Some(0.01), Some(interval), 0.01)
+            })
+            .collect();
+        record(ScenarioName::Stable, ws, 1.0)
+    };
+    let rows = regime_rows_with(&[seed(4), seed(2)], &Targets::ISSUE_8);
+    assert!((rows[0].coverage.unwrap() - 0.75).abs() < 1e-12);
+    let (lo, hi) = rows[0].coverage_interval.unwrap();
+    assert!(lo <= 0.5 && hi >= 1.0, "({lo}, {hi})");
+    let table = render(&rows, &[]);
+    assert!(table.contains("75 % (50-100)"), "{table}");
 }
