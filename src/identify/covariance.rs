@@ -387,28 +387,33 @@ mod tests {
         // percentile is the fixed-b critical value (the finite-n statistic converges to the
         // limit the polynomial was fitted to).
         let (n, reps) = (400, 10_000);
-        for b in [0.1, 0.25, 0.5] {
-            let m = (b * n as f64) as usize;
-            let mut t: Vec<f64> = (0..reps)
-                .map(|r| {
-                    let x = normals(r as u64 * 7919 + 1, n);
-                    let mean = x.iter().sum::<f64>() / n as f64;
-                    let u: Vec<f64> = x.iter().map(|v| v - mean).collect();
-                    let gamma = |k: usize| -> f64 {
-                        u[..n - k]
-                            .iter()
-                            .zip(&u[k..])
-                            .map(|(a, b)| a * b)
-                            .sum::<f64>()
-                            / n as f64
-                    };
-                    let omega = gamma(0)
-                        + (1..m)
-                            .map(|k| 2.0 * (1.0 - k as f64 / m as f64) * gamma(k))
-                            .sum::<f64>();
-                    ((n as f64).sqrt() * mean / omega.sqrt()).abs()
+        let bs = [0.1, 0.25, 0.5];
+        let lags: Vec<usize> = bs.iter().map(|b| (b * n as f64) as usize).collect();
+        // |t| per draw and bandwidth: one draw, its autocovariances once, every bandwidth
+        let mut t: Vec<Vec<f64>> = vec![Vec::with_capacity(reps); bs.len()];
+        for r in 0..reps {
+            let x = normals(r as u64 * 7919 + 1, n);
+            let mean = x.iter().sum::<f64>() / n as f64;
+            let u: Vec<f64> = x.iter().map(|v| v - mean).collect();
+            let gamma: Vec<f64> = (0..lags[lags.len() - 1])
+                .map(|k| {
+                    u[..n - k]
+                        .iter()
+                        .zip(&u[k..])
+                        .map(|(a, b)| a * b)
+                        .sum::<f64>()
+                        / n as f64
                 })
                 .collect();
+            for (i, &m) in lags.iter().enumerate() {
+                let omega = gamma[0]
+                    + (1..m)
+                        .map(|k| 2.0 * (1.0 - k as f64 / m as f64) * gamma[k])
+                        .sum::<f64>();
+                t[i].push(((n as f64).sqrt() * mean / omega.sqrt()).abs());
+            }
+        }
+        for (b, mut t) in bs.into_iter().zip(t) {
             t.sort_by(f64::total_cmp);
             let simulated = t[reps * 95 / 100];
             let fitted = fixed_b_critical_value_95(b);
