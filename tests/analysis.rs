@@ -16,6 +16,7 @@ fn analyzer() -> Analyzer {
         amplitude_limit: Some(400.0),
         max_fit_nmae: 0.2,
         polish_rtol: gatewatch::analysis::DEFAULT_POLISH_RTOL,
+        polish_solver: gatewatch::analysis::PolishSolver::default(),
     })
     .unwrap()
 }

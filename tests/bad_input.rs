@@ -1501,6 +1501,12 @@ fn bad_configs() -> Vec<(&'static str, String, &'static str, Option<usize>)> {
             Some(2),
         ),
         c(
+            "polish_solver unknown",
+            "[defaults]\npolish_solver = \"euler\"\n",
+            "defaults.polish_solver",
+            Some(2),
+        ),
+        c(
             "pooling unknown key",
             "[defaults.pooling]\nmin_cycle = 100.0\n",
             "defaults.pooling.min_cycle",

@@ -212,6 +212,7 @@ fn force_analyzer(p: &GateParams) -> gatewatch::analysis::Analyzer {
         amplitude_limit: None,
         max_fit_nmae: 0.2,
         polish_rtol: gatewatch::analysis::DEFAULT_POLISH_RTOL,
+        polish_solver: gatewatch::analysis::PolishSolver::default(),
     })
     .unwrap()
 }

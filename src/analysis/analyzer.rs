@@ -175,7 +175,7 @@ impl Analyzer {
                     population: s.population,
                     generations: s.generations,
                     // One RK4 step per sample: three times cheaper than dopri5 over a long
-                    // window; the polish (dopri5 at `polish_rtol`) sets the final accuracy.
+                    // window; the polish (`polish_solver`) sets the final accuracy.
                     solver: crate::ode::Method::Rk4,
                     substeps: 1,
                     refine_rtol: s.polish_rtol,
@@ -193,6 +193,7 @@ impl Analyzer {
             amplitude_limit: s.amplitude_limit,
             max_fit_nmae: s.max_fit_nmae,
             fft_bias,
+            polish_solver: s.polish_solver,
             ..SeriesOptions::default()
         };
         if let Start::Refine(..) = start {

@@ -45,9 +45,9 @@ pub use pooling::{PoolingSettings, ZetaPools};
 pub use population::{biased_population, SpectralTarget};
 pub use report::{AmbientZeta, DampingReport, Verdict, Zeta0Source};
 pub use series::{
-    analyze_series, analyze_series_with, pre_run, relaxation_detrend_degree, rms_swing,
-    term_scales, track_series_with, SeriesAnalysis, SeriesOptions, BEND_DEGREE, BEND_LEVEL_CHANGE,
-    DAMPING_FORCE_FRACTION,
+    analyze_series, analyze_series_with, polish_substeps, pre_run, relaxation_detrend_degree,
+    rms_swing, term_scales, track_series_with, SeriesAnalysis, SeriesOptions, BEND_DEGREE,
+    BEND_LEVEL_CHANGE, DAMPING_FORCE_FRACTION,
 };
 pub use tracking::{gate_hash, Path, Previous, TrackingPolicy};
 pub use trend::{
@@ -89,10 +89,53 @@ pub struct AnalysisSettings {
     /// A window whose fit NMAE exceeds this is not trusted (never raises an alarm).
     pub max_fit_nmae: f64,
     /// Relative tolerance of the Dormand-Prince integrations of the full search's
-    /// Levenberg-Marquardt polish ([`DEFAULT_POLISH_RTOL`]; the tracked refinement has its own,
+    /// Levenberg-Marquardt polish (with [`PolishSolver::Rk4`], where no frequency is measured) ([`DEFAULT_POLISH_RTOL`]; the tracked refinement has its own,
     /// [`TrackingPolicy::refine_rtol`]).
     pub polish_rtol: f64,
+    /// Solver of the polish's and the tracked refinement's integrations.
+    pub polish_solver: PolishSolver,
 }
+
+/// Solver of a window's least-squares integrations (the full search's polish and the tracked
+/// refinement; `polish_solver` in the daemon's configuration).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum PolishSolver {
+    /// Classical RK4 on the sample grid, with as many steps per sample interval as give a cycle
+    /// of the window's measured dominant frequency at least [`MIN_RK4_STEPS_PER_CYCLE`] steps
+    /// (`series::polish_substeps`); Dormand-Prince where no frequency was measured.
+    ///
+    /// Why it is the daemon's default: a window's polish is most of its CPU (a CPU profile of
+    /// `bench daemon` at 128 gates: half of the worker's time, against a tenth for the DE), and
+    /// Dormand-Prince at 1e-6 needs more right-hand-side evaluations than RK4 at 32 steps per
+    /// cycle, with a step-size controller on the critical path, one by one for every trial
+    /// step. RK4's own error at 32 steps per cycle is far below what a window resolves
+    /// (`MIN_RK4_STEPS_PER_CYCLE`), and its residuals are smooth in the coefficients (no
+    /// step-size controller), which the forward-difference Jacobian likes. Measured: a cold
+    /// window at two thirds of the CPU, a tracked one at two thirds, and the warning bench's
+    /// rows as before or better (docs/benchmarks.md, "RK4 in the polish").
+    #[default]
+    Rk4,
+    /// Dormand-Prince 5(4) at `polish_rtol` (the tracked refinement: `tracking.refine_rtol`),
+    /// as before session 32.
+    Dopri5,
+}
+
+/// Fewest RK4 steps per cycle of the dominant frequency in a window's polish
+/// ([`PolishSolver::Rk4`]).
+///
+/// Why 32: classical RK4 applied to an undamped oscillator multiplies the amplitude by
+/// `1 - (w h)^6 / 144` per step (its stability polynomial on the imaginary axis), a numerical
+/// damping ratio of `(w h)^5 / 144`, and its frequency is off by about `(w h)^4 / 120`. At the
+/// fundamental that is negligible from 16 steps per cycle (6e-5, 0.006 points). But the gate
+/// model's cubic damping `c3*yd^2*yd` puts a third harmonic into a large-amplitude window, and
+/// at 16 steps per cycle of the fundamental that harmonic has 5 (`(w h)^5 / 144` = 6e-3 on it).
+/// Measured: with one step per sample on the lab gate (19 samples per cycle) 6 of 20 onset
+/// seeds fired `GateNegativeDamping` after -1 %, against 4 with Dormand-Prince; with two steps
+/// per sample (38 per cycle, the third harmonic at 13) 3 of 20 (docs/benchmarks.md, "RK4 in the
+/// polish"). 32 steps per cycle give the third harmonic about 11: two steps per sample on the
+/// daemon's gates (lab: 200 Hz at 10.4 Hz; lock: 100 Hz at 5 Hz).
+pub const MIN_RK4_STEPS_PER_CYCLE: f64 = 32.0;
 
 /// Default [`AnalysisSettings::polish_rtol`] of a daemon window: 1e-6.
 ///

@@ -7,7 +7,7 @@ use super::model_interval::{zeta0_interval, FittedModel};
 use super::population::{initial_population, PopulationInputs, SpectralTarget};
 use super::report::{AmbientZeta, DampingReport, Zeta0Source};
 use super::verdict::{agrees, decide, VerdictFacts};
-use super::{AnalysisError, Signal};
+use super::{AnalysisError, PolishSolver, Signal, MIN_RK4_STEPS_PER_CYCLE};
 use crate::data::TimeSeries;
 use crate::identify::{self, Identification, InitialValues};
 use crate::model::Model;
@@ -48,6 +48,10 @@ pub struct SeriesOptions {
     pub amplitude_limit: Option<f64>,
     /// Above this fit NMAE the model is not trusted.
     pub max_fit_nmae: f64,
+    /// Solver of the polish and the refinement: [`PolishSolver::Rk4`] replaces the
+    /// identification's own (`identify.search.refine_solver`) with RK4 at
+    /// [`polish_substeps`] where the window's dominant frequency was measured.
+    pub polish_solver: PolishSolver,
 }
 
 impl Default for SeriesOptions {
@@ -60,8 +64,20 @@ impl Default for SeriesOptions {
             moving_average_seconds: 1.0,
             amplitude_limit: None,
             max_fit_nmae: 0.2,
+            // The library's polish as it always was; the daemon chooses RK4
+            // (`AnalysisSettings::polish_solver`).
+            polish_solver: PolishSolver::Dopri5,
         }
     }
+}
+
+/// RK4 steps per sample interval that give a cycle at angular frequency `omega` (rad/s) at
+/// least [`MIN_RK4_STEPS_PER_CYCLE`] steps with samples `dt` seconds apart, at most 1000;
+/// `None` when `omega` or `dt` is not a positive finite number.
+pub fn polish_substeps(omega: f64, dt: f64) -> Option<usize> {
+    let steps_per_sample = MIN_RK4_STEPS_PER_CYCLE * omega * dt / (2.0 * PI);
+    (steps_per_sample.is_finite() && steps_per_sample > 0.0)
+        .then(|| (steps_per_sample.ceil() as usize).clamp(1, 1000))
 }
 
 /// Everything [`analyze_series`] found.
@@ -254,6 +270,17 @@ fn analyze(
     let free = model_free(&data, history, opts, spectral);
 
     let mut config = opts.identify.clone();
+    if opts.polish_solver == PolishSolver::Rk4 {
+        let dt = data.t.get(1).zip(data.t.first()).map(|(b, a)| b - a);
+        if let Some(substeps) = free
+            .omega
+            .zip(dt)
+            .and_then(|(w, dt)| polish_substeps(w, dt))
+        {
+            config.search.refine_solver = crate::ode::Method::Rk4;
+            config.search.refine_substeps = substeps;
+        }
+    }
     let scale = scale_problem(model, &data, opts, &free, &mut config)?;
     let scales = if config.scales.len() == model.n_coeffs() {
         config.scales.clone()

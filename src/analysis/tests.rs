@@ -210,3 +210,30 @@ fn a_bend_is_removed_only_where_the_level_moved() {
     assert_eq!(relaxation_detrend_degree(&sine(1.0, 0), n), 1);
     assert_eq!(relaxation_detrend_degree(&history(0.0, 1.0), n), 1);
 }
+
+/// The polish's RK4 steps per sample give every cycle of the measured frequency at least
+/// `MIN_RK4_STEPS_PER_CYCLE` steps: two per sample on the lab gate (200 Hz, 10.4 Hz) and the
+/// lock gate (100 Hz, 5 Hz), more where the sampling is coarser, none for a bad frequency.
+#[test]
+fn polish_substeps_give_each_cycle_thirty_two_steps() {
+    let w = |hz: f64| 2.0 * std::f64::consts::PI * hz;
+    assert_eq!(polish_substeps(w(10.4), 1.0 / 200.0), Some(2));
+    assert_eq!(polish_substeps(w(5.0), 1.0 / 100.0), Some(2));
+    // 32 samples per cycle: one step per sample.
+    assert_eq!(polish_substeps(w(5.0), 1.0 / 160.0), Some(1));
+    // 8 samples per cycle: four steps per sample.
+    assert_eq!(polish_substeps(w(5.0), 1.0 / 40.0), Some(4));
+    // 5 samples per cycle: 6.4, so 7 steps per sample.
+    assert_eq!(polish_substeps(w(5.0), 1.0 / 25.0), Some(7));
+    for (s, dt) in [(10.0, 1.0 / 25.0), (7.3, 1.0 / 91.0), (0.3, 0.5)] {
+        let steps_per_cycle = polish_substeps(w(s), dt).unwrap() as f64 / (s * dt);
+        assert!(
+            steps_per_cycle >= MIN_RK4_STEPS_PER_CYCLE,
+            "{s} Hz, dt {dt}"
+        );
+    }
+    assert_eq!(polish_substeps(w(1e9), 1.0), Some(1000));
+    assert_eq!(polish_substeps(f64::NAN, 0.01), None);
+    assert_eq!(polish_substeps(w(5.0), 0.0), None);
+    assert_eq!(polish_substeps(-1.0, 0.01), None);
+}

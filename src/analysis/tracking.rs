@@ -86,7 +86,8 @@ pub struct TrackingPolicy {
     /// window never exceeds it): bounds a tracked window's cost.
     pub refine_evaluations: usize,
     /// Relative tolerance of the refinement's Dormand-Prince integrations (1e-6, as the daemon's
-    /// full search's polish: `AnalysisSettings::polish_rtol`).
+    /// full search's polish: `AnalysisSettings::polish_rtol`; with `polish_solver = "rk4"` only
+    /// where the window has no measured frequency).
     pub refine_rtol: f64,
     /// Longest gap the tracked path may bridge: the new window may start at most this many
     /// window lengths (the previous window's duration) after the previous window's end. 0: the

@@ -214,6 +214,8 @@ pub(super) fn run(a: IdentifyArgs) -> Result<(), CliError> {
         moving_average_seconds: a.moving_average,
         amplitude_limit: a.amplitude_limit,
         max_fit_nmae: a.max_fit_nmae,
+        // `--solver` and the polish flags choose the integrations here.
+        polish_solver: analysis::PolishSolver::Dopri5,
     };
     // Every output is checked before the identification, which can take minutes.
     if let Some(dir) = &a.plot {

@@ -8,6 +8,7 @@
 //! benchmarks' ablations), and each part is validated on its own with errors that name its
 //! fields; the CLI translates field names into its flags.
 
+use super::fitness::Fitness;
 use super::problem::{Initial, Output, Problem};
 use super::IdentifyError;
 use crate::data::TimeSeries;
@@ -31,8 +32,14 @@ pub struct Search {
     pub substeps: usize,
     /// Polish the DE winner with Levenberg-Marquardt (not in the chapter).
     pub refine: bool,
-    /// Relative tolerance of the solver during the polish.
+    /// Relative tolerance of the solver during the polish (adaptive solvers).
     pub refine_rtol: f64,
+    /// Solver of the polish's integrations: Dormand-Prince at `refine_rtol` (the library's
+    /// default), or RK4 with `refine_substeps` steps per sample interval (the daemon's, when
+    /// the sampling resolves the signal's frequency: `analysis::series::polish_substeps`).
+    pub refine_solver: Method,
+    /// RK4 steps per sample interval of the polish when `refine_solver` is RK4 (1 to 1000).
+    pub refine_substeps: usize,
     /// Integrations the polish may spend (about).
     pub refine_evaluations: usize,
     /// Grow the fitted horizon in three stages (not in the chapter; see the `search` module).
@@ -58,6 +65,8 @@ impl Default for Search {
             substeps: 2,
             refine: true,
             refine_rtol: 1e-8,
+            refine_solver: Method::Dopri5,
+            refine_substeps: 1,
             refine_evaluations: 300,
             continuation: true,
             parallel: false,
@@ -95,6 +104,9 @@ impl Search {
         if self.substeps == 0 || self.substeps > 1000 {
             return Err(invalid("substeps", "must be between 1 and 1000"));
         }
+        if self.refine_substeps == 0 || self.refine_substeps > 1000 {
+            return Err(invalid("refine_substeps", "must be between 1 and 1000"));
+        }
         if !matches!(self.lanes, 1 | 4 | 8) {
             return Err(invalid(
                 "lanes",
@@ -121,6 +133,16 @@ impl Search {
         self.solver = solver;
         self.rtol = rtol;
         self.validate().map(|()| self)
+    }
+
+    /// The fitness of the polish: `fitness` with the polish's solver, tolerance (never looser
+    /// than the search's) and substeps.
+    pub(super) fn polish_fitness<'a>(&self, fitness: &Fitness<'a>) -> Fitness<'a> {
+        fitness.with_solver(
+            self.refine_solver,
+            self.refine_rtol.min(self.rtol),
+            self.refine_substeps,
+        )
     }
 
     /// With `substeps` RK4 steps per sample interval (1 to 1000).

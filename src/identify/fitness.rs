@@ -125,6 +125,16 @@ impl<'a> Fitness<'a> {
         f
     }
 
+    /// The same objective integrated with `method` at relative tolerance `rtol` (adaptive
+    /// solvers) and `substeps` RK4 steps per sample interval (RK4; at least 1). The work caps
+    /// follow the substeps, as in [`Fitness::new`].
+    pub fn with_solver(&self, method: Method, rtol: f64, substeps: usize) -> Fitness<'a> {
+        let mut f = self.with_tolerance(method, rtol);
+        f.opts.substeps = substeps.max(1);
+        f.opts.max_rhs_evals = 100 * f.opts.substeps.max(2) * self.t.len() + 50_000;
+        f
+    }
+
     /// The solver's relative tolerance.
     pub fn rtol(&self) -> f64 {
         self.opts.rtol

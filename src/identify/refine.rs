@@ -15,7 +15,6 @@ use super::problem::{Initial, Problem};
 use super::split::initial_from_data;
 use super::{nmae, predict, summarize, Identification, IdentifyError, InitialValues, RunResult};
 use crate::de::Objective;
-use crate::ode::Method;
 use std::time::Instant;
 
 /// Refines `start` (physical coefficients `c1..cN`, e.g. the previous window's) on `problem` by
@@ -79,7 +78,7 @@ pub fn refine(
         fitness,
     } = super::setup(problem, protocol, search)?;
     // The polish's own solver and tolerance, as after a DE search.
-    let fine = fitness.with_tolerance(Method::Dopri5, search.refine_rtol.min(search.rtol));
+    let fine = search.polish_fitness(&fitness);
     let mut x0 = fine.pack(start);
     if matches!(problem.initial, Initial::Fit) {
         // Fitted initial conditions start from the data's (scaled into DE coordinates).

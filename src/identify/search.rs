@@ -5,7 +5,6 @@ use super::fitness::Fitness;
 use super::polish::polish;
 use super::{IdentifyError, InitialValues};
 use crate::de::{self, Objective};
-use crate::ode::Method;
 
 /// One search and polish.
 pub(super) struct Attempt {
@@ -33,7 +32,7 @@ pub(super) fn attempt(
     let found = search(fitness, config, restart, seed, spread, progress)?;
     let mut evaluations = found.evaluations;
     let mut refine_evaluations = 0;
-    let fine = fitness.with_tolerance(Method::Dopri5, config.refine_rtol.min(config.rtol));
+    let fine = config.polish_fitness(fitness);
     let mut train_cost = fine.cost(&found.best, f64::INFINITY, &mut fine.workspace());
     let (mut coefficients, mut init) = fine.unpack(&found.best);
     if config.refine {
@@ -134,7 +133,7 @@ fn search(
             // squares converges in a few iterations inside the right basin, so each longer
             // horizon starts from a solution that is already phase-coherent over the shorter
             // one (over many periods a small frequency error is a large phase error).
-            let fine = stage.with_tolerance(Method::Dopri5, config.refine_rtol.min(config.rtol));
+            let fine = config.polish_fitness(&stage);
             let polished = polish(&fine, &result.best, config.refine_evaluations);
             evaluations += polished.spent;
             if let Some(p) = polished.x {

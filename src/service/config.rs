@@ -303,8 +303,10 @@ pub struct GateConfig {
     pub amplitude_limit: Option<f64>,
     /// Windows fitting worse than this NMAE are not trusted.
     pub max_fit_nmae: f64,
-    /// Relative tolerance of the full search's polish integrations.
+    /// Relative tolerance of the full search's polish integrations (Dormand-Prince).
     pub polish_rtol: f64,
+    /// Solver of the polish and the tracked refinement: rk4 | dopri5.
+    pub polish_solver: crate::analysis::PolishSolver,
     /// Window length, seconds of sample time.
     pub window_seconds: f64,
     /// Identification cadence, seconds of new sample time.
@@ -337,6 +339,7 @@ impl Default for GateConfig {
             amplitude_limit: None,
             max_fit_nmae: 0.2,
             polish_rtol: crate::analysis::DEFAULT_POLISH_RTOL,
+            polish_solver: crate::analysis::PolishSolver::default(),
             window_seconds: 10.0,
             identify_every_seconds: 5.0,
             max_future_seconds: DEFAULT_MAX_FUTURE_SECONDS,

@@ -34,6 +34,7 @@ impl GateConfig {
             amplitude_limit: self.amplitude_limit,
             max_fit_nmae: self.max_fit_nmae,
             polish_rtol: self.polish_rtol,
+            polish_solver: self.polish_solver,
         }
     }
 
