@@ -45,6 +45,12 @@ pub struct Fitness<'a> {
     lanes: usize,
 }
 
+/// The work cap on right-hand-side evaluations of one integration over `n` samples with
+/// `substeps` RK4 steps per sample interval: about 25 times what a well-behaved candidate needs.
+fn max_rhs_evals(substeps: usize, n: usize) -> usize {
+    100 * substeps.max(2) * n + 50_000
+}
+
 impl<'a> Fitness<'a> {
     /// The objective of `problem` on the samples flagged in `is_train`, integrated with the
     /// search's solver, tolerance and substeps. Initial conditions from the data are taken
@@ -80,7 +86,7 @@ impl<'a> Fitness<'a> {
             bound,
             // Work caps: about 25 times what a well-behaved candidate needs.
             max_steps: 50 * n + 10_000,
-            max_rhs_evals: 100 * substeps.max(2) * n + 50_000,
+            max_rhs_evals: max_rhs_evals(substeps, n),
             initial_step: None,
         };
         let data_scale = magnitude(&series.y);
@@ -131,7 +137,7 @@ impl<'a> Fitness<'a> {
     pub fn with_solver(&self, method: Method, rtol: f64, substeps: usize) -> Fitness<'a> {
         let mut f = self.with_tolerance(method, rtol);
         f.opts.substeps = substeps.max(1);
-        f.opts.max_rhs_evals = 100 * f.opts.substeps.max(2) * self.t.len() + 50_000;
+        f.opts.max_rhs_evals = max_rhs_evals(f.opts.substeps, self.t.len());
         f
     }
 
