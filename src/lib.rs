@@ -8,7 +8,8 @@
 //! # Layout
 //!
 //! Numerical core (no tokio, axum or prometheus below this line):
-//! - [`model`]: the model language: parse an equation, check it is linear in `ydd`, compile it.
+//! - [`model`]: the model language: parse an equation, check it is linear in `ydd`, compile it
+//!   (to an accumulator program, and to machine code with Cranelift where it can: `model::jit`).
 //! - [`ode`]: integrators (Dormand-Prince 5(4), fixed-step RK4, Rosenbrock) with failure reports.
 //! - [`de`]: the Cauchy differential evolution, generic over any objective, parallel and seeded.
 //! - [`data`]: time series and their CSV loading, with errors that name line and column.

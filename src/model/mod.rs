@@ -37,6 +37,7 @@
 //! and the operand stack is a fixed-size array sized at compile time. When `M` is the constant
 //! 1, `accel` skips it entirely.
 
+mod jit;
 mod lexer;
 mod linear;
 mod parser;
@@ -86,6 +87,20 @@ enum MassKind {
     Varying,
 }
 
+/// Whether models are translated to machine code: yes unless the environment variable
+/// `GATEWATCH_JIT` is `off` (or `0`, `false`), read once per process. The switch exists to
+/// compare the two evaluators on one binary and as a way out should a host's code generation
+/// misbehave; results are bit-identical either way.
+pub fn jit_enabled() -> bool {
+    static ON: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *ON.get_or_init(|| {
+        !matches!(
+            std::env::var("GATEWATCH_JIT").as_deref(),
+            Ok("off" | "0" | "false")
+        )
+    })
+}
+
 /// A compiled equation of motion `M(t, y, yd) * ydd + R(t, y, yd) = 0`.
 ///
 /// `M` and `R` are flat programs (see the `program` submodule): constants and params are folded
@@ -100,6 +115,10 @@ pub struct Model {
     residual: Program,
     mass_kind: MassKind,
     sites: Vec<CoefSite>,
+    /// `R` and `-R / M` as machine code (submodule `jit`), shared by the clones; `None` when
+    /// the program has an instruction without a translation, the host has no backend, or
+    /// `GATEWATCH_JIT=off`.
+    jit: Option<std::sync::Arc<jit::Compiled>>,
 }
 
 fn error<T>(message: String, column: Option<usize>) -> Result<T, ModelError> {
@@ -290,6 +309,16 @@ impl Model {
             (None, Some(i)) => MassKind::Coef(i),
             (None, None) => MassKind::Varying,
         };
+        let finish = match mass_kind {
+            MassKind::One => Some(jit::Finish::Neg),
+            MassKind::Const(m) => Some(jit::Finish::NegDivConst(m)),
+            MassKind::Coef(i) => Some(jit::Finish::NegDivCoef(i)),
+            MassKind::Varying => None,
+        };
+        let jit = match finish {
+            Some(f) if jit_enabled() => jit::Compiled::new(&residual, f).map(std::sync::Arc::new),
+            _ => None,
+        };
         Ok(Model {
             equation: equation.to_string(),
             n_coeffs: facts.coefs_seen.len(),
@@ -298,7 +327,20 @@ impl Model {
             residual,
             mass_kind,
             sites: facts.coef_sites,
+            jit,
         })
+    }
+
+    /// Whether `R` and the acceleration run as machine code (see [`jit_enabled`]).
+    pub fn is_compiled(&self) -> bool {
+        self.jit.is_some()
+    }
+
+    /// The translated functions when `c` holds every coefficient they read (a shorter `c`
+    /// goes to the interpreter, which reads the missing ones as NaN).
+    #[inline]
+    fn jit_for(&self, c_rows: usize) -> Option<&jit::Compiled> {
+        self.jit.as_deref().filter(|j| c_rows >= j.coefficients())
     }
 
     /// The equation text as given.
@@ -326,12 +368,25 @@ impl Model {
     /// `R(t, y, yd)`, everything else moved to the left-hand side.
     #[inline]
     pub fn residual(&self, t: f64, y: f64, yd: f64, c: &[f64]) -> f64 {
+        if let Some(j) = self.jit_for(c.len()) {
+            let mut out = 0.0;
+            // SAFETY: one lane: `t`, `y`, `yd` and `out` are single doubles, and `c` holds at
+            // least `j.coefficients()` of them (`jit_for`), as `Compiled` requires.
+            unsafe { (j.residual1)(&t, &y, &yd, c.as_ptr(), &mut out) };
+            return out;
+        }
         self.residual.eval(t, y, yd, c)
     }
 
     /// `ydd = -R / M` (NaN or infinite when `M` vanishes; the integrators report that).
     #[inline]
     pub fn accel(&self, t: f64, y: f64, yd: f64, c: &[f64]) -> f64 {
+        if let Some(j) = self.jit_for(c.len()) {
+            let mut out = 0.0;
+            // SAFETY: as in `residual`.
+            unsafe { (j.accel1)(&t, &y, &yd, c.as_ptr(), &mut out) };
+            return out;
+        }
         let r = self.residual.eval(t, y, yd, c);
         match self.mass_kind {
             MassKind::One => -r,

@@ -209,6 +209,24 @@ impl Model {
         yd: &[f64; L],
         c: &[[f64; L]],
     ) -> [f64; L] {
+        if L == 8 {
+            if let Some(j) = self.jit_for(c.len()) {
+                let mut out = [0.0; L];
+                // SAFETY: `L == 8`: `t`, `y`, `yd` and `out` hold 8 doubles each, and `c` holds
+                // at least `j.coefficients()` contiguous rows of 8 (`jit_for`), as
+                // `jit::Compiled` requires of `residual8`.
+                unsafe {
+                    (j.residual8)(
+                        t.as_ptr(),
+                        y.as_ptr(),
+                        yd.as_ptr(),
+                        c.as_ptr().cast(),
+                        out.as_mut_ptr(),
+                    )
+                };
+                return out;
+            }
+        }
         self.residual.eval_lanes(t, y, yd, c)
     }
 
@@ -236,6 +254,29 @@ impl Model {
         c: &[[f64; L]],
         r: &mut [f64; L],
     ) {
+        if let Some(j) = self.jit_for(c.len()) {
+            let f = match L {
+                1 => Some(j.accel1),
+                4 => Some(j.accel4),
+                8 => Some(j.accel8),
+                _ => None,
+            };
+            if let Some(f) = f {
+                // SAFETY: `f` is the function for `L` lanes: `t`, `y`, `yd` and `r` hold `L`
+                // doubles each, and `c` holds at least `j.coefficients()` contiguous rows of
+                // `L` (`jit_for`), as `jit::Compiled` requires.
+                unsafe {
+                    f(
+                        t.as_ptr(),
+                        y.as_ptr(),
+                        yd.as_ptr(),
+                        c.as_ptr().cast(),
+                        r.as_mut_ptr(),
+                    )
+                };
+                return;
+            }
+        }
         let neg = |a: &mut [f64; L]| a.iter_mut().for_each(|v| *v = -*v);
         match self.mass_kind {
             MassKind::One => self.residual.eval_lanes_then(t, y, yd, c, r, neg),
