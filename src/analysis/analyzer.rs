@@ -52,6 +52,11 @@ impl Analyzer {
         })
     }
 
+    /// The compiled model.
+    pub fn model(&self) -> &Model {
+        &self.model
+    }
+
     /// The same analyzer with another tracking policy (checked).
     pub fn with_tracking(mut self, policy: TrackingPolicy) -> Result<Analyzer, AnalysisError> {
         policy

@@ -37,6 +37,10 @@ use cranelift_codegen::settings::{self, Configurable};
 use cranelift_frontend::{FunctionBuilder, FunctionBuilderContext};
 use cranelift_jit::{JITBuilder, JITModule};
 use cranelift_module::{Linkage, Module};
+use std::sync::atomic::{AtomicBool, Ordering};
+
+/// Set when a translation failed for a reason of the host, not of the program.
+static UNAVAILABLE: AtomicBool = AtomicBool::new(false);
 
 /// Longest program translated. Translation costs about a microsecond per instruction and
 /// function (five functions), paid once per parsed model; a longer program (a model of
@@ -124,6 +128,20 @@ impl Compiled {
         if code.len() > MAX_INSTRUCTIONS || !code.iter().all(translatable) {
             return None;
         }
+        if UNAVAILABLE.load(Ordering::Relaxed) {
+            return None;
+        }
+        let compiled = Self::translate(code, finish);
+        if compiled.is_none() {
+            // The host refused executable memory (systemd's `MemoryDenyWriteExecute=yes`, a
+            // seccomp or SELinux policy) or has no backend: it will not change, so the next
+            // models go straight to the interpreter.
+            UNAVAILABLE.store(true, Ordering::Relaxed);
+        }
+        compiled
+    }
+
+    fn translate(code: &[Instr], finish: Finish) -> Option<Compiled> {
         let coefficients = needed_coefficients(code, finish);
         let mut flags = settings::builder();
         flags.set("opt_level", "speed").ok()?;
@@ -159,7 +177,11 @@ impl Compiled {
             module.clear_context(&mut ctx);
             ids.push(id);
         }
-        module.finalize_definitions().ok()?;
+        if module.finalize_definitions().is_err() {
+            // SAFETY: no function pointer was taken from this module.
+            unsafe { module.free_memory() };
+            return None;
+        }
         let f = |i: usize| -> LaneFn {
             let p = module.get_finalized_function(ids[i]);
             // SAFETY: `p` is the entry of a function just compiled with the signature of

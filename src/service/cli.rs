@@ -112,6 +112,13 @@ pub fn check_config(args: CheckConfigArgs) -> ExitCode {
                 eprintln!("{}: warning: {w}", args.file.display());
             }
             println!("{}: ok", args.file.display());
+            // How the models will run (docs/operations.md, "Machine code and
+            // MemoryDenyWriteExecute"): the systemd unit runs this under the daemon's own
+            // restrictions, so its log shows what `serve` will do.
+            if let Ok(map) = super::worker::AnalyzerMap::from_config(&config) {
+                let (compiled, interpreted) = map.compiled_counts();
+                println!("models: {compiled} compiled to machine code, {interpreted} interpreted");
+            }
             ExitCode::SUCCESS
         }
         Err(e) => {

@@ -97,7 +97,26 @@ impl AnalyzerMap {
                 .map_err(|e| AnalysisError::Settings(format!("gates.{id}: {e}")))?;
             gates.insert(id.clone(), a);
         }
-        Ok(AnalyzerMap { gates, default })
+        // Whether the models run as machine code: not where the host refuses executable
+        // memory (systemd's MemoryDenyWriteExecute=yes); the results are the same, a cold
+        // window costs about a fifth more CPU (docs/operations.md).
+        let map = AnalyzerMap { gates, default };
+        let (compiled, interpreted) = map.compiled_counts();
+        tracing::info!(
+            compiled,
+            interpreted,
+            jit_enabled = crate::model::jit_enabled(),
+            "models: compiled to machine code or interpreted"
+        );
+        Ok(map)
+    }
+
+    /// How many of the analyzers' models (the defaults' and each configured gate's) run as
+    /// machine code, and how many are interpreted.
+    pub fn compiled_counts(&self) -> (usize, usize) {
+        let all = || self.gates.values().chain(std::iter::once(&self.default));
+        let compiled = all().filter(|a| a.model().is_compiled()).count();
+        (compiled, self.gates.len() + 1 - compiled)
     }
 }
 
