@@ -43,6 +43,10 @@ fn run(host: Host, args: &[&str]) -> Output {
 /// Whether this kernel can refuse executable memory to a process (Linux 6.3 and later); the
 /// tests that need it say so and return where it cannot.
 fn mdwe_available() -> bool {
+    if Command::new("python3").arg("--version").output().is_err() {
+        eprintln!("skipped: no python3 to set PR_SET_MDWE with");
+        return false;
+    }
     let out = run(Host::RefusesExecutableMemory, &["--version"]);
     match out.status.code() {
         Some(0) => true,
