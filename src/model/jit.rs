@@ -32,11 +32,13 @@
 //! dropped (the last clone of a [`super::Model`]).
 
 use super::program::{Instr, Program};
-use cranelift_codegen::ir::{types, AbiParam, InstBuilder, MemFlags, Type, Value};
+use cranelift_codegen::ir::{
+    types, AbiParam, InstBuilder, MemFlags, StackSlotData, StackSlotKind, Type, Value,
+};
 use cranelift_codegen::settings::{self, Configurable};
 use cranelift_frontend::{FunctionBuilder, FunctionBuilderContext};
 use cranelift_jit::{JITBuilder, JITModule};
-use cranelift_module::{Linkage, Module};
+use cranelift_module::{FuncId, Linkage, Module};
 use std::sync::atomic::{AtomicBool, Ordering};
 
 /// Set when a translation failed for a reason of the host, not of the program.
@@ -151,10 +153,27 @@ impl Compiled {
             .ok()?
             .finish(settings::Flags::new(flags))
             .ok()?;
-        let mut module = JITModule::new(JITBuilder::with_isa(
-            isa,
-            cranelift_module::default_libcall_names(),
-        ));
+        let mut builder = JITBuilder::with_isa(isa, cranelift_module::default_libcall_names());
+        builder.symbol("gatewatch_sin_lanes", sin_lanes as *const u8);
+        builder.symbol("gatewatch_cos_lanes", cos_lanes as *const u8);
+        builder.symbol("gatewatch_sin1", sin1 as *const u8);
+        builder.symbol("gatewatch_cos1", cos1 as *const u8);
+        let mut module = JITModule::new(builder);
+        let ptr = module.target_config().pointer_type();
+        let mut by_ptr = module.make_signature();
+        by_ptr.params.push(AbiParam::new(ptr));
+        let mut scalar = module.make_signature();
+        scalar.params.push(AbiParam::new(types::F64));
+        scalar.returns.push(AbiParam::new(types::F64));
+        let mut import = |name: &str, sig: &cranelift_codegen::ir::Signature| {
+            module.declare_function(name, Linkage::Import, sig).ok()
+        };
+        let callees = Callees {
+            sin_lanes: import("gatewatch_sin_lanes", &by_ptr)?,
+            cos_lanes: import("gatewatch_cos_lanes", &by_ptr)?,
+            sin1: import("gatewatch_sin1", &scalar)?,
+            cos1: import("gatewatch_cos1", &scalar)?,
+        };
         let specs = [
             ("accel1", types::F64, 1, Some(finish)),
             ("accel4", types::F64X2, 4, Some(finish)),
@@ -165,11 +184,19 @@ impl Compiled {
         let mut ids = Vec::with_capacity(specs.len());
         let mut ctx = module.make_context();
         let mut fctx = FunctionBuilderContext::new();
-        let ptr = module.target_config().pointer_type();
         for (name, ty, lanes, fin) in specs {
             ctx.func.signature.params = vec![AbiParam::new(ptr); 5];
             ctx.func.signature.returns.clear();
-            emit(&mut ctx.func, &mut fctx, code, ty, lanes, fin);
+            emit(
+                &mut module,
+                &mut ctx.func,
+                &mut fctx,
+                callees,
+                code,
+                ty,
+                lanes,
+                fin,
+            );
             let id = module
                 .declare_function(name, Linkage::Local, &ctx.func.signature)
                 .ok()?;
@@ -211,20 +238,7 @@ fn translatable(i: &Instr) -> bool {
     use Instr::*;
     !matches!(
         i,
-        PowK(_)
-            | PowC(_)
-            | PowV(_)
-            | PowS
-            | MinS
-            | MaxS
-            | Sin
-            | Cos
-            | Tan
-            | Exp
-            | Ln
-            | Sign
-            | Tanh
-            | Step
+        PowK(_) | PowC(_) | PowV(_) | PowS | MinS | MaxS | Tan | Exp | Ln | Sign | Tanh | Step
     )
 }
 
@@ -245,15 +259,64 @@ fn needed_coefficients(code: &[Instr], finish: Finish) -> usize {
     n
 }
 
-/// Emits the function body: the program once per vector of lanes.
+/// The Rust functions the translated code calls: `sin` and `cos` of [`super::trig`] on the
+/// lanes of an 8-double buffer, and on one double.
+#[derive(Clone, Copy)]
+struct Callees {
+    sin_lanes: FuncId,
+    cos_lanes: FuncId,
+    sin1: FuncId,
+    cos1: FuncId,
+}
+
+/// `trig::sin_lanes` on the buffer the translated code passes.
+///
+/// # Safety
+///
+/// `p` points to 8 initialised doubles, aligned to 16 bytes, that nothing else accesses during
+/// the call: the translated code passes its own stack slot of that size and alignment, every
+/// double stored before the call.
+unsafe extern "C" fn sin_lanes(p: *mut f64) {
+    // SAFETY: see the function's contract.
+    let a = unsafe { &mut *p.cast::<[f64; 8]>() };
+    super::trig::sin_lanes(a);
+}
+
+/// `trig::cos_lanes` on the buffer the translated code passes.
+///
+/// # Safety
+///
+/// As [`sin_lanes`].
+unsafe extern "C" fn cos_lanes(p: *mut f64) {
+    // SAFETY: see the function's contract.
+    let a = unsafe { &mut *p.cast::<[f64; 8]>() };
+    super::trig::cos_lanes(a);
+}
+
+extern "C" fn sin1(x: f64) -> f64 {
+    super::trig::sin(x)
+}
+
+extern "C" fn cos1(x: f64) -> f64 {
+    super::trig::cos(x)
+}
+
+/// Emits the function body. The vectors of lanes advance together, instruction by instruction
+/// (four independent chains side by side for 8 lanes, which the processor overlaps); `sin` and
+/// `cos` store the accumulators to a stack slot and call the lane kernel once for all of them
+/// (the kernel's result does not depend on the lane count, so this is the interpreter's value).
+#[allow(clippy::too_many_arguments)]
 fn emit(
+    module: &mut JITModule,
     func: &mut cranelift_codegen::ir::Function,
     fctx: &mut FunctionBuilderContext,
+    callees: Callees,
     code: &[Instr],
     ty: Type,
     lanes: usize,
     finish: Option<Finish>,
 ) {
+    let ptr = module.target_config().pointer_type();
     let mut b = FunctionBuilder::new(func, fctx);
     let block = b.create_block();
     b.append_block_params_for_function_params(block);
@@ -262,110 +325,140 @@ fn emit(
     let p = b.block_params(block).to_vec();
     let (pt, py, pyd, pc, pout) = (p[0], p[1], p[2], p[3], p[4]);
     let width = ty.lane_count() as usize;
+    let chunks = lanes / width;
     // Unaligned, cannot trap (the caller passes valid pointers), not aliased by a store before
     // the loads (the one store is the last instruction).
     let flags = MemFlags::new().with_notrap();
-    for v in 0..lanes / width {
-        let off = (v * width * 8) as i32;
-        let konst = |b: &mut FunctionBuilder, x: f64| {
-            let s = b.ins().f64const(x);
+    let konst = |b: &mut FunctionBuilder, x: f64| {
+        let s = b.ins().f64const(x);
+        if width == 1 {
+            s
+        } else {
+            b.ins().splat(ty, s)
+        }
+    };
+    let off = |v: usize| (v * width * 8) as i32;
+    let var = |b: &mut FunctionBuilder, i: u8, v: usize| match i & 3 {
+        0 => b.ins().load(ty, flags, pt, off(v)),
+        1 => b.ins().load(ty, flags, py, off(v)),
+        2 => b.ins().load(ty, flags, pyd, off(v)),
+        _ => konst(b, 0.0),
+    };
+    let coef = |b: &mut FunctionBuilder, i: u32, v: usize| {
+        let at = (i as usize * lanes * 8) as i32 + off(v);
+        b.ins().load(ty, flags, pc, at)
+    };
+    // The trig buffer: 8 doubles, 16-byte aligned (`sin_lanes`' contract).
+    let slot = b.create_sized_stack_slot(StackSlotData::new(StackSlotKind::ExplicitSlot, 64, 4));
+    let trig = [
+        callees.sin_lanes,
+        callees.cos_lanes,
+        callees.sin1,
+        callees.cos1,
+    ]
+    .map(|id| module.declare_func_in_func(id, b.func));
+    let mut acc: Vec<Value> = (0..chunks).map(|_| konst(&mut b, 0.0)).collect();
+    let mut stack: Vec<Vec<Value>> = Vec::new();
+    for ins in code {
+        use Instr::*;
+        // The right operand of a leaf instruction, per vector.
+        let leaf = |b: &mut FunctionBuilder, v: usize| -> Option<Value> {
+            Some(match *ins {
+                LoadK(x) | PushK(x) | AddK(x) | SubK(x) | RSubK(x) | MulK(x) | DivK(x)
+                | RDivK(x) => konst(b, x),
+                LoadC(i) | PushC(i) | AddC(i) | SubC(i) | RSubC(i) | MulC(i) | DivC(i)
+                | RDivC(i) => coef(b, i, v),
+                LoadV(i) | PushV(i) | AddV(i) | SubV(i) | RSubV(i) | MulV(i) | DivV(i)
+                | RDivV(i) => var(b, i, v),
+                _ => return None,
+            })
+        };
+        let x: Vec<Option<Value>> = (0..chunks).map(|v| leaf(&mut b, v)).collect();
+        if matches!(*ins, PushK(_) | PushC(_) | PushV(_)) {
+            stack.push(acc.clone());
+        }
+        let popped = if matches!(*ins, AddS | SubS | MulS | DivS) {
+            // The compiler never pops an empty stack; the interpreter reads NaN there.
+            Some(match stack.pop() {
+                Some(l) => l,
+                None => (0..chunks).map(|_| konst(&mut b, f64::NAN)).collect(),
+            })
+        } else {
+            None
+        };
+        if matches!(*ins, Sin | Cos) {
+            let cos = matches!(*ins, Cos);
             if width == 1 {
-                s
+                let f = trig[2 + usize::from(cos)];
+                let call = b.ins().call(f, &[acc[0]]);
+                acc[0] = b.inst_results(call)[0];
             } else {
-                b.ins().splat(ty, s)
+                for (v, a) in acc.iter().enumerate() {
+                    b.ins().stack_store(*a, slot, off(v));
+                }
+                // Fewer than 8 lanes: the rest of the buffer is zeros, so that all 8 are set.
+                for v in chunks..8 / width {
+                    let z = konst(&mut b, 0.0);
+                    b.ins().stack_store(z, slot, off(v));
+                }
+                let addr = b.ins().stack_addr(ptr, slot, 0);
+                b.ins().call(trig[usize::from(cos)], &[addr]);
+                for (v, a) in acc.iter_mut().enumerate() {
+                    *a = b.ins().stack_load(ty, slot, off(v));
+                }
             }
-        };
-        let var = |b: &mut FunctionBuilder, i: u8| match i & 3 {
-            0 => b.ins().load(ty, flags, pt, off),
-            1 => b.ins().load(ty, flags, py, off),
-            2 => b.ins().load(ty, flags, pyd, off),
-            _ => konst(b, 0.0),
-        };
-        let coef = |b: &mut FunctionBuilder, i: u32| {
-            let at = (i as usize * lanes * 8) as i32 + off;
-            b.ins().load(ty, flags, pc, at)
-        };
-        let mut acc = konst(&mut b, 0.0);
-        let mut stack: Vec<Value> = Vec::new();
-        for ins in code {
-            use Instr::*;
-            // The right operand of a leaf instruction.
-            let leaf = |b: &mut FunctionBuilder| -> Option<Value> {
-                Some(match *ins {
-                    LoadK(x) | PushK(x) | AddK(x) | SubK(x) | RSubK(x) | MulK(x) | DivK(x)
-                    | RDivK(x) => konst(b, x),
-                    LoadC(i) | PushC(i) | AddC(i) | SubC(i) | RSubC(i) | MulC(i) | DivC(i)
-                    | RDivC(i) => coef(b, i),
-                    LoadV(i) | PushV(i) | AddV(i) | SubV(i) | RSubV(i) | MulV(i) | DivV(i)
-                    | RDivV(i) => var(b, i),
-                    _ => return None,
-                })
-            };
-            let x = leaf(&mut b);
-            let pop = |stack: &mut Vec<Value>, b: &mut FunctionBuilder| match stack.pop() {
-                Some(v) => v,
-                // The compiler never pops an empty stack; the interpreter reads NaN there.
-                None => konst(b, f64::NAN),
-            };
-            acc = match (*ins, x) {
-                (LoadK(_) | LoadC(_) | LoadV(_), Some(x)) => x,
-                (PushK(_) | PushC(_) | PushV(_), Some(x)) => {
-                    stack.push(acc);
-                    x
+            continue;
+        }
+        for v in 0..chunks {
+            let a = acc[v];
+            let l = popped.as_ref().map(|p| p[v]);
+            acc[v] = match (*ins, x[v], l) {
+                (LoadK(_) | LoadC(_) | LoadV(_), Some(x), _) => x,
+                (PushK(_) | PushC(_) | PushV(_), Some(x), _) => x,
+                (AddK(_) | AddC(_) | AddV(_), Some(x), _) => b.ins().fadd(a, x),
+                (SubK(_) | SubC(_) | SubV(_), Some(x), _) => b.ins().fsub(a, x),
+                (RSubK(_) | RSubC(_) | RSubV(_), Some(x), _) => b.ins().fsub(x, a),
+                (MulK(_) | MulC(_) | MulV(_), Some(x), _) => b.ins().fmul(a, x),
+                (DivK(_) | DivC(_) | DivV(_), Some(x), _) => b.ins().fdiv(a, x),
+                (RDivK(_) | RDivC(_) | RDivV(_), Some(x), _) => b.ins().fdiv(x, a),
+                (AddS, _, Some(l)) => b.ins().fadd(a, l),
+                (SubS, _, Some(l)) => b.ins().fsub(l, a),
+                (MulS, _, Some(l)) => b.ins().fmul(a, l),
+                (DivS, _, Some(l)) => b.ins().fdiv(l, a),
+                (Neg, _, _) => b.ins().fneg(a),
+                (Square, _, _) => b.ins().fmul(a, a),
+                (Cube, _, _) => {
+                    let sq = b.ins().fmul(a, a);
+                    b.ins().fmul(sq, a)
                 }
-                (AddK(_) | AddC(_) | AddV(_), Some(x)) => b.ins().fadd(acc, x),
-                (SubK(_) | SubC(_) | SubV(_), Some(x)) => b.ins().fsub(acc, x),
-                (RSubK(_) | RSubC(_) | RSubV(_), Some(x)) => b.ins().fsub(x, acc),
-                (MulK(_) | MulC(_) | MulV(_), Some(x)) => b.ins().fmul(acc, x),
-                (DivK(_) | DivC(_) | DivV(_), Some(x)) => b.ins().fdiv(acc, x),
-                (RDivK(_) | RDivC(_) | RDivV(_), Some(x)) => b.ins().fdiv(x, acc),
-                (AddS, _) => {
-                    let l = pop(&mut stack, &mut b);
-                    b.ins().fadd(acc, l)
-                }
-                (SubS, _) => {
-                    let l = pop(&mut stack, &mut b);
-                    b.ins().fsub(l, acc)
-                }
-                (MulS, _) => {
-                    let l = pop(&mut stack, &mut b);
-                    b.ins().fmul(acc, l)
-                }
-                (DivS, _) => {
-                    let l = pop(&mut stack, &mut b);
-                    b.ins().fdiv(l, acc)
-                }
-                (Neg, _) => b.ins().fneg(acc),
-                (Square, _) => b.ins().fmul(acc, acc),
-                (Cube, _) => {
-                    let sq = b.ins().fmul(acc, acc);
-                    b.ins().fmul(sq, acc)
-                }
-                (Powi(n), _) => {
+                (Powi(n), _, _) => {
                     let one = konst(&mut b, 1.0);
-                    powi(&mut b, acc, n, one)
+                    powi(&mut b, a, n, one)
                 }
-                (Sqrt, _) => b.ins().sqrt(acc),
-                (Abs, _) => b.ins().fabs(acc),
+                (Sqrt, _, _) => b.ins().sqrt(a),
+                (Abs, _, _) => b.ins().fabs(a),
                 // `translatable` admitted nothing else.
                 _ => konst(&mut b, f64::NAN),
             };
         }
+    }
+    for v in 0..chunks {
+        let mut a = acc[v];
         if let Some(f) = finish {
-            let neg = b.ins().fneg(acc);
-            acc = match f {
+            let neg = b.ins().fneg(a);
+            a = match f {
                 Finish::Neg => neg,
                 Finish::NegDivConst(m) => {
                     let m = konst(&mut b, m);
                     b.ins().fdiv(neg, m)
                 }
                 Finish::NegDivCoef(i) => {
-                    let m = coef(&mut b, i);
+                    let m = coef(&mut b, i, v);
                     b.ins().fdiv(neg, m)
                 }
             };
         }
-        b.ins().store(flags, acc, pout, off);
+        b.ins().store(flags, a, pout, off(v));
     }
     b.ins().return_(&[]);
     b.finalize();
@@ -409,6 +502,8 @@ mod tests {
         "ydd - (c1 - y) - c2*(t - yd)/(y*y + 1) + -y^3 + (-yd)^2 + y^12 - yd^-1 = 0",
         "ydd + ((y + c1)*(yd + c2))*((y - 1)*(yd*t + 2)) + 3*(c1*(y + (yd*(t + c2)))) = 1/c2",
         "-3*ydd + (c1 - y^2)*yd + (1 - c2)*y + t/3 - c1/(t + yd) = 2 - y/c2",
+        "c1*ydd + c2*yd + c3*y = sin(c2*t) + 2*cos(y)*yd - sin(cos(t + c3))",
+        "ydd + (c1 + c2*cos(2*t))*y + c3*yd = 0",
     ];
 
     fn models() -> Vec<(Model, Model)> {
@@ -518,7 +613,7 @@ mod tests {
     #[test]
     fn programs_without_a_translation_stay_with_the_interpreter() {
         for eq in [
-            "ydd + c1*yd + c2*sin(t) = 0",
+            "ydd + c1*yd + c2*exp(t) = 0",
             "ydd + min(y, c1) = 0",
             "ydd + y^c1 = 0",
             "(1 + y^2)*ydd + y = 0",
