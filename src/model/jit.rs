@@ -442,8 +442,8 @@ fn emit(
             };
         }
     }
-    for v in 0..chunks {
-        let mut a = acc[v];
+    for (v, &a) in acc.iter().enumerate() {
+        let mut a = a;
         if let Some(f) = finish {
             let neg = b.ins().fneg(a);
             a = match f {
