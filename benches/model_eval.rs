@@ -1,6 +1,7 @@
 //! Cost of one right-hand-side evaluation (`Model::accel`), the innermost call of every
 //! identification: the integrators call it millions of times per fit. Also the lockstep form
-//! (`Model::accel_lanes`, 8 candidates per call) on the daemon's model.
+//! (`Model::accel_lanes`, 8 candidates per call) on the daemon's model, and a parse (with the
+//! translation to machine code).
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use gatewatch::model::Model;
@@ -65,5 +66,18 @@ fn accel_lanes(c: &mut Criterion) {
     });
 }
 
-criterion_group!(benches, accel, accel_lanes);
+/// What a parse costs: the daemon pays it once per configured gate at start-up, `identify` once
+/// per run. Most of it is the translation to machine code (`GATEWATCH_JIT=off` for without).
+fn parse(c: &mut Criterion) {
+    c.bench_function("parse/daemon_model", |b| {
+        b.iter(|| {
+            Model::parse(
+                black_box("c1*ydd + (c2 + c3*yd^2)*yd + k*y = 0"),
+                &[("k".to_string(), 81_360.0)],
+            )
+        })
+    });
+}
+
+criterion_group!(benches, accel, accel_lanes, parse);
 criterion_main!(benches);
