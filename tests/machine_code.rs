@@ -113,3 +113,18 @@ fn interpreted_models_give_the_same_identification() {
         assert_eq!(gate_example(Host::RefusesExecutableMemory), plain);
     }
 }
+
+#[test]
+fn an_unknown_gatewatch_jit_value_is_refused_by_name() {
+    let out = Command::new(BIN)
+        .args(["check-config", CONFIG])
+        .env("GATEWATCH_JIT", "of")
+        .output()
+        .expect("run gatewatch");
+    assert_eq!(out.status.code(), Some(2), "{out:?}");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("GATEWATCH_JIT: must be on or off") && stderr.contains("\"of\""),
+        "{stderr}"
+    );
+}

@@ -90,15 +90,25 @@ enum MassKind {
 /// Whether models are translated to machine code: yes unless the environment variable
 /// `GATEWATCH_JIT` is `off` (or `0`, `false`), read once per process. The switch exists to
 /// compare the two evaluators on one binary and as a way out should a host's code generation
-/// misbehave; results are bit-identical either way.
+/// misbehave; results are bit-identical either way. (`serve` and `check-config` refuse a value
+/// [`jit_setting`] does not know; here an unknown value leaves the translation on.)
 pub fn jit_enabled() -> bool {
     static ON: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
     *ON.get_or_init(|| {
-        !matches!(
-            std::env::var("GATEWATCH_JIT").as_deref(),
-            Ok("off" | "0" | "false")
-        )
+        std::env::var("GATEWATCH_JIT")
+            .ok()
+            .and_then(|v| jit_setting(&v))
+            .unwrap_or(true)
     })
+}
+
+/// A `GATEWATCH_JIT` value: `on`, `true`, `1` or `off`, `false`, `0`; `None` for anything else.
+pub fn jit_setting(v: &str) -> Option<bool> {
+    match v.trim() {
+        "on" | "true" | "1" => Some(true),
+        "off" | "false" | "0" => Some(false),
+        _ => None,
+    }
 }
 
 /// A compiled equation of motion `M(t, y, yd) * ydd + R(t, y, yd) = 0`.

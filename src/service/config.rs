@@ -531,6 +531,15 @@ impl Config {
                 }
             };
         }
+        if let Some(v) = get("GATEWATCH_JIT") {
+            // Read by the model compiler itself (`model::jit_enabled`); checked here so that a
+            // typo is an error at start-up rather than a silent default.
+            if crate::model::jit_setting(&v).is_none() {
+                return Err(ConfigError::new(format!(
+                    "GATEWATCH_JIT: must be on or off (or true/false, 1/0), not {v:?}"
+                )));
+            }
+        }
         if let Some(v) = get("GATEWATCH_STORAGE_PATH") {
             self.storage.path = v;
         }
