@@ -596,4 +596,37 @@ mod tests {
             plain.residual_lanes(&t, &y, &yd, &c),
         );
     }
+
+    #[test]
+    fn too_few_coefficients_read_as_nan_as_in_the_interpreter() {
+        let (m, _) = models().remove(1);
+        // The mass is c1 and the damping reads c3: two coefficients are not enough.
+        assert!(m.accel(0.0, 1.0, 1.0, &[1.0, 2.0]).is_nan());
+        let c = [[1.0; 8], [2.0; 8]];
+        assert!(m
+            .accel_lanes(&[0.0; 8], &[1.0; 8], &[1.0; 8], &c)
+            .iter()
+            .all(|a| a.is_nan()));
+        assert!(!m.accel(0.0, 1.0, 1.0, &[1.0, 2.0, 3.0]).is_nan());
+    }
+
+    #[test]
+    fn programs_without_a_translation_stay_with_the_interpreter() {
+        for eq in [
+            "ydd + c1*yd + c2*exp(t) = 0",
+            "ydd + min(y, c1) = 0",
+            "ydd + y^c1 = 0",
+            "(1 + y^2)*ydd + y = 0",
+        ] {
+            let m = Model::parse(eq, &[]).unwrap();
+            assert!(!m.is_compiled(), "{eq}");
+        }
+        let long = format!("ydd{} = 0", " + c1*y".repeat(super::MAX_INSTRUCTIONS));
+        assert!(!Model::parse(&long, &[]).unwrap().is_compiled());
+        let short = format!("ydd{} = 0", " + c1*y".repeat(super::MAX_INSTRUCTIONS / 4));
+        assert_eq!(
+            Model::parse(&short, &[]).unwrap().is_compiled(),
+            super::super::jit_enabled()
+        );
+    }
 }
