@@ -78,21 +78,20 @@ pub(crate) enum Finish {
 ///
 /// The functions read, for a lane count `L`: `L` doubles at each of `t`, `y` and `yd`,
 /// `L * (i + 1)` doubles at `c` for the largest coefficient index `i` they use (that is,
-/// `coefficients() * L` doubles at most), and write `L` doubles at `out`. They touch no other
+/// `coefficients * L` doubles at most), and write `L` doubles at `out`. They touch no other
 /// memory but their own stack frame, keep no pointer, and call only the `sin`/`cos` callbacks
-/// below (on that frame's slot, or on a value). A caller holding `&[f64; L]` for the variables, a
-/// `&[[f64; L]]` of at least `coefficients()` rows and `&mut [f64; L]` for the output meets
-/// that: arrays of arrays are contiguous, and the reads and the write are unaligned vector
-/// accesses (no alignment is assumed beyond `f64`'s).
+/// below (on that frame's slot, or on a value). Their one caller, `Compiled::call`, passes
+/// `&[f64; L]` for the variables and the output and checks the coefficients' length; the reads
+/// and the write are unaligned vector accesses (no alignment is assumed beyond `f64`'s).
 pub(crate) struct Compiled {
     /// Owns the code pages; `None` only during drop.
     module: Option<JITModule>,
     coefficients: usize,
-    pub(crate) accel1: LaneFn,
-    pub(crate) accel4: LaneFn,
-    pub(crate) accel8: LaneFn,
-    pub(crate) residual1: LaneFn,
-    pub(crate) residual8: LaneFn,
+    accel1: LaneFn,
+    accel4: LaneFn,
+    accel8: LaneFn,
+    residual1: LaneFn,
+    residual8: LaneFn,
 }
 
 // SAFETY: `JITModule` is not `Send` or `Sync` because of fields used while compiling and
@@ -118,9 +117,9 @@ impl std::fmt::Debug for Compiled {
 impl Drop for Compiled {
     fn drop(&mut self) {
         if let Some(m) = self.module.take() {
-            // SAFETY: the function pointers are fields of `self`, which is being dropped: no
-            // clone of them escapes (`Model` copies them only for the duration of a call it
-            // makes while holding `&Compiled`), so none can be called after this.
+            // SAFETY: the function pointers are private fields of `self`, which is being
+            // dropped; they are only called by `Compiled::call` through `&self`, so none can
+            // be called after this.
             unsafe { m.free_memory() };
         }
     }
@@ -232,9 +231,73 @@ impl Compiled {
         })
     }
 
-    /// Coefficient rows the functions read: a caller must pass at least this many.
-    pub(crate) fn coefficients(&self) -> usize {
-        self.coefficients
+    /// `-R / M` on `L` lanes into `out` (coefficient `k` of lane `l` at `c[k * L + l]`); `false`,
+    /// with nothing done, when there is no function for `L` lanes (1, 4 and 8 have one) or `c`
+    /// holds fewer coefficients than the program reads (the interpreter then reads NaN).
+    #[inline(always)]
+    pub(crate) fn accel<const L: usize>(
+        &self,
+        t: &[f64; L],
+        y: &[f64; L],
+        yd: &[f64; L],
+        c: &[f64],
+        out: &mut [f64; L],
+    ) -> bool {
+        let f = match L {
+            1 => self.accel1,
+            4 => self.accel4,
+            8 => self.accel8,
+            _ => return false,
+        };
+        self.call(f, t, y, yd, c, out)
+    }
+
+    /// `R` on `L` lanes into `out`, as [`Self::accel`] (1 and 8 lanes have a function).
+    #[inline(always)]
+    pub(crate) fn residual<const L: usize>(
+        &self,
+        t: &[f64; L],
+        y: &[f64; L],
+        yd: &[f64; L],
+        c: &[f64],
+        out: &mut [f64; L],
+    ) -> bool {
+        let f = match L {
+            1 => self.residual1,
+            8 => self.residual8,
+            _ => return false,
+        };
+        self.call(f, t, y, yd, c, out)
+    }
+
+    /// The one call of translated code. `f` must be one of this model's functions for `L`
+    /// lanes (the two callers above pick it by `L`).
+    #[inline(always)]
+    fn call<const L: usize>(
+        &self,
+        f: LaneFn,
+        t: &[f64; L],
+        y: &[f64; L],
+        yd: &[f64; L],
+        c: &[f64],
+        out: &mut [f64; L],
+    ) -> bool {
+        if c.len() < self.coefficients * L {
+            return false;
+        }
+        // SAFETY: `f` is this model's function for `L` lanes (the callers' match), alive as
+        // long as `self`; `t`, `y`, `yd` and `out` hold `L` doubles each, and `c` holds at
+        // least `coefficients * L` (checked above): what the struct's contract asks.
+        unsafe {
+            f(
+                t.as_ptr(),
+                y.as_ptr(),
+                yd.as_ptr(),
+                c.as_ptr(),
+                out.as_mut_ptr(),
+            )
+        };
+        true
     }
 }
 

@@ -346,13 +346,6 @@ impl Model {
         self.jit.is_some()
     }
 
-    /// The translated functions when `c` holds every coefficient they read (a shorter `c`
-    /// goes to the interpreter, which reads the missing ones as NaN).
-    #[inline]
-    fn jit_for(&self, c_rows: usize) -> Option<&jit::Compiled> {
-        self.jit.as_deref().filter(|j| c_rows >= j.coefficients())
-    }
-
     /// The equation text as given.
     pub fn equation(&self) -> &str {
         &self.equation
@@ -378,12 +371,11 @@ impl Model {
     /// `R(t, y, yd)`, everything else moved to the left-hand side.
     #[inline]
     pub fn residual(&self, t: f64, y: f64, yd: f64, c: &[f64]) -> f64 {
-        if let Some(j) = self.jit_for(c.len()) {
-            let mut out = 0.0;
-            // SAFETY: one lane: `t`, `y`, `yd` and `out` are single doubles, and `c` holds at
-            // least `j.coefficients()` of them (`jit_for`), as `Compiled` requires.
-            unsafe { (j.residual1)(&t, &y, &yd, c.as_ptr(), &mut out) };
-            return out;
+        let mut out = [0.0];
+        if let Some(j) = &self.jit {
+            if j.residual::<1>(&[t], &[y], &[yd], c, &mut out) {
+                return out[0];
+            }
         }
         self.residual.eval(t, y, yd, c)
     }
@@ -391,11 +383,11 @@ impl Model {
     /// `ydd = -R / M` (NaN or infinite when `M` vanishes; the integrators report that).
     #[inline]
     pub fn accel(&self, t: f64, y: f64, yd: f64, c: &[f64]) -> f64 {
-        if let Some(j) = self.jit_for(c.len()) {
-            let mut out = 0.0;
-            // SAFETY: as in `residual`.
-            unsafe { (j.accel1)(&t, &y, &yd, c.as_ptr(), &mut out) };
-            return out;
+        let mut out = [0.0];
+        if let Some(j) = &self.jit {
+            if j.accel::<1>(&[t], &[y], &[yd], c, &mut out) {
+                return out[0];
+            }
         }
         let r = self.residual.eval(t, y, yd, c);
         match self.mass_kind {

@@ -209,21 +209,9 @@ impl Model {
         yd: &[f64; L],
         c: &[[f64; L]],
     ) -> [f64; L] {
-        if L == 8 {
-            if let Some(j) = self.jit_for(c.len()) {
-                let mut out = [0.0; L];
-                // SAFETY: `L == 8`: `t`, `y`, `yd` and `out` hold 8 doubles each, and `c` holds
-                // at least `j.coefficients()` contiguous rows of 8 (`jit_for`), as
-                // `jit::Compiled` requires of `residual8`.
-                unsafe {
-                    (j.residual8)(
-                        t.as_ptr(),
-                        y.as_ptr(),
-                        yd.as_ptr(),
-                        c.as_ptr().cast(),
-                        out.as_mut_ptr(),
-                    )
-                };
+        let mut out = [0.0; L];
+        if let Some(jit) = &self.jit {
+            if jit.residual(t, y, yd, c.as_flattened(), &mut out) {
                 return out;
             }
         }
@@ -254,26 +242,8 @@ impl Model {
         c: &[[f64; L]],
         r: &mut [f64; L],
     ) {
-        if let Some(j) = self.jit_for(c.len()) {
-            let f = match L {
-                1 => Some(j.accel1),
-                4 => Some(j.accel4),
-                8 => Some(j.accel8),
-                _ => None,
-            };
-            if let Some(f) = f {
-                // SAFETY: `f` is the function for `L` lanes: `t`, `y`, `yd` and `r` hold `L`
-                // doubles each, and `c` holds at least `j.coefficients()` contiguous rows of
-                // `L` (`jit_for`), as `jit::Compiled` requires.
-                unsafe {
-                    f(
-                        t.as_ptr(),
-                        y.as_ptr(),
-                        yd.as_ptr(),
-                        c.as_ptr().cast(),
-                        r.as_mut_ptr(),
-                    )
-                };
+        if let Some(jit) = &self.jit {
+            if jit.accel(t, y, yd, c.as_flattened(), r) {
                 return;
             }
         }
