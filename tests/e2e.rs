@@ -216,13 +216,14 @@ async fn lockstep(
     every: f64,
 ) -> Vec<Step> {
     let rate = sim.params().rate_hz;
-    let window_n = (window * rate).round() as u64;
     let every_n = (every * rate).round() as u64;
+    let window_n =
+        stream_common::first_window_samples(gate, (window * rate).round() as u64, every_n);
     let total = (duration * rate).round() as u64;
     let mut sent = 0u64;
     let mut steps = Vec::new();
     while sent < total {
-        // first the whole window, then one cadence step at a time
+        // first the whole window (and the gate's stagger), then one cadence step at a time
         let n = if sent < window_n {
             window_n - sent
         } else {

@@ -105,8 +105,8 @@ impl Daemon {
     }
 }
 
-/// Streams `sim` from sample `from` for `seconds`: the first window whole if the daemon has no
-/// samples yet (`fresh`), then one 5 s cadence step at a time. Returns the views and the next
+/// Streams `sim` from sample `from` for `seconds`: the first window whole (with the gate's
+/// stagger) if the daemon has no samples yet (`fresh`), then one 5 s cadence step at a time. Returns the views and the next
 /// sample index.
 async fn stream(
     d: &Daemon,
@@ -115,7 +115,8 @@ async fn stream(
     seconds: f64,
     fresh: bool,
 ) -> (Vec<Value>, u64) {
-    let (window, every) = ((10.0 * RATE) as u64, (5.0 * RATE) as u64);
+    let every = (5.0 * RATE) as u64;
+    let window = stream_common::first_window_samples("g1", (10.0 * RATE) as u64, every);
     let end = from + (seconds * RATE) as u64;
     let mut sent = from;
     let mut views = Vec::new();

@@ -170,6 +170,54 @@ async fn cadence_is_in_sample_time_whatever_the_replay_speed() {
     assert_eq!(a, b);
 }
 
+/// Gates whose streams start together are identified spread over the cadence: with the
+/// shipped `stagger = true` each gate's first window ends its ID's offset after the window is
+/// full (below the cadence), the offsets differ, and the cadence after the first window is
+/// unchanged; with `stagger = false` every first window ends as soon as it is full.
+#[tokio::test]
+async fn gates_started_together_are_identified_spread_over_the_cadence() {
+    async fn first_windows(stagger: bool) -> (Config, Vec<Call>) {
+        // 1 s windows every 0.5 s at 100 Hz: the first window is full at sample 100
+        let cfg = Config::from_toml(&format!(
+            "[server]\nworker_threads = 1\nlisten = \"127.0.0.1:0\"\n\
+             [defaults]\nrate_hz = 100.0\nwindow_seconds = 1.0\nidentify_every_seconds = 0.5\n\
+             max_past_seconds = 0.0\nstagger = {stagger}\n"
+        ))
+        .unwrap();
+        let fake = Arc::new(Fake::default());
+        let (app, state) = app_with(cfg.clone(), fake.clone());
+        // every gate sends 2 s of samples from the same instant, in one request
+        for g in 0..12 {
+            let (s, _) = post_json(&app, uniform(&format!("g{g}"), 50.0, 200)).await;
+            assert_eq!(s, StatusCode::NO_CONTENT);
+            wait_until(|| state.pool().pending() == 0 && state.pool().in_flight() == 0).await;
+        }
+        let calls = fake.calls.lock().unwrap().clone();
+        (cfg, calls)
+    }
+    // the newest due window of each request is the one identified (older ones are replaced)
+    let window_end = |c: &Call| ((c.t0 - 50.0) * 100.0).round() as usize + c.len;
+    let (cfg, calls) = first_windows(true).await;
+    assert_eq!(calls.len(), 12);
+    let mut offsets = Vec::new();
+    for c in &calls {
+        let offset = cfg.defaults.stagger_samples(&c.gate);
+        assert!(offset < 50, "{}: offset {offset}", c.gate);
+        offsets.push(offset);
+        // windows due at 100 + offset, then every 50 samples: the last one within 200 samples
+        let last = 100 + offset + (200 - 100 - offset) / 50 * 50;
+        assert_eq!(window_end(c), last, "{}", c.gate);
+    }
+    offsets.sort_unstable();
+    offsets.dedup();
+    assert!(
+        offsets.len() >= 8,
+        "12 gates share too few offsets: {offsets:?}"
+    );
+    let (_, plain) = first_windows(false).await;
+    assert!(plain.iter().all(|c| window_end(c) == 200), "{plain:?}");
+}
+
 #[tokio::test]
 async fn a_day_of_samples_keeps_the_reported_times_true() {
     // 2026-11-23 00:00 UTC at 200 Hz for a day; the true time of sample i is T0 + i / 200.
@@ -183,6 +231,9 @@ async fn a_day_of_samples_keeps_the_reported_times_true() {
          max_past_seconds = 0.0\nmax_future_seconds = 0.0\n",
     )
     .unwrap();
+    // the gate's first window waits its stagger offset (below the 200-sample window here)
+    let offset = cfg.defaults.stagger_samples("g1") as u64;
+    assert!(offset < 200);
     let fake = Arc::new(Fake::default());
     let (_app, state) = app_with(cfg, fake.clone());
     let day = 86_400 * 200u64;
@@ -202,8 +253,9 @@ async fn a_day_of_samples_keeps_the_reported_times_true() {
         state.ingest(vec![batch]).unwrap();
         i += chunk;
     }
-    // windows end at sample 200, then every 720 000 samples: the last ends at 200 + 23 * 720 000
-    let last = 200 + 23 * 720_000u64 - 1;
+    // windows end at sample 200 + offset, then every 720 000 samples: the last ends 23 cadences
+    // after the first
+    let last = 200 + offset + 23 * 720_000u64 - 1;
     let (start, end) = (T0 + (last - 199) as f64 / RATE, T0 + last as f64 / RATE);
     let tolerance = 0.01 / RATE; // a hundredth of a period
     wait_until(|| {

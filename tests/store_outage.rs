@@ -154,7 +154,8 @@ async fn onset_and_recovery(d: &Daemon) -> (Instant, Instant) {
         (420.0, 0.02),
     ];
     let mut sim = GateSimulator::new(GateParams::default(), ZetaSchedule::Table(table), 11);
-    let (window_n, every_n) = ((WINDOW * RATE) as u64, (EVERY * RATE) as u64);
+    let every_n = (EVERY * RATE) as u64;
+    let window_n = stream_common::first_window_samples("g1", (WINDOW * RATE) as u64, every_n);
     let total = (420.0 * RATE) as u64;
     let mut sent = 0u64;
     let mut fired = None;

@@ -404,7 +404,8 @@ struct Streams {
 
 /// One gate count: streams `gates` gates at real-time pace. With `store`, the daemon keeps its
 /// store in that file; with `resume`, the gates go on from where that run left them (a restart:
-/// every gate's buffer is empty again, so each starts with a full window at once).
+/// every gate's buffer is empty again, so each starts with a full window at once, identified
+/// when its stagger offset has passed).
 async fn capacity_run(
     gates: usize,
     seconds: f64,
@@ -470,6 +471,7 @@ async fn capacity_run(
     let mut sent = backfill;
     let total = backfill + (seconds * rate) as usize;
     // The first round: every gate arrives with a full window at once and needs a full search
+    // once its stagger offset (0 to 5 s of stream) has passed
     // (after a restart with the store's memory, a refinement); what a worker sustains
     // afterwards is the steady state, so the replaced jobs are counted apart before and after.
     let mut warm_up = None;
@@ -498,7 +500,19 @@ async fn capacity_run(
         loop {
             let m = metrics(&client, r.http).await.unwrap_or_default();
             let done = metric_sum(&m, "gatewatch_identification_duration_seconds_count");
-            let expected = gates as f64 * (1.0 + ((total - backfill) / 1000) as f64);
+            // each gate's windows: the first a full window and its stagger offset after the
+            // start, then one every 1000 samples
+            let expected: usize = (0..gates)
+                .map(|g| {
+                    let first = backfill + config.defaults.stagger_samples(&format!("g{g}"));
+                    if total >= first {
+                        1 + (total - first) / 1000
+                    } else {
+                        0
+                    }
+                })
+                .sum();
+            let expected = expected as f64;
             if done >= expected {
                 break;
             }

@@ -311,6 +311,9 @@ pub struct GateConfig {
     pub window_seconds: f64,
     /// Identification cadence, seconds of new sample time.
     pub identify_every_seconds: f64,
+    /// Whether a gate's first window waits a fraction of the cadence fixed by its ID, so that
+    /// gates starting together are identified spread over the cadence (`service::window`).
+    pub stagger: bool,
     /// Samples more than this many seconds ahead of the daemon's clock refuse their request
     /// (400); 0: no bound. See `service::ingest_checks` for why.
     pub max_future_seconds: f64,
@@ -342,6 +345,7 @@ impl Default for GateConfig {
             polish_solver: crate::analysis::PolishSolver::default(),
             window_seconds: 10.0,
             identify_every_seconds: 5.0,
+            stagger: true,
             max_future_seconds: DEFAULT_MAX_FUTURE_SECONDS,
             max_past_seconds: DEFAULT_MAX_PAST_SECONDS,
             alert: AlertRules::default(),

@@ -280,7 +280,8 @@ impl AppState {
                         cfg.window_samples(),
                         cfg.every_samples(),
                         history_samples(cfg.window_samples()),
-                    ),
+                    )
+                    .staggered(cfg.stagger_samples(id)),
                     trend,
                     level,
                     // validated with the configuration: an error cannot happen here, and would

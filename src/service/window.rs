@@ -29,8 +29,20 @@
 //! A window is due when it is full and `every` samples have arrived since the last due window
 //! (or since the first full window after a gap). Since this depends only on the samples, a
 //! stream replayed at any speed, in any chunking, yields the same windows.
+//!
+//! The first window (at the start and after a gap) may wait `offset` more samples
+//! ([`Window::staggered`]; `offset < every`): the daemon gives each gate an offset fixed by its
+//! ID ([`stagger_offset`]), so gates whose streams start together are identified spread over the
+//! cadence instead of all at once, as Prometheus spreads its targets' scrapes over the scrape
+//! interval by a hash of each target. Why: a full search costs about nine tracked windows
+//! (docs/benchmarks.md), and 200 gates started together made one worker's first round 7 s of
+//! searches against the 5 s cadence, so the last 71 gates' first windows were replaced before
+//! they ran. Spread over the cadence the same work never falls a cadence behind (docs/design.md,
+//! "Staggered gates").
 
 use std::collections::VecDeque;
+
+use crate::analysis::gate_hash;
 
 /// Outcome counts of one push.
 #[derive(Debug, Default, Clone, Copy, PartialEq, Eq)]
@@ -55,6 +67,14 @@ pub const MAX_HISTORY_EXTRA: usize = 100_000;
 /// most [`MAX_HISTORY_EXTRA`] beyond the window.
 pub fn history_samples(window: usize) -> usize {
     window + ((HISTORY_WINDOWS - 1) * window).min(MAX_HISTORY_EXTRA)
+}
+
+/// The offset of gate `id`'s first window, in samples below `every`: [`gate_hash`] of the ID
+/// (with an index no window's last sample reaches, so it is not the number that phases the
+/// gate's full searches) modulo `every`. A fixed function of the ID on every machine and build:
+/// a gate's windows, and so its reports, stay where they were after an upgrade or a replay.
+pub fn stagger_offset(id: &str, every: usize) -> usize {
+    (gate_hash(id, u64::MAX) % every.max(1) as u64) as usize
 }
 
 /// A full window ready for identification.
@@ -88,6 +108,8 @@ pub struct Window {
     since_due: usize,
     /// Whether a window was due since the last gap.
     due_once: bool,
+    /// Samples the first window after the start or a gap waits once full ([`Window::staggered`]).
+    offset: usize,
     /// Consecutive out-of-order samples.
     consecutive_old: usize,
 }
@@ -113,8 +135,17 @@ impl Window {
             accepted: 0,
             since_due: 0,
             due_once: false,
+            offset: 0,
             consecutive_old: 0,
         }
+    }
+
+    /// This window with its first due window (at the start and after each gap) `offset` samples
+    /// after it is full; `offset` is taken modulo the cadence `every`, so the first window comes
+    /// at most one cadence later and the cadence after it is unchanged.
+    pub fn staggered(mut self, offset: usize) -> Window {
+        self.offset = offset % self.every;
+        self
     }
 
     /// Pushes samples `(t, v)` in order; returns the counts and the windows that became due
@@ -155,9 +186,14 @@ impl Window {
             self.accepted += 1;
             self.since_due += 1;
             stats.accepted += 1;
-            if self.values.len() >= self.capacity
-                && (!self.due_once || self.since_due >= self.every)
-            {
+            // before the first due window `since_due` counts every sample since the start or
+            // the gap, so the window has been full for `since_due - capacity` samples
+            let ready = if self.due_once {
+                self.since_due >= self.every
+            } else {
+                self.since_due >= self.capacity + self.offset
+            };
+            if self.values.len() >= self.capacity && ready {
                 self.due_once = true;
                 self.since_due = 0;
                 let skip = self.values.len() - self.capacity;
@@ -236,6 +272,66 @@ mod tests {
         for chunk in [7, 100, 1234, 5_000] {
             assert_eq!(run(chunk), one, "chunk {chunk}");
         }
+    }
+
+    /// The first window waits its offset once full, the cadence after it is unchanged, a gap
+    /// makes the next first window wait again, and any chunking gives the same windows.
+    #[test]
+    fn a_staggered_window_waits_its_offset_once_then_keeps_the_cadence() {
+        let (rate, cap, every, offset) = (100.0, 300, 50, 37);
+        let mut data = stream(1_000, rate);
+        // a gap of a second after sample 700: the window restarts there
+        for (t, _) in &mut data[700..] {
+            *t += 1.0;
+        }
+        let run = |chunk: usize, offset: usize| {
+            let mut w = Window::new(rate, cap, every).staggered(offset);
+            let mut due = Vec::new();
+            for c in data.chunks(chunk) {
+                due.extend(w.push(c.iter().copied()).1);
+            }
+            due
+        };
+        let plain: Vec<u64> = run(1, 0).iter().map(|d| d.end_index).collect();
+        let late = run(1, offset);
+        let ends: Vec<u64> = late.iter().map(|d| d.end_index).collect();
+        assert_eq!(plain[..2], [300, 350]);
+        assert_eq!(ends[..3], [337, 387, 437]);
+        // after the gap (700 samples before it, the new stretch from index 700): 1000 - 700 =
+        // 300 samples fill one window, and the offset pushes its first window past the end
+        assert_eq!(*plain.last().unwrap(), 1000);
+        assert_eq!(*ends.last().unwrap(), 687);
+        // each due window is the window's last `cap` samples, whatever the offset
+        for d in &late {
+            let end = d.end_index as usize;
+            let expect: Vec<f64> = data[end - cap..end].iter().map(|s| s.1).collect();
+            assert_eq!(d.values, expect);
+        }
+        for chunk in [7, 100, 1_000] {
+            assert_eq!(run(chunk, offset), late, "chunk {chunk}");
+        }
+        // an offset is taken below the cadence: `every + 3` acts as 3
+        assert_eq!(run(1, every + 3)[0].end_index, 303);
+    }
+
+    /// The offset is a fixed function of the ID (the same after an upgrade), below the cadence,
+    /// and spreads many gates evenly over it.
+    #[test]
+    fn stagger_offsets_are_fixed_and_spread_the_gates() {
+        // pinned, so that a change of the hash (which would move every gate's windows) is noticed
+        assert_eq!(stagger_offset("lab", 1_000), 781);
+        assert_eq!(stagger_offset("lock", 500), 43);
+        assert_eq!(stagger_offset("", 7), 2);
+        assert_eq!(stagger_offset("anything", 1), 0);
+        assert_eq!(stagger_offset("anything", 0), 0);
+        let mut bins = [0usize; 10];
+        for i in 0..200 {
+            let o = stagger_offset(&format!("g{i}"), 1_000);
+            assert!(o < 1_000);
+            bins[o / 100] += 1;
+        }
+        // 20 expected per tenth of the cadence
+        assert!(bins.iter().all(|&n| (10..=30).contains(&n)), "{bins:?}");
     }
 
     #[test]

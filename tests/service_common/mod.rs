@@ -95,11 +95,14 @@ impl WindowAnalyzer for Fake {
     }
 }
 
+/// The service tests' configuration: 1 s windows every 0.5 s at 100 Hz, the first window as
+/// soon as it is full (`stagger = false`: these tests count windows from the start; the stagger
+/// has its own tests in `service_workers` and `service::window`).
 pub fn config(extra: &str) -> Config {
     Config::from_toml(&format!(
         "[server]\nworker_threads = 1\nlisten = \"127.0.0.1:0\"\n{extra}\n\
          [defaults]\nrate_hz = 100.0\nwindow_seconds = 1.0\nidentify_every_seconds = 0.5\n\
-         max_past_seconds = 0.0\n"
+         max_past_seconds = 0.0\nstagger = false\n"
     ))
     .unwrap()
 }

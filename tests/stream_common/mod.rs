@@ -98,3 +98,10 @@ pub async fn wait_analysed(
     .await
     .unwrap_or_else(|_| panic!("window ending at {} s not analysed", end - start))
 }
+
+/// Samples up to a gate's first due window: a full window and the gate's stagger offset (the
+/// shipped default staggers each gate's first window by a fraction of the cadence fixed by its
+/// ID, `service::window::stagger_offset`).
+pub fn first_window_samples(gate: &str, window_n: u64, every_n: u64) -> u64 {
+    window_n + gatewatch::service::window::stagger_offset(gate, every_n as usize) as u64
+}

@@ -15,6 +15,19 @@ impl GateConfig {
         ((self.identify_every_seconds * self.rate_hz).round() as usize).max(1)
     }
 
+    /// Samples gate `id`'s first window (and its first after a gap) waits once full: the ID's
+    /// stagger offset below the cadence and below the window (so that a long cadence, an hour,
+    /// does not hold back a gate's first report by as much; the first window comes at most two
+    /// windows after the start), or 0 with `stagger = false`.
+    pub fn stagger_samples(&self, id: &str) -> usize {
+        if self.stagger {
+            let spread = self.every_samples().min(self.window_samples().max(1));
+            crate::service::window::stagger_offset(id, spread)
+        } else {
+            0
+        }
+    }
+
     /// The analysis settings of this gate. The known stiffness is passed as constant `k`.
     pub fn analysis_settings(&self) -> AnalysisSettings {
         let mut params: Vec<(String, f64)> =
