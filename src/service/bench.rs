@@ -72,6 +72,10 @@ pub struct BenchDaemonArgs {
     /// store, `storage.resume_analysis`).
     #[arg(long)]
     pub restart: bool,
+    /// Capacity with `stagger = false`: every gate's first window as soon as it is full (all
+    /// gates at once), the behaviour before the stagger, for comparison.
+    #[arg(long)]
+    pub no_stagger: bool,
 }
 
 /// An analyzer that does nothing: isolates the ingestion path.
@@ -409,7 +413,7 @@ struct Streams {
 async fn capacity_run(
     gates: usize,
     seconds: f64,
-    worker_threads: usize,
+    (worker_threads, stagger): (usize, bool),
     store: Option<&std::path::Path>,
     resume: Option<Streams>,
 ) -> anyhow::Result<(Capacity, Streams)> {
@@ -424,7 +428,7 @@ async fn capacity_run(
     let text = format!(
         "[server]\nworker_threads = {worker_threads}\nmax_gates = {}\n\
          [defaults]\n# replayed synthetic times: no time bounds\nmax_past_seconds = 0.0\n\
-         max_future_seconds = 0.0\n{storage}",
+         max_future_seconds = 0.0\nstagger = {stagger}\n{storage}",
         gates.max(1)
     );
     let config = Config::from_toml(&text)?;
@@ -638,6 +642,7 @@ async fn bench(args: BenchDaemonArgs) -> anyhow::Result<()> {
         let mut best = 0usize;
         let mut best_steady = 0usize;
         let mut best_restarted = 0usize;
+        let settings = (args.worker_threads, !args.no_stagger);
         for gates in counts {
             // a directory of this process for the store file (removed after the count)
             let dir = std::env::temp_dir()
@@ -647,18 +652,11 @@ async fn bench(args: BenchDaemonArgs) -> anyhow::Result<()> {
             }
             let db = dir.join("gatewatch.db");
             let store = args.restart.then_some(db.as_path());
-            let (c, streams) =
-                capacity_run(gates, args.seconds, args.worker_threads, store, None).await?;
+            let (c, streams) = capacity_run(gates, args.seconds, settings, store, None).await?;
             let mut runs = vec![(gates.to_string(), c)];
             if args.restart {
-                let (again, _) = capacity_run(
-                    gates,
-                    args.seconds,
-                    args.worker_threads,
-                    store,
-                    Some(streams),
-                )
-                .await?;
+                let (again, _) =
+                    capacity_run(gates, args.seconds, settings, store, Some(streams)).await?;
                 runs.push((format!("{gates}, restarted"), again));
                 let _ = std::fs::remove_dir_all(&dir);
             }
