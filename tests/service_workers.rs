@@ -176,7 +176,7 @@ async fn cadence_is_in_sample_time_whatever_the_replay_speed() {
 /// unchanged; with `stagger = false` every first window ends as soon as it is full.
 #[tokio::test]
 async fn gates_started_together_are_identified_spread_over_the_cadence() {
-    async fn first_windows(stagger: bool) -> (Config, Vec<Call>) {
+    async fn first_windows(stagger: bool) -> (Config, Vec<Call>, Vec<f64>) {
         // 1 s windows every 0.5 s at 100 Hz: the first window is full at sample 100
         let cfg = Config::from_toml(&format!(
             "[server]\nworker_threads = 1\nlisten = \"127.0.0.1:0\"\n\
@@ -193,12 +193,26 @@ async fn gates_started_together_are_identified_spread_over_the_cadence() {
             wait_until(|| state.pool().pending() == 0 && state.pool().in_flight() == 0).await;
         }
         let calls = fake.calls.lock().unwrap().clone();
-        (cfg, calls)
+        // what the API shows of each gate's stagger
+        let shown = (0..12)
+            .map(|g| {
+                state
+                    .gate_view(&format!("g{g}"))
+                    .unwrap()
+                    .window
+                    .stagger_seconds
+            })
+            .collect();
+        (cfg, calls, shown)
     }
     // the newest due window of each request is the one identified (older ones are replaced)
     let window_end = |c: &Call| ((c.t0 - 50.0) * 100.0).round() as usize + c.len;
-    let (cfg, calls) = first_windows(true).await;
+    let (cfg, calls, shown) = first_windows(true).await;
     assert_eq!(calls.len(), 12);
+    for (g, seconds) in shown.iter().enumerate() {
+        let offset = cfg.defaults.stagger_samples(&format!("g{g}"));
+        assert_eq!(*seconds, offset as f64 / 100.0, "g{g}");
+    }
     let mut offsets = Vec::new();
     for c in &calls {
         let offset = cfg.defaults.stagger_samples(&c.gate);
@@ -214,8 +228,9 @@ async fn gates_started_together_are_identified_spread_over_the_cadence() {
         offsets.len() >= 8,
         "12 gates share too few offsets: {offsets:?}"
     );
-    let (_, plain) = first_windows(false).await;
+    let (_, plain, shown) = first_windows(false).await;
     assert!(plain.iter().all(|c| window_end(c) == 200), "{plain:?}");
+    assert!(shown.iter().all(|s| *s == 0.0), "{shown:?}");
 }
 
 #[tokio::test]

@@ -688,6 +688,7 @@ impl AppState {
                 last_sample_time: w.last_time(),
                 samples_total: w.accepted_total(),
                 rate_hz: e.config.rate_hz,
+                stagger_seconds: w.offset() as f64 / e.config.rate_hz,
             },
             identification: e.latest.as_ref().map(|a| IdentificationView {
                 time: e.last_identification.map(unix_seconds).unwrap_or(0.0),

@@ -233,6 +233,12 @@ impl Window {
         self.len().saturating_sub(1) as f64 / self.rate_hz
     }
 
+    /// Samples the first window after the start or a gap waits once full
+    /// ([`Window::staggered`]).
+    pub fn offset(&self) -> usize {
+        self.offset
+    }
+
     /// Time of the newest sample.
     pub fn last_time(&self) -> Option<f64> {
         self.t_last

@@ -68,6 +68,9 @@ pub struct WindowView {
     pub samples_total: u64,
     /// Configured rate.
     pub rate_hz: f64,
+    /// Seconds the gate's first window (and its first after a gap) waits once full: its
+    /// stagger (`service::window`), 0 with `stagger = false`.
+    pub stagger_seconds: f64,
 }
 
 /// The latest identification.
