@@ -393,7 +393,10 @@ where
     F: FnMut(usize, usize, &[f64; N]) -> ControlFlow<()>,
 {
     let n_out = times.len();
-    let [k1, k3, k4, k5, k6, k7] = k.map(|k| lane(k, l));
+    // Indexed in place: copying the lane out (`lane`) went through a call and a store that the
+    // next vector load could not forward from (docs/benchmarks.md, "Dormand-Prince's lane
+    // bookkeeping").
+    let [k1, k3, k4, k5, k6, k7] = k;
     let mut r1 = [0.0; N];
     let mut r2 = [0.0; N];
     let mut r3 = [0.0; N];
@@ -401,12 +404,17 @@ where
     if times[*next] < tnew {
         for i in 0..N {
             let ydiff = ynew[i] - y[i];
-            let bspl = h * k1[i] - ydiff;
+            let bspl = h * k1[i][l] - ydiff;
             r1[i] = ydiff;
             r2[i] = bspl;
-            r3[i] = ydiff - h * k7[i] - bspl;
-            r4[i] =
-                h * (D1 * k1[i] + D3 * k3[i] + D4 * k4[i] + D5 * k5[i] + D6 * k6[i] + D7 * k7[i]);
+            r3[i] = ydiff - h * k7[i][l] - bspl;
+            r4[i] = h
+                * (D1 * k1[i][l]
+                    + D3 * k3[i][l]
+                    + D4 * k4[i][l]
+                    + D5 * k5[i][l]
+                    + D6 * k6[i][l]
+                    + D7 * k7[i][l]);
         }
     }
     let inv_h = 1.0 / h;
