@@ -7,8 +7,10 @@
 //! - `linearisation`: the model at rest (zeta0) and its energy balance at an amplitude
 //!   (zeta_eq, limit cycle, time to a limit).
 //! - `population`: the DE's initial population biased towards the measured spectrum.
-//! - `series`: the analysis of one series, phase by phase: pre-processing, model-free
-//!   analysis, force-mode scaling, initial population, identification, damping figures.
+//! - `model_free`: the window without an equation: pre-processing, the spectrum's peak and
+//!   growth, a limit cycle's envelope relaxation over the gate's history.
+//! - `series`: the analysis of one series, phase by phase: the model-free part, force-mode
+//!   scaling, initial population, identification, damping figures.
 //! - `verdict`: agreement with the spectrum and the verdict table of `docs/damping.md`.
 //! - `report`: the damping report and its parts.
 //! - `ambient_level`: the gate's ambient level and how far a window stands above it.
@@ -23,6 +25,7 @@ mod ambient_level;
 mod analyzer;
 mod early_warning;
 mod linearisation;
+mod model_free;
 mod model_interval;
 mod pooling;
 mod population;
@@ -40,14 +43,14 @@ pub use ambient_level::{
 pub use analyzer::Analyzer;
 pub use early_warning::{kendall_tau, lag1_autocorrelation, rolling, variance, EwsIndicators};
 pub use linearisation::{equivalent_damping, limit_cycle, time_to_amplitude, Linearization};
+pub use model_free::{relaxation_detrend_degree, rms_swing, BEND_DEGREE, BEND_LEVEL_CHANGE};
 pub use model_interval::{zeta0_interval, FittedModel};
 pub use pooling::{PoolingSettings, ZetaPools};
 pub use population::{biased_population, SpectralTarget};
 pub use report::{AmbientZeta, DampingReport, Verdict, Zeta0Source};
 pub use series::{
-    analyze_series, analyze_series_with, polish_substeps, pre_run, relaxation_detrend_degree,
-    rms_swing, term_scales, track_series_with, SeriesAnalysis, SeriesOptions, BEND_DEGREE,
-    BEND_LEVEL_CHANGE, DAMPING_FORCE_FRACTION,
+    analyze_series, analyze_series_with, polish_substeps, pre_run, term_scales, track_series_with,
+    SeriesAnalysis, SeriesOptions, DAMPING_FORCE_FRACTION,
 };
 pub use tracking::{gate_hash, Path, Previous, TrackingPolicy};
 pub use trend::{

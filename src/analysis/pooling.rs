@@ -107,7 +107,7 @@ impl ZetaPools {
                 // consecutive estimates share that record, not only their windows' overlap (a
                 // drift estimate, which reads the window, is then counted as more correlated
                 // than it is: its pooled interval wider, on the safe side)
-                let record = super::series::RELAXATION_CYCLES / f;
+                let record = super::model_free::RELAXATION_CYCLES / f;
                 push(&mut self.envelope, (t_start, t_end, record), z, iv, f)
             }
             _ => None,

@@ -149,18 +149,18 @@ fn the_relaxation_reads_the_history_only_over_a_steady_cycle() {
             .collect()
     };
     // steady: the last 100 cycles (2000 samples at 20 per cycle) of the 3000 held
-    let (record, rate) = series::relaxation_record(&wave(1.1), fs, f, n, &opts).unwrap();
+    let (record, rate) = model_free::relaxation_record(&wave(1.1), fs, f, n, &opts).unwrap();
     assert_eq!((record.len(), rate), (2000, fs));
     // the cycle grew by half within the history: the window alone
-    assert!(series::relaxation_record(&wave(0.6), fs, f, n, &opts).is_none());
-    assert!(series::relaxation_record(&wave(1.5), fs, f, n, &opts).is_none());
+    assert!(model_free::relaxation_record(&wave(0.6), fs, f, n, &opts).is_none());
+    assert!(model_free::relaxation_record(&wave(1.5), fs, f, n, &opts).is_none());
     // no history beyond the window, or a gate fast enough for its window: the window alone
-    assert!(series::relaxation_record(&wave(1.0)[2000..], fs, f, n, &opts).is_none());
-    assert!(series::relaxation_record(&wave(1.0), fs, 10.4, 2000, &opts).is_none());
+    assert!(model_free::relaxation_record(&wave(1.0)[2000..], fs, f, n, &opts).is_none());
+    assert!(model_free::relaxation_record(&wave(1.0), fs, 10.4, 2000, &opts).is_none());
     // a non-finite sample in the history: the window alone
     let mut bad = wave(1.0);
     bad[10] = f64::NAN;
-    assert!(series::relaxation_record(&bad, fs, f, n, &opts).is_none());
+    assert!(model_free::relaxation_record(&bad, fs, f, n, &opts).is_none());
 }
 
 /// `rms_swing`: about 1 on a steady oscillation, the ratio of the amplitudes where the third

@@ -1,0 +1,239 @@
+//! The model-free analysis of a window (no equation): the pre-processing, the spectrum's peak
+//! and growth, and on a limit-cycle window the envelope's relaxation (or its drift) read from a
+//! record of `RELAXATION_CYCLES` cycles of the gate's history. [`super::series`] runs it before
+//! the identification, whose initial population and verdict use what it found.
+
+use super::report::AmbientZeta;
+use super::series::SeriesOptions;
+use super::Signal;
+use crate::data::TimeSeries;
+use crate::identify;
+use crate::spectral::{SpectralAnalyzer, WindowOptions, WindowSpectral};
+use std::f64::consts::PI;
+
+/// The dominant frequency must have at least this many periods in the window (the spectral
+/// floor is `MIN_PERIODS / duration`). Value: below three periods a drift or an edge effect
+/// fills the lowest bins, and the Hilbert envelope (whose edges are discarded) has nothing left.
+pub const MIN_PERIODS: f64 = 3.0;
+
+/// The envelope growth constrains the biased population only when it is a clean exponential:
+/// its standard error below this fraction of `|sigma|` (plus [`CLEAN_GROWTH_FLOOR`]). Value: a
+/// 10 % error in sigma is a 10 % error in the damping the projection imposes, which the DE
+/// corrects cheaply; a noisier slope would pull half the population to a wrong damping.
+pub const CLEAN_GROWTH_RELATIVE_ERROR: f64 = 0.1;
+
+/// Absolute floor of the clean-growth test, 1/s: lets an exactly exponential (noise-free)
+/// envelope with `sigma` near zero pass. Value: far below any physical growth rate.
+pub const CLEAN_GROWTH_FLOOR: f64 = 1e-9;
+
+/// Pre-processing: force signals lose their centred moving average (drift), when the series is
+/// uniformly sampled and the average is shorter than the series.
+pub(super) fn preprocess(series: &TimeSeries, opts: &SeriesOptions) -> TimeSeries {
+    let mut data = series.clone();
+    let n = series.len();
+    if opts.signal == Signal::Force && opts.moving_average_seconds > 0.0 {
+        if let Some(fs) = series.uniform_step().map(|h| 1.0 / h) {
+            let w = ((opts.moving_average_seconds * fs).round() as usize) | 1;
+            if w > 1 && w < n {
+                crate::spectral::remove_moving_average(&series.y, w, &mut data.y);
+            }
+        }
+    }
+    data
+}
+
+/// What the model-free analysis of the (pre-processed) window found.
+pub(super) struct ModelFree {
+    /// The options the window was analysed with (the prediction is analysed the same way).
+    pub(super) window_options: WindowOptions,
+    /// The full analysis (uniform sampling and a long enough record only).
+    pub(super) spec: Option<WindowSpectral>,
+    /// Measured dominant angular frequency, rad/s.
+    pub(super) omega: Option<f64>,
+    /// Envelope growth rate when it is a clean exponential, 1/s.
+    pub(super) sigma_clean: Option<f64>,
+    /// `zeta0` from the envelope's relaxation, on a limit-cycle window.
+    pub(super) relaxation: Option<AmbientZeta>,
+    /// `zeta0` from the envelope's drift, on a limit-cycle window the relaxation refused.
+    pub(super) drift: Option<AmbientZeta>,
+}
+
+/// The model-free analysis (uniform sampling only), with the analyzer replaced when it does not
+/// fit the window's length and rate.
+pub(super) fn model_free(
+    data: &TimeSeries,
+    history: &[f64],
+    opts: &SeriesOptions,
+    spectral: &mut Option<SpectralAnalyzer>,
+) -> ModelFree {
+    let n = data.len();
+    let fs = data.uniform_step().map(|h| 1.0 / h);
+    let duration = data.t[n - 1] - data.t[0];
+    let window_options = WindowOptions {
+        moving_average: 0,
+        min_freq_hz: MIN_PERIODS / duration.max(f64::MIN_POSITIVE),
+        ..WindowOptions::default()
+    };
+    let fits = |sa: &SpectralAnalyzer| {
+        fs.is_some_and(|fs| sa.len() == n && (sa.rate_hz() - fs).abs() <= 1e-9 * fs)
+    };
+    if !spectral.as_ref().is_some_and(fits) {
+        *spectral = fs.and_then(|fs| SpectralAnalyzer::new(n, fs).ok());
+    }
+    let spec = spectral
+        .as_mut()
+        .and_then(|sa| sa.analyze_window(&data.y, &window_options).ok());
+    // A short record (a few periods) cannot give an envelope growth, but its dominant frequency
+    // still constrains the search.
+    let peak_hz = spec.as_ref().map(|s| s.peak.frequency_hz).or_else(|| {
+        let mut detrended = data.y.clone();
+        crate::spectral::detrend_linear(&mut detrended);
+        spectral
+            .as_mut()
+            .and_then(|sa| {
+                sa.dominant_frequency(&detrended, window_options.min_freq_hz)
+                    .ok()
+            })
+            .map(|p| p.frequency_hz)
+    });
+    let sigma_clean = spec.as_ref().and_then(|s| {
+        let g = &s.growth;
+        (g.stderr < CLEAN_GROWTH_RELATIVE_ERROR * g.sigma.abs() + CLEAN_GROWTH_FLOOR)
+            .then_some(g.sigma)
+    });
+    // On a limit cycle the equivalent damping is zero; the envelope's relaxation still sees
+    // zeta0 (docs/damping.md, "The limit cycle"), and where the window is not on a saturated
+    // cycle (the end of a growth, a shrinking cycle: the relaxation refuses it) the envelope's
+    // drift across the amplitudes it visits does. The same pre-processing as the window's.
+    let (relaxation, drift) = match (&spec, spectral.as_mut()) {
+        (Some(s), Some(sa)) if s.regime == crate::spectral::Regime::LimitCycle => {
+            let mut work = data.y.clone();
+            crate::spectral::detrend_linear(&mut work);
+            let f = s.peak.frequency_hz;
+            let relax = crate::spectral::RelaxationOptions {
+                detrend_max_degree: relaxation_detrend_degree(history, n),
+                ..crate::spectral::RelaxationOptions::default()
+            };
+            let relaxation = match fs.and_then(|fs| relaxation_record(history, fs, f, n, opts)) {
+                Some((record, fs)) => SpectralAnalyzer::new(record.len(), fs)
+                    .and_then(|mut long| long.envelope_relaxation(&record, f, &relax)),
+                None => sa.envelope_relaxation(&work, f, &relax),
+            };
+            match relaxation {
+                Ok(r) => (Some(AmbientZeta::from(&r)), None),
+                Err(_) => {
+                    let opts = crate::spectral::DriftOptions::default();
+                    let d = sa.envelope_drift(&work, f, relax.band, &opts).ok();
+                    (None, d.as_ref().map(AmbientZeta::from))
+                }
+            }
+        }
+        _ => (None, None),
+    };
+    ModelFree {
+        window_options,
+        spec,
+        omega: peak_hz.map(|f| 2.0 * PI * f),
+        sigma_clean,
+        relaxation,
+        drift,
+    }
+}
+
+/// Largest over smallest standard deviation of the three thirds of `y` (`None` with fewer than
+/// 6 samples or a constant third): how abruptly the response changed inside the window.
+/// Measured (`docs/damping.md`, "A window that holds two states"): on noise-driven windows of both
+/// bench gates a median of 1.5 to 1.65 and at most 6.6; at most 1.07 on a held limit cycle; 3.9
+/// to 18.6 on the windows a burst begins or ends in.
+pub fn rms_swing(y: &[f64]) -> Option<f64> {
+    let third = y.len() / 3;
+    if third < 2 {
+        return None;
+    }
+    let sd: Vec<f64> = y
+        .chunks_exact(third)
+        .take(3)
+        .map(identify::std_dev)
+        .collect();
+    let (lo, hi) = sd.iter().fold((f64::INFINITY, 0.0f64), |(lo, hi), &v| {
+        (lo.min(v), hi.max(v))
+    });
+    (lo > 0.0 && hi.is_finite()).then(|| hi / lo)
+}
+
+/// Change of the RMS level between the window and the record before it beyond which the
+/// envelope relaxation may remove a bend (a polynomial up to [`BEND_DEGREE`]), not only a line.
+/// Why 1.2: the cycle's amplitude follows `sqrt(-zeta0)`, so a level a fifth higher means a
+/// damping that moved by about 44 % in 10 s, the onset's ramp (20 to 40 % a window); a held
+/// cycle at -2 % moves its 10 s level by a few percent. A weak one (-0.5 %) wanders by tens of
+/// percent, and there the bend is removed too often: measured in docs/damping.md ("A cycle that
+/// bends"), 1.1 cost that cycle's pooled coverage 10 points, 1.2 two.
+pub const BEND_LEVEL_CHANGE: f64 = 1.2;
+
+/// Highest polynomial degree the relaxation removes where the level moved (a cubic: the rise
+/// and the levelling-off of the window an onset's ramp ends in; docs/damping.md).
+pub const BEND_DEGREE: usize = 3;
+
+/// The relaxation's `detrend_max_degree` for the window that ends `history` (`n` samples):
+/// [`BEND_DEGREE`] when the standard deviation of the window and of the `n` samples before it
+/// differ by more than [`BEND_LEVEL_CHANGE`], else 1 (a line at most). Without `2 n` samples
+/// of history nothing says the level moved: 1.
+pub fn relaxation_detrend_degree(history: &[f64], n: usize) -> usize {
+    let len = history.len();
+    if n < 2 || len < 2 * n {
+        return 1;
+    }
+    let before = identify::std_dev(&history[len - 2 * n..len - n]);
+    let now = identify::std_dev(&history[len - n..]);
+    let ratio = now / before;
+    let moved = ratio.is_finite()
+        && ratio > 0.0
+        && !(1.0 / BEND_LEVEL_CHANGE..=BEND_LEVEL_CHANGE).contains(&ratio);
+    if moved {
+        BEND_DEGREE
+    } else {
+        1
+    }
+}
+
+/// Cycles of a limit cycle that the envelope relaxation reads when the gate's history holds
+/// them. Why: its error is set by the record's length in cycles, not seconds; a 5 Hz gate's
+/// 10 s window (50 cycles) read -1 % as -1.6 %, and the same gate with 104 cycles as -1.2 %,
+/// like the 10.4 Hz lab gate's 10 s window (docs/benchmarks.md, "The limit cycle across
+/// zeta0"). 100 cycles are 10 s at 10 Hz, 20 s at 5 Hz, 50 s at 2 Hz.
+pub const RELAXATION_CYCLES: f64 = 100.0;
+
+/// The record the relaxation reads: the last `RELAXATION_CYCLES` cycles of `history` (as much as
+/// it holds), pre-processed and detrended as the window is; `None` when that is not longer
+/// than the window's `n` samples (then the window itself is read).
+pub(super) fn relaxation_record(
+    history: &[f64],
+    fs: f64,
+    frequency_hz: f64,
+    n: usize,
+    opts: &SeriesOptions,
+) -> Option<(Vec<f64>, f64)> {
+    let want = (RELAXATION_CYCLES * fs / frequency_hz).ceil() as usize;
+    let len = want.min(history.len());
+    if len <= n || !history.iter().all(|v| v.is_finite()) {
+        return None;
+    }
+    let raw = &history[history.len() - len..];
+    let series = TimeSeries::new((0..len).map(|i| i as f64 / fs).collect(), raw.to_vec()).ok()?;
+    let mut work = preprocess(&series, opts).y;
+    crate::spectral::detrend_linear(&mut work);
+    // The relaxation assumes a stationary cycle: a history whose level differs from the
+    // window's (the end of a growth, a ramp of the damping) is not read.
+    let rms = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt();
+    let ratio = rms(&work[..len - n]) / rms(&work[len - n..]);
+    (ratio.is_finite()
+        && (1.0 / MAX_HISTORY_LEVEL_CHANGE..=MAX_HISTORY_LEVEL_CHANGE).contains(&ratio))
+    .then_some((work, fs))
+}
+
+/// Largest ratio of the RMS level of the history before the window to the window's for the
+/// relaxation to read the history. Why 1.25: a held cycle's 5 s level moves by a few percent
+/// (envelope CV 0.1 to 0.3 over about ten correlation times), while on the onset ramp the cycle
+/// grows by about 30 % in the 10 s the history adds on a 5 Hz gate (the amplitude follows
+/// `sqrt(-zeta0)`), and that lag cost the ramp's limit-cycle windows their coverage.
+const MAX_HISTORY_LEVEL_CHANGE: f64 = 1.25;
