@@ -359,6 +359,7 @@ pub fn run_gate_example(opts: &GateExampleOptions) -> Result<Vec<GateExampleRun>
         max_fit_nmae: 0.2,
         polish_rtol: crate::analysis::DEFAULT_POLISH_RTOL,
         polish_solver: crate::analysis::PolishSolver::default(),
+        model_interval: crate::analysis::ModelInterval::default(),
     })
     .map_err(|e| BenchError::Analysis {
         id: "gate_example",

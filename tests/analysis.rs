@@ -17,6 +17,7 @@ fn analyzer() -> Analyzer {
         max_fit_nmae: 0.2,
         polish_rtol: gatewatch::analysis::DEFAULT_POLISH_RTOL,
         polish_solver: gatewatch::analysis::PolishSolver::default(),
+        model_interval: gatewatch::analysis::ModelInterval::default(),
     })
     .unwrap()
 }

@@ -213,6 +213,7 @@ fn force_analyzer(p: &GateParams) -> gatewatch::analysis::Analyzer {
         max_fit_nmae: 0.2,
         polish_rtol: gatewatch::analysis::DEFAULT_POLISH_RTOL,
         polish_solver: gatewatch::analysis::PolishSolver::default(),
+        model_interval: gatewatch::analysis::ModelInterval::default(),
     })
     .unwrap()
 }
@@ -804,6 +805,73 @@ fn explore_onset_model_trade() {
                 100.0 * def.true_zeta(*e),
                 100.0 * median(z),
                 median(r)
+            );
+        }
+    }
+}
+
+/// The model's interval (`model_zeta`) on windows where the model is right: a held limit cycle
+/// and the window a constant negative damping grows from the ambient state into its cycle
+/// (a burst's first window). Coverage and median half width per gate, method and case, 20 seeds.
+#[test]
+#[ignore = "exploration: cargo test --release --test damping_regimes explore_model_interval -- --ignored --nocapture"]
+fn explore_model_interval_calibration() {
+    use gatewatch::analysis::{Analyzer, ModelInterval, WindowInput};
+    use gatewatch::service::bench_warning::run_config;
+    for (gate, method) in [GatePreset::Lab, GatePreset::Lock]
+        .into_iter()
+        .flat_map(|g| [(g, ModelInterval::NeweyWest), (g, ModelInterval::Forcing)])
+    {
+        let p = gate.params();
+        let config = run_config(gate, 1);
+        let mut settings = config
+            .gate(gate.as_str())
+            .expect("preset gate")
+            .analysis_settings();
+        settings.model_interval = method;
+        let analyzer = Analyzer::new(settings).expect("analyzer");
+        let noise = NoiseLevel::Relative(0.125).rms(&p);
+        let nw = (10.0 * p.rate_hz).round() as usize;
+        // (case, zeta, switch time): ambient at +1 % until the switch, then zeta.
+        for (case, zeta, ends) in [
+            ("held -2 %", -0.02, vec![100.0, 110.0, 120.0]),
+            ("held -3 %", -0.03, vec![100.0, 110.0, 120.0]),
+            ("growth -3 %", -0.03, vec![62.0, 64.0, 66.0]),
+            ("growth -2 %", -0.02, vec![64.0, 66.0, 68.0]),
+        ] {
+            let (mut n, mut covered, mut hw, mut err) = (0, 0, Vec::new(), Vec::new());
+            for seed in 1..=20u64 {
+                let schedule = ZetaSchedule::Table(vec![(59.999, 0.01), (60.0, zeta)]);
+                let q = GateParams {
+                    noise_std: noise,
+                    ..p.clone()
+                };
+                let mut sim = GateSimulator::new(q, schedule, seed);
+                let last = ends.iter().cloned().fold(0.0, f64::max);
+                let total = (last * p.rate_hz).round() as usize;
+                let xs: Vec<f64> = (0..total).map(|_| sim.next_sample()).collect();
+                for e in &ends {
+                    let ne = (e * p.rate_hz).round() as usize;
+                    let input = WindowInput {
+                        t0: e - 10.0,
+                        rate_hz: p.rate_hz,
+                        values: &xs[ne - nw..ne],
+                        history: &xs[ne - 3 * nw..ne],
+                    };
+                    let a = analyzer.analyze(input, None, seed).expect("analysis");
+                    if let Some(m) = a.damping.model_zeta {
+                        n += 1;
+                        covered += usize::from(m.low <= zeta && zeta <= m.high);
+                        hw.push((m.high - m.low) / 2.0 * 100.0);
+                        err.push((m.zeta - zeta).abs() * 100.0);
+                    }
+                }
+            }
+            println!(
+                "{} {method:?} {case}: {n} model windows, covered {covered}, median half width {:.3}, median abs err {:.3}",
+                gate.as_str(),
+                if hw.is_empty() { f64::NAN } else { median(hw) },
+                if err.is_empty() { f64::NAN } else { median(err) },
             );
         }
     }

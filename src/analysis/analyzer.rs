@@ -199,6 +199,7 @@ impl Analyzer {
             max_fit_nmae: s.max_fit_nmae,
             fft_bias,
             polish_solver: s.polish_solver,
+            model_interval: s.model_interval,
             ..SeriesOptions::default()
         };
         if let Start::Refine(..) = start {

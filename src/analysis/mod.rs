@@ -97,6 +97,28 @@ pub struct AnalysisSettings {
     pub polish_rtol: f64,
     /// Solver of the polish's and the tracked refinement's integrations.
     pub polish_solver: PolishSolver,
+    /// How a model-based zeta0 gets its interval.
+    pub model_interval: ModelInterval,
+}
+
+/// How a model-based zeta0 gets its 95 % interval (`model_interval` in the daemon's
+/// configuration; docs/damping.md, "zeta0_interval").
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "kebab-case")]
+pub enum ModelInterval {
+    /// The residuals' Newey-West covariance with the fixed-b critical value
+    /// (`identify::covariance`). Why it is the default: it fires `GateNegativeDamping` on an
+    /// onset's first negative windows, where the model reads the sign right. Its intervals are
+    /// too narrow where the forcing decides the error (a burst's first window: 60 of 80 covered
+    /// on the lock gate), and on the onset they are right about the sign, wrong about the size.
+    #[default]
+    NeweyWest,
+    /// The turbulent forcing propagated through the fitted model
+    /// (`identify::covariance_under_forcing`): honest where the model is right (a burst's
+    /// first window: 80 of 80) and wide where it is not (an onset's ramp). It fires
+    /// `GateNegativeDamping` 10 to 40 s later on an onset (docs/benchmarks.md, "The forcing
+    /// through the model").
+    Forcing,
 }
 
 /// Solver of a window's least-squares integrations (the full search's polish and the tracked

@@ -5,6 +5,7 @@
 //! times too narrow (`bench warning`, the bursts' first windows: 0 of 14 covered).
 
 use super::linearisation::Linearization;
+use super::ModelInterval;
 use crate::data::TimeSeries;
 use crate::identify::{self, InitialValues, Output};
 use crate::model::Model;
@@ -43,6 +44,7 @@ pub fn zeta0_interval(
     t0: f64,
     y_scale: f64,
     v_scale: f64,
+    method: ModelInterval,
 ) -> Option<(f64, f64)> {
     let zeta0 = |c: &[f64]| Linearization::of(fit.model, c, t0, y_scale, v_scale).zeta0();
     let z = zeta0(fit.coefficients)?;
@@ -58,7 +60,11 @@ pub fn zeta0_interval(
         c[j] = fit.coefficients[j];
         gradient.push((plus - minus) / (2.0 * h));
     }
-    let cov = identify::covariance(
+    let covariance = match method {
+        ModelInterval::NeweyWest => identify::covariance,
+        ModelInterval::Forcing => identify::covariance_under_forcing,
+    };
+    let cov = covariance(
         fit.model,
         data,
         fit.coefficients,
@@ -72,8 +78,9 @@ pub fn zeta0_interval(
         gradient.resize(cov.matrix.nrows(), 0.0);
     }
     let sd = cov.std_dev_of(&gradient)?;
-    // The fixed-b value, not 1.96: the residuals of a forced window stay coherent over much of
-    // it, and the Newey-West sum is then too small and too random for a normal quantile.
+    // Newey-West: the fixed-b value, not 1.96 (the residuals of a forced window stay coherent
+    // over much of it, and the sum is then too small and too random for a normal quantile);
+    // under the forcing model, 1.96.
     let half = cov.critical_value_95() * sd;
     let (lo, hi) = (z - half, z + half);
     (lo.is_finite() && hi.is_finite()).then_some((lo, hi))
@@ -137,7 +144,7 @@ mod tests {
             output: Output::Displacement,
             initial_estimated,
         };
-        zeta0_interval(&fit, series, 0.0, 1.0, OMEGA)
+        zeta0_interval(&fit, series, 0.0, 1.0, OMEGA, ModelInterval::NeweyWest)
     }
 
     #[test]
@@ -220,13 +227,17 @@ mod tests {
             output: Output::Displacement,
             initial_estimated: false,
         };
-        assert_eq!(zeta0_interval(&fit, &series, 0.0, 1.0, 10.0), None);
+        for method in [ModelInterval::NeweyWest, ModelInterval::Forcing] {
+            assert_eq!(zeta0_interval(&fit, &series, 0.0, 1.0, 10.0, method), None);
+        }
         // A model without a zeta0 (no restoring force) has no interval either.
         let fit = FittedModel {
             coefficients: &[0.5, -100.0],
             initial: InitialValues { y0: 1.0, v0: 0.0 },
             ..fit
         };
-        assert_eq!(zeta0_interval(&fit, &series, 0.0, 1.0, 10.0), None);
+        for method in [ModelInterval::NeweyWest, ModelInterval::Forcing] {
+            assert_eq!(zeta0_interval(&fit, &series, 0.0, 1.0, 10.0, method), None);
+        }
     }
 }

@@ -8,7 +8,7 @@ use super::model_interval::{zeta0_interval, FittedModel};
 use super::population::{initial_population, PopulationInputs, SpectralTarget};
 use super::report::{AmbientZeta, DampingReport, Zeta0Source};
 use super::verdict::{agrees, decide, VerdictFacts};
-use super::{AnalysisError, PolishSolver, Signal, MIN_RK4_STEPS_PER_CYCLE};
+use super::{AnalysisError, ModelInterval, PolishSolver, Signal, MIN_RK4_STEPS_PER_CYCLE};
 use crate::data::TimeSeries;
 use crate::identify::{self, Identification, InitialValues};
 use crate::model::Model;
@@ -38,6 +38,8 @@ pub struct SeriesOptions {
     /// identification's own (`identify.search.refine_solver`) with RK4 at
     /// [`polish_substeps`] where the window's dominant frequency was measured.
     pub polish_solver: PolishSolver,
+    /// How a model-based zeta0 gets its interval.
+    pub model_interval: ModelInterval,
 }
 
 impl Default for SeriesOptions {
@@ -53,6 +55,7 @@ impl Default for SeriesOptions {
             // The library's polish as it always was; the daemon chooses RK4
             // (`AnalysisSettings::polish_solver`).
             polish_solver: PolishSolver::Dopri5,
+            model_interval: ModelInterval::NeweyWest,
         }
     }
 }
@@ -373,7 +376,7 @@ fn analyze(
                 || !matches!(config.initial, identify::Initial::Known { .. }),
         };
         hull(
-            zeta0_interval(&fit, &data, t0, scale.y, scale.v),
+            zeta0_interval(&fit, &data, t0, scale.y, scale.v, opts.model_interval),
             run_spread(runs_zeta),
         )
     };

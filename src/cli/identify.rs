@@ -216,6 +216,7 @@ pub(super) fn run(a: IdentifyArgs) -> Result<(), CliError> {
         max_fit_nmae: a.max_fit_nmae,
         // `--solver` and the polish flags choose the integrations here.
         polish_solver: analysis::PolishSolver::Dopri5,
+        model_interval: analysis::ModelInterval::default(),
     };
     // Every output is checked before the identification, which can take minutes.
     if let Some(dir) = &a.plot {

@@ -15,7 +15,7 @@
 //! depend on an undetermined direction gets no standard deviation ([`Covariance::std_dev_of`]
 //! is `None`).
 
-use super::predict::predict;
+use super::predict::{output_of, predict, trajectory};
 use super::problem::Output;
 use super::InitialValues;
 use crate::data::TimeSeries;
@@ -44,6 +44,10 @@ const SINGULAR_CUTOFF: f64 = 1e-4;
 /// one).
 const NULL_TOLERANCE: f64 = 1e-3;
 
+/// What [`Covariance::build`] puts between the pseudo-inverses: `Omega` (normalised
+/// coordinates), a factor on the product, the bandwidth it spans and the 95 % critical value.
+pub(super) type Middle = (DMatrix<f64>, f64, usize, f64);
+
 /// The covariance of the coefficients at a least-squares optimum.
 #[derive(Debug, Clone)]
 pub struct Covariance {
@@ -57,6 +61,8 @@ pub struct Covariance {
     pub rank: usize,
     /// Residuals used, `n`.
     pub samples: usize,
+    /// The two-sided 95 % critical value that goes with `matrix` ([`Covariance::critical_value_95`]).
+    critical_95: f64,
     /// Undetermined directions, in the coefficients' units (unit vectors after normalising
     /// each coefficient by its Jacobian column's norm, see [`Covariance::std_dev_of`]).
     null: Vec<DVector<f64>>,
@@ -69,6 +75,45 @@ impl Covariance {
     /// residuals at the optimum. `None` when there is nothing to estimate: non-finite entries,
     /// no determined direction, or no more residuals than determined directions.
     pub fn from_jacobian(jac: &DMatrix<f64>, residuals: &[f64]) -> Option<Covariance> {
+        let bandwidth = bandwidth(residuals);
+        let n = residuals.len();
+        Covariance::build(jac, residuals, |scaled, rank, _| {
+            // Omega in the normalised coordinates: Bartlett weights keep it positive
+            // semi-definite.
+            let p = scaled.ncols();
+            let mut omega = DMatrix::zeros(p, p);
+            for k in 0..=bandwidth {
+                let w = 1.0 - k as f64 / (bandwidth + 1) as f64;
+                let mut gamma = DMatrix::zeros(p, p);
+                for i in 0..n - k {
+                    let rr = residuals[i] * residuals[i + k];
+                    for a in 0..p {
+                        let sa = scaled[(i, a)] * rr;
+                        for b in 0..p {
+                            gamma[(a, b)] += sa * scaled[(i + k, b)];
+                        }
+                    }
+                }
+                if k == 0 {
+                    omega += gamma;
+                } else {
+                    omega += (&gamma + gamma.transpose()) * w;
+                }
+            }
+            let dof = n as f64 / (n - rank) as f64;
+            let critical = fixed_b_critical_value_95((bandwidth + 1) as f64 / n as f64);
+            Some((omega, dof, bandwidth, critical))
+        })
+    }
+
+    /// The sandwich `B Omega B * factor` with `B = (J^T J)^+` in the column-normalised
+    /// coordinates and `(Omega, factor, bandwidth, critical value)` from
+    /// `middle(scaled_jacobian, rank, B)`. `None` as [`Covariance::from_jacobian`].
+    pub(super) fn build(
+        jac: &DMatrix<f64>,
+        residuals: &[f64],
+        middle: impl FnOnce(&DMatrix<f64>, usize, &DMatrix<f64>) -> Option<Middle>,
+    ) -> Option<Covariance> {
         let (n, p) = jac.shape();
         if n != residuals.len() || p == 0 || n <= p {
             return None;
@@ -115,51 +160,32 @@ impl Covariance {
         }
         let rss: f64 = residuals.iter().map(|r| r * r).sum();
         let sigma2 = rss / (n - rank) as f64;
-        let bandwidth = bandwidth(residuals);
-        // Omega in the normalised coordinates: Bartlett weights keep it positive semi-definite.
-        let mut omega = DMatrix::zeros(p, p);
-        for k in 0..=bandwidth {
-            let w = 1.0 - k as f64 / (bandwidth + 1) as f64;
-            let mut gamma = DMatrix::zeros(p, p);
-            for i in 0..n - k {
-                let rr = residuals[i] * residuals[i + k];
-                for a in 0..p {
-                    let sa = scaled[(i, a)] * rr;
-                    for b in 0..p {
-                        gamma[(a, b)] += sa * scaled[(i + k, b)];
-                    }
-                }
-            }
-            if k == 0 {
-                omega += gamma;
-            } else {
-                omega += (&gamma + gamma.transpose()) * w;
-            }
-        }
-        let dof = n as f64 / (n - rank) as f64;
+        let (omega, factor, bandwidth, critical_95) = middle(&scaled, rank, &pinv)?;
         // Back to the coefficients' units: x_j = norm_j * c_j, so Cov(c) = D^-1 Cov(x) D^-1.
-        let mut matrix = &pinv * omega * &pinv * dof;
+        let mut matrix = &pinv * omega * &pinv * factor;
         for (j, norm) in column_norms.iter().enumerate() {
             matrix.row_mut(j).unscale_mut(*norm);
             matrix.column_mut(j).unscale_mut(*norm);
         }
-        matrix.iter().all(|v| v.is_finite()).then_some(Covariance {
+        (matrix.iter().all(|v| v.is_finite()) && critical_95.is_finite()).then_some(Covariance {
             matrix,
             sigma2,
             bandwidth,
             rank,
             samples: n,
+            critical_95,
             null,
             column_norms,
         })
     }
 
-    /// The two-sided 95 % critical value for a figure's `t` statistic under this covariance:
-    /// [`fixed_b_critical_value_95`] at `b = (bandwidth + 1) / n`, the share of the record the
-    /// Newey-West sum spans. It is 1.96 for white residuals and 2.72 where the residuals stay
-    /// coherent over a quarter of the window (the cap of [`bandwidth`]).
+    /// The two-sided 95 % critical value for a figure's `t` statistic under this covariance.
+    /// Newey-West ([`Covariance::from_jacobian`]): [`fixed_b_critical_value_95`] at
+    /// `b = (bandwidth + 1) / n`, the share of the record the sum spans (1.96 for white
+    /// residuals, 2.72 where they stay coherent over a quarter of the window, the cap of
+    /// [`bandwidth`]). Under a forcing model (`identify::forcing`): 1.96.
     pub fn critical_value_95(&self) -> f64 {
-        fixed_b_critical_value_95((self.bandwidth + 1) as f64 / self.samples.max(1) as f64)
+        self.critical_95
     }
 
     /// Standard deviation of a figure `f(c)` with gradient `gradient` (delta method: `sqrt(g^T
@@ -262,12 +288,48 @@ pub fn covariance(
     steps: &[f64],
     initial_steps: Option<(f64, f64)>,
 ) -> Option<Covariance> {
+    let at_optimum = jacobian(
+        model,
+        series,
+        coefficients,
+        init,
+        output,
+        steps,
+        initial_steps,
+    )?;
+    Covariance::from_jacobian(&at_optimum.jacobian, &at_optimum.residuals)
+}
+
+/// What a least-squares optimum gives the covariance: the Jacobian of the prediction, the
+/// residuals and the model's states at the sample times.
+#[derive(Debug, Clone)]
+pub(super) struct AtOptimum {
+    /// `n x (p [+ 2])`, row `i` the derivatives of prediction `i`.
+    pub jacobian: DMatrix<f64>,
+    /// `data - prediction`.
+    pub residuals: Vec<f64>,
+    /// `[y, yd]` of the fitted trajectory at every sample time.
+    pub states: Vec<[f64; 2]>,
+}
+
+/// The Jacobian, residuals and states of [`covariance`] (`2p + 1` integrations, 4 more with
+/// `initial_steps`). `None` when an integration fails or `steps` has the wrong length.
+pub(super) fn jacobian(
+    model: &Model,
+    series: &TimeSeries,
+    coefficients: &[f64],
+    init: InitialValues,
+    output: Output,
+    steps: &[f64],
+    initial_steps: Option<(f64, f64)>,
+) -> Option<AtOptimum> {
     let p = coefficients.len();
     if steps.len() != p {
         return None;
     }
     let at = |c: &[f64]| predict(model, series, c, init, COVARIANCE_RTOL, output);
-    let prediction = at(coefficients)?;
+    let states = trajectory(model, &series.t, coefficients, init, COVARIANCE_RTOL)?;
+    let prediction = output_of(model, &series.t, coefficients, &states, output);
     let residuals: Vec<f64> = prediction
         .iter()
         .zip(&series.y)
@@ -311,7 +373,11 @@ pub fn covariance(
             jac[(i, j)] = (a - b) / (2.0 * h);
         }
     }
-    Covariance::from_jacobian(&jac, &residuals)
+    Some(AtOptimum {
+        jacobian: jac,
+        residuals,
+        states,
+    })
 }
 
 #[cfg(test)]

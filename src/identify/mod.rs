@@ -42,6 +42,7 @@ use std::time::Instant;
 mod config;
 mod covariance;
 mod fitness;
+mod forcing;
 mod polish;
 mod predict;
 mod problem;
@@ -55,6 +56,7 @@ pub use covariance::{
     bandwidth, covariance, difference_steps, fixed_b_critical_value_95, Covariance, COVARIANCE_RTOL,
 };
 pub use fitness::{Fitness, FitnessWorkspace, LANES};
+pub use forcing::covariance_under_forcing;
 pub use predict::{output_of, predict, trajectory};
 pub use problem::Problem;
 pub use problem::{Initial, Output};

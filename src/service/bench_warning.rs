@@ -75,6 +75,19 @@ pub struct BenchWarningArgs {
     /// slope and confident crossing, the firing alerts (for engineers checking a scenario).
     #[arg(long)]
     pub trace: bool,
+    /// How a model-based zeta0 gets its interval (`model_interval`): newey-west (the
+    /// configuration's default) or forcing.
+    #[arg(long, value_parser = parse_model_interval)]
+    pub model_interval: Option<crate::analysis::ModelInterval>,
+    /// `GateNegativeDamping`'s `fire_at_once_probability` (default: the configuration's).
+    #[arg(long)]
+    pub fire_at_once_probability: Option<f64>,
+}
+
+/// `--model-interval`: the configuration's spelling (`newey-west`, `forcing`).
+fn parse_model_interval(s: &str) -> Result<crate::analysis::ModelInterval, String> {
+    serde_json::from_value(serde_json::Value::String(s.to_string()))
+        .map_err(|_| format!("unknown model interval `{s}`: expected newey-west or forcing"))
 }
 
 /// What one run streams.
@@ -403,6 +416,12 @@ pub fn plan(args: &BenchWarningArgs) -> anyhow::Result<Vec<RunSpec>> {
         args.noise_rel >= 0.0 && args.noise_rel.is_finite(),
         "--noise-rel must be >= 0"
     );
+    if let Some(p) = args.fire_at_once_probability {
+        anyhow::ensure!(
+            p > 0.5 && p <= 1.0,
+            "--fire-at-once-probability must be in (0.5, 1]"
+        );
+    }
     if let Some(a) = args.noise_abs {
         anyhow::ensure!(a >= 0.0 && a.is_finite(), "--noise-abs must be >= 0");
     }
@@ -461,7 +480,15 @@ async fn bench(args: BenchWarningArgs) -> anyhow::Result<Report> {
     let mut records = Vec::new();
     let mut analyzers: Vec<(GatePreset, Arc<dyn WindowAnalyzer>)> = Vec::new();
     for (i, spec) in specs.iter().enumerate() {
-        let config = run_config(spec.gate, args.worker_threads);
+        let mut config = run_config(spec.gate, args.worker_threads);
+        for gate in config.gates.values_mut() {
+            if let Some(m) = args.model_interval {
+                gate.model_interval = m;
+            }
+            if let Some(p) = args.fire_at_once_probability {
+                gate.alert.fire_at_once_probability = p;
+            }
+        }
         let analyzer = match analyzers.iter().find(|a| a.0 == spec.gate) {
             Some(a) => a.1.clone(),
             None => {

@@ -307,6 +307,8 @@ pub struct GateConfig {
     pub polish_rtol: f64,
     /// Solver of the polish and the tracked refinement: rk4 | dopri5.
     pub polish_solver: crate::analysis::PolishSolver,
+    /// How a model-based zeta0 gets its interval: newey-west | forcing.
+    pub model_interval: crate::analysis::ModelInterval,
     /// Window length, seconds of sample time.
     pub window_seconds: f64,
     /// Identification cadence, seconds of new sample time.
@@ -343,6 +345,7 @@ impl Default for GateConfig {
             max_fit_nmae: 0.2,
             polish_rtol: crate::analysis::DEFAULT_POLISH_RTOL,
             polish_solver: crate::analysis::PolishSolver::default(),
+            model_interval: crate::analysis::ModelInterval::default(),
             window_seconds: 10.0,
             identify_every_seconds: 5.0,
             stagger: true,

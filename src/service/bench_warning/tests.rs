@@ -227,6 +227,8 @@ fn plan_refuses_bad_arguments_naming_the_flag() {
         noise_rel: 0.125,
         worker_threads: 1,
         trace: false,
+        model_interval: None,
+        fire_at_once_probability: None,
     };
     let p = plan(&args).unwrap();
     assert_eq!(p.len(), 8);
@@ -249,6 +251,11 @@ fn plan_refuses_bad_arguments_naming_the_flag() {
     assert!(bad(&|a| a.gates = vec!["weir".into()]).contains("--gates"));
     assert!(bad(&|a| a.hours = 0.0).contains("--hours"));
     assert!(bad(&|a| a.noise_abs = Some(-1.0)).contains("--noise-abs"));
+    assert!(bad(&|a| a.fire_at_once_probability = Some(0.2)).contains("--fire-at-once-probability"));
+    assert!(parse_model_interval("forcing").is_ok());
+    assert!(parse_model_interval("bootstrap")
+        .unwrap_err()
+        .contains("unknown model interval `bootstrap`"));
 }
 
 /// The early-warning baseline fires while the windows' variance rises steadily over the

@@ -48,6 +48,7 @@ impl GateConfig {
             max_fit_nmae: self.max_fit_nmae,
             polish_rtol: self.polish_rtol,
             polish_solver: self.polish_solver,
+            model_interval: self.model_interval,
         }
     }
 

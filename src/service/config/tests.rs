@@ -98,6 +98,8 @@ fn errors_name_the_key() {
     assert!(
         err("[defaults]\nsignal = \"pressure\"\n").starts_with("defaults.signal: unknown variant")
     );
+    assert!(err("[gates.g1]\nmodel_interval = \"bootstrap\"\n")
+        .starts_with("gates.g1.model_interval: unknown variant `bootstrap`"));
     assert!(err("[gates.\"bad id!\"]\n").starts_with("gates.bad id!:"));
     assert!(err("[server\n").contains("invalid") || !err("[server\n").is_empty());
     assert!(!err("[gates.g1]\nrate_hz = 0.0\n").contains('\n'));
@@ -224,4 +226,18 @@ fn durations_are_bounded_not_panicking() {
         "[server]\nrequest_timeout_seconds = {MAX_SECONDS}\n"
     ))
     .unwrap();
+}
+
+#[test]
+fn model_interval_defaults_to_newey_west_and_reads_forcing() {
+    use crate::analysis::ModelInterval;
+    let config = Config::embedded();
+    assert_eq!(config.defaults.model_interval, ModelInterval::NeweyWest);
+    let text = "[defaults]\nmodel_interval = \"forcing\"\n[gates.g1]\nrate_hz = 100.0\n";
+    let config = Config::from_toml(text).expect("valid");
+    let g1 = config.gate("g1").expect("gate g1");
+    assert_eq!(
+        g1.analysis_settings().model_interval,
+        ModelInterval::Forcing
+    );
 }
