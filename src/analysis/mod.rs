@@ -121,6 +121,21 @@ pub enum ModelInterval {
     Forcing,
 }
 
+impl std::str::FromStr for ModelInterval {
+    type Err = String;
+
+    /// The configuration's spelling: `newey-west` or `forcing`.
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "newey-west" => Ok(ModelInterval::NeweyWest),
+            "forcing" => Ok(ModelInterval::Forcing),
+            _ => Err(format!(
+                "unknown model interval `{s}`: expected newey-west or forcing"
+            )),
+        }
+    }
+}
+
 /// Solver of a window's least-squares integrations (the full search's polish and the tracked
 /// refinement; `polish_solver` in the daemon's configuration).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]

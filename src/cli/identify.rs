@@ -108,6 +108,11 @@ pub struct IdentifyArgs {
     /// Above this fit NMAE the model is not trusted.
     #[arg(long, allow_negative_numbers = true, default_value_t = 0.2)]
     max_fit_nmae: f64,
+    /// How zeta0's 95 % interval is computed: newey-west (the residuals' covariance) or forcing
+    /// (the turbulent forcing through the fitted model, for a record of a gate under flow;
+    /// docs/damping.md, "zeta0_interval").
+    #[arg(long, default_value = "newey-west")]
+    model_interval: analysis::ModelInterval,
     /// Print exactly one JSON object on stdout.
     #[arg(long)]
     json: bool,
@@ -216,7 +221,7 @@ pub(super) fn run(a: IdentifyArgs) -> Result<(), CliError> {
         max_fit_nmae: a.max_fit_nmae,
         // `--solver` and the polish flags choose the integrations here.
         polish_solver: analysis::PolishSolver::Dopri5,
-        model_interval: analysis::ModelInterval::default(),
+        model_interval: a.model_interval,
     };
     // Every output is checked before the identification, which can take minutes.
     if let Some(dir) = &a.plot {

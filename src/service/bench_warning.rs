@@ -77,17 +77,11 @@ pub struct BenchWarningArgs {
     pub trace: bool,
     /// How a model-based zeta0 gets its interval (`model_interval`): newey-west (the
     /// configuration's default) or forcing.
-    #[arg(long, value_parser = parse_model_interval)]
+    #[arg(long)]
     pub model_interval: Option<crate::analysis::ModelInterval>,
     /// `GateNegativeDamping`'s `fire_at_once_probability` (default: the configuration's).
     #[arg(long)]
     pub fire_at_once_probability: Option<f64>,
-}
-
-/// `--model-interval`: the configuration's spelling (`newey-west`, `forcing`).
-fn parse_model_interval(s: &str) -> Result<crate::analysis::ModelInterval, String> {
-    serde_json::from_value(serde_json::Value::String(s.to_string()))
-        .map_err(|_| format!("unknown model interval `{s}`: expected newey-west or forcing"))
 }
 
 /// What one run streams.

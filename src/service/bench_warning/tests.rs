@@ -252,10 +252,6 @@ fn plan_refuses_bad_arguments_naming_the_flag() {
     assert!(bad(&|a| a.hours = 0.0).contains("--hours"));
     assert!(bad(&|a| a.noise_abs = Some(-1.0)).contains("--noise-abs"));
     assert!(bad(&|a| a.fire_at_once_probability = Some(0.2)).contains("--fire-at-once-probability"));
-    assert!(parse_model_interval("forcing").is_ok());
-    assert!(parse_model_interval("bootstrap")
-        .unwrap_err()
-        .contains("unknown model interval `bootstrap`"));
 }
 
 /// The early-warning baseline fires while the windows' variance rises steadily over the
