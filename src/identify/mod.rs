@@ -24,6 +24,8 @@
 //!   [`Config`]: both with the problem's settings, for callers without the data yet);
 //! - `fitness`: the training objective ([`Fitness`]);
 //! - `covariance`: the coefficients' covariance at the optimum and the delta method
+//! - `forcing`: the same covariance with the turbulent forcing propagated through the fitted
+//!   model (an adjoint sweep), for `model_interval = "forcing"`
 //!   ([`Covariance`]);
 //! - `search`: one attempt of a run, the DE with continuation and restarts, then the polish;
 //! - `polish`: the Levenberg-Marquardt polish of a DE winner;
