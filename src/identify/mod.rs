@@ -24,9 +24,9 @@
 //!   [`Config`]: both with the problem's settings, for callers without the data yet);
 //! - `fitness`: the training objective ([`Fitness`]);
 //! - `covariance`: the coefficients' covariance at the optimum and the delta method
-//! - `forcing`: the same covariance with the turbulent forcing propagated through the fitted
-//!   model (an adjoint sweep), for `model_interval = "forcing"`
 //!   ([`Covariance`]);
+//! - `forcing`: the same covariance with the turbulent forcing propagated through the fitted
+//!   model (an adjoint sweep), for `model_interval = "forcing"`;
 //! - `search`: one attempt of a run, the DE with continuation and restarts, then the polish;
 //! - `polish`: the Levenberg-Marquardt polish of a DE winner;
 //! - `refine`: the polish alone from known coefficients (the daemon's tracked windows);
