@@ -745,6 +745,41 @@ fn ramp_end_is_read_about_its_bend() {
     }
 }
 
+/// The daemon's analyzer for a bench preset (its embedded configuration), its model's interval
+/// by `method`.
+fn daemon_analyzer(
+    gate: GatePreset,
+    method: gatewatch::analysis::ModelInterval,
+) -> gatewatch::analysis::Analyzer {
+    let config = gatewatch::service::bench_warning::run_config(gate, 1);
+    let mut settings = config
+        .gate(gate.as_str())
+        .expect("preset gate")
+        .analysis_settings();
+    settings.model_interval = method;
+    gatewatch::analysis::Analyzer::new(settings).expect("analyzer")
+}
+
+/// The daemon's analysis of the 10 s window of `xs` (sampled at `rate_hz` from `t = 0`) that ends
+/// at `end` s, with the three windows of history the daemon hands its worker.
+fn analyze_window_ending(
+    analyzer: &gatewatch::analysis::Analyzer,
+    xs: &[f64],
+    rate_hz: f64,
+    end: f64,
+    seed: u64,
+) -> gatewatch::analysis::WindowAnalysis {
+    let nw = (10.0 * rate_hz).round() as usize;
+    let ne = (end * rate_hz).round() as usize;
+    let input = gatewatch::analysis::WindowInput {
+        t0: end - 10.0,
+        rate_hz,
+        values: &xs[ne - nw..ne],
+        history: &xs[ne - 3 * nw..ne],
+    };
+    analyzer.analyze(input, None, seed).expect("analysis")
+}
+
 /// The onset's first negative windows, read by the daemon's model (the bench presets, their
 /// noise, the daemon's analysis settings, a full search on each window): the model's own zeta0,
 /// `c2 / (2 sqrt(k c1))`, and its cubic coefficient against the gate's, per window end, medians
@@ -754,24 +789,16 @@ fn ramp_end_is_read_about_its_bend() {
 #[test]
 #[ignore = "exploration: cargo test --release --test damping_regimes explore_onset_model -- --ignored --nocapture"]
 fn explore_onset_model_trade() {
-    use gatewatch::analysis::{Analyzer, WindowInput};
-    use gatewatch::service::bench_warning::run_config;
     let median = |mut v: Vec<f64>| {
         v.sort_by(f64::total_cmp);
         v[v.len() / 2]
     };
     for gate in [GatePreset::Lab, GatePreset::Lock] {
         let p = gate.params();
-        let config = run_config(gate, 1);
-        let settings = config
-            .gate(gate.as_str())
-            .expect("preset gate")
-            .analysis_settings();
-        let analyzer = Analyzer::new(settings).expect("analyzer");
+        let analyzer = daemon_analyzer(gate, Default::default());
         let def = ScenarioName::Onset.def(&p);
         let noise = NoiseLevel::Relative(0.125).rms(&p);
         let ends = [160.0, 165.0, 170.0];
-        let nw = (10.0 * p.rate_hz).round() as usize;
         let mut rows = vec![(Vec::new(), Vec::new()); ends.len()];
         for seed in 1..=20u64 {
             let mut sim = def
@@ -783,14 +810,7 @@ fn explore_onset_model_trade() {
             let n = (170.0 * p.rate_hz).round() as usize;
             let xs: Vec<f64> = (0..n).map(|_| sim.next_sample()).collect();
             for (k, e) in ends.iter().enumerate() {
-                let ne = (e * p.rate_hz).round() as usize;
-                let input = WindowInput {
-                    t0: e - 10.0,
-                    rate_hz: p.rate_hz,
-                    values: &xs[ne - nw..ne],
-                    history: &xs[ne - 3 * nw..ne],
-                };
-                let a = analyzer.analyze(input, None, seed).expect("analysis");
+                let a = analyze_window_ending(&analyzer, &xs, p.rate_hz, *e, seed);
                 let c = |name: &str| a.coefficients.iter().find(|(n, _)| n == name).unwrap().1;
                 let zeta = c("c2") / (2.0 * (p.stiffness * c("c1")).sqrt());
                 rows[k].0.push(zeta);
@@ -816,22 +836,14 @@ fn explore_onset_model_trade() {
 #[test]
 #[ignore = "exploration: cargo test --release --test damping_regimes explore_model_interval -- --ignored --nocapture"]
 fn explore_model_interval_calibration() {
-    use gatewatch::analysis::{Analyzer, ModelInterval, WindowInput};
-    use gatewatch::service::bench_warning::run_config;
+    use gatewatch::analysis::ModelInterval;
     for (gate, method) in [GatePreset::Lab, GatePreset::Lock]
         .into_iter()
         .flat_map(|g| [(g, ModelInterval::NeweyWest), (g, ModelInterval::Forcing)])
     {
         let p = gate.params();
-        let config = run_config(gate, 1);
-        let mut settings = config
-            .gate(gate.as_str())
-            .expect("preset gate")
-            .analysis_settings();
-        settings.model_interval = method;
-        let analyzer = Analyzer::new(settings).expect("analyzer");
+        let analyzer = daemon_analyzer(gate, method);
         let noise = NoiseLevel::Relative(0.125).rms(&p);
-        let nw = (10.0 * p.rate_hz).round() as usize;
         // (case, zeta, switch time): ambient at +1 % until the switch, then zeta.
         for (case, zeta, ends) in [
             ("held -2 %", -0.02, vec![100.0, 110.0, 120.0]),
@@ -851,14 +863,7 @@ fn explore_model_interval_calibration() {
                 let total = (last * p.rate_hz).round() as usize;
                 let xs: Vec<f64> = (0..total).map(|_| sim.next_sample()).collect();
                 for e in &ends {
-                    let ne = (e * p.rate_hz).round() as usize;
-                    let input = WindowInput {
-                        t0: e - 10.0,
-                        rate_hz: p.rate_hz,
-                        values: &xs[ne - nw..ne],
-                        history: &xs[ne - 3 * nw..ne],
-                    };
-                    let a = analyzer.analyze(input, None, seed).expect("analysis");
+                    let a = analyze_window_ending(&analyzer, &xs, p.rate_hz, *e, seed);
                     if let Some(m) = a.damping.model_zeta {
                         n += 1;
                         covered += usize::from(m.low <= zeta && zeta <= m.high);

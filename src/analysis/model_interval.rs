@@ -64,16 +64,17 @@ pub fn zeta0_interval(
         ModelInterval::NeweyWest => identify::covariance,
         ModelInterval::Forcing => identify::covariance_under_forcing,
     };
-    let cov = covariance(
-        fit.model,
-        data,
-        fit.coefficients,
-        fit.initial,
-        fit.output,
-        &steps,
-        fit.initial_estimated
+    let cov = covariance(&identify::Optimum {
+        model: fit.model,
+        series: data,
+        coefficients: fit.coefficients,
+        init: fit.initial,
+        output: fit.output,
+        steps: &steps,
+        initial_steps: fit
+            .initial_estimated
             .then_some((DIFFERENCE_STEP_IC * y_scale, DIFFERENCE_STEP_IC * v_scale)),
-    )?;
+    })?;
     if cov.matrix.nrows() > gradient.len() {
         gradient.resize(cov.matrix.nrows(), 0.0);
     }

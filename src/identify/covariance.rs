@@ -271,33 +271,36 @@ pub fn difference_steps(c: &[f64], scales: &[f64]) -> Vec<f64> {
         .collect()
 }
 
-/// The covariance of `coefficients` fitted to all samples of `series` (the model's prediction
-/// of `output` from `init`, Dormand-Prince at [`COVARIANCE_RTOL`]), with central differences
-/// of `steps` ([`difference_steps`]). The initial conditions are held fixed, or, with
-/// `initial_steps` (the steps of `y0` and `v0`), counted as two more unknowns after the
+/// The Newey-West covariance at `optimum` (the prediction by Dormand-Prince at
+/// [`COVARIANCE_RTOL`], its Jacobian by central differences of `optimum.steps`). The initial
+/// conditions are held fixed, or, with `optimum.initial_steps`, counted as two more unknowns after the
 /// coefficients (the covariance is then `(p + 2) x (p + 2)`, a figure's gradient has two more
 /// entries, zero for a figure of the coefficients alone). `None` when an integration fails or
 /// [`Covariance::from_jacobian`] has nothing to estimate. Costs `2p + 1` integrations, 4 more
 /// with the initial conditions.
-pub fn covariance(
-    model: &Model,
-    series: &TimeSeries,
-    coefficients: &[f64],
-    init: InitialValues,
-    output: Output,
-    steps: &[f64],
-    initial_steps: Option<(f64, f64)>,
-) -> Option<Covariance> {
-    let at_optimum = jacobian(
-        model,
-        series,
-        coefficients,
-        init,
-        output,
-        steps,
-        initial_steps,
-    )?;
-    Covariance::from_jacobian(&at_optimum.jacobian, &at_optimum.residuals)
+pub fn covariance(optimum: &Optimum<'_>) -> Option<Covariance> {
+    let at = jacobian(optimum)?;
+    Covariance::from_jacobian(&at.jacobian, &at.residuals)
+}
+
+/// A least-squares optimum as a covariance needs it: the model's prediction of `output` from
+/// `init` with `coefficients`, fitted to all samples of `series`.
+#[derive(Debug, Clone, Copy)]
+pub struct Optimum<'a> {
+    /// The model.
+    pub model: &'a Model,
+    /// The data it was fitted to.
+    pub series: &'a TimeSeries,
+    /// The fitted coefficients.
+    pub coefficients: &'a [f64],
+    /// The initial conditions of the fit.
+    pub init: InitialValues,
+    /// What the fit compared with the data.
+    pub output: Output,
+    /// Central-difference steps of the coefficients ([`difference_steps`]).
+    pub steps: &'a [f64],
+    /// The steps of `y0` and `v0` when the initial conditions count as two more unknowns.
+    pub initial_steps: Option<(f64, f64)>,
 }
 
 /// What a least-squares optimum gives the covariance: the Jacobian of the prediction, the
@@ -314,15 +317,16 @@ pub(super) struct AtOptimum {
 
 /// The Jacobian, residuals and states of [`covariance`] (`2p + 1` integrations, 4 more with
 /// `initial_steps`). `None` when an integration fails or `steps` has the wrong length.
-pub(super) fn jacobian(
-    model: &Model,
-    series: &TimeSeries,
-    coefficients: &[f64],
-    init: InitialValues,
-    output: Output,
-    steps: &[f64],
-    initial_steps: Option<(f64, f64)>,
-) -> Option<AtOptimum> {
+pub(super) fn jacobian(optimum: &Optimum<'_>) -> Option<AtOptimum> {
+    let Optimum {
+        model,
+        series,
+        coefficients,
+        init,
+        output,
+        steps,
+        initial_steps,
+    } = *optimum;
     let p = coefficients.len();
     if steps.len() != p {
         return None;

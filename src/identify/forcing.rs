@@ -28,11 +28,8 @@
 //! the honest direction. The covariance is then a model's, not an estimate's, so its critical
 //! value is the normal 1.96.
 
-use super::covariance::{jacobian, Covariance, Middle};
+use super::covariance::{jacobian, Covariance, Middle, Optimum};
 use super::problem::Output;
-use super::InitialValues;
-use crate::data::TimeSeries;
-use crate::model::Model;
 use nalgebra::DMatrix;
 
 /// Relative step of the linearisation's central differences, on the trajectory's RMS
@@ -78,28 +75,18 @@ fn flow(a0: &M2, a1: &M2, dt: f64) -> M2 {
     add_scaled(&IDENTITY, &sum, dt / 6.0)
 }
 
-/// The covariance of `coefficients` fitted to `series` under turbulent forcing and white sensor
-/// noise (module docs), with the Jacobian of [`super::covariance`] (same arguments, same cost
-/// plus `O(n p^2)`). `None` when that has nothing to estimate, the sample times are not
+/// The covariance at `optimum` under turbulent forcing and white sensor noise (module docs),
+/// with the Jacobian of [`super::covariance`] (its cost plus `O(n p^2)`). `None` when that has nothing to estimate, the sample times are not
 /// increasing, or the linearisation is not finite.
-pub fn covariance_under_forcing(
-    model: &Model,
-    series: &TimeSeries,
-    coefficients: &[f64],
-    init: InitialValues,
-    output: Output,
-    steps: &[f64],
-    initial_steps: Option<(f64, f64)>,
-) -> Option<Covariance> {
-    let at = jacobian(
+pub fn covariance_under_forcing(optimum: &Optimum<'_>) -> Option<Covariance> {
+    let Optimum {
         model,
         series,
         coefficients,
-        init,
         output,
-        steps,
-        initial_steps,
-    )?;
+        ..
+    } = *optimum;
+    let at = jacobian(optimum)?;
     let n = at.states.len();
     if n < 8 || series.t.windows(2).any(|w| w[1] <= w[0]) {
         return None;
@@ -204,7 +191,9 @@ pub fn covariance_under_forcing(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::identify::{covariance, difference_steps, Config, Initial};
+    use crate::data::TimeSeries;
+    use crate::identify::{covariance, difference_steps, Config, Initial, InitialValues};
+    use crate::model::Model;
     use crate::simulate::{GateParams, GateSimulator, Output as SimOutput, ZetaSchedule};
 
     const ZETA: f64 = 0.02;
@@ -254,15 +243,15 @@ mod tests {
         } else {
             covariance
         };
-        let cov = f(
-            &model,
+        let cov = f(&Optimum {
+            model: &model,
             series,
-            c,
-            run.initial,
-            Output::Displacement,
-            &steps,
-            None,
-        )
+            coefficients: c,
+            init: run.initial,
+            output: Output::Displacement,
+            steps: &steps,
+            initial_steps: None,
+        })
         .unwrap();
         // zeta0 = c1 / (2 sqrt(c2)).
         let z = c[0] / (2.0 * c[1].sqrt());
@@ -329,15 +318,15 @@ mod tests {
         let init = InitialValues { y0: 0.0, v0: 0.0 };
         let c = [0.5, 100.0];
         let steps = difference_steps(&c, &[]);
-        let cov = covariance_under_forcing(
-            &model,
-            &series,
-            &c,
+        let cov = covariance_under_forcing(&Optimum {
+            model: &model,
+            series: &series,
+            coefficients: &c,
             init,
-            Output::Displacement,
-            &steps,
-            None,
-        );
+            output: Output::Displacement,
+            steps: &steps,
+            initial_steps: None,
+        });
         assert!(cov.is_none());
     }
 }

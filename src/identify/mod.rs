@@ -55,7 +55,8 @@ mod stats;
 
 pub use config::{Config, Protocol, Search};
 pub use covariance::{
-    bandwidth, covariance, difference_steps, fixed_b_critical_value_95, Covariance, COVARIANCE_RTOL,
+    bandwidth, covariance, difference_steps, fixed_b_critical_value_95, Covariance, Optimum,
+    COVARIANCE_RTOL,
 };
 pub use fitness::{Fitness, FitnessWorkspace, LANES};
 pub use forcing::covariance_under_forcing;
