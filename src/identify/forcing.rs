@@ -12,12 +12,16 @@
 //! force per unit mass), so the prediction error `d = C(t) dx` (`C = [1, 0]` for displacement,
 //! the support force's gradient for force) is a linear functional of `w`, and
 //!
-//!     J^T Cov(d) J = q sum_u g(u) g(u)^T du,   g(u) = sum_{t > u} J(t)^T C(t) Phi(t, u) [0, 1]^T
+//! ```text
+//! J^T Cov(d) J = q sum_u g(u) g(u)^T du,   g(u) = sum_{t > u} J(t)^T C(t) Phi(t, u) [0, 1]^T
+//! ```
 //!
 //! where `Phi` is the linearised flow. One backward (adjoint) sweep gives every `g(u)`: `O(n p)`,
 //! no integration beyond the Jacobian's. With white sensor noise of variance `s2` on top,
 //!
-//!     Cov(c) = B (q sum g g^T du + s2 J^T J) B,   B = (J^T J)^+.
+//! ```text
+//! Cov(c) = B (q sum g g^T du + s2 J^T J) B,   B = (J^T J)^+.
+//! ```
 //!
 //! `s2` is read from the residuals' second differences (a sensor's white noise has `6 s2`
 //! there; the forcing's response, smooth at ten or more samples a period, under 2 % of its
