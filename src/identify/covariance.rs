@@ -44,9 +44,17 @@ const SINGULAR_CUTOFF: f64 = 1e-4;
 /// one).
 const NULL_TOLERANCE: f64 = 1e-3;
 
-/// What [`Covariance::build`] puts between the pseudo-inverses: `Omega` (normalised
-/// coordinates), a factor on the product, the bandwidth it spans and the 95 % critical value.
-pub(super) type Middle = (DMatrix<f64>, f64, usize, f64);
+/// What [`Covariance::build`] puts between the pseudo-inverses.
+pub(super) struct Middle {
+    /// `Omega`, in the column-normalised coordinates.
+    pub omega: DMatrix<f64>,
+    /// A factor on the sandwich (Newey-West's `n / (n - rank)`).
+    pub factor: f64,
+    /// Lags of the residuals' autocorrelation `Omega` counts (0 when it is a model's).
+    pub bandwidth: usize,
+    /// The two-sided 95 % critical value that goes with it.
+    pub critical_95: f64,
+}
 
 /// The covariance of the coefficients at a least-squares optimum.
 #[derive(Debug, Clone)]
@@ -102,13 +110,17 @@ impl Covariance {
             }
             let dof = n as f64 / (n - rank) as f64;
             let critical = fixed_b_critical_value_95((bandwidth + 1) as f64 / n as f64);
-            Some((omega, dof, bandwidth, critical))
+            Some(Middle {
+                omega,
+                factor: dof,
+                bandwidth,
+                critical_95: critical,
+            })
         })
     }
 
     /// The sandwich `B Omega B * factor` with `B = (J^T J)^+` in the column-normalised
-    /// coordinates and `(Omega, factor, bandwidth, critical value)` from
-    /// `middle(scaled_jacobian, rank, B)`. `None` as [`Covariance::from_jacobian`].
+    /// coordinates and the [`Middle`] from `middle(scaled_jacobian, rank, B)`. `None` as [`Covariance::from_jacobian`].
     pub(super) fn build(
         jac: &DMatrix<f64>,
         residuals: &[f64],
@@ -160,7 +172,12 @@ impl Covariance {
         }
         let rss: f64 = residuals.iter().map(|r| r * r).sum();
         let sigma2 = rss / (n - rank) as f64;
-        let (omega, factor, bandwidth, critical_95) = middle(&scaled, rank, &pinv)?;
+        let Middle {
+            omega,
+            factor,
+            bandwidth,
+            critical_95,
+        } = middle(&scaled, rank, &pinv)?;
         // Back to the coefficients' units: x_j = norm_j * c_j, so Cov(c) = D^-1 Cov(x) D^-1.
         let mut matrix = &pinv * omega * &pinv * factor;
         for (j, norm) in column_norms.iter().enumerate() {

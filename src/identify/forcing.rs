@@ -80,8 +80,9 @@ fn flow(a0: &M2, a1: &M2, dt: f64) -> M2 {
 }
 
 /// The covariance at `optimum` under turbulent forcing and white sensor noise (module docs),
-/// with the Jacobian of [`super::covariance`] (its cost plus `O(n p^2)`). `None` when that has nothing to estimate, the sample times are not
-/// increasing, or the linearisation is not finite.
+/// with the Jacobian of [`super::covariance`] (its cost plus `O(n p^2)`). `None` when that has
+/// nothing to estimate, the sample times are not increasing, or the linearisation is not
+/// finite.
 pub fn covariance_under_forcing(optimum: &Optimum<'_>) -> Option<Covariance> {
     let Optimum {
         model,
@@ -127,6 +128,10 @@ pub fn covariance_under_forcing(optimum: &Optimum<'_>) -> Option<Covariance> {
     {
         return None;
     }
+    // The linearised flow between consecutive samples.
+    let phis: Vec<M2> = (0..n - 1)
+        .map(|i| flow(&a[i], &a[i + 1], series.t[i + 1] - series.t[i]))
+        .collect();
     let residuals = at.residuals;
     // White sensor noise from the second differences.
     let s2 = residuals
@@ -144,21 +149,19 @@ pub fn covariance_under_forcing(optimum: &Optimum<'_>) -> Option<Covariance> {
         // Forward: the forcing response's variance at each sample, for tr(Sigma_F).
         let mut cov = [[0.0f64; 2]; 2];
         let mut trace_f = 0.0;
-        for i in 0..n - 1 {
+        for (i, phi) in phis.iter().enumerate() {
             let dt = series.t[i + 1] - series.t[i];
-            let phi = flow(&a[i], &a[i + 1], dt);
             let kicked = add_scaled(&cov, &[[0.0, 0.0], [0.0, 1.0]], dt);
             cov = mul(
-                &mul(&phi, &kicked),
+                &mul(phi, &kicked),
                 &[[phi[0][0], phi[1][0]], [phi[0][1], phi[1][1]]],
             );
             let ci = c[i + 1];
             trace_f += ci[0] * (cov[0][0] * ci[0] + cov[0][1] * ci[1])
                 + ci[1] * (cov[1][0] * ci[0] + cov[1][1] * ci[1]);
         }
-        for i in (0..n - 1).rev() {
+        for (i, phi) in phis.iter().enumerate().rev() {
             let dt = series.t[i + 1] - series.t[i];
-            let phi = flow(&a[i], &a[i + 1], dt);
             let ci = c[i + 1];
             for (k, row) in lambda.iter_mut().enumerate() {
                 let jk = scaled[(i + 1, k)];
@@ -187,8 +190,12 @@ pub fn covariance_under_forcing(optimum: &Optimum<'_>) -> Option<Covariance> {
             0.0
         };
         let omega = omega_f * q + scaled.transpose() * scaled * s2;
-        let middle: Middle = (omega, 1.0, 0, 1.959_964);
-        Some(middle)
+        Some(Middle {
+            omega,
+            factor: 1.0,
+            bandwidth: 0,
+            critical_95: 1.959_964,
+        })
     })
 }
 
