@@ -266,6 +266,16 @@ fn the_first_limit_cycle_window_after_the_ambient_state_is_read_by_the_model() {
         (Some(-0.0092), Some(Zeta0Source::Envelope)),
         "no growth inside it"
     );
+    // the growth in the window's first seconds only (the lab gate's first burst, seed 17,
+    // swung 1.18), against a held cycle's largest swing (1.07)
+    for (swing, source) in [(1.18, Zeta0Source::Model), (1.08, Zeta0Source::Envelope)] {
+        let mut w = DampingReport {
+            rms_swing: Some(swing),
+            ..envelope()
+        };
+        primed_at_5().observe(&mut w);
+        assert_eq!(w.zeta0_source, Some(source), "swing {swing}");
+    }
     let mut no_swing = DampingReport {
         rms_swing: None,
         ..envelope()
