@@ -9,7 +9,9 @@
 //! free-vibration fit treats as measurement error is narrow-band at the gate's own frequency,
 //! exactly where the Jacobian's columns oscillate, so its errors add up coherently over many
 //! cycles; a white-noise formula (or an inflation by the autocorrelation up to its first zero
-//! crossing, a quarter period) is then too confident by an order of magnitude. Why a
+//! crossing, a quarter period) is then too confident by an order of magnitude (the forcing
+//! propagated through the fitted model instead of estimated from the residuals:
+//! `identify::forcing`, opt-in as `model_interval = "forcing"`). Why a
 //! pseudo-inverse: a scale group (`model::scaling`) leaves one direction of the coefficients
 //! undetermined, and a scale-free figure (zeta0) does not depend on it; a figure that does
 //! depend on an undetermined direction gets no standard deviation ([`Covariance::std_dev_of`]
