@@ -881,3 +881,91 @@ fn explore_model_interval_calibration() {
         }
     }
 }
+
+/// The limit cycle read from the growth that led to it: the growth window's model gives the
+/// damping's amplitude dependence `zeta_eq(A) - zeta0 = b A^2` (`b = -zeta0 / A*^2` with `A*` its
+/// limit-cycle amplitude), and the held cycle's amplitude `A` fixes `zeta_eq(A) = 0`, so
+/// `zeta0 = -b A^2`. Per seed: the growth window's model, then the held windows' reading.
+#[test]
+#[ignore = "exploration: cargo test --release --test damping_regimes explore_cycle_amplitude -- --ignored --nocapture"]
+fn explore_cycle_amplitude() {
+    use gatewatch::analysis::ModelInterval;
+    let median = |mut v: Vec<f64>| {
+        if v.is_empty() {
+            return f64::NAN;
+        }
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    for gate in [GatePreset::Lab, GatePreset::Lock] {
+        let p = gate.params();
+        let analyzer = daemon_analyzer(gate, ModelInterval::NeweyWest);
+        let noise = NoiseLevel::Relative(0.125).rms(&p);
+        for zeta in [-0.02, -0.03, -0.01] {
+            let (mut amp_err, mut env_err, mut growth_err) = (Vec::new(), Vec::new(), Vec::new());
+            let mut covered = 0;
+            for seed in 1..=12u64 {
+                let schedule = ZetaSchedule::Table(vec![(59.999, 0.01), (60.0, zeta)]);
+                let q = GateParams {
+                    noise_std: noise,
+                    ..p.clone()
+                };
+                let mut sim = GateSimulator::new(q, schedule, seed);
+                let total = (120.0 * p.rate_hz).round() as usize;
+                let xs: Vec<f64> = (0..total).map(|_| sim.next_sample()).collect();
+                // the first window the model reads a limit cycle in
+                let mut carried = None;
+                for end in [62.0, 64.0, 66.0, 68.0, 70.0, 72.0, 75.0, 80.0] {
+                    let a = analyze_window_ending(&analyzer, &xs, p.rate_hz, end, seed);
+                    let d = &a.damping;
+                    if let (Some(m), Some(lc)) = (d.growth_zeta, d.limit_cycle_amplitude) {
+                        carried = Some((end, m, lc));
+                        growth_err.push((m.zeta - zeta).abs() * 100.0);
+                        break;
+                    }
+                }
+                let Some((gend, m, lcg)) = carried else {
+                    println!("{} {zeta} seed {seed}: no growth model", gate.as_str());
+                    continue;
+                };
+                let mut line = format!(
+                    "{} {:+.1} % seed {seed}: growth {gend} s {:+.2} %, A* {:.4}; held:",
+                    gate.as_str(),
+                    zeta * 100.0,
+                    m.zeta * 100.0,
+                    lcg
+                );
+                for end in [100.0, 110.0, 120.0] {
+                    let a = analyze_window_ending(&analyzer, &xs, p.rate_hz, end, seed);
+                    let d = &a.damping;
+                    let Some(rms) = d.signal_rms else { continue };
+                    let amp = rms * std::f64::consts::SQRT_2;
+                    let scale = (amp / lcg).powi(2);
+                    let z = m.zeta * scale;
+                    amp_err.push((z - zeta).abs() * 100.0);
+                    covered += usize::from(m.low * scale <= zeta && zeta <= m.high * scale);
+                    let env = d.envelope_zeta.map(|e| e.zeta);
+                    if let Some(e) = env {
+                        env_err.push((e - zeta).abs() * 100.0);
+                    }
+                    line += &format!(
+                        " [{:+.2} % env {:+.2} %]",
+                        z * 100.0,
+                        env.unwrap_or(f64::NAN) * 100.0
+                    );
+                }
+                println!("{line}");
+            }
+            println!(
+                "== {} {:+.1} %: growth err {:.2}, amplitude err {:.2} ({}, {covered} covered), envelope err {:.2} ({})",
+                gate.as_str(),
+                zeta * 100.0,
+                median(growth_err),
+                median(amp_err.clone()),
+                amp_err.len(),
+                median(env_err.clone()),
+                env_err.len()
+            );
+        }
+    }
+}

@@ -202,6 +202,8 @@ struct Step {
     alerts: Vec<String>,
     /// The window's `zeta0_interval`.
     interval: Option<(f64, f64)>,
+    /// The window's `zeta0_source`.
+    source: Option<String>,
     state: String,
 }
 
@@ -261,6 +263,9 @@ async fn lockstep(
                     let iv = &ident["damping"]["zeta0_interval"];
                     Some((iv[0].as_f64()?, iv[1].as_f64()?))
                 })
+                .flatten(),
+            source: fresh
+                .then(|| ident["damping"]["zeta0_source"].as_str().map(String::from))
                 .flatten(),
             state: v["alert_state"].as_str().unwrap_or("").to_string(),
         };
@@ -556,5 +561,56 @@ async fn held_limit_cycle_keeps_firing_with_the_right_zeta0() {
             .any(|a| a.0 == "resolved" && a.1 == "GateNegativeDamping"),
         "resolved: {got:?}"
     );
+    hook.task.abort();
+}
+
+/// A gate that bursts into its limit cycle again and again (the lab gate, -3 % for 15 s of every
+/// 90 s): the cycle after each growth is read from its amplitude through the damping law the
+/// growth identified (`zeta0_source = "amplitude"`, docs/damping.md, "The cycle's amplitude"),
+/// right where the envelope alone read -3 % as about -2 %: within 0.5 points, the interval
+/// covering the truth, and the alert fires on the first burst.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_burst_cycle_is_read_from_its_amplitude() {
+    let mut hook = hook().await;
+    let (window, every) = (10.0, 5.0);
+    let p = GatePreset::Lab.params();
+    let d = daemon(
+        hook.addr,
+        &format!(
+            "[defaults]\nrate_hz = {}\nstiffness = {}\nmax_past_seconds = 0.0\n\
+             [defaults.alert]\nstale_after_seconds = 600.0\n",
+            p.rate_hz, p.stiffness
+        ),
+    )
+    .await;
+    let def = ScenarioName::Bursting.def(&p);
+    let mut sim = def.simulator(&p, NoiseLevel::Relative(0.125), 3).unwrap();
+    skip_warmup(&mut sim, def.warmup_s);
+    let steps = lockstep(&d, "g1", &mut sim, 170.0, window, every).await;
+    let read: Vec<_> = steps
+        .iter()
+        .filter(|s| s.source.as_deref() == Some("amplitude"))
+        .collect();
+    assert!(
+        !read.is_empty(),
+        "no cycle read from its amplitude: {steps:?}"
+    );
+    for s in &read {
+        // the cycle's damping: the burst's, which the window holds (it may end in the decay)
+        let burst = (0..=20)
+            .map(|k| sim.true_zeta(s.end - window * k as f64 / 20.0))
+            .fold(f64::INFINITY, f64::min);
+        let (z, (lo, hi)) = (s.zeta0.unwrap(), s.interval.unwrap());
+        assert!(
+            (z - burst).abs() <= 0.005 && lo <= burst && burst <= hi,
+            "{s:?} against {burst}"
+        );
+    }
+    assert!(
+        steps.iter().any(|s| s.firing && s.end < 90.0),
+        "GateNegativeDamping did not fire on the first burst: {steps:?}"
+    );
+    hook.wait_for("firing", "GateNegativeDamping", "g1").await;
+    d.stop().await;
     hook.task.abort();
 }

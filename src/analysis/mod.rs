@@ -14,6 +14,8 @@
 //! - `verdict`: agreement with the spectrum and the verdict table of `docs/damping.md`.
 //! - `report`: the damping report and its parts.
 //! - `ambient_level`: the gate's ambient level and how far a window stands above it.
+//! - `cycle_amplitude`: a limit cycle's zeta0 from its amplitude and the damping law of the
+//!   gate's last growth.
 //! - `tracking`: when a window may refine the previous window's model instead of searching.
 //! - `analyzer`: the daemon's per-gate [`Analyzer`].
 //! - `trend`: the robust weighted trend of `zeta0` over recent windows and its predicted
@@ -23,6 +25,7 @@
 
 mod ambient_level;
 mod analyzer;
+mod cycle_amplitude;
 mod early_warning;
 mod linearisation;
 mod model_free;
@@ -41,6 +44,7 @@ pub use ambient_level::{
     departed, AmbientLevel, AMBIENT_LEVEL_MIN_WINDOWS, AMBIENT_LEVEL_WINDOWS, DEPARTED_FROM_AMBIENT,
 };
 pub use analyzer::Analyzer;
+pub use cycle_amplitude::{CycleAmplitude, LAW_AMPLITUDE_TOLERANCE, LAW_MAX_AGE_SECONDS};
 pub use early_warning::{kendall_tau, lag1_autocorrelation, rolling, variance, EwsIndicators};
 pub use linearisation::{equivalent_damping, limit_cycle, time_to_amplitude, Linearization};
 pub use model_free::{relaxation_detrend_degree, rms_swing, BEND_DEGREE, BEND_LEVEL_CHANGE};
@@ -50,7 +54,7 @@ pub use population::{biased_population, SpectralTarget};
 pub use report::{AmbientZeta, DampingReport, Verdict, Zeta0Source};
 pub use series::{
     analyze_series, analyze_series_with, polish_substeps, pre_run, term_scales, track_series_with,
-    SeriesAnalysis, SeriesOptions, DAMPING_FORCE_FRACTION,
+    SeriesAnalysis, SeriesOptions, DAMPING_FORCE_FRACTION, GROWTH_MIN_REACH,
 };
 pub use tracking::{gate_hash, Path, Previous, TrackingPolicy};
 pub use trend::{

@@ -14,6 +14,10 @@ pub enum Zeta0Source {
     /// The relaxation of the envelope's perturbations on a limit cycle
     /// ([`crate::spectral::envelope_relaxation`]).
     Envelope,
+    /// The limit cycle's amplitude through the damping law of the gate's last growth, combined
+    /// with the envelope's reading (`analysis::CycleAmplitude`, `docs/damping.md`, "The cycle's
+    /// amplitude").
+    Amplitude,
 }
 
 impl Zeta0Source {
@@ -23,6 +27,7 @@ impl Zeta0Source {
             Zeta0Source::Model => "model",
             Zeta0Source::Ambient => "ambient",
             Zeta0Source::Envelope => "envelope",
+            Zeta0Source::Amplitude => "amplitude",
         }
     }
 }
@@ -127,6 +132,19 @@ pub struct DampingReport {
     /// level (`docs/damping.md`, "The gate's ambient level").
     #[serde(default)]
     pub model_zeta: Option<AmbientZeta>,
+    /// `zeta0` of a limit-cycle window from the cycle's amplitude and the damping law of the
+    /// gate's last growth (`[zeta, low, high]`), before its combination with the envelope's;
+    /// `None` without a growth in the last half hour (`docs/damping.md`, "The cycle's
+    /// amplitude").
+    #[serde(default)]
+    pub amplitude_zeta: Option<AmbientZeta>,
+    /// On a window that grew into its limit cycle and whose model decided it: the model's
+    /// `zeta0` with its 95 % interval under the turbulent forcing
+    /// (`identify::covariance_under_forcing`, whatever `model_interval` says), the damping law
+    /// the gate carries to the cycle with `limit_cycle_amplitude` (`docs/damping.md`, "The
+    /// cycle's amplitude"); `None` elsewhere, and when that interval reaches zero.
+    #[serde(default)]
+    pub growth_zeta: Option<AmbientZeta>,
     /// The model's equivalent damping ratio over the amplitudes the window visited: points
     /// `(amplitude in the signal's unit, zeta_eq)`, amplitude increasing; empty without a model
     /// oscillator at rest.
@@ -203,6 +221,8 @@ impl DampingReport {
             ambient_zeta: None,
             envelope_zeta: None,
             model_zeta: None,
+            amplitude_zeta: None,
+            growth_zeta: None,
             zeta_eq_curve: Vec::new(),
             model_frequency_hz: None,
             amplitude: None,

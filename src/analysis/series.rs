@@ -360,12 +360,14 @@ fn analyze(
         damping.rms_swing = rms_swing(&data.y);
     }
     damping.envelope_zeta = free.relaxation;
-    let runs_zeta = identification
+    let runs_zeta: Vec<f64> = identification
         .runs
         .iter()
-        .filter_map(|r| Linearization::of(model, &r.coefficients, t0, scale.y, scale.v).zeta0());
-    // Computed only when the model's zeta0 is reported (2p + 1 integrations).
-    let model_interval = || {
+        .filter_map(|r| Linearization::of(model, &r.coefficients, t0, scale.y, scale.v).zeta0())
+        .collect();
+    // Computed only when the model's zeta0 is reported (2p + 1 integrations), and under the
+    // forcing on a window that grew into its cycle (`growth_zeta`).
+    let model_interval = |method: ModelInterval| {
         let fit = FittedModel {
             model,
             coefficients: &c,
@@ -376,15 +378,15 @@ fn analyze(
                 || !matches!(config.initial, identify::Initial::Known { .. }),
         };
         hull(
-            zeta0_interval(&fit, &data, t0, scale.y, scale.v, opts.model_interval),
-            run_spread(runs_zeta),
+            zeta0_interval(&fit, &data, t0, scale.y, scale.v, method),
+            run_spread(runs_zeta.iter().copied()),
         )
     };
     conclude(
         &mut damping,
         free.drift,
         lin.zeta0(),
-        model_interval,
+        (model_interval, opts.model_interval),
         free.spec.map(|s| s.regime),
         opts.max_fit_nmae,
     );
@@ -595,13 +597,15 @@ fn hull(a: Option<(f64, f64)>, b: Option<(f64, f64)>) -> Option<(f64, f64)> {
 }
 
 /// Fills in the verdict, `trusted` and `zeta0` with its interval and source from the report's
-/// fit, agreement, ambient and envelope estimates and the envelope's `drift` ([`decide`]), and `model_zeta` when the model is trusted
-/// (its interval is computed at most once, and only when the model is trusted or decides).
+/// fit, agreement, ambient and envelope estimates and the envelope's `drift` ([`decide`]),
+/// `model_zeta` when the model is trusted (its interval by the configured method, computed at
+/// most once, and only when the model is trusted or decides), and `growth_zeta` on a window that
+/// grew into its cycle.
 fn conclude(
     damping: &mut DampingReport,
     drift: Option<AmbientZeta>,
     zeta0_model: Option<f64>,
-    model_interval: impl FnOnce() -> Option<(f64, f64)>,
+    (model_interval, method): (impl Fn(ModelInterval) -> Option<(f64, f64)>, ModelInterval),
     regime: Option<crate::spectral::Regime>,
     max_fit_nmae: f64,
 ) {
@@ -621,7 +625,7 @@ fn conclude(
     let model_trusted = facts.model_trusted();
     let model = zeta0_model.map(|z| {
         let interval = (model_trusted || decision.source == Zeta0Source::Model)
-            .then(model_interval)
+            .then(|| model_interval(method))
             .flatten();
         (z, interval)
     });
@@ -632,7 +636,8 @@ fn conclude(
     let model_free = match decision.source {
         Zeta0Source::Ambient => damping.ambient_zeta,
         Zeta0Source::Envelope => damping.envelope_zeta,
-        Zeta0Source::Model => None,
+        // never decided per window: the gate's memory combines it afterwards
+        Zeta0Source::Amplitude | Zeta0Source::Model => None,
     };
     let (zeta0, interval) = match model_free {
         Some(a) => (Some(a.zeta), Some((a.low, a.high))),
@@ -644,4 +649,53 @@ fn conclude(
     damping.trusted = decision.trusted;
     damping.verdict = decision.verdict;
     damping.regime = regime;
+    damping.growth_zeta = grew_into_cycle(damping)
+        .then(|| match (method, damping.model_zeta) {
+            (ModelInterval::Forcing, Some(m)) => Some(m),
+            _ => {
+                let (low, high) = model_interval(ModelInterval::Forcing)?;
+                Some(AmbientZeta {
+                    zeta: zeta0_model?,
+                    low,
+                    high,
+                })
+            }
+        })
+        .flatten()
+        .filter(|g| g.high < 0.0);
+    // Where the window grew into its cycle, the model's interval is the one under the forcing as
+    // well: there it is honest, the Newey-West one too narrow (`docs/damping.md`, "The cycle's
+    // amplitude").
+    if let (Some(g), Some(m)) = (damping.growth_zeta, damping.model_zeta.as_mut()) {
+        m.low = m.low.min(g.low);
+        m.high = m.high.max(g.high);
+        if damping.zeta0_source == Some(Zeta0Source::Model) {
+            damping.zeta0_interval = Some((m.low, m.high));
+        }
+    }
+}
+
+/// The growth window's amplitude at its end over the model's limit-cycle amplitude below which
+/// its model is no damping law for the cycle (`growth_zeta`): a window that stayed far below its
+/// cycle barely saw the non-linear damping (at 0.7 of the cycle's amplitude the non-linear part
+/// is half the linear one).
+pub const GROWTH_MIN_REACH: f64 = 0.7;
+
+/// Whether a concluded window may have grown into its cycle: its model trusted and negative, on
+/// a growing or limit-cycle regime, its amplitude at the end at least [`GROWTH_MIN_REACH`] of
+/// its model's limit cycle (`docs/damping.md`, "The cycle's amplitude"). The gate's memory
+/// carries it only when the model decides the window in the end (`CycleAmplitude`): the gate's
+/// ambient level gives a window that left it to the model after this analysis, and a held cycle
+/// is decided by its envelope, never by the model, whose reading there is biased.
+fn grew_into_cycle(d: &DampingReport) -> bool {
+    let reached = match (d.amplitude, d.limit_cycle_amplitude) {
+        (Some(a), Some(lc)) => lc.is_finite() && lc > 0.0 && a >= GROWTH_MIN_REACH * lc,
+        _ => false,
+    };
+    reached
+        && d.model_zeta.is_some_and(|m| m.zeta < 0.0)
+        && matches!(
+            d.regime,
+            Some(crate::spectral::Regime::SelfExcited | crate::spectral::Regime::LimitCycle)
+        )
 }

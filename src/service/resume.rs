@@ -38,8 +38,8 @@
 
 use crate::alert::AlertRules;
 use crate::analysis::{
-    AmbientLevel, DampingReport, DampingTrend, Path, Previous, TrendEstimate, WindowAnalysis,
-    MAX_TREND_POINTS,
+    AmbientLevel, CycleAmplitude, DampingReport, DampingTrend, Path, Previous, TrendEstimate,
+    WindowAnalysis, MAX_TREND_POINTS,
 };
 use crate::store::HistoryRow;
 
@@ -61,6 +61,8 @@ pub struct GateMemory {
     pub trend_estimate: Option<TrendEstimate>,
     /// The ambient level.
     pub level: AmbientLevel,
+    /// The damping law of the gate's last growth among the stored windows.
+    pub cycle: CycleAmplitude,
     /// The tracking memory for the worker pool (`None`: no stored window of the gate's model).
     pub previous: Option<Previous>,
     /// Stored windows read.
@@ -118,6 +120,7 @@ pub fn rebuild(
     // every window read: a gate held on its limit cycle for minutes still finds the
     // noise-driven windows before it
     let level = AmbientLevel::resume(decoded.iter().map(|(a, _, end)| (&a.damping, *end)));
+    let cycle = CycleAmplitude::resume(decoded.iter().map(|(a, _, end)| (&a.damping, *end)));
     // the windows since the model last changed (a model changed in the configuration leaves
     // its older windows out, and a gate whose latest window is of another model starts
     // afresh), at most RESUME_MODEL_WINDOWS of them
@@ -132,6 +135,7 @@ pub fn rebuild(
         trend,
         trend_estimate,
         level,
+        cycle,
         previous,
         windows: rows.len(),
         skipped: rows.len() - decoded.len(),
@@ -325,6 +329,7 @@ mod tests {
         let analyzer = Remembers { known: "new" };
         let (mut trend, mut estimate) = (DampingTrend::new(600.0), None);
         let mut level = AmbientLevel::default();
+        let mut cycle = CycleAmplitude::default();
         let mut previous: Option<Previous> = None;
         let mut rows = Vec::new();
         for i in 0..20 {
@@ -340,7 +345,18 @@ mod tests {
             } else {
                 Some(analyzer.remember("g", previous.as_ref(), &a, end - 10.0, end))
             };
+            if i == 12 {
+                // a window that grew into its cycle, which the model decided (no SSI estimate to read it as
+                // noise-driven)
+                a.damping.growth_zeta = Some((-0.02, -0.025, -0.015).into());
+                a.damping.limit_cycle_amplitude = Some(50.0);
+                a.damping.zeta0_source = Some(crate::analysis::Zeta0Source::Model);
+                a.damping.trusted = true;
+                a.damping.regime = Some(crate::spectral::Regime::SelfExcited);
+                a.damping.ambient_zeta = None;
+            }
             level.observe_span(&mut a.damping, end - 10.0, end);
+            cycle.observe(end, &mut a.damping);
             let d = &a.damping;
             estimate = trend.observe(end, d.zeta0, d.zeta0_interval, d.trusted, 0.0);
             rows.push(stored(&a, end));
@@ -350,6 +366,8 @@ mod tests {
         assert!(estimate.is_some_and(|e| e.slope_per_second < 0.0));
         assert_eq!(m.level, level);
         assert!(m.level.level().is_some());
+        assert_eq!(m.cycle, cycle);
+        assert_ne!(m.cycle, CycleAmplitude::default());
         assert_eq!(m.previous, previous);
         let p = m.previous.expect("windows of the gate's model");
         assert_eq!(

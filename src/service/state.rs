@@ -26,7 +26,8 @@ use super::worker::{Job, JobOutcome, Submitted, WindowAnalyzer, WorkerPool};
 use crate::alert::notify::{spawn_notifier_with_ack, NotifierHandle};
 use crate::alert::{Alert, AlertEngine, AlertEvent, GateState, Observation};
 use crate::analysis::{
-    AmbientLevel, AnalysisError, DampingTrend, TrendEstimate, WindowAnalysis, ZetaPools,
+    AmbientLevel, AnalysisError, CycleAmplitude, DampingTrend, TrendEstimate, WindowAnalysis,
+    ZetaPools,
 };
 
 /// Relative disagreement of a declared or implied sample rate with `rate_hz` that is refused.
@@ -74,6 +75,8 @@ struct GateEntry {
     level: AmbientLevel,
     /// The gate's pooled model-free estimates (`None`: pooling off).
     pools: Option<ZetaPools>,
+    /// The damping law of the gate's last growth, which reads its limit cycle's amplitude.
+    cycle: CycleAmplitude,
     /// Wall-clock time of the last samples (or of creation): gate expiry is counted from it.
     last_data: SystemTime,
     /// Created by `accept_unknown_gates` (not a `[gates.*]` table): such a gate expires after
@@ -246,17 +249,18 @@ impl AppState {
             let cfg = self.config.gate(id)?.clone();
             inner.alerts.set_rules(id, cfg.alert.clone());
             let memory = inner.resumed.remove(id);
-            let (trend, trend_estimate, level) = match memory {
+            let (trend, trend_estimate, level, cycle) = match memory {
                 Some(m) => {
                     if let Some(p) = m.previous {
                         self.pool().restore(id, p);
                     }
-                    (m.trend, m.trend_estimate, m.level)
+                    (m.trend, m.trend_estimate, m.level, m.cycle)
                 }
                 None => (
                     DampingTrend::new(cfg.alert.trend_horizon_seconds),
                     None,
                     AmbientLevel::default(),
+                    CycleAmplitude::default(),
                 ),
             };
             self.metrics.init_gate(id);
@@ -287,6 +291,7 @@ impl AppState {
                     // validated with the configuration: an error cannot happen here, and would
                     // only mean no pooling
                     pools: cfg.pooling.pools().ok().flatten(),
+                    cycle,
                     config: cfg,
                     latest: None,
                     last_identification: None,
@@ -527,6 +532,7 @@ impl AppState {
                 if let Some(p) = e.pools.as_mut() {
                     p.apply(window.0, window.1, &mut a.damping);
                 }
+                e.cycle.observe(window.1, &mut a.damping);
                 let d = &a.damping;
                 let set = |gv: &prometheus::GaugeVec, v: Option<f64>| {
                     if let Some(v) = v.filter(|v| v.is_finite()) {

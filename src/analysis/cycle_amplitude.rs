@@ -1,0 +1,359 @@
+//! zeta0 on a limit cycle from the cycle's amplitude and the damping law the gate's last growth
+//! identified (`docs/damping.md`, "The cycle's amplitude").
+//!
+//! # Why
+//! On a limit cycle the equivalent damping is zero at the cycle's amplitude:
+//! `zeta_eq(A) = zeta0 + b A^p = 0`. Everything that reads "the damping now" reads about zero
+//! there, and the envelope's relaxation, which still sees zeta0, reads ten seconds of it with a
+//! spread of half a point and a compression towards -1.5 % (-3 % read as -2.3 %, `docs/damping.md`,
+//! "What it reads away from -2 %"). The window that grew into the cycle is where a free-vibration
+//! fit is at its best (the growth dominates the forcing), and its model holds `b`, the damping's
+//! amplitude dependence: `b = -zeta0_g / A*^p`, with `A*` its own limit-cycle amplitude. The cycle
+//! then reads `zeta0 = -b A^p = zeta0_g (A / A*)^p` from its amplitude, which ten seconds
+//! measure to a percent or so. Measured (`explore_cycle_amplitude` in `tests/damping_regimes.rs`,
+//! 12 seeds, three held windows each): at -3 % the lab gate's held cycle is read within a median
+//! 0.24 points (envelope 0.66), the lock gate's within 0.23 (0.58).
+//!
+//! What it assumes, and the guards:
+//! - `b` is the gate's own: it is carried from the last growth, in sample time at most
+//!   [`LAW_MAX_AGE_SECONDS`], and a reading that disagrees with the envelope's (their difference
+//!   beyond 1.96 standard errors of it) is not used: the envelope decides alone, as before;
+//! - the growth window's model decided it and reached its cycle (`DampingReport::growth_zeta`,
+//!   set by the window's analysis: `analysis::GROWTH_MIN_REACH`), so its fit saw the non-linear
+//!   damping it carries, and its interval is the one under the forcing, honest on such windows
+//!   (the Newey-West one covered 3 of 8 growths at -3 %, `docs/benchmarks.md`);
+//! - the cycle is where that model said it would settle (within [`LAW_AMPLITUDE_TOLERANCE`]):
+//!   the damping has not moved since;
+//! - the exponent `p` is the envelope estimators' (2: cubic velocity damping, Van der Pol).
+//!
+//! The two readings are combined by their inverse variances. The carried one is shared by every
+//! window of a cycle, so it is combined after the envelope's pool, never pooled itself.
+
+use super::report::{AmbientZeta, DampingReport, Verdict, Zeta0Source};
+use crate::spectral::{normal_quantile, Regime};
+
+/// Sample seconds a growth's damping law is carried: half an hour. The law is the gate's
+/// non-linearity, which changes with the flow; a burst every few minutes renews it.
+pub const LAW_MAX_AGE_SECONDS: f64 = 1800.0;
+
+/// How far the cycle's amplitude may lie from the limit-cycle amplitude the growth's model
+/// predicted, as a fraction of it, for the law to be used: the cycle settled where the growth
+/// said it would, so the damping has not moved since (on an onset's ramp the cycle keeps
+/// growing past the amplitude of a window's model, whose constant coefficients read the moving
+/// cycle too close to zero).
+pub const LAW_AMPLITUDE_TOLERANCE: f64 = 0.1;
+
+/// The damping law of the gate's last growth.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct GrowthLaw {
+    /// The growth window's model zeta0 with its 95 % interval.
+    zeta0: AmbientZeta,
+    /// Its model's limit-cycle amplitude, in the signal's unit.
+    limit_cycle: f64,
+    /// Sample time of the growth window's end.
+    t_end: f64,
+}
+
+/// A gate's memory of the damping law its last growth identified (bounded: one law).
+#[derive(Debug, Clone, PartialEq)]
+pub struct CycleAmplitude {
+    law: Option<GrowthLaw>,
+    exponent: f64,
+}
+
+impl Default for CycleAmplitude {
+    fn default() -> Self {
+        CycleAmplitude {
+            law: None,
+            exponent: crate::spectral::RelaxationOptions::default().exponent,
+        }
+    }
+}
+
+impl CycleAmplitude {
+    /// The memory after a gate's stored reports (oldest first, with their windows' ends in
+    /// sample time), as the daemon left them: the law of the last growth among them (the
+    /// stored reports are the final ones, after this memory's own reading).
+    pub fn resume<'a>(reports: impl IntoIterator<Item = (&'a DampingReport, f64)>) -> Self {
+        let mut memory = CycleAmplitude::default();
+        for (d, t_end) in reports {
+            if let Some(law) = growth_law(t_end, d) {
+                memory.law = Some(law);
+            }
+        }
+        memory
+    }
+
+    /// Reads the report of the window ending at `t_end` (sample time), after the envelope's
+    /// pool: a growth window's model is remembered; on a limit-cycle window read by its envelope
+    /// the cycle's amplitude gives a second reading (`amplitude_zeta`), and where the two agree
+    /// `zeta0`, its interval, the verdict and `trusted` become their combination
+    /// (`zeta0_source = "amplitude"`).
+    pub fn observe(&mut self, t_end: f64, d: &mut DampingReport) {
+        if let Some(law) = growth_law(t_end, d) {
+            self.law = Some(law);
+            return;
+        }
+        let Some(law) = self.law.filter(|l| t_end - l.t_end <= LAW_MAX_AGE_SECONDS) else {
+            return;
+        };
+        if d.zeta0_source != Some(Zeta0Source::Envelope) || d.regime != Some(Regime::LimitCycle) {
+            return;
+        }
+        let Some(rms) = d.signal_rms.filter(|r| r.is_finite() && *r > 0.0) else {
+            return;
+        };
+        // A sine of amplitude A has the RMS A / sqrt(2); the sensor's noise adds a fraction of a
+        // percent at a cycle's level.
+        let ratio = rms * std::f64::consts::SQRT_2 / law.limit_cycle;
+        if (ratio - 1.0).abs() > LAW_AMPLITUDE_TOLERANCE {
+            return;
+        }
+        let scale = ratio.powf(self.exponent);
+        let carried = AmbientZeta {
+            zeta: law.zeta0.zeta * scale,
+            low: law.zeta0.low * scale,
+            high: law.zeta0.high * scale,
+        };
+        if !(carried.zeta.is_finite() && carried.low.is_finite() && carried.high.is_finite()) {
+            return;
+        }
+        d.amplitude_zeta = Some(carried);
+        let (Some(z), Some((lo, hi))) = (d.zeta0, d.zeta0_interval) else {
+            return;
+        };
+        let Some((zeta, interval)) = combine((z, lo, hi), carried) else {
+            return;
+        };
+        d.zeta0 = Some(zeta);
+        d.zeta0_interval = Some(interval);
+        d.zeta0_source = Some(Zeta0Source::Amplitude);
+        // a lone limit-cycle window stays no evidence on its own (`ZetaPools::apply`); a pooled
+        // one is read as the envelope's rows of `decide` read it
+        if d.zeta0_windows != Some(1) {
+            (d.verdict, d.trusted) = if interval.1 < 0.0 {
+                (Verdict::SelfExcited, true)
+            } else {
+                (Verdict::Unknown, false)
+            };
+        }
+    }
+}
+
+/// The law a report carries: its `growth_zeta` (set by the window's analysis on a window that
+/// may have grown into its cycle) with its model's limit-cycle amplitude, where the model decided
+/// the window in the end (trusted).
+fn growth_law(t_end: f64, d: &DampingReport) -> Option<GrowthLaw> {
+    if !(d.trusted && d.zeta0_source == Some(Zeta0Source::Model)) {
+        return None;
+    }
+    let zeta0 = d.growth_zeta?;
+    let limit_cycle = d
+        .limit_cycle_amplitude
+        .filter(|a| a.is_finite() && *a > 0.0)?;
+    Some(GrowthLaw {
+        zeta0,
+        limit_cycle,
+        t_end,
+    })
+}
+
+/// The inverse-variance combination of the envelope's `(zeta, low, high)` and the carried
+/// reading, with its 95 % interval; `None` when they disagree (difference beyond 1.96 standard
+/// errors of it) or an interval is empty. Each interval's half width over 1.96 is its standard
+/// error (the envelope's is normal; the model's may be a wider t interval, on the safe side).
+fn combine((z, lo, hi): (f64, f64, f64), c: AmbientZeta) -> Option<(f64, (f64, f64))> {
+    let q = normal_quantile(0.975);
+    let se_e = (hi - lo) / (2.0 * q);
+    let se_c = (c.high - c.low) / (2.0 * q);
+    if !(se_e > 0.0 && se_c > 0.0) {
+        return None;
+    }
+    if (z - c.zeta).abs() > q * (se_e * se_e + se_c * se_c).sqrt() {
+        return None;
+    }
+    let (w_e, w_c) = (1.0 / (se_e * se_e), 1.0 / (se_c * se_c));
+    let zeta = (w_e * z + w_c * c.zeta) / (w_e + w_c);
+    let half = q / (w_e + w_c).sqrt();
+    Some((zeta, (zeta - half, zeta + half)))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const A_STAR: f64 = 50.0;
+
+    /// A trusted growth window at `zeta` (+- `half` under the forcing), its model's cycle at
+    /// [`A_STAR`].
+    fn growth(zeta: f64, half: f64) -> DampingReport {
+        DampingReport {
+            zeta0: Some(zeta),
+            zeta0_interval: Some((zeta - half / 2.0, zeta + half / 2.0)),
+            zeta0_source: Some(Zeta0Source::Model),
+            growth_zeta: Some(AmbientZeta {
+                zeta,
+                low: zeta - half,
+                high: zeta + half,
+            }),
+            limit_cycle_amplitude: Some(A_STAR),
+            amplitude: Some(0.9 * A_STAR),
+            regime: Some(Regime::SelfExcited),
+            trusted: true,
+            verdict: Verdict::SelfExcited,
+            ..DampingReport::unknown()
+        }
+    }
+
+    /// A limit-cycle window of amplitude `amp` read by its envelope at `zeta` (+- `half`), pooled
+    /// over `windows`.
+    fn cycle(amp: f64, zeta: f64, half: f64, windows: usize) -> DampingReport {
+        let trusted = windows > 1 && zeta + half < 0.0;
+        DampingReport {
+            zeta0: Some(zeta),
+            zeta0_interval: Some((zeta - half, zeta + half)),
+            zeta0_source: Some(Zeta0Source::Envelope),
+            zeta0_windows: Some(windows),
+            signal_rms: Some(amp / std::f64::consts::SQRT_2),
+            regime: Some(Regime::LimitCycle),
+            trusted,
+            verdict: if trusted {
+                Verdict::SelfExcited
+            } else {
+                Verdict::Unknown
+            },
+            ..DampingReport::unknown()
+        }
+    }
+
+    #[test]
+    fn a_cycle_is_read_from_its_amplitude_and_the_growth_before_it() {
+        let mut memory = CycleAmplitude::default();
+        let mut g = growth(-0.03, 0.004);
+        memory.observe(70.0, &mut g);
+        // the growth window itself is not changed
+        assert_eq!(g, growth(-0.03, 0.004));
+        // the carried reading is the growth's interval under the forcing, not the reported one
+        // the envelope reads -2.3 % +- 0.8 on the cycle at A*: the combination lies between, much
+        // nearer the narrower carried reading, and is narrower than either
+        let mut d = cycle(A_STAR, -0.023, 0.008, 3);
+        memory.observe(90.0, &mut d);
+        let c = d.amplitude_zeta.expect("carried reading");
+        assert!((c.zeta + 0.03).abs() < 1e-12 && (c.high - c.low - 0.008).abs() < 1e-12);
+        assert_eq!(d.zeta0_source, Some(Zeta0Source::Amplitude));
+        let z = d.zeta0.unwrap();
+        let (lo, hi) = d.zeta0_interval.unwrap();
+        assert!(
+            -0.03 < z && z < -0.023 && (z + 0.03).abs() < (z + 0.023).abs(),
+            "{z}"
+        );
+        assert!(hi - lo < 0.008 && lo < z && z < hi, "({lo}, {hi})");
+        assert!(d.trusted && d.verdict == Verdict::SelfExcited);
+        // 5 % more amplitude is 10 % more damping (p = 2): the cycle is larger because zeta0 is
+        let mut d = cycle(1.05 * A_STAR, -0.03, 0.008, 3);
+        memory.observe(95.0, &mut d);
+        let c = d.amplitude_zeta.unwrap();
+        assert!((c.zeta + 0.03 * 1.05 * 1.05).abs() < 1e-12, "{c:?}");
+        assert_eq!(d.zeta0_source, Some(Zeta0Source::Amplitude));
+        // a cycle far from where the growth said it would settle: the damping moved since
+        for amp in [0.85 * A_STAR, 1.15 * A_STAR, 2.0 * A_STAR] {
+            let before = cycle(amp, -0.03, 0.008, 3);
+            let mut d = before.clone();
+            memory.observe(100.0, &mut d);
+            assert_eq!(d, before, "amplitude {amp}");
+        }
+    }
+
+    #[test]
+    fn a_reading_that_disagrees_leaves_the_envelope_alone() {
+        let mut memory = CycleAmplitude::default();
+        memory.observe(70.0, &mut growth(-0.03, 0.002));
+        let before = cycle(A_STAR, -0.01, 0.004, 3);
+        let mut d = before.clone();
+        memory.observe(90.0, &mut d);
+        assert!(d.amplitude_zeta.is_some());
+        assert_eq!(
+            DampingReport {
+                amplitude_zeta: None,
+                ..d
+            },
+            before
+        );
+    }
+
+    #[test]
+    fn only_a_window_with_a_growth_reading_is_carried() {
+        // the window's analysis sets `growth_zeta` (`series::grew_into_cycle`); a model window
+        // without it (a held cycle, a growth far below its cycle) carries nothing
+        for g in [
+            DampingReport {
+                growth_zeta: None,
+                ..growth(-0.03, 0.004)
+            },
+            DampingReport {
+                limit_cycle_amplitude: None,
+                ..growth(-0.03, 0.004)
+            },
+        ] {
+            let mut memory = CycleAmplitude::default();
+            memory.observe(70.0, &mut g.clone());
+            let mut d = cycle(A_STAR, -0.025, 0.008, 3);
+            memory.observe(90.0, &mut d);
+            assert_eq!(d.amplitude_zeta, None, "{g:?}");
+            assert_eq!(d.zeta0_source, Some(Zeta0Source::Envelope));
+        }
+    }
+
+    #[test]
+    fn the_law_expires_and_is_never_applied_to_other_windows() {
+        let mut memory = CycleAmplitude::default();
+        memory.observe(70.0, &mut growth(-0.03, 0.004));
+        let mut late = cycle(A_STAR, -0.025, 0.008, 3);
+        memory.observe(70.0 + LAW_MAX_AGE_SECONDS + 1.0, &mut late);
+        assert_eq!(late.zeta0_source, Some(Zeta0Source::Envelope));
+        assert_eq!(late.amplitude_zeta, None);
+        // an ambient window at the same amplitude is not a cycle
+        let mut memory = CycleAmplitude::default();
+        memory.observe(70.0, &mut growth(-0.03, 0.004));
+        let mut ambient = DampingReport {
+            zeta0_source: Some(Zeta0Source::Ambient),
+            regime: Some(Regime::Undecided),
+            ..cycle(A_STAR, 0.01, 0.005, 3)
+        };
+        let before = ambient.clone();
+        memory.observe(90.0, &mut ambient);
+        assert_eq!(ambient, before);
+    }
+
+    #[test]
+    fn a_restart_remembers_the_last_growth_of_the_stored_reports() {
+        let growth_a = growth(-0.02, 0.004);
+        let growth_b = growth(-0.03, 0.004);
+        let ambient = DampingReport {
+            zeta0_source: Some(Zeta0Source::Ambient),
+            regime: Some(Regime::Undecided),
+            ..cycle(A_STAR, 0.01, 0.005, 3)
+        };
+        let stored = [(&growth_a, 70.0), (&growth_b, 160.0), (&ambient, 200.0)];
+        let mut live = CycleAmplitude::default();
+        for (d, end) in stored {
+            live.observe(end, &mut d.clone());
+        }
+        let resumed = CycleAmplitude::resume(stored);
+        assert_eq!(resumed, live);
+        let mut d = cycle(A_STAR, -0.025, 0.008, 3);
+        CycleAmplitude::resume(stored).observe(250.0, &mut d);
+        assert!((d.amplitude_zeta.unwrap().zeta + 0.03).abs() < 1e-12);
+        assert_eq!(CycleAmplitude::resume([]), CycleAmplitude::default());
+    }
+
+    #[test]
+    fn a_lone_cycle_window_stays_no_evidence_on_its_own() {
+        let mut memory = CycleAmplitude::default();
+        memory.observe(70.0, &mut growth(-0.03, 0.004));
+        let mut d = cycle(A_STAR, -0.025, 0.008, 1);
+        memory.observe(80.0, &mut d);
+        assert_eq!(d.zeta0_source, Some(Zeta0Source::Amplitude));
+        assert!(!d.trusted && d.verdict == Verdict::Unknown);
+    }
+}
