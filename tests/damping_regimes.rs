@@ -943,7 +943,13 @@ fn explore_cycle_amplitude() {
                     let scale = (amp / lcg).powi(2);
                     let z = m.zeta * scale;
                     amp_err.push((z - zeta).abs() * 100.0);
-                    covered += usize::from(m.low * scale <= zeta && zeta <= m.high * scale);
+                    // the interval the daemon carries: widened about its reading, then scaled
+                    let k = gatewatch::analysis::LAW_INTERVAL_INFLATION;
+                    let (lo, hi) = (
+                        m.zeta - k * (m.zeta - m.low),
+                        m.zeta + k * (m.high - m.zeta),
+                    );
+                    covered += usize::from(lo * scale <= zeta && zeta <= hi * scale);
                     let env = d.envelope_zeta.map(|e| e.zeta);
                     if let Some(e) = env {
                         env_err.push((e - zeta).abs() * 100.0);

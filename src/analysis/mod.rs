@@ -44,7 +44,9 @@ pub use ambient_level::{
     departed, AmbientLevel, AMBIENT_LEVEL_MIN_WINDOWS, AMBIENT_LEVEL_WINDOWS, DEPARTED_FROM_AMBIENT,
 };
 pub use analyzer::Analyzer;
-pub use cycle_amplitude::{CycleAmplitude, LAW_AMPLITUDE_TOLERANCE, LAW_MAX_AGE_SECONDS};
+pub use cycle_amplitude::{
+    CycleAmplitude, LAW_AMPLITUDE_TOLERANCE, LAW_INTERVAL_INFLATION, LAW_MAX_AGE_SECONDS,
+};
 pub use early_warning::{kendall_tau, lag1_autocorrelation, rolling, variance, EwsIndicators};
 pub use linearisation::{equivalent_damping, limit_cycle, time_to_amplitude, Linearization};
 pub use model_free::{relaxation_detrend_degree, rms_swing, BEND_DEGREE, BEND_LEVEL_CHANGE};

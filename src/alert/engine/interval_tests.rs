@@ -206,8 +206,8 @@ fn a_window_far_below_fires_at_once() {
     };
     assert!(e.observe("g", &point, t(0)).is_empty());
     assert_eq!(e.observe("g", &point, t(5)).len(), 1);
-    // the default is 0.999
-    assert_eq!(AlertRules::default().fire_at_once_probability, 0.999);
+    // the default is 0.975: the window's 95 % interval below fire_below
+    assert_eq!(AlertRules::default().fire_at_once_probability, 0.975);
     // an untrusted window far below is no evidence
     let mut e = AlertEngine::new(AlertRules {
         fire_at_once_probability: 0.999,

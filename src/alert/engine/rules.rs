@@ -25,8 +25,9 @@ pub struct AlertRules {
     pub for_windows: u32,
     /// One trusted window with `P(zeta0 < fire_below)` at or above this, standing at least
     /// [`super::AT_ONCE_MIN_AMBIENT_RATIO`] times above the gate's ambient level, fires at once
-    /// without waiting for `for_windows` (default 0.999, a 99.8 % two-sided interval below
-    /// `fire_below`; 1: off). Why: at 10 Hz a gate goes from zero damping to -1 % and its limit
+    /// without waiting for `for_windows` (default 0.975, its 95 % interval below `fire_below`;
+    /// 1: off; 0.999 until session 37, when the growth windows' model intervals became honest,
+    /// docs/alerts.md). Why: at 10 Hz a gate goes from zero damping to -1 % and its limit
     /// cycle within three 5 s hops, so two confident windows come only after -1 %. Why the
     /// ambient level: on a stable +0.5 % lock gate a model-sourced window read -2.5 % (-2.8,
     /// -2.1) once in 8.7 h of stream at the gate's usual level (docs/alerts.md).
@@ -64,7 +65,7 @@ impl Default for AlertRules {
             clear_above: 0.005,
             fire_probability: None,
             for_windows: 2,
-            fire_at_once_probability: 0.999,
+            fire_at_once_probability: 0.975,
             resolve_windows: 2,
             trend_horizon_seconds: 600.0,
             trend_min_span_seconds: 120.0,
