@@ -502,16 +502,17 @@ async fn slow_drift_warns_before_zero() {
     hook.task.abort();
 }
 
-/// Issue 8, "done when": a gate held on its -2 % limit cycle (lock gate, 2000 kg, 5 Hz, 100 Hz
-/// sampling, sensor noise) fires `GateNegativeDamping` and never resolves it, and the reported
-/// `zeta0` is right: median within 0.5 points of the truth, and the intervals cover it.
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn held_limit_cycle_keeps_firing_with_the_right_zeta0() {
-    let mut hook = hook().await;
-    let (window, every) = (10.0, 5.0);
-    let p = GatePreset::Lock.params();
+/// A daemon configured for a bench preset gate (its rate and stiffness, alerts kept fresh for 10
+/// minutes) and the seeded scenario's simulator on it, past its warm-up, with the bench's noise.
+async fn scenario_daemon(
+    hook: SocketAddr,
+    preset: GatePreset,
+    scenario: ScenarioName,
+    seed: u64,
+) -> (Daemon, GateSimulator) {
+    let p = preset.params();
     let d = daemon(
-        hook.addr,
+        hook,
         &format!(
             "[defaults]\nrate_hz = {}\nstiffness = {}\nmax_past_seconds = 0.0\n\
              [defaults.alert]\nstale_after_seconds = 600.0\n",
@@ -519,9 +520,23 @@ async fn held_limit_cycle_keeps_firing_with_the_right_zeta0() {
         ),
     )
     .await;
-    let def = ScenarioName::LimitCycle.def(&p);
-    let mut sim = def.simulator(&p, NoiseLevel::Relative(0.125), 4).unwrap();
+    let def = scenario.def(&p);
+    let mut sim = def
+        .simulator(&p, NoiseLevel::Relative(0.125), seed)
+        .unwrap();
     skip_warmup(&mut sim, def.warmup_s);
+    (d, sim)
+}
+
+/// Issue 8, "done when": a gate held on its -2 % limit cycle (lock gate, 2000 kg, 5 Hz, 100 Hz
+/// sampling, sensor noise) fires `GateNegativeDamping` and never resolves it, and the reported
+/// `zeta0` is right: median within 0.5 points of the truth, and the intervals cover it.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn held_limit_cycle_keeps_firing_with_the_right_zeta0() {
+    let mut hook = hook().await;
+    let (window, every) = (10.0, 5.0);
+    let (d, mut sim) =
+        scenario_daemon(hook.addr, GatePreset::Lock, ScenarioName::LimitCycle, 4).await;
     let steps = lockstep(&d, "g1", &mut sim, 180.0, window, every).await;
     let fired = steps
         .iter()
@@ -573,19 +588,7 @@ async fn held_limit_cycle_keeps_firing_with_the_right_zeta0() {
 async fn a_burst_cycle_is_read_from_its_amplitude() {
     let mut hook = hook().await;
     let (window, every) = (10.0, 5.0);
-    let p = GatePreset::Lab.params();
-    let d = daemon(
-        hook.addr,
-        &format!(
-            "[defaults]\nrate_hz = {}\nstiffness = {}\nmax_past_seconds = 0.0\n\
-             [defaults.alert]\nstale_after_seconds = 600.0\n",
-            p.rate_hz, p.stiffness
-        ),
-    )
-    .await;
-    let def = ScenarioName::Bursting.def(&p);
-    let mut sim = def.simulator(&p, NoiseLevel::Relative(0.125), 3).unwrap();
-    skip_warmup(&mut sim, def.warmup_s);
+    let (d, mut sim) = scenario_daemon(hook.addr, GatePreset::Lab, ScenarioName::Bursting, 3).await;
     let steps = lockstep(&d, "g1", &mut sim, 170.0, window, every).await;
     let read: Vec<_> = steps
         .iter()
