@@ -237,14 +237,10 @@ fn read_departed_window_by_the_model(
     let Some(m) = d.model_zeta.filter(|m| m.zeta < 0.0) else {
         return;
     };
-    let eligible = match d.zeta0_source {
-        Some(Zeta0Source::Ambient) => d.regime != Some(Regime::LimitCycle),
-        Some(Zeta0Source::Envelope) => {
-            (previous == Some(Zeta0Source::Ambient) || first_cycle)
-                && d.rms_swing.is_some_and(|s| s >= GREW_INSIDE_SWING)
-        }
-        _ => false,
-    };
+    let eligible = model_may_read(d)
+        && (d.zeta0_source != Some(Zeta0Source::Envelope)
+            || previous == Some(Zeta0Source::Ambient)
+            || first_cycle);
     if !eligible {
         return;
     }
@@ -253,6 +249,19 @@ fn read_departed_window_by_the_model(
     d.zeta0_source = Some(Zeta0Source::Model);
     d.verdict = Verdict::SelfExcited;
     d.trusted = true;
+}
+
+/// Whether [`read_departed_window_by_the_model`] could give this window to its model, whatever
+/// the gate's history (its level, the window before): an ambient-decided window that is no limit
+/// cycle, or an envelope-decided one that swung at least [`GREW_INSIDE_SWING`]. The window's
+/// analysis asks it before computing what only a model-decided window needs
+/// (`DampingReport::growth_zeta`).
+pub(super) fn model_may_read(d: &DampingReport) -> bool {
+    match d.zeta0_source {
+        Some(Zeta0Source::Ambient) => d.regime != Some(Regime::LimitCycle),
+        Some(Zeta0Source::Envelope) => d.rms_swing.is_some_and(|s| s >= GREW_INSIDE_SWING),
+        _ => false,
+    }
 }
 
 /// Smallest [`DampingReport::rms_swing`] of the first limit-cycle window (after an

@@ -683,16 +683,19 @@ pub const GROWTH_MIN_REACH: f64 = 0.7;
 
 /// Whether a concluded window may have grown into its cycle: its model trusted and negative, on
 /// a growing or limit-cycle regime, its amplitude at the end at least [`GROWTH_MIN_REACH`] of
-/// its model's limit cycle (`docs/damping.md`, "The cycle's amplitude"). The gate's memory
-/// carries it only when the model decides the window in the end (`CycleAmplitude`): the gate's
-/// ambient level gives a window that left it to the model after this analysis, and a held cycle
-/// is decided by its envelope, never by the model, whose reading there is biased.
+/// its model's limit cycle (`docs/damping.md`, "The cycle's amplitude"), and the model decides
+/// it or the gate's ambient level may give it to the model after this analysis
+/// (`ambient_level::model_may_read`). The gate's memory carries it only when the model decides
+/// the window in the end (`CycleAmplitude`). A held cycle is decided by its envelope, never by
+/// the model, whose reading there is biased: its windows skip the forcing covariance, which
+/// made a held cycle's analysis a third slower when every window computed it.
 fn grew_into_cycle(d: &DampingReport) -> bool {
     let reached = match (d.amplitude, d.limit_cycle_amplitude) {
         (Some(a), Some(lc)) => lc.is_finite() && lc > 0.0 && a >= GROWTH_MIN_REACH * lc,
         _ => false,
     };
     reached
+        && (d.zeta0_source == Some(Zeta0Source::Model) || super::ambient_level::model_may_read(d))
         && d.model_zeta.is_some_and(|m| m.zeta < 0.0)
         && matches!(
             d.regime,
