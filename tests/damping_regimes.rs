@@ -780,6 +780,20 @@ fn analyze_window_ending(
     analyzer.analyze(input, None, seed).expect("analysis")
 }
 
+/// `seconds` of a gate's samples, ambient at +1 % until 60 s and at `zeta` from then on, with
+/// sensor noise of `noise` (signal units): the switch the explorations of the model's interval
+/// and of the cycle's amplitude read.
+fn switched_at_60_s(p: &GateParams, noise: f64, zeta: f64, seed: u64, seconds: f64) -> Vec<f64> {
+    let schedule = ZetaSchedule::Table(vec![(59.999, 0.01), (60.0, zeta)]);
+    let q = GateParams {
+        noise_std: noise,
+        ..p.clone()
+    };
+    let mut sim = GateSimulator::new(q, schedule, seed);
+    let total = (seconds * p.rate_hz).round() as usize;
+    (0..total).map(|_| sim.next_sample()).collect()
+}
+
 /// The onset's first negative windows, read by the daemon's model (the bench presets, their
 /// noise, the daemon's analysis settings, a full search on each window): the model's own zeta0,
 /// `c2 / (2 sqrt(k c1))`, and its cubic coefficient against the gate's, per window end, medians
@@ -853,15 +867,8 @@ fn explore_model_interval_calibration() {
         ] {
             let (mut n, mut covered, mut hw, mut err) = (0, 0, Vec::new(), Vec::new());
             for seed in 1..=20u64 {
-                let schedule = ZetaSchedule::Table(vec![(59.999, 0.01), (60.0, zeta)]);
-                let q = GateParams {
-                    noise_std: noise,
-                    ..p.clone()
-                };
-                let mut sim = GateSimulator::new(q, schedule, seed);
                 let last = ends.iter().cloned().fold(0.0, f64::max);
-                let total = (last * p.rate_hz).round() as usize;
-                let xs: Vec<f64> = (0..total).map(|_| sim.next_sample()).collect();
+                let xs = switched_at_60_s(&p, noise, zeta, seed, last);
                 for e in &ends {
                     let a = analyze_window_ending(&analyzer, &xs, p.rate_hz, *e, seed);
                     if let Some(m) = a.damping.model_zeta {
@@ -905,14 +912,7 @@ fn explore_cycle_amplitude() {
             let (mut amp_err, mut env_err, mut growth_err) = (Vec::new(), Vec::new(), Vec::new());
             let mut covered = 0;
             for seed in 1..=12u64 {
-                let schedule = ZetaSchedule::Table(vec![(59.999, 0.01), (60.0, zeta)]);
-                let q = GateParams {
-                    noise_std: noise,
-                    ..p.clone()
-                };
-                let mut sim = GateSimulator::new(q, schedule, seed);
-                let total = (120.0 * p.rate_hz).round() as usize;
-                let xs: Vec<f64> = (0..total).map(|_| sim.next_sample()).collect();
+                let xs = switched_at_60_s(&p, noise, zeta, seed, 120.0);
                 // the first window the model reads a limit cycle in
                 let mut carried = None;
                 for end in [62.0, 64.0, 66.0, 68.0, 70.0, 72.0, 75.0, 80.0] {
