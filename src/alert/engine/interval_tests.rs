@@ -322,6 +322,39 @@ fn declining_fires_resolves_and_holds_on_no_evidence() {
 }
 
 #[test]
+fn declining_after_the_crossing_says_the_trend_is_below_not_that_it_will_cross() {
+    let mut e = engine();
+    let past = TrendEstimate {
+        level: -0.004,
+        crossing_seconds: Some(0.0),
+        ..trend(Some(0.0), 300.0)
+    };
+    let o = Observation {
+        trend: Some(past),
+        ..obs(-0.004, -0.012, 0.003)
+    };
+    assert!(e.observe("g", &o, t(0)).is_empty());
+    let ev = e.observe("g", &o, t(5));
+    let an = &ev[0].alert().annotations;
+    assert_eq!(
+        an["summary"],
+        "gate g: damping ratio declining, its trend already at or below 0.0 %"
+    );
+    assert!(
+        an["description"].ends_with("Its trend line stands at -0.4 %, already at or below 0.0 %."),
+        "{}",
+        an["description"]
+    );
+    assert!(
+        !an["description"].contains("in 0.0 min"),
+        "{}",
+        an["description"]
+    );
+    // the figures stay for rules and receivers that read them
+    assert_eq!(an["crossing_seconds_confident"], "0");
+}
+
+#[test]
 fn declining_needs_span_lead_and_a_streak() {
     let mut e = engine();
     // a crossing beyond the lead (600 s) does not fire

@@ -154,16 +154,24 @@ fn declining_annotations(
         _ => "unknown".to_string(),
     };
     let confident = trend.crossing_seconds_confident;
-    let when = confident
-        .map(|s| format!("{} min", fmt_minutes(s)))
-        .unwrap_or_else(|| "?".into());
-    a.insert(
-        "summary".to_string(),
+    // A trend line already at or below the threshold "crosses it in 0 s" (the warning keeps
+    // firing after the crossing, docs/alerts.md): say that it is there, not that it will be.
+    let below = trend.level <= trend.threshold;
+    let summary = if below {
+        format!(
+            "gate {gate}: damping ratio declining, its trend already at or below {} %",
+            fmt_percent(rules.fire_below)
+        )
+    } else {
+        let when = confident
+            .map(|s| format!("{} min", fmt_minutes(s)))
+            .unwrap_or_else(|| "?".into());
         format!(
             "gate {gate}: damping ratio declining, predicted to cross {} % within {when}",
             fmt_percent(rules.fire_below)
-        ),
-    );
+        )
+    };
+    a.insert("summary".to_string(), summary);
     let mut description = format!(
         "The damping ratio of gate {gate} is {now} and falls by {} percentage points per minute \
          (trend over the last {} min of data, {} windows).",
@@ -171,7 +179,13 @@ fn declining_annotations(
         fmt_minutes(trend.span_seconds),
         trend.windows
     );
-    if let Some(s) = trend.crossing_seconds {
+    if below {
+        description.push_str(&format!(
+            " Its trend line stands at {} %, already at or below {} %.",
+            fmt_percent(trend.level),
+            fmt_percent(rules.fire_below)
+        ));
+    } else if let Some(s) = trend.crossing_seconds {
         description.push_str(&format!(
             " At this rate it crosses {} % in {} min",
             fmt_percent(rules.fire_below),
