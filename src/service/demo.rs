@@ -207,11 +207,9 @@ pub async fn run_demo(
          -2 % over {} s (sample time), streamed at {}x through POST /api/v1/samples",
         args.onset_hold, args.onset_ramp, args.speed
     );
-    println!(
-        "  alert rule: GateNegativeDamping fires after {} consecutive windows with zeta0 < {:.1} %",
-        rules.for_windows,
-        100.0 * rules.fire_below
-    );
+    for line in rule_lines(&rules) {
+        println!("  {line}");
+    }
     println!("  running for {} s (Ctrl-C ends earlier)", args.duration);
     println!();
 
@@ -379,4 +377,71 @@ pub async fn run_demo(
         println!("  {l}");
     }
     Ok(summary)
+}
+
+/// The alert rules as the demo states them: what `AlertEngine` decides on (the interval, the
+/// streak, the at-once rule and the trend warning), not a simplification an operator would
+/// then see contradicted by the first alert that fires on one window.
+fn rule_lines(rules: &crate::alert::AlertRules) -> [String; 2] {
+    let below = format!("{:.1} %", 100.0 * rules.fire_below);
+    let evidence = match rules.fire_probability {
+        Some(p) => format!("P(zeta0 < {below}) >= {p}"),
+        None => format!("zeta0's whole 95 % interval lies below {below}"),
+    };
+    let at_once = if rules.fire_at_once_probability < 1.0 {
+        format!(
+            ", or at once on one window {}x above the gate's ambient level with P(zeta0 < {below}) \
+             >= {}",
+            crate::alert::AT_ONCE_MIN_AMBIENT_RATIO,
+            rules.fire_at_once_probability
+        )
+    } else {
+        String::new()
+    };
+    [
+        format!(
+            "alert rule: GateNegativeDamping fires when {evidence} in {} consecutive trusted \
+             windows{at_once}",
+            rules.for_windows.max(1)
+        ),
+        format!(
+            "warning:    GateDampingDeclining fires when the trend of zeta0 predicts the crossing \
+             of {below} within {:.0} min (95 % confidence)",
+            rules.warn_lead_seconds / 60.0
+        ),
+    ]
+}
+
+#[cfg(test)]
+mod rule_tests {
+    use super::rule_lines;
+    use crate::alert::AlertRules;
+
+    #[test]
+    fn the_demo_states_the_rules_the_engine_applies() {
+        let [negative, declining] = rule_lines(&AlertRules::default());
+        assert_eq!(
+            negative,
+            "alert rule: GateNegativeDamping fires when zeta0's whole 95 % interval lies below \
+             0.0 % in 2 consecutive trusted windows, or at once on one window 3x above the \
+             gate's ambient level with P(zeta0 < 0.0 %) >= 0.975"
+        );
+        assert_eq!(
+            declining,
+            "warning:    GateDampingDeclining fires when the trend of zeta0 predicts the \
+             crossing of 0.0 % within 10 min (95 % confidence)"
+        );
+        let other = AlertRules {
+            fire_probability: Some(0.9),
+            fire_at_once_probability: 1.0,
+            for_windows: 3,
+            ..AlertRules::default()
+        };
+        let [negative, _] = rule_lines(&other);
+        assert_eq!(
+            negative,
+            "alert rule: GateNegativeDamping fires when P(zeta0 < 0.0 %) >= 0.9 in 3 \
+             consecutive trusted windows"
+        );
+    }
 }
