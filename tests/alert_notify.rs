@@ -143,6 +143,7 @@ fn obs(z: f64) -> Observation<'static> {
         equation: "ydd + c1*yd + c2*y = 0",
         trend: None,
         ambient_ratio: None,
+        departure_ratio: None,
     }
 }
 

@@ -76,8 +76,12 @@ pub struct Observation<'a> {
     pub trusted: bool,
     /// The window's signal RMS over the gate's ambient level (`DampingReport::ambient_ratio`;
     /// `None`: no level yet). One window fires at once only when it stands at least
-    /// [`AT_ONCE_MIN_AMBIENT_RATIO`] above it.
+    /// `departure_ratio` (by default [`AT_ONCE_MIN_AMBIENT_RATIO`]) above it.
     pub ambient_ratio: Option<f64>,
+    /// The ratio from which the gate counts as having left its ambient level
+    /// (`DampingReport::departure_ratio`: 3 on a gate whose windows hold 50 cycles or more,
+    /// more on a slower one); `None`: [`AT_ONCE_MIN_AMBIENT_RATIO`].
+    pub departure_ratio: Option<f64>,
     /// Frequency of the (self-excited) oscillation, Hz.
     pub frequency_hz: Option<f64>,
     /// Predicted amplitude of the limit cycle.
@@ -273,9 +277,8 @@ fn classify(obs: &Observation, rules: &AlertRules) -> Reading {
         None => high < rules.fire_below,
     };
     if negative {
-        let departed = obs
-            .ambient_ratio
-            .is_some_and(|r| r >= AT_ONCE_MIN_AMBIENT_RATIO);
+        let at = obs.departure_ratio.unwrap_or(AT_ONCE_MIN_AMBIENT_RATIO);
+        let departed = obs.ambient_ratio.is_some_and(|r| r >= at);
         Reading::Negative {
             at_once: departed && rules.fires_at_once(low, high),
         }

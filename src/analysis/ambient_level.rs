@@ -63,10 +63,61 @@ pub const AMBIENT_LEVEL_MIN_WINDOWS: usize = 4;
 /// gate) has a wider ratio distribution: the margin is smaller there.
 pub const DEPARTED_FROM_AMBIENT: f64 = 3.0;
 
-/// The median RMS of a gate's last noise-driven windows (bounded: [`AMBIENT_LEVEL_WINDOWS`]).
+/// The ratio above its ambient level from which a window of a gate whose windows hold `cycles`
+/// cycles counts as having left its ambient state: [`DEPARTED_FROM_AMBIENT`] (3) from 50 cycles
+/// a window up, more below, at most 4.65.
+///
+/// # Why it depends on the cycles a window holds
+/// How far a noise-driven window's RMS scatters about the gate's level is set by how many
+/// envelope correlation times the window holds, `2 zeta omega T = 4 pi zeta N_c` for `N_c`
+/// cycles. 3 was chosen on the lab (104 cycles a window) and lock (50) gates; on a 2 Hz barrier
+/// gate (20 cycles) a stable +0.5 % gate stood 3 times above its level in 10 of 3,636 windows
+/// (`bench warning --gates barrier --scenarios stable-low`, 6 seeds, 0.85 h each), about 47
+/// windows a day against none in 24 hours of each of the other two, and `GateNegativeDamping`
+/// fired at once on 4 of them in 6 hours (16 a day; ratios 3.05 to 3.3, first cycle windows
+/// read by the model at -2.4 to -3.5 %).
+///
+/// The table is the ratio that a stable gate at `zeta = 0.5 %` (the lightest stable
+/// gate) exceeds as rarely as the lock gate exceeds 3 (2.1e-4 of its windows in the
+/// simulation), from a simulation of the statistic: the squared envelope of a lightly damped
+/// response to white forcing (an exponential variable decorrelating at `2 zeta omega`), its mean
+/// over 10 s windows every 5 s, each over the median of the 12 windows before it, 1,500
+/// two-hour chains per row (`departure_ratio_table_matches_a_simulation` reproduces three rows
+/// on fewer chains). The simulation reproduces the bench's ratios: barrier p99 2.51 (bench
+/// 2.54), lock 2.12 (2.15), lab 1.81 (1.68). From 50 cycles up the ratio stays at 3 (the lab
+/// gate would allow 2.42: the floor keeps the calibrated gates as they were); between the rows
+/// it is interpolated in `ln N_c`; below 5 cycles it is the table's largest. It assumes the
+/// daemon's cadence (windows overlapping by half, [`AMBIENT_LEVEL_WINDOWS`] in the level).
+pub fn departure_ratio(cycles: f64) -> f64 {
+    // (cycles a window holds, ratio), from `departure_ratio_table` in ambient_level_tests.rs.
+    const TABLE: [(f64, f64); 7] = [
+        (5.0, 4.63),
+        (10.0, 4.37),
+        (15.0, 4.07),
+        (20.0, 3.84),
+        (30.0, 3.49),
+        (40.0, 3.20),
+        (50.0, DEPARTED_FROM_AMBIENT),
+    ];
+    const LARGEST: f64 = 4.65;
+    if cycles.is_nan() || cycles <= TABLE[0].0 {
+        return LARGEST; // NaN too: the conservative end
+    }
+    for pair in TABLE.windows(2) {
+        let ((c0, r0), (c1, r1)) = (pair[0], pair[1]);
+        if cycles <= c1 {
+            let w = (cycles / c0).ln() / (c1 / c0).ln();
+            return r0 + w * (r1 - r0);
+        }
+    }
+    DEPARTED_FROM_AMBIENT
+}
+
+/// The median RMS of a gate's last noise-driven windows (bounded: [`AMBIENT_LEVEL_WINDOWS`]),
+/// with the cycles each held (for [`departure_ratio`]).
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct AmbientLevel {
-    recent: VecDeque<f64>,
+    recent: VecDeque<(f64, Option<f64>)>,
     /// Where the previous window's `zeta0` came from (after this memory's own reading).
     previous_source: Option<Zeta0Source>,
     /// The previous window's model-free regime.
@@ -84,8 +135,22 @@ impl AmbientLevel {
         if self.recent.len() < AMBIENT_LEVEL_MIN_WINDOWS {
             return None;
         }
-        let mut v: Vec<f64> = self.recent.iter().copied().collect();
+        let mut v: Vec<f64> = self.recent.iter().map(|(rms, _)| *rms).collect();
         crate::identify::median(&mut v)
+    }
+
+    /// The ratio from which a window counts as having left the level: [`departure_ratio`] of
+    /// the median cycles the level's windows held; [`DEPARTED_FROM_AMBIENT`] when none said.
+    pub fn departure_ratio(&self) -> f64 {
+        let mut cycles: Vec<f64> = self.recent.iter().filter_map(|(_, c)| *c).collect();
+        crate::identify::median(&mut cycles).map_or(DEPARTED_FROM_AMBIENT, departure_ratio)
+    }
+
+    /// Whether a window of RMS `rms` stands at or above [`AmbientLevel::departure_ratio`] times
+    /// the level (`false` while there is none).
+    pub fn departs(&self, rms: f64) -> bool {
+        self.level()
+            .is_some_and(|level| rms >= self.departure_ratio() * level)
     }
 
     /// Sets the report's `ambient_ratio` against the level before this window, then lets a
@@ -123,8 +188,9 @@ impl AmbientLevel {
             return;
         };
         d.ambient_ratio = self.level().map(|level| rms / level);
+        d.departure_ratio = d.ambient_ratio.map(|_| self.departure_ratio());
         match d.ambient_ratio {
-            Some(r) if r < DEPARTED_FROM_AMBIENT => {
+            Some(r) if r < self.departure_ratio() => {
                 read_model_window_as_noise_driven(d, first_cycle)
             }
             Some(_) => {
@@ -172,7 +238,8 @@ impl AmbientLevel {
             if self.recent.len() == AMBIENT_LEVEL_WINDOWS {
                 self.recent.pop_front();
             }
-            self.recent.push_back(rms);
+            let cycles = d.window_cycles.filter(|c| c.is_finite() && *c > 0.0);
+            self.recent.push_back((rms, cycles));
         }
     }
 }
@@ -314,10 +381,12 @@ fn span_the_change(d: &mut DampingReport, previous: Option<(f64, f64)>) {
     d.spans_change = true;
 }
 
-/// Whether the window stands at least [`DEPARTED_FROM_AMBIENT`] times above the gate's ambient
-/// level (set by [`AmbientLevel::observe`]): the gate has left its ambient state.
+/// Whether the window stands at least its gate's [`DampingReport::departure_ratio`] (3 where
+/// unknown) times above the gate's ambient level (both set by [`AmbientLevel::observe`]): the
+/// gate has left its ambient state.
 pub fn departed(d: &DampingReport) -> bool {
-    d.ambient_ratio.is_some_and(|r| r >= DEPARTED_FROM_AMBIENT)
+    let at = d.departure_ratio.unwrap_or(DEPARTED_FROM_AMBIENT);
+    d.ambient_ratio.is_some_and(|r| r >= at)
 }
 
 #[cfg(test)]

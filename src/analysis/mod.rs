@@ -41,7 +41,8 @@ mod trend;
 mod verdict;
 
 pub use ambient_level::{
-    departed, AmbientLevel, AMBIENT_LEVEL_MIN_WINDOWS, AMBIENT_LEVEL_WINDOWS, DEPARTED_FROM_AMBIENT,
+    departed, departure_ratio, AmbientLevel, AMBIENT_LEVEL_MIN_WINDOWS, AMBIENT_LEVEL_WINDOWS,
+    DEPARTED_FROM_AMBIENT,
 };
 pub use analyzer::Analyzer;
 pub use cycle_amplitude::{

@@ -179,6 +179,17 @@ pub struct DampingReport {
     /// its ambient state, what one window needs before it may fire an alert at once.
     #[serde(default)]
     pub ambient_ratio: Option<f64>,
+    /// The `ambient_ratio` from which this gate counts as having left its ambient level (what
+    /// one window needs to fire at once, or to be read by its model): 3 on a gate whose windows
+    /// hold 50 cycles or more, up to 4.65 on a slow gate whose windows hold few
+    /// (`analysis::departure_ratio`); `None` until the gate has a level.
+    #[serde(default)]
+    pub departure_ratio: Option<f64>,
+    /// Cycles of the window's dominant frequency the window holds (frequency times duration;
+    /// `None` without a model-free analysis): what sets how far a noise-driven window's RMS
+    /// scatters about the gate's level.
+    #[serde(default)]
+    pub window_cycles: Option<f64>,
     /// Largest over smallest standard deviation of the window's three thirds (`None` without a
     /// model-free analysis): near 1 on a stationary response, far above it where the gate
     /// changed state inside the window (a burst beginning or ending in it).
@@ -234,6 +245,8 @@ impl DampingReport {
             zeta0_windows: None,
             signal_rms: None,
             ambient_ratio: None,
+            departure_ratio: None,
+            window_cycles: None,
             rms_swing: None,
             spans_change: false,
         }

@@ -358,6 +358,10 @@ fn analyze(
         damping.ambient_zeta = s.ambient.as_ref().map(AmbientZeta::from);
         damping.signal_rms = Some(identify::std_dev(&data.y)).filter(|r| r.is_finite());
         damping.rms_swing = rms_swing(&data.y);
+        damping.window_cycles = match (data.t.first(), data.t.last()) {
+            (Some(a), Some(b)) => Some(s.peak.frequency_hz * (b - a)).filter(|c| c.is_finite()),
+            _ => None,
+        };
     }
     damping.envelope_zeta = free.relaxation;
     let runs_zeta: Vec<f64> = identification

@@ -28,14 +28,14 @@
 //! such a window is still tested: trust, the verdict (a self-excited window is never waived), the
 //! model's frequency against the measured one (a frequency shift), the model-free regime (a
 //! growing or limit-cycle window is not noise-driven) and the level: a window at or above
-//! [`DEPARTED_FROM_AMBIENT`] times the gate's ambient level (as in `ambient_level`), or risen
+//! [`AmbientLevel::departure_ratio`] times the gate's ambient level (as in `ambient_level`), or risen
 //! more than [`NOISE_DRIVEN_MAX_RISE`] times since the last window, is the first sign of an
 //! onset or a burst, and keeps every test. The schedule (`full_every`) still refreshes the
 //! model, and a waived window does not move the next refinement's start ([`Acceptance::Waived`]).
 //!
 //! The per-gate [`Previous`] lives in the service (the worker pool keeps one per gate).
 
-use super::ambient_level::{decided_by_ambient, AmbientLevel, DEPARTED_FROM_AMBIENT};
+use super::ambient_level::{decided_by_ambient, AmbientLevel};
 use super::report::{DampingReport, Verdict};
 use super::WindowAnalysis;
 use serde::{Deserialize, Serialize};
@@ -206,10 +206,7 @@ impl Previous {
         // ambient state, and fed in it had raised a bursting lock gate's level until the next
         // burst's first window, at 10 times the service's level, passed as noise-driven.
         let mut level = before.map(|b| b.level.clone()).unwrap_or_default();
-        let at_level = match (level.level(), a.damping.signal_rms) {
-            (Some(l), Some(rms)) => rms < DEPARTED_FROM_AMBIENT * l,
-            _ => true,
-        };
+        let at_level = a.damping.signal_rms.is_none_or(|rms| !level.departs(rms));
         if at_level {
             level.record(&a.damping);
         }
@@ -304,7 +301,7 @@ pub enum Rejection {
     /// The window leaves the gate's ambient level ([`leaves_ambient`]): an onset's or a
     /// burst's first window, which the search confirms.
     LeavesAmbient,
-    /// The window stands at least [`DEPARTED_FROM_AMBIENT`] times above the gate's ambient
+    /// The window stands at least [`AmbientLevel::departure_ratio`] times above the gate's ambient
     /// level, where the model decides, and the refined model is not trusted (no `model_zeta`):
     /// the search may fit it (a lab gate's first burst cycle was tracked at NMAE 0.83 from the
     /// model of the window the burst began in, whose own NMAE of 0.56 set the fit test's limit).
@@ -420,7 +417,7 @@ fn fit_tests(
 
 /// Whether window `r` leaves the gate's ambient response: its RMS rose more than
 /// [`NOISE_DRIVEN_MAX_RISE`] times over the previous window's, or it stands at least
-/// [`DEPARTED_FROM_AMBIENT`] times above the gate's ambient level where the previous window did
+/// [`AmbientLevel::departure_ratio`] times above the gate's ambient level where the previous window did
 /// not. Why it sends the window to the search: it is where the gate leaves one regime for
 /// another (the onset, a burst), the model decides such a window (`docs/damping.md`, "The
 /// gate's ambient level"), and a refinement from the ambient windows' model passes the fit test
@@ -434,26 +431,22 @@ pub fn leaves_ambient(previous: &Previous, r: &DampingReport) -> bool {
     let rose = previous
         .signal_rms
         .is_some_and(|before| before > 0.0 && now > NOISE_DRIVEN_MAX_RISE * before);
-    let was_below = previous
-        .level
-        .level()
-        .is_some_and(|level| previous.signal_rms.unwrap_or(0.0) < DEPARTED_FROM_AMBIENT * level);
+    let was_below = previous.level.level().is_some()
+        && !previous.level.departs(previous.signal_rms.unwrap_or(0.0));
     rose || (was_below && above_ambient(previous, r))
 }
 
-/// Whether window `r` stands at least [`DEPARTED_FROM_AMBIENT`] times above the gate's ambient
+/// Whether window `r` stands at least [`AmbientLevel::departure_ratio`] times above the gate's ambient
 /// level (`false` while the gate has none).
 fn above_ambient(previous: &Previous, r: &DampingReport) -> bool {
-    let now = r.signal_rms.filter(|v| v.is_finite());
-    match (now, previous.level.level()) {
-        (Some(now), Some(level)) => now >= DEPARTED_FROM_AMBIENT * level,
-        _ => false,
-    }
+    r.signal_rms
+        .filter(|v| v.is_finite())
+        .is_some_and(|now| previous.level.departs(now))
 }
 
 /// Whether the refined window `r` is the turbulence's response (see the module docs): decided by
 /// the ambient estimate as noise-driven (damped or undecided, trusted, `zeta0` from SSI-COV), not
-/// self-excited, below [`DEPARTED_FROM_AMBIENT`] times the gate's ambient level (which must be
+/// self-excited, below [`AmbientLevel::departure_ratio`] times the gate's ambient level (which must be
 /// known), and its RMS at most [`NOISE_DRIVEN_MAX_RISE`] times the previous window's.
 pub fn noise_driven(previous: &Previous, r: &DampingReport) -> bool {
     let Some(now) = r.signal_rms else {

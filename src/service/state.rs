@@ -579,6 +579,7 @@ impl AppState {
                         trend,
                         trusted: d.trusted,
                         ambient_ratio: d.ambient_ratio,
+                        departure_ratio: d.departure_ratio,
                         frequency_hz: d.frequency_hz,
                         limit_cycle_amplitude: d.limit_cycle_amplitude,
                         time_to_limit: d.time_to_limit,

@@ -195,6 +195,21 @@ fn a_window_far_below_fires_at_once() {
         assert_eq!(e.state("g"), Some(GateState::Pending));
         assert_eq!(e.observe("g", &o, t(5)).len(), 1);
     }
+    // a slow gate's own departure ratio (its windows hold few cycles) is the bar: 3.3 times
+    // its level is not enough where it is 3.84, and is where it is unknown (3)
+    for (departure_ratio, at_once) in [(Some(3.84), false), (None, true), (Some(3.0), true)] {
+        let mut e = AlertEngine::new(rules.clone());
+        let o = Observation {
+            ambient_ratio: Some(3.3),
+            departure_ratio,
+            ..far
+        };
+        assert_eq!(
+            e.observe("g", &o, t(0)).len(),
+            usize::from(at_once),
+            "{departure_ratio:?}"
+        );
+    }
     // disabled: even a zero-width interval far below waits for for_windows
     let mut e = AlertEngine::new(AlertRules {
         fire_at_once_probability: 1.0,

@@ -16,6 +16,7 @@ fn win(z: f64) -> Observation<'static> {
         equation: "ydd + (-0.8 + 2*yd^2)*yd + 4270*y = 0",
         trend: None,
         ambient_ratio: None,
+        departure_ratio: None,
     }
 }
 
@@ -394,6 +395,7 @@ fn firing_annotations_and_refresh() {
         zeta0_interval: Some((-0.03, -0.03)),
         trend: None,
         ambient_ratio: None,
+        departure_ratio: None,
     };
     e.observe("g1", &obs, t(2));
     let f = &e.firing()[0];

@@ -209,6 +209,7 @@ mod tests {
             equation: "ydd + c1*yd + c2*y = 0",
             trend: None,
             ambient_ratio: None,
+            departure_ratio: None,
         }
     }
 
