@@ -41,7 +41,7 @@
 use std::collections::VecDeque;
 
 use super::report::{DampingReport, Verdict, Zeta0Source};
-use super::verdict::ambient_decision;
+use super::verdict::{ambient_decision, WindowGrowth};
 use crate::spectral::Regime;
 
 /// Noise-driven windows the level is the median of: one minute at the daemon's 5 s cadence,
@@ -273,7 +273,7 @@ fn read_model_window_as_noise_driven(d: &mut DampingReport, first_cycle: bool) {
     let (true, Some(a)) = (source_ok, d.ambient_zeta) else {
         return;
     };
-    let decision = ambient_decision(a, d.regime);
+    let decision = ambient_decision(a, d.regime, WindowGrowth::of(d));
     d.zeta0 = Some(a.zeta);
     d.zeta0_interval = Some((a.low, a.high));
     d.zeta0_source = Some(decision.source);

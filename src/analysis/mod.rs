@@ -64,7 +64,9 @@ pub use trend::{
     fit_trend, DampingTrend, TrendError, TrendEstimate, TrendPoint, MAX_TREND_POINTS,
     MIN_TREND_POINTS,
 };
-pub use verdict::{ambient_decision, decide, Decision, VerdictFacts};
+pub use verdict::{
+    ambient_decision, claims_unseen_growth, decide, Decision, VerdictFacts, WindowGrowth,
+};
 
 use serde::{Deserialize, Serialize};
 

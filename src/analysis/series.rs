@@ -7,7 +7,7 @@ use super::model_free::{model_free, preprocess, rms_swing, ModelFree};
 use super::model_interval::{zeta0_interval, FittedModel};
 use super::population::{initial_population, PopulationInputs, SpectralTarget};
 use super::report::{AmbientZeta, DampingReport, Zeta0Source};
-use super::verdict::{agrees, decide, VerdictFacts};
+use super::verdict::{agrees, decide, VerdictFacts, WindowGrowth};
 use super::{AnalysisError, ModelInterval, PolishSolver, Signal, MIN_RK4_STEPS_PER_CYCLE};
 use crate::data::TimeSeries;
 use crate::identify::{self, Identification, InitialValues};
@@ -622,6 +622,7 @@ fn conclude(
         envelope: damping.envelope_zeta,
         envelope_drift: drift,
         regime,
+        growth: WindowGrowth::of(damping),
     };
     let decision = decide(&facts);
     // the report's envelope estimate is the relaxation's, or the drift's where it refused

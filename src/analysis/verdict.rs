@@ -42,6 +42,33 @@ pub fn agrees(data: Option<&WindowSpectral>, model: Option<&WindowSpectral>) -> 
     }
 }
 
+/// The window's own envelope growth (model-free): what an ambient estimate that claims growth
+/// must agree with ([`ambient_decision`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WindowGrowth {
+    /// Envelope growth rate, 1/s (negative: decaying).
+    pub sigma: f64,
+    /// Its standard error.
+    pub stderr: f64,
+    /// Angular frequency of the window's dominant peak, rad/s.
+    pub omega: f64,
+}
+
+impl WindowGrowth {
+    /// The growth a report carries (`growth_rate`, its standard error, `frequency_hz`), when it
+    /// carries all three, finite.
+    pub fn of(d: &super::DampingReport) -> Option<WindowGrowth> {
+        let (sigma, stderr, f) = (d.growth_rate?, d.growth_rate_stderr?, d.frequency_hz?);
+        let g = WindowGrowth {
+            sigma,
+            stderr,
+            omega: 2.0 * std::f64::consts::PI * f,
+        };
+        (sigma.is_finite() && stderr.is_finite() && g.omega.is_finite() && g.omega > 0.0)
+            .then_some(g)
+    }
+}
+
 /// The facts a verdict depends on.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct VerdictFacts {
@@ -62,6 +89,8 @@ pub struct VerdictFacts {
     pub envelope_drift: Option<AmbientZeta>,
     /// The model-free regime of the window (`None` without uniform sampling).
     pub regime: Option<Regime>,
+    /// The window's envelope growth (`None` without uniform sampling).
+    pub growth: Option<WindowGrowth>,
 }
 
 impl VerdictFacts {
@@ -147,7 +176,9 @@ pub fn decide(f: &VerdictFacts) -> Decision {
         };
     }
     match f.ambient {
-        Some(a) if f.regime != Some(Regime::LimitCycle) => return ambient_decision(a, f.regime),
+        Some(a) if f.regime != Some(Regime::LimitCycle) => {
+            return ambient_decision(a, f.regime, f.growth)
+        }
         _ => {}
     }
     match f.zeta0_model {
@@ -162,19 +193,44 @@ pub fn decide(f: &VerdictFacts) -> Decision {
 /// an alarm regime: a positive interval on a window that grows contradicts itself), `Unknown`
 /// across zero. Also used after the fact on a model window at the gate's ambient level
 /// (`AmbientLevel::observe`).
-pub fn ambient_decision(a: AmbientZeta, regime: Option<Regime>) -> Decision {
+///
+/// The other contradiction: an interval below zero that claims more growth than the window's
+/// own envelope shows ([`claims_unseen_growth`]) is untrusted `Unknown` too. Why: on a stable
+/// +0.5 % 2 Hz barrier gate (20 cycles a window) SSI-COV read one window -23.8 % (-41.0,
+/// -6.6), a growth of `e^8` in 10 s at the interval's least negative end, where the window's
+/// thirds differed by a factor of 3; pooled with the next window's +0.04 % it gave -11.95 %
+/// (-20.98, -2.92), and the two fired `GateNegativeDamping` (`bench warning --gates barrier
+/// --scenarios stable-low --hours 12`, seed 2, 16,705 s; docs/damping.md).
+pub fn ambient_decision(
+    a: AmbientZeta,
+    regime: Option<Regime>,
+    growth: Option<WindowGrowth>,
+) -> Decision {
     let decision = |verdict, trusted| Decision {
         verdict,
         trusted,
         source: Zeta0Source::Ambient,
     };
     if a.high < 0.0 {
-        decision(Verdict::SelfExcited, true)
+        decision(Verdict::SelfExcited, true).unknown_if(claims_unseen_growth(a, growth))
     } else if a.low > 0.0 {
         decision(Verdict::Damped, true).unknown_if(regime_alarms(regime))
     } else {
         decision(Verdict::Unknown, true)
     }
+}
+
+/// Whether ambient estimate `a`, whose interval lies below zero, claims more growth than the
+/// window's envelope shows: the slowest growth its interval allows, `-high * omega`, exceeds the
+/// measured growth by more than the tolerance [`agrees`] gives a model ([`GROWTH_TOLERANCE_SIGMAS`]
+/// standard errors plus [`GROWTH_TOLERANCE_ZETA`]). A real negative damping grows the window at
+/// about its rate (a growing window, or the first seconds of one); a spurious SSI-COV pole of a
+/// short record does not. Without the growth (no uniform sampling) nothing is claimed.
+pub fn claims_unseen_growth(a: AmbientZeta, growth: Option<WindowGrowth>) -> bool {
+    growth.is_some_and(|g| {
+        let claimed = -a.high * g.omega;
+        claimed > g.sigma + GROWTH_TOLERANCE_SIGMAS * g.stderr + GROWTH_TOLERANCE_ZETA * g.omega
+    })
 }
 
 impl Decision {
@@ -213,6 +269,7 @@ mod tests {
             envelope: None,
             envelope_drift: None,
             regime: Some(Regime::Damped),
+            growth: None,
         }
     }
 
@@ -556,5 +613,75 @@ mod tests {
             ..facts()
         };
         assert_eq!(decide(&f).verdict, Verdict::SelfExcited);
+    }
+
+    #[test]
+    fn a_negative_ambient_interval_must_not_claim_more_growth_than_the_window_shows() {
+        // the barrier gate's spurious pole: -23.8 % (-41.0, -6.6) at 2 Hz on a window whose
+        // envelope grew at most about 0.17 / s
+        let spurious = AmbientZeta {
+            zeta: -0.238,
+            low: -0.410,
+            high: -0.066,
+        };
+        let omega = 2.0 * std::f64::consts::PI * 2.0;
+        let seen = WindowGrowth {
+            sigma: 0.1,
+            stderr: 0.02,
+            omega,
+        };
+        assert!(claims_unseen_growth(spurious, Some(seen)));
+        let f = VerdictFacts {
+            fit_nmae: 0.29, // the model untrusted: row 2 decides
+            ambient: Some(spurious),
+            regime: Some(Regime::SelfExcited),
+            growth: Some(seen),
+            ..facts()
+        };
+        assert_eq!(
+            decide(&f),
+            decision(Verdict::Unknown, false, Zeta0Source::Ambient)
+        );
+        // a real growth at -1 % whose SSI interval lies below zero: about its rate, it stands
+        let real = AmbientZeta {
+            zeta: -0.01,
+            low: -0.016,
+            high: -0.004,
+        };
+        let growing = WindowGrowth {
+            sigma: 0.01 * omega,
+            stderr: 0.03,
+            omega,
+        };
+        let f = VerdictFacts {
+            ambient: Some(real),
+            growth: Some(growing),
+            ..f
+        };
+        assert_eq!(
+            decide(&f),
+            decision(Verdict::SelfExcited, true, Zeta0Source::Ambient)
+        );
+        // the tolerance is the agreement test's: 3 standard errors plus half a point of damping
+        let edge = GROWTH_TOLERANCE_SIGMAS * 0.03 + GROWTH_TOLERANCE_ZETA * omega;
+        let just = |high: f64| AmbientZeta {
+            zeta: high - 0.01,
+            low: high - 0.02,
+            high,
+        };
+        let still = WindowGrowth {
+            sigma: 0.0,
+            ..growing
+        };
+        assert!(!claims_unseen_growth(
+            just(-0.99 * edge / omega),
+            Some(still)
+        ));
+        assert!(claims_unseen_growth(
+            just(-1.01 * edge / omega),
+            Some(still)
+        ));
+        // without the window's growth nothing is claimed
+        assert!(!claims_unseen_growth(spurious, None));
     }
 }
