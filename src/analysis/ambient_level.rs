@@ -191,11 +191,10 @@ impl AmbientLevel {
             return;
         };
         d.ambient_ratio = self.level().map(|level| rms / level);
-        d.departure_ratio = d.ambient_ratio.map(|_| self.departure_ratio());
+        let bar = self.departure_ratio();
+        d.departure_ratio = d.ambient_ratio.map(|_| bar);
         match d.ambient_ratio {
-            Some(r) if r < self.departure_ratio() => {
-                read_model_window_as_noise_driven(d, first_cycle)
-            }
+            Some(r) if r < bar => read_model_window_as_noise_driven(d, first_cycle),
             Some(_) => {
                 read_departed_window_by_the_model(d, previous, first_cycle);
                 self.previous_interval = d.zeta0_interval;
