@@ -28,8 +28,8 @@
 //! such a window is still tested: trust, the verdict (a self-excited window is never waived), the
 //! model's frequency against the measured one (a frequency shift), the model-free regime (a
 //! growing or limit-cycle window is not noise-driven) and the level: a window at or above
-//! [`AmbientLevel::departure_ratio`] times the gate's ambient level (as in `ambient_level`), or risen
-//! more than [`NOISE_DRIVEN_MAX_RISE`] times since the last window, is the first sign of an
+//! [`AmbientLevel::departure_ratio`] times the gate's ambient level (as in `ambient_level`),
+//! or risen more than [`NOISE_DRIVEN_MAX_RISE`] times since the last window, is the first sign of an
 //! onset or a burst, and keeps every test. The schedule (`full_every`) still refreshes the
 //! model, and a waived window does not move the next refinement's start ([`Acceptance::Waived`]).
 //!
@@ -417,8 +417,8 @@ fn fit_tests(
 
 /// Whether window `r` leaves the gate's ambient response: its RMS rose more than
 /// [`NOISE_DRIVEN_MAX_RISE`] times over the previous window's, or it stands at least
-/// [`AmbientLevel::departure_ratio`] times above the gate's ambient level where the previous window did
-/// not. Why it sends the window to the search: it is where the gate leaves one regime for
+/// [`AmbientLevel::departure_ratio`] times above the gate's ambient level where the previous
+/// window did not. Why it sends the window to the search: it is where the gate leaves one regime for
 /// another (the onset, a burst), the model decides such a window (`docs/damping.md`, "The
 /// gate's ambient level"), and a refinement from the ambient windows' model passes the fit test
 /// against their loose reference (NMAE 0.6 to 0.9) while fitting the growth badly: on the lock
@@ -436,8 +436,8 @@ pub fn leaves_ambient(previous: &Previous, r: &DampingReport) -> bool {
     rose || (was_below && above_ambient(previous, r))
 }
 
-/// Whether window `r` stands at least [`AmbientLevel::departure_ratio`] times above the gate's ambient
-/// level (`false` while the gate has none).
+/// Whether window `r` stands at least [`AmbientLevel::departure_ratio`] times above the gate's
+/// ambient level (`false` while the gate has none).
 fn above_ambient(previous: &Previous, r: &DampingReport) -> bool {
     r.signal_rms
         .filter(|v| v.is_finite())
@@ -446,8 +446,8 @@ fn above_ambient(previous: &Previous, r: &DampingReport) -> bool {
 
 /// Whether the refined window `r` is the turbulence's response (see the module docs): decided by
 /// the ambient estimate as noise-driven (damped or undecided, trusted, `zeta0` from SSI-COV), not
-/// self-excited, below [`AmbientLevel::departure_ratio`] times the gate's ambient level (which must be
-/// known), and its RMS at most [`NOISE_DRIVEN_MAX_RISE`] times the previous window's.
+/// self-excited, below [`AmbientLevel::departure_ratio`] times the gate's ambient level (which
+/// must be known), and its RMS at most [`NOISE_DRIVEN_MAX_RISE`] times the previous window's.
 pub fn noise_driven(previous: &Previous, r: &DampingReport) -> bool {
     let Some(now) = r.signal_rms else {
         return false;

@@ -34,8 +34,7 @@ pub fn agrees(data: Option<&WindowSpectral>, model: Option<&WindowSpectral>) -> 
             let f_ok =
                 (m.peak.frequency_hz / d.peak.frequency_hz - 1.0).abs() < FREQUENCY_TOLERANCE;
             let w = 2.0 * std::f64::consts::PI * d.peak.frequency_hz;
-            let tol = GROWTH_TOLERANCE_SIGMAS * (d.growth.stderr + m.growth.stderr)
-                + GROWTH_TOLERANCE_ZETA * w;
+            let tol = growth_tolerance(d.growth.stderr + m.growth.stderr, w);
             f_ok && (m.growth.sigma - d.growth.sigma).abs() <= tol
         }
         _ => data.is_none(),
@@ -67,6 +66,12 @@ impl WindowGrowth {
         (sigma.is_finite() && stderr.is_finite() && g.omega.is_finite() && g.omega > 0.0)
             .then_some(g)
     }
+}
+
+/// How far two envelope growth rates may differ and still agree: [`GROWTH_TOLERANCE_SIGMAS`]
+/// times `stderr` (their summed standard errors) plus [`GROWTH_TOLERANCE_ZETA`] at `omega`.
+fn growth_tolerance(stderr: f64, omega: f64) -> f64 {
+    GROWTH_TOLERANCE_SIGMAS * stderr + GROWTH_TOLERANCE_ZETA * omega
 }
 
 /// The facts a verdict depends on.
@@ -229,7 +234,7 @@ pub fn ambient_decision(
 pub fn claims_unseen_growth(a: AmbientZeta, growth: Option<WindowGrowth>) -> bool {
     growth.is_some_and(|g| {
         let claimed = -a.high * g.omega;
-        claimed > g.sigma + GROWTH_TOLERANCE_SIGMAS * g.stderr + GROWTH_TOLERANCE_ZETA * g.omega
+        claimed > g.sigma + growth_tolerance(g.stderr, g.omega)
     })
 }
 
