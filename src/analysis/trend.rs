@@ -19,7 +19,10 @@
 //!   variance inflation), so the intervals' optimism and the overlap both widen it.
 //!
 //! The crossing time is given twice: from the slope itself ("expected") and from the slope's
-//! one-sided 95 % upper bound `slope + 1.645 se` ("confident"): only when even that bound is
+//! one-sided 95 % upper bound `slope + t se` ("confident"), with `t` Student's quantile on the
+//! windows' effective number less the line's two parameters (`n / overlap - 2`: the scale is
+//! estimated from residuals that overlapping windows make fewer than the windows; 1.645 with
+//! many, 2.1 with the 6 that 120 windows correlated at 0.9 are worth): only when even that bound is
 //! negative is the decline taken as real, and the confident crossing is the latest the line
 //! would cross at that bound. `docs/damping.md` ("Trend") explains the choices.
 //!
@@ -40,8 +43,8 @@ pub const MIN_TREND_POINTS: usize = 6;
 
 /// z of a two-sided 95 % interval: half width = 1.96 standard deviations.
 const Z95_TWO_SIDED: f64 = 1.959_963_984_540_054;
-/// z of a one-sided 95 % bound.
-const Z95_ONE_SIDED: f64 = 1.644_853_626_951_472_2;
+/// Probability of a one-sided 95 % bound (its quantile: Student's t on the effective windows).
+const Z95_ONE_SIDED_PROB: f64 = 0.95;
 /// Huber's tuning constant (95 % efficiency at the normal distribution).
 const HUBER_K: f64 = 1.345;
 /// IRLS iterations: the weights settle in a few; a fixed count keeps the cost fixed.
@@ -90,7 +93,8 @@ pub struct TrendEstimate {
     pub slope_per_second: f64,
     /// Standard error of the slope (inflated for excess scatter and window overlap).
     pub slope_stderr: f64,
-    /// One-sided 95 % upper bound of the slope: `slope + 1.645 stderr`.
+    /// One-sided 95 % upper bound of the slope: `slope + t stderr`, `t` Student's 95 % quantile
+    /// on the windows' effective number less two (1.645 with many independent windows).
     pub slope_upper: f64,
     /// The threshold the crossing times refer to (the alert's `fire_below`).
     pub threshold: f64,
@@ -323,7 +327,15 @@ fn fit(
     let overlap = (1.0 + rho) / (1.0 - rho);
     let var_slope = sw / (sw * sxx - sx * sx) * scale * overlap;
     let slope_stderr = var_slope.sqrt();
-    let slope_upper = slope + Z95_ONE_SIDED * slope_stderr;
+    // The slope's error rests on the residuals' scatter, and overlapping windows leave fewer
+    // independent residuals than windows: about n / overlap of them, less the line's two
+    // parameters, give the t quantile. Why: with the normal quantile a steady +0.5 % lock gate
+    // warned once in 24 h (the scale read off about 10 independent values at a window that
+    // ended a run of low ones) once its pooled estimate was no longer biased high; a 2 Hz
+    // barrier gate warned twice a day (`bench warning`, docs/benchmarks.md, session 39).
+    let dof = (n as f64 / overlap - 2.0).max(1.0);
+    let quantile = crate::spectral::t_quantile(Z95_ONE_SIDED_PROB, dof);
+    let slope_upper = slope + quantile * slope_stderr;
     let crossing = |s: f64| {
         if level <= threshold {
             Some(0.0)

@@ -361,13 +361,17 @@ pub async fn run_stream(
             });
             eprintln!(
                 "t {end:7.1}  true {:+.2} %  zeta0 {:?} {:?} {:?} trusted {trusted}  trend \
-                 (%/min, upper %/min, confident crossing s) {trend:?}  firing {firing:?}  (regime, pooled, ssi, ambient ratio, model, fit nmae, agrees, rms swing, path) {facts:?}  scored {} (true mean {:+.2} %)",
+                 (%/min, upper %/min, confident crossing s) {trend:?}  firing {firing:?}  (regime, pooled, ssi, ambient ratio, model, fit nmae, agrees, rms swing, path) {facts:?}  scored {} (true mean {:+.2} %)  f {:?} Hz",
                 100.0 * truth_centre,
                 zeta0.map(|z| (z * 1e4).round() / 100.0),
                 interval.map(|(a, b)| ((a * 1e4).round() / 100.0, (b * 1e4).round() / 100.0)),
                 source,
                 regime.as_str(),
                 100.0 * truth_mean,
+                view.identification
+                    .as_ref()
+                    .and_then(|i| i.damping.frequency_hz)
+                    .map(|f| (f * 1e4).round() / 1e4),
             );
         }
         windows.push(WindowRecord {

@@ -41,7 +41,7 @@ pub use classify::{
     classify, AmbientMethod, ClassifyOptions, Regime, WindowOptions, WindowSpectral,
 };
 pub use drift::{envelope_drift, DriftOptions, EnvelopeDrift};
-pub use pool::{DampingPool, PoolOptions, PooledEstimate, WindowEstimate};
+pub use pool::{DampingPool, PoolLocation, PoolOptions, PooledEstimate, WindowEstimate};
 pub use preprocess::{damping_from_growth, detrend_linear, hann, hann_into, remove_moving_average};
 pub use relaxation::{
     envelope_relaxation, envelope_relaxation_whittle, EnvelopeRelaxation, RelaxationOptions,
