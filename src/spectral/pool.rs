@@ -16,10 +16,10 @@
 //! The location is the weighted mean or, for the ambient (SSI-COV) estimates, the weighted
 //! median ([`PoolLocation`]): one window's SSI-COV estimate is median-unbiased but skewed to the
 //! right, the more so the fewer cycles it holds (a 2 Hz gate's 10 s window at +0.5 %: median
-//! error +0.10 points, mean +0.43; a 10.4 Hz gate's: +0.06 and +0.12), so a mean of such windows
-//! reads high by about half the spread of one (the pooled figure on the 2 Hz gate: +0.36 points
-//! with the mean, +0.11 with the median, and a spread of 0.50 against 0.38; docs/damping.md,
-//! "Pooling windows").
+//! error +0.01 points, mean +0.36; a 10.4 Hz gate's: +0.04 and +0.13), so a mean of such windows
+//! reads high by about half the spread of one (the pooled figure on the 2 Hz gate: +0.33 points
+//! with the mean, +0.08 with the median, and a spread of 0.50 against 0.41;
+//! `tests/ambient_pooling.rs`, docs/damping.md, "Pooling windows").
 //! Consecutive windows overlap (the daemon's default: 10 s windows every 5 s), so their
 //! estimates are correlated; the pool's variance takes the correlation of two estimates as the
 //! fraction of their records they share, `rho_ij = overlap_ij / sqrt(T_i T_j)`:
