@@ -254,3 +254,39 @@ fn bad_points_are_refused_with_their_time() {
     );
     assert_eq!(tr.points().count(), 1);
 }
+
+/// The bound's quantile follows the windows' effective number: 120 independent windows leave
+/// it near the normal 1.645; windows that wander together (a pooled figure sharing most of its
+/// record with its neighbours, here a moving average over 12 windows) are worth about eleven, and the
+/// bound stands further above the slope (Student's t on `n / overlap - 2`).
+#[test]
+fn correlated_windows_widen_the_bound_beyond_the_normal_quantile() {
+    let ratio = |pts: &[TrendPoint]| {
+        let e = fit_trend(pts, 0.0).unwrap();
+        (e.slope_upper - e.slope_per_second) / e.slope_stderr
+    };
+    let independent = series(7, 120, 0.002, |_| 0.01);
+    let r = ratio(&independent);
+    assert!((1.645..1.75).contains(&r), "independent windows: t = {r}");
+    // the same noise, each window the mean of the last 12 (as a 60 s pool every 5 s)
+    let wide = series(7, 131, 0.002, |_| 0.01);
+    let pooled: Vec<TrendPoint> = wide
+        .windows(12)
+        .map(|w| {
+            let z = w.iter().map(|p| p.zeta0).sum::<f64>() / 12.0;
+            let last = w[11];
+            TrendPoint {
+                t: last.t,
+                zeta0: z,
+                low: z - 1.96 * 0.002,
+                high: z + 1.96 * 0.002,
+            }
+        })
+        .collect();
+    assert_eq!(pooled.len(), 120);
+    let r = ratio(&pooled);
+    // (1.83 here, t with 9 degrees of freedom: the residuals' lag-1 correlation reads about
+    // 0.83, so 120 windows count as about 11; with the normal quantile it was 1.645 whatever
+    // the overlap)
+    assert!(r > 1.75, "windows that share their record: t = {r}");
+}
