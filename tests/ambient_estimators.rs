@@ -120,18 +120,9 @@ impl Stats {
     }
 }
 
+/// The crate's median (`identify::median`) of a copy; NaN when empty.
 fn median(v: &[f64]) -> f64 {
-    let mut s = v.to_vec();
-    s.sort_by(f64::total_cmp);
-    let n = s.len();
-    if n == 0 {
-        return f64::NAN;
-    }
-    if n % 2 == 1 {
-        s[n / 2]
-    } else {
-        0.5 * (s[n / 2 - 1] + s[n / 2])
-    }
+    gatewatch::identify::median(&mut v.to_vec()).unwrap_or(f64::NAN)
 }
 
 /// Runs both estimators over the seeds of one case.

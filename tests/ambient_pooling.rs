@@ -1,16 +1,18 @@
-//! Pooling a gate's consecutive SSI-COV windows: the median of the windows against their mean,
-//! judged on seeded simulations against the known truth (`docs/damping.md`, "Why the median of
-//! the ambient windows").
+//! Pooling a gate's consecutive SSI-COV windows: their mean, their median and the daemon's
+//! Hodges-Lehmann estimate in the square-root scale, judged on seeded simulations against the
+//! known truth (`docs/damping.md`, "Why the median of the ambient windows" and "Hodges-Lehmann
+//! in the square-root scale").
 //!
 //! One window's SSI-COV estimate is median-unbiased but skewed to the right, the more so the
-//! fewer cycles it holds, so a mean of windows reads high. Each seed simulates the record of one
-//! full pool (10 s windows every 5 s, as many as the daemon's default pool holds on that gate:
-//! 150 cycles, at most 60 s), estimates every window and pools them with the real
-//! [`DampingPool`], once by the mean and once by the median.
+//! fewer cycles it holds, so a mean of windows reads high; the median is unbiased but wastes a
+//! third of the information where the windows are nearly symmetric. Each seed simulates the
+//! record of one full pool (10 s windows every 5 s, as many as the daemon's default pool holds on
+//! that gate: 150 cycles, at most 60 s), estimates every window and pools them with the real
+//! [`DampingPool`] by each location.
 //!
 //! `cargo test --release --test ambient_pooling -- --ignored --nocapture` prints the table for
-//! the three presets at +0.5, +1 and +2 %; the test that CI runs checks the slow barrier gate,
-//! where the difference is largest.
+//! the three presets at +0.5, +1 and +2 %; the tests that CI runs check the slow barrier gate,
+//! where the skew is largest, and the lock gate at +2 %, where the median lost most.
 
 use gatewatch::simulate::{GateParams, GateSimulator, ZetaSchedule};
 use gatewatch::spectral::{
@@ -38,15 +40,9 @@ fn gate(mass: f64, f_hz: f64, rate_hz: f64) -> GateParams {
     p
 }
 
+/// The crate's median (`identify::median`) of a copy.
 fn median(v: &[f64]) -> f64 {
-    let mut s = v.to_vec();
-    s.sort_by(f64::total_cmp);
-    let n = s.len();
-    if n % 2 == 1 {
-        s[n / 2]
-    } else {
-        0.5 * (s[n / 2 - 1] + s[n / 2])
-    }
+    gatewatch::identify::median(&mut v.to_vec()).unwrap_or(f64::NAN)
 }
 
 /// Robust spread: the interquartile range over 1.349 (the standard deviation of a normal
@@ -58,11 +54,21 @@ fn spread(v: &[f64]) -> f64 {
     (q(0.75) - q(0.25)) / 1.349
 }
 
-/// Errors in percentage points over the seeds: one window, the mean pool, the median pool.
+fn median_abs(v: &[f64]) -> f64 {
+    median(&v.iter().map(|e| e.abs()).collect::<Vec<_>>())
+}
+
+const LOCATIONS: [PoolLocation; 3] = [
+    PoolLocation::Mean,
+    PoolLocation::Median,
+    PoolLocation::SqrtHodgesLehmann,
+];
+
+/// Errors in percentage points over the seeds: one window, and the full pool by each of
+/// [`LOCATIONS`] (the same windows).
 struct Errors {
     single: Vec<f64>,
-    mean_pool: Vec<f64>,
-    median_pool: Vec<f64>,
+    pools: [Vec<f64>; 3],
 }
 
 fn run(p: &GateParams, zeta: f64, seeds: u64) -> Errors {
@@ -77,8 +83,7 @@ fn run(p: &GateParams, zeta: f64, seeds: u64) -> Errors {
     };
     let mut e = Errors {
         single: Vec::new(),
-        mean_pool: Vec::new(),
-        median_pool: Vec::new(),
+        pools: Default::default(),
     };
     let n_window = (WINDOW_S * p.rate_hz) as usize;
     let n_step = (STEP_S * p.rate_hz) as usize;
@@ -90,9 +95,8 @@ fn run(p: &GateParams, zeta: f64, seeds: u64) -> Errors {
         sim.fill(&mut burn);
         let mut x = vec![0.0; n_window + n_step * (windows - 1)];
         sim.fill(&mut x);
-        let mut by_mean = DampingPool::new(options(PoolLocation::Mean)).unwrap();
-        let mut by_median = DampingPool::new(options(PoolLocation::Median)).unwrap();
-        let (mut last_mean, mut last_median) = (None, None);
+        let mut pools = LOCATIONS.map(|l| DampingPool::new(options(l)).unwrap());
+        let mut last = [None; 3];
         for k in 0..windows {
             let seg = &x[k * n_step..k * n_step + n_window];
             let peak = sa.dominant_frequency(seg, 0.5).unwrap();
@@ -112,44 +116,70 @@ fn run(p: &GateParams, zeta: f64, seeds: u64) -> Errors {
                 frequency_hz: s.frequency_hz,
                 record_seconds: 0.0,
             };
-            last_mean = by_mean.push(w).ok();
-            last_median = by_median.push(w).ok();
+            for (pool, last) in pools.iter_mut().zip(&mut last) {
+                *last = pool.push(w).ok();
+            }
         }
-        if let (Some(a), Some(b)) = (last_mean, last_median) {
-            e.mean_pool.push(100.0 * (a.zeta - zeta));
-            e.median_pool.push(100.0 * (b.zeta - zeta));
+        if let [Some(a), Some(b), Some(c)] = last {
+            for (errors, p) in e.pools.iter_mut().zip([a, b, c]) {
+                errors.push(100.0 * (p.zeta - zeta));
+            }
         }
     }
     e
 }
 
 /// The 2 Hz barrier gate (20 cycles per window, 11 windows per pool) at +0.5 % and +1 %: the
-/// mean of the windows reads high by about 0.3 points, their median by at most a third of that.
+/// mean of the windows reads high by about 0.3 points; the median and the square-root
+/// Hodges-Lehmann estimate by at most a third of that, and no wider.
 #[test]
-fn the_median_pool_is_not_biased_high_on_a_slow_gate() {
+fn the_pool_is_not_biased_high_on_a_slow_gate() {
     let p = gate(500.0, 2.0, 50.0);
     for zeta in [0.005, 0.01] {
         let e = run(&p, zeta, 300);
-        let (mean_bias, median_bias) = (median(&e.mean_pool), median(&e.median_pool));
+        let [mean_bias, median_bias, hl_bias] = e.pools.each_ref().map(|v| median(v));
         eprintln!(
             "barrier +{:.1} %: one window {:+.2} (mean error {:+.2}), mean pool {mean_bias:+.2}, \
-             median pool {median_bias:+.2} points",
+             median pool {median_bias:+.2}, sqrt-HL pool {hl_bias:+.2} points",
             100.0 * zeta,
             median(&e.single),
             e.single.iter().map(|v| v.clamp(-5.0, 5.0)).sum::<f64>() / e.single.len() as f64,
         );
-        assert!(e.median_pool.len() >= 290, "{} pools", e.median_pool.len());
+        assert!(e.pools[2].len() >= 290, "{} pools", e.pools[2].len());
         assert!(
             mean_bias > 0.15,
             "the mean pool's bias {mean_bias:+.2} (the skew it shows)"
         );
-        assert!(
-            median_bias.abs() < 0.15,
-            "the median pool's bias {median_bias:+.2}"
-        );
-        assert!(median_bias.abs() < 0.5 * mean_bias);
-        assert!(spread(&e.median_pool) < 1.1 * spread(&e.mean_pool));
+        for (name, bias, v) in [
+            ("median", median_bias, &e.pools[1]),
+            ("sqrt-HL", hl_bias, &e.pools[2]),
+        ] {
+            assert!(bias.abs() < 0.15, "the {name} pool's bias {bias:+.2}");
+            assert!(bias.abs() < 0.5 * mean_bias, "{name} {bias:+.2}");
+            assert!(spread(v) < 1.1 * spread(&e.pools[0]), "{name}");
+        }
     }
+}
+
+/// The 5 Hz lock gate at +2 % (six windows of 50 cycles, nearly symmetric): the median pool is
+/// wider than the mean's, the square-root Hodges-Lehmann pool is not, and it keeps the
+/// median's low bias. Paired: the three pools read the same windows.
+#[test]
+fn the_sqrt_hodges_lehmann_pool_is_as_efficient_as_the_mean_on_symmetric_windows() {
+    let e = run(&gate(2000.0, 5.0, 100.0), 0.02, 300);
+    let [mean, median_pool, hl] = e.pools.each_ref().map(|v| (median(v), spread(v)));
+    let err = e.pools.each_ref().map(|v| median_abs(v));
+    eprintln!(
+        "lock +2 %: (bias, spread) mean {mean:.2?}, median {median_pool:.2?}, sqrt-HL {hl:.2?}; \
+         median abs error {err:.2?}"
+    );
+    assert!(
+        hl.1 < median_pool.1,
+        "spread {hl:?} against {median_pool:?}"
+    );
+    assert!(hl.1 < 1.02 * mean.1, "spread {hl:?} against {mean:?}");
+    assert!(err[2] < err[1], "median abs errors {err:?}");
+    assert!(hl.0.abs() < mean.0.abs(), "bias {hl:?} against {mean:?}");
 }
 
 #[test]
@@ -162,18 +192,22 @@ fn table_of_the_three_presets() {
     ] {
         for zeta in [0.005, 0.01, 0.02] {
             let e = run(&p, zeta, 400);
-            eprintln!(
-                "{name:<8} {:+.1} %: one window median {:+.2} mean {:+.2} spread {:.2} | mean pool \
-                 median {:+.2} spread {:.2} | median pool median {:+.2} spread {:.2}",
+            let mut line = format!(
+                "{name:<8} {:+.1} %: one window median {:+.2} mean {:+.2} spread {:.2}",
                 100.0 * zeta,
                 median(&e.single),
                 e.single.iter().map(|v| v.clamp(-5.0, 5.0)).sum::<f64>() / e.single.len() as f64,
                 spread(&e.single),
-                median(&e.mean_pool),
-                spread(&e.mean_pool),
-                median(&e.median_pool),
-                spread(&e.median_pool),
             );
+            for (l, v) in LOCATIONS.iter().zip(&e.pools) {
+                line += &format!(
+                    " | {l:?} median {:+.2} spread {:.2} abs {:.2}",
+                    median(v),
+                    spread(v),
+                    median_abs(v)
+                );
+            }
+            eprintln!("{line}");
         }
     }
 }

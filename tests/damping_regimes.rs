@@ -41,14 +41,9 @@ fn lock_gate() -> GateParams {
     p
 }
 
+/// The crate's median (`identify::median`).
 fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    }
+    gatewatch::identify::median(&mut v).unwrap_or(f64::NAN)
 }
 
 /// Consecutive `secs`-second windows of a gate held at `zeta` on its limit cycle (started on

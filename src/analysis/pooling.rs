@@ -81,10 +81,11 @@ impl ZetaPools {
     /// Empty pools with `opts` (checked).
     pub fn new(opts: PoolOptions) -> Result<ZetaPools, spectral::SpectralError> {
         Ok(ZetaPools {
-            // SSI-COV's estimates are skewed to the right: their median, not their mean
-            // (`spectral::pool`, "Combination")
+            // SSI-COV's estimates are skewed to the right and their spread grows with zeta:
+            // Hodges-Lehmann in the square-root scale, not their mean (`spectral::pool`,
+            // "Combination")
             ambient: DampingPool::new(PoolOptions {
-                location: PoolLocation::Median,
+                location: PoolLocation::SqrtHodgesLehmann,
                 ..opts
             })?,
             envelope: DampingPool::new(opts)?,
