@@ -261,11 +261,12 @@ mod tests {
         assert!((0.008..=0.009).contains(&z), "pooled {z}");
     }
 
-    /// One window's SSI-COV estimate is skewed to the right: a high one among steady ones moves
-    /// the pooled figure no further than the middle of the others (their median), where their
-    /// mean would have moved by a quarter of its excess.
+    /// One window's SSI-COV estimate is skewed to the right: a high one among steady ones
+    /// (0.9 to 1.1 %, then 3 %) keeps the pooled figure within the steady ones, near their middle
+    /// (the square-root Hodges-Lehmann estimate: 1.075 %), where their mean would have moved by a
+    /// quarter of the excess (1.5 %).
     #[test]
-    fn the_ambient_pool_is_the_median_of_its_windows() {
+    fn the_ambient_pool_is_not_pulled_by_one_high_window() {
         let mut pools = ZetaPools::new(PoolOptions::default()).unwrap();
         let mut d = DampingReport::unknown();
         for (k, (z, half)) in [(0.010, 0.01), (0.011, 0.01), (0.009, 0.01), (0.030, 0.03)]
@@ -278,9 +279,11 @@ mod tests {
         }
         assert_eq!(d.zeta0_windows, Some(4), "{d:?}");
         let z = d.zeta0.unwrap();
+        assert!((0.0100..=0.0110).contains(&z), "pooled {z}");
+        let mean = (0.010 + 0.011 + 0.009 + 0.030) / 4.0;
         assert!(
-            (z - 0.0105).abs() < 1e-12,
-            "pooled {z}, not the median 0.0105"
+            z - 0.0105 < 0.1 * (mean - 0.0105),
+            "pooled {z}, pulled towards the mean {mean}"
         );
         // the interval is centred on it
         let (low, high) = d.zeta0_interval.unwrap();
