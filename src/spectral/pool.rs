@@ -19,9 +19,9 @@
 //! error +0.01 points, mean +0.36; a 10.4 Hz gate's: +0.04 and +0.13), so a mean of such windows
 //! reads high by about half the spread of one (the pooled figure on the 2 Hz gate: +0.33 points
 //! with the mean, +0.08 with the median). The median wastes a third of the information where
-//! the windows are nearly symmetric (a 5 Hz gate at +2 %: spread 0.67 against the mean's 0.65);
+//! the windows are nearly symmetric (a 5 Hz gate at +2 %: spread 0.68 against the mean's 0.66);
 //! the daemon's ambient pool takes the Hodges-Lehmann estimate in the square-root scale, which
-//! keeps the median's low bias and is narrower than both (0.60 there;
+//! keeps the median's low bias and is narrower than both (0.62 there;
 //! `tests/ambient_pooling.rs`, docs/damping.md, "Pooling windows").
 //! Consecutive windows overlap (the daemon's default: 10 s windows every 5 s), so their
 //! estimates are correlated; the pool's variance takes the correlation of two estimates as the
