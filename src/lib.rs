@@ -19,7 +19,8 @@
 //! - [`spectral`]: model-free analysis: dominant frequency, Hilbert envelope growth, ambient AR and
 //!   SSI-COV damping, a limit cycle's zeta0 from its envelope, pooling of a gate's windows.
 //! - [`simulate`]: synthetic gate signals: noise-driven gate with a damping scenario, worked example.
-//! - [`bench`]: `gatewatch bench seed-cases`: the chapter's protocol and its comparison table.
+//! - [`bench`](mod@bench): `gatewatch bench seed-cases`: the chapter's protocol and its
+//!   comparison table.
 //! - [`stability`]: the stability map (Figure 8.13): Monte Carlo over a plane of two coefficients,
 //!   each point simulated and classified stable (the free vibration decays) or unstable.
 //!

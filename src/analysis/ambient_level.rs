@@ -214,8 +214,8 @@ impl AmbientLevel {
     /// sample, as [`AmbientLevel::observe_span`] and the pooling left them, e.g. the stored
     /// history) leave it: what a restart rebuilds. Where it differs from the live memory: the
     /// previous window's interval is the pooled one (the live memory keeps it before pooling),
-    /// and none after a window whose interval was widened ([`span_the_change`]; its own is not
-    /// stored). Only [`span_the_change`] reads it, for the first window after the restart.
+    /// and none after a window whose interval was widened (`span_the_change`; its own is not
+    /// stored). Only `span_the_change` reads it, for the first window after the restart.
     pub fn resume<'a>(reports: impl IntoIterator<Item = (&'a DampingReport, f64)>) -> AmbientLevel {
         let mut level = AmbientLevel::default();
         for (d, end) in reports {
@@ -228,7 +228,7 @@ impl AmbientLevel {
         level
     }
 
-    /// Lets window `d` feed the level when it is noise-driven ([`decided_by_ambient`]) and its
+    /// Lets window `d` feed the level when it is noise-driven (`decided_by_ambient`) and its
     /// RMS was measured; nothing else. [`AmbientLevel::observe`] calls it after its own reading;
     /// the tracking memory (`analysis::tracking::Previous`) calls it alone, on the analysis's
     /// report.

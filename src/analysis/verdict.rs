@@ -81,7 +81,7 @@ pub struct VerdictFacts {
     pub fit_nmae: f64,
     /// The settings' bound: above it the model is not trusted.
     pub max_fit_nmae: f64,
-    /// Whether the model agrees with the model-free estimates ([`agrees`]).
+    /// Whether the model agrees with the model-free estimates (`agrees`).
     pub agrees: bool,
     /// The model's damping ratio at rest, when its rest position is an oscillator.
     pub zeta0_model: Option<f64>,
@@ -227,8 +227,8 @@ pub fn ambient_decision(
 
 /// Whether ambient estimate `a`, whose interval lies below zero, claims more growth than the
 /// window's envelope shows: the slowest growth its interval allows, `-high * omega`, exceeds the
-/// measured growth by more than the tolerance [`agrees`] gives a model ([`GROWTH_TOLERANCE_SIGMAS`]
-/// standard errors plus [`GROWTH_TOLERANCE_ZETA`]). A real negative damping grows the window at
+/// measured growth by more than the tolerance `agrees` gives a model (`GROWTH_TOLERANCE_SIGMAS`
+/// standard errors plus `GROWTH_TOLERANCE_ZETA`). A real negative damping grows the window at
 /// about its rate (a growing window, or the first seconds of one); a spurious SSI-COV pole of a
 /// short record does not. Without the growth (no uniform sampling) nothing is claimed.
 pub fn claims_unseen_growth(a: AmbientZeta, growth: Option<WindowGrowth>) -> bool {

@@ -278,7 +278,7 @@ pub fn bandwidth(residuals: &[f64]) -> usize {
 }
 
 /// Central-difference steps for coefficients `c` whose DE scales are `scales` (empty: 1):
-/// [`DIFFERENCE_STEP`] relative, and relative to a thousandth of the scale for a coefficient
+/// `DIFFERENCE_STEP` relative, and relative to a thousandth of the scale for a coefficient
 /// at or near zero.
 pub fn difference_steps(c: &[f64], scales: &[f64]) -> Vec<f64> {
     c.iter()

@@ -232,7 +232,7 @@ impl Model {
         r
     }
 
-    /// [`Self::accel_lanes`] into `r` (see [`Program::eval_lanes_then`] for why).
+    /// [`Self::accel_lanes`] into `r` (see `Program::eval_lanes_then` for why).
     #[inline]
     pub fn accel_lanes_into<const L: usize>(
         &self,

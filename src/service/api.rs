@@ -424,9 +424,9 @@ async fn fallback() -> HttpError {
 /// Ingestion routes, innermost first: gzip decompression (the body limit then counts
 /// decompressed bytes), `Content-Encoding` check (415), admission before the body is read
 /// (413 on `Content-Length`, 503 on the body budget or the ingestion bound:
-/// [`admit_ingest`]), bearer auth.
+/// `admit_ingest`), bearer auth.
 /// The Influx routes (`/api/v2/write`, `/write`, `/query`, `/ping`, `/health`) answer errors in
-/// InfluxDB 2.x's shape ([`influx::v2_errors`]); `/ping` and `/health` are open, as in InfluxDB.
+/// InfluxDB 2.x's shape (`influx::v2_errors`); `/ping` and `/health` are open, as in InfluxDB.
 pub fn router(state: Arc<AppState>) -> Router {
     let s = &state.config.server;
     let admission = Admission {

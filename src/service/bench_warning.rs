@@ -12,7 +12,7 @@
 //! read through their JSON form (`zeta0`, `zeta0_interval`, `zeta0_source`) for the same reason.
 //!
 //! Scoring (pure functions over [`RunRecord`]s, tested on synthetic sequences) is in
-//! [`score`](self::score); what each column means is in `docs/benchmarks.md`.
+//! `score`; what each column means is in `docs/benchmarks.md`.
 
 use std::process::ExitCode;
 use std::sync::Arc;
@@ -134,7 +134,7 @@ pub struct WindowRecord {
     /// Regime of the window.
     pub regime: Regime,
     /// Names of the gate's alerts firing after this window (and the early-warning baseline's
-    /// [`score::EWS_VARIANCE`], marked by [`score::mark_ews`]).
+    /// `score::EWS_VARIANCE`, marked by `score::mark_ews`).
     pub firing: Vec<String>,
     /// Variance of the measured (noisy) signal over the window, for the early-warning baseline.
     pub variance: f64,

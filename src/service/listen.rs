@@ -14,10 +14,10 @@
 //!   caller bounds that wait with the shutdown deadline).
 //!
 //! - an answer given before its request's body was read (a refusal: 413, 503 over the body
-//!   budget, 401, 415, 404, ...) says `Connection: close` ([`TrackedBody`]): the unread rest of
+//!   budget, 401, 415, 404, ...) says `Connection: close` (`TrackedBody`): the unread rest of
 //!   the body makes the connection unusable, and a keep-alive client that is not told sees its
 //!   next request fail.
-//! - lingering close ([`linger`]), as nginx's `lingering_close`: when a connection ends, its
+//! - lingering close (`linger`), as nginx's `lingering_close`: when a connection ends, its
 //!   write side is shut first (the client sees the end of the answer), then what the client
 //!   still sends is read and discarded for at most [`LINGER_TIME`], until the client closes.
 //!   hyper, left alone, closes the socket with the rest of a refused body unread; the kernel then

@@ -17,7 +17,7 @@
 //!   connection cap and header timeout; [`tcp`]: the raw TCP listener; [`shutdown`]: signals.
 //! - [`cli`]: command-line entry points; [`client`]: the simulate client (talks to a daemon
 //!   over the network only, and installs the TLS crypto provider its HTTP client needs).
-//! - [`bench`]: `gatewatch bench daemon`, load measurements.
+//! - [`bench`](mod@bench): `gatewatch bench daemon`, load measurements.
 //! - [`bench_history`]: `gatewatch bench history`, a day of history: file size, route time.
 //! - [`bench_warning`]: `gatewatch bench warning`, the scenarios streamed through [`state`] in
 //!   sample time and scored against the simulator's truth.

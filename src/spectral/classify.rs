@@ -84,7 +84,7 @@ pub fn classify(
     }
 }
 
-/// Options of [`SpectralAnalyzer::analyze_window`].
+/// Options of [`SpectralAnalyzer::analyze_window`](super::SpectralAnalyzer::analyze_window).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct WindowOptions {
     /// Centred moving-average window, samples (`<= 1`: linear detrending instead).

@@ -5,7 +5,7 @@ use std::time::Duration;
 use serde::{Deserialize, Serialize};
 
 /// Thresholds and timing of the alert rules (global, or per gate via
-/// [`AlertEngine::set_rules`]).
+/// [`AlertEngine::set_rules`](super::AlertEngine::set_rules)).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct AlertRules {

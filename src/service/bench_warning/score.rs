@@ -21,7 +21,7 @@ pub enum Regime {
     LimitCycle,
     /// `zeta0 >= 0` with the response still well above ambient: decaying after self-excitation.
     Decay,
-    /// The true `zeta0` jumps within the window (by more than [`MIXED_JUMP`] in 50 ms: a step,
+    /// The true `zeta0` jumps within the window (by more than `MIXED_JUMP` in 50 ms: a step,
     /// a burst's edge): the window holds two dampings and no one truth, so it belongs to no
     /// regime and is listed apart, without a target; its error is taken against the window's
     /// mean truth.
@@ -59,7 +59,7 @@ impl Regime {
     }
 
     /// [`Self::classify`] of a window in which the true `zeta0` changes by at most `jump`
-    /// between instants 50 ms apart: [`Regime::Mixed`] above [`MIXED_JUMP`].
+    /// between instants 50 ms apart: [`Regime::Mixed`] above `MIXED_JUMP`.
     pub fn classify_with_jump(p: &GateParams, zeta: f64, amplitude: f64, jump: f64) -> Regime {
         if jump > MIXED_JUMP {
             return Regime::Mixed;
@@ -146,7 +146,7 @@ pub struct RegimeRow {
     /// Fraction of ALL the regime's windows whose interval covers the truth (a window without
     /// an interval does not cover).
     pub coverage: Option<f64>,
-    /// 95 % interval of `coverage` by the bootstrap over seeds ([`coverage_interval`]); `None`
+    /// 95 % interval of `coverage` by the bootstrap over seeds (`coverage_interval`); `None`
     /// with fewer than two seeds that have windows in the regime.
     pub coverage_interval: Option<(f64, f64)>,
     /// Standard deviation of `zeta0 - truth`, percentage points.
