@@ -322,9 +322,28 @@ fn declining_fires_resolves_and_holds_on_no_evidence() {
     assert!(!e.is_firing("g"));
     assert!(e.is_declining("g"));
     assert_eq!(e.firing().len(), 1);
-    // untrusted or trend-less windows neither resolve it nor count towards resolving
-    let calm = with_trend(Some(trend(None, 300.0)));
+    // a trend that still crosses within the lead at its fitted slope, though no longer
+    // confidently, holds it (the hysteresis): no resolve however many such windows come
+    let holds = with_trend(Some(trend(None, 300.0)));
+    for i in 0..4 {
+        assert!(e.observe("g", &holds, t(6 + i)).is_empty());
+    }
+    assert!(e.is_declining("g"));
+    let held = &e.firing()[0].annotations["summary"];
+    assert_eq!(
+        held,
+        "gate g: damping ratio declining, at this rate crossing 0.0 % in 8.3 min \
+         (no longer at 95 % confidence)"
+    );
+    // untrusted or trend-less windows neither resolve it nor count towards resolving; a
+    // holding window breaks the calm streak
+    let calm = with_trend(Some(TrendEstimate {
+        crossing_seconds: Some(900.0),
+        ..trend(None, 300.0)
+    }));
     e.observe("g", &calm, t(10));
+    e.observe("g", &holds, t(12));
+    e.observe("g", &calm, t(13));
     e.observe("g", &with_trend(None), t(15));
     assert!(e.observe("g", &calm, t(20)).is_empty());
     assert!(e.is_declining("g"));
@@ -391,6 +410,11 @@ fn declining_needs_span_lead_and_a_streak() {
     };
     e.observe("g", &untrusted, t(25));
     assert!(e.observe("g", &near, t(30)).is_empty());
+    // so does a window that only holds (the fitted slope crosses within the lead, the bound
+    // does not): holding keeps a firing warning, it never starts one
+    let holds = with_trend(Some(trend(None, 300.0)));
+    e.observe("g", &holds, t(31));
+    assert!(e.observe("g", &near, t(32)).is_empty());
     assert_eq!(e.observe("g", &near, t(35)).len(), 1);
     // removing the gate resolves it
     let ev = e.remove_gate("g", t(40));

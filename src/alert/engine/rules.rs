@@ -46,8 +46,8 @@ pub struct AlertRules {
     /// Consecutive trusted windows predicting the crossing before `GateDampingDeclining` fires
     /// (default 2; 0 acts as 1).
     pub warn_for_windows: u32,
-    /// Consecutive trusted windows no longer predicting it before it resolves (default 2;
-    /// 0 acts as 1).
+    /// Consecutive trusted windows no longer predicting it, not even at the fitted slope, before
+    /// it resolves (default 2; 0 acts as 1).
     pub warn_resolve_windows: u32,
     /// Value of `GateDampingDeclining`'s `severity` label (default "warning").
     pub warn_severity: String,

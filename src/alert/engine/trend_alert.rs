@@ -19,7 +19,12 @@ use crate::analysis::TrendEstimate;
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum Reading {
     Unknown,
+    /// The confident crossing (at the slope's 95 % bound) lies within the lead.
     Predicts,
+    /// Not confidently, but the fitted slope still crosses within the lead: holds a firing
+    /// warning (calm for one that is not firing).
+    Holds,
+    /// Not even the fitted slope crosses within the lead.
     Calm,
 }
 
@@ -32,6 +37,11 @@ fn classify(obs: &Observation, rules: &AlertRules) -> Reading {
     }
     if trend.crosses_within(rules.warn_lead_seconds) {
         Reading::Predicts
+    } else if trend
+        .crossing_seconds
+        .is_some_and(|t| t <= rules.warn_lead_seconds)
+    {
+        Reading::Holds
     } else {
         Reading::Calm
     }
@@ -79,8 +89,8 @@ impl Declining {
         match (classify(obs, rules), &mut *self) {
             (Reading::Unknown, Declining::Pending { .. }) => *self = Declining::Quiet,
             (Reading::Unknown, Declining::Firing { calm, .. }) => *calm = 0,
-            (Reading::Unknown | Reading::Calm, Declining::Quiet) => {}
-            (Reading::Calm, Declining::Pending { .. }) => *self = Declining::Quiet,
+            (Reading::Unknown | Reading::Holds | Reading::Calm, Declining::Quiet) => {}
+            (Reading::Holds | Reading::Calm, Declining::Pending { .. }) => *self = Declining::Quiet,
             (Reading::Calm, Declining::Firing { alert, calm }) => {
                 *calm = calm.saturating_add(1);
                 if *calm >= rules.warn_resolve_windows() {
@@ -108,7 +118,7 @@ impl Declining {
                     return Some(AlertEvent::Firing(alert));
                 }
             }
-            (Reading::Predicts, Declining::Firing { alert, calm }) => {
+            (Reading::Predicts | Reading::Holds, Declining::Firing { alert, calm }) => {
                 *calm = 0;
                 // Same labels and startsAt; fresh figures for the re-sends.
                 alert.annotations = declining_annotations(gate, rules, obs);
@@ -163,13 +173,21 @@ fn declining_annotations(
             fmt_percent(rules.fire_below)
         )
     } else {
-        let when = confident
-            .map(|s| format!("{} min", fmt_minutes(s)))
-            .unwrap_or_else(|| "?".into());
-        format!(
-            "gate {gate}: damping ratio declining, predicted to cross {} % within {when}",
-            fmt_percent(rules.fire_below)
-        )
+        match (confident, trend.crossing_seconds) {
+            (Some(c), _) => format!(
+                "gate {gate}: damping ratio declining, predicted to cross {} % within {} min",
+                fmt_percent(rules.fire_below),
+                fmt_minutes(c)
+            ),
+            // a firing warning held by the fitted slope (`Reading::Holds`)
+            (None, Some(s)) => format!(
+                "gate {gate}: damping ratio declining, at this rate crossing {} % in {} min \
+                 (no longer at 95 % confidence)",
+                fmt_percent(rules.fire_below),
+                fmt_minutes(s)
+            ),
+            (None, None) => format!("gate {gate}: damping ratio no longer declining"),
+        }
     };
     a.insert("summary".to_string(), summary);
     let mut description = format!(
