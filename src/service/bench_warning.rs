@@ -82,6 +82,14 @@ pub struct BenchWarningArgs {
     /// `GateNegativeDamping`'s `fire_at_once_probability` (default: the configuration's).
     #[arg(long)]
     pub fire_at_once_probability: Option<f64>,
+    /// Window length in seconds of sample time (`window_seconds`; default: the
+    /// configuration's, 10): a slow gate's windows can be made to hold more cycles.
+    #[arg(long)]
+    pub window_seconds: Option<f64>,
+    /// Identification cadence in seconds of new sample time (`identify_every_seconds`; default:
+    /// the configuration's, 5). Keep it half the window for the overlap the defaults assume.
+    #[arg(long)]
+    pub identify_every_seconds: Option<f64>,
 }
 
 /// What one run streams.
@@ -436,6 +444,9 @@ pub fn plan(args: &BenchWarningArgs) -> anyhow::Result<Vec<RunSpec>> {
         .iter()
         .map(|s| GatePreset::parse(s).map_err(|e| anyhow::anyhow!("--gates: {e}")))
         .collect::<anyhow::Result<_>>()?;
+    for &gate in &gates {
+        configure(args, gate)?;
+    }
     let mut out = Vec::new();
     for &scenario in &scenarios {
         for &gate in &gates {
@@ -464,6 +475,30 @@ pub fn plan(args: &BenchWarningArgs) -> anyhow::Result<Vec<RunSpec>> {
     Ok(out)
 }
 
+/// The daemon's configuration for one run on `gate`: the preset's ([`run_config`]) with the
+/// overrides `args` asks for, checked as a configuration file's `[gates.*]` table is (the error
+/// names the key and the flags).
+fn configure(args: &BenchWarningArgs, gate: GatePreset) -> anyhow::Result<Config> {
+    let mut config = run_config(gate, args.worker_threads);
+    for (name, g) in config.gates.iter_mut() {
+        if let Some(m) = args.model_interval {
+            g.model_interval = m;
+        }
+        if let Some(p) = args.fire_at_once_probability {
+            g.alert.fire_at_once_probability = p;
+        }
+        if let Some(w) = args.window_seconds {
+            g.window_seconds = w;
+        }
+        if let Some(e) = args.identify_every_seconds {
+            g.identify_every_seconds = e;
+        }
+        g.validate(&format!("gates.{name}"))
+            .map_err(|e| anyhow::anyhow!("{e} (--window-seconds, --identify-every-seconds)"))?;
+    }
+    Ok(config)
+}
+
 /// Output of the bench: every row and, with `--json`, every window.
 #[derive(Debug, Serialize)]
 pub struct Report {
@@ -478,15 +513,7 @@ async fn bench(args: BenchWarningArgs) -> anyhow::Result<Report> {
     let mut records = Vec::new();
     let mut analyzers: Vec<(GatePreset, Arc<dyn WindowAnalyzer>)> = Vec::new();
     for (i, spec) in specs.iter().enumerate() {
-        let mut config = run_config(spec.gate, args.worker_threads);
-        for gate in config.gates.values_mut() {
-            if let Some(m) = args.model_interval {
-                gate.model_interval = m;
-            }
-            if let Some(p) = args.fire_at_once_probability {
-                gate.alert.fire_at_once_probability = p;
-            }
-        }
+        let config = configure(&args, spec.gate)?;
         let analyzer = match analyzers.iter().find(|a| a.0 == spec.gate) {
             Some(a) => a.1.clone(),
             None => {

@@ -231,6 +231,8 @@ fn plan_refuses_bad_arguments_naming_the_flag() {
         trace: false,
         model_interval: None,
         fire_at_once_probability: None,
+        window_seconds: None,
+        identify_every_seconds: None,
     };
     let p = plan(&args).unwrap();
     assert_eq!(p.len(), 8);
@@ -254,6 +256,23 @@ fn plan_refuses_bad_arguments_naming_the_flag() {
     assert!(bad(&|a| a.hours = 0.0).contains("--hours"));
     assert!(bad(&|a| a.noise_abs = Some(-1.0)).contains("--noise-abs"));
     assert!(bad(&|a| a.fire_at_once_probability = Some(0.2)).contains("--fire-at-once-probability"));
+    let window = bad(&|a| a.window_seconds = Some(-3.0));
+    assert!(
+        window.contains("gates.lab.window_seconds") && window.contains("--window-seconds"),
+        "{window}"
+    );
+    let cadence = bad(&|a| a.identify_every_seconds = Some(0.0));
+    assert!(
+        cadence.contains("identify_every_seconds") && cadence.contains("--identify-every-seconds"),
+        "{cadence}"
+    );
+    // a slow gate's longer windows are accepted
+    plan(&BenchWarningArgs {
+        window_seconds: Some(25.0),
+        identify_every_seconds: Some(12.5),
+        ..args.clone()
+    })
+    .unwrap();
 }
 
 /// The early-warning baseline fires while the windows' variance rises steadily over the

@@ -52,7 +52,7 @@ impl GateConfig {
         }
     }
 
-    pub(super) fn validate(&self, prefix: &str) -> Result<(), ConfigError> {
+    pub(crate) fn validate(&self, prefix: &str) -> Result<(), ConfigError> {
         let err = |key: &str, msg: &str| Err(ConfigError::new(format!("{prefix}.{key}: {msg}")));
         if !(self.rate_hz.is_finite() && self.rate_hz > 0.0) {
             return err("rate_hz", "must be > 0");
