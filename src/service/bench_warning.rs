@@ -45,9 +45,13 @@ pub const WINDOW_TIMEOUT: Duration = Duration::from_secs(300);
 /// `gatewatch bench warning`.
 #[derive(Debug, Clone, clap::Args)]
 pub struct BenchWarningArgs {
-    /// Seeds per scenario and gate (seeds 1..=N).
+    /// Seeds per scenario and gate (seeds F..F+N-1, F the `--first-seed`).
     #[arg(long, default_value_t = 3)]
     pub seeds: u64,
+    /// The first seed: extends a run to new streams without repeating the ones already run
+    /// (`--seeds 4 --first-seed 5` streams seeds 5 to 8).
+    #[arg(long, default_value_t = 1)]
+    pub first_seed: u64,
     /// Print JSON instead of the tables.
     #[arg(long)]
     pub json: bool,
@@ -415,6 +419,12 @@ pub async fn run_stream(
 pub fn plan(args: &BenchWarningArgs) -> anyhow::Result<Vec<RunSpec>> {
     anyhow::ensure!(args.seeds >= 1, "--seeds must be at least 1");
     anyhow::ensure!(
+        args.first_seed.checked_add(args.seeds).is_some(),
+        "--first-seed {} with --seeds {}: the last seed does not fit in 64 bits",
+        args.first_seed,
+        args.seeds
+    );
+    anyhow::ensure!(
         args.hours > 0.0 && args.hours.is_finite(),
         "--hours must be > 0"
     );
@@ -460,7 +470,7 @@ pub fn plan(args: &BenchWarningArgs) -> anyhow::Result<Vec<RunSpec>> {
             } else {
                 scenario.def(&p).duration_s
             };
-            for seed in 1..=args.seeds {
+            for seed in args.first_seed..args.first_seed + args.seeds {
                 out.push(RunSpec {
                     scenario,
                     gate,
@@ -473,6 +483,16 @@ pub fn plan(args: &BenchWarningArgs) -> anyhow::Result<Vec<RunSpec>> {
         }
     }
     Ok(out)
+}
+
+/// The seeds a run streams, as the header prints them: `3` (seeds 1 to 3) or `5..=8`.
+fn seed_range(args: &BenchWarningArgs) -> String {
+    if args.first_seed == 1 {
+        args.seeds.to_string()
+    } else {
+        let last = args.first_seed.saturating_add(args.seeds.saturating_sub(1));
+        format!("{}..={last}", args.first_seed)
+    }
 }
 
 /// The daemon's configuration for one run on `gate`: the preset's ([`run_config`]) with the
@@ -563,7 +583,7 @@ pub fn bench_warning(args: BenchWarningArgs) -> ExitCode {
     let json = args.json;
     let header = format!(
         "gatewatch bench warning: seeds {}, gates {}, stable scenarios {} h per seed, noise {}",
-        args.seeds,
+        seed_range(&args),
         args.gates.join(","),
         args.hours,
         match args.noise_abs {

@@ -221,6 +221,7 @@ fn false_alarms_are_counted_per_firing_and_extrapolated_to_a_day() {
 fn plan_refuses_bad_arguments_naming_the_flag() {
     let args = BenchWarningArgs {
         seeds: 2,
+        first_seed: 1,
         json: false,
         hours: 0.1,
         scenarios: vec!["onset".into(), "stable".into()],
@@ -266,6 +267,27 @@ fn plan_refuses_bad_arguments_naming_the_flag() {
         cadence.contains("identify_every_seconds") && cadence.contains("--identify-every-seconds"),
         "{cadence}"
     );
+    assert!(bad(&|a| a.first_seed = u64::MAX).contains("--first-seed"));
+    // later seeds extend a run without repeating the first ones
+    let later = plan(&BenchWarningArgs {
+        first_seed: 5,
+        ..args.clone()
+    })
+    .unwrap();
+    let lab_onset: Vec<u64> = later
+        .iter()
+        .filter(|s| s.gate == GatePreset::Lab && s.scenario == ScenarioName::Onset)
+        .map(|s| s.seed)
+        .collect();
+    assert_eq!(lab_onset, [5, 6]);
+    assert_eq!(
+        seed_range(&BenchWarningArgs {
+            first_seed: 5,
+            ..args.clone()
+        }),
+        "5..=6"
+    );
+    assert_eq!(seed_range(&args), "2");
     // a slow gate's longer windows are accepted
     plan(&BenchWarningArgs {
         window_seconds: Some(25.0),
