@@ -163,8 +163,22 @@ pub struct DemoSummary {
     pub alerts: u64,
     /// `GateNegativeDamping` firing alerts received.
     pub negative_damping_fired: u64,
+    /// `GateDampingDeclining` (the early warning) firing alerts received.
+    pub declining_fired: u64,
     /// `gatewatch_damping_ratio` lines of the final metrics.
     pub damping_metric_lines: Vec<String>,
+}
+
+impl DemoSummary {
+    /// Counts one line of [`alert_lines`].
+    fn count(&mut self, line: &str) {
+        self.alerts += 1;
+        if line.starts_with("FIRING GateNegativeDamping ") {
+            self.negative_damping_fired += 1;
+        } else if line.starts_with("FIRING GateDampingDeclining ") {
+            self.declining_fired += 1;
+        }
+    }
 }
 
 /// The demo, until `--duration` has passed or `interrupt` resolves.
@@ -280,10 +294,7 @@ pub async fn run_demo(
             }
             Some(payload) = hooks.recv() => {
                 for line in alert_lines(&payload) {
-                    summary.alerts += 1;
-                    if line.starts_with("FIRING GateNegativeDamping") {
-                        summary.negative_damping_fired += 1;
-                    }
+                    summary.count(&line);
                     println!("[{:6.1} s] webhook: {line}", began.elapsed().as_secs_f64());
                 }
             }
@@ -356,7 +367,7 @@ pub async fn run_demo(
     // alerts flushed by the daemon's shutdown
     while let Ok(payload) = hooks.try_recv() {
         for line in alert_lines(&payload) {
-            summary.alerts += 1;
+            summary.count(&line);
             println!("[{:6.1} s] webhook: {line}", began.elapsed().as_secs_f64());
         }
     }
@@ -364,10 +375,12 @@ pub async fn run_demo(
 
     println!();
     println!(
-        "summary after {:.0} s: {} identifications, {} alerts received by the webhook ({} GateNegativeDamping firing)",
+        "summary after {:.0} s: {} identifications, {} alerts received by the webhook (firing: \
+         {} GateDampingDeclining, {} GateNegativeDamping)",
         began.elapsed().as_secs_f64(),
         summary.identifications,
         summary.alerts,
+        summary.declining_fired,
         summary.negative_damping_fired
     );
     if summary.damping_metric_lines.is_empty() {
@@ -414,7 +427,7 @@ fn rule_lines(rules: &crate::alert::AlertRules) -> [String; 2] {
 
 #[cfg(test)]
 mod rule_tests {
-    use super::rule_lines;
+    use super::{alert_lines, rule_lines, DemoSummary};
     use crate::alert::AlertRules;
 
     #[test]
@@ -442,6 +455,30 @@ mod rule_tests {
             negative,
             "alert rule: GateNegativeDamping fires when P(zeta0 < 0.0 %) >= 0.9 in 3 \
              consecutive trusted windows"
+        );
+    }
+
+    #[test]
+    fn the_summary_counts_each_alert_that_fired() {
+        let payload = serde_json::json!({"alerts": [
+            {"status": "firing", "labels": {"alertname": "GateDampingDeclining", "gate": "g"},
+             "annotations": {"summary": "declining"}},
+            {"status": "firing", "labels": {"alertname": "GateNegativeDamping", "gate": "g"},
+             "annotations": {"summary": "negative"}},
+            {"status": "resolved", "labels": {"alertname": "GateDampingDeclining", "gate": "g"},
+             "annotations": {"summary": "calm"}},
+        ]});
+        let mut summary = DemoSummary::default();
+        for line in alert_lines(&payload) {
+            summary.count(&line);
+        }
+        assert_eq!(
+            (
+                summary.alerts,
+                summary.declining_fired,
+                summary.negative_damping_fired
+            ),
+            (3, 1, 1)
         );
     }
 }
