@@ -277,7 +277,10 @@ fn classify(obs: &Observation, rules: &AlertRules) -> Reading {
         None => high < rules.fire_below,
     };
     if negative {
-        let at = obs.departure_ratio.unwrap_or(AT_ONCE_MIN_AMBIENT_RATIO);
+        let at = rules
+            .fire_at_once_min_ratio
+            .or(obs.departure_ratio)
+            .unwrap_or(AT_ONCE_MIN_AMBIENT_RATIO);
         let departed = obs.ambient_ratio.is_some_and(|r| r >= at);
         Reading::Negative {
             at_once: departed && rules.fires_at_once(low, high),

@@ -86,6 +86,10 @@ pub struct BenchWarningArgs {
     /// `GateNegativeDamping`'s `fire_at_once_probability` (default: the configuration's).
     #[arg(long)]
     pub fire_at_once_probability: Option<f64>,
+    /// `GateNegativeDamping`'s `fire_at_once_min_ratio`: how far above its ambient level one
+    /// window must stand to fire at once (default: the gate's departure ratio).
+    #[arg(long)]
+    pub fire_at_once_min_ratio: Option<f64>,
     /// Window length in seconds of sample time (`window_seconds`; default: the
     /// configuration's, 10): a slow gate's windows can be made to hold more cycles.
     #[arg(long)]
@@ -438,6 +442,12 @@ pub fn plan(args: &BenchWarningArgs) -> anyhow::Result<Vec<RunSpec>> {
             "--fire-at-once-probability must be in (0.5, 1]"
         );
     }
+    if let Some(r) = args.fire_at_once_min_ratio {
+        anyhow::ensure!(
+            r >= 1.0 && r.is_finite(),
+            "--fire-at-once-min-ratio must be a number >= 1"
+        );
+    }
     if let Some(a) = args.noise_abs {
         anyhow::ensure!(a >= 0.0 && a.is_finite(), "--noise-abs must be >= 0");
     }
@@ -506,6 +516,9 @@ fn configure(args: &BenchWarningArgs, gate: GatePreset) -> anyhow::Result<Config
         }
         if let Some(p) = args.fire_at_once_probability {
             g.alert.fire_at_once_probability = p;
+        }
+        if let Some(r) = args.fire_at_once_min_ratio {
+            g.alert.fire_at_once_min_ratio = Some(r);
         }
         if let Some(w) = args.window_seconds {
             g.window_seconds = w;

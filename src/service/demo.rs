@@ -405,7 +405,9 @@ fn rule_lines(rules: &crate::alert::AlertRules) -> [String; 2] {
         format!(
             ", or at once on one window {}x above the gate's ambient level with P(zeta0 < {below}) \
              >= {}",
-            crate::alert::AT_ONCE_MIN_AMBIENT_RATIO,
+            rules
+                .fire_at_once_min_ratio
+                .unwrap_or(crate::alert::AT_ONCE_MIN_AMBIENT_RATIO),
             rules.fire_at_once_probability
         )
     } else {

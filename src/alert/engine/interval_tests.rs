@@ -210,6 +210,29 @@ fn a_window_far_below_fires_at_once() {
             "{departure_ratio:?}"
         );
     }
+    // a site's own bar (`fire_at_once_min_ratio`) replaces the gate's departure ratio, up
+    // (4.6 where the windows' cycles say 3.84) or down
+    for (min_ratio, departure_ratio, at_once) in [
+        (Some(4.6), Some(3.84), false),
+        (Some(4.6), None, false),
+        (Some(3.2), Some(3.84), true),
+        (None, Some(3.84), true),
+    ] {
+        let mut e = AlertEngine::new(AlertRules {
+            fire_at_once_min_ratio: min_ratio,
+            ..rules.clone()
+        });
+        let o = Observation {
+            ambient_ratio: Some(4.2),
+            departure_ratio,
+            ..far
+        };
+        assert_eq!(
+            e.observe("g", &o, t(0)).len(),
+            usize::from(at_once),
+            "{min_ratio:?} {departure_ratio:?}"
+        );
+    }
     // disabled: even a zero-width interval far below waits for for_windows
     let mut e = AlertEngine::new(AlertRules {
         fire_at_once_probability: 1.0,
@@ -255,6 +278,13 @@ fn validate_rejects_bad_trend_rules() {
             r.validate(),
             Err(RulesError::BadAtOnceProbability(_))
         ));
+    }
+    for ratio in [0.5, f64::INFINITY, f64::NAN] {
+        let r = AlertRules {
+            fire_at_once_min_ratio: Some(ratio),
+            ..AlertRules::default()
+        };
+        assert!(matches!(r.validate(), Err(RulesError::BadAtOnceRatio(_))));
     }
     assert_eq!(
         bad(|r| r.warn_lead_seconds = 0.0),

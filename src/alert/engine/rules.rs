@@ -32,6 +32,13 @@ pub struct AlertRules {
     /// ambient level: on a stable +0.5 % lock gate a model-sourced window read -2.5 % (-2.8,
     /// -2.1) once in 8.7 h of stream at the gate's usual level (docs/alerts.md).
     pub fire_at_once_probability: f64,
+    /// How far above its ambient level a window must stand to fire at once (unset, the default:
+    /// the gate's `departure_ratio`, 3 where its windows hold 50 cycles or more, 3.84 at 20).
+    /// At least 1. Why a site may raise it: on a gate whose windows hold few cycles, the model
+    /// reads a quarter of the chance excursions above the bar as growth (a 2 Hz barrier gate at
+    /// +0.5 %: 2 pages in 4.9 days at 3.84, none at 4.6, which fires the onsets 5 s later on 6 of
+    /// 20 seeds; docs/alerts.md, "On a gate whose windows hold few cycles").
+    pub fire_at_once_min_ratio: Option<f64>,
     /// Consecutive windows with the interval above `clear_above` before resolving (default 2;
     /// 0 acts as 1).
     pub resolve_windows: u32,
@@ -66,6 +73,7 @@ impl Default for AlertRules {
             fire_probability: None,
             for_windows: 2,
             fire_at_once_probability: 0.975,
+            fire_at_once_min_ratio: None,
             resolve_windows: 2,
             trend_horizon_seconds: 600.0,
             trend_min_span_seconds: 120.0,
@@ -101,6 +109,9 @@ pub enum RulesError {
     /// `fire_at_once_probability` is not in (0.5, 1].
     #[error("alert rule fire_at_once_probability must be in (0.5, 1], got {0}")]
     BadAtOnceProbability(f64),
+    /// `fire_at_once_min_ratio` is not a finite number of at least 1.
+    #[error("alert rule fire_at_once_min_ratio must be a finite number >= 1, got {0}")]
+    BadAtOnceRatio(f64),
     /// A duration of the trend is not a positive finite number of seconds.
     #[error("alert rule `{0}` must be a positive finite number of seconds, got {1}")]
     BadSeconds(&'static str, f64),
@@ -136,6 +147,11 @@ impl AlertRules {
         let p = self.fire_at_once_probability;
         if !(p > 0.5 && p <= 1.0) {
             return Err(RulesError::BadAtOnceProbability(p));
+        }
+        if let Some(r) = self.fire_at_once_min_ratio {
+            if !(r.is_finite() && r >= 1.0) {
+                return Err(RulesError::BadAtOnceRatio(r));
+            }
         }
         for (name, v) in [
             ("trend_horizon_seconds", self.trend_horizon_seconds),

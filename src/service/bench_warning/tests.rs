@@ -232,6 +232,7 @@ fn plan_refuses_bad_arguments_naming_the_flag() {
         trace: false,
         model_interval: None,
         fire_at_once_probability: None,
+        fire_at_once_min_ratio: None,
         window_seconds: None,
         identify_every_seconds: None,
     };
@@ -268,6 +269,7 @@ fn plan_refuses_bad_arguments_naming_the_flag() {
         "{cadence}"
     );
     assert!(bad(&|a| a.first_seed = u64::MAX).contains("--first-seed"));
+    assert!(bad(&|a| a.fire_at_once_min_ratio = Some(0.9)).contains("--fire-at-once-min-ratio"));
     // later seeds extend a run without repeating the first ones
     let later = plan(&BenchWarningArgs {
         first_seed: 5,

@@ -167,6 +167,11 @@ impl GateConfig {
         if !(p > 0.5 && p <= 1.0) {
             return err("alert.fire_at_once_probability", "must be in (0.5, 1]");
         }
+        if let Some(r) = a.fire_at_once_min_ratio {
+            if !(r.is_finite() && r >= 1.0) {
+                return err("alert.fire_at_once_min_ratio", "must be a number >= 1");
+            }
+        }
         for (key, v) in [
             ("alert.trend_horizon_seconds", a.trend_horizon_seconds),
             ("alert.warn_lead_seconds", a.warn_lead_seconds),

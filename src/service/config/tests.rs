@@ -77,6 +77,10 @@ fn errors_name_the_key() {
             "gates.g1.alert.fire_at_once_probability",
         ),
         (
+            "fire_at_once_min_ratio = 0.5",
+            "gates.g1.alert.fire_at_once_min_ratio",
+        ),
+        (
             "warn_lead_seconds = 0.0",
             "gates.g1.alert.warn_lead_seconds",
         ),
