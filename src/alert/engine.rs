@@ -76,7 +76,7 @@ pub struct Observation<'a> {
     pub trusted: bool,
     /// The window's signal RMS over the gate's ambient level (`DampingReport::ambient_ratio`;
     /// `None`: no level yet). One window fires at once only when it stands at least
-    /// `departure_ratio` (by default [`AT_ONCE_MIN_AMBIENT_RATIO`]) above it.
+    /// [`at_once_ratio`] of `departure_ratio` (3 by default) above it.
     pub ambient_ratio: Option<f64>,
     /// The ratio from which the gate counts as having left its ambient level
     /// (`DampingReport::departure_ratio`: 3 on a gate whose windows hold 50 cycles or more,
@@ -251,6 +251,34 @@ pub fn rfc3339(t: SystemTime) -> String {
 /// once"); a gate that self-excites leaves its ambient level within the window that shows it.
 pub const AT_ONCE_MIN_AMBIENT_RATIO: f64 = crate::analysis::DEPARTED_FROM_AMBIENT;
 
+/// How much further above [`AT_ONCE_MIN_AMBIENT_RATIO`] the at-once bar lies than the gate's
+/// departure ratio does ([`at_once_ratio`]): twice as far.
+pub const AT_ONCE_MARGIN_FACTOR: f64 = 2.0;
+
+/// The ratio above its ambient level from which one window may fire `GateNegativeDamping` at
+/// once, for a gate whose departure ratio is `departure` (`None`: unknown, 3):
+/// `3 + 2 (departure - 3)`. That is 3 where the windows hold 50 cycles or more (the lab and
+/// lock gates, as calibrated), 4.68 where they hold 20 (a 2 Hz gate with 10 s windows).
+///
+/// # Why further than the departure ratio
+/// The departure ratio makes a stable gate's chance excursions as rare on every gate as on the
+/// lock gate at 3. An at-once page needs the model to read that excursion as growth as well, and
+/// the fewer cycles a window holds, the more often it does: on stable +0.5 % gates, of the
+/// windows at least twice the level, 11 % of the lock gate's (50 cycles a window, 8.4 h) and 21 % of a
+/// 2 Hz barrier gate's (20 cycles) had a model interval below zero. At the departure ratio the
+/// barrier gate paged 4 times in 8 days of stream (`bench warning --gates barrier --scenarios
+/// stable-low --hours 24`, seeds 1 to 8), each on an excursion 3.92 to 4.17 times its level;
+/// none of its windows in those days stood 4.6 times above it. A slow gate can afford the wait:
+/// a 5 s hop holds 10 of its cycles, in which an onset at -1 % grows 1.9-fold (the lab gate's
+/// 52 cycles: 26-fold). Measured cost on the barrier's onset (20 seeds): `GateNegativeDamping`
+/// 5 to 10 s later on 7 seeds, and on the first burst 5 s later on 2 (docs/benchmarks.md, "The
+/// at-once bar on a slow gate (session 42)").
+/// A site overrides it per gate with `fire_at_once_min_ratio`.
+pub fn at_once_ratio(departure: Option<f64>) -> f64 {
+    let d = departure.unwrap_or(AT_ONCE_MIN_AMBIENT_RATIO);
+    AT_ONCE_MIN_AMBIENT_RATIO + AT_ONCE_MARGIN_FACTOR * (d - AT_ONCE_MIN_AMBIENT_RATIO).max(0.0)
+}
+
 /// How one window reads under a gate's rules.
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum Reading {
@@ -279,8 +307,7 @@ fn classify(obs: &Observation, rules: &AlertRules) -> Reading {
     if negative {
         let at = rules
             .fire_at_once_min_ratio
-            .or(obs.departure_ratio)
-            .unwrap_or(AT_ONCE_MIN_AMBIENT_RATIO);
+            .unwrap_or_else(|| at_once_ratio(obs.departure_ratio));
         let departed = obs.ambient_ratio.is_some_and(|r| r >= at);
         Reading::Negative {
             at_once: departed && rules.fires_at_once(low, high),

@@ -43,6 +43,7 @@ pub mod notify;
 
 pub use engine::persist::{AlertRecord, GateSnapshot, PhaseSnapshot};
 pub use engine::{
-    fingerprint, Alert, AlertEngine, AlertEvent, AlertRules, GateState, Observation, RulesError,
-    ALERT_DAMPING_DECLINING, ALERT_DATA_STALE, ALERT_NEGATIVE_DAMPING, AT_ONCE_MIN_AMBIENT_RATIO,
+    at_once_ratio, fingerprint, Alert, AlertEngine, AlertEvent, AlertRules, GateState, Observation,
+    RulesError, ALERT_DAMPING_DECLINING, ALERT_DATA_STALE, ALERT_NEGATIVE_DAMPING,
+    AT_ONCE_MARGIN_FACTOR, AT_ONCE_MIN_AMBIENT_RATIO,
 };

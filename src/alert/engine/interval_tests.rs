@@ -210,13 +210,19 @@ fn a_window_far_below_fires_at_once() {
             "{departure_ratio:?}"
         );
     }
-    // a site's own bar (`fire_at_once_min_ratio`) replaces the gate's departure ratio, up
-    // (4.6 where the windows' cycles say 3.84) or down
+    // the at-once bar lies twice as far above 3 as the departure ratio: 4.68 at 3.84 (a gate
+    // whose windows hold 20 cycles), so 4.2 times the level fires at once only where the
+    // departure ratio is 3; a site's own bar (`fire_at_once_min_ratio`) replaces it, down or up
+    assert_eq!(at_once_ratio(None), AT_ONCE_MIN_AMBIENT_RATIO);
+    assert_eq!(at_once_ratio(Some(3.0)), 3.0);
+    assert!((at_once_ratio(Some(3.84)) - 4.68).abs() < 1e-12);
     for (min_ratio, departure_ratio, at_once) in [
-        (Some(4.6), Some(3.84), false),
+        (None, Some(3.84), false),
+        (None, Some(3.0), true),
+        (None, None, true),
+        (Some(4.6), Some(3.0), false),
         (Some(4.6), None, false),
         (Some(3.2), Some(3.84), true),
-        (None, Some(3.84), true),
     ] {
         let mut e = AlertEngine::new(AlertRules {
             fire_at_once_min_ratio: min_ratio,

@@ -32,12 +32,11 @@ pub struct AlertRules {
     /// ambient level: on a stable +0.5 % lock gate a model-sourced window read -2.5 % (-2.8,
     /// -2.1) once in 8.7 h of stream at the gate's usual level (docs/alerts.md).
     pub fire_at_once_probability: f64,
-    /// How far above its ambient level a window must stand to fire at once (unset, the default:
-    /// the gate's `departure_ratio`, 3 where its windows hold 50 cycles or more, 3.84 at 20).
-    /// At least 1. Why a site may raise it: on a gate whose windows hold few cycles, the model
-    /// reads a quarter of the chance excursions above the bar as growth (a 2 Hz barrier gate at
-    /// +0.5 %: 2 pages in 4.9 days at 3.84, none at 4.6, which fires the onsets 5 s later on 6 of
-    /// 20 seeds; docs/alerts.md, "On a gate whose windows hold few cycles").
+    /// How far above its ambient level a window must stand to fire at once. Unset (the
+    /// default): [`super::at_once_ratio`] of the gate's departure ratio, 3 where its windows
+    /// hold 50 cycles or more, 4.68 where they hold 20. At least 1. A site sets it for a gate
+    /// where it prefers another balance between a chance excursion's page and a few seconds on
+    /// a fast onset (docs/alerts.md, "On a gate whose windows hold few cycles").
     pub fire_at_once_min_ratio: Option<f64>,
     /// Consecutive windows with the interval above `clear_above` before resolving (default 2;
     /// 0 acts as 1).
