@@ -264,7 +264,7 @@ pub const AT_ONCE_MARGIN_FACTOR: f64 = 2.0;
 /// The departure ratio makes a stable gate's chance excursions as rare on every gate as on the
 /// lock gate at 3. An at-once page needs the model to read that excursion as growth as well, and
 /// the fewer cycles a window holds, the more often it does: on stable +0.5 % gates, of the
-/// windows at least twice the level, 11 % of the lock gate's (50 cycles a window, 8.4 h) and 21 % of a
+/// windows at least twice the level, 12 % of the lock gate's (50 cycles a window, 12 h) and 21 % of a
 /// 2 Hz barrier gate's (20 cycles) had a model interval below zero. At the departure ratio the
 /// barrier gate paged 4 times in 8 days of stream (`bench warning --gates barrier --scenarios
 /// stable-low --hours 24`, seeds 1 to 8), each on an excursion 3.92 to 4.17 times its level;
