@@ -76,7 +76,8 @@ pub struct Observation<'a> {
     pub trusted: bool,
     /// The window's signal RMS over the gate's ambient level (`DampingReport::ambient_ratio`;
     /// `None`: no level yet). One window fires at once only when it stands at least
-    /// [`at_once_ratio`] of `departure_ratio` (3 by default) above it.
+    /// [`at_once_ratio`] of `departure_ratio` (3 by default), or the rules'
+    /// `fire_at_once_min_ratio`, above it.
     pub ambient_ratio: Option<f64>,
     /// The ratio from which the gate counts as having left its ambient level
     /// (`DampingReport::departure_ratio`: 3 on a gate whose windows hold 50 cycles or more,

@@ -181,11 +181,13 @@ pub struct DampingReport {
     pub signal_rms: Option<f64>,
     /// `signal_rms` over the gate's ambient level (the median RMS of its last noise-driven
     /// windows); `None` until the gate has one. A window far above it shows the gate has left
-    /// its ambient state, what one window needs before it may fire an alert at once.
+    /// its ambient state, what one window needs before it may fire an alert at once (at
+    /// `alert::at_once_ratio` of [`DampingReport::departure_ratio`] or more).
     #[serde(default)]
     pub ambient_ratio: Option<f64>,
     /// The `ambient_ratio` from which this gate counts as having left its ambient level (what
-    /// one window needs to fire at once, or to be read by its model): 3 on a gate whose windows
+    /// one window needs to be read by its model; to fire at once it needs twice the margin
+    /// over 3, `alert::at_once_ratio`): 3 on a gate whose windows
     /// hold 50 cycles or more, up to 4.65 on a slow gate whose windows hold few
     /// (`analysis::departure_ratio`); `None` until the gate has a level.
     #[serde(default)]
