@@ -195,48 +195,37 @@ fn a_window_far_below_fires_at_once() {
         assert_eq!(e.state("g"), Some(GateState::Pending));
         assert_eq!(e.observe("g", &o, t(5)).len(), 1);
     }
-    // a slow gate's own departure ratio (its windows hold few cycles) is the bar: 3.3 times
-    // its level is not enough where it is 3.84, and is where it is unknown (3)
-    for (departure_ratio, at_once) in [(Some(3.84), false), (None, true), (Some(3.0), true)] {
-        let mut e = AlertEngine::new(rules.clone());
-        let o = Observation {
-            ambient_ratio: Some(3.3),
-            departure_ratio,
-            ..far
-        };
-        assert_eq!(
-            e.observe("g", &o, t(0)).len(),
-            usize::from(at_once),
-            "{departure_ratio:?}"
-        );
-    }
-    // the at-once bar lies twice as far above 3 as the departure ratio: 4.68 at 3.84 (a gate
-    // whose windows hold 20 cycles), so 4.2 times the level fires at once only where the
-    // departure ratio is 3; a site's own bar (`fire_at_once_min_ratio`) replaces it, down or up
+    // the at-once bar follows the gate's departure ratio (its windows' cycles): twice as far
+    // above 3, 4.68 at 3.84 (a gate whose windows hold 20 cycles), 3 where it is 3 or unknown;
+    // a site's own bar (`fire_at_once_min_ratio`) replaces it, down or up
     assert_eq!(at_once_ratio(None), AT_ONCE_MIN_AMBIENT_RATIO);
     assert_eq!(at_once_ratio(Some(3.0)), 3.0);
     assert!((at_once_ratio(Some(3.84)) - 4.68).abs() < 1e-12);
-    for (min_ratio, departure_ratio, at_once) in [
-        (None, Some(3.84), false),
-        (None, Some(3.0), true),
-        (None, None, true),
-        (Some(4.6), Some(3.0), false),
-        (Some(4.6), None, false),
-        (Some(3.2), Some(3.84), true),
+    // (window's ambient ratio, fire_at_once_min_ratio, gate's departure ratio, fires at once)
+    for (ambient_ratio, min_ratio, departure_ratio, at_once) in [
+        (3.3, None, Some(3.84), false),
+        (3.3, None, None, true),
+        (3.3, None, Some(3.0), true),
+        (4.2, None, Some(3.84), false),
+        (4.2, None, Some(3.0), true),
+        (4.2, None, None, true),
+        (4.2, Some(4.6), Some(3.0), false),
+        (4.2, Some(4.6), None, false),
+        (4.2, Some(3.2), Some(3.84), true),
     ] {
         let mut e = AlertEngine::new(AlertRules {
             fire_at_once_min_ratio: min_ratio,
             ..rules.clone()
         });
         let o = Observation {
-            ambient_ratio: Some(4.2),
+            ambient_ratio: Some(ambient_ratio),
             departure_ratio,
             ..far
         };
         assert_eq!(
             e.observe("g", &o, t(0)).len(),
             usize::from(at_once),
-            "{min_ratio:?} {departure_ratio:?}"
+            "{ambient_ratio} {min_ratio:?} {departure_ratio:?}"
         );
     }
     // disabled: even a zero-width interval far below waits for for_windows
