@@ -44,6 +44,6 @@ pub mod notify;
 pub use engine::persist::{AlertRecord, GateSnapshot, PhaseSnapshot};
 pub use engine::{
     at_once_ratio, fingerprint, Alert, AlertEngine, AlertEvent, AlertRules, GateState, Observation,
-    RulesError, ALERT_DAMPING_DECLINING, ALERT_DATA_STALE, ALERT_NEGATIVE_DAMPING,
+    RulesError, ALERT_DAMPING_DECLINING, ALERT_DATA_STALE, ALERT_NEGATIVE_DAMPING, AT_ONCE_FLOOR,
     AT_ONCE_MARGIN_FACTOR, AT_ONCE_MIN_AMBIENT_RATIO,
 };

@@ -407,7 +407,7 @@ fn rule_lines(rules: &crate::alert::AlertRules) -> [String; 2] {
              >= {}",
             rules
                 .fire_at_once_min_ratio
-                .unwrap_or(crate::alert::AT_ONCE_MIN_AMBIENT_RATIO),
+                .unwrap_or(crate::alert::at_once_ratio(None)),
             rules.fire_at_once_probability
         )
     } else {
@@ -438,7 +438,7 @@ mod rule_tests {
         assert_eq!(
             negative,
             "alert rule: GateNegativeDamping fires when zeta0's whole 95 % interval lies below \
-             0.0 % in 2 consecutive trusted windows, or at once on one window 3x above the \
+             0.0 % in 2 consecutive trusted windows, or at once on one window 3.3x above the \
              gate's ambient level with P(zeta0 < 0.0 %) >= 0.975"
         );
         assert_eq!(

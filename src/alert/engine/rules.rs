@@ -24,7 +24,7 @@ pub struct AlertRules {
     /// Consecutive negative trusted windows before firing (default 2; 0 acts as 1).
     pub for_windows: u32,
     /// One trusted window with `P(zeta0 < fire_below)` at or above this, standing at least
-    /// [`super::AT_ONCE_MIN_AMBIENT_RATIO`] times above the gate's ambient level, fires at once
+    /// [`super::at_once_ratio`] times above the gate's ambient level, fires at once
     /// without waiting for `for_windows` (default 0.975, its 95 % interval below `fire_below`;
     /// 1: off; 0.999 until session 37, when the growth windows' model intervals became honest,
     /// docs/alerts.md). Why: at 10 Hz a gate goes from zero damping to -1 % and its limit
@@ -33,8 +33,8 @@ pub struct AlertRules {
     /// -2.1) once in 8.7 h of stream at the gate's usual level (docs/alerts.md).
     pub fire_at_once_probability: f64,
     /// How far above its ambient level a window must stand to fire at once. Unset (the
-    /// default): [`super::at_once_ratio`] of the gate's departure ratio, 3 where its windows
-    /// hold 50 cycles or more, 4.68 where they hold 20. At least 1. A site sets it for a gate
+    /// default): [`super::at_once_ratio`] of the gate's departure ratio, 3.3 where its windows
+    /// hold about 42 cycles or more, 4.68 where they hold 20. At least 1. A site sets it for a gate
     /// where it prefers another balance between a chance excursion's page and a few seconds on
     /// a fast onset (docs/alerts.md, "On a gate whose windows hold few cycles").
     pub fire_at_once_min_ratio: Option<f64>,
