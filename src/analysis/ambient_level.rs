@@ -12,7 +12,7 @@
 //! it to (the first confident windows of the onset ramp stood 3.9 to 8.2 times above it), while
 //! those chance windows have the gate's usual level (at most 2.46 times it in 895 windows).
 //! [`AmbientLevel`] keeps the median signal RMS of the gate's last noise-driven windows and sets
-//! each report's `ambient_ratio`; the alert rule lets one window fire at once only at 3.3 times
+//! each report's `ambient_ratio`; the alert rule lets one window fire at once only at 3.5 times
 //! the level or more (`alert::AT_ONCE_FLOOR`; further out on a gate whose windows hold few
 //! cycles, `alert::at_once_ratio`).
 //!

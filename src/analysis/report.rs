@@ -187,7 +187,7 @@ pub struct DampingReport {
     pub ambient_ratio: Option<f64>,
     /// The `ambient_ratio` from which this gate counts as having left its ambient level (what
     /// one window needs to be read by its model; to fire at once it needs twice the margin
-    /// over 3 and at least 3.3, `alert::at_once_ratio`): 3 on a gate whose windows
+    /// over 3 and at least 3.5, `alert::at_once_ratio`): 3 on a gate whose windows
     /// hold 50 cycles or more, up to 4.65 on a slow gate whose windows hold few
     /// (`analysis::departure_ratio`); `None` until the gate has a level.
     #[serde(default)]

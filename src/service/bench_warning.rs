@@ -88,7 +88,7 @@ pub struct BenchWarningArgs {
     pub fire_at_once_probability: Option<f64>,
     /// `GateNegativeDamping`'s `fire_at_once_min_ratio`: how far above its ambient level one
     /// window must stand to fire at once (default: `alert::at_once_ratio` of the gate's
-    /// departure ratio, 3.3 from about 42 cycles a window up, 4.68 at 20).
+    /// departure ratio, 3.5 from about 38 cycles a window up, 4.68 at 20).
     #[arg(long)]
     pub fire_at_once_min_ratio: Option<f64>,
     /// Window length in seconds of sample time (`window_seconds`; default: the

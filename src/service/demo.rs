@@ -438,7 +438,7 @@ mod rule_tests {
         assert_eq!(
             negative,
             "alert rule: GateNegativeDamping fires when zeta0's whole 95 % interval lies below \
-             0.0 % in 2 consecutive trusted windows, or at once on one window 3.3x above the \
+             0.0 % in 2 consecutive trusted windows, or at once on one window 3.5x above the \
              gate's ambient level with P(zeta0 < 0.0 %) >= 0.975"
         );
         assert_eq!(

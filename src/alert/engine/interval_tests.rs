@@ -196,22 +196,22 @@ fn a_window_far_below_fires_at_once() {
         assert_eq!(e.observe("g", &o, t(5)).len(), 1);
     }
     // the at-once bar follows the gate's departure ratio (its windows' cycles): twice as far
-    // above 3, 4.68 at 3.84 (a gate whose windows hold 20 cycles), never below the floor 3.3
-    // (where it is 3, or unknown, or 3.1); a site's own bar (`fire_at_once_min_ratio`)
+    // above 3, 4.68 at 3.84 (a gate whose windows hold 20 cycles), never below the floor 3.5
+    // (where it is 3, or unknown, or 3.2); a site's own bar (`fire_at_once_min_ratio`)
     // replaces it, down or up
     assert_eq!(at_once_ratio(None), AT_ONCE_FLOOR);
     assert_eq!(at_once_ratio(Some(3.0)), AT_ONCE_FLOOR);
-    assert_eq!(at_once_ratio(Some(3.1)), AT_ONCE_FLOOR);
-    assert!((at_once_ratio(Some(3.2)) - 3.4).abs() < 1e-12);
+    assert_eq!(at_once_ratio(Some(3.2)), AT_ONCE_FLOOR);
+    assert!((at_once_ratio(Some(3.3)) - 3.6).abs() < 1e-12);
     assert!((at_once_ratio(Some(3.84)) - 4.68).abs() < 1e-12);
     // (window's ambient ratio, fire_at_once_min_ratio, gate's departure ratio, fires at once)
     for (ambient_ratio, min_ratio, departure_ratio, at_once) in [
         (3.3, None, Some(3.84), false),
-        (3.3, None, None, true),
-        (3.3, None, Some(3.0), true),
-        (3.25, None, Some(3.0), false),
-        (3.25, None, None, false),
-        (3.25, Some(3.2), None, true),
+        (3.3, None, None, false),
+        (3.45, None, Some(3.0), false),
+        (3.5, None, Some(3.0), true),
+        (3.5, None, None, true),
+        (3.3, Some(3.2), None, true),
         (4.2, None, Some(3.84), false),
         (4.2, None, Some(3.0), true),
         (4.2, None, None, true),

@@ -33,8 +33,8 @@ pub struct AlertRules {
     /// -2.1) once in 8.7 h of stream at the gate's usual level (docs/alerts.md).
     pub fire_at_once_probability: f64,
     /// How far above its ambient level a window must stand to fire at once. Unset (the
-    /// default): [`super::at_once_ratio`] of the gate's departure ratio, 3.3 where its windows
-    /// hold about 42 cycles or more, 4.68 where they hold 20. At least 1. A site sets it for a gate
+    /// default): [`super::at_once_ratio`] of the gate's departure ratio, 3.5 where its windows
+    /// hold about 38 cycles or more, 4.68 where they hold 20. At least 1. A site sets it for a gate
     /// where it prefers another balance between a chance excursion's page and a few seconds on
     /// a fast onset (docs/alerts.md, "On a gate whose windows hold few cycles").
     pub fire_at_once_min_ratio: Option<f64>,
