@@ -245,8 +245,9 @@ pub fn rfc3339(t: SystemTime) -> String {
     humantime::format_rfc3339_millis(clamped).to_string()
 }
 
-/// How far above its ambient level a window must stand before it alone may fire
-/// `GateNegativeDamping` (`fire_at_once_probability`): the ratio at which a window shows that the
+/// The base of the at-once bar ([`at_once_ratio`], which never lies below [`AT_ONCE_FLOOR`]): how
+/// far above its ambient level a window must stand before it alone may fire
+/// `GateNegativeDamping` (`fire_at_once_probability`), the ratio at which a window shows that the
 /// gate has left its ambient state ([`crate::analysis::DEPARTED_FROM_AMBIENT`]). Why: on a stable
 /// +0.5 % lock gate a free-vibration model read -0.6 to -2.5 % with intervals 0.2 to 0.7 points
 /// wide on about one window an hour at the ambient level (`docs/alerts.md`, "One window at
