@@ -316,7 +316,7 @@ enum Reading {
     Negative { at_once: bool },
     /// Neither negative nor good: hysteresis band, or an interval too wide to tell.
     Band,
-    /// The interval lies at or above `clear_above` (and the window is not negative).
+    /// `P(zeta0 >= clear_above) >= resolve_probability` (and the window is not negative).
     Good,
 }
 
@@ -339,7 +339,7 @@ fn classify(obs: &Observation, rules: &AlertRules) -> Reading {
         Reading::Negative {
             at_once: departed && rules.fires_at_once(low, high),
         }
-    } else if low >= rules.clear_above {
+    } else if rules.reads_good(low, high) {
         Reading::Good
     } else {
         Reading::Band

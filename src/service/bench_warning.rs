@@ -91,6 +91,11 @@ pub struct BenchWarningArgs {
     /// departure ratio, 3.5 from about 38 cycles a window up, 4.68 at 20).
     #[arg(long)]
     pub fire_at_once_min_ratio: Option<f64>,
+    /// `GateNegativeDamping`'s `resolve_probability`: how sure a window must be that `zeta0`
+    /// is at or above `clear_above` to count towards resolving (default: the configuration's,
+    /// 0.9; 0.975 is the whole-interval rule).
+    #[arg(long)]
+    pub resolve_probability: Option<f64>,
     /// Window length in seconds of sample time (`window_seconds`; default: the
     /// configuration's, 10): a slow gate's windows can be made to hold more cycles.
     #[arg(long)]
@@ -449,6 +454,12 @@ pub fn plan(args: &BenchWarningArgs) -> anyhow::Result<Vec<RunSpec>> {
             "--fire-at-once-min-ratio must be a number >= 1"
         );
     }
+    if let Some(p) = args.resolve_probability {
+        anyhow::ensure!(
+            p > 0.5 && p < 1.0,
+            "--resolve-probability must be in (0.5, 1)"
+        );
+    }
     if let Some(a) = args.noise_abs {
         anyhow::ensure!(a >= 0.0 && a.is_finite(), "--noise-abs must be >= 0");
     }
@@ -520,6 +531,9 @@ fn configure(args: &BenchWarningArgs, gate: GatePreset) -> anyhow::Result<Config
         }
         if let Some(r) = args.fire_at_once_min_ratio {
             g.alert.fire_at_once_min_ratio = Some(r);
+        }
+        if let Some(p) = args.resolve_probability {
+            g.alert.resolve_probability = p;
         }
         if let Some(w) = args.window_seconds {
             g.window_seconds = w;

@@ -43,24 +43,62 @@ fn fires_only_when_the_whole_interval_is_below() {
     assert_eq!(ev[0].alert().starts_at, t(20));
 }
 
-#[test]
-fn resolves_only_when_the_whole_interval_is_above_clear_above() {
-    let mut e = engine();
+/// A firing engine under `rules` (two windows wholly below zero).
+fn firing_under(rules: AlertRules) -> AlertEngine {
+    let mut e = AlertEngine::new(rules);
     e.observe("g", &obs(-0.01, -0.012, -0.008), t(0));
     e.observe("g", &obs(-0.01, -0.012, -0.008), t(5));
     assert!(e.is_firing("g"));
-    // point well above clear_above (0.005), interval reaching below it: keeps firing
+    e
+}
+
+#[test]
+fn resolves_on_the_probability_above_clear_above() {
+    // +1 % (+0.3, +1.7): P(zeta0 >= 0.5 %) = 0.919 under the normal approximation, the interval
+    // reaching below clear_above (0.005)
+    let reaching_below = obs(0.01, 0.003, 0.017);
+    assert_relative_eq!(
+        1.0 - AlertRules::probability_below(0.003, 0.017, 0.005),
+        0.919,
+        epsilon = 1e-3
+    );
+    // the default (0.9): two such windows in a row resolve
+    let mut e = firing_under(AlertRules::counting());
+    assert!(e.observe("g", &reaching_below, t(10)).is_empty());
+    let ev = e.observe("g", &reaching_below, t(15));
+    assert_eq!(ev.len(), 1);
+    assert!(!ev[0].is_firing());
+    assert_eq!(e.state("g"), Some(GateState::Resolved));
+    // ... but not one just under 0.9: +0.95 % (+0.25, +1.65) gives 0.895
+    assert!(1.0 - AlertRules::probability_below(0.0025, 0.0165, 0.005) < 0.9);
+    let mut e = firing_under(AlertRules::counting());
     for i in 0..10 {
         assert!(e
-            .observe("g", &obs(0.01, 0.003, 0.017), t(10 + i))
+            .observe("g", &obs(0.0095, 0.0025, 0.0165), t(10 + i))
             .is_empty());
+    }
+    assert!(e.is_firing("g"));
+    // 0.975, the whole-interval rule: the first window keeps firing; only a whole interval at or
+    // above clear_above counts
+    let strict = AlertRules {
+        resolve_probability: 0.975,
+        ..AlertRules::counting()
+    };
+    let mut e = firing_under(strict);
+    for i in 0..10 {
+        assert!(e.observe("g", &reaching_below, t(10 + i)).is_empty());
     }
     assert!(e.is_firing("g"));
     assert!(e.observe("g", &obs(0.01, 0.006, 0.014), t(30)).is_empty());
     let ev = e.observe("g", &obs(0.01, 0.006, 0.014), t(35));
     assert_eq!(ev.len(), 1);
     assert!(!ev[0].is_firing());
-    assert_eq!(e.state("g"), Some(GateState::Resolved));
+    // a window between the two (negative point, or P(zeta0 >= 0.5 %) low) breaks the streak
+    let mut e = firing_under(AlertRules::counting());
+    e.observe("g", &reaching_below, t(10));
+    e.observe("g", &obs(0.004, -0.003, 0.011), t(15));
+    assert!(e.observe("g", &reaching_below, t(20)).is_empty());
+    assert!(e.is_firing("g"));
 }
 
 #[test]

@@ -73,7 +73,7 @@ pub enum PhaseSnapshot {
     Firing {
         /// The firing alert.
         alert: AlertRecord,
-        /// Consecutive windows with `zeta0 >= clear_above`.
+        /// Consecutive good windows (`AlertRules::resolve_probability`).
         good: u32,
     },
 }

@@ -38,8 +38,21 @@ pub struct AlertRules {
     /// where it prefers another balance between a chance excursion's page and a few seconds on
     /// a fast onset (docs/alerts.md, "On a gate whose windows hold few cycles").
     pub fire_at_once_min_ratio: Option<f64>,
-    /// Consecutive windows with the interval above `clear_above` before resolving (default 2;
-    /// 0 acts as 1).
+    /// A window reads good, the evidence for resolving a firing alert, when `P(zeta0 >=
+    /// clear_above) >= resolve_probability` under the normal approximation of its 95 % interval
+    /// (as `fire_probability`), and it is not negative. In (0.5, 1); default 0.9. 0.975 is the
+    /// whole-interval rule (lower end `>= clear_above`) that was the only one until session 44.
+    /// Why 0.9: at 0.975 a 5 Hz lock gate that recovered to +2 % (its windows' intervals about
+    /// +-1.6 points wide, 99 % of them covering the truth) kept paging for 25 to 155 s after
+    /// reaching +2 %, and 5 of 20 seeds were still paging 180 s after; at 0.9 every seed resolved
+    /// 15 to 45 s after it, and no run of the onset, slow drift, step or held limit cycle
+    /// resolved while the gate was still below zero (replayed on 20 seeds of each,
+    /// docs/benchmarks.md, "Resolving on probability (session 44)"). Firing stays at 0.975:
+    /// a page should need more evidence than its end, and the band between `fire_below` and
+    /// `clear_above` keeps an alert that resolved early from firing again on the same evidence.
+    pub resolve_probability: f64,
+    /// Consecutive good windows (see `resolve_probability`) before resolving (default 2; 0 acts
+    /// as 1).
     pub resolve_windows: u32,
     /// Sample time over which the trend of `zeta0` is fitted, seconds (default 600).
     pub trend_horizon_seconds: f64,
@@ -73,6 +86,7 @@ impl Default for AlertRules {
             for_windows: 2,
             fire_at_once_probability: 0.975,
             fire_at_once_min_ratio: None,
+            resolve_probability: 0.9,
             resolve_windows: 2,
             trend_horizon_seconds: 600.0,
             trend_min_span_seconds: 120.0,
@@ -108,6 +122,9 @@ pub enum RulesError {
     /// `fire_at_once_probability` is not in (0.5, 1].
     #[error("alert rule fire_at_once_probability must be in (0.5, 1], got {0}")]
     BadAtOnceProbability(f64),
+    /// `resolve_probability` is not in (0.5, 1).
+    #[error("alert rule resolve_probability must be in (0.5, 1), got {0}")]
+    BadResolveProbability(f64),
     /// `fire_at_once_min_ratio` is not a finite number of at least 1.
     #[error("alert rule fire_at_once_min_ratio must be a finite number >= 1, got {0}")]
     BadAtOnceRatio(f64),
@@ -151,6 +168,10 @@ impl AlertRules {
             if !(r.is_finite() && r >= 1.0) {
                 return Err(RulesError::BadAtOnceRatio(r));
             }
+        }
+        let p = self.resolve_probability;
+        if !(p > 0.5 && p < 1.0) {
+            return Err(RulesError::BadResolveProbability(p));
         }
         for (name, v) in [
             ("trend_horizon_seconds", self.trend_horizon_seconds),
@@ -200,6 +221,12 @@ impl AlertRules {
 
     pub(super) fn warn_resolve_windows(&self) -> u32 {
         self.warn_resolve_windows.max(1)
+    }
+
+    /// Whether one window's interval is far enough above `clear_above` to count towards
+    /// resolving (`resolve_probability`).
+    pub(super) fn reads_good(&self, low: f64, high: f64) -> bool {
+        1.0 - Self::probability_below(low, high, self.clear_above) >= self.resolve_probability
     }
 
     /// `P(zeta0 < threshold)` under a normal approximation of the 95 % interval `(low, high)`:

@@ -60,6 +60,7 @@ fn defaults_and_deserialization() {
     assert_eq!(r.clear_above, 0.005);
     assert_eq!(r.for_windows, 2);
     assert_eq!(r.resolve_windows, 2);
+    assert_eq!(r.resolve_probability, 0.9);
     assert_eq!(r.stale_after_seconds, 30.0);
     assert_eq!(r.severity, "critical");
     let r: AlertRules =
@@ -98,6 +99,16 @@ fn validate_rejects_nonsense() {
         RulesError::BadStaleAfter(_)
     ));
     assert_eq!(bad(|r| r.severity = " ".into()), RulesError::EmptySeverity);
+    for p in [0.5, 1.0, f64::NAN] {
+        let r = AlertRules {
+            resolve_probability: p,
+            ..AlertRules::default()
+        };
+        assert!(
+            matches!(r.validate(), Err(RulesError::BadResolveProbability(_))),
+            "{p}"
+        );
+    }
 }
 
 #[test]

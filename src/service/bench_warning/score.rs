@@ -356,6 +356,9 @@ pub struct AlertRow {
     pub hours: f64,
     /// Per seed: scenario time of the first window after which the alert fired (`None`: never).
     pub first_fired: Vec<Option<f64>>,
+    /// Per seed: scenario time of the first window after which the alert, having fired, no
+    /// longer fired (`None`: it never fired, or was still firing at the end of the run).
+    pub first_resolved: Vec<Option<f64>>,
     /// Per seed: first firing minus the true zero crossing, s (negative: before it).
     pub delay_vs_zero: Vec<Option<f64>>,
     /// Per seed: first firing minus the time the truth reached -1 %, s.
@@ -382,6 +385,20 @@ pub fn fire_times(windows: &[WindowRecord], name: &str) -> Vec<f64> {
         was = now;
     }
     out
+}
+
+/// The first time (window end) at which `name` no longer fired after it had fired in
+/// `windows` (`None`: it never resolved, or never fired).
+pub fn first_resolve(windows: &[WindowRecord], name: &str) -> Option<f64> {
+    let mut was = false;
+    for w in windows {
+        let now = w.firing.iter().any(|n| n == name);
+        if was && !now {
+            return Some(w.end);
+        }
+        was = now;
+    }
+    None
 }
 
 /// Detection delays and false alarms per scenario, gate and alert name (the two damping alerts
@@ -418,6 +435,10 @@ pub fn alert_rows(records: &[RunRecord], _targets: &Targets) -> Vec<AlertRow> {
                     .map(|(r, f)| Some(f.as_ref()? - t_ref(r)?))
                     .collect()
             };
+            let first_resolved: Vec<Option<f64>> = runs
+                .iter()
+                .map(|r| first_resolve(&r.windows, &name))
+                .collect();
             let delay_vs_zero = delay(|r| r.t_zero);
             let delay_vs_minus_one = delay(|r| r.t_minus_one);
             let fired: usize = fires.iter().map(Vec::len).sum();
@@ -436,6 +457,18 @@ pub fn alert_rows(records: &[RunRecord], _targets: &Targets) -> Vec<AlertRow> {
                             .all(|d| d.is_some_and(|d| d < 0.0)),
                     ),
                 ),
+                // the end of the issue: resolves on recovery; a held cycle keeps it firing
+                ScenarioName::Recovery if name == ALERT_NEGATIVE => (
+                    "resolves, every seed".to_string(),
+                    Some(first_resolved.iter().all(Option::is_some)),
+                ),
+                ScenarioName::LimitCycle if name == ALERT_NEGATIVE => (
+                    "fires, never resolves".to_string(),
+                    Some(
+                        first.iter().all(Option::is_some)
+                            && first_resolved.iter().all(Option::is_none),
+                    ),
+                ),
                 ScenarioName::Stable | ScenarioName::StableLow if damping_alert => {
                     ("no false alarm".to_string(), Some(fired == 0))
                 }
@@ -448,6 +481,7 @@ pub fn alert_rows(records: &[RunRecord], _targets: &Targets) -> Vec<AlertRow> {
                 seeds: runs.len(),
                 hours,
                 first_fired: first,
+                first_resolved,
                 delay_vs_zero,
                 delay_vs_minus_one,
                 fired,
@@ -475,6 +509,21 @@ fn pass(p: Option<bool>) -> &'static str {
 fn delays(v: &[Option<f64>]) -> String {
     v.iter()
         .map(|d| d.map_or_else(|| "never".into(), |d| format!("{d:+.0}")))
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
+/// Per seed: when the alert first resolved, "firing" when it never did (still firing at the
+/// end), "-" when it never fired.
+fn resolves(a: &AlertRow) -> String {
+    a.first_fired
+        .iter()
+        .zip(&a.first_resolved)
+        .map(|(fired, resolved)| match (fired, resolved) {
+            (None, _) => "-".to_string(),
+            (Some(_), Some(t)) => format!("{t:.0}"),
+            (Some(_), None) => "firing".to_string(),
+        })
         .collect::<Vec<_>>()
         .join(" ")
 }
@@ -519,22 +568,23 @@ pub fn render(regimes: &[RegimeRow], alerts: &[AlertRow]) -> String {
     }
     let _ = writeln!(
         s,
-        "\nalerts (delays in s of sample time per seed, negative = before; never = did not fire)\n"
+        "\nalerts (delays in s of sample time per seed, negative = before; never = did not fire; first resolved: firing = still firing at the end)\n"
     );
     let _ = writeln!(
         s,
-        "| scenario | gate | alert | hours | first fired | vs zero | vs -1 % | fired | per 24 h | target | result |"
+        "| scenario | gate | alert | hours | first fired | first resolved | vs zero | vs -1 % | fired | per 24 h | target | result |"
     );
-    let _ = writeln!(s, "|---|---|---|---:|---|---|---|---:|---:|---|---|");
+    let _ = writeln!(s, "|---|---|---|---:|---|---|---|---|---:|---:|---|---|");
     for a in alerts {
         let _ = writeln!(
             s,
-            "| {} | {} | {} | {:.2} | {} | {} | {} | {} | {} | {} | {} |",
+            "| {} | {} | {} | {:.2} | {} | {} | {} | {} | {} | {} | {} | {} |",
             a.scenario,
             a.gate,
             a.alert,
             a.hours,
             delays(&a.first_fired).replace('+', ""),
+            resolves(a),
             delays(&a.delay_vs_zero),
             delays(&a.delay_vs_minus_one),
             a.fired,

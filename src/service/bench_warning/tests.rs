@@ -2,8 +2,8 @@
 //! answers (and so whose alert times) are known, and the scores of synthetic sequences.
 
 use super::score::{
-    au_limit, coverage_interval, covers, fire_times, mark_ews, regime_rows_with, render, EwsRule,
-    EWS_VARIANCE,
+    au_limit, coverage_interval, covers, fire_times, first_resolve, mark_ews, regime_rows_with,
+    render, EwsRule, EWS_VARIANCE,
 };
 use super::*;
 use crate::analysis::{AnalysisError, DampingReport, Verdict, WindowAnalysis, WindowInput};
@@ -217,6 +217,67 @@ fn false_alarms_are_counted_per_firing_and_extrapolated_to_a_day() {
     assert_eq!((dec.fired, dec.pass), (0, Some(true)));
 }
 
+/// The resolve column and its targets: a recovery must resolve on every seed, a held limit
+/// cycle must fire and never resolve.
+#[test]
+fn resolves_are_read_per_seed_and_judged_on_recovery_and_the_held_cycle() {
+    let firing_from = |on: &[usize], n: usize| -> Vec<WindowRecord> {
+        let mut ws: Vec<WindowRecord> = (0..n)
+            .map(|i| window(5.0 * i as f64, Some(-0.01), None, -0.01))
+            .collect();
+        for &i in on {
+            ws[i].firing = vec![ALERT_NEGATIVE.to_string()];
+        }
+        ws
+    };
+    // fires at 5 s, resolves at 15 s, fires again at 25 s and is still firing at the end
+    let ws = firing_from(&[1, 2, 5, 6, 7], 8);
+    assert_eq!(first_resolve(&ws, ALERT_NEGATIVE), Some(15.0));
+    assert_eq!(first_resolve(&ws[4..], ALERT_NEGATIVE), None);
+    assert_eq!(first_resolve(&ws, ALERT_DECLINING), None);
+    let rows = |scenario, runs: Vec<Vec<WindowRecord>>| {
+        let records: Vec<RunRecord> = runs
+            .into_iter()
+            .map(|ws| record(scenario, ws, 0.1))
+            .collect();
+        let rows = alert_rows(&records, &Targets::ISSUE_8);
+        rows.into_iter()
+            .find(|r| r.alert == ALERT_NEGATIVE)
+            .unwrap()
+    };
+    let recovered = firing_from(&[1, 2], 8);
+    let still = firing_from(&[1, 2, 3, 4, 5, 6, 7], 8);
+    let quiet = firing_from(&[], 8);
+    let rec = rows(
+        ScenarioName::Recovery,
+        vec![recovered.clone(), recovered.clone()],
+    );
+    assert_eq!(rec.first_resolved, vec![Some(15.0), Some(15.0)]);
+    assert_eq!(rec.pass, Some(true));
+    let rec = rows(
+        ScenarioName::Recovery,
+        vec![recovered.clone(), still.clone()],
+    );
+    assert_eq!(rec.pass, Some(false));
+    let held = rows(ScenarioName::LimitCycle, vec![still.clone(), still.clone()]);
+    assert_eq!(held.pass, Some(true));
+    let held = rows(ScenarioName::LimitCycle, vec![still.clone(), recovered]);
+    assert_eq!(held.pass, Some(false));
+    let held = rows(ScenarioName::LimitCycle, vec![still.clone(), quiet.clone()]);
+    assert_eq!(
+        held.pass,
+        Some(false),
+        "a cycle that never fired is no pass"
+    );
+    // rendered per seed: the time, "firing" when it never resolved, "-" when it never fired
+    let row = rows(
+        ScenarioName::LimitCycle,
+        vec![firing_from(&[1, 2], 8), still, quiet],
+    );
+    let table = render(&[], std::slice::from_ref(&row));
+    assert!(table.contains("| 5 5 never | 15 firing - |"), "{table}");
+}
+
 #[test]
 fn plan_refuses_bad_arguments_naming_the_flag() {
     let args = BenchWarningArgs {
@@ -233,6 +294,7 @@ fn plan_refuses_bad_arguments_naming_the_flag() {
         model_interval: None,
         fire_at_once_probability: None,
         fire_at_once_min_ratio: None,
+        resolve_probability: None,
         window_seconds: None,
         identify_every_seconds: None,
     };
@@ -270,6 +332,9 @@ fn plan_refuses_bad_arguments_naming_the_flag() {
     );
     assert!(bad(&|a| a.first_seed = u64::MAX).contains("--first-seed"));
     assert!(bad(&|a| a.fire_at_once_min_ratio = Some(0.9)).contains("--fire-at-once-min-ratio"));
+    for p in [0.5, 1.0, f64::NAN] {
+        assert!(bad(&|a| a.resolve_probability = Some(p)).contains("--resolve-probability"));
+    }
     // later seeds extend a run without repeating the first ones
     let later = plan(&BenchWarningArgs {
         first_seed: 5,

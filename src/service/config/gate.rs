@@ -172,6 +172,10 @@ impl GateConfig {
                 return err("alert.fire_at_once_min_ratio", "must be a number >= 1");
             }
         }
+        let p = a.resolve_probability;
+        if !(p > 0.5 && p < 1.0) {
+            return err("alert.resolve_probability", "must be in (0.5, 1)");
+        }
         for (key, v) in [
             ("alert.trend_horizon_seconds", a.trend_horizon_seconds),
             ("alert.warn_lead_seconds", a.warn_lead_seconds),

@@ -81,6 +81,14 @@ fn errors_name_the_key() {
             "gates.g1.alert.fire_at_once_min_ratio",
         ),
         (
+            "resolve_probability = 1.0",
+            "gates.g1.alert.resolve_probability",
+        ),
+        (
+            "resolve_probability = 0.5",
+            "gates.g1.alert.resolve_probability",
+        ),
+        (
             "warn_lead_seconds = 0.0",
             "gates.g1.alert.warn_lead_seconds",
         ),
