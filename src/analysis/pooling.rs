@@ -8,8 +8,8 @@
 //! points an operator needs, and the envelope estimate of one limit-cycle window is often too wide
 //! to exclude zero. [`ZetaPools`] keeps the gate's last estimates of each model-free source
 //! ([`spectral::DampingPool`]: cycle-weighted, the overlap of consecutive windows counted in the
-//! variance, flushed on a regime change) and replaces the window's own figure and interval with
-//! the pooled ones. It runs on the gate's memory, in window order, after [`super::decide`] chose
+//! variance, flushed on a regime change once a second window confirms it) and replaces the
+//! window's own figure and interval with the pooled ones. It runs on the gate's memory, in window order, after [`super::decide`] chose
 //! the source; the verdict is then re-read from the pooled interval by the same rows.
 //!
 //! A model-based window, an untrusted one, or an ambient one that left the gate's ambient level
@@ -306,9 +306,17 @@ mod tests {
         let mut d = window(2.16, 2.0);
         pools.apply(5.0, 15.0, &mut d);
         assert_eq!(d.zeta0_windows, Some(2), "the peak moved, the pole did not");
+        // the pole moved: another mode, once the next window confirms it (the first is held
+        // back and the pool's figure stands for it)
         let mut d = window(2.0, 2.16);
         pools.apply(10.0, 20.0, &mut d);
-        assert_eq!(d.zeta0_windows, Some(1), "the pole moved: another mode");
+        assert_eq!(d.zeta0_windows, Some(2), "held");
+        let mut d = window(2.0, 2.16);
+        pools.apply(15.0, 25.0, &mut d);
+        assert_eq!(d.zeta0_windows, Some(2), "the two windows at the new pole");
+        let mut d = window(2.0, 2.0);
+        pools.apply(20.0, 30.0, &mut d);
+        assert_eq!(d.zeta0_windows, Some(2), "held again: back at the old pole");
     }
 
     /// A growing window (alarm) never becomes damped through pooling, and a model-based window
