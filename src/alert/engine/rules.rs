@@ -13,8 +13,9 @@ pub struct AlertRules {
     /// this (upper end `< fire_below`), or, with [`AlertRules::fire_probability`], when
     /// `P(zeta0 < fire_below)` reaches that level (default 0.0: confidently negative).
     pub fire_below: f64,
-    /// Hysteresis: a firing alert resolves only on windows whose whole interval lies at or above
-    /// this (lower end `>= clear_above`) (default 0.005).
+    /// Hysteresis: a firing alert resolves only on windows that are
+    /// [`AlertRules::resolve_probability`] sure of `zeta0` lying at or above this (default
+    /// 0.005).
     pub clear_above: f64,
     /// Decide on probability instead of the interval's upper end: a window is negative when
     /// `P(zeta0 < fire_below) >= fire_probability`, from a normal approximation of its 95 %
