@@ -296,27 +296,45 @@ mod tests {
     #[test]
     fn the_ambient_pool_follows_the_pole_not_the_peak() {
         let mut pools = ZetaPools::new(PoolOptions::default()).unwrap();
+        // the windows at the old pole read +1 %, those at the new pole +1.2 %: the figure
+        // says which windows a report rests on
         let window = |peak: f64, pole: f64| DampingReport {
             frequency_hz: Some(peak),
             ambient_frequency_hz: Some(pole),
-            ..ambient(0.01, 0.01)
+            ..ambient(if pole > 2.1 { 0.012 } else { 0.01 }, 0.01)
         };
         let mut d = window(2.0, 2.0);
         pools.apply(0.0, 10.0, &mut d);
         let mut d = window(2.16, 2.0);
         pools.apply(5.0, 15.0, &mut d);
         assert_eq!(d.zeta0_windows, Some(2), "the peak moved, the pole did not");
-        // the pole moved: another mode, once the next window confirms it (the first is held
-        // back and the pool's figure stands for it)
+        // the pole moved: another mode, once the next window confirms it; the first is held
+        // back and the old pool's figure stands for it
         let mut d = window(2.0, 2.16);
         pools.apply(10.0, 20.0, &mut d);
         assert_eq!(d.zeta0_windows, Some(2), "held");
+        assert!(
+            (d.zeta0.unwrap() - 0.01).abs() < 1e-9,
+            "held: {:?}",
+            d.zeta0
+        );
         let mut d = window(2.0, 2.16);
         pools.apply(15.0, 25.0, &mut d);
         assert_eq!(d.zeta0_windows, Some(2), "the two windows at the new pole");
+        assert!(
+            (d.zeta0.unwrap() - 0.012).abs() < 1e-9,
+            "new: {:?}",
+            d.zeta0
+        );
+        // back at the old pole: held again, the new pool's figure standing for it
         let mut d = window(2.0, 2.0);
         pools.apply(20.0, 30.0, &mut d);
-        assert_eq!(d.zeta0_windows, Some(2), "held again: back at the old pole");
+        assert_eq!(d.zeta0_windows, Some(2), "held again");
+        assert!(
+            (d.zeta0.unwrap() - 0.012).abs() < 1e-9,
+            "held: {:?}",
+            d.zeta0
+        );
     }
 
     /// A growing window (alarm) never becomes damped through pooling, and a model-based window
