@@ -147,6 +147,7 @@ impl ZetaPools {
         d.zeta0 = Some(p.zeta);
         d.zeta0_interval = Some(p.interval);
         d.zeta0_windows = Some(p.windows);
+        d.zeta0_held = p.held;
         let (low, high) = p.interval;
         let alarm = matches!(d.regime, Some(Regime::SelfExcited | Regime::LimitCycle));
         (d.verdict, d.trusted) = match source {
@@ -313,6 +314,7 @@ mod tests {
         let mut d = window(2.0, 2.16);
         pools.apply(10.0, 20.0, &mut d);
         assert_eq!(d.zeta0_windows, Some(2), "held");
+        assert!(d.zeta0_held, "the report says the window was held");
         assert!(
             (d.zeta0.unwrap() - 0.01).abs() < 1e-9,
             "held: {:?}",
@@ -321,6 +323,7 @@ mod tests {
         let mut d = window(2.0, 2.16);
         pools.apply(15.0, 25.0, &mut d);
         assert_eq!(d.zeta0_windows, Some(2), "the two windows at the new pole");
+        assert!(!d.zeta0_held, "confirmed, no longer held");
         assert!(
             (d.zeta0.unwrap() - 0.012).abs() < 1e-9,
             "new: {:?}",
@@ -330,6 +333,7 @@ mod tests {
         let mut d = window(2.0, 2.0);
         pools.apply(20.0, 30.0, &mut d);
         assert_eq!(d.zeta0_windows, Some(2), "held again");
+        assert!(d.zeta0_held);
         assert!(
             (d.zeta0.unwrap() - 0.012).abs() < 1e-9,
             "held: {:?}",

@@ -174,6 +174,13 @@ pub struct DampingReport {
     /// (`None`: the window alone; `docs/damping.md`, "Pooling windows").
     #[serde(default)]
     pub zeta0_windows: Option<usize>,
+    /// Whether this window's own estimate signalled a change of the gate's ambient state alone
+    /// (more than 3 combined standard errors from the pool, or its pole moved more than 5 %)
+    /// and was held back: `zeta0`, its interval and `zeta0_windows` are then the pool's figure
+    /// from before it, the window's own estimate is in `ambient_zeta`, and the next window
+    /// decides whether it was a change (`docs/damping.md`, "One far window is held").
+    #[serde(default)]
+    pub zeta0_held: bool,
     /// Standard deviation of the window's signal about its mean, in the signal's unit (`None`
     /// without a model-free analysis): what the gate's memory compares with its ambient level
     /// (`docs/damping.md`, "The gate's ambient level").
@@ -251,6 +258,7 @@ impl DampingReport {
             verdict: Verdict::Unknown,
             regime: None,
             zeta0_windows: None,
+            zeta0_held: false,
             signal_rms: None,
             ambient_ratio: None,
             departure_ratio: None,

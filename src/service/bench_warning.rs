@@ -383,7 +383,7 @@ pub async fn run_stream(
             });
             eprintln!(
                 "t {end:7.1}  true {:+.2} %  zeta0 {:?} {:?} {:?} trusted {trusted}  trend \
-                 (%/min, upper %/min, confident crossing s) {trend:?}  firing {firing:?}  (regime, pooled, ssi, ambient ratio, model, fit nmae, agrees, rms swing, path) {facts:?}  scored {} (true mean {:+.2} %)  f {:?} Hz",
+                 (%/min, upper %/min, confident crossing s) {trend:?}  firing {firing:?}  (regime, pooled, ssi, ambient ratio, model, fit nmae, agrees, rms swing, path) {facts:?}  scored {} (true mean {:+.2} %)  f {:?} Hz{}",
                 100.0 * truth_centre,
                 zeta0.map(|z| (z * 1e4).round() / 100.0),
                 interval.map(|(a, b)| ((a * 1e4).round() / 100.0, (b * 1e4).round() / 100.0)),
@@ -394,6 +394,16 @@ pub async fn run_stream(
                     .as_ref()
                     .and_then(|i| i.damping.frequency_hz)
                     .map(|f| (f * 1e4).round() / 1e4),
+                // a window held back by the ambient pool (its figure is the pool's)
+                if view
+                    .identification
+                    .as_ref()
+                    .is_some_and(|i| i.damping.zeta0_held)
+                {
+                    "  held"
+                } else {
+                    ""
+                },
             );
         }
         windows.push(WindowRecord {
