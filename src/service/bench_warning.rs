@@ -96,6 +96,10 @@ pub struct BenchWarningArgs {
     /// 0.9; 0.975 is the whole-interval rule).
     #[arg(long)]
     pub resolve_probability: Option<f64>,
+    /// `GateDampingDeclining`'s `trend_min_span_seconds`: the sample time the trend's windows
+    /// must span before it may warn (default: the configuration's, 240).
+    #[arg(long)]
+    pub trend_min_span_seconds: Option<f64>,
     /// Window length in seconds of sample time (`window_seconds`; default: the
     /// configuration's, 10): a slow gate's windows can be made to hold more cycles.
     #[arg(long)]
@@ -470,6 +474,12 @@ pub fn plan(args: &BenchWarningArgs) -> anyhow::Result<Vec<RunSpec>> {
             "--resolve-probability must be in (0.5, 1)"
         );
     }
+    if let Some(s) = args.trend_min_span_seconds {
+        anyhow::ensure!(
+            s >= 0.0 && s.is_finite(),
+            "--trend-min-span-seconds must be a number >= 0"
+        );
+    }
     if let Some(a) = args.noise_abs {
         anyhow::ensure!(a >= 0.0 && a.is_finite(), "--noise-abs must be >= 0");
     }
@@ -544,6 +554,9 @@ fn configure(args: &BenchWarningArgs, gate: GatePreset) -> anyhow::Result<Config
         }
         if let Some(p) = args.resolve_probability {
             g.alert.resolve_probability = p;
+        }
+        if let Some(s) = args.trend_min_span_seconds {
+            g.alert.trend_min_span_seconds = s;
         }
         if let Some(w) = args.window_seconds {
             g.window_seconds = w;

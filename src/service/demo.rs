@@ -42,11 +42,15 @@ pub struct DemoArgs {
     /// Replay speed of the simulated gate (15: fifteen seconds of samples per second).
     #[arg(long, default_value_t = 15.0)]
     pub speed: f64,
-    /// Seconds of sample time at +2 % damping before the ramp to -2 %.
-    #[arg(long, default_value_t = 60.0)]
+    /// Seconds of sample time at +2 % damping before the ramp to -2 % (240: the trend warning
+    /// acts once its windows span `trend_min_span_seconds`, 240 s by default, so a drift that
+    /// starts later is one it can warn of before zero).
+    #[arg(long, default_value_t = 240.0)]
     pub onset_hold: f64,
-    /// Seconds of sample time of the ramp from +2 % to -2 %.
-    #[arg(long, default_value_t = 300.0)]
+    /// Seconds of sample time of the ramp from +2 % to -2 % (600: 0.4 points a minute, a drift
+    /// the trend sees coming; on seeds 1 to 3 it warned at +0.56 to +0.83 % and the damping
+    /// alert followed 12 to 15 s of wall time later).
+    #[arg(long, default_value_t = 600.0)]
     pub onset_ramp: f64,
     /// Random seed of the simulated turbulence.
     #[arg(long, default_value_t = 1)]
@@ -421,8 +425,9 @@ fn rule_lines(rules: &crate::alert::AlertRules) -> [String; 2] {
         ),
         format!(
             "warning:    GateDampingDeclining fires when the trend of zeta0 predicts the crossing \
-             of {below} within {:.0} min (95 % confidence)",
-            rules.warn_lead_seconds / 60.0
+             of {below} within {:.0} min (95 % confidence), once its windows span {:.0} s",
+            rules.warn_lead_seconds / 60.0,
+            rules.trend_min_span_seconds
         ),
     ]
 }
@@ -444,7 +449,7 @@ mod rule_tests {
         assert_eq!(
             declining,
             "warning:    GateDampingDeclining fires when the trend of zeta0 predicts the \
-             crossing of 0.0 % within 10 min (95 % confidence)"
+             crossing of 0.0 % within 10 min (95 % confidence), once its windows span 240 s"
         );
         let other = AlertRules {
             fire_probability: Some(0.9),

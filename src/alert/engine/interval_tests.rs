@@ -515,7 +515,14 @@ fn stream(
 /// Feeds a stream through a gate's trend and the engine, as the daemon does; returns the
 /// sample times at which each alert fired.
 fn run(stream: impl Iterator<Item = (f64, f64, f64)>) -> (Vec<f64>, Vec<f64>) {
-    let rules = AlertRules::counting();
+    run_with(AlertRules::counting(), stream)
+}
+
+/// [`run`] under `rules`.
+fn run_with(
+    rules: AlertRules,
+    stream: impl Iterator<Item = (f64, f64, f64)>,
+) -> (Vec<f64>, Vec<f64>) {
     let mut e = AlertEngine::new(rules.clone());
     let mut tr = DampingTrend::new(rules.trend_horizon_seconds);
     let (mut negative, mut declining) = (Vec::new(), Vec::new());
@@ -552,6 +559,44 @@ fn steady_stable_gates_give_no_alert_in_a_day() {
             "truth {truth}: GateDampingDeclining at {dec:?}"
         );
     }
+}
+
+/// A new gate's first minutes: a trend over a couple of minutes of overlapping windows reads
+/// their correlation too low (the lag-1 autocorrelation of two dozen residuals is biased low)
+/// and claims more confidence than it has, so a steady gate warned by chance on 30 of these 200
+/// cold starts at the old `trend_min_span_seconds` of 120 s. The default (240 s) waits for
+/// a longer record: 9 warnings, none before it.
+#[test]
+fn a_cold_start_of_a_steady_gate_rarely_warns() {
+    let cold_starts = |min_span: f64| {
+        let rules = AlertRules {
+            trend_min_span_seconds: min_span,
+            ..AlertRules::counting()
+        };
+        let mut first = Vec::new();
+        for seed in 0..200 {
+            // six minutes at +0.5 %, windows scattered by 0.3 points, as a steady day's
+            let (neg, dec) = run_with(rules.clone(), stream(seed, 72, 0.003, |_| 0.005));
+            assert!(
+                neg.is_empty(),
+                "seed {seed}: GateNegativeDamping at {neg:?}"
+            );
+            first.extend(dec.first().copied());
+        }
+        first
+    };
+    let default = AlertRules::default().trend_min_span_seconds;
+    let (old, new) = (cold_starts(120.0), cold_starts(default));
+    assert!(
+        new.iter().all(|&t| t - 10.0 >= default),
+        "a warning before the trend spans {default} s: {new:?}"
+    );
+    assert!(
+        old.len() >= 10 && 2 * new.len() <= old.len(),
+        "cold-start warnings: {} at 120 s ({old:?}), {} at {default} s ({new:?})",
+        old.len(),
+        new.len()
+    );
 }
 
 #[test]

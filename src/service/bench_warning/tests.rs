@@ -295,6 +295,7 @@ fn plan_refuses_bad_arguments_naming_the_flag() {
         fire_at_once_probability: None,
         fire_at_once_min_ratio: None,
         resolve_probability: None,
+        trend_min_span_seconds: None,
         window_seconds: None,
         identify_every_seconds: None,
     };
@@ -335,6 +336,9 @@ fn plan_refuses_bad_arguments_naming_the_flag() {
     for p in [0.5, 1.0, f64::NAN] {
         assert!(bad(&|a| a.resolve_probability = Some(p)).contains("--resolve-probability"));
     }
+    for s in [-1.0, f64::INFINITY, f64::NAN] {
+        assert!(bad(&|a| a.trend_min_span_seconds = Some(s)).contains("--trend-min-span-seconds"));
+    }
     // later seeds extend a run without repeating the first ones
     let later = plan(&BenchWarningArgs {
         first_seed: 5,
@@ -362,6 +366,25 @@ fn plan_refuses_bad_arguments_naming_the_flag() {
         ..args.clone()
     })
     .unwrap();
+    // a rule flag reaches every gate of the daemon under test; unset, the configuration's
+    let span = |a: &BenchWarningArgs| -> Vec<f64> {
+        let c = configure(a, GatePreset::Lock).unwrap();
+        c.gates
+            .values()
+            .map(|g| g.alert.trend_min_span_seconds)
+            .collect()
+    };
+    let default = crate::alert::AlertRules::default().trend_min_span_seconds;
+    assert!(
+        span(&args).iter().all(|&s| s == default),
+        "{:?}",
+        span(&args)
+    );
+    let set = BenchWarningArgs {
+        trend_min_span_seconds: Some(120.0),
+        ..args.clone()
+    };
+    assert!(span(&set).iter().all(|&s| s == 120.0) && !span(&set).is_empty());
 }
 
 /// The early-warning baseline fires while the windows' variance rises steadily over the
