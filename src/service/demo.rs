@@ -49,7 +49,7 @@ pub struct DemoArgs {
     pub onset_hold: f64,
     /// Seconds of sample time of the ramp from +2 % to -2 % (600: 0.4 points a minute, a drift
     /// the trend sees coming; on seeds 1 to 3 it warned at +0.56 to +0.83 % and the damping
-    /// alert followed 12 to 15 s of wall time later).
+    /// alert followed 12 to 14 s of wall time later).
     #[arg(long, default_value_t = 600.0)]
     pub onset_ramp: f64,
     /// Random seed of the simulated turbulence.
