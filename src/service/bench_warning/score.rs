@@ -352,6 +352,8 @@ pub struct AlertRow {
     pub alert: String,
     /// Seeds streamed.
     pub seeds: usize,
+    /// The seeds' numbers, in the order of the per-seed lists below.
+    pub seed_numbers: Vec<u64>,
     /// Hours of sample time streamed over all seeds.
     pub hours: f64,
     /// Per seed: scenario time of the first window after which the alert fired (`None`: never).
@@ -479,6 +481,7 @@ pub fn alert_rows(records: &[RunRecord], _targets: &Targets) -> Vec<AlertRow> {
                 gate: gate.as_str().into(),
                 alert: name,
                 seeds: runs.len(),
+                seed_numbers: runs.iter().map(|r| r.spec.seed).collect(),
                 hours,
                 first_fired: first,
                 first_resolved,
@@ -506,26 +509,65 @@ fn pass(p: Option<bool>) -> &'static str {
     }
 }
 
-fn delays(v: &[Option<f64>]) -> String {
-    v.iter()
-        .map(|d| d.map_or_else(|| "never".into(), |d| format!("{d:+.0}")))
-        .collect::<Vec<_>>()
-        .join(" ")
+/// Per-seed lists longer than this are grouped by value in the table (the JSON keeps every
+/// seed). Why: a cold-start run of 100 seeds printed 100 "never" per cell, and the one seed
+/// that fired was lost among them.
+pub const SEEDS_LISTED: usize = 20;
+
+/// One cell of per-seed values: space-separated in seed order for up to [`SEEDS_LISTED`]
+/// seeds; beyond, the commonest value with its count, then every other value with its seeds
+/// ("never x99; 345 (seed 51)").
+fn per_seed(values: Vec<String>, seeds: &[u64]) -> String {
+    if values.len() <= SEEDS_LISTED || seeds.len() != values.len() {
+        return values.join(" ");
+    }
+    // values in order of first appearance, each with its seeds
+    let mut groups: Vec<(String, Vec<u64>)> = Vec::new();
+    for (v, &seed) in values.into_iter().zip(seeds) {
+        match groups.iter_mut().find(|(g, _)| *g == v) {
+            Some((_, s)) => s.push(seed),
+            None => groups.push((v, vec![seed])),
+        }
+    }
+    let common = (0..groups.len())
+        .max_by_key(|&i| (groups[i].1.len(), std::cmp::Reverse(i)))
+        .unwrap_or(0);
+    let mut parts = vec![format!("{} x{}", groups[common].0, groups[common].1.len())];
+    for (i, (v, s)) in groups.iter().enumerate() {
+        if i == common {
+            continue;
+        }
+        let list = s.iter().map(u64::to_string).collect::<Vec<_>>().join(", ");
+        let noun = if s.len() == 1 { "seed" } else { "seeds" };
+        parts.push(format!("{v} ({noun} {list})"));
+    }
+    parts.join("; ")
+}
+
+fn delays(v: &[Option<f64>], seeds: &[u64]) -> String {
+    per_seed(
+        v.iter()
+            .map(|d| d.map_or_else(|| "never".into(), |d| format!("{d:+.0}")))
+            .collect(),
+        seeds,
+    )
 }
 
 /// Per seed: when the alert first resolved, "firing" when it never did (still firing at the
 /// end), "-" when it never fired.
 fn resolves(a: &AlertRow) -> String {
-    a.first_fired
-        .iter()
-        .zip(&a.first_resolved)
-        .map(|(fired, resolved)| match (fired, resolved) {
-            (None, _) => "-".to_string(),
-            (Some(_), Some(t)) => format!("{t:.0}"),
-            (Some(_), None) => "firing".to_string(),
-        })
-        .collect::<Vec<_>>()
-        .join(" ")
+    per_seed(
+        a.first_fired
+            .iter()
+            .zip(&a.first_resolved)
+            .map(|(fired, resolved)| match (fired, resolved) {
+                (None, _) => "-".to_string(),
+                (Some(_), Some(t)) => format!("{t:.0}"),
+                (Some(_), None) => "firing".to_string(),
+            })
+            .collect(),
+        &a.seed_numbers,
+    )
 }
 
 /// The two tables in Markdown.
@@ -568,7 +610,7 @@ pub fn render(regimes: &[RegimeRow], alerts: &[AlertRow]) -> String {
     }
     let _ = writeln!(
         s,
-        "\nalerts (delays in s of sample time per seed, negative = before; never = did not fire; first resolved: firing = still firing at the end)\n"
+        "\nalerts (delays in s of sample time per seed, negative = before; never = did not fire; first resolved: firing = still firing at the end; over {SEEDS_LISTED} seeds grouped: the commonest value xcount, then the others with their seeds)\n"
     );
     let _ = writeln!(
         s,
@@ -583,10 +625,10 @@ pub fn render(regimes: &[RegimeRow], alerts: &[AlertRow]) -> String {
             a.gate,
             a.alert,
             a.hours,
-            delays(&a.first_fired).replace('+', ""),
+            delays(&a.first_fired, &a.seed_numbers).replace('+', ""),
             resolves(a),
-            delays(&a.delay_vs_zero),
-            delays(&a.delay_vs_minus_one),
+            delays(&a.delay_vs_zero, &a.seed_numbers),
+            delays(&a.delay_vs_minus_one, &a.seed_numbers),
             a.fired,
             opt(a.false_alarms_per_day, 1),
             if a.target.is_empty() { "-" } else { &a.target },

@@ -3,7 +3,7 @@
 
 use super::score::{
     au_limit, coverage_interval, covers, fire_times, first_resolve, mark_ews, regime_rows_with,
-    render, EwsRule, EWS_VARIANCE,
+    render, EwsRule, EWS_VARIANCE, SEEDS_LISTED,
 };
 use super::*;
 use crate::analysis::{AnalysisError, DampingReport, Verdict, WindowAnalysis, WindowInput};
@@ -504,4 +504,47 @@ fn coverage_interval_follows_the_seeds_not_the_window_count() {
     assert!(lo <= 0.5 && hi >= 1.0, "({lo}, {hi})");
     let table = render(&rows, &[]);
     assert!(table.contains("75 % (50-100)"), "{table}");
+}
+
+/// Over [`SEEDS_LISTED`] seeds a per-seed cell groups its values: the commonest with its count,
+/// every other value with the seeds that gave it, so the one cold start that warned is named.
+#[test]
+fn many_seeds_are_grouped_by_value_and_the_odd_ones_named() {
+    let n = 8;
+    let quiet: Vec<WindowRecord> = (0..n)
+        .map(|i| window(5.0 * i as f64, Some(0.005), None, 0.005))
+        .collect();
+    let mut fired = quiet.clone();
+    fired[3].firing = vec![ALERT_DECLINING.to_string()];
+    let records: Vec<RunRecord> = (1..=SEEDS_LISTED as u64 + 5)
+        .map(|seed| {
+            let ws = if seed == 7 || seed == 20 {
+                fired.clone()
+            } else {
+                quiet.clone()
+            };
+            let mut r = record(ScenarioName::StableLow, ws, 0.1);
+            r.spec.seed = seed;
+            r
+        })
+        .collect();
+    let rows = alert_rows(&records, &Targets::ISSUE_8);
+    let dec = rows.iter().find(|r| r.alert == ALERT_DECLINING).unwrap();
+    assert_eq!(dec.seed_numbers.len(), SEEDS_LISTED + 5);
+    assert_eq!(
+        dec.first_fired.len(),
+        SEEDS_LISTED + 5,
+        "the JSON keeps every seed"
+    );
+    let table = render(&[], std::slice::from_ref(dec));
+    let expected = format!(
+        "| never x{n}; 15 (seeds 7, 20) | - x{n}; 20 (seeds 7, 20) |",
+        n = SEEDS_LISTED + 3
+    );
+    assert!(table.contains(&expected), "{table}");
+    // up to SEEDS_LISTED seeds the cell stays one value per seed, in seed order
+    let few = alert_rows(&records[..3], &Targets::ISSUE_8);
+    let dec = few.iter().find(|r| r.alert == ALERT_DECLINING).unwrap();
+    let table = render(&[], std::slice::from_ref(dec));
+    assert!(table.contains("| never never never | - - - |"), "{table}");
 }
