@@ -1,0 +1,72 @@
+//! The reference in docs/api.md keeps up with the code: every metric the daemon registers and
+//! every field of the damping report it serves is named there (a reader of the API should not
+//! have to read the source to learn what a field means).
+
+use std::path::Path;
+
+use gatewatch::analysis::DampingReport;
+
+const ROOT: &str = env!("CARGO_MANIFEST_DIR");
+
+fn read(p: &str) -> String {
+    std::fs::read_to_string(Path::new(ROOT).join(p)).unwrap_or_else(|e| panic!("{p}: {e}"))
+}
+
+/// The `"gatewatch_..."` string literals of a source file.
+fn metric_names(source: &str) -> Vec<String> {
+    let mut names: Vec<String> = source
+        .split('"')
+        .skip(1)
+        .step_by(2)
+        .filter(|s| {
+            s.starts_with("gatewatch_") && s.chars().all(|c| c.is_ascii_lowercase() || c == '_')
+        })
+        .map(str::to_string)
+        .collect();
+    names.sort();
+    names.dedup();
+    names
+}
+
+#[test]
+fn every_registered_metric_is_in_the_api_reference() {
+    let api = read("docs/api.md");
+    let names = metric_names(&read("src/service/metrics.rs"));
+    assert!(names.len() >= 20, "found only {names:?}");
+    let missing: Vec<&String> = names
+        .iter()
+        .filter(|n| {
+            // `gatewatch_damping_ratio_lower`/`_upper` names the pair once
+            let short = n.rsplit_once('_').map(|(_, tail)| format!("`_{tail}`"));
+            !api.contains(n.as_str()) && !short.is_some_and(|s| api.contains(&s))
+        })
+        .collect();
+    assert!(missing.is_empty(), "docs/api.md does not name {missing:?}");
+}
+
+#[test]
+fn every_damping_report_field_is_in_the_api_reference() {
+    let api = read("docs/api.md");
+    // the required fields; every optional one serializes as null
+    let report: DampingReport = serde_json::from_str(
+        r#"{"agrees": true, "fit_nmae": 0.1, "trusted": true, "verdict": "damped"}"#,
+    )
+    .expect("a minimal report");
+    let value = serde_json::to_value(&report).unwrap();
+    let fields = value.as_object().expect("an object");
+    assert!(fields.len() >= 25, "{fields:?}");
+    let missing: Vec<&String> = fields
+        .keys()
+        .filter(|k| !api.contains(&format!("`{k}`")))
+        .collect();
+    assert!(
+        missing.is_empty(),
+        "docs/api.md does not name the damping fields {missing:?}"
+    );
+}
+
+#[test]
+fn the_metric_scan_reads_literals_only() {
+    let src = r#"let a = "gatewatch_x_total"; let b = "not_ours"; let c = "gatewatch_Bad";"#;
+    assert_eq!(metric_names(src), vec!["gatewatch_x_total".to_string()]);
+}
