@@ -375,7 +375,7 @@ impl AppState {
                     continue; // validated above
                 };
                 entry.last_data = now;
-                let (stats, due) = entry.window.push(batch.samples.iter().copied());
+                let (stats, due, n_due) = entry.window.push_latest(batch.samples.iter().copied());
                 let fill = entry.window.fill_ratio();
                 let rate = entry.config.rate_hz;
                 summary.accepted += stats.accepted;
@@ -401,8 +401,7 @@ impl AppState {
                 self.metrics
                     .reject(RejectReason::OutOfOrder, stats.out_of_order);
                 // only the newest due window matters: older ones are replaced before queueing
-                let n_due = due.len() as u64;
-                if let Some(w) = due.into_iter().last() {
+                if let Some(w) = due {
                     if n_due > 1 {
                         self.metrics.jobs_replaced.inc_by(n_due - 1);
                     }

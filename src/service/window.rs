@@ -91,6 +91,14 @@ pub struct DueWindow {
     pub end_index: u64,
 }
 
+/// A due window not yet copied (see [`Window::push_latest`]).
+struct Pending {
+    t0: f64,
+    end_index: u64,
+    /// Samples pushed since it was due.
+    after: usize,
+}
+
 /// The window of one gate.
 #[derive(Debug, Clone)]
 pub struct Window {
@@ -148,15 +156,46 @@ impl Window {
         self
     }
 
-    /// Pushes samples `(t, v)` in order; returns the counts and the windows that became due
-    /// (the caller usually keeps only the last: newer windows replace older ones).
+    /// Pushes samples `(t, v)` in order; returns the counts and every window that became due,
+    /// each with its own copy of the samples. For tests and offline replays; the daemon calls
+    /// [`Window::push_latest`].
     pub fn push(
         &mut self,
         samples: impl IntoIterator<Item = (f64, f64)>,
     ) -> (PushStats, Vec<DueWindow>) {
+        let (stats, due, _) = self.push_inner(samples, true);
+        (stats, due)
+    }
+
+    /// [`Window::push`] keeping only the newest window that became due (newer windows replace
+    /// older ones before they are queued), with the number that became due. Only that one is
+    /// copied. Why: one request may hold hours of samples; with `window_seconds = 600` each due
+    /// window copied 2.7 MB of window and history, and a 700,000-sample request made 700 such
+    /// copies (1.5 GB, seconds under the state lock) to keep one.
+    pub fn push_latest(
+        &mut self,
+        samples: impl IntoIterator<Item = (f64, f64)>,
+    ) -> (PushStats, Option<DueWindow>, u64) {
+        let (stats, mut due, count) = self.push_inner(samples, false);
+        (stats, due.pop(), count)
+    }
+
+    /// The push. With `keep_all` every due window is copied as it comes; without, the newest is
+    /// only marked (`pending`) and copied at the end, or before a gap clears the buffer. The
+    /// samples the buffer drops after the mark are kept aside (`evicted`, at most `every`: the
+    /// next window is due `every` samples later and replaces the mark), so the copy is exactly
+    /// the window and history the mark saw.
+    fn push_inner(
+        &mut self,
+        samples: impl IntoIterator<Item = (f64, f64)>,
+        keep_all: bool,
+    ) -> (PushStats, Vec<DueWindow>, u64) {
         let period = 1.0 / self.rate_hz;
         let mut stats = PushStats::default();
         let mut due = Vec::new();
+        let mut count = 0u64;
+        let mut pending: Option<Pending> = None;
+        let mut evicted: Vec<f64> = Vec::new();
         for (t, v) in samples {
             if let Some(last) = self.t_last {
                 let dt = t - last;
@@ -172,15 +211,23 @@ impl Window {
                 }
                 if dt > 1.5 * period || clock_jump {
                     stats.gaps += 1;
+                    if let Some(p) = pending.take() {
+                        due = vec![self.materialize(&p, &evicted)];
+                    }
                     self.values.clear();
                     self.since_due = 0;
                     self.due_once = false;
                 }
             }
             if self.values.len() == self.history {
-                self.values.pop_front();
+                if let (Some(front), Some(_)) = (self.values.pop_front(), pending.as_ref()) {
+                    evicted.push(front);
+                }
             }
             self.values.push_back(v);
+            if let Some(p) = pending.as_mut() {
+                p.after += 1;
+            }
             self.consecutive_old = 0;
             self.t_last = Some(t);
             self.accepted += 1;
@@ -196,16 +243,42 @@ impl Window {
             if self.values.len() >= self.capacity && ready {
                 self.due_once = true;
                 self.since_due = 0;
-                let skip = self.values.len() - self.capacity;
-                due.push(DueWindow {
+                count += 1;
+                let mark = Pending {
                     t0: t - (self.capacity - 1) as f64 * period,
-                    values: self.values.iter().skip(skip).copied().collect(),
-                    history: self.values.iter().copied().collect(),
                     end_index: self.accepted,
-                });
+                    after: 0,
+                };
+                if keep_all {
+                    due.push(self.materialize(&mark, &[]));
+                } else {
+                    pending = Some(mark);
+                    evicted.clear();
+                }
             }
         }
-        (stats, due)
+        if let Some(p) = pending {
+            due = vec![self.materialize(&p, &evicted)];
+        }
+        (stats, due, count)
+    }
+
+    /// The window marked by `p`: the buffer as it stood then is `evicted` (dropped from the front
+    /// since) followed by the buffer without the `p.after` samples pushed since.
+    fn materialize(&self, p: &Pending, evicted: &[f64]) -> DueWindow {
+        let held = self.values.len() - p.after;
+        let history: Vec<f64> = evicted
+            .iter()
+            .copied()
+            .chain(self.values.iter().take(held).copied())
+            .collect();
+        let values = history[history.len() - self.capacity..].to_vec();
+        DueWindow {
+            t0: p.t0,
+            values,
+            history,
+            end_index: p.end_index,
+        }
     }
 
     /// Samples held in the window (the history behind it not counted).
@@ -277,6 +350,38 @@ mod tests {
         assert_eq!(one[1].end_index, 350);
         for chunk in [7, 100, 1234, 5_000] {
             assert_eq!(run(chunk), one, "chunk {chunk}");
+        }
+    }
+
+    /// `push_latest` hands out exactly the newest window `push` would have (its samples and its
+    /// history), with the count of windows that became due, whatever the chunking, through
+    /// gaps, duplicates, out-of-order samples, a clock jump and a history longer than the
+    /// window.
+    #[test]
+    fn push_latest_is_the_last_of_push() {
+        let mut data = stream(4_000, 100.0);
+        // a gap at 1500 (2 s missing), duplicates and stragglers at 2200, a gap shortly after a
+        // due window at 3000
+        data.drain(1500..1700);
+        let dup = data[2000];
+        data.insert(2001, dup);
+        data.insert(2002, (dup.0 - 0.3, 9.0));
+        data.drain(3000..3010);
+        // the source's clock jumps back an hour: a window's worth of old samples, then it heals
+        data.extend((0..700).map(|i| (1000.0 - 3600.0 + i as f64 / 100.0, 0.5)));
+        for (history, every, offset) in [(300, 50, 0), (900, 50, 7), (700, 1, 0), (300, 300, 3)] {
+            for chunk in [1, 7, 49, 50, 51, 333, 4_000] {
+                let fresh = || Window::with_history(100.0, 300, every, history).staggered(offset);
+                let (mut all, mut latest) = (fresh(), fresh());
+                for c in data.chunks(chunk) {
+                    let (s1, due) = all.push(c.iter().copied());
+                    let (s2, last, count) = latest.push_latest(c.iter().copied());
+                    let case = format!("history {history}, every {every}, chunk {chunk}");
+                    assert_eq!(s1, s2, "{case}");
+                    assert_eq!(count, due.len() as u64, "{case}");
+                    assert_eq!(last.as_ref(), due.last(), "{case}");
+                }
+            }
         }
     }
 
