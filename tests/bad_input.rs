@@ -1138,6 +1138,62 @@ fn malformed_tcp_lines_are_counted_and_the_connection_kept() {
     assert!(!d.stderr().contains("panicked"), "{}", d.stderr());
 }
 
+/// Raw TCP lines come one sample at a time, so no request says its rate: a source at 125 Hz on a
+/// 100 Hz gate (every spacing 0.8 of a period, within the jitter tolerated) used to fill windows
+/// read as 100 Hz and identified as trusted but wrong. The window's own rate check refuses them
+/// (counted, logged), and the first window identified after the source is fixed lies after the
+/// fix.
+#[test]
+fn tcp_samples_at_another_rate_are_not_identified() {
+    let d = Daemon::start("");
+    let mut s = TcpStream::connect(d.tcp).unwrap();
+    let ns0 = now_ns() - 20_000_000_000;
+    let line = |ns: i128| format!("m,gate=r1 force={} {ns}\n", (ns as f64 * 6e-8).sin());
+    let wrong: String = (0..400).map(|i| line(ns0 + i * 8_000_000)).collect();
+    s.write_all(wrong.as_bytes()).unwrap();
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while d.rejected("rate_mismatch") < 1.0 && Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    assert!(
+        d.rejected("rate_mismatch") >= 100.0,
+        "the stretch is counted"
+    );
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while !d.stderr().contains("another sample rate") && Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    assert!(d.stderr().contains("another sample rate"), "{}", d.stderr());
+    let view = d.get_json("/api/v1/gates/r1");
+    assert_eq!(
+        view["window"]["samples_total"], 400,
+        "the samples were taken"
+    );
+    assert!(
+        view["analysed_until"].is_null(),
+        "no window at 125 Hz identified: {view}"
+    );
+
+    // the source is fixed: 100 Hz from 10 ms after its last sample
+    let switch = ns0 + 399 * 8_000_000 + 10_000_000;
+    let right: String = (0..300).map(|i| line(switch + i * 10_000_000)).collect();
+    s.write_all(right.as_bytes()).unwrap();
+    let deadline = Instant::now() + Duration::from_secs(30);
+    let analysed = || d.get_json("/api/v1/gates/r1")["analysed_until"].as_f64();
+    while analysed().is_none() && Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let until = analysed().expect("a window identified once the rate is right");
+    // its window (1 s) lies after the switch: its samples imply 100 Hz within 1 %, so at most a
+    // few (5 of 100) are 125 Hz samples from before it
+    assert!(
+        until >= switch as f64 / 1e9 + 0.9,
+        "window ending {until} reaches before the switch at {}",
+        switch as f64 / 1e9
+    );
+    assert!(!d.stderr().contains("panicked"));
+}
+
 /// Issue 12 point 5: one sample 1e6 s ahead used to be answered 204, restart the window there,
 /// and make the next 1,999 good samples "out of order" (dropped, still 204).
 #[test]

@@ -30,8 +30,7 @@ use crate::analysis::{
     ZetaPools,
 };
 
-/// Relative disagreement of a declared or implied sample rate with `rate_hz` that is refused.
-pub const RATE_TOLERANCE: f64 = 0.01;
+pub use super::window::RATE_TOLERANCE;
 
 /// Why a request's samples were refused (nothing was applied).
 #[derive(Debug, Clone, PartialEq)]
@@ -400,6 +399,17 @@ impl AppState {
                     .reject(RejectReason::Duplicate, stats.duplicate);
                 self.metrics
                     .reject(RejectReason::OutOfOrder, stats.out_of_order);
+                if let Some(implied) = stats.implied_rate_hz {
+                    self.metrics
+                        .reject(RejectReason::RateMismatch, stats.rate_mismatch);
+                    tracing::warn!(
+                        gate = g,
+                        implied_rate_hz = implied,
+                        rate_hz = rate,
+                        samples = stats.rate_mismatch,
+                        "samples imply another sample rate than the gate's (more than 1 % off): their window was not identified and the window restarted; fix the source's rate or the gate's rate_hz"
+                    );
+                }
                 // only the newest due window matters: older ones are replaced before queueing
                 if let Some(w) = due {
                     if n_due > 1 {

@@ -21,6 +21,17 @@
 //!   resumes once a contiguous stretch of a full window has been collected after the gap;
 //! - otherwise appended (timing jitter within half a period is tolerated).
 //!
+//! The rate: the daemon derives the times from `rate_hz`, so a source sampling at another rate
+//! (250 Hz on a 200 Hz gate: every spacing 0.8 of a period, within the jitter tolerated) would
+//! fill windows that are not what they claim. When a window is due, the samples since the last
+//! check (the run's first sample, then the last due window's) must imply `rate_hz` within
+//! [`RATE_TOLERANCE`] (1 %), measured over at least `every` samples (5 s: a jitter of half a
+//! period moves it by 0.01 % at 200 Hz). Otherwise the window is not handed out, the samples are
+//! counted (`rate_mismatch`), and the window restarts at the current sample, so the next one
+//! handed out holds a full window at the right rate. A JSON request of 3 or more samples is
+//! checked whole before this (`ingest::implied_rate`); this catches the raw TCP lines and small
+//! requests, one sample at a time.
+//!
 //! Clock jumps: after a full window's worth of CONSECUTIVE out-of-order samples, the source's
 //! clock is taken to have jumped backwards (or one sample came from far in the future) and the
 //! window restarts at the current sample (counted as a gap), so one bad timestamp cannot block a
@@ -44,8 +55,11 @@ use std::collections::VecDeque;
 
 use crate::analysis::gate_hash;
 
+/// Relative disagreement of a declared or implied sample rate with `rate_hz` that is refused.
+pub const RATE_TOLERANCE: f64 = 0.01;
+
 /// Outcome counts of one push.
-#[derive(Debug, Default, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Default, Clone, Copy, PartialEq)]
 pub struct PushStats {
     /// Samples appended.
     pub accepted: u64,
@@ -55,6 +69,12 @@ pub struct PushStats {
     pub out_of_order: u64,
     /// Gaps that restarted the window.
     pub gaps: u64,
+    /// Samples whose spacing implied another rate than the window's, by more than
+    /// [`RATE_TOLERANCE`], over the stretch since the last check (see the module doc): their
+    /// window was not handed out and the window restarted.
+    pub rate_mismatch: u64,
+    /// The rate those samples implied, Hz (the last such stretch of the push).
+    pub implied_rate_hz: Option<f64>,
 }
 
 /// Windows of contiguous history the daemon keeps, the window included (see the module doc) ...
@@ -120,6 +140,11 @@ pub struct Window {
     offset: usize,
     /// Consecutive out-of-order samples.
     consecutive_old: usize,
+    /// Time of the sample the rate was last checked at (the start of the contiguous run, then
+    /// each due window's last sample).
+    check_t: Option<f64>,
+    /// Samples accepted since `check_t`.
+    since_check: usize,
 }
 
 impl Window {
@@ -145,6 +170,8 @@ impl Window {
             due_once: false,
             offset: 0,
             consecutive_old: 0,
+            check_t: None,
+            since_check: 0,
         }
     }
 
@@ -197,6 +224,7 @@ impl Window {
         let mut pending: Option<Pending> = None;
         let mut evicted: Vec<f64> = Vec::new();
         for (t, v) in samples {
+            let mut restart = self.t_last.is_none();
             if let Some(last) = self.t_last {
                 let dt = t - last;
                 if dt.abs() < 0.5 * period {
@@ -217,6 +245,7 @@ impl Window {
                     self.values.clear();
                     self.since_due = 0;
                     self.due_once = false;
+                    restart = true;
                 }
             }
             if self.values.len() == self.history {
@@ -233,6 +262,12 @@ impl Window {
             self.accepted += 1;
             self.since_due += 1;
             stats.accepted += 1;
+            if restart {
+                self.check_t = Some(t);
+                self.since_check = 0;
+            } else {
+                self.since_check += 1;
+            }
             // before the first due window `since_due` counts every sample since the start or
             // the gap, so the window has been full for `since_due - capacity` samples
             let ready = if self.due_once {
@@ -241,6 +276,29 @@ impl Window {
                 self.since_due >= self.capacity + self.offset
             };
             if self.values.len() >= self.capacity && ready {
+                // the rate the samples since the last check imply: a source at 250 Hz on a
+                // 200 Hz gate keeps every spacing within the jitter tolerated above (0.8 of a
+                // period), and its windows would be read as 8 s at 200 Hz
+                let implied = self
+                    .check_t
+                    .filter(|_| self.since_check > 0)
+                    .map(|tc| self.since_check as f64 / (t - tc));
+                self.check_t = Some(t);
+                let checked = std::mem::take(&mut self.since_check);
+                if let Some(r) =
+                    implied.filter(|r| ((r - self.rate_hz) / self.rate_hz).abs() > RATE_TOLERANCE)
+                {
+                    stats.rate_mismatch += checked as u64;
+                    stats.implied_rate_hz = Some(r);
+                    if let Some(p) = pending.take() {
+                        due = vec![self.materialize(&p, &evicted)];
+                    }
+                    self.values.clear();
+                    self.values.push_back(v);
+                    self.since_due = 1;
+                    self.due_once = false;
+                    continue;
+                }
                 self.due_once = true;
                 self.since_due = 0;
                 count += 1;
@@ -351,6 +409,39 @@ mod tests {
         for chunk in [7, 100, 1234, 5_000] {
             assert_eq!(run(chunk), one, "chunk {chunk}");
         }
+    }
+
+    /// A source at another rate than the window's is refused when its window falls due: 250 Hz
+    /// on a 200 Hz window (spacing 0.8 of a period, each within the jitter tolerated) hands out
+    /// no window; 0.5 % off is within the tolerance; once the source is fixed, the first window
+    /// handed out implies the right rate within the tolerance.
+    #[test]
+    fn a_source_at_another_rate_hands_out_no_window() {
+        let at = |rate: f64, n: usize, t0: f64| -> Vec<(f64, f64)> {
+            (0..n).map(|i| (t0 + i as f64 / rate, 1.0)).collect()
+        };
+        let mut w = Window::new(200.0, 2000, 1000);
+        let (s, due) = w.push(at(250.0, 6000, 1000.0));
+        assert!(due.is_empty(), "{} windows at 250 Hz", due.len());
+        assert!(s.rate_mismatch >= 4000, "{s:?}");
+        assert!((s.implied_rate_hz.unwrap() - 250.0).abs() < 0.1, "{s:?}");
+        assert_eq!(s.accepted, 6000);
+        // fixed: 200 Hz from one period after the last sample
+        let t_switch = 1000.0 + 5999.0 / 250.0 + 1.0 / 200.0;
+        let (s, due) = w.push(at(200.0, 5000, t_switch));
+        assert_eq!(s.rate_mismatch, 0, "{s:?}");
+        assert!(!due.is_empty());
+        // the check is on the rate of the whole stretch: at most 1 % of the window (0.1 s) may
+        // be 250 Hz samples from before the switch
+        assert!(
+            due[0].t0 >= t_switch - 0.01 * 10.0,
+            "{} before {t_switch}",
+            due[0].t0
+        );
+
+        let mut w = Window::new(200.0, 2000, 1000);
+        let (s, due) = w.push(at(201.0, 6000, 1000.0));
+        assert_eq!((s.rate_mismatch, due.len()), (0, 5), "{s:?}");
     }
 
     /// `push_latest` hands out exactly the newest window `push` would have (its samples and its
