@@ -5,6 +5,13 @@
 
 use std::path::{Path, PathBuf};
 
+/// Largest magnitude of a value the analysis takes. Why: its correlations and sums of squares
+/// multiply two values and add up to millions of them, so a value near 1.3e154 overflows to
+/// infinity, and a singular-value decomposition then panicked on the NaN it made. No physical
+/// force or displacement comes near 1e100 in any unit; such a value is a broken sensor or a
+/// unit error, refused by name.
+pub const MAX_ABS_VALUE: f64 = 1e100;
+
 /// A sampled signal: strictly increasing times and finite values.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TimeSeries {
@@ -56,6 +63,21 @@ pub enum DataError {
         column: String,
         cell: String,
     },
+    /// A value beyond [`MAX_ABS_VALUE`].
+    #[error("{path}: line {line}, column '{column}': value {cell} is beyond +-1e100, where the analysis overflows (a broken sensor or a unit error?)")]
+    TooLarge {
+        path: PathBuf,
+        line: u64,
+        column: String,
+        cell: String,
+    },
+    /// A requested column named twice in the header.
+    #[error("{path}: line 1: column '{column}' appears {count} times in the header; name each column once")]
+    DuplicateColumn {
+        path: PathBuf,
+        column: String,
+        count: usize,
+    },
     /// Time does not increase strictly.
     #[error(
         "{path}: line {line}, column '{column}': time {t} does not increase (previous {previous})"
@@ -92,6 +114,12 @@ impl TimeSeries {
                 i % t.len().max(1)
             )));
         }
+        if let Some(i) = y.iter().position(|v| v.abs() > MAX_ABS_VALUE) {
+            return Err(DataError::Invalid(format!(
+                "value {:e} at index {i} is beyond +-1e100, where the analysis overflows",
+                y[i]
+            )));
+        }
         if let Some(i) = t.windows(2).position(|w| w[1] <= w[0]) {
             return Err(DataError::Invalid(format!(
                 "time does not increase at index {}",
@@ -111,19 +139,32 @@ impl TimeSeries {
         self.t.is_empty()
     }
 
-    /// The sample step when the times are uniform to a relative 1e-6, `None` otherwise.
+    /// The sample step when the times are uniform, `None` otherwise ([`Self::nonuniform_at`]).
     pub fn uniform_step(&self) -> Option<f64> {
         let n = self.t.len();
-        if n < 2 {
+        if n < 2 || self.nonuniform_at().is_some() {
             return None;
         }
-        let h = (self.t[n - 1] - self.t[0]) / (n - 1) as f64;
-        let uniform = self
-            .t
-            .iter()
-            .enumerate()
-            .all(|(i, &ti)| (ti - (self.t[0] + i as f64 * h)).abs() <= 1e-6 * h);
-        uniform.then_some(h)
+        Some((self.t[n - 1] - self.t[0]) / (n - 1) as f64)
+    }
+
+    /// The first sample off the uniform grid from the first time to the last, as `(index,
+    /// deviation in s, step in s)`; `None` when every time lies on it within 1e-6 of a step
+    /// plus the rounding of times of that size (eight ulps of the largest: about 3e-6 s at Unix
+    /// epoch seconds, where 1e-6 of a 200 Hz step alone, 5e-9 s, is below what an f64 holds).
+    /// Fewer than two samples are not uniform.
+    pub fn nonuniform_at(&self) -> Option<(usize, f64, f64)> {
+        let n = self.t.len();
+        if n < 2 {
+            return Some((0, 0.0, 0.0));
+        }
+        let (t0, tn) = (self.t[0], self.t[n - 1]);
+        let h = (tn - t0) / (n - 1) as f64;
+        let tol = 1e-6 * h + 8.0 * f64::EPSILON * t0.abs().max(tn.abs());
+        self.t.iter().enumerate().find_map(|(i, &ti)| {
+            let d = ti - (t0 + i as f64 * h);
+            (d.abs() > tol).then_some((i, d, h))
+        })
     }
 
     /// Loads two columns of a CSV file with a header row.
@@ -150,6 +191,14 @@ impl TimeSeries {
             return Err(DataError::NoHeader { path: p() });
         }
         let find = |name: &str| {
+            let count = headers.iter().filter(|h| *h == name).count();
+            if count > 1 {
+                return Err(DataError::DuplicateColumn {
+                    path: p(),
+                    column: name.to_string(),
+                    count,
+                });
+            }
             headers
                 .iter()
                 .position(|h| h == name)
@@ -179,6 +228,14 @@ impl TimeSeries {
                 })?;
                 if !v.is_finite() {
                     return Err(DataError::NotFinite {
+                        path: p(),
+                        line,
+                        column: column.to_string(),
+                        cell: text.to_string(),
+                    });
+                }
+                if column == value_column && v.abs() > MAX_ABS_VALUE {
+                    return Err(DataError::TooLarge {
                         path: p(),
                         line,
                         column: column.to_string(),
@@ -293,6 +350,15 @@ mod tests {
             e.to_string().contains("3 fields, but the header has 2"),
             "{e}"
         );
+        let e = load("t,y\n0,1\n0.1,2e154\n").unwrap_err();
+        assert!(
+            matches!(e, DataError::TooLarge { line: 3, ref cell, .. } if cell == "2e154"),
+            "{e}"
+        );
+        assert!(e.to_string().contains("beyond +-1e100"), "{e}");
+        // at the bound and in the time column (Unix nanoseconds reach 1.7e18) it loads
+        assert!(load("t,y\n0,1e100\n1e101,-1e100\n").is_ok());
+        assert!(TimeSeries::new(vec![0.0, 1.0], vec![1.0, -1e101]).is_err());
     }
 
     #[test]
@@ -307,6 +373,31 @@ mod tests {
         let e = load("time,y\n0,1\n").unwrap_err();
         assert!(matches!(e, DataError::UnknownColumn { ref column, .. } if column == "t"));
         assert!(e.to_string().contains("the header has: time, y"), "{e}");
+        let e = load("t,y,y\n0,1,2\n").unwrap_err();
+        assert!(
+            matches!(e, DataError::DuplicateColumn { ref column, count: 2, .. } if column == "y"),
+            "{e}"
+        );
+        // a repeated column nobody asked for is no ambiguity
+        assert!(load("t,y,note,note\n0,1,a,b\n").is_ok());
+    }
+
+    /// Times at Unix-epoch magnitude are uniform although no f64 holds them to 1e-6 of a step;
+    /// a sample 1 % of a step off is not, and is named.
+    #[test]
+    fn uniform_times_at_epoch_magnitude() {
+        let h = 0.005;
+        let t: Vec<f64> = (0..2000).map(|i| 1.7e9 + i as f64 * h).collect();
+        let s = TimeSeries::new(t.clone(), vec![0.0; 2000]).unwrap();
+        let step = s.uniform_step().expect("uniform at epoch magnitude");
+        assert!((step - h).abs() < 1e-9, "{step}");
+        let mut off = t;
+        off[700] += 0.01 * h;
+        let s = TimeSeries::new(off, vec![0.0; 2000]).unwrap();
+        assert_eq!(s.uniform_step(), None);
+        let (i, d, _) = s.nonuniform_at().unwrap();
+        assert_eq!(i, 700);
+        assert!((d - 0.01 * h).abs() < 1e-6, "{d}");
     }
 
     #[test]

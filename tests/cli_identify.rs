@@ -386,6 +386,38 @@ fn rk4_needs_uniform_times() {
     );
 }
 
+/// A force signal needs a uniform grid, and the error names the sample off it; times at Unix-epoch
+/// magnitude are uniform (they were refused, as "no dominant frequency", before session 46).
+#[test]
+fn force_needs_uniform_times_and_names_the_sample_off_the_grid() {
+    let d = Dir::new();
+    let rows: String = (0..400)
+        .map(|i| {
+            let t = i as f64 * 0.01 + if i == 217 { 0.001 } else { 0.0 };
+            format!("{t},{}\n", (60.0 * t).cos())
+        })
+        .collect();
+    let f = d.write("force_nonuniform.csv", &format!("t,y\n{rows}"));
+    bad(
+        &[
+            "identify",
+            "--input",
+            &f,
+            "--model",
+            "c1*ydd + c2*yd + k*y = 0",
+            "--signal",
+            "force",
+            "--stiffness",
+            "1000",
+        ],
+        &[
+            "--signal force needs uniformly sampled times",
+            "sample 217",
+            "data row 218",
+        ],
+    );
+}
+
 #[test]
 fn bad_bench_arguments_and_unknown_commands() {
     bad(

@@ -170,6 +170,20 @@ pub(super) fn run(a: IdentifyArgs) -> Result<(), CliError> {
     }
     let model = Model::parse(&a.model, &params).map_err(|e| input(format!("model: {e}")))?;
     let series = TimeSeries::from_csv(&a.input, &a.time_column, &a.value_column).map_err(input)?;
+    // A force signal's drift removal and spectral analysis need a uniform grid; without one they
+    // were skipped silently and the window failed later for another reason ("no dominant
+    // frequency"), on a file whose only fault was its timing.
+    if signal == Signal::Force {
+        if let Some((i, d, h)) = series.nonuniform_at() {
+            return Err(input(format!(
+                "{}: --signal force needs uniformly sampled times: sample {} (t = {}, data row {}) is {d:+.3e} s off the uniform grid of step {h:.6e} s from the first time to the last; resample the data, or fit it as --signal displacement",
+                a.input.display(),
+                i,
+                series.t.get(i).copied().unwrap_or(f64::NAN),
+                i + 1
+            )));
+        }
+    }
     let (solver, substeps) = match a.solver.as_str() {
         "auto" if signal == Signal::Force && series.uniform_step().is_some() => {
             (Method::Rk4, a.substeps.unwrap_or(1))

@@ -157,8 +157,8 @@ pub enum SsiError {
     /// An option or argument is out of range.
     #[error("invalid parameter: {0}")]
     Invalid(String),
-    /// NaN or infinite samples.
-    #[error("signal contains non-finite values")]
+    /// NaN or infinite samples, or samples so large that their correlations overflow.
+    #[error("signal contains non-finite values (or values so large their correlations overflow)")]
     NonFinite,
     /// The record holds too few periods for the lags and the blocks.
     #[error(
@@ -295,6 +295,11 @@ pub fn ssi_cov_damping(
     }
     if corr.iter().all(|r| *r == 0.0) {
         return Err(SsiError::NoSignal);
+    }
+    // Values near 1e154 overflow the products to infinity, and the decomposition panicked on
+    // the NaN that made (`data::MAX_ABS_VALUE` refuses such data before it gets here).
+    if corr.iter().any(|r| !r.is_finite()) {
+        return Err(SsiError::NonFinite);
     }
     let mut hankel = DMatrix::<f64>::zeros(i, i);
     fill_hankel(&corr, &mut hankel);
@@ -618,6 +623,11 @@ mod tests {
         assert_eq!(
             ssi_cov_damping(&flat, 200.0, 10.0, &o),
             Err(SsiError::NoSignal)
+        );
+        let huge: Vec<f64> = (0..4000).map(|k| 1e160 * (0.31 * k as f64).sin()).collect();
+        assert_eq!(
+            ssi_cov_damping(&huge, 200.0, 10.0, &o),
+            Err(SsiError::NonFinite)
         );
         let mut nan = vec![0.0; 4000];
         nan[7] = f64::NAN;
