@@ -16,12 +16,15 @@
 //! The state is watched at 50 output times per period through its amplitude
 //! `r = sqrt(y^2 + (yd/w0)^2)` (for a linear oscillator of frequency `w0`, the radius of its
 //! phase-plane ellipse), with `r0` its initial value. A trial is **unstable** when
-//! - the solver fails (non-finite state, step or work limit), or
+//! - the solver fails on the way to a blow-up (non-finite state, step size underflow), or
 //! - the solution leaves the bound `r > 100 * r0` ([`GROWTH_BOUND`]), or
 //! - the solution has not decayed: the largest `r` over the last period exceeds `r0`.
 //!
 //! and **stable** otherwise: the free vibration has died down below its initial amplitude after
-//! `periods` periods. The last rule is what makes slowly growing trials unstable although they
+//! `periods` periods. A trial that hits the solver's step or work limit before the horizon is
+//! **undecided**: it is left out of the map and counted ([`StabilityMap::undecided`]). Why: a
+//! long horizon (`--t-end 3e5`) ran out of steps on stable trials, and 30 of 50 were drawn as
+//! unstable. The last rule is what makes slowly growing trials unstable although they
 //! stay far inside the bound for ten periods; a self-excited oscillator whose equilibrium is
 //! unstable but which settles on a limit cycle larger than `r0` is unstable too, as an engineer
 //! wants. Trials within the solver's accuracy of neutral (a linear oscillator with zero
@@ -41,6 +44,10 @@ pub const GROWTH_BOUND: f64 = 100.0;
 
 /// Output times per period at which the amplitude is watched.
 const POINTS_PER_PERIOD: usize = 50;
+
+/// Most periods a trial may be integrated over: the output times cost 8 bytes each
+/// (`POINTS_PER_PERIOD` a period: 40 MB at the bound), and `--periods 1e12` asked for 400 TB.
+pub const MAX_PERIODS: f64 = 100_000.0;
 
 /// A ranged coefficient: `c{index+1}` drawn uniformly from `[min, max]`.
 #[derive(Debug, Clone, PartialEq)]
@@ -123,6 +130,8 @@ pub struct StabilityMap {
     pub trials: Vec<Trial>,
     /// The horizon every trial was integrated over.
     pub t_end: f64,
+    /// Trials left out: the solver's step or work limit stopped them before the horizon.
+    pub undecided: usize,
 }
 
 /// Why a map cannot be computed or read. Messages name the command-line option at fault.
@@ -194,6 +203,11 @@ pub fn parse_range(model: &Model, text: &str) -> Result<Range, StabilityError> {
             "--range: '{text}': the minimum must be below the maximum"
         ));
     }
+    if !(max - min).is_finite() {
+        return option(format!(
+            "--range: '{text}': the range is wider than a float holds (at most about 1.8e308)"
+        ));
+    }
     let index = coefficient_index(model, name.trim(), "--range")?;
     Ok(Range { index, min, max })
 }
@@ -263,9 +277,9 @@ fn check(model: &Model, spec: &MapSpec) -> Result<Vec<f64>, StabilityError> {
                 .to_string(),
         );
     }
-    if !(spec.periods.is_finite() && spec.periods >= 1.0) {
+    if !(spec.periods.is_finite() && (1.0..=MAX_PERIODS).contains(&spec.periods)) {
         return option(format!(
-            "--periods must be at least 1, got {}",
+            "--periods must be between 1 and {MAX_PERIODS}, got {}",
             spec.periods
         ));
     }
@@ -324,25 +338,40 @@ pub fn map(model: &Model, spec: &MapSpec) -> Result<StabilityMap, StabilityError
         .collect();
     let last_period_start = t_end * (1.0 - 1.0 / spec.periods);
     let points = draw(spec);
-    let trials = points
+    let outcomes: Vec<(f64, f64, Option<bool>)> = points
         .par_iter()
         .map(|&(x, y)| {
             let mut c = centre.clone();
             c[spec.x.index] = x;
             c[spec.y.index] = y;
-            let stable = decays(model, &c, spec.y0, spec.v0, w0, &times, last_period_start);
-            Trial { x, y, stable }
+            (
+                x,
+                y,
+                decays(model, &c, spec.y0, spec.v0, w0, &times, last_period_start),
+            )
         })
         .collect();
+    let trials: Vec<Trial> = outcomes
+        .iter()
+        .filter_map(|&(x, y, stable)| stable.map(|stable| Trial { x, y, stable }))
+        .collect();
+    let undecided = outcomes.len() - trials.len();
+    if trials.is_empty() {
+        return option(format!(
+            "--t-end/--periods: none of the {undecided} trials reached the horizon t = {t_end:.4} within the solver's step limit; shorten the horizon"
+        ));
+    }
     Ok(StabilityMap {
         x_name: spec.x.name(),
         y_name: spec.y.name(),
         trials,
         t_end,
+        undecided,
     })
 }
 
-/// One trial: whether the free vibration from `(y0, v0)` decays (the module docs' rules).
+/// One trial: whether the free vibration from `(y0, v0)` decays (the module docs' rules);
+/// `None` when the solver's step or work limit stopped it first.
 fn decays(
     model: &Model,
     c: &[f64],
@@ -351,7 +380,7 @@ fn decays(
     w0: f64,
     times: &[f64],
     last_period_start: f64,
-) -> bool {
+) -> Option<bool> {
     let r = |s: &[f64; 2]| (s[0] * s[0] + (s[1] / w0).powi(2)).sqrt();
     let r0 = r(&[y0, v0]);
     let opts = Options {
@@ -373,7 +402,11 @@ fn decays(
         }
         ControlFlow::Continue(())
     });
-    outcome.is_complete() && last_max <= r0
+    match outcome.failure {
+        Some(ode::Failure::StepLimit { .. } | ode::Failure::WorkLimit { .. }) => None,
+        Some(_) => Some(false),
+        None => Some(last_max <= r0),
+    }
 }
 
 impl StabilityMap {
@@ -441,6 +474,7 @@ impl StabilityMap {
             y_name: y_name.to_string(),
             trials,
             t_end: f64::NAN,
+            undecided: 0,
         })
     }
 }
@@ -491,6 +525,42 @@ mod tests {
         assert!(stable > 200 && stable < 600, "{stable}");
     }
 
+    /// A horizon longer than the solver's step limit reaches leaves trials undecided, not
+    /// unstable: every trial here is a damped linear oscillator.
+    #[test]
+    fn trials_the_step_limit_stops_are_undecided_not_unstable() {
+        let mut s = spec(40);
+        s.x.min = 0.1;
+        s.x.max = 3.0;
+        s.y.min = 0.1;
+        s.y.max = 1.0;
+        s.t_end = Some(3e5);
+        let m = map(&linear(), &s).unwrap();
+        assert!(m.undecided > 0, "the horizon is beyond the step limit");
+        assert_eq!(m.trials.len() + m.undecided, 40);
+        assert!(
+            m.trials.iter().all(|t| t.stable),
+            "a damped oscillator drawn unstable"
+        );
+        // none reaches the horizon: a clear error, not an empty map
+        s.t_end = Some(1e9);
+        let e = map(&linear(), &s).unwrap_err();
+        assert!(e.to_string().contains("none of the 40 trials"), "{e}");
+    }
+
+    #[test]
+    fn periods_and_ranges_are_bounded() {
+        let mut s = spec(4);
+        s.periods = 1e12;
+        let e = map(&linear(), &s).unwrap_err();
+        assert!(
+            e.to_string().contains("--periods must be between 1 and"),
+            "{e}"
+        );
+        let e = parse_range(&linear(), "c1=-1e308:1e308").unwrap_err();
+        assert!(e.to_string().contains("wider than a float holds"), "{e}");
+    }
+
     #[test]
     fn slowly_growing_trials_inside_the_bound_are_unstable() {
         // c1 = -0.02: the amplitude grows by exp(0.01 * t_end) = about 1.4 over ten periods of
@@ -499,10 +569,16 @@ mod tests {
         let c = [-0.02, 1.0];
         let t_end = 20.0 * std::f64::consts::PI;
         let times: Vec<f64> = (0..=500).map(|i| t_end * i as f64 / 500.0).collect();
-        assert!(!decays(&model, &c, 0.1, 0.0, 1.0, &times, 0.9 * t_end));
+        assert_eq!(
+            decays(&model, &c, 0.1, 0.0, 1.0, &times, 0.9 * t_end),
+            Some(false)
+        );
         // and slowly decaying ones stable.
         let c = [0.02, 1.0];
-        assert!(decays(&model, &c, 0.1, 0.0, 1.0, &times, 0.9 * t_end));
+        assert_eq!(
+            decays(&model, &c, 0.1, 0.0, 1.0, &times, 0.9 * t_end),
+            Some(true)
+        );
     }
 
     #[test]

@@ -207,3 +207,48 @@ fn serve_prints_the_same_warning_at_start() {
         "{err}"
     );
 }
+
+/// `simulate` refuses what it cannot stream before it connects: a rate of 1e12 Hz (6e14 samples,
+/// streamed for ever), a chunk of 1e9 s (one buffer of the whole stream, which aborted the
+/// process), a NaN speed or start.
+#[test]
+fn simulate_refuses_impossible_streams_before_connecting() {
+    // nothing listens on port 9: a refusal must come from the checks, not the connection
+    let url = "http://127.0.0.1:9";
+    for (args, needle) in [
+        (vec!["--rate", "1e12"], "--rate must be at most"),
+        (vec!["--speed", "NaN"], "--speed must be a number"),
+        (vec!["--start", "NaN"], "--start must be finite"),
+        (
+            vec!["--chunk-seconds", "inf"],
+            "--chunk-seconds must be > 0",
+        ),
+    ] {
+        let mut all = vec!["simulate", "--url", url, "--duration", "1"];
+        all.extend(args.iter());
+        let o = gw(&all);
+        let err = text(&o.stderr);
+        assert_ne!(o.status.code(), Some(0), "{args:?}: {err}");
+        assert!(err.contains(needle), "{args:?}: {err}");
+        assert!(!err.contains("panicked"), "{args:?}: {err}");
+    }
+}
+
+/// A chunk longer than the stream is the whole stream: `--chunk-seconds 1e9` used to allocate
+/// for 1e9 s of samples and abort; now it fails on the absent daemon like any other run.
+#[test]
+fn a_chunk_longer_than_the_stream_does_not_abort() {
+    let o = gw(&[
+        "simulate",
+        "--url",
+        "http://127.0.0.1:9",
+        "--duration",
+        "1",
+        "--chunk-seconds",
+        "1e9",
+    ]);
+    let err = text(&o.stderr);
+    assert!(o.status.code().is_some(), "killed by a signal: {err}");
+    assert!(!err.contains("memory allocation"), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+}

@@ -79,6 +79,14 @@ pub fn run(a: StabilityMapArgs) -> Result<(), CliError> {
     }
     let map = stability::map(&model, &spec).map_err(input)?;
     let stable = map.stable_count();
+    if map.undecided > 0 {
+        eprintln!(
+            "gatewatch stability-map: {} of {} trials left out of the map, undecided: the solver's step limit stopped them before t = {:.4} (shorten --t-end or --periods)",
+            map.undecided,
+            map.undecided + map.trials.len(),
+            map.t_end
+        );
+    }
     match &a.output {
         Some(path) => {
             let file = std::fs::File::create(path)
@@ -107,6 +115,12 @@ pub fn run(a: StabilityMapArgs) -> Result<(), CliError> {
             note.push_str(&format!("fixed: {}\n", fixed.join(", ")));
         }
         note.push_str("\nunstable: grows, fails, or has not decayed below its initial amplitude");
+        if map.undecided > 0 {
+            note.push_str(&format!(
+                "\n{} undecided trials (solver step limit) not shown",
+                map.undecided
+            ));
+        }
         crate::plot::stability_map(p, &map, &note).map_err(|e| input(format!("--plot: {e}")))?;
     }
     if a.output.is_some() {

@@ -99,6 +99,7 @@ fn stability_map_counts_both_classes() {
             },
         ],
         t_end: 1.0,
+        undecided: 0,
     };
     stability_map(&p, &map, "ydd + c1*yd + c2*y = 0").unwrap();
     let text = std::fs::read_to_string(&p).unwrap();

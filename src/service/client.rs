@@ -111,6 +111,10 @@ pub struct SimulateArgs {
     pub sensor: GateSensorArgs,
 }
 
+/// Highest `--rate` of `gatewatch simulate`, Hz: a thousand times a fast gate's rate; `--rate 1e12`
+/// asked for 6e14 samples and streamed for ever.
+pub const SIMULATE_MAX_RATE_HZ: f64 = 1e6;
+
 /// Retries of one request answered 429/503 or failing to connect.
 pub const SIMULATE_MAX_RETRIES: u32 = 5;
 /// Longest `Retry-After` honoured, seconds.
@@ -171,6 +175,11 @@ impl SimulateArgs {
 pub fn simulator(args: &SimulateArgs) -> anyhow::Result<crate::simulate::GateSimulator> {
     let rate = args.effective_rate();
     anyhow::ensure!(rate > 0.0 && rate.is_finite(), "--rate must be > 0");
+    // before the warm-up, which runs at this rate
+    anyhow::ensure!(
+        rate <= SIMULATE_MAX_RATE_HZ,
+        "--rate must be at most {SIMULATE_MAX_RATE_HZ} Hz, got {rate}"
+    );
     anyhow::ensure!(
         args.onset_hold >= 0.0 && args.onset_hold.is_finite(),
         "--onset-hold must be >= 0"
@@ -280,10 +289,26 @@ pub async fn simulate_with_source(
         args.duration > 0.0 && args.duration.is_finite(),
         "--duration must be > 0"
     );
-    anyhow::ensure!(args.chunk_seconds > 0.0, "--chunk-seconds must be > 0");
+    anyhow::ensure!(
+        rate <= SIMULATE_MAX_RATE_HZ,
+        "--rate must be at most {SIMULATE_MAX_RATE_HZ} Hz, got {rate}"
+    );
+    anyhow::ensure!(
+        args.chunk_seconds > 0.0 && args.chunk_seconds.is_finite(),
+        "--chunk-seconds must be > 0"
+    );
+    anyhow::ensure!(
+        !args.speed.is_nan(),
+        "--speed must be a number (<= 0: as fast as possible)"
+    );
+    anyhow::ensure!(
+        args.start.is_none_or(f64::is_finite),
+        "--start must be finite Unix seconds"
+    );
     let start = args.start.unwrap_or_else(now_unix);
     let total = (args.duration * rate).round() as u64;
-    let chunk = ((args.chunk_seconds * rate).round() as usize).max(1);
+    // never more than the whole stream in one buffer (--chunk-seconds 1e9 asked for 1.6 TB)
+    let chunk = ((args.chunk_seconds * rate).round() as usize).clamp(1, total.max(1) as usize);
     ensure_crypto_provider();
     let client = reqwest::Client::builder()
         .timeout(Duration::from_secs(30))

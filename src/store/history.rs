@@ -34,10 +34,11 @@ pub fn parse_time(s: &str) -> Result<f64, String> {
         }
     }
     match humantime::parse_rfc3339_weak(s) {
-        Ok(t) => Ok(t
-            .duration_since(UNIX_EPOCH)
-            .map(|d| d.as_secs_f64())
-            .unwrap_or(0.0)),
+        // the parser refuses years before 1970; should it ever take one, it is negative seconds
+        Ok(t) => Ok(match t.duration_since(UNIX_EPOCH) {
+            Ok(d) => d.as_secs_f64(),
+            Err(before) => -before.duration().as_secs_f64(),
+        }),
         Err(e) => Err(format!(
             "{s:?} is neither Unix seconds nor an RFC 3339 time like 2024-05-01T12:00:00Z ({e})"
         )),

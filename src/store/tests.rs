@@ -420,3 +420,22 @@ fn a_file_of_schema_1_is_migrated_in_place_keeping_every_row() {
         [Some(0.01), Some(0.03), Some(0.5)]
     );
 }
+
+/// Times are Unix seconds or RFC 3339; an RFC 3339 time before 1970 is refused by name (the
+/// parser's range), never read as 0, and negative Unix seconds stay what they say.
+#[test]
+fn times_parse_as_unix_seconds_and_rfc3339() {
+    use super::parse_time;
+    assert_eq!(parse_time("2024-05-01T12:00:00Z"), Ok(1_714_564_800.0));
+    assert_eq!(parse_time(" 1714564800.5 "), Ok(1_714_564_800.5));
+    assert_eq!(parse_time("1970-01-01T00:00:00Z"), Ok(0.0));
+    assert_eq!(parse_time("-1"), Ok(-1.0));
+    let e = parse_time("1969-12-31T23:59:59Z").unwrap_err();
+    assert!(e.contains("1969-12-31T23:59:59Z"), "{e}");
+    let e = parse_time("yesterday").unwrap_err();
+    assert!(
+        e.contains("neither Unix seconds nor an RFC 3339 time"),
+        "{e}"
+    );
+    assert!(parse_time("NaN").is_err());
+}
