@@ -23,10 +23,11 @@
 //!
 //! The rate: the daemon derives the times from `rate_hz`, so a source sampling at another rate
 //! (250 Hz on a 200 Hz gate: every spacing 0.8 of a period, within the jitter tolerated) would
-//! fill windows that are not what they claim. When a window is due, the samples since the last
-//! check (the run's first sample, then the last due window's) must imply `rate_hz` within
-//! [`RATE_TOLERANCE`] (1 %), measured over at least `every` samples (5 s: a jitter of half a
-//! period moves it by 0.01 % at 200 Hz). Otherwise the window is not handed out, the samples are
+//! fill windows that are not what they claim. When a window is due, the `n` samples since the
+//! check's starting point (the run's first sample; it moves to a due window's last sample once
+//! [`RATE_CHECK_SPAN`] samples lie behind it) must imply `rate_hz` within [`RATE_TOLERANCE`]
+//! (1 %) plus `1 / n`, what timestamps jittering by under half a period can do (the first window
+//! of a 10 s, 200 Hz gate: 0.05 %). Otherwise the window is not handed out, the samples are
 //! counted (`rate_mismatch`), and the window restarts at the current sample, so the next one
 //! handed out holds a full window at the right rate. A JSON request of 3 or more samples is
 //! checked whole before this (`ingest::implied_rate`); this catches the raw TCP lines and small
@@ -57,6 +58,12 @@ use crate::analysis::gate_hash;
 
 /// Relative disagreement of a declared or implied sample rate with `rate_hz` that is refused.
 pub const RATE_TOLERANCE: f64 = 0.01;
+
+/// Fewest samples a window's rate check measures over before its starting point moves on (see
+/// the module doc): over `n` spacings a right-rate source's jitter reads off by under `1 / n`,
+/// which the check adds to [`RATE_TOLERANCE`], so over 200 the bar is 1.5 %. With a window due
+/// every sample the stretch would otherwise be one spacing, read to within 100 %.
+pub const RATE_CHECK_SPAN: usize = 200;
 
 /// Outcome counts of one push.
 #[derive(Debug, Default, Clone, Copy, PartialEq)]
@@ -283,10 +290,18 @@ impl Window {
                     .check_t
                     .filter(|_| self.since_check > 0)
                     .map(|tc| self.since_check as f64 / (t - tc));
-                self.check_t = Some(t);
-                let checked = std::mem::take(&mut self.since_check);
+                // a source at the right rate whose times each jitter by under half a period
+                // reads off by under 1 / n over n spacings
+                let bound = RATE_TOLERANCE + 1.0 / self.since_check.max(1) as f64;
+                let checked = self.since_check;
+                if checked >= RATE_CHECK_SPAN
+                    || implied.is_some_and(|r| ((r - self.rate_hz) / self.rate_hz).abs() > bound)
+                {
+                    self.check_t = Some(t);
+                    self.since_check = 0;
+                }
                 if let Some(r) =
-                    implied.filter(|r| ((r - self.rate_hz) / self.rate_hz).abs() > RATE_TOLERANCE)
+                    implied.filter(|r| ((r - self.rate_hz) / self.rate_hz).abs() > bound)
                 {
                     stats.rate_mismatch += checked as u64;
                     stats.implied_rate_hz = Some(r);
@@ -442,6 +457,35 @@ mod tests {
         let mut w = Window::new(200.0, 2000, 1000);
         let (s, due) = w.push(at(201.0, 6000, 1000.0));
         assert_eq!((s.rate_mismatch, due.len()), (0, 5), "{s:?}");
+    }
+
+    /// A source at the right rate whose times jitter by up to 0.2 of a period (every spacing
+    /// between 0.6 and 1.4 periods: none dropped, no gap) passes the rate check whatever the
+    /// cadence, a window due every sample included; at 125 Hz on a 100 Hz
+    /// window it is caught at the first window even so.
+    #[test]
+    fn jittered_times_at_the_right_rate_pass_the_rate_check() {
+        // a deterministic jitter in (-0.2, 0.2) periods
+        let jitter = |i: usize| 0.2 * (((i * 7919) % 1000) as f64 / 500.0 - 1.0);
+        let jittered = |rate: f64, n: usize| -> Vec<(f64, f64)> {
+            (0..n)
+                .map(|i| (1000.0 + (i as f64 + jitter(i)) / rate, 1.0))
+                .collect()
+        };
+        for every in [1, 50, 100] {
+            let mut w = Window::new(100.0, 100, every);
+            let (s, due) = w.push(jittered(100.0, 3000));
+            assert_eq!(s.rate_mismatch, 0, "every {every}: {s:?}");
+            assert_eq!(due.len(), 1 + (3000 - 100) / every, "every {every}");
+            let mut w = Window::new(100.0, 100, every);
+            let (s, due) = w.push(jittered(125.0, 3000));
+            assert!(
+                due.is_empty(),
+                "every {every}: {} windows at 125 Hz",
+                due.len()
+            );
+            assert!(s.rate_mismatch > 0, "every {every}");
+        }
     }
 
     /// `push_latest` hands out exactly the newest window `push` would have (its samples and its
