@@ -66,8 +66,15 @@ async fn burst(url: &str, body: Vec<u8>) -> Vec<u16> {
 }
 
 /// Starts `gatewatch serve` on a free port with `config` (its `[server]` table gets the
-/// listen address); returns the daemon, its base URL and the config's directory.
-async fn start(config: &str) -> (Daemon, String, tempfile::TempDir) {
+/// listen address); returns the daemon, its base URL and the config's directory, or `None`
+/// (the test skips) without /proc to read the peak memory from.
+async fn start(config: &str) -> Option<(Daemon, String, tempfile::TempDir)> {
+    // reqwest is built without a default TLS provider (rustls with ring, set up here).
+    gatewatch::alert::notify::ensure_crypto_provider();
+    if !std::path::Path::new("/proc/self/status").exists() {
+        eprintln!("SKIP: no /proc");
+        return None;
+    }
     let port = std::net::TcpListener::bind("127.0.0.1:0")
         .unwrap()
         .local_addr()
@@ -109,28 +116,29 @@ async fn start(config: &str) -> (Daemon, String, tempfile::TempDir) {
         let _ = daemon.0.stderr.take().unwrap().read_to_string(&mut err);
         panic!("daemon not ready: {err}");
     }
-    (daemon, base, dir)
+    Some((daemon, base, dir))
+}
+
+fn now_unix() -> f64 {
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .unwrap()
+        .as_secs_f64()
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn sixteen_concurrent_4_mb_bodies_stay_under_the_documented_bound() {
-    // reqwest is built without a default TLS provider (rustls with ring, set up here).
-    gatewatch::alert::notify::ensure_crypto_provider();
-    if !std::path::Path::new("/proc/self/status").exists() {
-        eprintln!("SKIP: no /proc");
-        return;
-    }
     // identification far apart: the test measures ingestion, not the workers
-    let (daemon, base, _dir) = start(
+    let Some((daemon, base, _dir)) = start(
         "[server]\nworker_threads = 1\n\
          [defaults]\nrate_hz = 100000.0\nwindow_seconds = 0.1\nidentify_every_seconds = 3600.0\n",
     )
-    .await;
+    .await
+    else {
+        return;
+    };
     let pid = daemon.0.id();
-    let now = SystemTime::now()
-        .duration_since(UNIX_EPOCH)
-        .unwrap()
-        .as_secs_f64();
+    let now = now_unix();
 
     let mut json = format!(
         "{{\"gate\":\"mem\",\"start\":{},\"rate_hz\":100000,\"values\":[",
@@ -189,21 +197,16 @@ async fn sixteen_concurrent_4_mb_bodies_stay_under_the_documented_bound() {
 /// window and history (2.7 MB here), and such a request took the daemon to 1.5 GB.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn an_hour_in_one_request_copies_one_window() {
-    gatewatch::alert::notify::ensure_crypto_provider();
-    if !std::path::Path::new("/proc/self/status").exists() {
-        eprintln!("SKIP: no /proc");
-        return;
-    }
-    let (daemon, base, _dir) = start(
+    let Some((daemon, base, _dir)) = start(
         "[server]\nworker_threads = 1\n\
          [defaults]\nrate_hz = 200.0\nwindow_seconds = 600.0\nidentify_every_seconds = 5.0\n",
     )
-    .await;
+    .await
+    else {
+        return;
+    };
     let pid = daemon.0.id();
-    let now = SystemTime::now()
-        .duration_since(UNIX_EPOCH)
-        .unwrap()
-        .as_secs_f64();
+    let now = now_unix();
     let n = 700_000; // 3500 s at 200 Hz: 580 due windows of 120,000 samples
     let mut json = format!(
         "{{\"gate\":\"long\",\"start\":{},\"rate_hz\":200,\"values\":[",
