@@ -293,16 +293,14 @@ impl Window {
                 // a source at the right rate whose times each jitter by under half a period
                 // reads off by under 1 / n over n spacings
                 let bound = RATE_TOLERANCE + 1.0 / self.since_check.max(1) as f64;
+                let mismatch =
+                    implied.filter(|r| ((r - self.rate_hz) / self.rate_hz).abs() > bound);
                 let checked = self.since_check;
-                if checked >= RATE_CHECK_SPAN
-                    || implied.is_some_and(|r| ((r - self.rate_hz) / self.rate_hz).abs() > bound)
-                {
+                if checked >= RATE_CHECK_SPAN || mismatch.is_some() {
                     self.check_t = Some(t);
                     self.since_check = 0;
                 }
-                if let Some(r) =
-                    implied.filter(|r| ((r - self.rate_hz) / self.rate_hz).abs() > bound)
-                {
+                if let Some(r) = mismatch {
                     stats.rate_mismatch += checked as u64;
                     stats.implied_rate_hz = Some(r);
                     if let Some(p) = pending.take() {
