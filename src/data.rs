@@ -152,11 +152,12 @@ impl TimeSeries {
     /// deviation in s, step in s)`; `None` when every time lies on it within 1e-6 of a step
     /// plus the rounding of times of that size (eight ulps of the largest: about 3e-6 s at Unix
     /// epoch seconds, where 1e-6 of a 200 Hz step alone, 5e-9 s, is below what an f64 holds).
-    /// Fewer than two samples are not uniform.
+    /// Fewer than two samples have no grid and nothing off it (`None`; [`Self::uniform_step`]
+    /// is `None` for them too).
     pub fn nonuniform_at(&self) -> Option<(usize, f64, f64)> {
         let n = self.t.len();
         if n < 2 {
-            return Some((0, 0.0, 0.0));
+            return None;
         }
         let (t0, tn) = (self.t[0], self.t[n - 1]);
         let h = (tn - t0) / (n - 1) as f64;
@@ -398,6 +399,9 @@ mod tests {
         let (i, d, _) = s.nonuniform_at().unwrap();
         assert_eq!(i, 700);
         assert!((d - 0.01 * h).abs() < 1e-6, "{d}");
+        // one sample: no grid, so no step and no sample off it
+        let one = TimeSeries::new(vec![1.7e9], vec![0.0]).unwrap();
+        assert_eq!((one.uniform_step(), one.nonuniform_at()), (None, None));
     }
 
     #[test]
