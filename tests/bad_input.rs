@@ -140,6 +140,19 @@ impl Daemon {
         serde_json::from_slice(&r.body).unwrap_or(Value::Null)
     }
 
+    /// Every rejection counted, requests and samples, from /metrics.
+    fn rejections(&self) -> f64 {
+        let r = self.request(&raw_request("GET", "/metrics", &[], b""));
+        String::from_utf8_lossy(&r.body)
+            .lines()
+            .filter(|l| {
+                l.starts_with("gatewatch_samples_rejected_total{")
+                    || l.starts_with("gatewatch_ingest_requests_rejected_total{")
+            })
+            .filter_map(|l| l.rsplit(' ').next()?.parse::<f64>().ok())
+            .sum()
+    }
+
     /// `gatewatch_samples_rejected_total{reason}` from /metrics.
     fn rejected(&self, reason: &str) -> f64 {
         let r = self.request(&raw_request("GET", "/metrics", &[], b""));
@@ -253,11 +266,41 @@ struct Case {
     want: Want,
 }
 
+/// The ingestion routes: a 400 there refused samples, so it must show in a rejection counter.
+const INGEST_ROUTES: [&str; 3] = ["/api/v1/samples", "/api/v2/write", "/write"];
+
+/// Whether a case is a well-formed HTTP request to an ingestion route (a request hyper refuses
+/// before routing never reaches a handler that could count it).
+fn to_ingest_route(raw: &[u8]) -> bool {
+    let line = raw.split(|b| *b == b'\r').next().unwrap_or_default();
+    let text = String::from_utf8_lossy(line);
+    let mut parts = text.split(' ');
+    let (Some("POST"), Some(target), Some("HTTP/1.1")) = (parts.next(), parts.next(), parts.next())
+    else {
+        return false;
+    };
+    let path = target.split('?').next().unwrap_or_default();
+    INGEST_ROUTES.contains(&path) && raw.windows(4).any(|w| w == b"\r\n\r\n")
+}
+
 fn check(d: &Daemon, cases: &[Case]) {
     let mut failures = Vec::new();
     for c in cases {
+        let counted = to_ingest_route(&c.raw).then(|| d.rejections());
         let r = d.request(&c.raw);
         let v = r.json();
+        // a refused ingestion request is counted (a request or its samples), and no answer
+        // echoes the input whole (`ingest::EXCERPT_CHARS`, `MAX_ERROR_CHARS`)
+        // (hyper answers a malformed header itself, with an empty 400 no handler saw)
+        if let (Some(before), 400, true) = (counted, r.status, v["error"].is_string()) {
+            let after = d.rejections();
+            if after <= before {
+                failures.push(format!("{}: a 400 no rejection counter shows", c.class));
+            }
+        }
+        if r.status >= 400 && r.body.len() > 2048 {
+            failures.push(format!("{}: a {}-byte error answer", c.class, r.body.len()));
+        }
         let ok = match &c.want {
             Want::Status(s) => r.status == *s,
             Want::Field(f) => r.status == 400 && v["field"] == *f,
@@ -690,6 +733,11 @@ fn json_cases() -> Vec<Case> {
             Want::Field("colour"),
         ),
         json_case(
+            "JSON: a 60 000-character unknown member",
+            good_then(&"x".repeat(60_000), json!(1)),
+            Want::Status(400),
+        ),
+        json_case(
             "JSON: unknown unicode member",
             good_then("gäte", json!(1)),
             Want::Field("gäte"),
@@ -962,6 +1010,45 @@ fn lp_cases() -> Vec<Case> {
             v2,
             good("g1").to_string(),
             Want::Line(1),
+        ),
+        lp_case(
+            "LP: gate tag twice",
+            v2,
+            format!("m,gate=g1,gate=g2 force=1 {ns}"),
+            Want::LineColumn,
+        ),
+        lp_case(
+            "LP: value field twice, the second NaN",
+            v1,
+            format!("m,gate=g1 force=1,force=NaN {ns}"),
+            Want::LineColumn,
+        ),
+        lp_case(
+            "LP: a 60 000-digit value",
+            v2,
+            format!("m,gate=g1 force={}x {ns}", "9".repeat(60_000)),
+            Want::LineColumn,
+        ),
+        lp_case(
+            "LP: a 60 000-character tag key",
+            v2,
+            format!("m,gate=g1,{} force=1 {ns}", "k".repeat(60_000)),
+            Want::LineColumn,
+        ),
+        lp_case(
+            "LP: 257 tags",
+            v2,
+            format!(
+                "m,gate=g1{} force=1 {ns}",
+                (0..256).map(|i| format!(",t{i}=v")).collect::<String>()
+            ),
+            Want::LineColumn,
+        ),
+        lp_case(
+            "LP: a 20 000-character precision",
+            &format!("{v2}?precision={}", "s".repeat(20_000)),
+            format!("m,gate=g1 force=1 {ns}"),
+            Want::Field("precision"),
         ),
     ]
 }

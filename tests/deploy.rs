@@ -102,8 +102,9 @@ fn serve_with_the_shipped_config_gets_ready_and_stops_on_sigterm() {
         .env("GATEWATCH_LISTEN", format!("127.0.0.1:{port}"))
         .env("GATEWATCH_STORAGE_PATH", store.path().join("gatewatch.db"))
         .env("GATEWATCH_LOG_FORMAT", "json")
+        .env_remove("RUST_LOG")
         .stdout(Stdio::null())
-        .stderr(Stdio::null())
+        .stderr(std::fs::File::create(store.path().join("stderr.log")).unwrap())
         .spawn()
         .unwrap();
     let mut ready = false;
@@ -139,4 +140,23 @@ fn serve_with_the_shipped_config_gets_ready_and_stops_on_sigterm() {
         "gatewatch_notifications_total{outcome=\"delivered\",target=\"alertmanager\"} 0"
     ));
     assert!(exit.expect("exited after SIGTERM").success());
+    // one JSON object a line, and none of the JIT compiler's IR: at the shipped `info` level
+    // cranelift_jit logged every compiled function (about 300 lines a start)
+    let log = std::fs::read_to_string(store.path().join("stderr.log")).unwrap();
+    let lines: Vec<&str> = log.lines().collect();
+    for line in &lines {
+        let v: serde_json::Value = serde_json::from_str(line)
+            .unwrap_or_else(|e| panic!("a log line that is not JSON ({e}): {line}"));
+        let target = v["target"].as_str().unwrap_or_default();
+        assert!(!target.starts_with("cranelift"), "{line}");
+    }
+    assert!(
+        lines.iter().any(|l| l.contains("HTTP listener up")),
+        "the start is logged: {log}"
+    );
+    assert!(
+        lines.len() < 40,
+        "{} lines at start and stop: {log}",
+        lines.len()
+    );
 }

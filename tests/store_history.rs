@@ -228,6 +228,21 @@ async fn history_route_serves_json_and_csv_by_time_range_and_limit() {
     assert_eq!(rows[0][col("verdict")], *"damped");
     assert_eq!(rows[0][col("trusted")], *"true");
 
+    // `format=csv` names the format in the URL alone (pandas.read_csv, a browser) and wins
+    // over `Accept`; `format=json` wins over `Accept: text/csv`
+    let url = "/api/v1/gates/g1/history?from=2024-05-01T12:10:00Z&limit=3";
+    let (status, ct, by_query) = d
+        .get(&format!("{url}&format=csv"), Some("application/json"))
+        .await;
+    assert_eq!(status, 200, "{by_query}");
+    assert!(ct.starts_with("text/csv"), "{ct}");
+    assert_eq!(by_query, body);
+    let (status, ct, json) = d.get(&format!("{url}&format=json"), Some("text/csv")).await;
+    assert_eq!(status, 200, "{json}");
+    assert!(ct.starts_with("application/json"), "{ct}");
+    let v: Value = serde_json::from_str(&json).expect("JSON");
+    assert_eq!(v["count"], 3);
+
     d.stop().await;
 }
 
@@ -245,6 +260,7 @@ async fn history_route_refuses_bad_parameters_naming_them_and_unknown_gates() {
         ("limit=many", "limit"),
         (&*format!("from={}&to={}", T0 + 10.0, T0), "from"),
         ("color=blue", "color"),
+        ("format=xlsx", "format"),
     ] {
         let (status, _, body) = d
             .get(&format!("/api/v1/gates/g1/history?{query}"), None)

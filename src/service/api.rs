@@ -21,7 +21,7 @@ use tower::ServiceBuilder;
 
 use super::clock::now_unix;
 use super::config::{Precision, DEFAULT_RETRY_AFTER_SECONDS};
-use super::ingest::{json, line_protocol, BadRequest};
+use super::ingest::{excerpt, json, line_protocol, BadRequest};
 use super::ingest_checks::single_param;
 use super::limits::{close_connection, for_log, BodyBudget};
 use super::metrics::RejectReason;
@@ -64,7 +64,7 @@ impl From<IngestError> for HttpError {
 impl IntoResponse for HttpError {
     fn into_response(self) -> Response {
         let (status, body) = match self {
-            HttpError::BadRequest(b) => (StatusCode::BAD_REQUEST, b),
+            HttpError::BadRequest(b) => (StatusCode::BAD_REQUEST, b.clipped()),
             HttpError::Unauthorized => {
                 let mut r = (
                     StatusCode::UNAUTHORIZED,
@@ -132,7 +132,9 @@ fn body(state: &AppState, b: Result<Bytes, BytesRejection>) -> Result<Bytes, Htt
             state.metrics.reject(RejectReason::BodyTooLarge, 1);
             HttpError::PayloadTooLarge(state.config.server.body_limit_bytes)
         } else {
-            HttpError::BadRequest(BadRequest::new(format!("cannot read body: {r}")))
+            // a body that cannot be read (a broken gzip stream) is as invalid as one that
+            // cannot be parsed, and counted the same
+            invalid(state, BadRequest::new(format!("cannot read body: {r}")))
         }
     })
 }
@@ -261,13 +263,16 @@ async fn post_write(
 ) -> Result<Response, HttpError> {
     // other InfluxDB parameters (db, org, bucket, rp) are accepted and ignored; `m` and `h`
     // are InfluxDB 1.x precisions (2.x has only ns, us, ms, s); `precision` twice is a 400
-    let precision = single_param(query.as_deref(), "precision").map_err(HttpError::BadRequest)?;
+    // a refused parameter refuses the whole request: counted as `invalid` like a bad body
+    let precision = single_param(query.as_deref(), "precision").map_err(|e| invalid(&state, e))?;
     let precision = match precision.as_deref() {
         None => Precision::Ns,
         Some(s) => Precision::parse(s).ok_or_else(|| {
-            HttpError::BadRequest(
+            invalid(
+                &state,
                 BadRequest::new(format!(
-                    "invalid precision `{s}`, expected ns, us, ms, s (or n, u, m, h)"
+                    "invalid precision `{}`, expected ns, us, ms, s (or n, u, m, h)",
+                    excerpt(s)
                 ))
                 .field("precision"),
             )

@@ -36,7 +36,7 @@ pub struct CheckConfigArgs {
 pub fn init_tracing(config: &Config) {
     use std::io::IsTerminal;
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(&config.log.level));
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(log_filter(&config.log.level)));
     let builder = tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr);
@@ -46,6 +46,25 @@ pub fn init_tracing(config: &Config) {
             .with_ansi(std::io::stderr().is_terminal())
             .try_init(),
     };
+}
+
+/// The compiler's crates, quiet below `warn` unless the configured filter names them.
+const QUIET_TARGETS: [&str; 2] = ["cranelift_jit", "cranelift_codegen"];
+
+/// The filter for `log.level`: the level, with the JIT compiler's crates held at `warn`.
+///
+/// Why: at `info`, `cranelift_jit` logs every compiled function's IR (about 300 lines, 11 KB, at
+/// each start), which is no event an operator wants in journald. A level that names a cranelift
+/// target itself (`info,cranelift_jit=debug`) is left as it is, and `RUST_LOG` is never changed.
+pub fn log_filter(level: &str) -> String {
+    if level.contains("cranelift") {
+        return level.to_string();
+    }
+    let mut filter = level.to_string();
+    for t in QUIET_TARGETS {
+        filter.push_str(&format!(",{t}=warn"));
+    }
+    filter
 }
 
 /// Loads the configuration `serve` uses: the file or the embedded one, then the environment.

@@ -1,5 +1,5 @@
 //! `GET /api/v1/gates/{id}/history?from=&to=&limit=`: a gate's identifications from the store,
-//! JSON, or CSV with `Accept: text/csv` (`docs/api.md`).
+//! JSON, or CSV with `format=csv` or `Accept: text/csv` (`docs/api.md`).
 
 use std::sync::Arc;
 
@@ -37,6 +37,23 @@ pub struct HistoryParams {
     pub to: Option<String>,
     /// At most this many rows, 1..=[`MAX_HISTORY_LIMIT`] (default: the maximum).
     pub limit: Option<usize>,
+    /// `csv` or `json`; overrides the `Accept` header. A URL alone then names the format, as
+    /// `pandas.read_csv(url)` and a browser's address bar need (`docs/notebooks.md`).
+    pub format: Option<String>,
+}
+
+/// Whether the answer is CSV: `format` when given (`csv` or `json`, else a 400 naming it),
+/// otherwise `Accept` containing `text/csv`.
+pub fn wants_csv(format: Option<&str>, accept: Option<&str>) -> Result<bool, HttpError> {
+    match format {
+        Some("csv") => Ok(true),
+        Some("json") => Ok(false),
+        Some(other) => Err(bad(
+            format!("format must be `csv` or `json`, got `{other}`"),
+            "format",
+        )),
+        None => Ok(accept.is_some_and(|v| v.contains("text/csv"))),
+    }
 }
 
 /// The query a request asks for, or a 400 naming the parameter.
@@ -108,10 +125,10 @@ pub async fn get_history(
         return Err(HttpError::NotFound(format!("unknown gate `{id}`")));
     }
     let q = query(&id, &params)?;
-    let csv = headers
-        .get(header::ACCEPT)
-        .and_then(|v| v.to_str().ok())
-        .is_some_and(|v| v.contains("text/csv"));
+    let csv = wants_csv(
+        params.format.as_deref(),
+        headers.get(header::ACCEPT).and_then(|v| v.to_str().ok()),
+    )?;
     let Ok(permit) = PERMITS.try_acquire() else {
         return Err(HttpError::Overloaded);
     };
