@@ -168,6 +168,31 @@ fn prometheus_rules_are_valid() {
     }
 }
 
+/// The rules' unit tests (deploy/prometheus/gatewatch-rules.test.yml): each rule fires after its
+/// `for`, keeps firing for its `keep_firing_for`, and its annotations read as expected with and
+/// without the series their templates query.
+#[test]
+fn prometheus_rules_pass_their_unit_tests() {
+    // its `rule_files: [gatewatch-rules.yml]` is resolved next to it by promtool
+    let tests = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/deploy/prometheus/gatewatch-rules.test.yml"
+    );
+    assert!(std::path::Path::new(tests).is_file());
+    if let Some(p) = promtool() {
+        let out = std::process::Command::new(p)
+            .args(["test", "rules", tests])
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "promtool: {}{}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+}
+
 #[test]
 fn check_config_files() {
     use gatewatch::service::cli::{check_config, CheckConfigArgs};
