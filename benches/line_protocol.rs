@@ -18,7 +18,7 @@ mod lp_common;
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use gatewatch::service::config::Precision;
-use gatewatch::service::ingest::line_protocol::{parse, to_batches, Mapping};
+use gatewatch::service::ingest::line_protocol::{parse, parse_to_batches, to_batches, Mapping};
 use lp_common::{crate_to_batches, crate_whole_body, telegraf_body};
 use std::hint::black_box;
 
@@ -55,7 +55,22 @@ fn bench(c: &mut Criterion) {
         });
         g.finish();
     }
+    // a hostile body: every line another gate (the daemon refuses it past `max_gates`, but
+    // only once it is parsed): linear since the batches are indexed, about 30 s before
+    let many: String = (0..MANY_GATES)
+        .map(|i| format!("m,gate=g{i} force=1 1700000000000000000\n"))
+        .collect();
+    let mut g = c.benchmark_group(format!("line_protocol {MANY_GATES} gates, one line each"));
+    g.throughput(Throughput::Elements(MANY_GATES as u64));
+    g.sample_size(10);
+    g.bench_function("gatewatch", |b| {
+        b.iter(|| parse_to_batches(black_box(&many), &m).expect("valid body"))
+    });
+    g.finish();
 }
+
+/// Lines (each its own gate) of the hostile body: about 4 MB, the default body limit.
+const MANY_GATES: usize = 95_000;
 
 criterion_group!(benches, bench);
 criterion_main!(benches);

@@ -733,6 +733,16 @@ fn json_cases() -> Vec<Case> {
             Want::Field("colour"),
         ),
         json_case(
+            "JSON: 70 new gates, max_gates 64: the 65th named by its element",
+            serde_json::to_vec(
+                &(0..70)
+                    .map(|i| json!({"gate": format!("n{i}"), "start": t, "rate_hz": 100, "values": [1.0]}))
+                    .collect::<Vec<_>>(),
+            )
+            .unwrap(),
+            Want::Field("[64].gate"),
+        ),
+        json_case(
             "JSON: a 60 000-character unknown member",
             good_then(&"x".repeat(60_000), json!(1)),
             Want::Status(400),
@@ -1010,6 +1020,14 @@ fn lp_cases() -> Vec<Case> {
             v2,
             good("g1").to_string(),
             Want::Line(1),
+        ),
+        lp_case(
+            "LP: 70 new gates, max_gates 64: the 65th named by its line",
+            v2,
+            (0..70)
+                .map(|i| format!("m,gate=n{i} force=1 {ns}\n"))
+                .collect::<String>(),
+            Want::FieldLine("gate", 65),
         ),
         lp_case(
             "LP: gate tag twice",

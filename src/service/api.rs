@@ -51,12 +51,18 @@ impl From<IngestError> for HttpError {
         match e {
             IngestError::BadRequest(b) => HttpError::BadRequest(b),
             IngestError::UnknownGate(g) => HttpError::NotFound(format!("unknown gate `{g}`")),
-            IngestError::TooManyGates(g) => HttpError::BadRequest(
-                BadRequest::new(format!(
-                    "gate limit (server.max_gates) reached: gate `{g}` refused"
-                ))
-                .field("gate"),
-            ),
+            IngestError::TooManyGates(r) => {
+                let e = BadRequest::new(format!(
+                    "gate limit (server.max_gates) reached: gate `{}` refused",
+                    r.gate
+                ));
+                // where the refused gate is: its first line, or its element of a JSON array
+                HttpError::BadRequest(match r.line {
+                    Some(line) => e.line(line).field("gate"),
+                    None if r.batches > 1 => e.field(format!("[{}].gate", r.batch)),
+                    None => e.field("gate"),
+                })
+            }
         }
     }
 }

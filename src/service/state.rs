@@ -40,7 +40,20 @@ pub enum IngestError {
     /// 404: the gate is not configured and `accept_unknown_gates = false`.
     UnknownGate(String),
     /// 400: accepting the gate would exceed `server.max_gates`.
-    TooManyGates(String),
+    TooManyGates(RefusedGate),
+}
+
+/// The gate [`IngestError::TooManyGates`] refused, and where it was in the request.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RefusedGate {
+    /// The gate id.
+    pub gate: String,
+    /// Its first line (line protocol).
+    pub line: Option<usize>,
+    /// Its batch among `batches` of the request (JSON: the array element).
+    pub batch: usize,
+    /// The request's batches.
+    pub batches: usize,
 }
 
 /// What an accepted request did.
@@ -466,7 +479,7 @@ impl AppState {
     ) -> Result<(), (RejectReason, IngestError)> {
         let mut new_gates: Vec<&str> = Vec::new();
         let now = super::clock::now_unix();
-        for b in batches {
+        for (k, b) in batches.iter().enumerate() {
             let Some(cfg) = self.config.gate(&b.gate) else {
                 return Err((
                     RejectReason::UnknownGate,
@@ -478,7 +491,12 @@ impl AppState {
                 if inner.gates.len() + new_gates.len() > self.config.server.max_gates {
                     return Err((
                         RejectReason::TooManyGates,
-                        IngestError::TooManyGates(b.gate.clone()),
+                        IngestError::TooManyGates(RefusedGate {
+                            gate: b.gate.clone(),
+                            line: b.lines.as_ref().and_then(|l| l.first().copied()),
+                            batch: k,
+                            batches: batches.len(),
+                        }),
                     ));
                 }
             }

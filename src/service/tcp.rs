@@ -302,8 +302,8 @@ fn process(state: &AppState, text: &str, line_no: usize) -> Option<(Option<Rejec
         Ok(_) => None,
         Err(IngestError::BadRequest(b)) => Some((None, b.error)),
         Err(IngestError::UnknownGate(g)) => Some((None, format!("unknown gate `{g}`"))),
-        Err(IngestError::TooManyGates(g)) => {
-            Some((None, format!("gate limit reached, `{g}` refused")))
+        Err(IngestError::TooManyGates(r)) => {
+            Some((None, format!("gate limit reached, `{}` refused", r.gate)))
         }
     }
 }
