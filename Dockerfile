@@ -1,6 +1,11 @@
 # Multi-stage build of the gatewatch daemon.
 #   docker build -t gatewatch .
-#   docker run -p 9464:9464 -p 8094:8094 -e GATEWATCH_TCP_LISTEN=0.0.0.0:8094 gatewatch
+#   docker run -p 9464:9464 -p 8094:8094 -e GATEWATCH_TCP_LISTEN=0.0.0.0:8094 \
+#       -e GATEWATCH_TCP_ALLOWED_NETWORKS=172.16.0.0/12 gatewatch
+# The raw TCP port has no tokens: only `tcp_allowed_networks` may use it (loopback by default).
+# Through a published port the clients arrive from the bridge network's gateway (Docker's
+# default bridge lies in 172.16.0.0/12); without the second variable every one is refused, and
+# `serve` warns at start.
 #
 # HEALTHCHECK: debian:bookworm-slim has no curl or wget, so none is declared here; use the
 # orchestrator's HTTP probes on /healthz (liveness) and /readyz (readiness) instead (see

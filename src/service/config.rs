@@ -519,6 +519,16 @@ impl Config {
         if let Some(v) = get("GATEWATCH_TCP_LISTEN") {
             self.server.tcp_listen = v;
         }
+        if let Some(v) = get("GATEWATCH_TCP_ALLOWED_NETWORKS") {
+            // comma-separated, as GATEWATCH_AUTH_TOKENS: what a container started with
+            // GATEWATCH_TCP_LISTEN needs, whose clients come through the runtime's bridge
+            self.server.tcp_allowed_networks = v
+                .split(',')
+                .map(str::trim)
+                .filter(|s| !s.is_empty())
+                .map(String::from)
+                .collect();
+        }
         if let Some(v) = get("GATEWATCH_AUTH_TOKENS") {
             self.server.auth_tokens = v
                 .split(',')
@@ -683,6 +693,9 @@ impl Config {
                  resolve_timeout ({ALERTMANAGER_RESOLVE_TIMEOUT_SECONDS} s): unless its \
                  resolve_timeout is raised, Alertmanager resolves firing alerts between re-sends"
             ));
+        }
+        if let Some(w) = self.server.tcp_loopback_only_warning() {
+            out.push(w);
         }
         out
     }

@@ -42,6 +42,8 @@ use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::{watch, Semaphore};
 use tower::ServiceExt;
 
+use super::log_limit::{LogLimiter, ACCEPT_WARNING_INTERVAL};
+
 /// The bounds of the HTTP listener (from `[server]`).
 #[derive(Debug, Clone, Copy)]
 pub struct HttpLimits {
@@ -83,6 +85,8 @@ pub async fn serve(
         .header_read_timeout(limits.header_read_timeout);
     // every connection task holds a receiver: `closed()` resolves when the last one ends
     let (open_tx, open_rx) = watch::channel(());
+    let mut refusals = LogLimiter::new(ACCEPT_WARNING_INTERVAL);
+    let mut failures = LogLimiter::new(ACCEPT_WARNING_INTERVAL);
     loop {
         let accepted = tokio::select! {
             r = listener.accept() => r,
@@ -91,14 +95,19 @@ pub async fn serve(
         let (stream, peer) = match accepted {
             Ok(x) => x,
             Err(e) => {
-                tracing::warn!(error = %e, "http accept failed");
+                if let Some(held_back) = failures.allow(std::time::Instant::now()) {
+                    tracing::warn!(error = %e, held_back, "http accept failed");
+                }
                 tokio::time::sleep(ACCEPT_ERROR_PAUSE).await;
                 continue;
             }
         };
         let Ok(slot) = slots.clone().try_acquire_owned() else {
             refused();
-            tracing::warn!(%peer, "http connection limit (server.max_http_connections) reached, closing");
+            // counted each (gatewatch_http_connections_rejected_total), logged once per interval
+            if let Some(held_back) = refusals.allow(std::time::Instant::now()) {
+                tracing::warn!(%peer, held_back, "http connection limit (server.max_http_connections) reached, closing");
+            }
             drop(stream);
             continue;
         };

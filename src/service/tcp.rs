@@ -37,6 +37,7 @@ use tokio_util::codec::{Decoder, FramedRead, LinesCodec, LinesCodecError};
 use super::clock::now_unix;
 use super::ingest::line_protocol::{self, Mapping};
 use super::limits::for_log;
+use super::log_limit::{LogLimiter, ACCEPT_WARNING_INTERVAL};
 use super::metrics::RejectReason;
 use super::state::{AppState, IngestError};
 
@@ -56,6 +57,11 @@ pub async fn serve(
     let limit = Arc::new(Semaphore::new(state.config.server.max_tcp_connections));
     // validated with the configuration; an empty list (impossible after validation) allows none
     let allowed = state.config.server.tcp_networks().unwrap_or_default();
+    let (mut refusals, mut outsiders, mut failures) = (
+        LogLimiter::new(ACCEPT_WARNING_INTERVAL),
+        LogLimiter::new(ACCEPT_WARNING_INTERVAL),
+        LogLimiter::new(ACCEPT_WARNING_INTERVAL),
+    );
     loop {
         let accepted = tokio::select! {
             r = listener.accept() => r,
@@ -64,7 +70,9 @@ pub async fn serve(
         let (stream, peer) = match accepted {
             Ok(x) => x,
             Err(e) => {
-                tracing::warn!(error = %e, "tcp accept failed");
+                if let Some(held_back) = failures.allow(Instant::now()) {
+                    tracing::warn!(error = %e, held_back, "tcp accept failed");
+                }
                 tokio::time::sleep(Duration::from_millis(50)).await;
                 continue;
             }
@@ -74,13 +82,17 @@ pub async fn serve(
             .any(|n| n.contains(&peer.ip().to_canonical()))
         {
             state.metrics.tcp_connections_rejected.inc();
-            tracing::warn!(%peer, "tcp client outside server.tcp_allowed_networks, closing");
+            if let Some(held_back) = outsiders.allow(Instant::now()) {
+                tracing::warn!(%peer, held_back, "tcp client outside server.tcp_allowed_networks, closing");
+            }
             drop(stream);
             continue;
         }
         let Ok(permit) = limit.clone().try_acquire_owned() else {
             state.metrics.tcp_connections_rejected.inc();
-            tracing::warn!(%peer, "tcp connection limit reached, closing");
+            if let Some(held_back) = refusals.allow(Instant::now()) {
+                tracing::warn!(%peer, held_back, "tcp connection limit reached, closing");
+            }
             drop(stream);
             continue;
         };

@@ -32,6 +32,30 @@ impl ServerConfig {
             .collect()
     }
 
+    /// A warning when the raw TCP listener listens beyond loopback but only loopback clients
+    /// may use it: every client from another host (or through a container's published port,
+    /// which arrives from the bridge's address) is refused at accept, one log line each, and
+    /// nothing at start said so (`GATEWATCH_TCP_LISTEN=0.0.0.0:8094` alone in a container).
+    pub fn tcp_loopback_only_warning(&self) -> Option<String> {
+        let addr = self.tcp_listen.parse::<std::net::SocketAddr>().ok()?;
+        let networks = self.tcp_networks().ok()?;
+        let loopback_only = networks.iter().all(|n| n.addr().is_loopback());
+        (!addr.ip().is_loopback() && loopback_only).then(|| {
+            format!(
+                "server.tcp_listen = \"{}\" listens beyond loopback, but \
+                 server.tcp_allowed_networks ({}) lets in loopback clients only: every other \
+                 client is refused (set it, or GATEWATCH_TCP_ALLOWED_NETWORKS, to the clients' \
+                 networks, e.g. a container runtime's bridge network)",
+                self.tcp_listen,
+                if self.tcp_allowed_networks.is_empty() {
+                    "empty".to_string()
+                } else {
+                    self.tcp_allowed_networks.join(", ")
+                }
+            )
+        })
+    }
+
     /// Validates the keys of this module, naming the key at fault.
     pub(super) fn validate_net(&self) -> Result<(), ConfigError> {
         let s = self;

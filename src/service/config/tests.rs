@@ -142,6 +142,45 @@ fn environment_overrides() {
     assert!(e.message.starts_with("GATEWATCH_LOG_FORMAT"));
 }
 
+/// `GATEWATCH_TCP_ALLOWED_NETWORKS` sets the allow-list (comma-separated, validated), and a
+/// TCP listener beyond loopback with a loopback-only list warns: the Dockerfile's own example
+/// (`GATEWATCH_TCP_LISTEN=0.0.0.0:8094` alone) refused every client through the published port.
+#[test]
+fn tcp_allowed_networks_from_the_environment_and_the_loopback_only_warning() {
+    let warned = |c: &Config| {
+        c.warnings()
+            .iter()
+            .any(|w| w.contains("tcp_allowed_networks"))
+    };
+    let mut c = Config::from_toml(EMBEDDED_CONFIG).unwrap();
+    assert!(
+        !warned(&c),
+        "the embedded config listens on loopback or not at all"
+    );
+    c.apply_env(|k| (k == "GATEWATCH_TCP_LISTEN").then(|| "0.0.0.0:8094".to_string()))
+        .unwrap();
+    assert!(warned(&c), "{:?}", c.warnings());
+    c.apply_env(|k| {
+        (k == "GATEWATCH_TCP_ALLOWED_NETWORKS").then(|| " 172.16.0.0/12, ::1/128,".to_string())
+    })
+    .unwrap();
+    assert_eq!(c.server.tcp_allowed_networks, ["172.16.0.0/12", "::1/128"]);
+    assert!(!warned(&c), "{:?}", c.warnings());
+    let e = c
+        .apply_env(|k| (k == "GATEWATCH_TCP_ALLOWED_NETWORKS").then(|| "10.0.0/8".to_string()))
+        .unwrap_err();
+    assert!(
+        e.message.starts_with("server.tcp_allowed_networks"),
+        "{}",
+        e.message
+    );
+    // a listener on loopback needs no warning, whatever the list
+    let mut c = Config::from_toml(EMBEDDED_CONFIG).unwrap();
+    c.apply_env(|k| (k == "GATEWATCH_TCP_LISTEN").then(|| "127.0.0.1:8094".to_string()))
+        .unwrap();
+    assert!(!warned(&c));
+}
+
 #[test]
 fn worker_threads_default_is_at_least_one() {
     assert!(ServerConfig::default().effective_worker_threads() >= 1);
