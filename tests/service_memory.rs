@@ -1,6 +1,6 @@
 //! The documented memory bound holds against the real binary (issue 12, point 1): 16
-//! concurrent 4 MB bodies, JSON then line protocol, and the process's peak resident memory
-//! (`VmHWM` in /proc/PID/status) stays under the bound of docs/design.md. A bound test, not a
+//! concurrent 4 MB bodies, JSON then line protocol, three rounds, and the process's peak
+//! resident memory (`VmHWM` in /proc/PID/status) stays under the bound of docs/design.md. A bound test, not a
 //! timing test: the waits are guards against hanging.
 
 use std::io::Read;
@@ -11,6 +11,10 @@ use std::time::{Duration, SystemTime, UNIX_EPOCH};
 /// `max_body_bytes_in_flight` (16 MiB) x 10 (the per-request peak multiple) + 64 MiB of
 /// process baseline (runtime, windows, metrics) = 224 MiB; Kubernetes' limit is 512 Mi.
 const DOCUMENTED_BOUND_KIB: u64 = 224 * 1024;
+/// Bursts of each format: a review found the peak rising burst after burst, to 313 MiB after
+/// the third, until glibc's mmap threshold was fixed (`service::malloc`): its per-thread heaps
+/// kept the freed bodies.
+const ROUNDS: usize = 3;
 
 /// Concurrent requests, as in the issue's reproduction.
 const CLIENTS: usize = 16;
@@ -150,38 +154,42 @@ async fn sixteen_concurrent_4_mb_bodies_stay_under_the_documented_bound() {
     }
     json.extend_from_slice(b"]}");
     assert!(json.len() > 4_000_000 && json.len() <= 4 * 1024 * 1024);
-    let codes = burst(&format!("{base}/api/v1/samples"), json).await;
-    eprintln!("JSON statuses: {codes:?}");
-    // 204, or 200 when the overlapping bursts' samples were dropped as duplicates (counted in
-    // the answer); 503 over the body budget, read by the client although it was still writing
-    // its 4 MB (lingering close; 0 would be a connection error, tests/early_refusal.rs)
-    assert!(
-        codes.iter().all(|c| [200, 204, 503].contains(c)),
-        "{codes:?}"
-    );
-    assert!(codes.iter().any(|c| *c == 200 || *c == 204), "{codes:?}");
-    let after_json = vm_hwm_kib(pid);
+    let mut after_json = 0;
+    let mut hwm = 0;
+    for round in 0..ROUNDS {
+        let codes = burst(&format!("{base}/api/v1/samples"), json.clone()).await;
+        eprintln!("round {round}, JSON statuses: {codes:?}");
+        // 204, or 200 when the overlapping bursts' samples were dropped as duplicates (counted in
+        // the answer); 503 over the body budget, read by the client although it was still writing
+        // its 4 MB (lingering close; 0 would be a connection error, tests/early_refusal.rs)
+        assert!(
+            codes.iter().all(|c| [200, 204, 503].contains(c)),
+            "{codes:?}"
+        );
+        assert!(codes.iter().any(|c| *c == 200 || *c == 204), "{codes:?}");
+        after_json = vm_hwm_kib(pid);
 
-    // line protocol, dense lines with nanosecond timestamps 10 us apart
-    let mut lp = Vec::with_capacity(4_190_000);
-    let mut ts = ((now - 30.0) * 1e9) as u64;
-    while lp.len() < 4_150_000 {
-        lp.extend_from_slice(format!("m,gate=lp force=0 {ts}\n").as_bytes());
-        ts += 10_000;
+        // line protocol, dense lines with nanosecond timestamps 10 us apart
+        let mut lp = Vec::with_capacity(4_190_000);
+        let mut ts = ((now - 30.0) * 1e9) as u64;
+        while lp.len() < 4_150_000 {
+            lp.extend_from_slice(format!("m,gate=lp force=0 {ts}\n").as_bytes());
+            ts += 10_000;
+        }
+        let codes = burst(&format!("{base}/api/v2/write?precision=ns"), lp).await;
+        eprintln!("round {round}, line protocol statuses: {codes:?}");
+        // 204, or 200 when the overlapping bursts' samples were dropped as duplicates (counted in
+        // the answer); 503 over the body budget, read by the client although it was still writing
+        // its 4 MB (lingering close; 0 would be a connection error, tests/early_refusal.rs)
+        assert!(
+            codes.iter().all(|c| [200, 204, 503].contains(c)),
+            "{codes:?}"
+        );
+        assert!(codes.iter().any(|c| *c == 200 || *c == 204), "{codes:?}");
+        hwm = vm_hwm_kib(pid);
     }
-    let codes = burst(&format!("{base}/api/v2/write?precision=ns"), lp).await;
-    eprintln!("line protocol statuses: {codes:?}");
-    // 204, or 200 when the overlapping bursts' samples were dropped as duplicates (counted in
-    // the answer); 503 over the body budget, read by the client although it was still writing
-    // its 4 MB (lingering close; 0 would be a connection error, tests/early_refusal.rs)
-    assert!(
-        codes.iter().all(|c| [200, 204, 503].contains(c)),
-        "{codes:?}"
-    );
-    assert!(codes.iter().any(|c| *c == 200 || *c == 204), "{codes:?}");
-    let hwm = vm_hwm_kib(pid);
     eprintln!(
-        "VmHWM after JSON: {} MiB, after line protocol: {} MiB (bound {} MiB)",
+        "VmHWM after the last JSON burst: {} MiB, after the last line protocol burst: {} MiB (bound {} MiB)",
         after_json / 1024,
         hwm / 1024,
         DOCUMENTED_BOUND_KIB / 1024

@@ -93,6 +93,8 @@ pub fn serve(args: ServeArgs) -> ExitCode {
         eprintln!("gatewatch: warning: {w}");
     }
     init_tracing(&config);
+    // before the runtime's threads: the memory bound of docs/design.md depends on it
+    super::malloc::return_large_buffers_to_the_os();
     let rt = match tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()

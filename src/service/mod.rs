@@ -14,7 +14,9 @@
 //! - [`api`]: routes, authentication, `HttpError`, and (in `api::influx`) the InfluxDB surface:
 //!   `/ping`, `/health`, `/query`, gzip bodies, v2-shaped errors.
 //! - [`server`]: `run` and the one-deadline shutdown; [`listen`]: the HTTP accept loop with its
-//!   connection cap and header timeout; [`tcp`]: the raw TCP listener; [`shutdown`]: signals.
+//!   connection cap and header timeout; [`tcp`]: the raw TCP listener; [`shutdown`]: signals;
+//!   [`log_limit`]: the accept loops' warnings, once per interval; [`malloc`]: large buffers
+//!   back to the OS.
 //! - [`cli`]: command-line entry points; [`client`]: the simulate client (talks to a daemon
 //!   over the network only, and installs the TLS crypto provider its HTTP client needs).
 //! - [`bench`](mod@bench): `gatewatch bench daemon`, load measurements.
@@ -51,6 +53,8 @@ pub mod ingest;
 pub mod ingest_checks;
 pub mod limits;
 pub mod listen;
+pub mod log_limit;
+pub mod malloc;
 pub mod metrics;
 pub mod resume;
 pub mod server;
