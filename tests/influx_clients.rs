@@ -14,16 +14,10 @@ use std::time::Duration;
 
 use serde_json::Value;
 
-const BIN: &str = env!("CARGO_BIN_EXE_gatewatch");
+mod python_common;
+use python_common::{missing, venv_python};
 
-/// Skips (outside CI) or fails (in CI) for a missing component.
-fn missing(what: &str) {
-    assert!(
-        std::env::var_os("CI").is_none(),
-        "{what} is required in CI (see .ci/run)"
-    );
-    eprintln!("SKIP: {what}");
-}
+const BIN: &str = env!("CARGO_BIN_EXE_gatewatch");
 
 fn free_port() -> u16 {
     std::net::TcpListener::bind("127.0.0.1:0")
@@ -128,42 +122,10 @@ out["v1_write_points"] = v1.write_points(points, time_precision="ms")
 print(json.dumps(out))
 "#;
 
-/// A virtual environment with both clients, or `None` (after [`missing`]) when PyPI is out of
-/// reach.
-fn venv_python(dir: &Path) -> Option<std::path::PathBuf> {
-    let venv = dir.join("venv");
-    let made = Command::new("python3")
-        .args(["-m", "venv"])
-        .arg(&venv)
-        .status();
-    if !made.is_ok_and(|s| s.success()) {
-        missing("python3 with the venv module");
-        return None;
-    }
-    let pip = Command::new(venv.join("bin/pip"))
-        .args([
-            "install",
-            "--quiet",
-            "--disable-pip-version-check",
-            "influxdb-client",
-            "influxdb",
-        ])
-        .output()
-        .unwrap();
-    if !pip.status.success() {
-        missing(&format!(
-            "pip install influxdb-client influxdb (PyPI unreachable?): {}",
-            String::from_utf8_lossy(&pip.stderr)
-        ));
-        return None;
-    }
-    Some(venv.join("bin/python"))
-}
-
 #[test]
 fn python_clients_write_plain_and_gzip_ping_health_and_create_database() {
     let dir = tempfile::tempdir().unwrap();
-    let Some(python) = venv_python(dir.path()) else {
+    let Some(python) = venv_python(dir.path(), &["influxdb-client", "influxdb"]) else {
         return;
     };
     let port = free_port();
