@@ -21,6 +21,25 @@ pub struct TimeSeries {
     pub y: Vec<f64>,
 }
 
+/// Where sample times first leave a uniform grid ([`TimeSeries::grid_departure`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum GridDeparture {
+    /// Sample `index` comes `spacing` seconds after the previous one, where the median spacing
+    /// is `step`: a gap (`spacing > step`) or samples closer together.
+    Spacing {
+        index: usize,
+        spacing: f64,
+        step: f64,
+    },
+    /// Every spacing is the median's, within rounding, yet sample `index` is `deviation`
+    /// seconds off the grid of `step` from the first time to the last: a slow drift.
+    Drift {
+        index: usize,
+        deviation: f64,
+        step: f64,
+    },
+}
+
 /// A problem with input data.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum DataError {
@@ -70,6 +89,15 @@ pub enum DataError {
         line: u64,
         column: String,
         cell: String,
+    },
+    /// The header is one field holding semicolons or tabs: a CSV from a locale whose list
+    /// separator is not the comma (European Excel), which the comma-separated reader sees as
+    /// a single column.
+    #[error("{path}: line 1: the file looks separated by {separator} (the header reads '{header}'); gatewatch reads comma-separated CSV: save it with commas as the separator")]
+    NotCommaSeparated {
+        path: PathBuf,
+        separator: &'static str,
+        header: String,
     },
     /// A requested column named twice in the header.
     #[error("{path}: line 1: column '{column}' appears {count} times in the header; name each column once")]
@@ -168,6 +196,37 @@ impl TimeSeries {
         })
     }
 
+    /// Where the times first leave a uniform grid, told for a person: `None` exactly when
+    /// [`Self::nonuniform_at`] is `None` (that check decides; this one only explains). The step
+    /// is the median spacing, so a hole in the record does not skew it (the step from the first
+    /// time to the last includes the hole, and put the first row "off the grid"); the sample
+    /// named is the first whose spacing departs from it. When every spacing agrees with the
+    /// median and the times still drift off a grid, the first sample off it is named.
+    pub fn grid_departure(&self) -> Option<GridDeparture> {
+        let (index, deviation, step) = self.nonuniform_at()?;
+        let mut spacings: Vec<f64> = self.t.windows(2).map(|w| w[1] - w[0]).collect();
+        let mid = spacings.len() / 2;
+        let median = *spacings.select_nth_unstable_by(mid, f64::total_cmp).1;
+        let (t0, tn) = (self.t[0], self.t[self.t.len() - 1]);
+        let tol = 1e-6 * median + 8.0 * f64::EPSILON * t0.abs().max(tn.abs());
+        let gap = self
+            .t
+            .windows(2)
+            .position(|w| ((w[1] - w[0]) - median).abs() > tol);
+        Some(match gap {
+            Some(j) => GridDeparture::Spacing {
+                index: j + 1,
+                spacing: self.t[j + 1] - self.t[j],
+                step: median,
+            },
+            None => GridDeparture::Drift {
+                index,
+                deviation,
+                step,
+            },
+        })
+    }
+
     /// Loads two columns of a CSV file with a header row.
     pub fn from_csv(
         path: &Path,
@@ -181,6 +240,19 @@ impl TimeSeries {
         })?;
         if bytes.iter().all(|b| b.is_ascii_whitespace()) {
             return Err(DataError::Empty { path: p() });
+        }
+        // UTF-16 (Excel's "Unicode text", Windows tools): a byte-order mark, or a zero byte
+        // beside every ASCII character. Without the mark it is valid UTF-8 full of NULs, and
+        // would be reported as a header with no column 't'.
+        if bytes.starts_with(&[0xFF, 0xFE])
+            || bytes.starts_with(&[0xFE, 0xFF])
+            || bytes.iter().take(2).any(|&b| b == 0)
+        {
+            return Err(DataError::Malformed {
+                path: p(),
+                line: 1,
+                reason: format!("the file is UTF-16 text, not UTF-8; {SAVE_AS_UTF8}"),
+            });
         }
         let mut reader = csv::ReaderBuilder::new()
             .has_headers(true)
@@ -209,7 +281,33 @@ impl TimeSeries {
                     available: headers.iter().collect::<Vec<_>>().join(", "),
                 })
         };
-        let (ti, yi) = (find(time_column)?, find(value_column)?);
+        // Only when a column is missing: a file that names its columns and merely contains a
+        // semicolon somewhere in a header cell loads as before (detect and explain, no change
+        // of parsing).
+        let lookup = find(time_column).and_then(|ti| find(value_column).map(|yi| (ti, yi)));
+        let (ti, yi) = match lookup {
+            Err(DataError::UnknownColumn { .. }) if headers.len() == 1 => {
+                let header = headers.get(0).unwrap_or("");
+                let separator = if header.contains(';') {
+                    Some("';'")
+                } else if header.contains('\t') {
+                    Some("tabs")
+                } else {
+                    None
+                };
+                match separator {
+                    Some(separator) => {
+                        return Err(DataError::NotCommaSeparated {
+                            path: p(),
+                            separator,
+                            header: header.replace('\t', "\\t"),
+                        })
+                    }
+                    None => lookup?,
+                }
+            }
+            other => other?,
+        };
         let (mut t, mut y) = (Vec::new(), Vec::new());
         let mut record = csv::StringRecord::new();
         loop {
@@ -283,13 +381,17 @@ impl TimeSeries {
     }
 }
 
+/// The way out of an encoding error: Excel's "CSV" is the Windows code page (cp1252: a `µ` or
+/// `°` in a header is one byte no UTF-8 reader takes), its "CSV UTF-8" is what is read here.
+const SAVE_AS_UTF8: &str = "save it as \"CSV UTF-8\" (Excel: Save As, CSV UTF-8 (comma delimited))";
+
 fn malformed(path: &Path, e: &csv::Error) -> DataError {
     let line = e.position().map_or(0, |p| p.line());
     let reason = match e.kind() {
         csv::ErrorKind::UnequalLengths {
             expected_len, len, ..
         } => format!("{len} fields, but the header has {expected_len}"),
-        csv::ErrorKind::Utf8 { .. } => "not valid UTF-8".to_string(),
+        csv::ErrorKind::Utf8 { .. } => format!("not valid UTF-8; {SAVE_AS_UTF8}"),
         _ => e.to_string(),
     };
     DataError::Malformed {
@@ -383,6 +485,54 @@ mod tests {
         assert!(load("t,y,note,note\n0,1,a,b\n").is_ok());
     }
 
+    /// A semicolon- or tab-separated file is named as such (not as a missing column 't'); an
+    /// encoding other than UTF-8 gets the way to save it as UTF-8.
+    #[test]
+    fn other_separators_and_encodings_are_explained() {
+        for (text, sep) in [("t;y\n0;1\n", "';'"), ("t\ty\n0\t1\n", "tabs")] {
+            let e = load(text).unwrap_err();
+            assert!(
+                matches!(e, DataError::NotCommaSeparated { separator, .. } if separator == sep),
+                "{e}"
+            );
+            let msg = e.to_string();
+            assert!(
+                msg.contains(": line 1: the file looks separated by"),
+                "{msg}"
+            );
+            assert!(msg.contains("comma-separated"), "{msg}");
+        }
+        // A semicolon inside a header that names its columns changes nothing.
+        assert!(load("t,y,note;x\n0,1,a\n").is_ok());
+        // A missing column in a one-column file without separators is still that.
+        assert!(matches!(
+            load("time\n0\n"),
+            Err(DataError::UnknownColumn { .. })
+        ));
+        // cp1252 `µ` (0xB5) in the header.
+        let mut f = tempfile::NamedTempFile::new().unwrap();
+        f.write_all(b"t,y \xb5m\n0,1\n").unwrap();
+        let e = TimeSeries::from_csv(f.path(), "t", "y").unwrap_err();
+        assert!(matches!(e, DataError::Malformed { line: 1, .. }), "{e}");
+        assert!(
+            e.to_string()
+                .contains("not valid UTF-8; save it as \"CSV UTF-8\""),
+            "{e}"
+        );
+        // UTF-16 with and without its byte-order mark.
+        let utf16: Vec<u8> = "t,y\n0,1\n"
+            .encode_utf16()
+            .flat_map(u16::to_le_bytes)
+            .collect();
+        for bytes in [[&[0xFF, 0xFE][..], &utf16].concat(), utf16.clone()] {
+            let mut f = tempfile::NamedTempFile::new().unwrap();
+            f.write_all(&bytes).unwrap();
+            let e = TimeSeries::from_csv(f.path(), "t", "y").unwrap_err();
+            assert!(e.to_string().contains("line 1: the file is UTF-16"), "{e}");
+            assert!(e.to_string().contains("CSV UTF-8"), "{e}");
+        }
+    }
+
     /// Times at Unix-epoch magnitude are uniform although no f64 holds them to 1e-6 of a step;
     /// a sample 1 % of a step off is not, and is named.
     #[test]
@@ -402,6 +552,48 @@ mod tests {
         // one sample: no grid, so no step and no sample off it
         let one = TimeSeries::new(vec![1.7e9], vec![0.0]).unwrap();
         assert_eq!((one.uniform_step(), one.nonuniform_at()), (None, None));
+    }
+
+    /// A 2 s hole in a 200 Hz record is named where it is (data row 801, its time, its
+    /// length), with the step from the median spacing, not as the second sample off a grid
+    /// whose step the hole stretched.
+    #[test]
+    fn a_hole_is_named_where_it_is() {
+        let h = 0.005;
+        let t: Vec<f64> = (0..1600)
+            .map(|i| if i < 800 { i } else { i + 400 } as f64 * h)
+            .collect();
+        let s = TimeSeries::new(t, vec![0.0; 1600]).unwrap();
+        match s.grid_departure() {
+            Some(GridDeparture::Spacing {
+                index,
+                spacing,
+                step,
+            }) => {
+                assert_eq!(index, 800);
+                assert!((spacing - 401.0 * h).abs() < 1e-9, "{spacing}");
+                assert!((step - h).abs() < 1e-12, "{step}");
+            }
+            other => panic!("{other:?}"),
+        }
+        // Uniform: nothing to explain, as nonuniform_at says.
+        let u = TimeSeries::new((0..100).map(|i| i as f64 * h).collect(), vec![0.0; 100]).unwrap();
+        assert_eq!((u.nonuniform_at(), u.grid_departure()), (None, None));
+        // A slow drift (the spacing grows by 2e-10 of a step a sample): every spacing is the
+        // median's within 1e-6 of a step, the times still leave the grid by 1e-4 of a step.
+        let drift: Vec<f64> = (0..2000)
+            .map(|i| {
+                let i = i as f64;
+                h * (i + 1e-10 * i * i)
+            })
+            .collect();
+        let d = TimeSeries::new(drift, vec![0.0; 2000]).unwrap();
+        assert!(d.nonuniform_at().is_some());
+        assert!(
+            matches!(d.grid_departure(), Some(GridDeparture::Drift { .. })),
+            "{:?}",
+            d.grid_departure()
+        );
     }
 
     #[test]

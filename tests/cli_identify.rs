@@ -5,7 +5,8 @@
 //! hint and usage block), 1 on anything else. Piped runs print nothing on stderr (no progress bar).
 
 use serde_json::Value;
-use std::path::PathBuf;
+use std::f64::consts::PI;
+use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 
 const VDP: &str = "ydd + (c1 + c2*y^2)*yd + y = 0";
@@ -1047,4 +1048,144 @@ fn seed_cases_bench_compares_normalised_coefficients() {
     // Before the normalisation this was about 1e10 (the raw c1 was -3.1e10 against 2.5).
     let err = num(case, "/median_coefficient_error");
     assert!(err < 1e-3, "median coefficient error {err}");
+}
+
+/// A model whose factor of ydd is the constant zero, or with a constant that is NaN, is refused
+/// when it is parsed; one that no trial can integrate (`y/0`) ends with exit 2 and one line
+/// saying so, not with coefficients printed as identified and "agrees with the spectrum: yes".
+#[test]
+fn a_model_that_cannot_be_simulated_is_refused_not_reported() {
+    let d = Dir::new();
+    let data = d.case("van_der_pol_2");
+    let run = |model: &str| {
+        vec![
+            "identify".to_string(),
+            "--input".into(),
+            data.clone(),
+            "--model".into(),
+            model.into(),
+            "--generations".into(),
+            "5".into(),
+            "--population".into(),
+            "10".into(),
+        ]
+    };
+    let args = run("0*ydd + c1*yd + y = 0");
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    bad(
+        &args,
+        &["model:", "factor of ydd", "column 3", "identically zero"],
+    );
+    let args = run("ydd + c1*yd + sqrt(-1)*y = 0");
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    bad(&args, &["model:", "evaluates to NaN"]);
+    for model in ["ydd + c1*yd + y/0 = 0", "ydd + c1*yd + y/0 = 0 --json"] {
+        let mut args = run(model.trim_end_matches(" --json"));
+        if model.ends_with("--json") {
+            args.push("--json".into());
+        }
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        bad(
+            &args,
+            &[&data, "the model could not be simulated on this data"],
+        );
+    }
+}
+
+/// Semicolon- and tab-separated files and other encodings are explained, with the file and
+/// line 1 named.
+#[test]
+fn a_european_csv_is_explained() {
+    let d = Dir::new();
+    for (name, content, sep) in [
+        ("semi.csv", "t;y\n0;1\n0,1;2\n", "';'"),
+        ("tab.csv", "t\ty\n0\t1\n0.1\t2\n", "tabs"),
+    ] {
+        let f = d.write(name, content);
+        bad(
+            &["identify", "--input", &f, "--model", VDP],
+            &[&f, "line 1", "looks separated by", sep, "comma-separated"],
+        );
+    }
+    let p = d.path("cp1252.csv");
+    std::fs::write(&p, b"t,y \xb5m\n0,1\n").unwrap();
+    let f = p.to_str().unwrap();
+    bad(
+        &["identify", "--input", f, "--model", VDP],
+        &[f, "line 1", "not valid UTF-8", "CSV UTF-8"],
+    );
+}
+
+/// Too few rows are counted in the file's terms and the file is named.
+#[test]
+fn too_few_rows_name_the_file() {
+    let d = Dir::new();
+    let one = d.write("one.csv", "t,y\n0,1\n");
+    bad(
+        &["identify", "--input", &one, "--model", VDP],
+        &[&format!(
+            "{one}: 1 data row is too few: identify needs at least 7"
+        )],
+    );
+    let three = d.write("three.csv", "t,y\n0,1\n0.1,2\n0.2,3\n");
+    bad(
+        &["identify", "--input", &three, "--model", VDP],
+        &[&format!(
+            "{three}: 3 data rows are too few: identify needs at least 7"
+        )],
+    );
+}
+
+/// `--plot` takes a directory: an existing file and a picture's name are refused up front.
+#[test]
+fn plot_takes_a_directory() {
+    let d = Dir::new();
+    let data = d.case("van_der_pol_2");
+    let afile = d.write("afile", "x");
+    bad(
+        &[
+            "identify", "--input", &data, "--model", VDP, "--plot", &afile,
+        ],
+        &["--plot", &afile, "not a directory", "takes a directory"],
+    );
+    let svg = d.path("out.svg");
+    let svg = svg.to_str().unwrap();
+    bad(
+        &["identify", "--input", &data, "--model", VDP, "--plot", svg],
+        &["--plot", svg, ".svg", "takes a directory"],
+    );
+    assert!(!Path::new(svg).exists(), "no directory named out.svg");
+}
+
+/// A 2 s hole in a force record is named where it is: its data row, time and length.
+#[test]
+fn a_hole_in_a_force_record_is_named_where_it_is() {
+    let d = Dir::new();
+    let mut csv = String::from("t,y\n");
+    for i in (0..800).chain(1200..2000) {
+        let t = i as f64 * 0.005;
+        csv.push_str(&format!("{t:.3},{}\n", (2.0 * PI * 10.4 * t).sin()));
+    }
+    let f = d.write("hole.csv", &csv);
+    let line = bad(
+        &[
+            "identify",
+            "--input",
+            &f,
+            "--model",
+            "c1*ydd + c2*yd + k*y = 0",
+            "--signal",
+            "force",
+            "--stiffness",
+            "81360",
+        ],
+        &[
+            &f,
+            "data row 801 (t = 6)",
+            "comes 2.005000e0 s after the previous sample",
+            "median step is 5.000000e-3 s",
+            "about 400 missing samples",
+        ],
+    );
+    assert!(!line.contains("data row 2"), "{line}");
 }

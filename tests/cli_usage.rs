@@ -252,3 +252,128 @@ fn a_chunk_longer_than_the_stream_does_not_abort() {
     assert!(!err.contains("memory allocation"), "{err}");
     assert!(!err.contains("panicked"), "{err}");
 }
+
+/// `bench generate --output` names an unwritable path and exits 2, like stability-map's.
+#[test]
+fn generate_names_an_unwritable_output() {
+    let o = gw(&[
+        "bench",
+        "generate",
+        "--case",
+        "van_der_pol_2",
+        "--output",
+        "/proc/nope/x.csv",
+    ]);
+    let err = text(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(
+        err.starts_with("gatewatch: --output: /proc/nope/x.csv: "),
+        "{err}"
+    );
+}
+
+/// stability-map checks --plot and --output before the trials: nothing on stdout.
+#[test]
+fn stability_map_checks_its_outputs_before_the_trials() {
+    for flag in ["--plot", "--output"] {
+        let path = if flag == "--plot" {
+            "/proc/nope/x.svg"
+        } else {
+            "/proc/nope/x.csv"
+        };
+        let o = gw(&[
+            "stability-map",
+            "--model",
+            "ydd + c1*yd + c2*y = 0",
+            "--range",
+            "c1=-1:1",
+            "--range",
+            "c2=0.5:2",
+            "--samples",
+            "50",
+            flag,
+            path,
+        ]);
+        let err = text(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{err}");
+        assert!(
+            o.stdout.is_empty(),
+            "ran before refusing: {}",
+            text(&o.stdout)
+        );
+        assert!(
+            err.starts_with(&format!("gatewatch: {flag}: {path}: ")),
+            "{err}"
+        );
+    }
+}
+
+/// A missing configuration file is named once, after `gatewatch:`, without the OS's code.
+#[test]
+fn a_missing_config_is_named_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let nope = dir.path().join("nope.toml");
+    let nope = nope.to_str().unwrap();
+    for args in [vec!["check-config", nope], vec!["serve", "--config", nope]] {
+        let o = gw(&args);
+        let err = text(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {err}");
+        assert_eq!(
+            err.trim_end(),
+            format!("gatewatch: {nope}: No such file or directory"),
+            "{args:?}"
+        );
+    }
+}
+
+/// --periods and --t-end conflict; negative numbers reach the range checks instead of clap's
+/// "unexpected argument '-1'".
+#[test]
+fn numeric_options_take_negative_numbers_to_their_range_checks() {
+    let map = [
+        "stability-map",
+        "--model",
+        "ydd + c1*yd + c2*y = 0",
+        "--range",
+        "c1=-1:1",
+        "--range",
+        "c2=0.5:2",
+        "--samples",
+        "10",
+    ];
+    let o = gw(&[&map[..], &["--periods", "3", "--t-end", "5"]].concat());
+    let err = text(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("--t-end") && err.contains("--periods"),
+        "{err}"
+    );
+    for (args, flag) in [
+        (vec!["--t-end", "-1"], "t-end"),
+        (vec!["--periods", "-1"], "periods"),
+    ] {
+        let o = gw(&[&map[..], &args[..]].concat());
+        let err = text(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {err}");
+        assert!(!err.contains("unexpected argument"), "{args:?}: {err}");
+        assert!(err.contains(flag), "{args:?}: {err}");
+    }
+    let o = gw(&["simulate", "--rate", "-5"]);
+    let err = text(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(
+        !err.contains("unexpected argument") && err.contains("--rate"),
+        "{err}"
+    );
+    for cmd in ["warning", "history"] {
+        let o = gw(&["bench", cmd, "--hours", "-1"]);
+        let err = text(&o.stderr);
+        assert_ne!(o.status.code(), Some(0), "{cmd}: {err}");
+        assert!(
+            !err.contains("unexpected argument") && err.contains("--hours"),
+            "{cmd}: {err}"
+        );
+    }
+    let help = text(&gw(&["simulate", "--help"]).stdout);
+    assert!(help.contains("as fast as possible"), "{help}");
+}

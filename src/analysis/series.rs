@@ -350,7 +350,9 @@ fn analyze(
         (Some(sa), Some(p)) => sa.analyze_window(p, &prediction_options).ok(),
         _ => None,
     };
-    damping.agrees = agrees(free.spec.as_ref(), model_spec.as_ref());
+    // A model that could not be simulated agrees with nothing (`agrees` alone says yes when
+    // neither side has a spectrum).
+    damping.agrees = fit_nmae.is_finite() && agrees(free.spec.as_ref(), model_spec.as_ref());
     if let Some(s) = &free.spec {
         damping.frequency_hz = Some(s.peak.frequency_hz);
         damping.growth_rate = Some(s.growth.sigma);

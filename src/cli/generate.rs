@@ -1,6 +1,6 @@
 //! `gatewatch bench generate`: a seed case's data (or the gate example's force) as CSV.
 
-use super::{find_case, CliError};
+use super::{find_case, input, CliError};
 use crate::data::TimeSeries;
 use clap::Args;
 use std::io::Write;
@@ -35,7 +35,10 @@ pub(super) fn run(a: GenerateArgs) -> Result<(), CliError> {
         find_case(&a.case)?.generate()?
     };
     match a.output {
-        Some(path) => data.to_csv(&path, "t", "y")?,
+        // A path that cannot be written is the user's input, named like stability-map's.
+        Some(path) => data
+            .to_csv(&path, "t", "y")
+            .map_err(|e| input(format!("--output: {}: {e}", path.display())))?,
         None => {
             let mut out = std::io::stdout().lock();
             writeln!(out, "t,y")?;

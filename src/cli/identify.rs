@@ -3,7 +3,7 @@
 use super::report::{identification_json, write_identification};
 use super::{input, parse_param, progress_bar, CliError};
 use crate::analysis::{self, SeriesOptions, Signal};
-use crate::data::TimeSeries;
+use crate::data::{GridDeparture, TimeSeries};
 use crate::identify::{Config, IdentifyError, Initial, Protocol, Search};
 use crate::model::Model;
 use crate::ode::Method;
@@ -174,13 +174,11 @@ pub(super) fn run(a: IdentifyArgs) -> Result<(), CliError> {
     // were skipped silently and the window failed later for another reason ("no dominant
     // frequency"), on a file whose only fault was its timing.
     if signal == Signal::Force {
-        if let Some((i, d, h)) = series.nonuniform_at() {
+        if let Some(departure) = series.grid_departure() {
             return Err(input(format!(
-                "{}: --signal force needs uniformly sampled times: sample {} (t = {}, data row {}) is {d:+.3e} s off the uniform grid of step {h:.6e} s from the first time to the last; resample the data, or fit it as --signal displacement",
+                "{}: --signal force needs uniformly sampled times: {}; resample the data, or fit it as --signal displacement",
                 a.input.display(),
-                i,
-                series.t.get(i).copied().unwrap_or(f64::NAN),
-                i + 1
+                describe_departure(&series, departure)
             )));
         }
     }
@@ -225,6 +223,17 @@ pub(super) fn run(a: IdentifyArgs) -> Result<(), CliError> {
         ..Config::default()
     };
     config.validate().map_err(|e| input(in_flags(e)))?;
+    // Said here in the file's terms: the core's own refusal ("window not analysable", "the
+    // split needs ...") names neither the file nor its rows.
+    let needed = crate::identify::min_samples(a.train_fraction);
+    if series.len() < needed {
+        return Err(input(format!(
+            "{}: {} data row{} too few: identify needs at least {needed}",
+            a.input.display(),
+            series.len(),
+            if series.len() == 1 { " is" } else { "s are" }
+        )));
+    }
     let opts = SeriesOptions {
         signal,
         stiffness: a.stiffness,
@@ -239,6 +248,7 @@ pub(super) fn run(a: IdentifyArgs) -> Result<(), CliError> {
     };
     // Every output is checked before the identification, which can take minutes.
     if let Some(dir) = &a.plot {
+        check_plot_dir(dir)?;
         crate::plot::prepare_dir(dir).map_err(|e| input(format!("--plot: {e}")))?;
     }
     let total = (a.runs * a.generations) as u64;
@@ -248,6 +258,17 @@ pub(super) fn run(a: IdentifyArgs) -> Result<(), CliError> {
     })
     .map_err(input)?;
     bar.finish_and_clear();
+    // A failed integration costs a finite penalty in the search (so the search has a direction),
+    // so a model that no trial can integrate still yields a "best" run with a finite "training
+    // error". Printing its coefficients as identified would pass a failure off as a result. (A
+    // fit whose training integration completed but whose simulation over the whole record
+    // failed is still reported, with "n/a" and a fit NMAE of inf, and is not called agreeing.)
+    if !result.identification.best_run().train_integrated {
+        return Err(input(format!(
+            "{}: the model could not be simulated on this data: no trial of the identification integrated over the record (check the equation for a division by zero or a vanishing factor of ydd)",
+            a.input.display()
+        )));
+    }
     let mut out = std::io::stdout().lock();
     if a.json {
         let v = identification_json(&model, &result);
@@ -269,6 +290,66 @@ pub(super) fn run(a: IdentifyArgs) -> Result<(), CliError> {
             .map_err(|e| input(format!("--plot: {e}")))?;
     }
     Ok(())
+}
+
+/// `--plot` names a directory the pictures go into. An existing file was refused only after
+/// the identification, as "File exists", and a picture's name (`out.svg`) became a directory of
+/// that name: both are refused up front, saying what the option takes.
+fn check_plot_dir(dir: &std::path::Path) -> Result<(), CliError> {
+    if dir.exists() {
+        if dir.is_dir() {
+            return Ok(());
+        }
+        return Err(input(format!(
+            "--plot: {}: exists and is not a directory; --plot takes a directory, into which the pictures (fit, phase, convergence, ...) are written",
+            dir.display()
+        )));
+    }
+    let picture = dir
+        .extension()
+        .and_then(|e| e.to_str())
+        .filter(|e| ["svg", "png"].contains(&e.to_ascii_lowercase().as_str()));
+    if let Some(ext) = picture {
+        return Err(input(format!(
+            "--plot: {}: looks like a picture's file name (.{ext}); --plot takes a directory, into which the pictures (fit, phase, convergence, ...) are written (the format is --plot-format)",
+            dir.display()
+        )));
+    }
+    Ok(())
+}
+
+/// Where the times leave their grid, in a user's terms: data row (the header is not one), time,
+/// and the gap's length.
+fn describe_departure(series: &TimeSeries, d: GridDeparture) -> String {
+    let time = |i: usize| series.t.get(i).copied().unwrap_or(f64::NAN);
+    match d {
+        GridDeparture::Spacing {
+            index,
+            spacing,
+            step,
+        } => {
+            let missing = (spacing / step).round() - 1.0;
+            let gap = if missing >= 1.0 {
+                format!(": a gap of about {missing:.0} missing samples")
+            } else {
+                String::new()
+            };
+            format!(
+                "data row {} (t = {}) comes {spacing:.6e} s after the previous sample, where the median step is {step:.6e} s{gap}",
+                index + 1,
+                time(index)
+            )
+        }
+        GridDeparture::Drift {
+            index,
+            deviation,
+            step,
+        } => format!(
+            "the times drift: data row {} (t = {}) is {deviation:+.3e} s off the uniform grid of step {step:.6e} s from the first time to the last",
+            index + 1,
+            time(index)
+        ),
+    }
 }
 
 /// The core's error about a setting, told in this command's flags (the core names its fields).

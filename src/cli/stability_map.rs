@@ -33,10 +33,15 @@ pub struct StabilityMapArgs {
     #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
     v0: f64,
     /// Periods of the undamped linearised frequency (at the map's centre) to integrate over.
-    #[arg(long, default_value_t = 10.0)]
+    #[arg(long, default_value_t = 10.0, allow_negative_numbers = true)]
     periods: f64,
     /// Horizon of every trial, instead of --periods periods.
-    #[arg(long, value_name = "T")]
+    #[arg(
+        long,
+        value_name = "T",
+        conflicts_with = "periods",
+        allow_negative_numbers = true
+    )]
     t_end: Option<f64>,
     /// Monte Carlo samples.
     #[arg(long, default_value_t = 6000)]
@@ -76,6 +81,12 @@ pub fn run(a: StabilityMapArgs) -> Result<(), CliError> {
     spec.seed = a.seed;
     if let Some(p) = &a.plot {
         crate::plot::Format::from_path(p).map_err(|e| input(format!("--plot: {e}")))?;
+    }
+    // Every output is checked before the trials, which can take minutes, as identify does.
+    for (flag, path) in [("--output", &a.output), ("--plot", &a.plot)] {
+        if let Some(path) = path {
+            check_writable(path).map_err(|e| input(format!("{flag}: {}: {e}", path.display())))?;
+        }
     }
     let map = stability::map(&model, &spec).map_err(input)?;
     let stable = map.stable_count();
@@ -131,5 +142,24 @@ pub fn run(a: StabilityMapArgs) -> Result<(), CliError> {
             map.trials.len() - stable
         );
     }
+    Ok(())
+}
+
+/// Whether the file `path` can be written, without changing it: an existing file is opened for
+/// appending (nothing appended), a new one created and removed again.
+fn check_writable(path: &std::path::Path) -> std::io::Result<()> {
+    if path.is_dir() {
+        return Err(std::io::Error::other("is a directory"));
+    }
+    if path.exists() {
+        return std::fs::OpenOptions::new()
+            .append(true)
+            .open(path)
+            .map(drop);
+    }
+    std::fs::File::create(path)?;
+    // The file was created a moment ago: failing to remove it leaves an empty file that the
+    // run overwrites.
+    let _ = std::fs::remove_file(path);
     Ok(())
 }

@@ -114,6 +114,12 @@ impl<'a> Fitness<'a> {
         }
     }
 
+    /// Whether `cost` (of [`Self::cost`]) is a completed integration's error rather than the
+    /// penalty of a failed one (at least the failure base) or an abandoned one (infinite).
+    pub fn integrated(&self, cost: f64) -> bool {
+        cost.is_finite() && cost < self.fail_base
+    }
+
     /// The same objective with `lanes` candidates per lockstep batch (1, 4 or 8; any other
     /// value means 1).
     pub fn with_lanes(&self, lanes: usize) -> Fitness<'a> {

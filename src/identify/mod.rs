@@ -65,7 +65,7 @@ pub use problem::Problem;
 pub use problem::{Initial, Output};
 pub use refine::refine;
 pub use search::STALL_GENERATIONS_PER_UNKNOWN;
-pub use split::{initial_from_data, split};
+pub use split::{initial_from_data, min_samples, split};
 pub use stats::{median, nmae, std_dev, summarize};
 
 use search::{attempt, Attempt};
@@ -115,6 +115,11 @@ pub struct RunResult {
     pub train_mae: f64,
     /// Test NMAE (`None` when the test integration failed).
     pub test_nmae: Option<f64>,
+    /// Whether the final coefficients integrate over every training sample. When not, no
+    /// trial of the run integrated and `train_mae` is the failure penalty of the fitness (a
+    /// large finite number that gives the search a direction), not an error of a fit.
+    #[serde(skip)]
+    pub train_integrated: bool,
     /// Objective evaluations (DE and polish).
     pub evaluations: usize,
     /// Of which spent by the polish.
@@ -291,6 +296,7 @@ pub fn run(
             initial: init,
             train_mae: train_cost,
             test_nmae,
+            train_integrated: fitness.integrated(train_cost),
             evaluations,
             refine_evaluations,
             restarts,

@@ -128,6 +128,7 @@ pub fn refine(
         initial: init,
         train_mae: train_cost,
         test_nmae,
+        train_integrated: target.integrated(train_cost),
         evaluations,
         refine_evaluations: evaluations,
         restarts: 0,

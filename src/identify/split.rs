@@ -6,6 +6,32 @@ use rand::seq::SliceRandom;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
+/// Fewest training samples of a split.
+const MIN_TRAIN: usize = 4;
+/// Fewest test samples of a split.
+const MIN_TEST: usize = 2;
+
+/// Whether `n` samples split at `fraction` leave enough on both sides.
+fn fits(n: usize, fraction: f64) -> bool {
+    let n_train = ((n as f64) * fraction).round() as usize;
+    n_train >= MIN_TRAIN && n.saturating_sub(n_train) >= MIN_TEST
+}
+
+/// The fewest samples [`split`] takes at `fraction`, above `n`. Searched, since rounding makes a
+/// closed form fiddly, and bounded for absurd fractions.
+fn needed_above(n: usize, fraction: f64) -> usize {
+    const SEARCH_LIMIT: usize = 10_000_000;
+    (n + 1..=SEARCH_LIMIT)
+        .find(|&m| fits(m, fraction))
+        .unwrap_or(SEARCH_LIMIT)
+}
+
+/// The fewest samples [`split`] accepts at `fraction` (7 at one half), so a command can refuse
+/// a short file by its own words before the analysis starts.
+pub fn min_samples(fraction: f64) -> usize {
+    needed_above(0, fraction)
+}
+
 /// A seeded random split: `round(n * fraction)` training indices, the rest for testing, both
 /// sorted.
 pub fn split(
@@ -13,22 +39,10 @@ pub fn split(
     fraction: f64,
     seed: u64,
 ) -> Result<(Vec<usize>, Vec<usize>), IdentifyError> {
-    const MIN_TRAIN: usize = 4;
-    const MIN_TEST: usize = 2;
-    let fits = |n: usize| {
-        let n_train = ((n as f64) * fraction).round() as usize;
-        n_train >= MIN_TRAIN && n.saturating_sub(n_train) >= MIN_TEST
-    };
-    if !fits(n) {
-        // The smallest sample count that works (the training count is rounded); searched, since
-        // rounding makes a closed form fiddly, and bounded for absurd fractions.
-        const SEARCH_LIMIT: usize = 10_000_000;
-        let needed = (n + 1..=SEARCH_LIMIT)
-            .find(|&m| fits(m))
-            .unwrap_or(SEARCH_LIMIT);
+    if !fits(n, fraction) {
         return Err(IdentifyError::TooFewSamples {
             samples: n,
-            needed,
+            needed: needed_above(n, fraction),
             train: MIN_TRAIN,
             test: MIN_TEST,
         });

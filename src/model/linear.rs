@@ -21,6 +21,19 @@ pub(crate) fn first_ydd(e: &Expr) -> Option<usize> {
     }
 }
 
+/// The first constant of the folded `e` that is NaN or infinite, if any.
+pub(crate) fn first_non_finite(e: &Expr) -> Option<f64> {
+    match e {
+        Expr::Num(v) => (!v.is_finite()).then_some(*v),
+        Expr::Var(..) | Expr::Coef(_) => None,
+        Expr::Neg(a) => first_non_finite(a),
+        Expr::Sum(ts) => ts.iter().find_map(first_non_finite),
+        Expr::Prod(fs) => fs.iter().find_map(|(f, _)| first_non_finite(f)),
+        Expr::Pow(a, b) => first_non_finite(a).or_else(|| first_non_finite(b)),
+        Expr::Call(_, args, _) => args.iter().find_map(first_non_finite),
+    }
+}
+
 fn nonlinear(what: &str, col: usize) -> ModelError {
     ModelError {
         message: format!("{what} at column {col}: the equation must be linear in ydd"),

@@ -135,6 +135,11 @@ fn error<T>(message: String, column: Option<usize>) -> Result<T, ModelError> {
     Err(ModelError { message, column })
 }
 
+/// Column of the first `ydd` of the equation, left side first.
+fn first_ydd_col(lhs: &Expr, rhs: &Expr) -> Option<usize> {
+    linear::first_ydd(lhs).or_else(|| linear::first_ydd(rhs))
+}
+
 /// Rejects params that could never be referenced or would shadow a built-in name.
 fn check_params(params: &[(String, f64)]) -> Result<(), ModelError> {
     for (i, (name, value)) in params.iter().enumerate() {
@@ -311,7 +316,33 @@ impl Model {
             message: format!("expression too deeply nested (the limit is {MAX_DEPTH} levels)"),
             column: None,
         };
+        // A constant part that folds to NaN or infinity (`sqrt(-1)`, `1/0`) makes every trial
+        // of an identification fail to integrate; refused here, where the text is at hand,
+        // rather than reported minutes later as a fit that never started.
+        if let Some(v) = [&m, &r]
+            .into_iter()
+            .flatten()
+            .find_map(linear::first_non_finite)
+        {
+            return error(
+                format!("a constant part of the equation evaluates to {v} (a division by zero, or the root or logarithm of a negative number?): no trial could be simulated"),
+                None,
+            );
+        }
         let mass = Program::compile(m.as_ref()).ok_or_else(too_deep)?;
+        // `M * ydd + R = 0` gives the acceleration only where `M` is not zero: a factor of ydd
+        // that is the constant 0 (`0*ydd`, `ydd - ydd`) leaves it undetermined, and every trial
+        // of an identification divides by it.
+        if mass.constant().is_some_and(|v| v == 0.0) {
+            let col = first_ydd_col(&lhs, &rhs);
+            return error(
+                format!(
+                    "the factor of ydd{} is identically zero: the equation does not determine the acceleration",
+                    col.map_or(String::new(), |c| format!(" (at column {c})"))
+                ),
+                col,
+            );
+        }
         let residual = Program::compile(r.as_ref()).ok_or_else(too_deep)?;
         let mass_kind = match (mass.constant(), mass.coefficient()) {
             (Some(1.0), _) => MassKind::One,

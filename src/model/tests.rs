@@ -149,11 +149,41 @@ fn split_variants() {
 
 #[test]
 fn vanishing_mass_gives_non_finite_accel() {
-    let m = model("0*ydd + y = 0");
-    assert_eq!(m.mass(0.0, 1.0, 0.0, &[]), 0.0);
-    assert!(!m.accel(0.0, 1.0, 0.0, &[]).is_finite());
+    // A factor of ydd that is the constant zero is refused at parse time (below); one that
+    // vanishes at some state or for some coefficient gives a non-finite acceleration there.
+    let m = model("y*ydd + 1 = 0");
+    assert_eq!(m.mass(0.0, 0.0, 0.0, &[]), 0.0);
+    assert!(!m.accel(0.0, 0.0, 0.0, &[]).is_finite());
     let m = model("c1*ydd + y = 0");
     assert!(m.accel(0.0, 0.0, 0.0, &[0.0]).is_nan());
+}
+
+/// A factor of ydd that folds to the constant 0 leaves the acceleration undetermined, and a
+/// constant that folds to NaN or infinity makes every trial fail: both refused, the first with
+/// the column of its ydd.
+#[test]
+fn a_zero_factor_of_ydd_and_a_non_finite_constant_are_refused() {
+    for (eq, col) in [
+        ("0*ydd + c1*yd + y = 0", Some(3)),
+        ("ydd - ydd + c1*y = 0", Some(1)),
+        ("m*ydd + c1*y = 0", Some(3)),
+    ] {
+        let e = Model::parse(eq, &[("m".to_string(), 0.0)]).unwrap_err();
+        assert_eq!(e.column, col, "{eq}: {e}");
+        assert!(e.message.contains("factor of ydd"), "{eq}: {e}");
+        assert!(e.message.contains("identically zero"), "{eq}: {e}");
+    }
+    for eq in [
+        "ydd + c1*yd + sqrt(-1)*y = 0",
+        "ydd + c1*yd + (1/0)*y = 0",
+        "ydd/0 + c1*y = 0",
+    ] {
+        let e = Model::parse(eq, &[]).unwrap_err();
+        assert!(e.message.contains("evaluates to"), "{eq}: {e}");
+    }
+    // A factor that vanishes only for some coefficient or state is the search's business.
+    assert!(Model::parse("c2*ydd + c1*y = 0", &[]).is_ok());
+    assert!(Model::parse("(1 + y^2)*ydd + c1*y = 0", &[]).is_ok());
 }
 
 #[test]

@@ -36,7 +36,7 @@ pub struct BenchHistoryArgs {
     #[arg(long, default_value_t = 16)]
     pub gates: usize,
     /// Hours of history per gate.
-    #[arg(long, default_value_t = 24.0)]
+    #[arg(long, default_value_t = 24.0, allow_negative_numbers = true)]
     pub hours: f64,
     /// Seconds between two identifications of a gate (`identify_every_seconds`).
     #[arg(long, default_value_t = 5.0)]

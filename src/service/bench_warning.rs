@@ -57,7 +57,7 @@ pub struct BenchWarningArgs {
     pub json: bool,
     /// Hours of sample time streamed per seed on the stable scenarios (`stable`, `stable-low`),
     /// the false-alarm part; other scenarios run their defined length.
-    #[arg(long, default_value_t = 0.5)]
+    #[arg(long, default_value_t = 0.5, allow_negative_numbers = true)]
     pub hours: f64,
     /// Scenarios to run (default: all).
     #[arg(long, value_delimiter = ',')]

@@ -77,12 +77,21 @@ pub fn load_config(path: Option<&std::path::Path>) -> Result<Config, super::conf
     Ok(config)
 }
 
+/// The line `serve` and `check-config` print for a configuration error: `gatewatch: FILE:
+/// message`, the file named once (a file that cannot be read is named by the error itself).
+fn config_error_line(file: Option<&std::path::Path>, e: &super::config::ConfigError) -> String {
+    match file {
+        Some(f) if !e.names_file() => format!("gatewatch: {}: {e}", f.display()),
+        _ => format!("gatewatch: {e}"),
+    }
+}
+
 /// `gatewatch serve`: exit 0 after a clean shutdown, 2 on a configuration error, 1 otherwise.
 pub fn serve(args: ServeArgs) -> ExitCode {
     let mut config = match load_config(args.config.as_deref()) {
         Ok(c) => c,
         Err(e) => {
-            eprintln!("gatewatch: {e}");
+            eprintln!("{}", config_error_line(args.config.as_deref(), &e));
             return ExitCode::from(2);
         }
     };
@@ -143,7 +152,7 @@ pub fn check_config(args: CheckConfigArgs) -> ExitCode {
             ExitCode::SUCCESS
         }
         Err(e) => {
-            eprintln!("{}: {e}", args.file.display());
+            eprintln!("{}", config_error_line(Some(&args.file), &e));
             ExitCode::from(2)
         }
     }

@@ -76,11 +76,11 @@ pub struct SimulateArgs {
     /// Scenario.
     #[arg(long, value_enum, default_value = "stable")]
     pub scenario: Scenario,
-    /// Replay speed (10: ten seconds of samples per second).
-    #[arg(long, default_value_t = 1.0)]
+    /// Replay speed (10: ten seconds of samples per second; 0 or less: as fast as possible).
+    #[arg(long, default_value_t = 1.0, allow_negative_numbers = true)]
     pub speed: f64,
     /// Seconds of sample time to send.
-    #[arg(long, default_value_t = 600.0)]
+    #[arg(long, default_value_t = 600.0, allow_negative_numbers = true)]
     pub duration: f64,
     /// Random seed.
     #[arg(long, default_value_t = 1)]
@@ -89,22 +89,22 @@ pub struct SimulateArgs {
     #[arg(long, value_enum, default_value = "json")]
     pub protocol: Protocol,
     /// Sample rate, Hz (0: the preset's, 200 Hz for the lab gate).
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
     pub rate: f64,
     /// Bearer token.
     #[arg(long, env = "GATEWATCH_TOKEN")]
     pub token: Option<String>,
     /// Seconds of samples per request.
-    #[arg(long, default_value_t = 0.1)]
+    #[arg(long, default_value_t = 0.1, allow_negative_numbers = true)]
     pub chunk_seconds: f64,
     /// Start time, Unix seconds (default: now).
     #[arg(long)]
     pub start: Option<f64>,
     /// `onset`: seconds of sample time at +2 % damping before the ramp.
-    #[arg(long, default_value_t = 60.0)]
+    #[arg(long, default_value_t = 60.0, allow_negative_numbers = true)]
     pub onset_hold: f64,
     /// `onset`: seconds of sample time of the ramp from +2 % to -2 % (then -2 %).
-    #[arg(long, default_value_t = 300.0)]
+    #[arg(long, default_value_t = 300.0, allow_negative_numbers = true)]
     pub onset_ramp: f64,
     /// The gate preset and its sensor noise.
     #[command(flatten)]

@@ -364,13 +364,32 @@ impl Default for GateConfig {
 pub struct ConfigError {
     /// One line.
     pub message: String,
+    /// Whether the message already names the file (it could not be read), so a caller that
+    /// prefixes the file's name does not say it twice.
+    names_file: bool,
 }
 
 impl ConfigError {
     fn new(message: impl Into<String>) -> Self {
         ConfigError {
             message: message.into().replace('\n', " "),
+            names_file: false,
         }
+    }
+
+    /// Whether [`Self::message`] already names the configuration file.
+    pub fn names_file(&self) -> bool {
+        self.names_file
+    }
+}
+
+/// An I/O error's reason without the OS's code: `No such file or directory`, not `... (os
+/// error 2)`, which tells the user nothing more.
+fn io_reason(e: &std::io::Error) -> String {
+    let s = e.to_string();
+    match s.rfind(" (os error ") {
+        Some(i) if s.ends_with(')') => s[..i].to_string(),
+        _ => s,
     }
 }
 
@@ -501,8 +520,10 @@ impl Config {
 
     /// Reads, parses and validates a file.
     pub fn from_file(path: &Path) -> Result<Config, ConfigError> {
-        let text = std::fs::read_to_string(path)
-            .map_err(|e| ConfigError::new(format!("{}: {e}", path.display())))?;
+        let text = std::fs::read_to_string(path).map_err(|e| ConfigError {
+            names_file: true,
+            ..ConfigError::new(format!("{}: {}", path.display(), io_reason(&e)))
+        })?;
         Config::from_toml(&text)
     }
 

@@ -37,20 +37,20 @@ pub const WEBHOOK_QUEUE: usize = 256;
 #[derive(Debug, Clone, clap::Args)]
 pub struct DemoArgs {
     /// Wall-clock seconds to run before the summary (Ctrl-C ends earlier).
-    #[arg(long, default_value_t = 90.0)]
+    #[arg(long, default_value_t = 90.0, allow_negative_numbers = true)]
     pub duration: f64,
     /// Replay speed of the simulated gate (15: fifteen seconds of samples per second).
-    #[arg(long, default_value_t = 15.0)]
+    #[arg(long, default_value_t = 15.0, allow_negative_numbers = true)]
     pub speed: f64,
     /// Seconds of sample time at +2 % damping before the ramp to -2 % (240: the trend warning
     /// acts once its windows span `trend_min_span_seconds`, 240 s by default, so a drift that
     /// starts later is one it can warn of before zero).
-    #[arg(long, default_value_t = 240.0)]
+    #[arg(long, default_value_t = 240.0, allow_negative_numbers = true)]
     pub onset_hold: f64,
     /// Seconds of sample time of the ramp from +2 % to -2 % (600: 0.4 points a minute, a drift
     /// the trend sees coming; on seeds 1 to 3 it warned at +0.56 to +0.83 % and the damping
     /// alert followed 12 to 14 s of wall time later).
-    #[arg(long, default_value_t = 600.0)]
+    #[arg(long, default_value_t = 600.0, allow_negative_numbers = true)]
     pub onset_ramp: f64,
     /// Random seed of the simulated turbulence.
     #[arg(long, default_value_t = 1)]
