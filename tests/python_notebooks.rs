@@ -210,14 +210,17 @@ fn the_notebook_recipes_run_as_written_against_a_real_daemon() {
     let out = run_recipe(&python, dir.path(), &recipes[1], &env);
     let (_, page) = get(port, "/api/v1/gates").unwrap();
     let page: Value = serde_json::from_str(&page).unwrap();
-    let samples = &page["gates"][0]["samples"];
+    let samples = page["gates"][0]["samples"]
+        .as_u64()
+        .expect("samples")
+        .to_string();
     assert_eq!(page["gates"][0]["gate"], "g1", "{page}");
     let g1 = out
         .lines()
         .find(|l| l.starts_with("g1 "))
         .unwrap_or_else(|| panic!("no row of g1:\n{out}"));
     assert!(
-        g1.split_whitespace().any(|w| w == samples.to_string()),
+        g1.split_whitespace().any(|w| w == samples),
         "g1's samples {samples}: {g1}"
     );
     assert!(out.lines().any(|l| l.starts_with("g2 ")), "{out}");
