@@ -279,7 +279,7 @@ fn too_few_samples_for_the_split() {
     let f = d.write("few.csv", "t,y\n0,1\n0.1,2\n0.2,3\n0.3,1\n0.4,1\n");
     bad(
         &["identify", "--input", &f, "--model", VDP],
-        &["5 samples", "too few", "at least"],
+        &["5 data rows", "too few", "at least"],
     );
     // 10 samples are enough at 0.5 but not at 0.9 (9 train, 1 test).
     let rows: String = (0..10).map(|i| format!("{},{}\n", i, i % 3)).collect();
@@ -294,7 +294,11 @@ fn too_few_samples_for_the_split() {
             "--train-fraction",
             "0.9",
         ],
-        &["10 samples", "too few"],
+        &[
+            "10 data rows are too few",
+            "at least 16",
+            "--train-fraction 0.9",
+        ],
     );
 }
 
@@ -413,8 +417,8 @@ fn force_needs_uniform_times_and_names_the_sample_off_the_grid() {
         ],
         &[
             "--signal force needs uniformly sampled times",
-            "sample 217",
-            "data row 218",
+            "data row 218 (t = 2.171)",
+            "median step is 1.000000e-2 s",
         ],
     );
 }
@@ -449,8 +453,9 @@ fn bad_bench_arguments_and_unknown_commands() {
 }
 
 #[test]
-fn other_failures_exit_1() {
-    // An output file that cannot be created is not bad *input* data: exit 1, one line.
+fn an_unwritable_output_exits_2_naming_it() {
+    // An output file that cannot be created is a bad argument, as for stability-map --output
+    // and identify --plot: exit 2, one line naming the option and the path.
     let d = Dir::new();
     let target = d.path("no/such/dir/out.csv");
     let out = gw(&[
@@ -462,9 +467,10 @@ fn other_failures_exit_1() {
         target.to_str().unwrap(),
     ]);
     let err = text(&out.stderr);
-    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert_eq!(out.status.code(), Some(2), "{err}");
     assert_eq!(err.lines().count(), 1, "{err}");
-    assert!(err.contains("error"), "{err}");
+    assert!(err.contains("--output"), "{err}");
+    assert!(err.contains(target.to_str().unwrap()), "{err}");
 }
 
 #[test]
@@ -810,7 +816,7 @@ fn too_few_samples_message_gives_the_true_minimum() {
     // 7 samples suffice at 0.5 (see seven_samples_are_enough_for_a_half_split); it says 8.
     bad(
         &["identify", "--input", &f, "--model", "ydd + c1*yd + y = 0"],
-        &["6 samples", "at least 7"],
+        &["6 data rows", "at least 7"],
     );
     // A tiny fraction: the minimum is astronomically large, not usize::MAX from a saturating
     // cast (the message says "at least 18446744073709551615").

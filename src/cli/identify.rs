@@ -228,10 +228,12 @@ pub(super) fn run(a: IdentifyArgs) -> Result<(), CliError> {
     let needed = crate::identify::min_samples(a.train_fraction);
     if series.len() < needed {
         return Err(input(format!(
-            "{}: {} data row{} too few: identify needs at least {needed}",
+            "{}: {} data row{} too few: identify needs at least {needed}, to train on 4 and \
+             test on 2 when split at --train-fraction {}",
             a.input.display(),
             series.len(),
-            if series.len() == 1 { " is" } else { "s are" }
+            if series.len() == 1 { " is" } else { "s are" },
+            a.train_fraction
         )));
     }
     let opts = SeriesOptions {
