@@ -7,51 +7,16 @@
 //! Without network access to PyPI (or without the `influx` CLI) the test is skipped with a
 //! message, except in CI (`CI` set), where it fails: `.ci/run` installs what it needs.
 
-use std::io::{Read, Write};
 use std::path::Path;
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::time::Duration;
 
 use serde_json::Value;
 
 mod python_common;
-use python_common::{missing, venv_python};
+use python_common::{free_port, http_get, missing, venv_python, Daemon};
 
 const BIN: &str = env!("CARGO_BIN_EXE_gatewatch");
-
-fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
-}
-
-/// A plain HTTP/1.1 GET: (status, body).
-fn http_get(port: u16, path: &str) -> Option<(u16, String)> {
-    let mut s = std::net::TcpStream::connect(("127.0.0.1", port)).ok()?;
-    s.set_read_timeout(Some(Duration::from_secs(10))).ok()?;
-    write!(
-        s,
-        "GET {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n"
-    )
-    .ok()?;
-    let mut out = String::new();
-    s.read_to_string(&mut out).ok()?;
-    let status = out.get(9..12)?.parse().ok()?;
-    let body = out.split_once("\r\n\r\n")?.1.to_string();
-    Some((status, body))
-}
-
-/// The daemon, stopped (SIGKILL) when dropped so a failed assertion leaves no process behind.
-struct Daemon(Child);
-
-impl Drop for Daemon {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
 
 fn serve(dir: &Path, port: u16) -> Daemon {
     // long windows: the few samples written here never start an identification
@@ -73,7 +38,7 @@ fn serve(dir: &Path, port: u16) -> Daemon {
         .unwrap();
     let daemon = Daemon(child);
     for _ in 0..400 {
-        if http_get(port, "/readyz").is_some_and(|(s, _)| s == 200) {
+        if http_get(port, "/readyz", None).is_some_and(|(s, _)| s == 200) {
             return daemon;
         }
         std::thread::sleep(Duration::from_millis(50));
@@ -82,7 +47,7 @@ fn serve(dir: &Path, port: u16) -> Daemon {
 }
 
 fn samples(port: u16, gate: &str) -> u64 {
-    let (status, body) = http_get(port, &format!("/api/v1/gates/{gate}")).expect("GET gate");
+    let (status, body) = http_get(port, &format!("/api/v1/gates/{gate}"), None).expect("GET gate");
     assert_eq!(status, 200, "gate `{gate}`: {body}");
     let v: Value = serde_json::from_str(&body).unwrap();
     v["window"]["samples"].as_u64().unwrap()

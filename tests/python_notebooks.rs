@@ -5,53 +5,22 @@
 //!
 //! Without PyPI the test is skipped with a message, except in CI (`CI` set), where it fails.
 
-use std::io::Read;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Output, Stdio};
+use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
 use serde_json::Value;
 
 mod python_common;
-use python_common::venv_python;
+use python_common::{free_port, venv_python, Daemon};
 
 const BIN: &str = env!("CARGO_BIN_EXE_gatewatch");
 const ROOT: &str = env!("CARGO_MANIFEST_DIR");
 const TOKEN: &str = "notebook-token-0123456789";
 
-struct Daemon(Child);
-
-impl Drop for Daemon {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
-}
-
-/// `GET path` with the token: (status, body). HTTP/1.0, so a streamed answer (the history)
-/// comes whole, not in chunks.
+/// `GET path` with the token: (status, body).
 fn get(port: u16, path: &str) -> Option<(u16, String)> {
-    use std::io::Write;
-    let mut s = std::net::TcpStream::connect(("127.0.0.1", port)).ok()?;
-    s.set_read_timeout(Some(Duration::from_secs(30))).ok()?;
-    write!(
-        s,
-        "GET {path} HTTP/1.0\r\nHost: x\r\nAuthorization: Bearer {TOKEN}\r\nConnection: close\r\n\r\n"
-    )
-    .ok()?;
-    let mut out = String::new();
-    s.read_to_string(&mut out).ok()?;
-    let status = out.get(9..12)?.parse().ok()?;
-    let body = out.split_once("\r\n\r\n")?.1.to_string();
-    Some((status, body))
+    python_common::http_get(port, path, Some(TOKEN))
 }
 
 /// The python blocks of docs/notebooks.md, in order.
