@@ -540,23 +540,21 @@ impl Config {
         if let Some(v) = get("GATEWATCH_TCP_LISTEN") {
             self.server.tcp_listen = v;
         }
-        if let Some(v) = get("GATEWATCH_TCP_ALLOWED_NETWORKS") {
-            // comma-separated, as GATEWATCH_AUTH_TOKENS: what a container started with
-            // GATEWATCH_TCP_LISTEN needs, whose clients come through the runtime's bridge
-            self.server.tcp_allowed_networks = v
-                .split(',')
+        // a list from the environment: comma-separated, blanks around and empty items dropped
+        let list = |v: String| -> Vec<String> {
+            v.split(',')
                 .map(str::trim)
                 .filter(|s| !s.is_empty())
                 .map(String::from)
-                .collect();
+                .collect()
+        };
+        if let Some(v) = get("GATEWATCH_TCP_ALLOWED_NETWORKS") {
+            // what a container started with GATEWATCH_TCP_LISTEN needs, whose clients come
+            // through the runtime's bridge
+            self.server.tcp_allowed_networks = list(v);
         }
         if let Some(v) = get("GATEWATCH_AUTH_TOKENS") {
-            self.server.auth_tokens = v
-                .split(',')
-                .map(str::trim)
-                .filter(|s| !s.is_empty())
-                .map(String::from)
-                .collect();
+            self.server.auth_tokens = list(v);
         }
         if let Some(v) = get("GATEWATCH_LOG_FORMAT") {
             self.log.format = match v.as_str() {
