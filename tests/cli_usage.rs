@@ -281,19 +281,7 @@ fn stability_map_checks_its_outputs_before_the_trials() {
         } else {
             "/proc/nope/x.csv"
         };
-        let o = gw(&[
-            "stability-map",
-            "--model",
-            "ydd + c1*yd + c2*y = 0",
-            "--range",
-            "c1=-1:1",
-            "--range",
-            "c2=0.5:2",
-            "--samples",
-            "50",
-            flag,
-            path,
-        ]);
+        let o = gw(&[&SMALL_MAP[..], &["--samples", "50", flag, path]].concat());
         let err = text(&o.stderr);
         assert_eq!(o.status.code(), Some(2), "{err}");
         assert!(
@@ -307,6 +295,17 @@ fn stability_map_checks_its_outputs_before_the_trials() {
         );
     }
 }
+
+/// A small stability map, for the tests of its options.
+const SMALL_MAP: [&str; 7] = [
+    "stability-map",
+    "--model",
+    "ydd + c1*yd + c2*y = 0",
+    "--range",
+    "c1=-1:1",
+    "--range",
+    "c2=0.5:2",
+];
 
 /// A missing configuration file is named once, after `gatewatch:`, without the OS's code.
 #[test]
@@ -330,17 +329,7 @@ fn a_missing_config_is_named_once() {
 /// "unexpected argument '-1'".
 #[test]
 fn numeric_options_take_negative_numbers_to_their_range_checks() {
-    let map = [
-        "stability-map",
-        "--model",
-        "ydd + c1*yd + c2*y = 0",
-        "--range",
-        "c1=-1:1",
-        "--range",
-        "c2=0.5:2",
-        "--samples",
-        "10",
-    ];
+    let map = [&SMALL_MAP[..], &["--samples", "10"]].concat();
     let o = gw(&[&map[..], &["--periods", "3", "--t-end", "5"]].concat());
     let err = text(&o.stderr);
     assert_eq!(o.status.code(), Some(2), "{err}");
