@@ -366,3 +366,57 @@ fn numeric_options_take_negative_numbers_to_their_range_checks() {
     let help = text(&gw(&["simulate", "--help"]).stdout);
     assert!(help.contains("as fast as possible"), "{help}");
 }
+
+/// The benches take negative numbers to their range checks and refuse them as input (exit 2,
+/// one `gatewatch bench NAME:` line naming the flag) before they start anything: before,
+/// `bench history --hours -1` printed clap's `error:` and exited 1, `bench soak --rate -5` and
+/// `bench daemon --seconds -1` stopped at clap's "unexpected argument", and `bench daemon
+/// --skip ingset` skipped nothing, silently.
+#[test]
+fn benches_refuse_out_of_range_numbers_as_input() {
+    for (args, needle) in [
+        (
+            &["bench", "history", "--hours", "-1"][..],
+            "gatewatch bench history: --hours must be > 0, got -1",
+        ),
+        (
+            &["bench", "history", "--every-seconds", "0"][..],
+            "gatewatch bench history: --every-seconds must be > 0",
+        ),
+        (
+            &["bench", "history", "--gates", "0"][..],
+            "gatewatch bench history: --gates must be >= 1",
+        ),
+        (
+            &["bench", "soak", "--rate", "-5"][..],
+            "gatewatch bench soak: --minutes, --interval, --rate",
+        ),
+        (
+            &["bench", "soak", "--warmup", "-1"][..],
+            "--broken-per-second and --warmup >= 0",
+        ),
+        (
+            &["bench", "daemon", "--seconds", "-1"][..],
+            "gatewatch bench daemon: --seconds must be > 0, got -1",
+        ),
+        (
+            &["bench", "daemon", "--skip", "ingset"][..],
+            "gatewatch bench daemon: --skip ingset: unknown measurement",
+        ),
+        (
+            &["bench", "daemon", "--gates", "8,0"][..],
+            "gatewatch bench daemon: --gates: every gate count must be >= 1",
+        ),
+        (
+            &["simulate", "--url", "http://127.0.0.1:9", "--rate", "-5"][..],
+            "--rate must be > 0 (or 0 for the preset's rate), got -5",
+        ),
+    ] {
+        let o = gw(args);
+        let err = text(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {err}");
+        assert!(err.contains(needle), "{args:?}: {err}");
+        assert_eq!(err.trim_end().lines().count(), 1, "{args:?}: {err}");
+        assert!(o.stdout.is_empty(), "{args:?} ran: {}", text(&o.stdout));
+    }
+}

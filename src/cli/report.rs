@@ -102,6 +102,7 @@ pub(super) fn write_identification(
     model: &Model,
     a: &SeriesAnalysis,
     config: &Config,
+    max_fit_nmae: f64,
 ) -> std::io::Result<()> {
     let r = &a.identification;
     let best = r.best_run();
@@ -187,10 +188,28 @@ pub(super) fn write_identification(
             r.summary.mean, r.summary.std, r.summary.min, r.summary.median
         )?;
     }
-    write_damping(out, &a.damping)
+    write_damping(out, &a.damping, max_fit_nmae)
 }
 
-fn write_damping(out: &mut impl Write, d: &analysis::DampingReport) -> std::io::Result<()> {
+/// The damping block. The lines that come from the identified equation alone (`zeta_eq`, the
+/// energy, the limit cycle, the time to the limit) say so when the model is not trusted (its
+/// fit above `--max-fit-nmae`, or at odds with the spectrum): on a noise-driven record a
+/// free-vibration fit often finds a limit cycle at the record's own amplitude while the verdict,
+/// from the ambient estimate, is `damped`, and an engineer must not read that limit cycle as
+/// the gate's.
+fn write_damping(
+    out: &mut impl Write,
+    d: &analysis::DampingReport,
+    max_fit_nmae: f64,
+) -> std::io::Result<()> {
+    let model_trusted = d.fit_nmae <= max_fit_nmae && d.agrees;
+    let of_model = |v: String| {
+        if model_trusted || v == "n/a" {
+            v
+        } else {
+            format!("{v} (model, not trusted)")
+        }
+    };
     writeln!(out, "damping:")?;
     let interval = d.zeta0_interval.map_or(String::new(), |(lo, hi)| {
         format!(" [{:.3} %, {:.3} %]", 100.0 * lo, 100.0 * hi)
@@ -204,7 +223,7 @@ fn write_damping(out: &mut impl Write, d: &analysis::DampingReport) -> std::io::
     writeln!(
         out,
         "  zeta_eq (at amplitude): {}",
-        opt(d.zeta_eq, |z| format!("{:.3} %", 100.0 * z))
+        of_model(opt(d.zeta_eq, |z| format!("{:.3} %", 100.0 * z)))
     )?;
     writeln!(
         out,
@@ -214,17 +233,17 @@ fn write_damping(out: &mut impl Write, d: &analysis::DampingReport) -> std::io::
     writeln!(
         out,
         "  energy fed per cycle:   {}",
-        opt(d.energy_per_cycle, |v| format!("{v:.4e}"))
+        of_model(opt(d.energy_per_cycle, |v| format!("{v:.4e}")))
     )?;
     writeln!(
         out,
         "  limit-cycle amplitude:  {}",
-        opt(d.limit_cycle_amplitude, |v| format!("{v:.4e}"))
+        of_model(opt(d.limit_cycle_amplitude, |v| format!("{v:.4e}")))
     )?;
     writeln!(
         out,
         "  time to limit:          {}",
-        opt(d.time_to_limit, |v| format!("{v:.1} s"))
+        of_model(opt(d.time_to_limit, |v| format!("{v:.1} s")))
     )?;
     writeln!(
         out,
@@ -243,7 +262,7 @@ fn write_damping(out: &mut impl Write, d: &analysis::DampingReport) -> std::io::
     if let Some((z, lo, hi)) = d.ambient_zeta.map(<(f64, f64, f64)>::from) {
         writeln!(
             out,
-            "  ambient zeta (AR):      {:.3} % [{:.3} %, {:.3} %]",
+            "  ambient zeta (SSI-COV): {:.3} % [{:.3} %, {:.3} %]",
             100.0 * z,
             100.0 * lo,
             100.0 * hi
@@ -251,15 +270,24 @@ fn write_damping(out: &mut impl Write, d: &analysis::DampingReport) -> std::io::
     }
     writeln!(
         out,
-        "  fit NMAE:               {:.3e}; agrees with the spectrum: {}; trusted: {}",
+        "  fit NMAE:               {:.3e} (bound {max_fit_nmae:.3e}); agrees with the spectrum: {}; model trusted: {}",
         d.fit_nmae,
         if d.agrees { "yes" } else { "no" },
-        if d.trusted { "yes" } else { "no" }
+        if model_trusted { "yes" } else { "no" }
+    )?;
+    writeln!(
+        out,
+        "  report trusted:         {} (may feed the alerts; zeta0 from {})",
+        if d.trusted { "yes" } else { "no" },
+        d.zeta0_source.map_or("-", |s| s.as_str())
     )?;
     let verdict = match d.verdict {
         analysis::Verdict::Damped => "damped",
         analysis::Verdict::SelfExcited => "SELF-EXCITED (negative damping at rest)",
-        analysis::Verdict::Unknown => "unknown (the model cannot be trusted)",
+        analysis::Verdict::Unknown if d.trusted => {
+            "unknown (zeta0's 95 % interval reaches zero: neither sign is certain)"
+        }
+        analysis::Verdict::Unknown => "unknown (no estimate here may be trusted)",
     };
     writeln!(out, "  verdict:                {verdict}")
 }

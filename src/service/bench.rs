@@ -51,7 +51,7 @@ pub struct BenchDaemonArgs {
     #[arg(long, default_value_t = 5)]
     pub windows: usize,
     /// Wall seconds of real-time streaming per gate count in the capacity measurement.
-    #[arg(long, default_value_t = 30.0)]
+    #[arg(long, default_value_t = 30.0, allow_negative_numbers = true)]
     pub seconds: f64,
     /// Largest gate count tried.
     #[arg(long, default_value_t = 64)]
@@ -561,6 +561,37 @@ async fn capacity_run(
     Ok((capacity, streams))
 }
 
+/// The arguments' ranges, before any daemon starts: a bad one is the user's input (exit 2).
+fn check(args: &BenchDaemonArgs) -> Result<(), String> {
+    if !(args.seconds.is_finite() && args.seconds > 0.0) {
+        return Err(format!("--seconds must be > 0, got {}", args.seconds));
+    }
+    for (flag, v) in [
+        ("--samples", args.samples as usize),
+        ("--batch", args.batch),
+        ("--senders", args.senders),
+        ("--windows", args.windows),
+        ("--max-gates", args.max_gates),
+    ] {
+        if v == 0 {
+            return Err(format!("{flag} must be >= 1"));
+        }
+    }
+    if args.gates.contains(&0) {
+        return Err("--gates: every gate count must be >= 1".into());
+    }
+    if let Some(s) = args
+        .skip
+        .iter()
+        .find(|s| !["ingest", "latency", "capacity"].contains(&s.as_str()))
+    {
+        return Err(format!(
+            "--skip {s}: unknown measurement (ingest, latency, capacity)"
+        ));
+    }
+    Ok(())
+}
+
 async fn bench(args: BenchDaemonArgs) -> anyhow::Result<()> {
     super::client::ensure_crypto_provider();
     let skip = |what: &str| args.skip.iter().any(|s| s == what);
@@ -726,6 +757,10 @@ fn capacity_row(label: &str, gates: usize, c: &Capacity) -> (bool, bool) {
 
 /// `gatewatch bench daemon`.
 pub fn bench_daemon(args: BenchDaemonArgs) -> ExitCode {
+    if let Err(e) = check(&args) {
+        eprintln!("gatewatch bench daemon: {e}");
+        return ExitCode::from(2);
+    }
     let rt = match tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()

@@ -39,7 +39,7 @@ pub struct BenchHistoryArgs {
     #[arg(long, default_value_t = 24.0, allow_negative_numbers = true)]
     pub hours: f64,
     /// Seconds between two identifications of a gate (`identify_every_seconds`).
-    #[arg(long, default_value_t = 5.0)]
+    #[arg(long, default_value_t = 5.0, allow_negative_numbers = true)]
     pub every_seconds: f64,
     /// Timed requests of each kind (the first, cold one is reported apart).
     #[arg(long, default_value_t = 10)]
@@ -77,19 +77,30 @@ impl Drop for TempDir {
 
 /// Runs the benchmark; the report goes to stdout.
 pub fn bench_history(args: BenchHistoryArgs) -> ExitCode {
+    if let Err(e) = check(&args) {
+        eprintln!("gatewatch bench history: {e}");
+        return ExitCode::from(2);
+    }
     match bench(&args) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            eprintln!("gatewatch bench history: {e:#}");
             ExitCode::FAILURE
         }
     }
 }
 
-fn bench(args: &BenchHistoryArgs) -> anyhow::Result<()> {
+/// The arguments' ranges, before anything is written: a bad one is the user's input (exit 2).
+fn check(args: &BenchHistoryArgs) -> anyhow::Result<()> {
     let positive = |v: f64| v.is_finite() && v > 0.0;
-    if args.gates == 0 || !positive(args.hours) || !positive(args.every_seconds) {
-        anyhow::bail!("--gates, --hours and --every-seconds must be > 0");
+    if args.gates == 0 {
+        anyhow::bail!("--gates must be >= 1");
+    }
+    if !positive(args.hours) {
+        anyhow::bail!("--hours must be > 0, got {}", args.hours);
+    }
+    if !positive(args.every_seconds) {
+        anyhow::bail!("--every-seconds must be > 0, got {}", args.every_seconds);
     }
     if args.queries == 0 {
         anyhow::bail!("--queries must be >= 1");
@@ -101,6 +112,16 @@ fn bench(args: &BenchHistoryArgs) -> anyhow::Result<()> {
              ({MAX_HISTORY_LIMIT}); shorten --hours"
         );
     }
+    if let Some(p) = &args.db {
+        if p.exists() {
+            anyhow::bail!("--db {}: exists; give a new file", p.display());
+        }
+    }
+    Ok(())
+}
+
+fn bench(args: &BenchHistoryArgs) -> anyhow::Result<()> {
+    let per_gate = (args.hours * 3600.0 / args.every_seconds).floor() as usize;
     let mut _tmp = None;
     let path = match &args.db {
         Some(p) => {

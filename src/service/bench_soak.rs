@@ -50,7 +50,7 @@ const CHUNK_SECONDS: f64 = 0.5;
 #[derive(Debug, Clone, clap::Args)]
 pub struct BenchSoakArgs {
     /// Minutes of load.
-    #[arg(long, default_value_t = 30.0)]
+    #[arg(long, default_value_t = 30.0, allow_negative_numbers = true)]
     pub minutes: f64,
     /// Steady gates over HTTP (half JSON, half line protocol).
     #[arg(long, default_value_t = 8)]
@@ -65,22 +65,22 @@ pub struct BenchSoakArgs {
     #[arg(long, default_value_t = 32)]
     pub slow_clients: usize,
     /// Broken requests per second.
-    #[arg(long, default_value_t = 2.0)]
+    #[arg(long, default_value_t = 2.0, allow_negative_numbers = true)]
     pub broken_per_second: f64,
     /// Sample rate of every gate, Hz.
-    #[arg(long, default_value_t = 200.0)]
+    #[arg(long, default_value_t = 200.0, allow_negative_numbers = true)]
     pub rate: f64,
     /// Seconds between two records.
-    #[arg(long, default_value_t = 5.0)]
+    #[arg(long, default_value_t = 5.0, allow_negative_numbers = true)]
     pub interval: f64,
     /// Seconds of warm-up excluded from the flatness judgement.
-    #[arg(long, default_value_t = 120.0)]
+    #[arg(long, default_value_t = 120.0, allow_negative_numbers = true)]
     pub warmup: f64,
     /// Identification worker threads of the daemon.
     #[arg(long, default_value_t = 1)]
     pub worker_threads: usize,
     /// The resident-memory bound judged against, MiB (the shipped Kubernetes limit).
-    #[arg(long, default_value_t = 512.0)]
+    #[arg(long, default_value_t = 512.0, allow_negative_numbers = true)]
     pub rss_bound_mib: f64,
     /// Extra TOML appended to the daemon's generated configuration (e.g. new limits).
     #[arg(long)]
@@ -541,15 +541,20 @@ pub fn bench_soak(args: BenchSoakArgs) -> ExitCode {
     if !positive(args.minutes)
         || !positive(args.interval)
         || !positive(args.rate)
+        || !positive(args.rss_bound_mib)
         || !(args.broken_per_second == 0.0 || positive(args.broken_per_second))
+        || !(args.warmup == 0.0 || positive(args.warmup))
     {
-        eprintln!("error: --minutes, --interval and --rate must be > 0, --broken-per-second >= 0");
+        eprintln!(
+            "gatewatch bench soak: --minutes, --interval, --rate and --rss-bound-mib must be \
+             > 0, --broken-per-second and --warmup >= 0"
+        );
         return ExitCode::from(2);
     }
     let mut daemon = match start_daemon(&args) {
         Ok(d) => d,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            eprintln!("gatewatch bench soak: {e:#}");
             return ExitCode::FAILURE;
         }
     };
@@ -560,7 +565,7 @@ pub fn bench_soak(args: BenchSoakArgs) -> ExitCode {
     {
         Ok(r) => r,
         Err(e) => {
-            eprintln!("error: starting the load's runtime: {e}");
+            eprintln!("gatewatch bench soak: starting the load's runtime: {e}");
             let _ = daemon.child.kill();
             return ExitCode::FAILURE;
         }
@@ -581,7 +586,7 @@ pub fn bench_soak(args: BenchSoakArgs) -> ExitCode {
     let ticks = match result {
         Ok(t) => t,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            eprintln!("gatewatch bench soak: {e:#}");
             let _ = daemon.child.kill();
             return ExitCode::FAILURE;
         }

@@ -174,7 +174,11 @@ impl SimulateArgs {
 /// is the scenario's `t = 0`: the named scenarios' warm-up is run and not sent.
 pub fn simulator(args: &SimulateArgs) -> anyhow::Result<crate::simulate::GateSimulator> {
     let rate = args.effective_rate();
-    anyhow::ensure!(rate > 0.0 && rate.is_finite(), "--rate must be > 0");
+    anyhow::ensure!(
+        rate > 0.0 && rate.is_finite(),
+        "--rate must be > 0 (or 0 for the preset's rate), got {}",
+        args.rate
+    );
     // before the warm-up, which runs at this rate
     anyhow::ensure!(
         rate <= SIMULATE_MAX_RATE_HZ,
@@ -284,7 +288,11 @@ pub async fn simulate_with_source(
     mut source: impl FnMut(&mut [f64]),
 ) -> anyhow::Result<u64> {
     let rate = args.effective_rate();
-    anyhow::ensure!(rate > 0.0 && rate.is_finite(), "--rate must be > 0");
+    anyhow::ensure!(
+        rate > 0.0 && rate.is_finite(),
+        "--rate must be > 0 (or 0 for the preset's rate), got {}",
+        args.rate
+    );
     anyhow::ensure!(
         args.duration > 0.0 && args.duration.is_finite(),
         "--duration must be > 0"
