@@ -35,11 +35,7 @@ fn every_registered_metric_is_in_the_api_reference() {
     assert!(names.len() >= 20, "found only {names:?}");
     let missing: Vec<&String> = names
         .iter()
-        .filter(|n| {
-            // `gatewatch_damping_ratio_lower`/`_upper` names the pair once
-            let short = n.rsplit_once('_').map(|(_, tail)| format!("`_{tail}`"));
-            !api.contains(n.as_str()) && !short.is_some_and(|s| api.contains(&s))
-        })
+        .filter(|n| !api.contains(n.as_str()) && !named_as_a_pair(&api, n))
         .collect();
     assert!(missing.is_empty(), "docs/api.md does not name {missing:?}");
 }
@@ -63,6 +59,35 @@ fn every_damping_report_field_is_in_the_api_reference() {
         missing.is_empty(),
         "docs/api.md does not name the damping fields {missing:?}"
     );
+}
+
+/// Whether `doc` names `name` as the second of a pair, `` `head_a`/`_b` `` for `head_b`
+/// (`gatewatch_damping_ratio_lower`/`_upper`): the shortened name must follow a full name with
+/// the same head, so that any `` `_upper` `` elsewhere does not count.
+fn named_as_a_pair(doc: &str, name: &str) -> bool {
+    let Some((head, tail)) = name.rsplit_once('_') else {
+        return false;
+    };
+    let short = format!("`/`_{tail}`");
+    doc.match_indices(&short).any(|(i, _)| {
+        let before = &doc[..i];
+        before
+            .rfind('`')
+            .is_some_and(|q| before[q + 1..].starts_with(&format!("{head}_")))
+    })
+}
+
+#[test]
+fn a_pair_counts_only_after_its_full_name() {
+    let doc = "`gatewatch_damping_ratio_lower`/`_upper` and `gatewatch_other_min`/`_max`";
+    assert!(named_as_a_pair(doc, "gatewatch_damping_ratio_upper"));
+    assert!(named_as_a_pair(doc, "gatewatch_other_max"));
+    assert!(!named_as_a_pair(doc, "gatewatch_something_upper"));
+    assert!(!named_as_a_pair(doc, "gatewatch_damping_ratio_max"));
+    assert!(!named_as_a_pair(
+        "`_upper`",
+        "gatewatch_damping_ratio_upper"
+    ));
 }
 
 #[test]

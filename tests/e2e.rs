@@ -458,8 +458,9 @@ fn skip_warmup(sim: &mut GateSimulator, warmup_s: f64) {
 }
 
 /// Issue 8, "done when": on the slow drift (+2 % to -2 % over 20 minutes) of the lab gate with a
-/// load cell's noise floor, the trend warning `GateDampingDeclining` fires, and reaches the
-/// webhook, before the true damping crosses zero; `GateNegativeDamping` only after it.
+/// load cell's noise floor, the trend warning `GateDampingDeclining` fires before the true
+/// damping crosses zero (the window it fires on ends before the crossing, in sample time, as the
+/// API reads it), and reaches the webhook; `GateNegativeDamping` only after it.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn slow_drift_warns_before_zero() {
     let mut hook = hook().await;

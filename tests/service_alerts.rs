@@ -128,10 +128,15 @@ async fn metrics_exposition_is_valid() {
         text.contains("gatewatch_damping_trusted{gate=\"g1\"} 1\n"),
         "{text}"
     );
+    promtool_check_metrics(&text);
+}
+
+/// `promtool check metrics` on an exposition, when promtool is installed (CI installs it).
+fn promtool_check_metrics(text: &str) {
     if let Some(p) = promtool() {
         let dir = tempfile::tempdir().unwrap();
         let f = dir.path().join("metrics.txt");
-        std::fs::write(&f, &text).unwrap();
+        std::fs::write(&f, text).unwrap();
         let out = std::process::Command::new(p)
             .arg("check")
             .arg("metrics")
@@ -145,6 +150,41 @@ async fn metrics_exposition_is_valid() {
             String::from_utf8_lossy(&out.stderr)
         );
     }
+}
+
+/// The series that only a gate with a trend has (`gatewatch_damping_ratio_trend_per_second`,
+/// `gatewatch_damping_zero_crossing_seconds`, issue 8) are in the exposition promtool checks:
+/// twelve windows of a damping that falls by 0.1 points a window.
+#[tokio::test]
+async fn metrics_exposition_with_a_declining_trend_is_valid() {
+    let fake = Arc::new(Fake {
+        zeta: (0..12).map(|i| 0.02 - 0.001 * i as f64).collect(),
+        ..Fake::default()
+    });
+    let (app, state) = app_with(config(""), fake.clone());
+    // one window at a time: a window that comes due while the gate's last one is pending
+    // replaces it
+    post_json(&app, uniform("g1", 0.0, 100)).await;
+    for i in 1..12 {
+        wait_until(|| fake.calls.lock().unwrap().len() >= i && state.pool().in_flight() == 0).await;
+        post_json(&app, uniform("g1", 0.5 + 0.5 * i as f64, 50)).await;
+    }
+    wait_until(|| fake.calls.lock().unwrap().len() >= 12 && state.pool().in_flight() == 0).await;
+    let (s, v, _) = send(&app, "GET", "/metrics", Body::empty(), None).await;
+    assert_eq!(s, StatusCode::OK);
+    let text = v.as_str().unwrap().to_string();
+    let value = |name: &str| -> f64 {
+        text.lines()
+            .find_map(|l| l.strip_prefix(&format!("{name}{{gate=\"g1\"}} ")))
+            .unwrap_or_else(|| panic!("no {name}: {text}"))
+            .parse()
+            .unwrap()
+    };
+    // -0.001 a window, a window every 0.5 s
+    assert!((value("gatewatch_damping_ratio_trend_per_second") + 0.002).abs() < 2e-4);
+    let crossing = value("gatewatch_damping_zero_crossing_seconds");
+    assert!(crossing > 0.0 && crossing < 10.0, "{crossing}");
+    promtool_check_metrics(&text);
 }
 
 #[test]

@@ -386,15 +386,15 @@ async fn simulate_client_streams_through_every_protocol() {
             gate: gate.into(),
             scenario: Scenario::Onset,
             speed: 0.0,
-            duration: 2.0,
+            duration: Some(2.0),
             seed: 7,
             protocol,
             rate: 100.0,
             token: Some(TOKEN.into()),
             chunk_seconds: 0.1,
             start: Some(1000.0),
-            onset_hold: 1.0,
-            onset_ramp: 1.0,
+            onset_hold: Some(1.0),
+            onset_ramp: Some(1.0),
             sensor: Default::default(),
         };
         let mut sim = simulator(&args).unwrap();
@@ -433,15 +433,15 @@ async fn simulate_client_streams_through_every_protocol() {
         gate: "x".into(),
         scenario: Scenario::Stable,
         speed: 0.0,
-        duration: 0.5,
+        duration: Some(0.5),
         seed: 1,
         protocol: Protocol::Json,
         rate: 100.0,
         token: Some("wrong-token-0123456789".into()),
         chunk_seconds: 0.1,
         start: None,
-        onset_hold: 60.0,
-        onset_ramp: 300.0,
+        onset_hold: None,
+        onset_ramp: None,
         sensor: Default::default(),
     };
     let e = simulate_with_source(&args, |b: &mut [f64]| b.fill(0.0))
@@ -460,15 +460,15 @@ fn simulate_scenarios_map_to_the_simulator_and_are_reproducible() {
         gate: "g1".into(),
         scenario,
         speed: 0.0,
-        duration: 10.0,
+        duration: Some(10.0),
         seed: 3,
         protocol: Protocol::Json,
         rate: 200.0,
         token: None,
         chunk_seconds: 0.1,
         start: None,
-        onset_hold: 5.0,
-        onset_ramp: 10.0,
+        onset_hold: Some(5.0),
+        onset_ramp: Some(10.0),
         sensor: Default::default(),
     };
     for (sc, z0, z_late) in [
@@ -491,8 +491,37 @@ fn simulate_scenarios_map_to_the_simulator_and_are_reproducible() {
         0.0
     );
     let mut bad = args(Scenario::Onset);
-    bad.onset_ramp = -1.0;
+    bad.onset_ramp = Some(-1.0);
     assert!(simulator(&bad).is_err());
+    // without `--onset-*` and `--duration`, `simulate --scenario onset` is `bench warning`'s onset
+    // (+2 % for 120 s, a 60 s ramp, 300 s in all) and the slow drift runs past its zero crossing
+    // (720 s): before, the onset held 60 s and ramped over 300 s, and every scenario stopped at
+    // 600 s
+    let plain = |scenario| SimulateArgs {
+        duration: None,
+        onset_hold: None,
+        onset_ramp: None,
+        ..args(scenario)
+    };
+    let onset = plain(Scenario::Onset);
+    assert_eq!(
+        onset.named_scenario(),
+        Some(gatewatch::simulate::ScenarioName::Onset)
+    );
+    assert_eq!(onset.effective_duration(), 300.0);
+    let sim = simulator(&onset).unwrap();
+    assert_eq!(sim.true_zeta(100.0), 0.02);
+    assert!((sim.true_zeta(150.0)).abs() < 1e-12);
+    assert_eq!(sim.true_zeta(200.0), -0.02);
+    assert!(plain(Scenario::SlowDrift).effective_duration() > 720.0);
+    // one `--onset-*` flag shapes the onset; the other keeps the bench's value
+    let shaped = SimulateArgs {
+        onset_ramp: Some(300.0),
+        ..plain(Scenario::Onset)
+    };
+    assert_eq!(shaped.named_scenario(), None);
+    assert_eq!(shaped.onset_shape(), (120.0, 300.0));
+    assert_eq!(shaped.effective_duration(), 600.0);
 }
 
 #[tokio::test]

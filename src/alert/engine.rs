@@ -101,7 +101,7 @@ pub struct Observation<'a> {
 /// One alert instance, as Alertmanager understands it.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Alert {
-    /// [`ALERT_NEGATIVE_DAMPING`] or [`ALERT_DATA_STALE`].
+    /// [`ALERT_NEGATIVE_DAMPING`], [`ALERT_DAMPING_DECLINING`] or [`ALERT_DATA_STALE`].
     pub name: String,
     /// `alertname`, `gate`, `severity`.
     pub labels: BTreeMap<String, String>,

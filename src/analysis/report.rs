@@ -2,8 +2,8 @@
 
 use serde::{Deserialize, Serialize};
 
-/// Where a report's `zeta0` comes from. Serialised as `"model"` / `"ambient"`, the strings of the
-/// API and the CLI's JSON.
+/// Where a report's `zeta0` comes from. Serialised as `"model"`, `"ambient"`, `"envelope"` or
+/// `"amplitude"`, the strings of the API and the CLI's JSON.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Zeta0Source {

@@ -336,13 +336,16 @@ fn fit(
     let dof = (n as f64 / overlap - 2.0).max(1.0);
     let quantile = crate::spectral::t_quantile(Z95_ONE_SIDED_PROB, dof);
     let slope_upper = slope + quantile * slope_stderr;
+    // A line already at or below the threshold "crosses it in 0 s" while it still falls; a flat
+    // or rising one predicts nothing (the warning resolves when the trend flattens, issue 8,
+    // and the damping alert stands for a gate that stays below).
     let crossing = |s: f64| {
-        if level <= threshold {
-            Some(0.0)
-        } else if s < 0.0 {
-            Some((level - threshold) / -s)
-        } else {
+        if s >= 0.0 || s.is_nan() {
             None
+        } else if level <= threshold {
+            Some(0.0)
+        } else {
+            Some((level - threshold) / -s)
         }
     };
     Some(TrendEstimate {

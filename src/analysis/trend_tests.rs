@@ -290,3 +290,49 @@ fn correlated_windows_widen_the_bound_beyond_the_normal_quantile() {
     // the overlap)
     assert!(r > 1.75, "windows that share their record: t = {r}");
 }
+
+/// A line at or below the threshold crosses it "in 0 s" while it falls; flat or rising there it
+/// predicts no crossing at all, so a warning that fired on the way down resolves once the gate
+/// settles on its limit cycle (issue 8: the warning resolves when the trend flattens; the
+/// damping alert stands for the gate below). Before, any line below the threshold read 0 s.
+#[test]
+fn below_the_threshold_only_a_falling_line_crosses() {
+    let line = |slope: f64| -> Vec<TrendPoint> {
+        (0..40)
+            .map(|i| {
+                let t = 5.0 * i as f64;
+                let z = -0.02 + slope * (t - 195.0);
+                TrendPoint {
+                    t,
+                    zeta0: z,
+                    low: z - 0.004,
+                    high: z + 0.004,
+                }
+            })
+            .collect()
+    };
+    let falling = fit_trend(&line(-2e-5), 0.0).unwrap();
+    assert!(falling.level < 0.0);
+    assert_eq!(falling.crossing_seconds, Some(0.0));
+    assert_eq!(falling.crossing_seconds_confident, Some(0.0));
+    for slope in [1e-7, 2e-5] {
+        let e = fit_trend(&line(slope), 0.0).unwrap();
+        assert!(e.level < 0.0, "{e:?}");
+        assert_eq!(e.crossing_seconds, None, "slope {slope}: {e:?}");
+        assert_eq!(e.crossing_seconds_confident, None, "slope {slope}: {e:?}");
+    }
+    // a flat line scattered below: whichever way the fitted slope tips, no confident crossing
+    // unless the slope is confidently negative
+    let noisy = series(3, 40, 0.003, |_| -0.02);
+    let e = fit_trend(&noisy, 0.0).unwrap();
+    assert_eq!(
+        e.crossing_seconds.is_some(),
+        e.slope_per_second < 0.0,
+        "{e:?}"
+    );
+    assert_eq!(
+        e.crossing_seconds_confident.is_some(),
+        e.slope_upper < 0.0,
+        "{e:?}"
+    );
+}

@@ -570,7 +570,8 @@ fn configure(args: &BenchWarningArgs, gate: GatePreset) -> anyhow::Result<Config
     Ok(config)
 }
 
-/// Output of the bench: every row and, with `--json`, every window.
+/// Output of the bench: the regime rows and the alert rows (`--json` prints this; the windows
+/// themselves are in `--trace`).
 #[derive(Debug, Serialize)]
 pub struct Report {
     /// Per scenario, gate and regime.

@@ -79,9 +79,10 @@ pub struct SimulateArgs {
     /// Replay speed (10: ten seconds of samples per second; 0 or less: as fast as possible).
     #[arg(long, default_value_t = 1.0, allow_negative_numbers = true)]
     pub speed: f64,
-    /// Seconds of sample time to send.
-    #[arg(long, default_value_t = 600.0, allow_negative_numbers = true)]
-    pub duration: f64,
+    /// Seconds of sample time to send (default: the scenario's length, as `bench warning` runs
+    /// it: 1380 s for slow-drift, 300 s for onset; 600 s for an onset shaped by `--onset-*`).
+    #[arg(long, allow_negative_numbers = true)]
+    pub duration: Option<f64>,
     /// Random seed.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
@@ -100,12 +101,15 @@ pub struct SimulateArgs {
     /// Start time, Unix seconds (default: now).
     #[arg(long)]
     pub start: Option<f64>,
-    /// `onset`: seconds of sample time at +2 % damping before the ramp.
-    #[arg(long, default_value_t = 60.0, allow_negative_numbers = true)]
-    pub onset_hold: f64,
+    /// `onset`: seconds of sample time at +2 % damping before the ramp. Without `--onset-hold`
+    /// and `--onset-ramp` the onset is `bench warning`'s (120 s, then 60 s of ramp, after a
+    /// warm-up); with either, the ramp starts at the first sample's `t = 0` from rest, and the
+    /// one not given takes the bench's value.
+    #[arg(long, allow_negative_numbers = true)]
+    pub onset_hold: Option<f64>,
     /// `onset`: seconds of sample time of the ramp from +2 % to -2 % (then -2 %).
-    #[arg(long, default_value_t = 300.0, allow_negative_numbers = true)]
-    pub onset_ramp: f64,
+    #[arg(long, allow_negative_numbers = true)]
+    pub onset_ramp: Option<f64>,
     /// The gate preset and its sensor noise.
     #[command(flatten)]
     pub sensor: GateSensorArgs,
@@ -157,7 +161,39 @@ impl Scenario {
     }
 }
 
+/// `bench warning`'s onset: seconds at +2 % before the ramp, and of the ramp.
+const BENCH_ONSET: (f64, f64) = (120.0, 60.0);
+/// Sample time an onset shaped by `--onset-*` streams without `--duration`, s.
+const SHAPED_ONSET_SECONDS: f64 = 600.0;
+
 impl SimulateArgs {
+    /// The named scenario the simulator runs, `None` for an onset shaped by `--onset-*`.
+    pub fn named_scenario(&self) -> Option<crate::simulate::ScenarioName> {
+        match self.scenario {
+            Scenario::Onset if self.onset_hold.is_none() && self.onset_ramp.is_none() => {
+                Some(crate::simulate::ScenarioName::Onset)
+            }
+            s => s.named(),
+        }
+    }
+
+    /// `--onset-hold` and `--onset-ramp`, each the bench's when not given.
+    pub fn onset_shape(&self) -> (f64, f64) {
+        (
+            self.onset_hold.unwrap_or(BENCH_ONSET.0),
+            self.onset_ramp.unwrap_or(BENCH_ONSET.1),
+        )
+    }
+
+    /// Seconds of sample time to send: `--duration`, or the scenario's length.
+    pub fn effective_duration(&self) -> f64 {
+        self.duration
+            .unwrap_or_else(|| match self.named_scenario() {
+                Some(n) => n.def(&self.sensor.preset.params()).duration_s,
+                None => SHAPED_ONSET_SECONDS,
+            })
+    }
+
     /// The sample rate: `--rate`, or the preset's when it is 0.
     pub fn effective_rate(&self) -> f64 {
         if self.rate == 0.0 {
@@ -184,12 +220,13 @@ pub fn simulator(args: &SimulateArgs) -> anyhow::Result<crate::simulate::GateSim
         rate <= SIMULATE_MAX_RATE_HZ,
         "--rate must be at most {SIMULATE_MAX_RATE_HZ} Hz, got {rate}"
     );
+    let (onset_hold, onset_ramp) = args.onset_shape();
     anyhow::ensure!(
-        args.onset_hold >= 0.0 && args.onset_hold.is_finite(),
+        onset_hold >= 0.0 && onset_hold.is_finite(),
         "--onset-hold must be >= 0"
     );
     anyhow::ensure!(
-        args.onset_ramp >= 0.0 && args.onset_ramp.is_finite(),
+        onset_ramp >= 0.0 && onset_ramp.is_finite(),
         "--onset-ramp must be >= 0"
     );
     for (flag, v) in [
@@ -209,7 +246,7 @@ pub fn simulator(args: &SimulateArgs) -> anyhow::Result<crate::simulate::GateSim
         (None, Some(r)) => crate::simulate::NoiseLevel::Relative(r),
         (None, None) => crate::simulate::NoiseLevel::Absolute(0.0),
     };
-    match args.scenario.named() {
+    match args.named_scenario() {
         Some(name) => {
             let mut sim = name
                 .def(&params)
@@ -220,14 +257,13 @@ pub fn simulator(args: &SimulateArgs) -> anyhow::Result<crate::simulate::GateSim
             }
             Ok(sim)
         }
-        // the onset keeps the library's first form (no warm-up), as before
+        // an onset shaped by `--onset-*`: the library's first form (no warm-up), as before
         None => Ok(crate::simulate::GateSimulator::scenario(
             crate::simulate::GateParams {
                 noise_std: noise.rms(&params),
                 ..params
             },
-            args.scenario
-                .to_simulation(args.onset_hold, args.onset_ramp),
+            args.scenario.to_simulation(onset_hold, onset_ramp),
             args.seed,
         )),
     }
@@ -280,7 +316,7 @@ async fn send_http(
     }
 }
 
-/// Streams `args.duration` seconds of samples from `source` in chunks of `args.chunk_seconds`,
+/// Streams [`SimulateArgs::effective_duration`] seconds of samples from `source` in chunks of `args.chunk_seconds`,
 /// paced at real time / `args.speed` (`speed <= 0`: as fast as possible). Returns the number of
 /// samples sent.
 pub async fn simulate_with_source(
@@ -293,8 +329,9 @@ pub async fn simulate_with_source(
         "--rate must be > 0 (or 0 for the preset's rate), got {}",
         args.rate
     );
+    let duration = args.effective_duration();
     anyhow::ensure!(
-        args.duration > 0.0 && args.duration.is_finite(),
+        duration > 0.0 && duration.is_finite(),
         "--duration must be > 0"
     );
     anyhow::ensure!(
@@ -314,7 +351,7 @@ pub async fn simulate_with_source(
         "--start must be finite Unix seconds"
     );
     let start = args.start.unwrap_or_else(now_unix);
-    let total = (args.duration * rate).round() as u64;
+    let total = (duration * rate).round() as u64;
     // never more than the whole stream in one buffer (--chunk-seconds 1e9 asked for 1.6 TB)
     let chunk = ((args.chunk_seconds * rate).round() as usize).clamp(1, total.max(1) as usize);
     ensure_crypto_provider();

@@ -249,15 +249,15 @@ pub async fn run_demo(
         gate: DEMO_GATE.into(),
         scenario: Scenario::Onset,
         speed: args.speed,
-        duration: args.speed * args.duration + 60.0,
+        duration: Some(args.speed * args.duration + 60.0),
         seed: args.seed,
         protocol: Protocol::Json,
         rate,
         token: None,
         chunk_seconds: 0.1,
         start: Some(start),
-        onset_hold: args.onset_hold,
-        onset_ramp: args.onset_ramp,
+        onset_hold: Some(args.onset_hold),
+        onset_ramp: Some(args.onset_ramp),
         sensor: Default::default(),
     };
     let truth = GateSimulator::scenario(
@@ -271,7 +271,7 @@ pub async fn run_demo(
                 rate_hz: sim_args.rate,
                 ..Default::default()
             },
-            Scenario::Onset.to_simulation(sim_args.onset_hold, sim_args.onset_ramp),
+            Scenario::Onset.to_simulation(args.onset_hold, args.onset_ramp),
             sim_args.seed,
         );
         simulate_with_source(&sim_args, |b: &mut [f64]| sim.fill(b)).await

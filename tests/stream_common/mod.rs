@@ -26,15 +26,15 @@ pub async fn send(
         gate: gate.into(),
         scenario: Scenario::Stable, // unused: the source is `sim`
         speed: 0.0,
-        duration: seconds,
+        duration: Some(seconds),
         seed: 0,
         protocol: Protocol::Json,
         rate,
         token: None,
         chunk_seconds: seconds,
         start: Some(start + first as f64 / rate),
-        onset_hold: 0.0,
-        onset_ramp: 0.0,
+        onset_hold: None,
+        onset_ramp: None,
         sensor: Default::default(),
     };
     tokio::time::timeout(

@@ -457,6 +457,46 @@ fn declining_after_the_crossing_says_the_trend_is_below_not_that_it_will_cross()
     assert_eq!(an["crossing_seconds_confident"], "0");
 }
 
+/// On its limit cycle the gate's trend flattens below the threshold: the warning resolves after
+/// `warn_resolve_windows` such windows (the damping alert stands for the gate). Before, a line
+/// below the threshold read "crosses in 0 s" whatever its slope, and held the warning for as
+/// long as the gate stayed on its cycle, its description saying the damping "falls by -0.02
+/// percentage points per minute".
+#[test]
+fn declining_resolves_when_the_trend_flattens_below_the_threshold() {
+    let mut e = engine();
+    let falling = TrendEstimate {
+        level: -0.004,
+        crossing_seconds: Some(0.0),
+        ..trend(Some(0.0), 300.0)
+    };
+    let o = |tr: TrendEstimate| Observation {
+        trend: Some(tr),
+        ..obs(-0.02, -0.025, -0.015)
+    };
+    e.observe("g", &o(falling), t(0));
+    e.observe("g", &o(falling), t(5));
+    assert!(e.is_declining("g"));
+    // what `fit_trend` gives a flat (here slightly rising) line below the threshold
+    let flat = TrendEstimate {
+        level: -0.02,
+        slope_per_second: 2e-7,
+        slope_upper: 4e-6,
+        crossing_seconds: None,
+        crossing_seconds_confident: None,
+        ..falling
+    };
+    assert!(e.observe("g", &o(flat), t(10)).is_empty());
+    let ev = e.observe("g", &o(flat), t(15));
+    assert_eq!(ev.len(), 1, "{ev:?}");
+    assert!(!ev[0].is_firing());
+    assert_eq!(ev[0].alert().name, ALERT_DAMPING_DECLINING);
+    assert_eq!(ev[0].alert().ends_at, Some(t(15)));
+    // a resolve carries the last firing figures, as every alert's does
+    assert!(ev[0].alert().annotations["description"].contains("falls by 0.1 percentage"));
+    assert!(!e.is_declining("g"));
+}
+
 #[test]
 fn declining_needs_span_lead_and_a_streak() {
     let mut e = engine();

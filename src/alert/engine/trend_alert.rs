@@ -191,9 +191,10 @@ fn declining_annotations(
     };
     a.insert("summary".to_string(), summary);
     let mut description = format!(
-        "The damping ratio of gate {gate} is {now} and falls by {} percentage points per minute \
+        "The damping ratio of gate {gate} is {now} and {} by {} percentage points per minute \
          (trend over the last {} min of data, {} windows).",
-        fmt_percent(-per_minute),
+        if per_minute > 0.0 { "rises" } else { "falls" },
+        fmt_percent(per_minute.abs()),
         fmt_minutes(trend.span_seconds),
         trend.windows
     );

@@ -293,50 +293,91 @@ pub fn coverage_interval(per_seed: &[(usize, usize)]) -> Option<(f64, f64)> {
     Some((at(0.025), at(0.975)))
 }
 
-/// Name of the model-free early-warning baseline in the alert rows.
+/// Name of the model-free early-warning baseline on the variance in the alert rows.
 pub const EWS_VARIANCE: &str = "EWS baseline: variance trend";
+/// Name of the model-free early-warning baseline on the lag-1 autocorrelation.
+pub const EWS_AUTOCORRELATION: &str = "EWS baseline: autocorrelation trend";
 
-/// The critical-slowing-down baseline of issue 8 (as in `ewstools`): the variance of the
-/// measured signal rises as the damping falls (a linear oscillator's ambient variance goes as
-/// `1 / zeta`), so a steadily rising variance over the last minutes is the model-free warning
-/// that `GateDampingDeclining` must beat. Lag-1 autocorrelation, ewstools' other indicator, is
-/// left out: at the sample lag of a narrow-band oscillation it reads `cos(2 pi f / fs)` whatever
-/// the damping, and on a coarser grid it needs a resampling choice per gate.
+/// The critical-slowing-down baselines of issue 8 (as in `ewstools`: a rolling indicator whose
+/// Kendall tau against time exceeds a bar), the model-free warnings `GateDampingDeclining` must
+/// beat:
+/// - **variance** of the measured signal per window: a linear oscillator's ambient variance
+///   goes as `1 / zeta`, so it rises as the damping falls;
+/// - **lag-1 autocorrelation** of those window variances, over a rolling
+///   [`EwsRule::autocorrelation_s`]: consecutive windows' variances follow the envelope, whose
+///   memory `1 / (zeta omega)` grows as the damping falls, so they become more alike. Why not
+///   the signal's own lag-1 autocorrelation, as ewstools takes it: at the sample lag a
+///   narrow-band oscillation reads `cos(2 pi f / fs)` whatever its damping, and the envelope is
+///   where an oscillator's slowing down shows.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct EwsRule {
-    /// Trailing horizon of window variances, s of sample time (the trend's, 600 s).
+    /// Trailing horizon of the indicator's Kendall tau, s of sample time (the trend's, 600 s).
     pub horizon_s: f64,
-    /// The rule acts once its windows span this much, s (the trend's, 120 s).
+    /// The rule acts once its windows span this much, s (the trend's
+    /// `trend_min_span_seconds`, 240 s, so both wait as long).
     pub min_span_s: f64,
-    /// It "fires" while Kendall's tau of the variances against time exceeds this (0.7, a
+    /// It "fires" while Kendall's tau of the indicator against time exceeds this (0.7, a
     /// common choice in the early-warning literature).
     pub tau: f64,
+    /// Rolling span of the lag-1 autocorrelation of the window variances, s (120 s: 24 windows
+    /// at the daemon's 5 s cadence).
+    pub autocorrelation_s: f64,
 }
 
 impl Default for EwsRule {
     fn default() -> Self {
         EwsRule {
             horizon_s: 600.0,
-            min_span_s: 120.0,
+            min_span_s: crate::alert::AlertRules::default().trend_min_span_seconds,
             tau: 0.7,
+            autocorrelation_s: 120.0,
         }
     }
 }
 
-/// Adds [`EWS_VARIANCE`] to the `firing` list of every window where the baseline fires.
+/// Fewest values behind one rolling lag-1 autocorrelation, or one Kendall tau.
+const EWS_MIN_POINTS: usize = 8;
+
+/// Adds [`EWS_VARIANCE`] and [`EWS_AUTOCORRELATION`] to the `firing` list of every window where
+/// each baseline fires.
 pub fn mark_ews(windows: &mut [WindowRecord], rule: &EwsRule) {
+    let ends: Vec<f64> = windows.iter().map(|w| w.end).collect();
+    let variances: Vec<f64> = windows.iter().map(|w| w.variance).collect();
+    // the rolling lag-1 autocorrelation of the variances, at each window
+    let mut autocorrelation = vec![f64::NAN; windows.len()];
     let mut from = 0;
     for i in 0..windows.len() {
-        let end = windows[i].end;
-        while windows[from].end <= end - rule.horizon_s {
+        while ends[from] <= ends[i] - rule.autocorrelation_s {
             from += 1;
         }
-        if end - windows[from].end < rule.min_span_s {
-            continue;
+        if i + 1 - from >= EWS_MIN_POINTS {
+            autocorrelation[i] = crate::analysis::lag1_autocorrelation(&variances[from..=i]);
         }
-        let v: Vec<f64> = windows[from..=i].iter().map(|w| w.variance).collect();
-        if crate::analysis::kendall_tau(&v).is_some_and(|t| t > rule.tau) {
-            windows[i].firing.push(EWS_VARIANCE.to_string());
+    }
+    for (name, indicator) in [
+        (EWS_VARIANCE, &variances),
+        (EWS_AUTOCORRELATION, &autocorrelation),
+    ] {
+        let mut from = 0;
+        for i in 0..windows.len() {
+            while ends[from] <= ends[i] - rule.horizon_s {
+                from += 1;
+            }
+            let points: Vec<(f64, f64)> = (from..=i)
+                .filter(|&j| indicator[j].is_finite())
+                .map(|j| (ends[j], indicator[j]))
+                .collect();
+            let span = match (points.first(), points.last()) {
+                (Some(a), Some(b)) => b.0 - a.0,
+                _ => 0.0,
+            };
+            if points.len() < EWS_MIN_POINTS || span < rule.min_span_s {
+                continue;
+            }
+            let v: Vec<f64> = points.iter().map(|p| p.1).collect();
+            if crate::analysis::kendall_tau(&v).is_some_and(|t| t > rule.tau) {
+                windows[i].firing.push(name.to_string());
+            }
         }
     }
 }
@@ -404,7 +445,7 @@ pub fn first_resolve(windows: &[WindowRecord], name: &str) -> Option<f64> {
 }
 
 /// Detection delays and false alarms per scenario, gate and alert name (the two damping alerts
-/// always, any other alert seen firing as well).
+/// and the two early-warning baselines always, any other alert seen firing as well).
 pub fn alert_rows(records: &[RunRecord], _targets: &Targets) -> Vec<AlertRow> {
     let mut groups: Vec<(ScenarioName, crate::simulate::GatePreset)> = Vec::new();
     for r in records {
@@ -418,10 +459,16 @@ pub fn alert_rows(records: &[RunRecord], _targets: &Targets) -> Vec<AlertRow> {
             .iter()
             .filter(|r| r.spec.scenario == scenario && r.spec.gate == gate)
             .collect();
-        let mut names: BTreeSet<String> = [ALERT_NEGATIVE, ALERT_DECLINING]
-            .iter()
-            .map(|s| s.to_string())
-            .collect();
+        // the two alerts and the two baselines always, so a "never" is a row too
+        let mut names: BTreeSet<String> = [
+            ALERT_NEGATIVE,
+            ALERT_DECLINING,
+            EWS_VARIANCE,
+            EWS_AUTOCORRELATION,
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
         for r in &runs {
             for w in &r.windows {
                 names.extend(w.firing.iter().cloned());

@@ -292,3 +292,69 @@ fn model_interval_defaults_to_newey_west_and_reads_forcing() {
         ModelInterval::Forcing
     );
 }
+
+/// Every option of `Config::default()` is shown in `config/gatewatch.toml` (set or commented
+/// out, `# key = value`) under its section: the file says "every option is shown with its
+/// default", and the comparison of the parsed file with the defaults above cannot see a key
+/// that is missing from the file (serde fills it in). Options without a default value
+/// (`Option` fields, absent by default) are not demanded, nor `[notify]`'s, which has no
+/// serialized form (it holds tokens) and whose options the file lists in comments.
+#[test]
+fn the_shipped_file_shows_every_option() {
+    fn paths(prefix: &str, v: &toml::Value, out: &mut Vec<String>) {
+        if let toml::Value::Table(t) = v {
+            for (k, v) in t {
+                let path = if prefix.is_empty() {
+                    k.clone()
+                } else {
+                    format!("{prefix}.{k}")
+                };
+                match v {
+                    toml::Value::Table(_) => paths(&path, v, out),
+                    _ => out.push(path),
+                }
+            }
+        }
+    }
+    let mut wanted = Vec::new();
+    paths(
+        "",
+        &toml::Value::try_from(Config::default()).unwrap(),
+        &mut wanted,
+    );
+    // `defaults` is resolved into each gate and not serialized with the rest
+    paths(
+        "defaults",
+        &toml::Value::try_from(GateConfig::default()).unwrap(),
+        &mut wanted,
+    );
+    assert!(
+        wanted
+            .iter()
+            .any(|p| p == "defaults.alert.warn_lead_seconds")
+            && wanted.iter().any(|p| p == "defaults.pooling.min_cycles"),
+        "{wanted:?}"
+    );
+    let mut shown = std::collections::BTreeSet::new();
+    let mut section = String::new();
+    for line in EMBEDDED_CONFIG.lines() {
+        let l = line.trim_start_matches('#').trim();
+        if let Some(h) = l.strip_prefix("[[").and_then(|h| h.strip_suffix("]]")) {
+            shown.insert(h.to_string());
+            section = h.to_string();
+        } else if let Some(h) = l.strip_prefix('[').and_then(|h| h.strip_suffix(']')) {
+            if !h.contains(' ') && !h.contains('"') {
+                section = h.to_string();
+            }
+        } else if let Some((k, _)) = l.split_once(" = ") {
+            if !k.contains(' ') {
+                shown.insert(format!("{section}.{k}").trim_start_matches('.').to_string());
+            }
+        }
+    }
+    let missing: Vec<&String> = wanted.iter().filter(|p| !shown.contains(*p)).collect();
+    assert!(
+        missing.is_empty(),
+        "options not shown in config/gatewatch.toml: {missing:?}"
+    );
+}
