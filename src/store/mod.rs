@@ -71,9 +71,9 @@ pub enum StoreError {
         operation: &'static str,
         /// Which is full, and what to do.
         reason: String,
-        /// SQLite's error.
+        /// SQLite's error (boxed: the variant carries two strings besides).
         #[source]
-        source: rusqlite::Error,
+        source: Box<rusqlite::Error>,
     },
     /// The store's file is no longer the one it opened: deleted, moved or replaced while the
     /// daemon runs. Its writes would go to a file nobody reads again (`Store::check`).

@@ -14,7 +14,7 @@
 //! store checkpoints it at a twentieth of the bound (at most SQLite's 1 000 pages) and
 //! truncates it back to its budget (`journal_size_limit`).
 
-use std::fs::{File, OpenOptions, TryLockError};
+use std::fs::{File, OpenOptions};
 use std::io::{Read, Write};
 use std::os::unix::fs::MetadataExt;
 use std::path::{Path, PathBuf};
@@ -109,7 +109,7 @@ pub fn lock_path(db: &Path) -> PathBuf {
     PathBuf::from(s)
 }
 
-/// Takes the exclusive advisory lock (`flock`) on `<db>.lock` and writes this process's id
+/// Takes the exclusive advisory lock (`flock`, non-blocking) on `<db>.lock` and writes this process's id
 /// into it, or fails naming the process that holds it.
 ///
 /// Why: SQLite itself lets two processes write one file, so a second daemon started on the
@@ -141,9 +141,9 @@ fn take_lock(db: &Path, name: &str) -> Result<File, StoreError> {
                 _ => format!("cannot create the lock file {}: {e}", path.display()),
             })
         })?;
-    match file.try_lock() {
+    match rustix::fs::flock(&file, rustix::fs::FlockOperation::NonBlockingLockExclusive) {
         Ok(()) => {}
-        Err(TryLockError::WouldBlock) => {
+        Err(e) if e == rustix::io::Errno::WOULDBLOCK => {
             let mut pid = String::new();
             let _ = file.read_to_string(&mut pid);
             let holder = match pid.trim().parse::<u32>() {
@@ -155,7 +155,8 @@ fn take_lock(db: &Path, name: &str) -> Result<File, StoreError> {
                 path.display()
             )));
         }
-        Err(TryLockError::Error(e)) => {
+        Err(e) => {
+            let e = std::io::Error::from(e);
             return Err(open_err(format!("cannot lock {}: {e}", path.display())));
         }
     }
@@ -417,7 +418,7 @@ impl SqliteStore {
             path: self.path.clone(),
             operation,
             reason,
-            source,
+            source: Box::new(source),
         }
     }
 
