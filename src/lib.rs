@@ -31,6 +31,8 @@
 //!   InfluxDB line protocol over HTTP and TCP), per-gate windows, the identification worker pool,
 //!   Prometheus metrics, alert wiring, HTTP API, graceful shutdown, and the `check-config` and
 //!   `simulate` commands.
+//! - [`store`]: the daemon's persistence behind one trait: the SQLite file (history, alert
+//!   state, notification outbox), its writer thread, its size bound, and its lock.
 //!
 //! Front ends:
 //! - [`cli`]: the command-line interface behind `src/main.rs`.

@@ -258,18 +258,28 @@ async fn history_route_refuses_bad_parameters_naming_them_and_unknown_gates() {
         ("limit=0", "limit"),
         ("limit=20001", "limit"),
         ("limit=many", "limit"),
+        ("limit=abc", "limit"),
+        ("limit=-1", "limit"),
+        ("limit=", "limit"),
+        ("limit=1.5", "limit"),
         (&*format!("from={}&to={}", T0 + 10.0, T0), "from"),
         ("color=blue", "color"),
+        ("from=1&from=2", "from"),
+        ("format=csv&format=json", "format"),
         ("format=xlsx", "format"),
     ] {
-        let (status, _, body) = d
+        let (status, content_type, body) = d
             .get(&format!("/api/v1/gates/g1/history?{query}"), None)
             .await;
         assert_eq!(status, 400, "{query}: {body}");
+        // the JSON error of docs/api.md, not axum's text/plain "Failed to deserialize"
         assert!(
-            body.contains(name),
-            "{query}: the answer names `{name}`: {body}"
+            content_type.starts_with("application/json"),
+            "{query}: {content_type}: {body}"
         );
+        let v: Value = serde_json::from_str(&body).expect("a JSON error");
+        assert_eq!(v["field"], name, "{query}: names the parameter: {body}");
+        assert!(v["error"].as_str().is_some_and(|e| !e.is_empty()), "{body}");
     }
     let (status, _, body) = d.get("/api/v1/gates/nope/history", None).await;
     assert_eq!(status, 404, "{body}");
@@ -508,9 +518,32 @@ fn history_refuses_bad_input_naming_it_with_exit_code_2() {
             assert!(err.contains(w), "{args:?}: stderr names `{w}`: {err}");
         }
     }
-    // an empty range without --plot is no error: nothing to print
-    let (code, out, err) = history(&["--db", db, "--gate", "g1", "--from", "2030-01-01T00:00:00Z"]);
-    assert_eq!((code, out.as_str()), (0, ""), "{err}");
+    // an empty range exits 2 with or without --plot, as docs/operations.md says (it exited 0
+    // with no output, which reads like "no windows" and like "wrong range" alike)
+    let (code, out, err) = history(&["--db", db, "--gate", "g1", "--from", "2099-01-01T00:00:00Z"]);
+    assert_eq!((code, out.as_str()), (2, ""), "{err}");
+    assert!(
+        err.contains("no identification between 2099-01-01T00:00:00Z") && err.contains("gw.db"),
+        "{err}"
+    );
+    // a directory is called one, not "no such file"
+    let d = dir.path().to_str().unwrap();
+    let (code, _, err) = history(&["--db", d, "--gate", "g1"]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("is a directory"), "{err}");
+    // an RFC 3339 offset is the same instant as its UTC time: 14:00+02:00 is T0
+    let (code, out, err) = history(&[
+        "--db",
+        db,
+        "--gate",
+        "g1",
+        "--from",
+        "2024-05-01T14:00:00+02:00",
+        "--to",
+        "2024-05-01T12:00:00Z",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(out.lines().count(), 1, "{out}");
     // and the plain listing works on the same file: JSON lines, oldest first
     let (code, out, err) = history(&["--db", db, "--gate", "g2"]);
     assert_eq!(code, 0, "{err}");
@@ -520,4 +553,98 @@ fn history_refuses_bad_input_naming_it_with_exit_code_2() {
         .collect();
     assert_eq!(lines.len(), 3);
     assert_eq!(lines[0]["window_end"], T0);
+}
+
+/// Many gates: the "unknown gate" message names the first 10 and counts the rest, on one line.
+#[test]
+fn history_unknown_gate_lists_at_most_ten_gates() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("gw.db");
+    {
+        let store = SqliteStore::open(&path, 64).expect("open");
+        store
+            .write(&WriteBatch {
+                identifications: (0..25).map(|g| record(&format!("gate{g:02}"), 0)).collect(),
+                ..Default::default()
+            })
+            .expect("write");
+    }
+    let (code, _, err) = history(&["--db", path.to_str().unwrap(), "--gate", "nope"]);
+    assert_eq!(code, 2, "{err}");
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    assert!(
+        err.contains("gate00, gate01") && err.contains("gate09"),
+        "{err}"
+    );
+    assert!(!err.contains("gate10"), "{err}");
+    assert!(err.contains("and 15 more"), "{err}");
+}
+
+/// A WAL-mode copy in a directory the user cannot write (SQLite cannot create its `-shm`
+/// there) is still read, as docs/operations.md promises ("opens the file read-only"); with a
+/// non-empty `-wal` beside it the copy is refused naming that file, not read without it.
+/// Root writes anywhere, so as root the command runs as `nobody` (setpriv).
+#[test]
+fn history_reads_a_copy_in_a_directory_it_cannot_write() {
+    use std::os::unix::fs::PermissionsExt;
+    let root =
+        String::from_utf8_lossy(&Command::new("id").arg("-u").output().expect("id -u").stdout)
+            .trim()
+            == "0";
+    let dir = tempfile::tempdir().expect("tempdir");
+    let src = database(dir.path());
+    let ro = dir.path().join("ro");
+    std::fs::create_dir(&ro).expect("mkdir");
+    std::fs::copy(&src, ro.join("gw.db")).expect("copy");
+    // a live store's WAL: rows written but not checkpointed
+    let live = dir.path().join("live");
+    std::fs::create_dir(&live).expect("mkdir");
+    let ro_wal = dir.path().join("ro_wal");
+    std::fs::create_dir(&ro_wal).expect("mkdir");
+    {
+        let store = SqliteStore::open(&live.join("gw.db"), 64).expect("open");
+        store
+            .write(&WriteBatch {
+                identifications: vec![record("g1", 0)],
+                ..Default::default()
+            })
+            .expect("write");
+        std::fs::copy(live.join("gw.db"), ro_wal.join("gw.db")).expect("copy");
+        std::fs::copy(live.join("gw.db-wal"), ro_wal.join("gw.db-wal")).expect("copy wal");
+    }
+    for d in [dir.path(), &ro, &ro_wal] {
+        std::fs::set_permissions(d, std::fs::Permissions::from_mode(0o555)).expect("chmod");
+    }
+    let run = |db: &Path| {
+        let mut cmd = if root {
+            let mut c = Command::new("setpriv");
+            c.args(["--reuid=65534", "--regid=65534", "--clear-groups", BIN]);
+            c
+        } else {
+            Command::new(BIN)
+        };
+        let out = cmd
+            .args(["history", "--gate", "g2", "--db"])
+            .arg(db)
+            .output()
+            .expect("run gatewatch history");
+        (
+            out.status.code().unwrap_or(-1),
+            String::from_utf8_lossy(&out.stdout).into_owned(),
+            String::from_utf8_lossy(&out.stderr).into_owned(),
+        )
+    };
+    let (code, out, err) = run(&ro.join("gw.db"));
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(out.lines().count(), 3, "the 3 windows of g2: {out}");
+    assert!(!ro.join("gw.db-shm").exists());
+    let (code, _, err) = run(&ro_wal.join("gw.db"));
+    assert_eq!(code, 2, "{err}");
+    assert!(
+        err.contains("gw.db-wal") && err.contains("not writable"),
+        "{err}"
+    );
+    for d in [dir.path(), &ro, &ro_wal] {
+        std::fs::set_permissions(d, std::fs::Permissions::from_mode(0o755)).expect("chmod back");
+    }
 }

@@ -138,6 +138,42 @@ fn a_corrupt_or_unusable_database_stops_the_start_naming_the_file() {
         err.contains("gw.db") && err.contains("is a directory"),
         "{err}"
     );
+
+    // a real store with a damaged page of history: refused at start, one line naming the
+    // file and SQLite's finding (it used to start and log a read error without the file)
+    std::fs::remove_dir(dir.path().join("gw.db")).expect("rmdir");
+    let db = dir.path().join("gw.db");
+    {
+        use gatewatch::store::{SqliteStore, Store, WriteBatch};
+        let store = SqliteStore::open(&db, 64).expect("open");
+        store
+            .write(&WriteBatch {
+                identifications: (0..400).map(|i| recent_record(f64::from(i))).collect(),
+                ..Default::default()
+            })
+            .expect("write");
+        store.checkpoint().expect("checkpoint");
+    }
+    let mut bytes = std::fs::read(&db).expect("read");
+    let page = bytes.len() / 8192 / 2;
+    bytes[page * 8192..(page + 1) * 8192].fill(0x5a);
+    std::fs::write(&db, &bytes).expect("damage a page");
+    let out = Command::new(BIN)
+        .args(["serve", "--config"])
+        .arg(&cfg)
+        .output()
+        .expect("run");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    let line = err
+        .lines()
+        .find(|l| l.starts_with("gatewatch: "))
+        .expect("the message line");
+    assert!(
+        line.contains(&db.display().to_string()) && line.contains("quick_check"),
+        "{err}"
+    );
+    assert!(!err.contains("panicked"), "{err}");
 }
 
 /// `http://127.0.0.1:PORT` of the daemon a test configuration starts.
@@ -393,4 +429,177 @@ async fn sigterm_flushes_the_last_identifications_into_the_database_file() {
         )
         .expect("alert state");
     assert_eq!(state, 1, "the gate's alert state too");
+}
+
+/// Polls `/readyz` until 200 (bounded by [`WAIT`]).
+async fn wait_ready(client: &reqwest::Client, url: &str) {
+    let deadline = Instant::now() + WAIT;
+    loop {
+        if let Ok(r) = client.get(format!("{url}/readyz")).send().await {
+            if r.status().is_success() {
+                return;
+            }
+        }
+        assert!(
+            Instant::now() < deadline,
+            "the daemon at {url} never got ready"
+        );
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+}
+
+/// One identification of gate `g1` that ended `ago` seconds before now (inside the retention).
+fn recent_record(ago: f64) -> gatewatch::store::IdentificationRecord {
+    let end = SystemTime::now()
+        .duration_since(SystemTime::UNIX_EPOCH)
+        .expect("clock")
+        .as_secs_f64()
+        - ago;
+    gatewatch::store::IdentificationRecord {
+        gate: "g1".into(),
+        time: end + 0.5,
+        window_start: end - 1.0,
+        window_end: end,
+        equation: "ydd + 0.1*yd + y = 0".into(),
+        coefficients: vec![("c1".into(), 0.1)],
+        damping: serde_json::json!({"zeta0": 0.05}),
+        verdict: "damped".into(),
+        fit_nmae: 0.02,
+        path: "full".into(),
+    }
+}
+
+/// Two daemons on one store file: the second exits 1 with one line naming the file and the
+/// first's pid, and writes nothing; `gatewatch history` still reads the file meanwhile.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_second_daemon_on_the_same_store_is_refused_naming_the_holder() {
+    use gatewatch::store::{SqliteStore, Store, WriteBatch};
+    let dir = tempfile::tempdir().expect("tempdir");
+    let cfg = write_config(dir.path(), free_port());
+    let db = dir.path().join("gw.db");
+    {
+        let store = SqliteStore::open(&db, 64).expect("open");
+        store
+            .write(&WriteBatch {
+                identifications: vec![recent_record(60.0)],
+                ..Default::default()
+            })
+            .expect("write");
+        store.checkpoint().expect("checkpoint");
+    }
+    let mut first = serve(&cfg);
+    gatewatch::service::client::ensure_crypto_provider();
+    let client = reqwest::Client::new();
+    wait_ready(&client, &daemon_url(&cfg)).await;
+
+    // another configuration (its own port), the same file
+    let other = dir.path().join("other");
+    std::fs::create_dir(&other).expect("mkdir");
+    let cfg2 = write_config(&other, free_port());
+    let out = Command::new(BIN)
+        .args(["serve", "--config"])
+        .arg(&cfg2)
+        .env("GATEWATCH_STORAGE_PATH", &db)
+        .output()
+        .expect("run the second daemon");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    // the message line (the log has its own copy of it at level error)
+    let lines: Vec<&str> = err
+        .lines()
+        .filter(|l| l.starts_with("gatewatch: "))
+        .collect();
+    assert_eq!(lines.len(), 1, "one line: {err}");
+    assert!(
+        lines[0].contains(&db.display().to_string()),
+        "names the file: {err}"
+    );
+    assert!(
+        lines[0].contains(&format!("process {}", first.id())),
+        "names the holder: {err}"
+    );
+    assert!(!other.join("gw.db").exists());
+
+    // the read-only CLI is not locked out
+    let out = Command::new(BIN)
+        .args(["history", "--gate", "g1", "--db"])
+        .arg(&db)
+        .output()
+        .expect("gatewatch history");
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert_eq!(
+        out.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert_eq!(text.lines().count(), 1, "{text}");
+    let _ = first.kill();
+    let _ = first.wait();
+}
+
+/// `rm gw.db*` under the running daemon: `/readyz` turns 503, the writes are counted as
+/// `file_gone`, the log names the file, and SIGTERM exits 1 (the `.db` file does not hold what
+/// the daemon identified) with a line naming it.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_deleted_store_file_fails_readiness_is_counted_and_exits_1() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let cfg = write_config(dir.path(), free_port());
+    let db = dir.path().join("gw.db");
+    let log = dir.path().join("gatewatch.log");
+    let mut child = serve_logging(&cfg, &log);
+    let url = daemon_url(&cfg);
+    gatewatch::service::client::ensure_crypto_provider();
+    let client = reqwest::Client::new();
+    wait_ready(&client, &url).await;
+    let mut stream = Stream::new();
+    for _ in 0..3 {
+        stream.send(&client, &url).await;
+    }
+    for suffix in ["", "-wal", "-shm"] {
+        let _ = std::fs::remove_file(format!("{}{suffix}", db.display()));
+    }
+    const GONE: &str = "gatewatch_store_write_errors_total{reason=\"file_gone\"}";
+    let deadline = Instant::now() + WAIT;
+    loop {
+        stream.send(&client, &url).await;
+        let ready = client
+            .get(format!("{url}/readyz"))
+            .send()
+            .await
+            .map(|r| r.status().as_u16())
+            .unwrap_or(0);
+        let gone = metric(&client, &url, GONE).await.unwrap_or(0.0);
+        if ready == 503 && gone >= 1.0 {
+            break;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "readyz {ready}, file_gone writes {gone}"
+        );
+        tokio::time::sleep(Duration::from_millis(300)).await;
+    }
+    let term = Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status()
+        .expect("kill -TERM");
+    assert!(term.success());
+    let status = tokio::task::spawn_blocking(move || child.wait())
+        .await
+        .expect("join")
+        .expect("wait");
+    let text = std::fs::read_to_string(&log).expect("log");
+    assert_eq!(status.code(), Some(1), "{text}");
+    let name = db.display().to_string();
+    assert!(
+        text.lines()
+            .any(|l| l.contains("ERROR") && l.contains(&name) && l.contains("deleted")),
+        "an error naming the file:\n{text}"
+    );
+    let last = text
+        .lines()
+        .rfind(|l| l.starts_with("gatewatch: "))
+        .expect("the exit line");
+    assert!(last.contains(&name) && last.contains("deleted"), "{last}");
+    assert!(!text.contains("panicked"), "{text}");
 }

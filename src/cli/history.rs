@@ -75,28 +75,32 @@ pub fn run(args: HistoryArgs) -> Result<(), CliError> {
         SqliteStore::open_read_only(&args.db).map_err(|e| CliError::Input(e.to_string()))?;
     let rows = store.history(&query).map_err(anyhow::Error::from)?;
     if rows.is_empty() {
-        let gates = store.gates().map_err(anyhow::Error::from)?;
+        // a loose scan of the key: one lookup per gate, not a read of the table
+        let gates = store
+            .history_gates(usize::MAX)
+            .map_err(anyhow::Error::from)?;
         if !gates.contains(&args.gate) {
             return Err(CliError::Input(format!(
                 "unknown gate `{}`: {} has no identification of it (gates: {})",
                 args.gate,
                 args.db.display(),
-                if gates.is_empty() {
-                    "none".to_string()
-                } else {
-                    gates.join(", ")
-                }
+                gate_list(&gates)
             )));
         }
-        if args.plot.is_some() {
-            return Err(CliError::Input(format!(
-                "gate `{}` has no identification between {} and {} in {}: nothing to plot",
-                args.gate,
-                args.from.as_deref().unwrap_or("the first"),
-                args.to.as_deref().unwrap_or("the last"),
-                args.db.display()
-            )));
-        }
+        // an empty range exits 2 like a bad one (docs/operations.md, "Offline reading"): an
+        // empty output with exit 0 reads as "no windows" and as "wrong range" alike
+        return Err(CliError::Input(format!(
+            "gate `{}` has no identification between {} and {} in {}{}",
+            args.gate,
+            args.from.as_deref().unwrap_or("the first"),
+            args.to.as_deref().unwrap_or("the last"),
+            args.db.display(),
+            if args.plot.is_some() {
+                ": nothing to plot"
+            } else {
+                ""
+            }
+        )));
     }
     if let Some(path) = &args.plot {
         let points: Vec<DampingPoint> = rows.iter().map(point).collect();
@@ -116,6 +120,21 @@ pub fn run(args: HistoryArgs) -> Result<(), CliError> {
         }
     }
     Ok(())
+}
+
+/// Gates named in the "unknown gate" message at most; the others are counted.
+const LISTED_GATES: usize = 10;
+
+/// `a, b, c`, or the first [`LISTED_GATES`] and how many more; `none` for none.
+fn gate_list(gates: &[String]) -> String {
+    if gates.is_empty() {
+        return "none".to_string();
+    }
+    let mut list = gates[..gates.len().min(LISTED_GATES)].join(", ");
+    if gates.len() > LISTED_GATES {
+        list.push_str(&format!(" and {} more", gates.len() - LISTED_GATES));
+    }
+    list
 }
 
 /// What the picture needs of a stored identification.

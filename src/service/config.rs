@@ -716,6 +716,7 @@ impl Config {
         if let Some(w) = self.server.tcp_loopback_only_warning() {
             out.push(w);
         }
+        out.extend(self.storage.warnings());
         out
     }
 

@@ -4,6 +4,7 @@
 use std::sync::Arc;
 
 use axum::body::{Body, Bytes};
+use axum::extract::rejection::QueryRejection;
 use axum::extract::{Path, Query, State};
 use axum::http::{header, HeaderMap};
 use axum::response::{IntoResponse, Response};
@@ -40,6 +41,50 @@ pub struct HistoryParams {
     /// `csv` or `json`; overrides the `Accept` header. A URL alone then names the format, as
     /// `pandas.read_csv(url)` and a browser's address bar need (`docs/notebooks.md`).
     pub format: Option<String>,
+}
+
+/// Longest parameter name echoed in an error's `field` (an unknown one is the client's text).
+const MAX_FIELD_ECHO: usize = 64;
+
+impl HistoryParams {
+    /// The parameters from the query string's `(name, value)` pairs, or a 400 naming the
+    /// parameter: an unknown name, a name given twice, a `limit` that is not a non-negative
+    /// integer. Why not axum's `Query<HistoryParams>`: its rejection is a text/plain "Failed to
+    /// deserialize query string" where docs/api.md promises the JSON `{"error", "field"}` of
+    /// every other 400.
+    pub fn from_pairs(pairs: Vec<(String, String)>) -> Result<HistoryParams, HttpError> {
+        let mut p = HistoryParams::default();
+        let mut limit = None;
+        for (name, value) in pairs {
+            let slot = match name.as_str() {
+                "from" => &mut p.from,
+                "to" => &mut p.to,
+                "limit" => &mut limit,
+                "format" => &mut p.format,
+                _ => {
+                    let shown: String = name.chars().take(MAX_FIELD_ECHO).collect();
+                    return Err(bad(
+                        format!("unknown parameter `{shown}`: the history takes from, to, limit and format"),
+                        &shown,
+                    ));
+                }
+            };
+            if slot.is_some() {
+                return Err(bad(format!("{name} given more than once"), &name));
+            }
+            *slot = Some(value);
+        }
+        if let Some(v) = limit {
+            p.limit = Some(v.trim().parse::<usize>().map_err(|_| {
+                let shown: String = v.chars().take(MAX_FIELD_ECHO).collect();
+                bad(
+                    format!("limit must be an integer in 1..={MAX_HISTORY_LIMIT}, got `{shown}`"),
+                    "limit",
+                )
+            })?);
+        }
+        Ok(p)
+    }
 }
 
 /// Whether the answer is CSV: `format` when given (`csv` or `json`, else a 400 naming it),
@@ -109,9 +154,17 @@ async fn has_history(p: &Arc<super::storage::Persistence>, gate: &str) -> Result
 pub async fn get_history(
     State(state): State<Arc<AppState>>,
     Path(id): Path<String>,
-    Query(params): Query<HistoryParams>,
+    pairs: Result<Query<Vec<(String, String)>>, QueryRejection>,
     headers: HeaderMap,
 ) -> Result<Response, HttpError> {
+    // (pairs of strings: only a query string that is not URL-encoding at all is refused here)
+    let Query(pairs) = pairs.map_err(|e| {
+        HttpError::BadRequest(BadRequest::new(format!(
+            "bad query string: {}",
+            e.body_text()
+        )))
+    })?;
+    let params = HistoryParams::from_pairs(pairs)?;
     let Some(p) = state.persistence.clone() else {
         return Err(HttpError::NotFound(
             "no history: this daemon runs without a store".into(),

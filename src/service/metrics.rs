@@ -201,8 +201,10 @@ pub const IDENTIFICATION_FAILURES: &[&str] = &["settings", "window", "panic", "q
 /// Reasons of `gatewatch_store_write_errors_total`, in write requests (one identification, or
 /// one alert transition with its state): `failed` when SQLite refused the transaction (disk
 /// full, I/O error, the `storage.max_size_mb` bound), `queue_full` when the writer's queue
-/// (`store::STORE_QUEUE_CAPACITY`) had no room. Either way the daemon goes on from memory.
-pub const STORE_WRITE_ERRORS: &[&str] = &["failed", "queue_full"];
+/// (`store::STORE_QUEUE_CAPACITY`) had no room, `file_gone` when the store's file was deleted
+/// or replaced under the daemon (`Store::check`; `/readyz` fails meanwhile). Either way the
+/// daemon goes on from memory.
+pub const STORE_WRITE_ERRORS: &[&str] = &["failed", "queue_full", "file_gone"];
 
 /// Reasons of `gatewatch_store_pruned_rows_total`: `age` (`retention_days`), `rows`
 /// (`max_history_rows`), `size` (`max_size_mb`: the oldest history pruned to stay under it).

@@ -184,7 +184,11 @@ pub fn read(
                     .filter(|g| !config.gates.contains_key(g))
                     .take(config.server.max_gates - gates.len()),
             ),
-            Err(e) => tracing::error!("cannot list the gates with history: {e}"),
+            Err(e) => tracing::error!(
+                store = %store.location(),
+                "cannot list the gates with history in {}: {e}",
+                store.location()
+            ),
         }
     }
     let (mut windows, mut skipped) = (0, 0);
@@ -203,7 +207,7 @@ pub fn read(
                 }
             }
             Err(e) => {
-                tracing::error!(%gate, "cannot read the gate's history, it starts afresh: {e}")
+                tracing::error!(%gate, store = %store.location(), "cannot read the gate's history, it starts afresh: {e}")
             }
         }
     }

@@ -92,7 +92,8 @@ pub async fn run_with_analyzer(
 
 /// Runs the daemon with the given analyzer and store until `shutdown` resolves. At shutdown
 /// the store is flushed (the notifier's last acknowledgements and alert states included) and
-/// checkpointed within the same deadline.
+/// checkpointed within the same deadline; an error when either did not complete (the `.db`
+/// file alone then does not hold every write: `serve` exits 1).
 pub async fn run_with_persistence(
     config: Config,
     listeners: Listeners,
@@ -210,22 +211,40 @@ pub async fn run_with_persistence(
         .shutdown_notifier(deadline.saturating_duration_since(Instant::now()))
         .await;
     tracing::info!(flushed, "alert notifier stopped");
+    // Exit 0 promises that the .db file alone holds every identification counted before the
+    // signal (docs/operations.md, "Shutdown"): a flush cut by the deadline or a checkpoint
+    // that did not complete (full disk, a reader on the WAL, the file deleted) breaks that
+    // promise, so it is an error (exit 1), not a warning under an exit 0.
+    let mut store_result = Ok(());
     if let Some(p) = state.persistence.clone() {
         // at least a second for the last commit, even when the grace period is used up
         let within = deadline
             .saturating_duration_since(Instant::now())
             .max(Duration::from_secs(1));
+        let location = p.store.location();
         let flushed = tokio::task::spawn_blocking(move || {
             let flushed = p.writer.close(within);
             (flushed, p.checkpoint())
         })
         .await;
-        match flushed {
-            Ok((flushed, Ok(()))) => tracing::info!(flushed, "store flushed"),
-            Ok((flushed, Err(e))) => tracing::warn!(flushed, "store checkpoint failed: {e}"),
-            Err(e) => tracing::error!("store flush failed: {e}"),
+        store_result = match flushed {
+            Ok((true, Ok(()))) => {
+                tracing::info!("store flushed and checkpointed");
+                Ok(())
+            }
+            Ok((false, _)) => Err(anyhow::anyhow!(
+                "store {location}: the last writes were not committed within {} s of the \
+                 shutdown deadline: they are lost",
+                within.as_secs_f64()
+            )),
+            Ok((true, Err(e))) => Err(anyhow::anyhow!("at shutdown: {e}")),
+            Err(e) => Err(anyhow::anyhow!("store {location}: flush failed: {e}")),
+        };
+        if let Err(e) = &store_result {
+            tracing::error!("{e:#}");
         }
     }
     tracing::info!("shut down");
-    served.map_err(|e| anyhow::anyhow!("HTTP server failed: {e}"))
+    served.map_err(|e| anyhow::anyhow!("HTTP server failed: {e}"))?;
+    store_result
 }

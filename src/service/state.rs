@@ -245,10 +245,12 @@ impl AppState {
         self.pool.get().expect("pool is set in new")
     }
 
-    /// Ready: listeners up and every worker running.
+    /// Ready: listeners up, every worker running, and the store (when there is one) still
+    /// writing to its file (not deleted or replaced under the daemon: `StoreWriter::healthy`).
     pub fn ready(&self) -> bool {
         self.listeners_up.load(Ordering::SeqCst)
             && self.pool().running_workers() == self.config.server.effective_worker_threads()
+            && self.persistence.as_ref().is_none_or(|p| p.writer.healthy())
     }
 
     fn ensure_gate<'a>(

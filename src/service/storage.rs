@@ -341,7 +341,7 @@ pub fn states_write(p: Option<&Persistence>, engine: &AlertEngine) -> WriteBatch
 /// (the store does not know Prometheus).
 #[derive(Debug, Default)]
 pub struct StoreCounts {
-    last: std::sync::Mutex<[u64; 5]>,
+    last: std::sync::Mutex<[u64; 6]>,
 }
 
 impl StoreCounts {
@@ -352,6 +352,7 @@ impl StoreCounts {
         let now = [
             stats.write_failed.load(Relaxed),
             stats.queue_full.load(Relaxed),
+            stats.file_gone.load(Relaxed),
             stats.expired_rows.load(Relaxed),
             stats.over_size_rows.load(Relaxed),
             stats.over_bytes_rows.load(Relaxed),
@@ -360,6 +361,7 @@ impl StoreCounts {
         let counters = [
             (&metrics.store_write_errors, "failed"),
             (&metrics.store_write_errors, "queue_full"),
+            (&metrics.store_write_errors, "file_gone"),
             (&metrics.store_pruned_rows, "age"),
             (&metrics.store_pruned_rows, "rows"),
             (&metrics.store_pruned_rows, "size"),

@@ -16,6 +16,15 @@ pub const STORE_QUEUE_CAPACITY: usize = 4096;
 /// 5 s is 17 280 rows, so a day always fits; a longer range is paged with `from`.
 pub const MAX_HISTORY_LIMIT: usize = 20_000;
 
+/// Below this `max_size_mb`, `check-config` and `serve` warn. Why 16 MiB: the margin between
+/// the pruning's high watermark and the bound (10 %) must hold the writes between two checks
+/// (one merged transaction: up to 256 requests, about 0.3 MiB of history) and the WAL's
+/// budget (5 % of the bound); at 16 MiB that is 1.6 MiB, five such transactions, and the store
+/// keeps most of a gate-day (20 MiB at a window every 5 s). A smaller bound works (the tests
+/// use 1 MiB to meet SQLite's real "full"), but a burst can fail writes and the history is
+/// minutes long: a warning, not a refusal.
+pub const MIN_USEFUL_SIZE_MB: u64 = 16;
+
 /// `[storage]` in the configuration.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -82,6 +91,21 @@ impl StorageConfig {
             return Err("storage.notification_max_age_seconds: must be > 0".into());
         }
         Ok(())
+    }
+
+    /// What is valid but probably not meant, one line each naming the key.
+    pub fn warnings(&self) -> Vec<String> {
+        let mut out = Vec::new();
+        if self.max_size_mb < MIN_USEFUL_SIZE_MB {
+            out.push(format!(
+                "storage.max_size_mb = {} is below {MIN_USEFUL_SIZE_MB}: a burst of writes can \
+                 outrun the pruning (writes fail as full) and the store keeps little history \
+                 (about {} rows); docs/operations.md, \"Size\"",
+                self.max_size_mb,
+                self.max_size_mb * 1024 * 1024 * 8 / 10 / 1225
+            ));
+        }
+        out
     }
 
     /// The retention as a duration.

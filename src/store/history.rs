@@ -23,9 +23,9 @@ pub const HISTORY_CSV_HEADER: [&str; 13] = [
     "equation",
 ];
 
-/// A time given as Unix seconds (`1714564800`, `1714564800.5`) or RFC 3339 in UTC
-/// (`2024-05-01T12:00:00Z`, fractions allowed), as Unix seconds. The error says which forms
-/// are accepted.
+/// A time given as Unix seconds (`1714564800`, `1714564800.5`) or RFC 3339 (`2024-05-01T12:00:00Z`,
+/// fractions allowed, or with an offset: `2024-05-01T14:00:00+02:00` is the same instant), as
+/// Unix seconds. The error says which forms are accepted.
 pub fn parse_time(s: &str) -> Result<f64, String> {
     let s = s.trim();
     if let Ok(v) = s.parse::<f64>() {
@@ -33,16 +33,47 @@ pub fn parse_time(s: &str) -> Result<f64, String> {
             return Ok(v);
         }
     }
-    match humantime::parse_rfc3339_weak(s) {
+    // humantime reads UTC only: an offset `+HH:MM` / `-HH:MM` is taken off and applied after
+    let (utc, offset) = match split_offset(s) {
+        Some((base, offset)) => (format!("{base}Z"), offset),
+        None => (s.to_string(), 0.0),
+    };
+    match humantime::parse_rfc3339_weak(&utc) {
         // the parser refuses years before 1970; should it ever take one, it is negative seconds
         Ok(t) => Ok(match t.duration_since(UNIX_EPOCH) {
             Ok(d) => d.as_secs_f64(),
             Err(before) => -before.duration().as_secs_f64(),
-        }),
+        } - offset),
         Err(e) => Err(format!(
-            "{s:?} is neither Unix seconds nor an RFC 3339 time like 2024-05-01T12:00:00Z ({e})"
+            "{s:?} is neither Unix seconds nor an RFC 3339 time like 2024-05-01T12:00:00Z or \
+             2024-05-01T14:00:00+02:00 ({e})"
         )),
     }
+}
+
+/// `(time without offset, offset in seconds)` when `s` ends in an RFC 3339 offset `+HH:MM` or
+/// `-HH:MM` after a time of day.
+fn split_offset(s: &str) -> Option<(&str, f64)> {
+    let at = s.len().checked_sub(6)?;
+    let (base, tail) = (s.get(..at)?, s.get(at..)?);
+    let b = tail.as_bytes();
+    let sign = match b[0] {
+        b'+' => 1.0,
+        b'-' => -1.0,
+        _ => return None,
+    };
+    if b[3] != b':' || !base.contains(['T', 't', ' ']) {
+        return None;
+    }
+    let hours: u8 = tail.get(1..3)?.parse().ok()?;
+    let minutes: u8 = tail.get(4..6)?.parse().ok()?;
+    if hours > 23 || minutes > 59 {
+        return None;
+    }
+    Some((
+        base,
+        sign * (f64::from(hours) * 3600.0 + f64::from(minutes) * 60.0),
+    ))
 }
 
 fn opt(v: Option<f64>) -> String {

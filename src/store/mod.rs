@@ -27,13 +27,16 @@ mod schema;
 mod sqlite;
 mod writer;
 
-pub use config::{StorageConfig, MAX_HISTORY_LIMIT, STORE_QUEUE_CAPACITY};
+pub use config::{StorageConfig, MAX_HISTORY_LIMIT, MIN_USEFUL_SIZE_MB, STORE_QUEUE_CAPACITY};
 pub use history::{
     history_csv, history_csv_rows, history_json_rows, parse_time, HISTORY_CSV_HEADER,
 };
 pub use row::{HistoryRow, CURVE_STORED_DIGITS, CURVE_STORED_POINTS};
 pub use schema::SCHEMA_VERSION;
-pub use sqlite::{SqliteStore, PRUNE_BATCH_ROWS, SIZE_HIGH_WATERMARK, SIZE_LOW_WATERMARK};
+pub use sqlite::{
+    lock_path, prune_batch_rows, wal_budget, SqliteStore, PRUNE_BATCH_ROWS, SIZE_HIGH_WATERMARK,
+    SIZE_LOW_WATERMARK,
+};
 pub use writer::{StoreStats, StoreWriter};
 
 use serde::{Deserialize, Serialize};
@@ -58,6 +61,37 @@ pub enum StoreError {
         #[source]
         source: rusqlite::Error,
     },
+    /// SQLite refused a write as full, with the cause named: the `max_size_mb` bound or the
+    /// disk (SQLite's own message says "database or disk is full").
+    #[error("storage file {path}: {operation} refused: {reason}")]
+    Full {
+        /// The file.
+        path: String,
+        /// What was being done.
+        operation: &'static str,
+        /// Which is full, and what to do.
+        reason: String,
+        /// SQLite's error (boxed: the variant carries two strings besides).
+        #[source]
+        source: Box<rusqlite::Error>,
+    },
+    /// The store's file is no longer the one it opened: deleted, moved or replaced while the
+    /// daemon runs. Its writes would go to a file nobody reads again (`Store::check`).
+    #[error("storage file {path}: {message}")]
+    Gone {
+        /// The file.
+        path: String,
+        /// What happened to it.
+        message: String,
+    },
+    /// The shutdown checkpoint did not write the whole WAL back into the database file.
+    #[error("storage file {path}: {message}")]
+    Checkpoint {
+        /// The file.
+        path: String,
+        /// Why, and what it means for a copy of the file.
+        message: String,
+    },
     /// A stored value does not decode (a row written by a newer or broken version).
     #[error("storage {operation}: bad stored value: {message}")]
     Decode {
@@ -72,13 +106,21 @@ impl StoreError {
     /// Whether the store refused the write because it is full: its size bound
     /// (`max_size_mb`) or the disk (SQLite's `SQLITE_FULL`).
     pub fn is_full(&self) -> bool {
-        matches!(
-            self,
+        match self {
+            StoreError::Full { .. } => true,
             StoreError::Sqlite {
                 source: rusqlite::Error::SqliteFailure(e, _),
                 ..
-            } if e.code == rusqlite::ErrorCode::DiskFull
-        )
+            } => e.code == rusqlite::ErrorCode::DiskFull,
+            _ => false,
+        }
+    }
+}
+
+impl StoreError {
+    /// Whether the store's file was deleted or replaced under the daemon.
+    pub fn is_gone(&self) -> bool {
+        matches!(self, StoreError::Gone { .. })
     }
 }
 
@@ -215,6 +257,14 @@ pub trait Store: Send + Sync + 'static {
     /// names it.
     fn location(&self) -> String {
         "the store".to_string()
+    }
+
+    /// Whether the store is still the one that was opened: an error when its file was deleted
+    /// or replaced under the daemon (an `rm gatewatch.db*` leaves SQLite writing, without an
+    /// error, to a file that disappears at exit). The writer calls it before each commit and
+    /// every `CHECK_INTERVAL` when idle. A store without a file has nothing to check.
+    fn check(&self) -> Result<(), StoreError> {
+        Ok(())
     }
 
     /// Applies a batch in one transaction. Returns the ids given to `batch.outbox`, in order.

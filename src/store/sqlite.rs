@@ -3,13 +3,21 @@
 //!
 //! The size bound (`max_size_mb`) is kept by pruning, not by failing: SQLite's
 //! `max_page_count` is set to the bound, and after each commit the writer thread calls
-//! [`Store::make_room`], which deletes the oldest history when the pages in use pass
-//! [`SIZE_HIGH_WATERMARK`] of the bound, until they are under [`SIZE_LOW_WATERMARK`]. The
-//! pages freed are reused by the next rows, so the file stops growing there. A write refused
-//! as full all the same (one transaction larger than the margin, a full disk) makes room and
-//! is retried once (`writer`).
+//! [`Store::make_room`], which deletes the oldest history when the pages in use plus the WAL
+//! file pass [`SIZE_HIGH_WATERMARK`] of the bound, until they are under [`SIZE_LOW_WATERMARK`],
+//! [`prune_batch_rows`] rows (about 1 % of the bound) at a time. The pages freed are reused by
+//! the next rows, so the file stops growing there. A write refused as full all the same (one
+//! transaction larger than the margin, a full disk) makes room and is retried once (`writer`).
+//!
+//! The WAL is bounded too ([`wal_budget`]): SQLite's default checkpoints it every 1 000 pages
+//! (8 MiB here) and never shrinks the file, which alone was three times a 3 MiB bound; the
+//! store checkpoints it at a twentieth of the bound (at most SQLite's 1 000 pages) and
+//! truncates it back to its budget (`journal_size_limit`).
 
-use std::path::Path;
+use std::fs::{File, OpenOptions};
+use std::io::{Read, Write};
+use std::os::unix::fs::MetadataExt;
+use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 
 use rusqlite::{params, Connection, OpenFlags};
@@ -35,9 +43,42 @@ pub const SIZE_HIGH_WATERMARK: f64 = 0.9;
 /// for the writes between two checks (one merged transaction: at most 256 requests).
 pub const SIZE_LOW_WATERMARK: f64 = 0.8;
 
-/// History rows deleted by one pruning transaction: the writer thread does not hold one
+/// History rows deleted by one pruning transaction at most: the writer thread does not hold one
 /// transaction long (the history route reads meanwhile, WAL), and each batch frees pages.
 pub const PRUNE_BATCH_ROWS: u64 = 2000;
+
+/// Bytes of file per stored identification (docs/benchmarks.md, "History": 1 225 with a real
+/// damping report), to turn a size into rows.
+const ROW_BYTES: u64 = 1225;
+
+/// History rows deleted by one pruning transaction for a bound of `max_bytes`: about 1 % of the
+/// bound, between 16 and [`PRUNE_BATCH_ROWS`]. Why proportional: the pruning stops at the first
+/// batch that brings the store under [`SIZE_LOW_WATERMARK`], so it overshoots by up to one batch;
+/// 2 000 rows (2.4 MB) deleted every row of a 3 MiB store at once, leaving 30 % of it used
+/// instead of 80 %. For the default 12 GiB bound it is the 2 000.
+pub fn prune_batch_rows(max_bytes: u64) -> u64 {
+    (max_bytes / 100 / ROW_BYTES).clamp(16, PRUNE_BATCH_ROWS)
+}
+
+/// The WAL file's budget for a bound of `max_bytes`: 5 % of it, at most 64 MiB. The WAL is
+/// checkpointed when it holds half of that (at most SQLite's default 1 000 pages) and truncated
+/// back to it after a checkpoint (`journal_size_limit`). It outgrows the budget only while a
+/// reader keeps a checkpoint from finishing (a long `gatewatch history`, a backup), and that is
+/// not answered by deleting history: the pruning counts the WAL up to its budget.
+pub fn wal_budget(max_bytes: u64) -> u64 {
+    (max_bytes / 20).min(64 << 20)
+}
+
+/// A file up to this size is checked whole at open (`PRAGMA quick_check`); a larger one only in
+/// the tables the daemon restores and acts on (alert state, outbox) and the schema. Why: the
+/// check reads every page, about 2.2 s per GiB with the file in the page cache on the 2-core
+/// test machine (a 576 MB file: 1.25 s) and the disk's read speed cold, so the default bound
+/// (12 GiB) would hold the start (and the alerting) for half a minute to minutes at every
+/// restart. 1 GiB costs about two seconds. The history of a larger file is checked where it is
+/// read: a damaged page fails its query with SQLite's "malformed" error, logged naming the
+/// file; `sqlite3 FILE 'PRAGMA quick_check'` checks it whole offline (docs/operations.md,
+/// "Start").
+pub const QUICK_CHECK_MAX_BYTES: u64 = 1 << 30;
 
 /// How long a statement waits for a lock held by another connection (the daemon's writer, a
 /// `gatewatch history` reader) before failing.
@@ -52,6 +93,78 @@ pub struct SqliteStore {
     read: Mutex<Connection>,
     /// The size bound in bytes (`max_size_mb`); `None` read-only.
     max_bytes: Option<u64>,
+    /// The daemon's exclusive lock on `<file>.lock`, held while the store is open (dropping
+    /// the file releases it); `None` read-only. See [`take_lock`].
+    _lock: Option<File>,
+    /// The file as opened, and its `(device, inode)` then: [`Store::check`] compares them with
+    /// what the path names now. `None` read-only.
+    file: PathBuf,
+    identity: Option<(u64, u64)>,
+}
+
+/// The lock file of the store at `db`: `<db>.lock`, next to it.
+pub fn lock_path(db: &Path) -> PathBuf {
+    let mut s = db.as_os_str().to_owned();
+    s.push(".lock");
+    PathBuf::from(s)
+}
+
+/// Takes the exclusive advisory lock (`flock`, non-blocking) on `<db>.lock` and writes this process's id
+/// into it, or fails naming the process that holds it.
+///
+/// Why: SQLite itself lets two processes write one file, so a second daemon started on the
+/// same `storage.path` (a copy of the unit, a forgotten container) would restore the first's
+/// alert states, fire false `GateDataStale` for its gates, write them back and prune the same
+/// history. A lock beside the file rather than on it: the lock file also carries the holder's
+/// pid for the message, and SQLite's own (POSIX) locks on the database are left alone. The lock
+/// file is never deleted: deleting it would let a third process lock a new file while the
+/// second still holds the old one. The kernel releases the lock when the process dies, even
+/// on `kill -9`. `gatewatch history` opens read-only and takes no lock.
+fn take_lock(db: &Path, name: &str) -> Result<File, StoreError> {
+    let path = lock_path(db);
+    let open_err = |message: String| StoreError::Open {
+        path: name.to_string(),
+        message,
+    };
+    let mut file = OpenOptions::new()
+        .read(true)
+        .write(true)
+        .create(true)
+        .truncate(false)
+        .open(&path)
+        .map_err(|e| {
+            open_err(match e.kind() {
+                std::io::ErrorKind::PermissionDenied => format!(
+                    "its directory is not writable (cannot create the lock file {}: {e})",
+                    path.display()
+                ),
+                _ => format!("cannot create the lock file {}: {e}", path.display()),
+            })
+        })?;
+    match rustix::fs::flock(&file, rustix::fs::FlockOperation::NonBlockingLockExclusive) {
+        Ok(()) => {}
+        Err(e) if e == rustix::io::Errno::WOULDBLOCK => {
+            let mut pid = String::new();
+            let _ = file.read_to_string(&mut pid);
+            let holder = match pid.trim().parse::<u32>() {
+                Ok(pid) => format!("process {pid}"),
+                Err(_) => "another process".to_string(),
+            };
+            return Err(open_err(format!(
+                "in use: {holder} holds its lock {} (one daemon per store file)",
+                path.display()
+            )));
+        }
+        Err(e) => {
+            let e = std::io::Error::from(e);
+            return Err(open_err(format!("cannot lock {}: {e}", path.display())));
+        }
+    }
+    // the pid is only for the message of a second daemon: a failure here is not fatal
+    let _ = file
+        .set_len(0)
+        .and_then(|()| file.write_all(format!("{}\n", std::process::id()).as_bytes()));
+    Ok(file)
 }
 
 fn lock(m: &Mutex<Connection>) -> std::sync::MutexGuard<'_, Connection> {
@@ -80,6 +193,21 @@ impl SqliteStore {
                 message: "is a directory".into(),
             });
         }
+        // SQLite's "unable to open database file" does not say that the directory is missing
+        let dir = match path.parent() {
+            Some(d) if !d.as_os_str().is_empty() => d,
+            _ => Path::new("."),
+        };
+        if !dir.is_dir() {
+            return Err(StoreError::Open {
+                path: name,
+                message: format!(
+                    "its directory {} does not exist or is not a directory",
+                    dir.display()
+                ),
+            });
+        }
+        let lock_file = take_lock(path, &name)?;
         let mut write = Connection::open(path).map_err(open_err)?;
         if write.is_readonly(rusqlite::MAIN_DB).map_err(open_err)? {
             return Err(StoreError::Open {
@@ -88,6 +216,7 @@ impl SqliteStore {
             });
         }
         write.busy_timeout(BUSY_TIMEOUT).map_err(open_err)?;
+        quick_check(&write, path, &name)?;
         // before WAL: a page size can only be chosen for a new, empty file (a no-op otherwise)
         write
             .execute_batch(&format!("PRAGMA page_size = {PAGE_SIZE}"))
@@ -119,17 +248,38 @@ impl SqliteStore {
         write
             .query_row(&format!("PRAGMA max_page_count = {pages}"), [], |_| Ok(()))
             .map_err(open_err)?;
+        let budget = wal_budget(pages * page_size);
+        let checkpoint_pages = (budget / 2 / page_size).clamp(1, 1000);
+        write
+            .query_row(&format!("PRAGMA journal_size_limit = {budget}"), [], |_| {
+                Ok(())
+            })
+            .map_err(open_err)?;
+        write
+            .query_row(
+                &format!("PRAGMA wal_autocheckpoint = {checkpoint_pages}"),
+                [],
+                |_| Ok(()),
+            )
+            .map_err(open_err)?;
         let read = Connection::open_with_flags(
             path,
             OpenFlags::SQLITE_OPEN_READ_ONLY | OpenFlags::SQLITE_OPEN_NO_MUTEX,
         )
         .map_err(open_err)?;
         read.busy_timeout(BUSY_TIMEOUT).map_err(open_err)?;
+        let meta = std::fs::metadata(path).map_err(|e| StoreError::Open {
+            path: name.clone(),
+            message: format!("cannot stat it after opening it: {e}"),
+        })?;
         Ok(SqliteStore {
+            file: path.to_path_buf(),
+            identity: Some((meta.dev(), meta.ino())),
             path: name,
             write: Mutex::new(write),
             read: Mutex::new(read),
             max_bytes: Some(pages * page_size),
+            _lock: Some(lock_file),
         })
     }
 
@@ -142,6 +292,12 @@ impl SqliteStore {
             path: name.clone(),
             message: e.to_string(),
         };
+        if path.is_dir() {
+            return Err(StoreError::Open {
+                path: name,
+                message: "is a directory, not a database file".into(),
+            });
+        }
         if !path.is_file() {
             return Err(StoreError::Open {
                 path: name,
@@ -149,15 +305,55 @@ impl SqliteStore {
             });
         }
         let flags = OpenFlags::SQLITE_OPEN_READ_ONLY | OpenFlags::SQLITE_OPEN_NO_MUTEX;
-        let open = || -> Result<Connection, StoreError> {
-            let c = Connection::open_with_flags(path, flags).map_err(open_err)?;
-            c.busy_timeout(BUSY_TIMEOUT).map_err(open_err)?;
-            Ok(c)
+        let open = |immutable: bool| -> Result<(Connection, i64), rusqlite::Error> {
+            let c = if immutable {
+                Connection::open_with_flags(
+                    immutable_uri(path),
+                    flags | OpenFlags::SQLITE_OPEN_URI,
+                )?
+            } else {
+                Connection::open_with_flags(path, flags)?
+            };
+            c.busy_timeout(BUSY_TIMEOUT)?;
+            // the first read: where a WAL file's missing shared memory shows
+            let version = c.query_row("PRAGMA user_version", [], |r| r.get(0))?;
+            Ok((c, version))
         };
-        let read = open()?;
-        let version: i64 = read
-            .query_row("PRAGMA user_version", [], |r| r.get(0))
-            .map_err(open_err)?;
+        // A WAL-mode file needs its `-shm` file, which SQLite creates next to it even to read:
+        // a copy in a directory the user cannot write (a backup, a read-only mount) fails with
+        // SQLITE_READONLY. Then it is opened `immutable=1`: read as a plain file, no locks, no
+        // shared memory, which is right for a copy nobody writes. An immutable open ignores
+        // the WAL, so a non-empty `-wal` beside it (writes not yet in the .db) is refused
+        // rather than silently left out.
+        let (read, version, immutable) = match open(false) {
+            Ok((c, v)) => (c, v, false),
+            // READONLY without a -wal file, CANTOPEN with one
+            Err(e)
+                if matches!(
+                    e.sqlite_error_code(),
+                    Some(rusqlite::ErrorCode::ReadOnly | rusqlite::ErrorCode::CannotOpen)
+                ) =>
+            {
+                let mut wal = path.as_os_str().to_owned();
+                wal.push("-wal");
+                let wal = PathBuf::from(wal);
+                if std::fs::metadata(&wal).is_ok_and(|m| m.len() > 0) {
+                    return Err(StoreError::Open {
+                        path: name,
+                        message: format!(
+                            "cannot be read (SQLite: {e}) and {} beside it holds writes not yet \
+                             in it: if the directory is not writable (SQLite creates a -shm \
+                             file there even to read), copy both files into one that is",
+                            wal.display()
+                        ),
+                    });
+                }
+                // the first error is the one to report when the immutable open fails too
+                let (c, v) = open(true).map_err(|_| open_err(e))?;
+                (c, v, true)
+            }
+            Err(e) => return Err(open_err(e)),
+        };
         if version != SCHEMA_VERSION {
             return Err(StoreError::Open {
                 path: name.clone(),
@@ -166,18 +362,76 @@ impl SqliteStore {
                 ),
             });
         }
-        let write = open()?;
+        let (write, _) = open(immutable).map_err(open_err)?;
         Ok(SqliteStore {
+            file: path.to_path_buf(),
+            identity: None,
             path: name,
             write: Mutex::new(write),
             read: Mutex::new(read),
             max_bytes: None,
+            _lock: None,
         })
+    }
+
+    /// SQLite's "database or disk is full" says neither which, and an operator acts on one or
+    /// the other (free the disk, or raise `max_size_mb`): the error names the cause. The bound
+    /// when what the file could still take without growing past `max_page_count` (its free
+    /// pages and the pages left under the bound) is under 2 MiB or 5 % of the bound, so one
+    /// transaction can have met it; the disk otherwise. Other errors are returned as they are.
+    fn explain_full(&self, c: &Connection, e: StoreError) -> StoreError {
+        let StoreError::Sqlite { operation, source } = e else {
+            return e;
+        };
+        if source.sqlite_error_code() != Some(rusqlite::ErrorCode::DiskFull) {
+            return StoreError::Sqlite { operation, source };
+        }
+        let pragma = |name: &str| -> u64 {
+            c.query_row(&format!("PRAGMA {name}"), [], |r| r.get::<_, i64>(0))
+                .map_or(0, |v| v.max(0) as u64)
+        };
+        let (pages, free, max_pages, page) = (
+            pragma("page_count"),
+            pragma("freelist_count"),
+            pragma("max_page_count"),
+            pragma("page_size"),
+        );
+        let mib = |pages: u64| (pages * page) as f64 / 1_048_576.0;
+        let room = (max_pages.saturating_sub(pages) + free) * page;
+        let bound = self.max_bytes.unwrap_or(u64::MAX);
+        let reason = if room < (2 << 20).max(bound / 20) {
+            format!(
+                "the database is full at its storage.max_size_mb bound ({:.1} MiB) after \
+                 pruning history: what is left is alert state and outbox, or a transaction \
+                 larger than the margin",
+                mib(max_pages)
+            )
+        } else {
+            format!(
+                "the disk holding it is full ({source}; the database uses {:.1} MiB of its \
+                 {:.1} MiB bound): free space on that disk",
+                mib(pages - free.min(pages)),
+                mib(max_pages)
+            )
+        };
+        StoreError::Full {
+            path: self.path.clone(),
+            operation,
+            reason,
+            source: Box::new(source),
+        }
     }
 
     /// The file.
     pub fn path(&self) -> &str {
         &self.path
+    }
+
+    /// What the size bound counts, in bytes: the database's pages in use (free pages not
+    /// counted: they are reused) plus the WAL file.
+    pub fn used_bytes(&self) -> Result<u64, StoreError> {
+        let used = used_bytes(&lock(&self.write)).map_err(sq("size"))?;
+        Ok(used + wal_bytes(&self.file))
     }
 
     /// Size of the database in bytes (pages in use, free pages included; WAL not counted).
@@ -207,12 +461,102 @@ impl SqliteStore {
     }
 
     /// Writes the WAL back into the database file (`PRAGMA wal_checkpoint(TRUNCATE)`), so a
-    /// copy of the `.db` file alone is complete. Called at shutdown.
+    /// copy of the `.db` file alone is complete. Called at shutdown. An error when it is not
+    /// complete: the file is gone ([`Store::check`]), SQLite failed (a full disk), or another
+    /// connection (a `gatewatch history`, a backup) still reads the WAL after the busy
+    /// timeout: SQLite reports that last one in the pragma's answer, not as an error.
     pub fn checkpoint(&self) -> Result<(), StoreError> {
-        lock(&self.write)
-            .query_row("PRAGMA wal_checkpoint(TRUNCATE)", [], |_| Ok(()))
-            .map_err(sq("checkpoint"))
+        self.check()?;
+        let (busy, log, done): (i64, i64, i64) = lock(&self.write)
+            .query_row("PRAGMA wal_checkpoint(TRUNCATE)", [], |r| {
+                Ok((r.get(0)?, r.get(1)?, r.get(2)?))
+            })
+            .map_err(sq("checkpoint"))?;
+        if busy != 0 || log != done {
+            return Err(StoreError::Checkpoint {
+                path: self.path.clone(),
+                message: format!(
+                    "checkpoint incomplete: another connection still reads the WAL \
+                     ({done} of {log} pages written back); the .db file alone is not complete, \
+                     keep its -wal file with it"
+                ),
+            });
+        }
+        Ok(())
     }
+}
+
+/// `file:PATH?immutable=1`, the path percent-encoded where a URI needs it (`?`, `#`, `%` and
+/// every byte outside ASCII; SQLite decodes them).
+fn immutable_uri(path: &Path) -> String {
+    let mut uri = String::from("file:");
+    for &b in path.as_os_str().as_encoded_bytes() {
+        if matches!(b, b'?' | b'#' | b'%') || !b.is_ascii() {
+            uri.push_str(&format!("%{b:02X}"));
+        } else {
+            uri.push(char::from(b));
+        }
+    }
+    uri.push_str("?immutable=1");
+    uri
+}
+
+/// Refuses a damaged file before anything in it is trusted or written: `PRAGMA quick_check`
+/// (the b-tree pages and their order, not the index contents: `integrity_check` is several
+/// times slower), whole up to [`QUICK_CHECK_MAX_BYTES`], else the small tables only. The error
+/// carries SQLite's first finding.
+fn quick_check(c: &Connection, path: &Path, name: &str) -> Result<(), StoreError> {
+    let corrupt = |finding: String| StoreError::Open {
+        path: name.to_string(),
+        message: format!(
+            "damaged (SQLite's quick_check: {finding}); restore it from a backup or move it \
+             aside to start with an empty store"
+        ),
+    };
+    let run = |sql: &str| -> Result<(), StoreError> {
+        let first: String =
+            c.query_row(sql, [], |r| r.get(0))
+                .map_err(|e| match e.sqlite_error_code() {
+                    Some(rusqlite::ErrorCode::DatabaseCorrupt) => corrupt(e.to_string()),
+                    _ => StoreError::Open {
+                        path: name.to_string(),
+                        message: e.to_string(),
+                    },
+                })?;
+        if first.eq_ignore_ascii_case("ok") {
+            return Ok(());
+        }
+        let finding: Vec<&str> = first
+            .lines()
+            .filter(|l| !l.starts_with("***"))
+            .take(3)
+            .collect();
+        Err(corrupt(finding.join("; ")))
+    };
+    let size = std::fs::metadata(path).map(|m| m.len()).unwrap_or(0);
+    if size <= QUICK_CHECK_MAX_BYTES {
+        return run("PRAGMA quick_check(1)");
+    }
+    tracing::info!(
+        store = name,
+        bytes = size,
+        "store larger than {} MiB: quick_check of the alert state and the outbox only \
+         (check it whole offline with sqlite3 FILE 'PRAGMA quick_check')",
+        QUICK_CHECK_MAX_BYTES >> 20
+    );
+    for table in ["sqlite_schema", "alert_state", "outbox"] {
+        let exists: bool = c
+            .query_row(
+                "SELECT count(*) > 0 FROM sqlite_schema WHERE name = ?1",
+                [table],
+                |r| r.get(0),
+            )
+            .unwrap_or(table == "sqlite_schema");
+        if exists {
+            run(&format!("PRAGMA quick_check({table})"))?;
+        }
+    }
+    Ok(())
 }
 
 fn insert_identification(
@@ -240,12 +584,53 @@ fn insert_identification(
     )
 }
 
+/// [`Store::write`] on the write connection: one transaction.
+fn write_batch(c: &mut Connection, batch: &WriteBatch) -> Result<Vec<i64>, StoreError> {
+    let tx = c.transaction().map_err(sq("write"))?;
+    for r in &batch.identifications {
+        insert_identification(&tx, r).map_err(sq("write of the history"))?;
+    }
+    for (gate, state) in &batch.alert_states {
+        tx.prepare_cached(
+            "INSERT INTO alert_state (gate, state) VALUES (?1, ?2)
+             ON CONFLICT (gate) DO UPDATE SET state = excluded.state",
+        )
+        .and_then(|mut s| s.execute(params![gate, state]))
+        .map_err(sq("write of the alert state"))?;
+    }
+    for gate in &batch.forget_gates {
+        tx.prepare_cached("DELETE FROM alert_state WHERE gate = ?1")
+            .and_then(|mut s| s.execute(params![gate]))
+            .map_err(sq("write of the alert state"))?;
+    }
+    let mut ids = Vec::with_capacity(batch.outbox.len());
+    for r in &batch.outbox {
+        ids.push(insert_outbox(&tx, r).map_err(sq("write of the outbox"))?);
+    }
+    for id in &batch.delivered {
+        tx.prepare_cached("DELETE FROM outbox WHERE id = ?1")
+            .and_then(|mut s| s.execute(params![id]))
+            .map_err(sq("write of the outbox"))?;
+    }
+    tx.commit().map_err(sq("commit"))?;
+    Ok(ids)
+}
+
 /// Pages in use (the file's pages less the free ones), in bytes.
 fn used_bytes(c: &Connection) -> rusqlite::Result<u64> {
     let pages: i64 = c.query_row("PRAGMA page_count", [], |r| r.get(0))?;
     let free: i64 = c.query_row("PRAGMA freelist_count", [], |r| r.get(0))?;
     let size: i64 = c.query_row("PRAGMA page_size", [], |r| r.get(0))?;
     Ok((pages - free).max(0) as u64 * size.max(0) as u64)
+}
+
+/// The size of the WAL file next to `db` (0 when there is none).
+fn wal_bytes(db: &Path) -> u64 {
+    let mut wal = db.as_os_str().to_owned();
+    wal.push("-wal");
+    std::fs::metadata(PathBuf::from(wal))
+        .map(|m| m.len())
+        .unwrap_or(0)
 }
 
 /// Deletes the oldest `n` history rows (by window end, across gates) in one transaction.
@@ -311,36 +696,28 @@ impl Store for SqliteStore {
         self.path.clone()
     }
 
+    fn check(&self) -> Result<(), StoreError> {
+        let Some(identity) = self.identity else {
+            return Ok(());
+        };
+        let what = match std::fs::metadata(&self.file) {
+            Ok(m) if (m.dev(), m.ino()) == identity => return Ok(()),
+            Ok(_) => "replaced by another file".to_string(),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => "deleted".to_string(),
+            Err(e) => format!("no longer visible ({e})"),
+        };
+        Err(StoreError::Gone {
+            path: self.path.clone(),
+            message: format!(
+                "{what} while the daemon runs: writes would go to a file that disappears at \
+                 exit, so they are refused; restore the file or restart the daemon"
+            ),
+        })
+    }
+
     fn write(&self, batch: &WriteBatch) -> Result<Vec<i64>, StoreError> {
         let mut c = lock(&self.write);
-        let tx = c.transaction().map_err(sq("write"))?;
-        for r in &batch.identifications {
-            insert_identification(&tx, r).map_err(sq("write of the history"))?;
-        }
-        for (gate, state) in &batch.alert_states {
-            tx.prepare_cached(
-                "INSERT INTO alert_state (gate, state) VALUES (?1, ?2)
-                 ON CONFLICT (gate) DO UPDATE SET state = excluded.state",
-            )
-            .and_then(|mut s| s.execute(params![gate, state]))
-            .map_err(sq("write of the alert state"))?;
-        }
-        for gate in &batch.forget_gates {
-            tx.prepare_cached("DELETE FROM alert_state WHERE gate = ?1")
-                .and_then(|mut s| s.execute(params![gate]))
-                .map_err(sq("write of the alert state"))?;
-        }
-        let mut ids = Vec::with_capacity(batch.outbox.len());
-        for r in &batch.outbox {
-            ids.push(insert_outbox(&tx, r).map_err(sq("write of the outbox"))?);
-        }
-        for id in &batch.delivered {
-            tx.prepare_cached("DELETE FROM outbox WHERE id = ?1")
-                .and_then(|mut s| s.execute(params![id]))
-                .map_err(sq("write of the outbox"))?;
-        }
-        tx.commit().map_err(sq("commit"))?;
-        Ok(ids)
+        write_batch(&mut c, batch).map_err(|e| self.explain_full(&c, e))
     }
 
     fn history_rows(&self, q: &HistoryQuery) -> Result<Vec<HistoryRow>, StoreError> {
@@ -480,24 +857,45 @@ impl Store for SqliteStore {
         let Some(max) = self.max_bytes else {
             return Ok(0);
         };
+        let mut c = lock(&self.write);
+        let result = self.prune_to_bound(&mut c, force, max);
+        result.map_err(|e| self.explain_full(&c, e))
+    }
+}
+
+impl SqliteStore {
+    /// [`Store::make_room`] on the write connection.
+    fn prune_to_bound(&self, c: &mut Connection, force: bool, max: u64) -> Result<u64, StoreError> {
         let high = (max as f64 * SIZE_HIGH_WATERMARK) as u64;
         let low = (max as f64 * SIZE_LOW_WATERMARK) as u64;
-        let mut c = lock(&self.write);
-        let mut used = used_bytes(&c).map_err(sq("size bound"))?;
-        if used <= high && !force {
+        let budget = wal_budget(max);
+        let mut used = used_bytes(c).map_err(sq("size bound"))?;
+        let mut wal = wal_bytes(&self.file);
+        if used + wal <= high && !force {
             return Ok(0);
         }
+        if wal > budget {
+            // a reader held the last checkpoints back: try now (a reader still there leaves
+            // the WAL as it is, reported in the pragma's row, not as an error)
+            let _ = c.query_row("PRAGMA wal_checkpoint(TRUNCATE)", [], |_| Ok(()));
+            wal = wal_bytes(&self.file);
+        }
+        // The database's share of the low mark. Deleting history writes to the WAL rather
+        // than shrinking it, so the WAL is counted as it was before the deletions, and up to
+        // its budget only: a WAL held back by a reader is not answered by deleting history.
+        let target = low.saturating_sub(wal.min(budget));
+        let batch = prune_batch_rows(max);
         let mut deleted = 0;
         // forced (a write was refused as full): at least one batch, even under the low mark
         let mut first = force;
-        while used > low || first {
+        while used > target || first {
             first = false;
-            let n = delete_oldest(&mut c, PRUNE_BATCH_ROWS).map_err(sq("size bound"))?;
+            let n = delete_oldest(c, batch).map_err(sq("size bound"))?;
             if n == 0 {
                 break; // no history left: the rest is alert state and outbox, never pruned
             }
             deleted += n;
-            used = used_bytes(&c).map_err(sq("size bound"))?;
+            used = used_bytes(c).map_err(sq("size bound"))?;
         }
         Ok(deleted)
     }

@@ -213,6 +213,221 @@ fn a_file_that_is_not_a_database_is_refused_naming_it() {
     assert!(e.to_string().contains("missing/dir/gw.db"), "{e}");
 }
 
+/// One daemon per file: a second open for writing is refused naming this process (the
+/// holder), read-only opens still work, and the lock goes with the first store.
+#[test]
+fn a_second_writer_on_the_same_file_is_refused_and_readers_are_not() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("gw.db");
+    let first = SqliteStore::open(&path, 64).expect("open");
+    let e = SqliteStore::open(&path, 64).expect_err("a second writer");
+    let msg = e.to_string();
+    assert!(msg.contains(&path.display().to_string()), "{msg}");
+    assert!(
+        msg.contains(&format!("process {}", std::process::id())),
+        "{msg}"
+    );
+    assert!(msg.contains("gw.db.lock"), "{msg}");
+    let reader = SqliteStore::open_read_only(&path).expect("a reader while the writer runs");
+    assert!(reader.gates().expect("gates").is_empty());
+    drop(first);
+    drop(SqliteStore::open(&path, 64).expect("the lock went with the first store"));
+}
+
+/// A store whose directory is missing says so (SQLite alone says "unable to open").
+#[test]
+fn a_missing_directory_is_named() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let e = SqliteStore::open(&dir.path().join("nodir/gw.db"), 64).expect_err("no dir");
+    let msg = e.to_string();
+    assert!(msg.contains("nodir/gw.db"), "{msg}");
+    assert!(
+        msg.contains("directory") && msg.contains("does not exist"),
+        "{msg}"
+    );
+}
+
+/// `rm gw.db*` under the writer: the next write is refused (not written to the deleted inode),
+/// counted as `file_gone`, the writer unhealthy; the shutdown checkpoint fails too; a file put
+/// back at the path (another inode) is still not the store's.
+#[test]
+fn a_deleted_file_is_noticed_refused_and_counted() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("gw.db");
+    let store = Arc::new(SqliteStore::open(&path, 64).expect("open"));
+    let writer = StoreWriter::start(store.clone(), Duration::from_secs(u64::MAX / 4), 1_000_000)
+        .expect("writer");
+    let (tx, rx) = std::sync::mpsc::channel();
+    let submit = |end: f64| {
+        let tx = tx.clone();
+        writer.submit(
+            WriteBatch {
+                identifications: vec![record("g1", end, 0.01)],
+                ..Default::default()
+            },
+            Some(Box::new(move |r| {
+                let _ = tx.send(r);
+            })),
+        );
+        assert!(writer.flush(Duration::from_secs(30)), "flushed");
+        rx.recv_timeout(Duration::from_secs(30)).expect("callback")
+    };
+    assert!(submit(1.0).is_ok());
+    assert!(writer.healthy());
+    assert!(store.check().is_ok());
+    for suffix in ["", "-wal", "-shm"] {
+        let _ = std::fs::remove_file(format!("{}{suffix}", path.display()));
+    }
+    let e = submit(2.0).expect_err("refused");
+    assert!(e.contains("gw.db") && e.contains("deleted"), "{e}");
+    let stats = writer.stats();
+    let load = |c: &std::sync::atomic::AtomicU64| c.load(std::sync::atomic::Ordering::Relaxed);
+    assert_eq!(load(&stats.file_gone), 1);
+    assert_eq!(load(&stats.write_failed), 0);
+    assert!(!writer.healthy());
+    let e = store.checkpoint().expect_err("nothing to checkpoint into");
+    assert!(e.is_gone(), "{e}");
+    // another file at the same path is not the store's file
+    std::fs::write(&path, b"").expect("a new file");
+    let e = store.check().expect_err("replaced");
+    assert!(e.to_string().contains("replaced"), "{e}");
+    assert!(writer.close(Duration::from_secs(30)));
+}
+
+/// The shutdown checkpoint says when a reader keeps it from writing the WAL back (SQLite
+/// answers that in the pragma's row, not as an error): the `.db` alone is then incomplete.
+#[test]
+fn a_checkpoint_blocked_by_a_reader_is_an_error() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("gw.db");
+    let store = SqliteStore::open(&path, 64).expect("open");
+    store
+        .write(&WriteBatch {
+            identifications: vec![record("g1", 1.0, 0.01)],
+            ..Default::default()
+        })
+        .expect("write");
+    let reader = rusqlite::Connection::open(&path).expect("reader");
+    reader.execute_batch("BEGIN").expect("begin");
+    let _: i64 = reader
+        .query_row("SELECT count(*) FROM history", [], |r| r.get(0))
+        .expect("read");
+    store
+        .write(&WriteBatch {
+            identifications: vec![record("g1", 2.0, 0.01)],
+            ..Default::default()
+        })
+        .expect("write");
+    let e = store.checkpoint().expect_err("a reader holds the WAL");
+    assert!(e.to_string().contains("checkpoint incomplete"), "{e}");
+    reader.execute_batch("COMMIT").expect("commit");
+    store
+        .checkpoint()
+        .expect("complete once the reader is done");
+}
+
+/// A real store with one page of its history overwritten: refused at open naming the file and
+/// SQLite's finding (it used to open, and failed later in a read that did not name the file).
+#[test]
+fn a_damaged_page_is_refused_at_open() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("gw.db");
+    {
+        let store = SqliteStore::open(&path, 64).expect("open");
+        store
+            .write(&WriteBatch {
+                identifications: (0..400).map(|i| record("g1", f64::from(i), 0.01)).collect(),
+                ..Default::default()
+            })
+            .expect("write");
+        store.checkpoint().expect("checkpoint");
+    }
+    let mut bytes = std::fs::read(&path).expect("read");
+    let pages = bytes.len() / 8192;
+    assert!(pages > 8, "{pages} pages");
+    let page = pages / 2;
+    bytes[page * 8192..(page + 1) * 8192].fill(0x5a);
+    std::fs::write(&path, &bytes).expect("damage");
+    let e = SqliteStore::open(&path, 64).expect_err("damaged");
+    let msg = e.to_string();
+    assert!(
+        msg.contains("gw.db") && msg.contains("quick_check"),
+        "{msg}"
+    );
+    assert!(!msg.contains('\n'), "one line: {msg}");
+}
+
+/// A 3 MiB bound (the reviewer's case): the database and its WAL together stay under it while
+/// history streams in, and the pruning stops near the low watermark instead of deleting the
+/// whole history at once (2 000 rows a batch left 30 % of the bound used). The pruning batch
+/// follows the bound.
+#[test]
+fn a_small_bound_counts_the_wal_and_prunes_in_proportion() {
+    assert_eq!(prune_batch_rows(3 << 20), 25);
+    assert_eq!(prune_batch_rows(12_288 << 20), PRUNE_BATCH_ROWS);
+    assert_eq!(prune_batch_rows(1 << 20), 16);
+    assert_eq!(wal_budget(12_288 << 20), 64 << 20);
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("gw.db");
+    let bound = 3u64 << 20;
+    let store = Arc::new(SqliteStore::open(&path, 3).expect("open"));
+    let writer = StoreWriter::start(store.clone(), Duration::from_secs(u64::MAX / 4), 1_000_000)
+        .expect("writer");
+    let wal = dir.path().join("gw.db-wal");
+    let on_disk = || {
+        std::fs::metadata(&path).map_or(0, |m| m.len())
+            + std::fs::metadata(&wal).map_or(0, |m| m.len())
+    };
+    let pruned = || {
+        writer
+            .stats()
+            .over_bytes_rows
+            .load(std::sync::atomic::Ordering::Relaxed)
+    };
+    let (mut low_seen, mut high_seen) = (f64::MAX, 0f64);
+    let mut max_on_disk = 0;
+    for i in 0..2000u32 {
+        let batch = WriteBatch {
+            identifications: (0..4)
+                .map(|g| {
+                    let mut r = record(&format!("g{g}"), f64::from(i), 0.01);
+                    r.equation = "x".repeat(1000);
+                    r
+                })
+                .collect(),
+            ..Default::default()
+        };
+        writer.submit(batch, None);
+        if i % 20 == 19 {
+            assert!(writer.flush(Duration::from_secs(60)), "flushed");
+            max_on_disk = max_on_disk.max(on_disk());
+            if pruned() > 0 {
+                let used = store.used_bytes().expect("used") as f64 / bound as f64;
+                low_seen = low_seen.min(used);
+                high_seen = high_seen.max(used);
+            }
+        }
+    }
+    assert!(writer.close(Duration::from_secs(60)), "flushed");
+    let stats = writer.stats();
+    let load = |c: &std::sync::atomic::AtomicU64| c.load(std::sync::atomic::Ordering::Relaxed);
+    assert_eq!(load(&stats.write_failed), 0);
+    assert!(pruned() > 2000, "pruned {}", pruned());
+    assert!(
+        max_on_disk <= bound,
+        "database + WAL reached {max_on_disk} bytes of {bound}"
+    );
+    // between the watermarks, give or take one merged write and one pruning batch
+    assert!(
+        low_seen > 0.7,
+        "the pruning went down to {low_seen:.2} of the bound"
+    );
+    assert!(
+        high_seen < 0.95,
+        "the store went up to {high_seen:.2} of the bound"
+    );
+}
+
 #[test]
 fn a_newer_schema_is_refused() {
     let dir = tempfile::tempdir().expect("tempdir");
@@ -438,4 +653,64 @@ fn times_parse_as_unix_seconds_and_rfc3339() {
         "{e}"
     );
     assert!(parse_time("NaN").is_err());
+}
+
+/// An RFC 3339 offset is applied (it used to be refused as "not an RFC 3339 time").
+#[test]
+fn rfc3339_offsets_are_the_same_instant() {
+    use super::parse_time;
+    assert_eq!(parse_time("2024-05-01T14:00:00+02:00"), Ok(1_714_564_800.0));
+    assert_eq!(parse_time("2024-05-01T08:30:00-03:30"), Ok(1_714_564_800.0));
+    assert_eq!(
+        parse_time("2024-05-01T12:00:00.5+00:00"),
+        Ok(1_714_564_800.5)
+    );
+    for bad in ["2024-05-01T14:00:00+25:00", "2024-05-01T14:00:00+02-00"] {
+        let e = parse_time(bad).unwrap_err();
+        assert!(e.contains("+02:00"), "says offsets are accepted: {e}");
+    }
+}
+
+/// A bound below `MIN_USEFUL_SIZE_MB` is valid but warned about, naming the key.
+#[test]
+fn a_tiny_size_bound_is_warned_about() {
+    let tiny = StorageConfig {
+        max_size_mb: 3,
+        ..Default::default()
+    };
+    assert!(tiny.validate().is_ok());
+    let w = tiny.warnings();
+    assert_eq!(w.len(), 1, "{w:?}");
+    assert!(w[0].starts_with("storage.max_size_mb = 3"), "{w:?}");
+    assert!(StorageConfig::default().warnings().is_empty());
+    let enough = StorageConfig {
+        max_size_mb: MIN_USEFUL_SIZE_MB,
+        ..Default::default()
+    };
+    assert!(enough.warnings().is_empty());
+}
+
+/// A write refused by the `max_size_mb` bound says so (SQLite's own words, "database or disk
+/// is full", name neither; an operator frees a disk or raises the bound).
+#[test]
+fn a_full_bound_is_named_as_the_bound_not_the_disk() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let store = SqliteStore::open(&dir.path().join("gw.db"), 1).expect("open");
+    let mut n = 0;
+    let e = loop {
+        n += 1;
+        let batch = WriteBatch {
+            alert_states: vec![(format!("g{n}"), "x".repeat(50_000))],
+            ..Default::default()
+        };
+        if let Err(e) = store.write(&batch) {
+            break e;
+        }
+        assert!(n < 1000, "never full");
+    };
+    assert!(e.is_full(), "{e}");
+    let msg = e.to_string();
+    assert!(msg.contains("gw.db") && msg.contains("full"), "{msg}");
+    assert!(msg.contains("storage.max_size_mb"), "{msg}");
+    assert!(!msg.contains("disk holding"), "{msg}");
 }

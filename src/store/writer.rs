@@ -8,14 +8,26 @@
 //! history instead of failing writes. A write refused as full all the same makes room and is
 //! retried once.
 //!
+//! Up to [`MAX_MERGED`] queued requests are merged into one transaction (one fsync for a
+//! burst). When it fails for another reason than a full store (one request's value refused by
+//! SQLite, say), the requests are written again one by one, so only the bad one is lost.
+//!
 //! A write that fails (disk full, I/O error) or does not fit in the queue is counted in
 //! [`StoreStats`] (exported as `gatewatch_store_write_errors_total`) and logged as an error
 //! naming the file (at most one per [`WARN_EVERY`], with the number suppressed: a full disk
 //! fails every write, and one line a second per gate would bury the rest of the log); its
 //! callback is told, so the notifier still delivers the notification from memory. Nothing
 //! waits for the disk.
+//!
+//! Before each commit, and every [`CHECK_INTERVAL`] when idle, the thread checks that the store
+//! is still the one it opened ([`Store::check`]: for SQLite, that the path still names the open
+//! file). Once it is not (the file was deleted or replaced under the daemon), every write is
+//! refused, counted as [`StoreStats::file_gone`]
+//! (`gatewatch_store_write_errors_total{reason="file_gone"}`), the first detection is logged
+//! at once as an error naming the file, and [`StoreWriter::healthy`] is false (`/readyz`
+//! answers 503) until the file is back.
 
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::mpsc::{self, RecvTimeoutError, SyncSender, TrySendError};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
@@ -25,6 +37,11 @@ use super::{Store, WriteBatch, STORE_QUEUE_CAPACITY};
 
 /// How often the writer prunes the history.
 pub const PRUNE_INTERVAL: Duration = Duration::from_secs(3600);
+
+/// How often an idle writer checks that the store's file is still there ([`Store::check`]: one
+/// `stat`). A commit checks first anyway; this bounds how long `/readyz` stays green over a
+/// deleted file when nothing is written.
+pub const CHECK_INTERVAL: Duration = Duration::from_secs(5);
 
 /// Requests merged into one transaction at most (a burst commits in one fsync).
 const MAX_MERGED: usize = 256;
@@ -44,6 +61,39 @@ enum Request {
     Flush(SyncSender<()>),
 }
 
+/// How many items of each part (identifications, alert states, forgotten gates, outbox rows,
+/// delivered ids) one request put into a merged batch, to split it back.
+#[derive(Debug, Clone, Copy)]
+struct Parts([usize; 5]);
+
+impl Parts {
+    fn of(b: &WriteBatch) -> Parts {
+        Parts([
+            b.identifications.len(),
+            b.alert_states.len(),
+            b.forget_gates.len(),
+            b.outbox.len(),
+            b.delivered.len(),
+        ])
+    }
+
+    /// Moves this request's items out of the front of `merged` (requests are taken in the
+    /// order they were merged).
+    fn take_front(self, merged: &mut WriteBatch) -> WriteBatch {
+        fn front<T>(v: &mut Vec<T>, n: usize) -> Vec<T> {
+            v.drain(..n.min(v.len())).collect()
+        }
+        let [i, a, f, o, d] = self.0;
+        WriteBatch {
+            identifications: front(&mut merged.identifications, i),
+            alert_states: front(&mut merged.alert_states, a),
+            forget_gates: front(&mut merged.forget_gates, f),
+            outbox: front(&mut merged.outbox, o),
+            delivered: front(&mut merged.delivered, d),
+        }
+    }
+}
+
 /// Counters of the store, for `/metrics`.
 #[derive(Debug, Default)]
 pub struct StoreStats {
@@ -53,6 +103,10 @@ pub struct StoreStats {
     pub queue_full: AtomicU64,
     /// Write requests lost because SQLite failed (disk full, I/O error...).
     pub write_failed: AtomicU64,
+    /// Write requests refused because the store's file was deleted or replaced.
+    pub file_gone: AtomicU64,
+    /// Whether the last check found the store's file deleted or replaced.
+    pub gone: AtomicBool,
     /// History rows deleted by the retention.
     pub expired_rows: AtomicU64,
     /// History rows deleted by `max_history_rows`.
@@ -102,17 +156,24 @@ impl StoreWriter {
             .name("gatewatch-store".into())
             .spawn(move || {
                 let mut next_prune = Instant::now();
+                let mut next_check = Instant::now();
                 loop {
+                    if Instant::now() >= next_check {
+                        let _ = w.check(store.as_ref());
+                        next_check = Instant::now() + CHECK_INTERVAL;
+                    }
                     if Instant::now() >= next_prune {
                         w.prune(store.as_ref(), retention, max_rows);
                         w.make_room(store.as_ref(), false);
                         next_prune = Instant::now() + PRUNE_INTERVAL;
                     }
-                    let first = match rx.recv_timeout(next_prune - Instant::now()) {
-                        Ok(r) => r,
-                        Err(RecvTimeoutError::Timeout) => continue,
-                        Err(RecvTimeoutError::Disconnected) => break,
-                    };
+                    let wake = next_prune.min(next_check);
+                    let first =
+                        match rx.recv_timeout(wake.saturating_duration_since(Instant::now())) {
+                            Ok(r) => r,
+                            Err(RecvTimeoutError::Timeout) => continue,
+                            Err(RecvTimeoutError::Disconnected) => break,
+                        };
                     let mut writes = Vec::new();
                     let mut flushes = Vec::new();
                     let mut next = Some(first);
@@ -138,6 +199,35 @@ impl StoreWriter {
     /// The counters.
     pub fn stats(&self) -> Arc<StoreStats> {
         self.stats.clone()
+    }
+
+    /// False while the store's file is deleted or replaced (the last check found it so):
+    /// nothing written now survives, and `/readyz` says so.
+    pub fn healthy(&self) -> bool {
+        !self.stats.gone.load(Ordering::Relaxed)
+    }
+
+    /// [`Store::check`], remembered in [`StoreStats::gone`]; the change either way is logged at
+    /// once (not rate-limited: it happens once and says why everything after fails).
+    fn check(&self, store: &dyn Store) -> Result<(), String> {
+        match store.check() {
+            Ok(()) => {
+                if self.stats.gone.swap(false, Ordering::Relaxed) {
+                    tracing::warn!(store = %self.location, "store {}: the file is back, writes resume", self.location);
+                }
+                Ok(())
+            }
+            Err(e) => {
+                let msg = e.to_string();
+                if !self.stats.gone.swap(true, Ordering::Relaxed) {
+                    tracing::error!(
+                        store = %self.location,
+                        "store {msg}; ingestion and alerting go on from memory, /readyz fails"
+                    );
+                }
+                Err(msg)
+            }
+        }
     }
 
     /// Queues a write; never blocks. `then` runs on the writer thread after the commit, or at
@@ -217,11 +307,21 @@ impl StoreWriter {
         if writes.is_empty() {
             return;
         }
+        if let Err(msg) = self.check(store) {
+            self.stats
+                .file_gone
+                .fetch_add(writes.len() as u64, Ordering::Relaxed);
+            self.warn(&msg);
+            for then in writes.into_iter().filter_map(|(_, then)| then) {
+                then(Err(msg.clone()));
+            }
+            return;
+        }
         let mut merged = WriteBatch::default();
-        let mut splits = Vec::with_capacity(writes.len());
+        let mut parts = Vec::with_capacity(writes.len());
         let mut thens = Vec::with_capacity(writes.len());
         for (b, then) in writes {
-            splits.push(b.outbox.len());
+            parts.push(Parts::of(&b));
             merged.append(b);
             thens.push(then);
         }
@@ -237,11 +337,38 @@ impl StoreWriter {
                 self.stats.commits.fetch_add(1, Ordering::Relaxed);
                 self.make_room(store, false);
                 let mut ids = ids.into_iter();
-                for (n, then) in splits.into_iter().zip(thens) {
-                    let mine: Vec<i64> = ids.by_ref().take(n).collect();
+                for (p, then) in parts.into_iter().zip(thens) {
+                    let mine: Vec<i64> = ids.by_ref().take(p.0[3]).collect();
                     if let Some(then) = then {
                         then(Ok(mine));
                     }
+                }
+            }
+            Err(e) if !e.is_full() && thens.len() > 1 => {
+                // One request can sink the merged transaction for a reason of its own (a
+                // constraint, a value SQLite refuses): the others are written one by one, so
+                // only the bad one is lost. Not after a full store: every one would fail alike.
+                tracing::debug!(store = %self.location, "merged write failed ({e}), retrying its {} requests one by one", thens.len());
+                let mut first_error = None;
+                for (p, then) in parts.into_iter().zip(thens) {
+                    let batch = p.take_front(&mut merged);
+                    let r = store.write(&batch).map_err(|e| e.to_string());
+                    match &r {
+                        Ok(_) => {
+                            self.stats.commits.fetch_add(1, Ordering::Relaxed);
+                        }
+                        Err(msg) => {
+                            self.stats.write_failed.fetch_add(1, Ordering::Relaxed);
+                            first_error.get_or_insert_with(|| msg.clone());
+                        }
+                    }
+                    if let Some(then) = then {
+                        then(r);
+                    }
+                }
+                self.make_room(store, false);
+                if let Some(msg) = first_error {
+                    self.warn(&msg);
                 }
             }
             Err(e) => {
@@ -294,6 +421,11 @@ impl StoreWriter {
                     "store: oldest history pruned to stay under storage.max_size_mb"
                 );
             }
+            // forced, the write is retried at once and its own error (which says whether the
+            // bound or the disk is full) is the one logged
+            Err(e) if force => {
+                tracing::debug!(store = %self.location, "store: making room failed: {e}")
+            }
             Err(e) => self.warn(&e.to_string()),
         }
     }
@@ -318,5 +450,75 @@ impl StoreWriter {
             w.1 += 1;
             tracing::debug!(store = %self.location, "store write failed: {msg}");
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::store::{HistoryQuery, IdentificationRecord, SqliteStore};
+
+    fn record(end: f64) -> IdentificationRecord {
+        IdentificationRecord {
+            gate: "g1".into(),
+            time: 1.0,
+            window_start: 0.0,
+            window_end: end,
+            equation: "ydd + y = 0".into(),
+            coefficients: vec![],
+            damping: serde_json::json!({}),
+            verdict: "damped".into(),
+            fit_nmae: 0.0,
+            path: "full".into(),
+        }
+    }
+
+    /// Three requests merged into one transaction, the middle one refused by SQLite (a NaN
+    /// window end is stored as NULL, which the NOT NULL column refuses): the other two are
+    /// written, only the bad one is lost and counted.
+    #[test]
+    fn one_bad_request_does_not_sink_the_merged_ones() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let store = Arc::new(SqliteStore::open(&dir.path().join("gw.db"), 64).expect("open"));
+        let writer = StoreWriter::start(store.clone(), Duration::from_secs(u64::MAX / 4), 1 << 20)
+            .expect("writer");
+        let (tx, rx) = mpsc::channel();
+        let writes = [1.0, f64::NAN, 3.0]
+            .into_iter()
+            .enumerate()
+            .map(|(i, end)| {
+                let tx = tx.clone();
+                let then: Then = Box::new(move |r: WriteResult| {
+                    let _ = tx.send((i, r));
+                });
+                (
+                    WriteBatch {
+                        identifications: vec![record(end)],
+                        ..Default::default()
+                    },
+                    Some(then),
+                )
+            })
+            .collect();
+        writer.commit(store.as_ref(), writes);
+        let results: Vec<(usize, WriteResult)> = rx.try_iter().collect();
+        let ok: Vec<bool> = results.iter().map(|(_, r)| r.is_ok()).collect();
+        assert_eq!(ok, [true, false, true], "{results:?}");
+        let err = results[1].1.as_ref().expect_err("the bad one");
+        assert!(err.contains("NOT NULL"), "{err}");
+        let stats = writer.stats();
+        assert_eq!(stats.write_failed.load(Ordering::Relaxed), 1);
+        let rows = store
+            .history(&HistoryQuery {
+                gate: "g1".into(),
+                from: None,
+                to: None,
+                limit: 10,
+            })
+            .expect("history");
+        let ends: Vec<f64> = rows.iter().map(|r| r.window_end).collect();
+        assert_eq!(ends.len(), 2);
+        assert!((ends[0] - 1.0).abs() < 1e-9 && (ends[1] - 3.0).abs() < 1e-9);
+        assert!(writer.close(Duration::from_secs(30)));
     }
 }
