@@ -4,8 +4,9 @@
 //! SSI-COV read 1.2 to 2.4 %). The record is built here from exact discrete pole pairs driven by
 //! white noise, so the truth of each mode's damping is known.
 //!
-//! docs/benchmarks.md, "Several modes in one channel", runs the same records through an
-//! independent covariance-driven SSI (`strid`, from PyPI) beside this.
+//! docs/benchmarks.md, "Several modes in one channel", runs records made the same way through an
+//! independent covariance-driven SSI (`strid`, from PyPI) beside this
+//! (`benches/python/ambient_crosscheck.py`).
 
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -89,8 +90,8 @@ fn write_csv(path: &std::path::Path, y: &[f64]) {
 /// Eight 82 s records (about 100 cycles of the first mode, the windows) at a noise floor
 /// of half the response's RMS: the reported `zeta0` is the ambient (SSI-COV) estimate of the
 /// first mode, within 0.5 points of the truth in the median, and its 95 % interval holds the
-/// truth in at least 7 of 8. An AR(4) estimate of these records reads several times the truth
-/// (docs/benchmarks.md); a blend of the close modes would read the second mode's 2 %.
+/// truth in at least 7 of 8. The AR(4) fit gatewatch used before SSI-COV puts the first mode of
+/// such records at 30 to 90 % (`benches/python/ambient_crosscheck.py`, docs/benchmarks.md).
 #[test]
 fn several_modes_and_a_noise_floor_read_the_first_mode() {
     let dir = tempfile::tempdir().unwrap();

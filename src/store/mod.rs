@@ -11,6 +11,8 @@
 //! - this file: the trait, the records it keeps, its error type;
 //! - `config`: [`StorageConfig`] (`[storage]`) and the bounds;
 //! - `sqlite`: [`SqliteStore`]: the queries, the pruning and the size bound;
+//! - `file`: the store's file on disk: the lock (one daemon per file), the damage check at
+//!   open, the read-only copy's URI;
 //! - `schema`: the schema and its migrations (version 2 clusters a gate's rows and keeps the
 //!   summary in columns; `docs/design.md`, "The history table");
 //! - `row`: [`HistoryRow`], a stored identification as the history route serves it, and the
@@ -21,6 +23,7 @@
 //!   shared by the HTTP route and `gatewatch history`.
 
 mod config;
+mod file;
 mod history;
 mod row;
 mod schema;
@@ -28,13 +31,14 @@ mod sqlite;
 mod writer;
 
 pub use config::{StorageConfig, MAX_HISTORY_LIMIT, MIN_USEFUL_SIZE_MB, STORE_QUEUE_CAPACITY};
+pub use file::{lock_path, QUICK_CHECK_MAX_BYTES};
 pub use history::{
     history_csv, history_csv_rows, history_json_rows, parse_time, HISTORY_CSV_HEADER,
 };
 pub use row::{HistoryRow, CURVE_STORED_DIGITS, CURVE_STORED_POINTS};
 pub use schema::SCHEMA_VERSION;
 pub use sqlite::{
-    lock_path, prune_batch_rows, wal_budget, SqliteStore, PRUNE_BATCH_ROWS, SIZE_HIGH_WATERMARK,
+    prune_batch_rows, wal_budget, SqliteStore, PRUNE_BATCH_ROWS, SIZE_HIGH_WATERMARK,
     SIZE_LOW_WATERMARK,
 };
 pub use writer::{StoreStats, StoreWriter};
