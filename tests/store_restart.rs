@@ -381,7 +381,7 @@ async fn sigterm_flushes_the_last_identifications_into_the_database_file() {
     let dir = tempfile::tempdir().expect("tempdir");
     let cfg = write_config(dir.path(), free_port());
     let url = daemon_url(&cfg);
-    let mut child = serve(&cfg);
+    let child = serve(&cfg);
     gatewatch::service::client::ensure_crypto_provider();
     let client = reqwest::Client::new();
     let mut stream = Stream::new();
@@ -396,15 +396,7 @@ async fn sigterm_flushes_the_last_identifications_into_the_database_file() {
         assert!(Instant::now() < deadline, "identified {n}");
         tokio::time::sleep(Duration::from_millis(200)).await;
     };
-    let term = Command::new("kill")
-        .args(["-TERM", &child.id().to_string()])
-        .status()
-        .expect("kill -TERM");
-    assert!(term.success());
-    let status = tokio::task::spawn_blocking(move || child.wait())
-        .await
-        .expect("join")
-        .expect("wait");
+    let status = terminate(child).await;
     assert_eq!(status.code(), Some(0), "clean exit on SIGTERM");
 
     // the .db file ALONE holds them (the WAL was checkpointed at shutdown)
@@ -547,7 +539,7 @@ async fn a_deleted_store_file_fails_readiness_is_counted_and_exits_1() {
     let cfg = write_config(dir.path(), free_port());
     let db = dir.path().join("gw.db");
     let log = dir.path().join("gatewatch.log");
-    let mut child = serve_logging(&cfg, &log);
+    let child = serve_logging(&cfg, &log);
     let url = daemon_url(&cfg);
     gatewatch::service::client::ensure_crypto_provider();
     let client = reqwest::Client::new();
@@ -579,15 +571,7 @@ async fn a_deleted_store_file_fails_readiness_is_counted_and_exits_1() {
         );
         tokio::time::sleep(Duration::from_millis(300)).await;
     }
-    let term = Command::new("kill")
-        .args(["-TERM", &child.id().to_string()])
-        .status()
-        .expect("kill -TERM");
-    assert!(term.success());
-    let status = tokio::task::spawn_blocking(move || child.wait())
-        .await
-        .expect("join")
-        .expect("wait");
+    let status = terminate(child).await;
     let text = std::fs::read_to_string(&log).expect("log");
     assert_eq!(status.code(), Some(1), "{text}");
     let name = db.display().to_string();
@@ -602,4 +586,17 @@ async fn a_deleted_store_file_fails_readiness_is_counted_and_exits_1() {
         .expect("the exit line");
     assert!(last.contains(&name) && last.contains("deleted"), "{last}");
     assert!(!text.contains("panicked"), "{text}");
+}
+
+/// Sends SIGTERM to the daemon and waits for its exit.
+async fn terminate(mut child: std::process::Child) -> std::process::ExitStatus {
+    let term = Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status()
+        .expect("kill -TERM");
+    assert!(term.success());
+    tokio::task::spawn_blocking(move || child.wait())
+        .await
+        .expect("join")
+        .expect("wait")
 }

@@ -387,16 +387,7 @@ fn a_small_bound_counts_the_wal_and_prunes_in_proportion() {
     let (mut low_seen, mut high_seen) = (f64::MAX, 0f64);
     let mut max_on_disk = 0;
     for i in 0..2000u32 {
-        let batch = WriteBatch {
-            identifications: (0..4)
-                .map(|g| {
-                    let mut r = record(&format!("g{g}"), f64::from(i), 0.01);
-                    r.equation = "x".repeat(1000);
-                    r
-                })
-                .collect(),
-            ..Default::default()
-        };
+        let batch = fat_batch(i);
         writer.submit(batch, None);
         if i % 20 == 19 {
             assert!(writer.flush(Duration::from_secs(60)), "flushed");
@@ -464,16 +455,7 @@ fn the_size_bound_prunes_the_oldest_history_and_no_write_fails() {
     for i in 0..STEPS {
         // 4 gates interleaved, about 1.3 kB a row: 6 000 rows are 8 MiB, 8 times the bound
         let tx = tx.clone();
-        let batch = WriteBatch {
-            identifications: (0..4)
-                .map(|g| {
-                    let mut r = record(&format!("g{g}"), f64::from(i), 0.01);
-                    r.equation = "x".repeat(1000);
-                    r
-                })
-                .collect(),
-            ..Default::default()
-        };
+        let batch = fat_batch(i);
         writer.submit(
             batch,
             Some(Box::new(move |res| {
@@ -713,4 +695,19 @@ fn a_full_bound_is_named_as_the_bound_not_the_disk() {
     assert!(msg.contains("gw.db") && msg.contains("full"), "{msg}");
     assert!(msg.contains("storage.max_size_mb"), "{msg}");
     assert!(!msg.contains("disk holding"), "{msg}");
+}
+
+/// Four gates' rows at time `i`, about 1.3 kB each (a 1000-character equation): a few thousand
+/// fill a small size bound.
+fn fat_batch(i: u32) -> WriteBatch {
+    WriteBatch {
+        identifications: (0..4)
+            .map(|g| {
+                let mut r = record(&format!("g{g}"), f64::from(i), 0.01);
+                r.equation = "x".repeat(1000);
+                r
+            })
+            .collect(),
+        ..Default::default()
+    }
 }
