@@ -113,13 +113,7 @@ fn a_corrupt_or_unusable_database_stops_the_start_naming_the_file() {
     let dir = tempfile::tempdir().expect("tempdir");
     let cfg = write_config(dir.path(), free_port());
     std::fs::write(dir.path().join("gw.db"), vec![0x5au8; 16_384]).expect("junk");
-    let out = Command::new(BIN)
-        .args(["serve", "--config"])
-        .arg(&cfg)
-        .output()
-        .expect("run");
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(1), "{err}");
+    let err = refused_start(&cfg);
     assert!(err.contains("gw.db"), "names the file: {err}");
     assert!(err.contains("not a database"), "{err}");
     assert!(!err.contains("panicked"), "{err}");
@@ -127,13 +121,7 @@ fn a_corrupt_or_unusable_database_stops_the_start_naming_the_file() {
     // a directory where the file should be: unwritable as a database, even for root
     std::fs::remove_file(dir.path().join("gw.db")).expect("rm");
     std::fs::create_dir(dir.path().join("gw.db")).expect("mkdir");
-    let out = Command::new(BIN)
-        .args(["serve", "--config"])
-        .arg(&cfg)
-        .output()
-        .expect("run");
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(1), "{err}");
+    let err = refused_start(&cfg);
     assert!(
         err.contains("gw.db") && err.contains("is a directory"),
         "{err}"
@@ -158,13 +146,7 @@ fn a_corrupt_or_unusable_database_stops_the_start_naming_the_file() {
     let page = bytes.len() / 8192 / 2;
     bytes[page * 8192..(page + 1) * 8192].fill(0x5a);
     std::fs::write(&db, &bytes).expect("damage a page");
-    let out = Command::new(BIN)
-        .args(["serve", "--config"])
-        .arg(&cfg)
-        .output()
-        .expect("run");
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(1), "{err}");
+    let err = refused_start(&cfg);
     let line = err
         .lines()
         .find(|l| l.starts_with("gatewatch: "))
@@ -599,4 +581,17 @@ async fn terminate(mut child: std::process::Child) -> std::process::ExitStatus {
         .await
         .expect("join")
         .expect("wait")
+}
+
+/// Runs `serve` on `cfg`, which must stop at start with exit 1 (a store it cannot use); its
+/// stderr.
+fn refused_start(cfg: &Path) -> String {
+    let out = Command::new(BIN)
+        .args(["serve", "--config"])
+        .arg(cfg)
+        .output()
+        .expect("run");
+    let err = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    err
 }
