@@ -93,11 +93,19 @@ fn line() -> impl Strategy<Value = Line> {
         proptest::collection::vec((name(), field_value()), 1..4),
         proptest::option::of(any::<i64>()),
     )
-        .prop_map(|(measurement, tags, fields, timestamp)| Line {
-            measurement,
-            tags,
-            fields,
-            timestamp,
+        .prop_map(|(measurement, mut tags, mut fields, timestamp)| {
+            // a key given twice in a line is refused (f76c014): the round trip is of valid
+            // lines, so each key keeps its first occurrence
+            let mut seen = std::collections::HashSet::new();
+            tags.retain(|(k, _)| seen.insert(k.clone()));
+            let mut seen = std::collections::HashSet::new();
+            fields.retain(|(k, _)| seen.insert(k.clone()));
+            Line {
+                measurement,
+                tags,
+                fields,
+                timestamp,
+            }
         })
 }
 
