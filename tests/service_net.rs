@@ -382,3 +382,46 @@ async fn the_gate_list_is_paginated_and_visits_every_gate_once() {
     assert_eq!(s, StatusCode::NO_CONTENT);
     drop(page);
 }
+
+/// An unknown gate's alert restored from the store after a restart, when the gate does not send
+/// again, expires `unknown_gate_expiry_seconds` after the start like the gate would have: before,
+/// its `GateDataStale` stayed firing for ever, with no gate behind it in the API.
+#[tokio::test]
+async fn a_restored_alert_of_an_unknown_gate_that_stays_silent_expires_after_a_restart() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let db = dir.path().join("gw.db");
+    let cfg = || config("unknown_gate_expiry_seconds = 600\n[gates.kept]\n");
+    let with_store = |c: gatewatch::service::config::Config| {
+        let p = gatewatch::service::storage::Persistence::open(&db, &c.storage).expect("store");
+        gatewatch::service::state::AppState::with_persistence(c, Arc::new(Fake::default()), Some(p))
+            .expect("state")
+    };
+    // the first run: the junk gate sends once, goes stale, and the daemon stops
+    {
+        let state = with_store(cfg());
+        let app = gatewatch::service::api::router(state.clone());
+        let (s, _) = post_json(&app, uniform("junk", 1000.0, 5)).await;
+        assert_eq!(s, StatusCode::NO_CONTENT);
+        state.tick(SystemTime::now() + Duration::from_secs(120));
+        assert!(state.gate_view("junk").unwrap().alerts.iter().any(|a| a.name == "GateDataStale"));
+        let p = state.persistence.clone().unwrap();
+        assert!(p.writer.close(Duration::from_secs(10)), "flushed");
+    }
+    // the second run: the junk gate never sends again
+    let state = with_store(cfg());
+    let start = SystemTime::now();
+    const STALE: &str = "gatewatch_alert_firing{alertname=\"GateDataStale\",gate=\"junk\"} 1";
+    let firing = || state.render_metrics().lines().any(|l| l == STALE);
+    state.tick(start + Duration::from_secs(1));
+    assert!(firing(), "restored: {}", state.render_metrics());
+    state.tick(start + Duration::from_secs(60));
+    assert!(firing(), "not before the expiry");
+    state.tick(start + Duration::from_secs(601));
+    assert!(!firing());
+    assert_eq!(state.alert_state("junk"), None, "expired with its alert");
+    assert!(state.alert_state("kept").is_some(), "a configured gate stays");
+    assert_eq!(metric(&state, "gatewatch_gates_expired_total"), 1.0);
+    let m = state.render_metrics();
+    let left: Vec<&str> = m.lines().filter(|l| l.contains("gate=\"junk\"")).collect();
+    assert!(left.is_empty(), "{left:?}");
+}

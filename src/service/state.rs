@@ -107,8 +107,11 @@ struct Inner {
     /// until they send again), at most `max_gates`; taken by `ensure_gate`, and dropped at the
     /// first tick `server.unknown_gate_expiry_seconds` after the start.
     resumed: BTreeMap<String, super::resume::GateMemory>,
-    /// When the start was (for dropping `resumed`).
+    /// When the start was (for dropping `resumed` and expiring restored alert states).
     started: SystemTime,
+    /// Whether the alert states restored at start for gates without an entry were expired
+    /// (`expiry::expire_restored_orphans`, once).
+    orphans_swept: bool,
     /// The generation of the next gate entry made (`GateEntry::generation`).
     next_generation: u64,
 }
@@ -193,6 +196,7 @@ impl AppState {
                     alerts: AlertEngine::new(config.defaults.alert.clone()),
                     resumed: BTreeMap::new(),
                     started: SystemTime::now(),
+                    orphans_swept: false,
                     next_generation: 0,
                 }),
                 pool: OnceLock::new(),

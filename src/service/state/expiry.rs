@@ -8,7 +8,12 @@ impl AppState {
     /// Once a second: forgets expired unknown gates, raises GateDataStale for silent gates.
     pub fn tick(&self, now: SystemTime) {
         let mut inner = lock(&self.inner);
-        let (mut events, expired) = self.expire_unknown_gates(&mut inner, now);
+        let (mut events, mut expired) = self.expire_unknown_gates(&mut inner, now);
+        if self.restart_expiry_due(&inner, now) {
+            let (e, x) = self.expire_restored_orphans(&mut inner, now);
+            events.extend(e);
+            expired.extend(x);
+        }
         self.drop_unclaimed_memories(&mut inner, now);
         events.extend(inner.alerts.check_stale(now));
         for e in &events {
@@ -28,6 +33,49 @@ impl AppState {
         for id in &expired {
             self.metrics.remove_gate(id);
         }
+    }
+
+    /// Whether `server.unknown_gate_expiry_seconds` (0: never) has passed since the start and
+    /// the start's leftovers (restored alert states, rebuilt memories) are still to be swept.
+    fn restart_expiry_due(&self, inner: &Inner, now: SystemTime) -> bool {
+        let expiry = self.config.server.unknown_gate_expiry_seconds;
+        if inner.orphans_swept || expiry <= 0.0 {
+            return false;
+        }
+        let since = now.duration_since(inner.started).unwrap_or(Duration::ZERO);
+        since >= Duration::from_secs_f64(expiry)
+    }
+
+    /// Once, `server.unknown_gate_expiry_seconds` after the start: forgets the alert states
+    /// restored from the store for gates that have no entry, that is unknown gates of an
+    /// earlier run that did not send since the start (configured gates get their entry at
+    /// start). They expire as if the daemon had not restarted: their firing alerts (a
+    /// `GateDataStale` above all) resolve and their series go. Without it, a restart kept such
+    /// a gate's alerts firing for ever, with no gate behind them in the API to explain them.
+    fn expire_restored_orphans(
+        &self,
+        inner: &mut Inner,
+        now: SystemTime,
+    ) -> (Vec<AlertEvent>, Vec<String>) {
+        inner.orphans_swept = true;
+        let orphans: Vec<String> = inner
+            .alerts
+            .gates()
+            .into_iter()
+            .filter(|g| !inner.gates.contains_key(g))
+            .collect();
+        let mut events = Vec::new();
+        for id in &orphans {
+            events.extend(inner.alerts.remove_gate(id, now));
+            self.metrics.remove_gate(id);
+            self.metrics.gates_expired.inc();
+            tracing::info!(
+                gate = %id,
+                "alert state restored at start for a gate that did not send again expired \
+                 (server.unknown_gate_expiry_seconds)"
+            );
+        }
+        (events, orphans)
     }
 
     /// Drops the memories rebuilt at start that no gate took within
