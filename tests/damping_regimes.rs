@@ -122,6 +122,145 @@ fn limit_cycle_envelope_lab_gate() {
     assert!(cov >= 0.9, "coverage {cov}");
 }
 
+/// A steady sine with sensor noise (a forced vibration, or a cycle no turbulence kicks) is not
+/// a limit cycle whose relaxation can be read: its envelope moves only by the band-pass's
+/// ripple and the noise, which decorrelate within about a period, and the fit read that as
+/// -4 to -11 % with a confident interval (session 49). The estimate is refused, on 100-cycle
+/// records at the three bench gates' frequencies and rates, from no noise to 5 % of the
+/// amplitude; the -2 % cycles of `limit_cycle_envelope_*` are read, so the refusal is not
+/// a blanket one.
+#[test]
+fn a_steady_sine_with_sensor_noise_has_no_relaxation_to_read() {
+    for (rate, f) in [(200.0, 10.38), (100.0, 5.03), (50.0, 2.01)] {
+        let n = (100.0 / f * rate) as usize;
+        let mut sa = SpectralAnalyzer::new(n, rate).unwrap();
+        for noise in [0.0, 0.2, 2.0, 10.0] {
+            let mut s = 0x9e37_79b9_7f4a_7c15u64;
+            // a sum of 12 uniforms: near-normal noise of unit variance, seeded
+            let mut normal = || {
+                (0..12)
+                    .map(|_| {
+                        s ^= s << 13;
+                        s ^= s >> 7;
+                        s ^= s << 17;
+                        (s >> 11) as f64 / (1u64 << 53) as f64
+                    })
+                    .sum::<f64>()
+                    - 6.0
+            };
+            let x: Vec<f64> = (0..n)
+                .map(|i| {
+                    let t = i as f64 / rate;
+                    200.0 * (2.0 * std::f64::consts::PI * f * t).sin() + noise * normal()
+                })
+                .collect();
+            let got = sa.envelope_relaxation(&x, f, &RelaxationOptions::default());
+            match got {
+                Err(e) => assert!(e.to_string().contains("no relaxation"), "{e}"),
+                Ok(r) => panic!(
+                    "{f} Hz, noise {noise}: read zeta0 {:+.2} % [{:+.2}, {:+.2}]",
+                    100.0 * r.zeta0,
+                    100.0 * r.zeta0_interval.0,
+                    100.0 * r.zeta0_interval.1
+                ),
+            }
+            // without the test, the same record is read as a violent relaxation
+            let off = RelaxationOptions {
+                floor_factor: 0.0,
+                ..RelaxationOptions::default()
+            };
+            if let Ok(r) = sa.envelope_relaxation(&x, f, &off) {
+                assert!(r.zeta0 < -0.02, "{f} Hz, noise {noise}: {}", r.zeta0);
+            }
+        }
+    }
+}
+
+/// The measurement behind `RelaxationOptions::floor_factor`: on 100-cycle records (the daemon's
+/// relaxation record), the envelope's variance over the floor a steady sine shows, on steady
+/// sines with noise and on the three bench gates' -2 % cycles at 0.1, 1 and 4 times the issue's
+/// noise floor (session 49: sines 0.6 to 1.5, cycles 12.1 or more at the noise, 4.8 or
+/// more at four times it).
+#[test]
+#[ignore = "exploration: cargo test --release --test damping_regimes explore_relaxation_floor -- --ignored --nocapture"]
+fn explore_relaxation_floor() {
+    let off = RelaxationOptions {
+        floor_factor: 0.0,
+        ..RelaxationOptions::default()
+    };
+    let floor_of = |x: &[f64], rate: f64, f: f64| -> String {
+        let mut sa = SpectralAnalyzer::new(x.len(), rate).unwrap();
+        let mut w = x.to_vec();
+        gatewatch::spectral::detrend_linear(&mut w);
+        let Ok(r) = sa.envelope_relaxation(&w, f, &off) else {
+            return "refused without the test".into();
+        };
+        // the ratio is where the test passes: the largest floor_factor that keeps the record
+        let mut lo = 0.0;
+        let mut hi = 1e6;
+        for _ in 0..60 {
+            let mid = 0.5 * (lo + hi);
+            let opts = RelaxationOptions {
+                floor_factor: mid,
+                ..RelaxationOptions::default()
+            };
+            if sa.envelope_relaxation(&w, f, &opts).is_ok() {
+                lo = mid;
+            } else {
+                hi = mid;
+            }
+        }
+        format!(
+            "zeta0 {:+.2} % cv {:.4} variance / floor {:.2}",
+            100.0 * r.zeta0,
+            r.cv,
+            lo
+        )
+    };
+    for (rate, f) in [(200.0, 10.38), (100.0, 5.03), (50.0, 2.01)] {
+        let n = (100.0 / f * rate) as usize;
+        for noise in [0.0, 0.2, 2.0, 10.0] {
+            let mut s = 0x2545_f491_4f6c_dd1du64;
+            let x: Vec<f64> = (0..n)
+                .map(|i| {
+                    let u: f64 = (0..12)
+                        .map(|_| {
+                            s ^= s << 13;
+                            s ^= s >> 7;
+                            s ^= s << 17;
+                            (s >> 11) as f64 / (1u64 << 53) as f64
+                        })
+                        .sum::<f64>()
+                        - 6.0;
+                    200.0 * (2.0 * std::f64::consts::PI * f * i as f64 / rate).sin() + noise * u
+                })
+                .collect();
+            eprintln!("sine {f} Hz, noise {noise}: {}", floor_of(&x, rate, f));
+        }
+    }
+    for preset in [GatePreset::Lab, GatePreset::Lock, GatePreset::Barrier] {
+        let p = preset.params();
+        let f = p.natural_frequency_hz();
+        let def = ScenarioName::LimitCycle.def(&p);
+        for noise in [0.0125, 0.125, 0.5] {
+            for seed in 1..=4u64 {
+                let mut sim = def
+                    .simulator(&p, NoiseLevel::Relative(noise), seed)
+                    .unwrap();
+                let mut x = vec![0.0; (100.0 / f * p.rate_hz) as usize];
+                let mut burn = vec![0.0; (30.0 * p.rate_hz) as usize];
+                sim.fill(&mut burn);
+                sim.fill(&mut x);
+                eprintln!(
+                    "{} -2 % cycle, noise {noise} x, seed {seed}: {}",
+                    preset.as_str(),
+                    floor_of(&x, p.rate_hz, f)
+                );
+            }
+        }
+    }
+}
+
 /// The lock gate's 10 s window holds only about 13 envelope correlation times, so one window's
 /// spread (about 0.75 points) is at the physical limit and its median |error| is about 0.5 to 0.6
 /// points. Its intervals still cover; pooling consecutive windows' estimates with
