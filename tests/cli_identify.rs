@@ -417,8 +417,61 @@ fn force_needs_uniform_times_and_names_the_sample_off_the_grid() {
         ],
         &[
             "--signal force needs uniformly sampled times",
-            "data row 218 (t = 2.171)",
+            "line 219 (t = 2.171)",
             "median step is 1.000000e-2 s",
+        ],
+    );
+}
+
+/// A force record sampled at 3000 Hz and exported with 6-decimal times (the step 3.333333e-4 s
+/// prints as 3.33e-4 or 3.34e-4 s) is uniform: it was refused as "data row 3 comes 3.34e-4 s
+/// after the previous sample, where the median step is 3.33e-4 s". A sample missing from it is
+/// refused, naming the file's line (past a comment line) and the one missing sample.
+#[test]
+fn a_force_record_with_rounded_times_is_uniform_and_a_gap_names_its_line() {
+    let d = Dir::new();
+    let row = |i: usize| {
+        let t = i as f64 / 3000.0;
+        let f = 200.0 * (0.05 * t).exp() * (2.0 * PI * 10.4 * t).sin()
+            + 3.0 * (0.37 * (i * i) as f64).sin();
+        format!("{t:.6},{f}\n")
+    };
+    let rows: String = (0..12_000).map(row).collect();
+    let args = |f: &str| -> Vec<String> {
+        [
+            "identify",
+            "--input",
+            f,
+            "--value-column",
+            "force",
+            "--signal",
+            "force",
+            "--stiffness",
+            "81360",
+            "--model",
+            "c1*ydd + (c2 + c3*yd^2)*yd + k*y = 0",
+            "--population",
+            "8",
+            "--generations",
+            "3",
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .collect()
+    };
+    let f = d.write("rounded.csv", &format!("t,force\n{rows}"));
+    let a = args(&f);
+    ok(&a.iter().map(String::as_str).collect::<Vec<_>>());
+    // sample 5000 missing; a comment on line 2 moves every sample a line down
+    let gap: String = (0..12_000).filter(|&i| i != 5000).map(row).collect();
+    let f = d.write("gap.csv", &format!("t,force\n# exported 2024-05-01\n{gap}"));
+    let a = args(&f);
+    bad(
+        &a.iter().map(String::as_str).collect::<Vec<_>>(),
+        &[
+            "gap.csv: --signal force needs uniformly sampled times",
+            "line 5003 (t = 1.667)",
+            "a gap of about 1 missing sample;",
         ],
     );
 }
@@ -1163,7 +1216,7 @@ fn plot_takes_a_directory() {
     assert!(!Path::new(svg).exists(), "no directory named out.svg");
 }
 
-/// A 2 s hole in a force record is named where it is: its data row, time and length.
+/// A 2 s hole in a force record is named where it is: its line, time and length.
 #[test]
 fn a_hole_in_a_force_record_is_named_where_it_is() {
     let d = Dir::new();
@@ -1187,11 +1240,11 @@ fn a_hole_in_a_force_record_is_named_where_it_is() {
         ],
         &[
             &f,
-            "data row 801 (t = 6)",
+            "line 802 (t = 6)",
             "comes 2.005000e0 s after the previous sample",
             "median step is 5.000000e-3 s",
             "about 400 missing samples",
         ],
     );
-    assert!(!line.contains("data row 2"), "{line}");
+    assert!(!line.contains("line 2 "), "{line}");
 }

@@ -169,7 +169,9 @@ pub(super) fn run(a: IdentifyArgs) -> Result<(), CliError> {
         return Err(input("--amplitude-limit must be a positive number"));
     }
     let model = Model::parse(&a.model, &params).map_err(|e| input(format!("model: {e}")))?;
-    let series = TimeSeries::from_csv(&a.input, &a.time_column, &a.value_column).map_err(input)?;
+    let (series, lines) =
+        TimeSeries::from_csv_with_lines(&a.input, &a.time_column, &a.value_column)
+            .map_err(input)?;
     // A force signal's drift removal and spectral analysis need a uniform grid; without one they
     // were skipped silently and the window failed later for another reason ("no dominant
     // frequency"), on a file whose only fault was its timing.
@@ -178,7 +180,7 @@ pub(super) fn run(a: IdentifyArgs) -> Result<(), CliError> {
             return Err(input(format!(
                 "{}: --signal force needs uniformly sampled times: {}; resample the data, or fit it as --signal displacement",
                 a.input.display(),
-                describe_departure(&series, departure)
+                describe_departure(&series, &lines, departure)
             )));
         }
     }
@@ -320,10 +322,11 @@ fn check_plot_dir(dir: &std::path::Path) -> Result<(), CliError> {
     Ok(())
 }
 
-/// Where the times leave their grid, in a user's terms: data row (the header is not one), time,
-/// and the gap's length.
-fn describe_departure(series: &TimeSeries, d: GridDeparture) -> String {
+/// Where the times leave their grid, in a user's terms: the file's line (`lines[i]` is sample
+/// `i`'s), time, and the gap's length.
+fn describe_departure(series: &TimeSeries, lines: &[u64], d: GridDeparture) -> String {
     let time = |i: usize| series.t.get(i).copied().unwrap_or(f64::NAN);
+    let line = |i: usize| lines.get(i).copied().unwrap_or(0);
     match d {
         GridDeparture::Spacing {
             index,
@@ -331,14 +334,14 @@ fn describe_departure(series: &TimeSeries, d: GridDeparture) -> String {
             step,
         } => {
             let missing = (spacing / step).round() - 1.0;
-            let gap = if missing >= 1.0 {
-                format!(": a gap of about {missing:.0} missing samples")
-            } else {
-                String::new()
+            let gap = match missing {
+                m if m >= 2.0 => format!(": a gap of about {m:.0} missing samples"),
+                m if m >= 1.0 => ": a gap of about 1 missing sample".to_string(),
+                _ => String::new(),
             };
             format!(
-                "data row {} (t = {}) comes {spacing:.6e} s after the previous sample, where the median step is {step:.6e} s{gap}",
-                index + 1,
+                "line {} (t = {}) comes {spacing:.6e} s after the previous sample, where the median step is {step:.6e} s{gap}",
+                line(index),
                 time(index)
             )
         }
@@ -347,8 +350,8 @@ fn describe_departure(series: &TimeSeries, d: GridDeparture) -> String {
             deviation,
             step,
         } => format!(
-            "the times drift: data row {} (t = {}) is {deviation:+.3e} s off the uniform grid of step {step:.6e} s from the first time to the last",
-            index + 1,
+            "the times drift: line {} (t = {}) is {deviation:+.3e} s off the uniform grid of step {step:.6e} s from the first time to the last",
+            line(index),
             time(index)
         ),
     }
