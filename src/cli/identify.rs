@@ -169,7 +169,7 @@ pub(super) fn run(a: IdentifyArgs) -> Result<(), CliError> {
         return Err(input("--amplitude-limit must be a positive number"));
     }
     let model = Model::parse(&a.model, &params).map_err(|e| input(format!("model: {e}")))?;
-    let (series, lines) =
+    let (mut series, lines) =
         TimeSeries::from_csv_with_lines(&a.input, &a.time_column, &a.value_column)
             .map_err(input)?;
     // A force signal's drift removal and spectral analysis need a uniform grid; without one they
@@ -183,6 +183,15 @@ pub(super) fn run(a: IdentifyArgs) -> Result<(), CliError> {
                 describe_departure(&series, &lines, departure)
             )));
         }
+    }
+    // Time counted from the first sample. Why: at Unix-epoch times (1.7e9 s) a float holds a
+    // time to 2.4e-7 s, and the analysis lost its precision there (a fit NMAE of 0.5 where the
+    // same record from t = 0 fits to 0.01, or a failed test integration). For a model without
+    // `t` the shift changes nothing else; a model with `t` (a forcing `sin(c3*t)`) keeps the
+    // file's times, which its coefficients refer to. No output prints an absolute time.
+    if !model.uses_time() {
+        let t0 = series.t[0];
+        series.t.iter_mut().for_each(|t| *t -= t0);
     }
     let (solver, substeps) = match a.solver.as_str() {
         "auto" if signal == Signal::Force && series.uniform_step().is_some() => {
