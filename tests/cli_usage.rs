@@ -253,6 +253,35 @@ fn a_chunk_longer_than_the_stream_does_not_abort() {
     assert!(!err.contains("panicked"), "{err}");
 }
 
+/// `stability-map --t-end 1e12`: the solver's smallest step grows with the horizon and was above
+/// every trial's first step; the step size underflow drew all 200 trials unstable (exit 0). It
+/// is the solver's failure, refused as the horizons 1e9..1e11 are.
+#[test]
+fn stability_map_refuses_a_horizon_where_the_step_underflows() {
+    let o = gw(&[
+        "stability-map",
+        "--model",
+        "ydd + (c1 + c2*y + c3*y^2)*yd + y = 0",
+        "--range",
+        "c1=-3:3",
+        "--range",
+        "c2=-3:3",
+        "--fix",
+        "c3=1",
+        "--t-end",
+        "1e12",
+        "--samples",
+        "200",
+    ]);
+    let err = text(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("none of the 200 trials reached the horizon"),
+        "{err}"
+    );
+    assert!(o.stdout.is_empty(), "{}", text(&o.stdout));
+}
+
 /// `bench generate --output` names an unwritable path and exits 2, like stability-map's.
 #[test]
 fn generate_names_an_unwritable_output() {
