@@ -1032,6 +1032,12 @@ fn gate_example_bench_rejects_bad_options() {
         &["bench", "gate-example", "--population", "2"],
         &["--population"],
     );
+    // refused up front, once: it was exit 1 with the reason printed twice
+    let line = bad(
+        &["bench", "seed-cases", "--rtol", "0"],
+        &["--rtol", "(0, 1)"],
+    );
+    assert_eq!(line.matches("must be in").count(), 1, "{line}");
     bad(&["bench", "seed-cases", "--noise", "-0.1"], &["--noise"]);
 }
 

@@ -253,6 +253,33 @@ fn a_chunk_longer_than_the_stream_does_not_abort() {
     assert!(!err.contains("panicked"), "{err}");
 }
 
+/// Bad stream flags are input (exit 2, one line naming the flag), refused before connecting:
+/// `--duration 0`, `--speed nan` exited 1, and `--url notaurl` failed at the first request as
+/// "builder error: relative URL without a base", naming no flag.
+#[test]
+fn simulate_refuses_bad_stream_flags_as_input_naming_them() {
+    for (args, needle) in [
+        (&["--duration", "0"][..], "--duration must be > 0"),
+        (&["--duration=-5"][..], "--duration must be > 0"),
+        (&["--duration", "nan"][..], "--duration must be > 0"),
+        (&["--speed", "nan"][..], "--speed must be a number"),
+        (&["--url", "notaurl"][..], "--url: 'notaurl' is not a URL"),
+        (&["--url", "ftp://host/"][..], "--url: 'ftp://host/'"),
+    ] {
+        let mut all = vec!["simulate"];
+        if !args[0].starts_with("--url") {
+            all.extend(["--url", "http://127.0.0.1:9"]);
+        }
+        all.extend(args);
+        let o = gw(&all);
+        let err = text(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {err}");
+        assert!(err.contains(needle), "{args:?}: {err}");
+        assert_eq!(err.trim_end().lines().count(), 1, "{args:?}: {err}");
+        assert!(o.stdout.is_empty(), "{args:?}: {}", text(&o.stdout));
+    }
+}
+
 /// `stability-map --t-end 1e12`: the solver's smallest step grows with the horizon and was above
 /// every trial's first step; the step size underflow drew all 200 trials unstable (exit 0). It
 /// is the solver's failure, refused as the horizons 1e9..1e11 are.
