@@ -513,6 +513,57 @@ fn epoch_times_fit_as_well_as_times_from_zero() {
     assert!((num(&epoch, "/coefficients/c2") / 65.2f64.powi(2) - 1.0).abs() < 0.01);
 }
 
+/// A record without oscillation (a constant, all zeros) is refused naming the file and column:
+/// it printed "zeta0 216396 %" and exited 0. The same column for time and signal is refused
+/// naming both flags; an unknown solver lists the default `auto` too.
+#[test]
+fn unusable_records_and_columns_are_refused() {
+    let d = Dir::new();
+    for (name, v) in [("constant.csv", "5"), ("zero.csv", "0")] {
+        let rows: String = (0..100)
+            .map(|i| format!("{},{v}\n", i as f64 * 0.01))
+            .collect();
+        let f = d.write(name, &format!("t,y\n{rows}"));
+        bad(
+            &["identify", "--input", &f, "--model", VDP],
+            &[name, "column 'y'", "no oscillation"],
+        );
+        bad(
+            &[
+                "identify",
+                "--input",
+                &f,
+                "--model",
+                "c1*ydd + c2*yd + k*y = 0",
+                "--signal",
+                "force",
+                "--stiffness",
+                "1000",
+            ],
+            &[name, "no oscillation"],
+        );
+    }
+    let f = d.case("van_der_pol_2");
+    bad(
+        &[
+            "identify",
+            "--input",
+            &f,
+            "--model",
+            VDP,
+            "--time-column",
+            "y",
+            "--value-column",
+            "y",
+        ],
+        &["--time-column", "--value-column", "'y'"],
+    );
+    bad(
+        &["identify", "--input", &f, "--model", VDP, "--solver", "foo"],
+        &["--solver", "'foo'", "auto", "dopri5", "rk4", "stiff"],
+    );
+}
+
 #[test]
 fn bad_bench_arguments_and_unknown_commands() {
     bad(
@@ -531,7 +582,11 @@ fn bad_bench_arguments_and_unknown_commands() {
         &["'nope'"],
     );
     bad(&["bench", "seed-cases", "--runs", "0"], &["--runs"]);
-    bad(&["bench", "generate", "--case", "nope"], &["'nope'"]);
+    // gate_example, which --help advertises, among the known cases
+    bad(
+        &["bench", "generate", "--case", "nope"],
+        &["'nope'", "van_der_pol_2", "gate_example"],
+    );
     bad(&["bench", "generate"], &["--case"]);
     bad(&["frobnicate"], &["'frobnicate'"]);
     bad(&["bench", "frobnicate"], &["'frobnicate'"]);
@@ -1039,6 +1094,33 @@ fn gate_example_bench_rejects_bad_options() {
     );
     assert_eq!(line.matches("must be in").count(), 1, "{line}");
     bad(&["bench", "seed-cases", "--noise", "-0.1"], &["--noise"]);
+}
+
+/// The table's verdict is named as in the JSON (`self_excited`), not Rust's `SelfExcited`.
+#[test]
+fn gate_example_bench_names_the_verdict_as_the_json_does() {
+    let out = ok(&[
+        "bench",
+        "gate-example",
+        "--runs",
+        "1",
+        "--population",
+        "8",
+        "--generations",
+        "3",
+    ]);
+    let table = text(&out.stdout);
+    let row = table
+        .lines()
+        .find(|l| l.starts_with("| 1 |"))
+        .unwrap_or_else(|| panic!("no row of seed 1: {table}"));
+    assert!(
+        ["| damped |", "| self_excited |", "| unknown |"]
+            .iter()
+            .any(|v| row.contains(v)),
+        "{row}"
+    );
+    assert!(!table.contains("SelfExcited"), "{table}");
 }
 
 // ------------------------------------------------------------------------------------------------

@@ -309,6 +309,56 @@ fn stability_map_refuses_a_horizon_where_the_step_underflows() {
     assert!(o.stdout.is_empty(), "{}", text(&o.stdout));
 }
 
+/// `gatewatch ... | head -1`: a reader that goes away ends the command quietly with exit 0, as
+/// ripgrep does; it was exit 1 "Broken pipe", and a panic (exit 101) with stderr piped too.
+#[test]
+fn a_closed_stdout_ends_the_command_quietly() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("vdp.csv");
+    let data = data.to_str().unwrap();
+    let o = gw(&[
+        "bench",
+        "generate",
+        "--case",
+        "van_der_pol_2",
+        "--output",
+        data,
+    ]);
+    assert_eq!(o.status.code(), Some(0), "{}", text(&o.stderr));
+    let vdp = "ydd + (c1 + c2*y^2)*yd + y = 0";
+    for args in [
+        &["identify", "--input", data, "--model", vdp][..],
+        &["identify", "--input", data, "--model", vdp, "--json"][..],
+        &[
+            "stability-map",
+            "--model",
+            "ydd + c1*yd + c2*y = 0",
+            "--range",
+            "c1=-1:1",
+            "--range",
+            "c2=0.1:2",
+            "--samples",
+            "2000",
+        ][..],
+        &["bench", "generate", "--case", "van_der_pol_2"][..],
+        &["completions", "bash"][..],
+    ] {
+        let mut child = Command::new(env!("CARGO_BIN_EXE_gatewatch"))
+            .args(args)
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("gatewatch runs");
+        // the reader goes away before the output is written (at worst after it: exit 0 too)
+        drop(child.stdout.take());
+        let o = child.wait_with_output().unwrap();
+        let err = text(&o.stderr);
+        assert_eq!(o.status.code(), Some(0), "{args:?}: {err}");
+        assert!(err.is_empty(), "{args:?}: {err}");
+    }
+}
+
 /// `bench generate --output` names an unwritable path and exits 2, like stability-map's.
 #[test]
 fn generate_names_an_unwritable_output() {

@@ -168,6 +168,14 @@ pub(super) fn run(a: IdentifyArgs) -> Result<(), CliError> {
     {
         return Err(input("--amplitude-limit must be a positive number"));
     }
+    // The same column as time and signal loaded as a series whose every "time" was its value
+    // and was refused, if at all, as a time that does not increase on some line.
+    if a.time_column == a.value_column {
+        return Err(input(format!(
+            "--time-column and --value-column both name the column '{}'; give the time and the signal columns",
+            a.time_column
+        )));
+    }
     let model = Model::parse(&a.model, &params).map_err(|e| input(format!("model: {e}")))?;
     let (mut series, lines) =
         TimeSeries::from_csv_with_lines(&a.input, &a.time_column, &a.value_column)
@@ -201,7 +209,11 @@ pub(super) fn run(a: IdentifyArgs) -> Result<(), CliError> {
         other => (
             other
                 .parse::<Method>()
-                .map_err(|e| input(format!("--solver: {e}")))?,
+                .map_err(|_| {
+                    input(format!(
+                        "--solver: unknown solver '{other}': expected auto (the default), dopri5, rk4 or stiff"
+                    ))
+                })?,
             a.substeps.unwrap_or(2),
         ),
     };
@@ -247,6 +259,16 @@ pub(super) fn run(a: IdentifyArgs) -> Result<(), CliError> {
             a.train_fraction
         )));
     }
+    // A constant record (a sensor that was off, a column of zeros) holds no vibration: a fit to
+    // it printed a zeta0 of 216396 % and exited 0.
+    if series.y.iter().all(|&v| v == series.y[0]) {
+        return Err(input(format!(
+            "{}: column '{}' holds the same value ({}) on every line: there is no oscillation in the record to identify",
+            a.input.display(),
+            a.value_column,
+            series.y[0]
+        )));
+    }
     let opts = SeriesOptions {
         signal,
         stiffness: a.stiffness,
@@ -269,7 +291,7 @@ pub(super) fn run(a: IdentifyArgs) -> Result<(), CliError> {
     let result = analysis::analyze_series(&model, &series, &opts, None, |r, g, _| {
         bar.set_position((r * a.generations + g) as u64)
     })
-    .map_err(input)?;
+    .map_err(|e| input(format!("{}: {e}", a.input.display())))?;
     bar.finish_and_clear();
     // A failed integration costs a finite penalty in the search (so the search has a direction),
     // so a model that no trial can integrate still yields a "best" run with a finite "training

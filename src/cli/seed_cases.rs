@@ -90,9 +90,15 @@ pub(super) fn run(a: SeedCasesArgs) -> Result<(), CliError> {
         })?;
         bar.finish_and_clear();
         if !a.json {
-            eprintln!(
+            // progress only: a closed stderr must not stop the run
+            let _ = writeln!(
+                std::io::stderr(),
                 "{}: mean NMAE {:.3e}, {}/{} runs below 0.01, median {:.4} s/run",
-                report.id, report.mean_nmae, report.successes, report.runs, report.median_seconds
+                report.id,
+                report.mean_nmae,
+                report.successes,
+                report.runs,
+                report.median_seconds
             );
         }
         reports.push(report);

@@ -136,12 +136,13 @@ pub fn run(a: StabilityMapArgs) -> Result<(), CliError> {
         crate::plot::stability_map(p, &map, &note).map_err(|e| input(format!("--plot: {e}")))?;
     }
     if a.output.is_some() {
-        println!(
+        writeln!(
+            std::io::stdout().lock(),
             "{} trials over t = 0..{:.4}: {stable} stable, {} unstable",
             map.trials.len(),
             map.t_end,
             map.trials.len() - stable
-        );
+        )?;
     }
     Ok(())
 }
