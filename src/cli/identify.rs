@@ -309,7 +309,7 @@ pub(super) fn run(a: IdentifyArgs) -> Result<(), CliError> {
         let v = identification_json(&model, &result);
         writeln!(out, "{v}")?;
     } else {
-        write_identification(&mut out, &model, &result, &config, a.max_fit_nmae)?;
+        write_identification(&mut out, &model, &result, &config, a.max_fit_nmae, signal)?;
     }
     if let Some(dir) = &a.plot {
         let units = match signal {
