@@ -7,7 +7,7 @@ use std::io::Write;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use super::client::{simulate_with_source, simulator};
+use super::client::{check_stream, simulate_with_source, simulator};
 // the simulate client lives in `service::client`; its arguments are re-exported here because
 // the main clap enum names them `service::cli::SimulateArgs`.
 pub use super::client::{Protocol, Scenario, SimulateArgs};
@@ -167,7 +167,7 @@ pub fn check_config(args: CheckConfigArgs) -> ExitCode {
 /// `gatewatch simulate`: streams a [`crate::simulate::GateSimulator`] (see
 /// [`super::client::simulator`]).
 pub fn simulate(args: SimulateArgs) -> ExitCode {
-    let mut sim = match simulator(&args) {
+    let mut sim = match check_stream(&args).and_then(|()| simulator(&args)) {
         Ok(s) => s,
         Err(e) => {
             eprintln!("gatewatch simulate: {e:#}");

@@ -209,10 +209,17 @@ impl SimulateArgs {
 /// `--scenario`, with `--noise-abs`/`--noise-rel` sensor noise, seeded with `--seed`. Sample 0
 /// is the scenario's `t = 0`: the named scenarios' warm-up is run and not sent.
 pub fn simulator(args: &SimulateArgs) -> anyhow::Result<crate::simulate::GateSimulator> {
-    // before the warm-up, which runs at this rate; and every flag of the stream, so that a bad
-    // one is refused as input (exit 2) before anything runs, not as a failure of the stream
-    check_stream(args)?;
     let rate = args.effective_rate();
+    anyhow::ensure!(
+        rate > 0.0 && rate.is_finite(),
+        "--rate must be > 0 (or 0 for the preset's rate), got {}",
+        args.rate
+    );
+    // before the warm-up, which runs at this rate
+    anyhow::ensure!(
+        rate <= SIMULATE_MAX_RATE_HZ,
+        "--rate must be at most {SIMULATE_MAX_RATE_HZ} Hz, got {rate}"
+    );
     let (onset_hold, onset_ramp) = args.onset_shape();
     anyhow::ensure!(
         onset_hold >= 0.0 && onset_hold.is_finite(),
@@ -262,7 +269,9 @@ pub fn simulator(args: &SimulateArgs) -> anyhow::Result<crate::simulate::GateSim
     }
 }
 
-/// Checks the flags of the stream ([`simulate_with_source`]); the error names the flag.
+/// Checks the flags of the stream ([`simulate_with_source`], which runs it first); the error
+/// names the flag. `gatewatch simulate` runs it before anything else, so that a bad flag is
+/// refused as input (exit 2), not as a failure of the stream (exit 1).
 pub fn check_stream(args: &SimulateArgs) -> anyhow::Result<()> {
     let rate = args.effective_rate();
     anyhow::ensure!(
