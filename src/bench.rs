@@ -96,10 +96,11 @@ pub enum BenchError {
     #[error(transparent)]
     Case(#[from] CaseError),
     /// The identification refused its settings.
-    #[error("case {id}: {source}")]
+    #[error("case {id}: {error}")]
     Identify {
         id: &'static str,
-        source: IdentifyError,
+        /// The refusal; not a `source`, since the message holds it (`{:#}` printed it twice).
+        error: IdentifyError,
     },
     /// The analysis pipeline failed.
     #[error("case {id}: {reason}")]
@@ -180,12 +181,8 @@ pub fn run_case(
         })?
         .identification
     } else {
-        identify::identify(&model, &data, &config, |r, g, _| progress(r, g)).map_err(|source| {
-            BenchError::Identify {
-                id: case.id,
-                source,
-            }
-        })?
+        identify::identify(&model, &data, &config, |r, g, _| progress(r, g))
+            .map_err(|error| BenchError::Identify { id: case.id, error })?
     };
     // Errors against the noise-free truth (identical to the reported ones without noise).
     for run in &mut result.runs {

@@ -12,6 +12,21 @@ use std::path::{Path, PathBuf};
 /// unit error, refused by name.
 pub const MAX_ABS_VALUE: f64 = 1e100;
 
+/// How far, as a fraction of a step, a sample time may lie off the uniform grid (and a spacing
+/// off the median step) for the series still to count as uniformly sampled.
+///
+/// Why 1 %: a uniformly sampled record exported with rounded times is not exactly uniform. A
+/// 3000 Hz record printed with 6 decimals (as DAQ software and Excel print it) is off its grid by
+/// up to 0.5 us, 0.15 % of its step, and its spacings differ by twice that; a logger's timestamp
+/// jitter adds a few thousandths of a percent. The analysis of a uniform record treats sample
+/// `i` as taken at `t0 + i*h` (rate `1/h`, `h` from the first time to the last): a time off by
+/// `e*h` changes the sample by at most `2*pi*e*f/fs` of the amplitude at frequency `f` and rate
+/// `fs`, 0.6 % at `e` = 1 % for a gate sampled ten times faster than it vibrates, below the
+/// sensor's noise. A missing sample puts the times half a step or more off the grid, irregular
+/// sampling (a clock that speeds up, samples taken when an event comes) more than 1 %: both
+/// are refused.
+pub const GRID_TOLERANCE: f64 = 0.01;
+
 /// A sampled signal: strictly increasing times and finite values.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TimeSeries {
@@ -177,11 +192,10 @@ impl TimeSeries {
     }
 
     /// The first sample off the uniform grid from the first time to the last, as `(index,
-    /// deviation in s, step in s)`; `None` when every time lies on it within 1e-6 of a step
-    /// plus the rounding of times of that size (eight ulps of the largest: about 3e-6 s at Unix
-    /// epoch seconds, where 1e-6 of a 200 Hz step alone, 5e-9 s, is below what an f64 holds).
-    /// Fewer than two samples have no grid and nothing off it (`None`; [`Self::uniform_step`]
-    /// is `None` for them too).
+    /// deviation in s, step in s)`; `None` when every time lies on it within
+    /// [`GRID_TOLERANCE`] of a step plus the rounding of times of that size (eight ulps of the
+    /// largest: about 3e-6 s at Unix epoch seconds). Fewer than two samples have no grid and
+    /// nothing off it (`None`; [`Self::uniform_step`] is `None` for them too).
     pub fn nonuniform_at(&self) -> Option<(usize, f64, f64)> {
         let n = self.t.len();
         if n < 2 {
@@ -189,7 +203,7 @@ impl TimeSeries {
         }
         let (t0, tn) = (self.t[0], self.t[n - 1]);
         let h = (tn - t0) / (n - 1) as f64;
-        let tol = 1e-6 * h + 8.0 * f64::EPSILON * t0.abs().max(tn.abs());
+        let tol = GRID_TOLERANCE * h + 8.0 * f64::EPSILON * t0.abs().max(tn.abs());
         self.t.iter().enumerate().find_map(|(i, &ti)| {
             let d = ti - (t0 + i as f64 * h);
             (d.abs() > tol).then_some((i, d, h))
@@ -200,15 +214,16 @@ impl TimeSeries {
     /// [`Self::nonuniform_at`] is `None` (that check decides; this one only explains). The step
     /// is the median spacing, so a hole in the record does not skew it (the step from the first
     /// time to the last includes the hole, and put the first row "off the grid"); the sample
-    /// named is the first whose spacing departs from it. When every spacing agrees with the
-    /// median and the times still drift off a grid, the first sample off it is named.
+    /// named is the first whose spacing departs from it by more than [`GRID_TOLERANCE`] of it.
+    /// When every spacing agrees with the median and the times still drift off a grid, the
+    /// first sample off it is named.
     pub fn grid_departure(&self) -> Option<GridDeparture> {
         let (index, deviation, step) = self.nonuniform_at()?;
         let mut spacings: Vec<f64> = self.t.windows(2).map(|w| w[1] - w[0]).collect();
         let mid = spacings.len() / 2;
         let median = *spacings.select_nth_unstable_by(mid, f64::total_cmp).1;
         let (t0, tn) = (self.t[0], self.t[self.t.len() - 1]);
-        let tol = 1e-6 * median + 8.0 * f64::EPSILON * t0.abs().max(tn.abs());
+        let tol = GRID_TOLERANCE * median + 8.0 * f64::EPSILON * t0.abs().max(tn.abs());
         let gap = self
             .t
             .windows(2)
@@ -233,6 +248,17 @@ impl TimeSeries {
         time_column: &str,
         value_column: &str,
     ) -> Result<TimeSeries, DataError> {
+        Self::from_csv_with_lines(path, time_column, value_column).map(|(series, _)| series)
+    }
+
+    /// [`Self::from_csv`], with the file's line number (1-based, the header is line 1) of each
+    /// sample, so that a later finding about sample `i` (a gap in the times) can name its line:
+    /// comment and blank lines make it differ from `i + 2`.
+    pub fn from_csv_with_lines(
+        path: &Path,
+        time_column: &str,
+        value_column: &str,
+    ) -> Result<(TimeSeries, Vec<u64>), DataError> {
         let p = || path.to_path_buf();
         let bytes = std::fs::read(path).map_err(|e| DataError::Io {
             path: p(),
@@ -259,7 +285,10 @@ impl TimeSeries {
             .trim(csv::Trim::All)
             .comment(Some(b'#'))
             .from_reader(bytes.as_slice());
-        let headers = reader.headers().map_err(|e| malformed(path, &e))?.clone();
+        let headers = reader
+            .headers()
+            .map_err(|e| malformed(path, &bytes, &e))?
+            .clone();
         if headers.iter().all(|h| h.parse::<f64>().is_ok()) {
             return Err(DataError::NoHeader { path: p() });
         }
@@ -308,15 +337,18 @@ impl TimeSeries {
             }
             other => other?,
         };
-        let (mut t, mut y) = (Vec::new(), Vec::new());
+        let (mut t, mut y, mut lines) = (Vec::new(), Vec::new(), Vec::new());
+        let mut line_counter = LineCounter::new(&bytes);
         let mut record = csv::StringRecord::new();
         loop {
             match reader.read_record(&mut record) {
                 Ok(true) => {}
                 Ok(false) => break,
-                Err(e) => return Err(malformed(path, &e)),
+                Err(e) => return Err(malformed(path, &bytes, &e)),
             }
-            let line = record.position().map_or(0, |pos| pos.line());
+            let line = record
+                .position()
+                .map_or(0, |pos| line_counter.line_at(pos.byte()));
             let cell = |index: usize, column: &str| -> Result<f64, DataError> {
                 let text = record.get(index).unwrap_or("");
                 let v: f64 = text.parse().map_err(|_| DataError::NotANumber {
@@ -358,11 +390,12 @@ impl TimeSeries {
             }
             t.push(tv);
             y.push(yv);
+            lines.push(line);
         }
         if t.is_empty() {
             return Err(DataError::NoRows { path: p() });
         }
-        Ok(TimeSeries { t, y })
+        Ok((TimeSeries { t, y }, lines))
     }
 
     /// Writes the series as CSV with the given column names.
@@ -385,8 +418,61 @@ impl TimeSeries {
 /// `°` in a header is one byte no UTF-8 reader takes), its "CSV UTF-8" is what is read here.
 const SAVE_AS_UTF8: &str = "save it as \"CSV UTF-8\" (Excel: Save As, CSV UTF-8 (comma delimited))";
 
-fn malformed(path: &Path, e: &csv::Error) -> DataError {
-    let line = e.position().map_or(0, |p| p.line());
+/// The line (1-based) of a record that starts at a byte offset into the file. Why not the csv
+/// reader's own line: it does not count the comment and blank lines it skips, so every line
+/// after a `# comment` was named too early; and its offset of a record is where those skipped
+/// lines begin, so they are skipped here too. Offsets asked for only grow, so the file is
+/// scanned once.
+struct LineCounter<'a> {
+    bytes: &'a [u8],
+    /// Bytes counted so far, and the line at that offset.
+    offset: usize,
+    line: u64,
+}
+
+impl<'a> LineCounter<'a> {
+    fn new(bytes: &'a [u8]) -> Self {
+        LineCounter {
+            bytes,
+            offset: 0,
+            line: 1,
+        }
+    }
+
+    fn line_at(&mut self, byte: u64) -> u64 {
+        let mut end = usize::try_from(byte)
+            .unwrap_or(usize::MAX)
+            .min(self.bytes.len());
+        // past the comment lines (`#` first) and blank lines the reader skipped
+        while let Some(&b) = self.bytes.get(end) {
+            match b {
+                b'\n' | b'\r' => end += 1,
+                b'#' => {
+                    end = self.bytes[end..]
+                        .iter()
+                        .position(|&c| c == b'\n')
+                        .map_or(self.bytes.len(), |p| end + p + 1)
+                }
+                _ => break,
+            }
+        }
+        if end < self.offset {
+            // not the growing offsets this is for: count from the start
+            *self = LineCounter::new(self.bytes);
+        }
+        self.line += self.bytes[self.offset..end]
+            .iter()
+            .filter(|&&b| b == b'\n')
+            .count() as u64;
+        self.offset = end;
+        self.line
+    }
+}
+
+fn malformed(path: &Path, bytes: &[u8], e: &csv::Error) -> DataError {
+    let line = e
+        .position()
+        .map_or(0, |p| LineCounter::new(bytes).line_at(p.byte()));
     let reason = match e.kind() {
         csv::ErrorKind::UnequalLengths {
             expected_len, len, ..
@@ -533,8 +619,8 @@ mod tests {
         }
     }
 
-    /// Times at Unix-epoch magnitude are uniform although no f64 holds them to 1e-6 of a step;
-    /// a sample 1 % of a step off is not, and is named.
+    /// Times at Unix-epoch magnitude are uniform although no f64 holds them exactly; a sample
+    /// 5 % of a step off is not, and is named.
     #[test]
     fn uniform_times_at_epoch_magnitude() {
         let h = 0.005;
@@ -543,18 +629,18 @@ mod tests {
         let step = s.uniform_step().expect("uniform at epoch magnitude");
         assert!((step - h).abs() < 1e-9, "{step}");
         let mut off = t;
-        off[700] += 0.01 * h;
+        off[700] += 0.05 * h;
         let s = TimeSeries::new(off, vec![0.0; 2000]).unwrap();
         assert_eq!(s.uniform_step(), None);
         let (i, d, _) = s.nonuniform_at().unwrap();
         assert_eq!(i, 700);
-        assert!((d - 0.01 * h).abs() < 1e-6, "{d}");
+        assert!((d - 0.05 * h).abs() < 1e-6, "{d}");
         // one sample: no grid, so no step and no sample off it
         let one = TimeSeries::new(vec![1.7e9], vec![0.0]).unwrap();
         assert_eq!((one.uniform_step(), one.nonuniform_at()), (None, None));
     }
 
-    /// A 2 s hole in a 200 Hz record is named where it is (data row 801, its time, its
+    /// A 2 s hole in a 200 Hz record is named where it is (sample 800, its time, its
     /// length), with the step from the median spacing, not as the second sample off a grid
     /// whose step the hole stretched.
     #[test]
@@ -579,12 +665,12 @@ mod tests {
         // Uniform: nothing to explain, as nonuniform_at says.
         let u = TimeSeries::new((0..100).map(|i| i as f64 * h).collect(), vec![0.0; 100]).unwrap();
         assert_eq!((u.nonuniform_at(), u.grid_departure()), (None, None));
-        // A slow drift (the spacing grows by 2e-10 of a step a sample): every spacing is the
-        // median's within 1e-6 of a step, the times still leave the grid by 1e-4 of a step.
+        // A slow drift (the spacing grows by 2e-7 of a step a sample): every spacing is the
+        // median's within 1 % of a step, the times still leave the grid by 0.1 step.
         let drift: Vec<f64> = (0..2000)
             .map(|i| {
                 let i = i as f64;
-                h * (i + 1e-10 * i * i)
+                h * (i + 1e-7 * i * i)
             })
             .collect();
         let d = TimeSeries::new(drift, vec![0.0; 2000]).unwrap();
@@ -593,6 +679,79 @@ mod tests {
             matches!(d.grid_departure(), Some(GridDeparture::Drift { .. })),
             "{:?}",
             d.grid_departure()
+        );
+    }
+
+    /// Uniformly sampled records as exported, with their times rounded to 6 decimals (300,
+    /// 1024 and 3000 Hz: a step of 3.333333 ms prints as 3.333 or 3.334 ms) or jittered by a
+    /// few thousandths of a percent, are uniform at the mean rate; a missing sample, or
+    /// one sample 5 % of a step late, is not.
+    #[test]
+    fn rounded_and_jittered_times_are_uniform_gaps_are_not() {
+        let rounded = |fs: f64, n: usize| -> Vec<f64> {
+            (0..n)
+                .map(|i| format!("{:.6}", i as f64 / fs).parse().unwrap())
+                .collect()
+        };
+        for fs in [300.0, 1024.0, 3000.0] {
+            let n = 60_000;
+            let s = TimeSeries::new(rounded(fs, n), vec![0.0; n]).unwrap();
+            assert_eq!(s.grid_departure(), None, "{fs} Hz");
+            let step = s.uniform_step().expect("uniform");
+            assert!((step * fs - 1.0).abs() < 1e-6, "{fs} Hz: step {step}");
+        }
+        // 0.002 % timestamp jitter (a deterministic pseudo-random sequence in [-1, 1))
+        let h = 1.0 / 3000.0;
+        let jitter = |i: usize| ((i * 7919 % 1000) as f64 / 500.0 - 1.0) * 2e-5 * h;
+        let t: Vec<f64> = (0..30_000).map(|i| i as f64 * h + jitter(i)).collect();
+        let s = TimeSeries::new(t, vec![0.0; 30_000]).unwrap();
+        assert_eq!(s.grid_departure(), None);
+        // one sample missing at index 1000 of the rounded 3000 Hz record
+        let mut gap = rounded(3000.0, 3001);
+        gap.remove(1000);
+        let s = TimeSeries::new(gap, vec![0.0; 3000]).unwrap();
+        assert_eq!(s.uniform_step(), None);
+        match s.grid_departure() {
+            Some(GridDeparture::Spacing {
+                index,
+                spacing,
+                step,
+            }) => {
+                assert_eq!(index, 1000);
+                assert!((spacing / step - 2.0).abs() < 0.01, "{spacing} {step}");
+            }
+            other => panic!("{other:?}"),
+        }
+        // one sample 5 % of a step late
+        let mut late = rounded(3000.0, 3000);
+        late[2000] += 0.05 * h;
+        let s = TimeSeries::new(late, vec![0.0; 3000]).unwrap();
+        assert!(
+            matches!(
+                s.grid_departure(),
+                Some(GridDeparture::Spacing { index: 2000, .. })
+            ),
+            "{:?}",
+            s.grid_departure()
+        );
+    }
+
+    /// The line of each sample, and of each error, is the file's, past comment and blank
+    /// lines (the csv reader's own count skipped them: an error on line 6 was named line 3).
+    #[test]
+    fn lines_of_the_samples() {
+        let f = file("t,y\n0,1\n# note\n\n0.1,2\n0.2,3\n");
+        let (s, lines) = TimeSeries::from_csv_with_lines(f.path(), "t", "y").unwrap();
+        assert_eq!(s.len(), 3);
+        assert_eq!(lines, vec![2, 5, 6]);
+        let e = load("t,y\n0,1\n# note\n# more\n\n0.1,abc\n").unwrap_err();
+        assert!(matches!(e, DataError::NotANumber { line: 6, .. }), "{e}");
+        let e = load("t,y\r\n0,1\r\n# note\r\n0.1,2,3\r\n").unwrap_err();
+        assert!(matches!(e, DataError::Malformed { line: 4, .. }), "{e}");
+        let e = load("# exported\nt,y\n0,1\n0,2\n").unwrap_err();
+        assert!(
+            matches!(e, DataError::TimeNotIncreasing { line: 4, .. }),
+            "{e}"
         );
     }
 

@@ -16,15 +16,19 @@
 //! The state is watched at 50 output times per period through its amplitude
 //! `r = sqrt(y^2 + (yd/w0)^2)` (for a linear oscillator of frequency `w0`, the radius of its
 //! phase-plane ellipse), with `r0` its initial value. A trial is **unstable** when
-//! - the solver fails on the way to a blow-up (non-finite state, step size underflow), or
+//! - the solver fails on the way to a blow-up (non-finite state), or
 //! - the solution leaves the bound `r > 100 * r0` ([`GROWTH_BOUND`]), or
 //! - the solution has not decayed: the largest `r` over the last period exceeds `r0`.
 //!
 //! and **stable** otherwise: the free vibration has died down below its initial amplitude after
-//! `periods` periods. A trial that hits the solver's step or work limit before the horizon is
-//! **undecided**: it is left out of the map and counted ([`StabilityMap::undecided`]). Why: a
-//! long horizon (`--t-end 3e5`) ran out of steps on stable trials, and 30 of 50 were drawn as
-//! unstable. The last rule is what makes slowly growing trials unstable although they
+//! `periods` periods. A trial that hits the solver's step or work limit, or its smallest step
+//! (a step size underflow), before the horizon is **undecided**: it is left out of the map and
+//! counted ([`StabilityMap::undecided`]). Why: a long horizon (`--t-end 3e5`) ran out of steps
+//! on stable trials, and 30 of 50 were drawn as unstable; and the smallest step grows with the
+//! horizon (a step must move `t` by more than its rounding), so at `--t-end 1e12` it was above
+//! the first step of every trial, and all of them were drawn as unstable where shorter horizons
+//! were refused. An underflow is the solver's failure, not the gate's: a real blow-up leaves
+//! the bound first. The last rule is what makes slowly growing trials unstable although they
 //! stay far inside the bound for ten periods; a self-excited oscillator whose equilibrium is
 //! unstable but which settles on a limit cycle larger than `r0` is unstable too, as an engineer
 //! wants. Trials within the solver's accuracy of neutral (a linear oscillator with zero
@@ -130,7 +134,8 @@ pub struct StabilityMap {
     pub trials: Vec<Trial>,
     /// The horizon every trial was integrated over.
     pub t_end: f64,
-    /// Trials left out: the solver's step or work limit stopped them before the horizon.
+    /// Trials left out: the solver's step or work limit, or its smallest step, stopped them
+    /// before the horizon.
     pub undecided: usize,
 }
 
@@ -358,7 +363,7 @@ pub fn map(model: &Model, spec: &MapSpec) -> Result<StabilityMap, StabilityError
     let undecided = outcomes.len() - trials.len();
     if trials.is_empty() {
         return option(format!(
-            "--t-end/--periods: none of the {undecided} trials reached the horizon t = {t_end:.4} within the solver's step limit; shorten the horizon"
+            "--t-end/--periods: none of the {undecided} trials reached the horizon t = {t_end:.4} within the solver's step limit and above its smallest step; shorten the horizon"
         ));
     }
     Ok(StabilityMap {
@@ -371,7 +376,7 @@ pub fn map(model: &Model, spec: &MapSpec) -> Result<StabilityMap, StabilityError
 }
 
 /// One trial: whether the free vibration from `(y0, v0)` decays (the module docs' rules);
-/// `None` when the solver's step or work limit stopped it first.
+/// `None` when the solver's step or work limit, or its smallest step, stopped it first.
 fn decays(
     model: &Model,
     c: &[f64],
@@ -403,7 +408,11 @@ fn decays(
         ControlFlow::Continue(())
     });
     match outcome.failure {
-        Some(ode::Failure::StepLimit { .. } | ode::Failure::WorkLimit { .. }) => None,
+        Some(
+            ode::Failure::StepLimit { .. }
+            | ode::Failure::WorkLimit { .. }
+            | ode::Failure::StepSizeUnderflow { .. },
+        ) => None,
         Some(_) => Some(false),
         None => Some(last_max <= r0),
     }
@@ -546,6 +555,36 @@ mod tests {
         s.t_end = Some(1e9);
         let e = map(&linear(), &s).unwrap_err();
         assert!(e.to_string().contains("none of the 40 trials"), "{e}");
+    }
+
+    /// At `--t-end 1e12` the solver's smallest step (16 ulps of the horizon, 3.6e-3) is above
+    /// every trial's first step: the step size underflows at once. That is the solver's
+    /// failure, refused as at 1e9, not 200 unstable trials.
+    #[test]
+    fn a_step_size_underflow_is_undecided_not_unstable() {
+        let model = Model::parse("ydd + (c1 + c2*y + c3*y^2)*yd + y = 0", &[]).unwrap();
+        let mut s = MapSpec::new(
+            Range {
+                index: 0,
+                min: -3.0,
+                max: 3.0,
+            },
+            Range {
+                index: 1,
+                min: -3.0,
+                max: 3.0,
+            },
+        );
+        s.fixed = vec![(2, 1.0)];
+        s.samples = 200;
+        s.t_end = Some(1e12);
+        let e = map(&model, &s).unwrap_err();
+        assert!(e.to_string().contains("none of the 200 trials"), "{e}");
+        // the same plane over ten periods is decided, with unstable trials where c1 < 0
+        s.t_end = None;
+        let m = map(&model, &s).unwrap();
+        assert_eq!(m.undecided, 0);
+        assert!(m.stable_count() > 0 && m.stable_count() < 200);
     }
 
     #[test]

@@ -253,6 +253,112 @@ fn a_chunk_longer_than_the_stream_does_not_abort() {
     assert!(!err.contains("panicked"), "{err}");
 }
 
+/// Bad stream flags are input (exit 2, one line naming the flag), refused before connecting:
+/// `--duration 0`, `--speed nan` exited 1, and `--url notaurl` failed at the first request as
+/// "builder error: relative URL without a base", naming no flag.
+#[test]
+fn simulate_refuses_bad_stream_flags_as_input_naming_them() {
+    for (args, needle) in [
+        (&["--duration", "0"][..], "--duration must be > 0"),
+        (&["--duration=-5"][..], "--duration must be > 0"),
+        (&["--duration", "nan"][..], "--duration must be > 0"),
+        (&["--speed", "nan"][..], "--speed must be a number"),
+        (&["--url", "notaurl"][..], "--url: 'notaurl' is not a URL"),
+        (&["--url", "ftp://host/"][..], "--url: 'ftp://host/'"),
+    ] {
+        let mut all = vec!["simulate"];
+        if !args[0].starts_with("--url") {
+            all.extend(["--url", "http://127.0.0.1:9"]);
+        }
+        all.extend(args);
+        let o = gw(&all);
+        let err = text(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {err}");
+        assert!(err.contains(needle), "{args:?}: {err}");
+        assert_eq!(err.trim_end().lines().count(), 1, "{args:?}: {err}");
+        assert!(o.stdout.is_empty(), "{args:?}: {}", text(&o.stdout));
+    }
+}
+
+/// `stability-map --t-end 1e12`: the solver's smallest step grows with the horizon and was above
+/// every trial's first step; the step size underflow drew all 200 trials unstable (exit 0). It
+/// is the solver's failure, refused as the horizons 1e9..1e11 are.
+#[test]
+fn stability_map_refuses_a_horizon_where_the_step_underflows() {
+    let o = gw(&[
+        "stability-map",
+        "--model",
+        "ydd + (c1 + c2*y + c3*y^2)*yd + y = 0",
+        "--range",
+        "c1=-3:3",
+        "--range",
+        "c2=-3:3",
+        "--fix",
+        "c3=1",
+        "--t-end",
+        "1e12",
+        "--samples",
+        "200",
+    ]);
+    let err = text(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("none of the 200 trials reached the horizon"),
+        "{err}"
+    );
+    assert!(o.stdout.is_empty(), "{}", text(&o.stdout));
+}
+
+/// `gatewatch ... | head -1`: a reader that goes away ends the command quietly with exit 0, as
+/// ripgrep does; it was exit 1 "Broken pipe", and a panic (exit 101) with stderr piped too.
+#[test]
+fn a_closed_stdout_ends_the_command_quietly() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("vdp.csv");
+    let data = data.to_str().unwrap();
+    let o = gw(&[
+        "bench",
+        "generate",
+        "--case",
+        "van_der_pol_2",
+        "--output",
+        data,
+    ]);
+    assert_eq!(o.status.code(), Some(0), "{}", text(&o.stderr));
+    let vdp = "ydd + (c1 + c2*y^2)*yd + y = 0";
+    for args in [
+        &["identify", "--input", data, "--model", vdp][..],
+        &["identify", "--input", data, "--model", vdp, "--json"][..],
+        &[
+            "stability-map",
+            "--model",
+            "ydd + c1*yd + c2*y = 0",
+            "--range",
+            "c1=-1:1",
+            "--range",
+            "c2=0.1:2",
+            "--samples",
+            "2000",
+        ][..],
+        &["bench", "generate", "--case", "van_der_pol_2"][..],
+        &["completions", "bash"][..],
+    ] {
+        let mut child = Command::new(env!("CARGO_BIN_EXE_gatewatch"))
+            .args(args)
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("gatewatch runs");
+        // the reader goes away before the output is written (at worst after it: exit 0 too)
+        drop(child.stdout.take());
+        let o = child.wait_with_output().unwrap();
+        let err = text(&o.stderr);
+        assert_eq!(o.status.code(), Some(0), "{args:?}: {err}");
+        assert!(err.is_empty(), "{args:?}: {err}");
+    }
+}
+
 /// `bench generate --output` names an unwritable path and exits 2, like stability-map's.
 #[test]
 fn generate_names_an_unwritable_output() {

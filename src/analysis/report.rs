@@ -287,3 +287,21 @@ pub enum Verdict {
     /// The model does not fit or disagrees with the model-free estimate: no conclusion.
     Unknown,
 }
+
+impl Verdict {
+    /// The name used in the JSON, the store and the tables: `damped`, `self_excited`,
+    /// `unknown`.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Verdict::Damped => "damped",
+            Verdict::SelfExcited => "self_excited",
+            Verdict::Unknown => "unknown",
+        }
+    }
+}
+
+impl std::fmt::Display for Verdict {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}

@@ -65,13 +65,13 @@ pub(super) fn run(a: GateExampleArgs) -> Result<(), CliError> {
     for r in &runs {
         writeln!(
             out,
-            "| {} | {:.3} | {:.3} | {:.1} | {} | {:?} | {} | {} | {:.3} |",
+            "| {} | {:.3} | {:.3} | {:.1} | {} | {} | {} | {} | {:.3} |",
             r.seed,
             r.mass,
             r.damping,
             r.cubic,
             opt(r.zeta0, |z| format!("{:.4}", 100.0 * z)),
-            r.verdict,
+            r.verdict.as_str(),
             if r.success { "yes" } else { "no" },
             r.evaluations,
             r.seconds

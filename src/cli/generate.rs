@@ -1,10 +1,13 @@
 //! `gatewatch bench generate`: a seed case's data (or the gate example's force) as CSV.
 
-use super::{find_case, input, CliError};
+use super::{input, unknown_case, CliError};
 use crate::data::TimeSeries;
 use clap::Args;
 use std::io::Write;
 use std::path::PathBuf;
+
+/// The case beside the seed cases: the chapter's section 8.5 support force.
+const GATE_EXAMPLE: &str = "gate_example";
 
 /// Arguments of `gatewatch bench generate`.
 #[derive(Debug, Args)]
@@ -21,7 +24,7 @@ pub struct GenerateArgs {
 }
 
 pub(super) fn run(a: GenerateArgs) -> Result<(), CliError> {
-    let data = if a.case == "gate_example" {
+    let data = if a.case == GATE_EXAMPLE {
         // The chapter's worked example (section 8.5): support force, 200 Hz, 10 s, 1 % noise,
         // a slow drift of 0.2 N/s.
         let ex = crate::simulate::worked_example(&crate::simulate::WorkedExampleOptions {
@@ -32,7 +35,9 @@ pub(super) fn run(a: GenerateArgs) -> Result<(), CliError> {
         let t = (0..ex.force.len()).map(|i| i as f64 / ex.rate_hz).collect();
         TimeSeries::new(t, ex.force).map_err(|e| CliError::Other(e.into()))?
     } else {
-        find_case(&a.case)?.generate()?
+        crate::cases::find(&a.case)
+            .ok_or_else(|| unknown_case(&a.case, &[GATE_EXAMPLE]))?
+            .generate()?
     };
     match a.output {
         // A path that cannot be written is the user's input, named like stability-map's.

@@ -2,6 +2,7 @@
 //! a gate's identification history from the daemon's store, for engineers who work offline.
 //! The file is opened read-only (also while the daemon writes to it: WAL).
 
+use std::io::Write;
 use std::path::PathBuf;
 
 use super::CliError;
@@ -106,17 +107,21 @@ pub fn run(args: HistoryArgs) -> Result<(), CliError> {
         let points: Vec<DampingPoint> = rows.iter().map(point).collect();
         crate::plot::damping_history(path, &args.gate, &points, thresholds)
             .map_err(|e| CliError::Input(format!("--plot: {e}")))?;
-        eprintln!(
+        let _ = writeln!(
+            std::io::stderr(),
             "gatewatch: wrote {} ({} windows of gate {})",
             path.display(),
             rows.len(),
             args.gate
         );
     } else if args.csv {
-        print!("{}", history_csv(&rows).map_err(anyhow::Error::msg)?);
+        let csv = history_csv(&rows).map_err(anyhow::Error::msg)?;
+        std::io::stdout().lock().write_all(csv.as_bytes())?;
     } else {
+        let mut out = std::io::stdout().lock();
         for r in &rows {
-            println!("{}", serde_json::to_string(r).map_err(anyhow::Error::from)?);
+            let line = serde_json::to_string(r).map_err(anyhow::Error::from)?;
+            writeln!(out, "{line}")?;
         }
     }
     Ok(())

@@ -8,6 +8,7 @@
 use crate::cases;
 use clap::{Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
+use std::io::Write;
 use std::process::ExitCode;
 
 mod gate_example;
@@ -137,7 +138,11 @@ pub fn main() -> ExitCode {
                     ExitCode::SUCCESS
                 };
             }
-            eprint!("{}", usage_error(&e.render().to_string()));
+            let _ = write!(
+                std::io::stderr(),
+                "{}",
+                usage_error(&e.render().to_string())
+            );
             return ExitCode::from(2);
         }
     };
@@ -161,8 +166,13 @@ pub fn main() -> ExitCode {
         Command::Completions(args) => {
             use clap::CommandFactory;
             let mut cmd = Cli::command();
-            clap_complete::generate(args.shell, &mut cmd, "gatewatch", &mut std::io::stdout());
-            return ExitCode::SUCCESS;
+            // into memory first: clap_complete panics on a failed write (a closed pipe)
+            let mut script = Vec::new();
+            clap_complete::generate(args.shell, &mut cmd, "gatewatch", &mut script);
+            std::io::stdout()
+                .lock()
+                .write_all(&script)
+                .map_err(CliError::from)
         }
         Command::Identify(args) => identify::run(args),
         Command::History(args) => history::run(args),
@@ -171,17 +181,33 @@ pub fn main() -> ExitCode {
         Command::Bench(BenchCommand::Generate(args)) => generate::run(args),
         Command::Bench(BenchCommand::GateExample(args)) => gate_example::run(args),
     };
+    // A closed stderr (`2>&1 | head -1`) must not turn the message into a panic (exit 101).
+    let mut stderr = std::io::stderr();
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(CliError::Input(msg)) => {
-            eprintln!("gatewatch: {msg}");
+            let _ = writeln!(stderr, "gatewatch: {msg}");
             ExitCode::from(2)
         }
+        // The reader of the output went away (`gatewatch identify ... | head -1`): it has what
+        // it wanted, so the command ends quietly with success, as ripgrep does. (Rust ignores
+        // SIGPIPE, so the write fails with this error instead of killing the process as it
+        // would a C program; SIGPIPE stays ignored, for the daemon's sockets.)
+        Err(CliError::Other(e)) if is_broken_pipe(&e) => ExitCode::SUCCESS,
         Err(CliError::Other(e)) => {
-            eprintln!("gatewatch: error: {e:#}");
+            let _ = writeln!(stderr, "gatewatch: error: {e:#}");
             ExitCode::from(1)
         }
     }
+}
+
+/// Whether `e` is, or was caused by, a write to a pipe whose reader has gone.
+fn is_broken_pipe(e: &anyhow::Error) -> bool {
+    e.chain().any(|cause| {
+        cause
+            .downcast_ref::<std::io::Error>()
+            .is_some_and(|io| io.kind() == std::io::ErrorKind::BrokenPipe)
+    })
 }
 
 /// A command-line error as printed: a first line `gatewatch: ...` that names the problem (clap's
@@ -224,11 +250,18 @@ fn opt(v: Option<f64>, f: impl Fn(f64) -> String) -> String {
 }
 
 fn find_case(id: &str) -> Result<&'static cases::SeedCase, CliError> {
-    cases::find(id).ok_or_else(|| {
-        let known: Vec<&str> = cases::CASES.iter().map(|c| c.id).collect();
-        input(format!(
-            "--case: unknown case '{id}' (known: {})",
-            known.join(", ")
-        ))
-    })
+    cases::find(id).ok_or_else(|| unknown_case(id, &[]))
+}
+
+/// `--case` names no seed case: the known ones, then the command's own `extra` cases.
+fn unknown_case(id: &str, extra: &[&str]) -> CliError {
+    let known: Vec<&str> = cases::CASES
+        .iter()
+        .map(|c| c.id)
+        .chain(extra.iter().copied())
+        .collect();
+    input(format!(
+        "--case: unknown case '{id}' (known: {})",
+        known.join(", ")
+    ))
 }

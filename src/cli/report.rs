@@ -1,7 +1,7 @@
 //! The output of `gatewatch identify`: the `--json` object and the text report.
 
 use super::opt;
-use crate::analysis::{self, SeriesAnalysis};
+use crate::analysis::{self, SeriesAnalysis, Signal};
 use crate::identify::{Config, Initial};
 use crate::model::Model;
 use serde_json::json;
@@ -97,12 +97,14 @@ fn finite_or_null(v: f64) -> serde_json::Value {
     }
 }
 
+/// The text report of `gatewatch identify` on a record of `signal`.
 pub(super) fn write_identification(
     out: &mut impl Write,
     model: &Model,
     a: &SeriesAnalysis,
     config: &Config,
     max_fit_nmae: f64,
+    signal: Signal,
 ) -> std::io::Result<()> {
     let r = &a.identification;
     let best = r.best_run();
@@ -188,7 +190,41 @@ pub(super) fn write_identification(
             r.summary.mean, r.summary.std, r.summary.min, r.summary.median
         )?;
     }
-    write_damping(out, &a.damping, max_fit_nmae)
+    write_damping(out, &a.damping, max_fit_nmae, signal)
+}
+
+/// A damping ratio in percent: fixed point, or scientific beyond 1e5 % (a diverging estimate's
+/// interval of +-3.9e101 % printed as a number of 100 digits).
+fn percent(z: f64) -> String {
+    let p = 100.0 * z;
+    if p.abs() < 1e5 {
+        format!("{p:.3} %")
+    } else {
+        format!("{p:.3e} %")
+    }
+}
+
+/// The units of the damping block's amplitudes and energy (`docs/damping.md`): N and J for a
+/// force signal; the data's own unit for a displacement, whose energy is in the unit of the
+/// equation's terms times it (J for an equation in N and metres; J/kg for `ydd + ... = 0`).
+struct Units {
+    amplitude: &'static str,
+    energy: &'static str,
+}
+
+impl Units {
+    fn of(signal: Signal) -> Units {
+        match signal {
+            Signal::Force => Units {
+                amplitude: " N",
+                energy: " J",
+            },
+            Signal::Displacement => Units {
+                amplitude: " (unit of the data)",
+                energy: " (unit of the equation's terms x unit of the data: J for N and m)",
+            },
+        }
+    }
 }
 
 /// The damping block. The lines that come from the identified equation alone (`zeta_eq`, the
@@ -201,7 +237,9 @@ fn write_damping(
     out: &mut impl Write,
     d: &analysis::DampingReport,
     max_fit_nmae: f64,
+    signal: Signal,
 ) -> std::io::Result<()> {
+    let units = Units::of(signal);
     let model_trusted = d.fit_nmae <= max_fit_nmae && d.agrees;
     let of_model = |v: String| {
         if model_trusted || v == "n/a" {
@@ -212,33 +250,39 @@ fn write_damping(
     };
     writeln!(out, "damping:")?;
     let interval = d.zeta0_interval.map_or(String::new(), |(lo, hi)| {
-        format!(" [{:.3} %, {:.3} %]", 100.0 * lo, 100.0 * hi)
+        format!(" [{}, {}]", percent(lo), percent(hi))
     });
     writeln!(
         out,
         "  zeta0 (at rest):        {}{interval} ({})",
-        opt(d.zeta0, |z| format!("{:.3} %", 100.0 * z)),
+        opt(d.zeta0, percent),
         d.zeta0_source.map_or("-", |s| s.as_str())
     )?;
     writeln!(
         out,
         "  zeta_eq (at amplitude): {}",
-        of_model(opt(d.zeta_eq, |z| format!("{:.3} %", 100.0 * z)))
+        of_model(opt(d.zeta_eq, percent))
     )?;
     writeln!(
         out,
         "  amplitude now:          {}",
-        opt(d.amplitude, |v| format!("{v:.4e}"))
+        opt(d.amplitude, |v| format!("{v:.4e}{}", units.amplitude))
     )?;
     writeln!(
         out,
         "  energy fed per cycle:   {}",
-        of_model(opt(d.energy_per_cycle, |v| format!("{v:.4e}")))
+        of_model(opt(d.energy_per_cycle, |v| format!(
+            "{v:.4e}{}",
+            units.energy
+        )))
     )?;
     writeln!(
         out,
         "  limit-cycle amplitude:  {}",
-        of_model(opt(d.limit_cycle_amplitude, |v| format!("{v:.4e}")))
+        of_model(opt(d.limit_cycle_amplitude, |v| format!(
+            "{v:.4e}{}",
+            units.amplitude
+        )))
     )?;
     writeln!(
         out,
@@ -262,10 +306,10 @@ fn write_damping(
     if let Some((z, lo, hi)) = d.ambient_zeta.map(<(f64, f64, f64)>::from) {
         writeln!(
             out,
-            "  ambient zeta (SSI-COV): {:.3} % [{:.3} %, {:.3} %]",
-            100.0 * z,
-            100.0 * lo,
-            100.0 * hi
+            "  ambient zeta (SSI-COV): {} [{}, {}]",
+            percent(z),
+            percent(lo),
+            percent(hi)
         )?;
     }
     writeln!(
@@ -277,8 +321,12 @@ fn write_damping(
     )?;
     writeln!(
         out,
-        "  report trusted:         {} (may feed the alerts; zeta0 from {})",
-        if d.trusted { "yes" } else { "no" },
+        "  report trusted:         {} (zeta0 from {})",
+        if d.trusted {
+            "yes: in the daemon it would feed the alerts"
+        } else {
+            "no: in the daemon it would not feed the alerts"
+        },
         d.zeta0_source.map_or("-", |s| s.as_str())
     )?;
     let verdict = match d.verdict {
@@ -290,4 +338,75 @@ fn write_damping(
         analysis::Verdict::Unknown => "unknown (no estimate here may be trusted)",
     };
     writeln!(out, "  verdict:                {verdict}")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn block(d: &analysis::DampingReport, signal: Signal) -> String {
+        let mut out = Vec::new();
+        write_damping(&mut out, d, 0.2, signal).unwrap();
+        String::from_utf8(out).unwrap()
+    }
+
+    fn line<'a>(text: &'a str, key: &str) -> &'a str {
+        text.lines()
+            .find(|l| l.trim_start().starts_with(key))
+            .unwrap_or_else(|| panic!("no {key} line: {text}"))
+    }
+
+    /// Force records give N and J (docs/damping.md); displacement records the data's unit.
+    #[test]
+    fn amplitudes_and_energy_carry_their_units() {
+        let d = analysis::DampingReport {
+            zeta0: Some(-0.02),
+            amplitude: Some(218.25),
+            energy_per_cycle: Some(2.0598e-3),
+            limit_cycle_amplitude: Some(232.05),
+            fit_nmae: 0.01,
+            agrees: true,
+            trusted: true,
+            ..analysis::DampingReport::unknown()
+        };
+        let f = block(&d, Signal::Force);
+        assert!(line(&f, "amplitude now").ends_with("2.1825e2 N"), "{f}");
+        assert!(line(&f, "energy fed").ends_with("2.0598e-3 J"), "{f}");
+        assert!(line(&f, "limit-cycle").ends_with("2.3205e2 N"), "{f}");
+        assert!(
+            line(&f, "report trusted").contains("yes: in the daemon it would feed the alerts"),
+            "{f}"
+        );
+        let y = block(&d, Signal::Displacement);
+        assert!(
+            line(&y, "amplitude now").ends_with("(unit of the data)"),
+            "{y}"
+        );
+        assert!(line(&y, "energy fed").contains("J for N and m"), "{y}");
+        let untrusted = analysis::DampingReport {
+            trusted: false,
+            ..d
+        };
+        let u = block(&untrusted, Signal::Force);
+        assert!(
+            line(&u, "report trusted").contains("no: in the daemon it would not feed the alerts"),
+            "{u}"
+        );
+    }
+
+    /// A diverging interval is printed in scientific notation, not as 100 digits.
+    #[test]
+    fn huge_percentages_are_scientific() {
+        assert_eq!(percent(-0.0225), "-2.250 %");
+        assert_eq!(percent(3.9e99), "3.900e101 %");
+        let d = analysis::DampingReport {
+            zeta0: Some(0.01),
+            zeta0_interval: Some((-3.9e99, 3.9e99)),
+            ..analysis::DampingReport::unknown()
+        };
+        let text = block(&d, Signal::Displacement);
+        let z = line(&text, "zeta0");
+        assert!(z.contains("[-3.900e101 %, 3.900e101 %]"), "{z}");
+        assert!(z.len() < 100, "{z}");
+    }
 }

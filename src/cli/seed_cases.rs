@@ -58,6 +58,10 @@ pub(super) fn run(a: SeedCasesArgs) -> Result<(), CliError> {
     if !(0.0..1.0).contains(&a.noise) {
         return Err(input("--noise must be in [0, 1)"));
     }
+    // Checked here, as the other flags: the cases refused it one by one, as an error (exit 1).
+    if !(a.rtol > 0.0 && a.rtol < 1.0) {
+        return Err(input(format!("--rtol must be in (0, 1), got {}", a.rtol)));
+    }
     let selected: Vec<&cases::SeedCase> = if a.cases.is_empty() {
         cases::CASES.iter().collect()
     } else {
@@ -86,9 +90,15 @@ pub(super) fn run(a: SeedCasesArgs) -> Result<(), CliError> {
         })?;
         bar.finish_and_clear();
         if !a.json {
-            eprintln!(
+            // progress only: a closed stderr must not stop the run
+            let _ = writeln!(
+                std::io::stderr(),
                 "{}: mean NMAE {:.3e}, {}/{} runs below 0.01, median {:.4} s/run",
-                report.id, report.mean_nmae, report.successes, report.runs, report.median_seconds
+                report.id,
+                report.mean_nmae,
+                report.successes,
+                report.runs,
+                report.median_seconds
             );
         }
         reports.push(report);

@@ -91,8 +91,9 @@ pub fn run(a: StabilityMapArgs) -> Result<(), CliError> {
     let map = stability::map(&model, &spec).map_err(input)?;
     let stable = map.stable_count();
     if map.undecided > 0 {
-        eprintln!(
-            "gatewatch stability-map: {} of {} trials left out of the map, undecided: the solver's step limit stopped them before t = {:.4} (shorten --t-end or --periods)",
+        let _ = writeln!(
+            std::io::stderr(),
+            "gatewatch stability-map: {} of {} trials left out of the map, undecided: the solver's step limit or its smallest step stopped them before t = {:.4} (shorten --t-end or --periods)",
             map.undecided,
             map.undecided + map.trials.len(),
             map.t_end
@@ -128,19 +129,20 @@ pub fn run(a: StabilityMapArgs) -> Result<(), CliError> {
         note.push_str("\nunstable: grows, fails, or has not decayed below its initial amplitude");
         if map.undecided > 0 {
             note.push_str(&format!(
-                "\n{} undecided trials (solver step limit) not shown",
+                "\n{} undecided trials (solver step limit or smallest step) not shown",
                 map.undecided
             ));
         }
         crate::plot::stability_map(p, &map, &note).map_err(|e| input(format!("--plot: {e}")))?;
     }
     if a.output.is_some() {
-        println!(
+        writeln!(
+            std::io::stdout().lock(),
             "{} trials over t = 0..{:.4}: {stable} stable, {} unstable",
             map.trials.len(),
             map.t_end,
             map.trials.len() - stable
-        );
+        )?;
     }
     Ok(())
 }

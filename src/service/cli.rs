@@ -3,10 +3,11 @@
 //! The integrator wires [`ServeArgs`], [`CheckConfigArgs`] and [`SimulateArgs`] into the main
 //! clap enum and calls [`serve`], [`check_config`] and [`simulate`].
 
+use std::io::Write;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use super::client::{simulate_with_source, simulator};
+use super::client::{check_stream, simulate_with_source, simulator};
 // the simulate client lives in `service::client`; its arguments are re-exported here because
 // the main clap enum names them `service::cli::SimulateArgs`.
 pub use super::client::{Protocol, Scenario, SimulateArgs};
@@ -141,13 +142,18 @@ pub fn check_config(args: CheckConfigArgs) -> ExitCode {
             for w in config.warnings() {
                 eprintln!("{}: warning: {w}", args.file.display());
             }
-            println!("{}: ok", args.file.display());
+            // `check-config FILE | head -1`: a closed stdout ends the output, not in a panic
+            let mut out = std::io::stdout().lock();
+            let _ = writeln!(out, "{}: ok", args.file.display());
             // How the models will run (docs/operations.md, "Machine code and
             // MemoryDenyWriteExecute"): the systemd unit runs this under the daemon's own
             // restrictions, so its log shows what `serve` will do.
             if let Ok(map) = super::worker::AnalyzerMap::from_config(&config) {
                 let (compiled, interpreted) = map.compiled_counts();
-                println!("models: {compiled} compiled to machine code, {interpreted} interpreted");
+                let _ = writeln!(
+                    out,
+                    "models: {compiled} compiled to machine code, {interpreted} interpreted"
+                );
             }
             ExitCode::SUCCESS
         }
@@ -161,7 +167,7 @@ pub fn check_config(args: CheckConfigArgs) -> ExitCode {
 /// `gatewatch simulate`: streams a [`crate::simulate::GateSimulator`] (see
 /// [`super::client::simulator`]).
 pub fn simulate(args: SimulateArgs) -> ExitCode {
-    let mut sim = match simulator(&args) {
+    let mut sim = match check_stream(&args).and_then(|()| simulator(&args)) {
         Ok(s) => s,
         Err(e) => {
             eprintln!("gatewatch simulate: {e:#}");
@@ -180,7 +186,8 @@ pub fn simulate(args: SimulateArgs) -> ExitCode {
     };
     match rt.block_on(simulate_with_source(&args, |b: &mut [f64]| sim.fill(b))) {
         Ok(n) => {
-            println!("sent {n} samples");
+            // the samples are sent: a closed stdout changes nothing (and must not panic)
+            let _ = writeln!(std::io::stdout(), "sent {n} samples");
             ExitCode::SUCCESS
         }
         Err(e) => {

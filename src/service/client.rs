@@ -269,6 +269,60 @@ pub fn simulator(args: &SimulateArgs) -> anyhow::Result<crate::simulate::GateSim
     }
 }
 
+/// Checks the flags of the stream ([`simulate_with_source`], which runs it first); the error
+/// names the flag. `gatewatch simulate` runs it before anything else, so that a bad flag is
+/// refused as input (exit 2), not as a failure of the stream (exit 1).
+pub fn check_stream(args: &SimulateArgs) -> anyhow::Result<()> {
+    let rate = args.effective_rate();
+    anyhow::ensure!(
+        rate > 0.0 && rate.is_finite(),
+        "--rate must be > 0 (or 0 for the preset's rate), got {}",
+        args.rate
+    );
+    anyhow::ensure!(
+        rate <= SIMULATE_MAX_RATE_HZ,
+        "--rate must be at most {SIMULATE_MAX_RATE_HZ} Hz, got {rate}"
+    );
+    let duration = args.effective_duration();
+    anyhow::ensure!(
+        duration > 0.0 && duration.is_finite(),
+        "--duration must be > 0 seconds, got {duration}"
+    );
+    anyhow::ensure!(
+        args.chunk_seconds > 0.0 && args.chunk_seconds.is_finite(),
+        "--chunk-seconds must be > 0, got {}",
+        args.chunk_seconds
+    );
+    anyhow::ensure!(
+        !args.speed.is_nan(),
+        "--speed must be a number (<= 0: as fast as possible), got {}",
+        args.speed
+    );
+    anyhow::ensure!(
+        args.start.is_none_or(f64::is_finite),
+        "--start must be finite Unix seconds"
+    );
+    // The raw TCP protocol does not use the URL.
+    if args.protocol != Protocol::Tcp {
+        check_url(&args.url)?;
+    }
+    Ok(())
+}
+
+/// `--url` is an absolute http(s) URL with a host: "notaurl" failed at the first request, as
+/// "builder error: relative URL without a base", naming no flag.
+fn check_url(url: &str) -> anyhow::Result<()> {
+    let example = "e.g. http://127.0.0.1:9464";
+    match reqwest::Url::parse(url) {
+        Ok(u) if matches!(u.scheme(), "http" | "https") && u.host().is_some() => Ok(()),
+        Ok(u) => anyhow::bail!(
+            "--url: '{url}' is not an http(s) URL of the daemon (scheme '{}'); {example}",
+            u.scheme()
+        ),
+        Err(e) => anyhow::bail!("--url: '{url}' is not a URL ({e}); {example}"),
+    }
+}
+
 async fn send_http(
     client: &reqwest::Client,
     url: &str,
@@ -323,33 +377,9 @@ pub async fn simulate_with_source(
     args: &SimulateArgs,
     mut source: impl FnMut(&mut [f64]),
 ) -> anyhow::Result<u64> {
+    check_stream(args)?;
     let rate = args.effective_rate();
-    anyhow::ensure!(
-        rate > 0.0 && rate.is_finite(),
-        "--rate must be > 0 (or 0 for the preset's rate), got {}",
-        args.rate
-    );
     let duration = args.effective_duration();
-    anyhow::ensure!(
-        duration > 0.0 && duration.is_finite(),
-        "--duration must be > 0"
-    );
-    anyhow::ensure!(
-        rate <= SIMULATE_MAX_RATE_HZ,
-        "--rate must be at most {SIMULATE_MAX_RATE_HZ} Hz, got {rate}"
-    );
-    anyhow::ensure!(
-        args.chunk_seconds > 0.0 && args.chunk_seconds.is_finite(),
-        "--chunk-seconds must be > 0"
-    );
-    anyhow::ensure!(
-        !args.speed.is_nan(),
-        "--speed must be a number (<= 0: as fast as possible)"
-    );
-    anyhow::ensure!(
-        args.start.is_none_or(f64::is_finite),
-        "--start must be finite Unix seconds"
-    );
     let start = args.start.unwrap_or_else(now_unix);
     let total = (duration * rate).round() as u64;
     // never more than the whole stream in one buffer (--chunk-seconds 1e9 asked for 1.6 TB)
