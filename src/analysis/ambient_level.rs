@@ -319,6 +319,7 @@ fn read_departed_window_by_the_model(
     d.zeta0_source = Some(Zeta0Source::Model);
     d.verdict = Verdict::SelfExcited;
     d.trusted = true;
+    super::series::read_the_models_sign_from_its_interval(d);
 }
 
 /// Whether [`read_departed_window_by_the_model`] could give this window to its model, whatever

@@ -6,7 +6,7 @@ use super::linearisation::{equivalent_damping, limit_cycle, time_to_amplitude, L
 use super::model_free::{model_free, preprocess, rms_swing, ModelFree};
 use super::model_interval::{zeta0_interval, FittedModel};
 use super::population::{initial_population, PopulationInputs, SpectralTarget};
-use super::report::{AmbientZeta, DampingReport, Zeta0Source};
+use super::report::{AmbientZeta, DampingReport, Verdict, Zeta0Source};
 use super::verdict::{agrees, decide, VerdictFacts, WindowGrowth};
 use super::{AnalysisError, ModelInterval, PolishSolver, Signal, MIN_RK4_STEPS_PER_CYCLE};
 use crate::data::TimeSeries;
@@ -679,6 +679,26 @@ fn conclude(
         m.high = m.high.max(g.high);
         if damping.zeta0_source == Some(Zeta0Source::Model) {
             damping.zeta0_interval = Some((m.low, m.high));
+        }
+    }
+    read_the_models_sign_from_its_interval(damping);
+}
+
+/// A model-decided window's verdict says what its interval says, as an ambient one's does:
+/// `self_excited` or `damped` only when the interval lies on that side of zero, `unknown`
+/// (still trusted: the interval is evidence, "cannot tell") across it. [`decide`] chose the row
+/// from the model's point before its interval was computed. Why (session 49): a steady sine
+/// read by its model as -0.03 % (-0.11, +0.05) was printed and stored as `self_excited`, the
+/// interval saying the opposite. The alerts read the interval, not the verdict, so no alert
+/// changes; the printout, the API, the history and its plot do. A window without an interval
+/// keeps its row.
+pub(super) fn read_the_models_sign_from_its_interval(d: &mut DampingReport) {
+    if d.zeta0_source != Some(Zeta0Source::Model) || d.verdict == Verdict::Unknown {
+        return;
+    }
+    if let Some((low, high)) = d.zeta0_interval {
+        if low <= 0.0 && 0.0 <= high {
+            d.verdict = Verdict::Unknown;
         }
     }
 }

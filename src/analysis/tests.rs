@@ -237,3 +237,39 @@ fn polish_substeps_give_each_cycle_thirty_two_steps() {
     assert_eq!(polish_substeps(w(5.0), 0.0), None);
     assert_eq!(polish_substeps(-1.0, 0.01), None);
 }
+
+/// A model-decided window says `self_excited` or `damped` only when its interval lies on that
+/// side of zero; across zero it is `unknown` and stays trusted. Other sources keep their row.
+#[test]
+fn a_model_windows_verdict_follows_its_interval() {
+    use super::report::{DampingReport, Verdict, Zeta0Source};
+    let report = |source, verdict, interval: (f64, f64)| DampingReport {
+        zeta0: Some(0.5 * (interval.0 + interval.1)),
+        zeta0_interval: Some(interval),
+        zeta0_source: Some(source),
+        verdict,
+        trusted: true,
+        ..DampingReport::default()
+    };
+    let read = |mut d: DampingReport| {
+        series::read_the_models_sign_from_its_interval(&mut d);
+        (d.verdict, d.trusted)
+    };
+    let m = Zeta0Source::Model;
+    // the steady sine of session 49: -0.03 % (-0.11, +0.05)
+    let sine = report(m, Verdict::SelfExcited, (-0.0011, 0.0005));
+    assert_eq!(read(sine), (Verdict::Unknown, true));
+    let below = report(m, Verdict::SelfExcited, (-0.03, -0.01));
+    assert_eq!(read(below), (Verdict::SelfExcited, true));
+    let across = report(m, Verdict::Damped, (-0.002, 0.02));
+    assert_eq!(read(across), (Verdict::Unknown, true));
+    let above = report(m, Verdict::Damped, (0.002, 0.02));
+    assert_eq!(read(above), (Verdict::Damped, true));
+    // an envelope row decides by its own rule (decide), untouched here
+    let envelope = report(Zeta0Source::Envelope, Verdict::SelfExcited, (-0.02, 0.01));
+    assert_eq!(read(envelope), (Verdict::SelfExcited, true));
+    // no interval: no evidence against the row
+    let mut bare = report(m, Verdict::SelfExcited, (-0.02, -0.01));
+    bare.zeta0_interval = None;
+    assert_eq!(read(bare), (Verdict::SelfExcited, true));
+}
