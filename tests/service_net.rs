@@ -403,7 +403,12 @@ async fn a_restored_alert_of_an_unknown_gate_that_stays_silent_expires_after_a_r
         let (s, _) = post_json(&app, uniform("junk", 1000.0, 5)).await;
         assert_eq!(s, StatusCode::NO_CONTENT);
         state.tick(SystemTime::now() + Duration::from_secs(120));
-        assert!(state.gate_view("junk").unwrap().alerts.iter().any(|a| a.name == "GateDataStale"));
+        assert!(state
+            .gate_view("junk")
+            .unwrap()
+            .alerts
+            .iter()
+            .any(|a| a.name == "GateDataStale"));
         let p = state.persistence.clone().unwrap();
         assert!(p.writer.close(Duration::from_secs(10)), "flushed");
     }
@@ -419,7 +424,10 @@ async fn a_restored_alert_of_an_unknown_gate_that_stays_silent_expires_after_a_r
     state.tick(start + Duration::from_secs(601));
     assert!(!firing());
     assert_eq!(state.alert_state("junk"), None, "expired with its alert");
-    assert!(state.alert_state("kept").is_some(), "a configured gate stays");
+    assert!(
+        state.alert_state("kept").is_some(),
+        "a configured gate stays"
+    );
     assert_eq!(metric(&state, "gatewatch_gates_expired_total"), 1.0);
     let m = state.render_metrics();
     let left: Vec<&str> = m.lines().filter(|l| l.contains("gate=\"junk\"")).collect();
