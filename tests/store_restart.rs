@@ -570,6 +570,54 @@ async fn a_deleted_store_file_fails_readiness_is_counted_and_exits_1() {
     assert!(!text.contains("panicked"), "{text}");
 }
 
+/// SIGHUP (what `systemctl reload`, `kill -HUP` or a closed terminal sends) is logged as
+/// ignored and the daemon goes on: it still answers, and SIGTERM then flushes the store and
+/// exits 0. SIGHUP's default action used to kill it (exit 129) with no flush.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn sighup_is_logged_and_ignored_and_sigterm_still_exits_0() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let cfg = write_config(dir.path(), free_port());
+    let log = dir.path().join("gatewatch.log");
+    let child = serve_logging(&cfg, &log);
+    let url = daemon_url(&cfg);
+    gatewatch::service::client::ensure_crypto_provider();
+    let client = reqwest::Client::new();
+    wait_ready(&client, &url).await;
+    let ignored = gatewatch::service::shutdown::SIGHUP_IGNORED;
+    for n in 1..=2 {
+        let hup = Command::new("kill")
+            .args(["-HUP", &child.id().to_string()])
+            .status()
+            .expect("kill -HUP");
+        assert!(hup.success());
+        let deadline = Instant::now() + WAIT;
+        while std::fs::read_to_string(&log)
+            .unwrap_or_default()
+            .matches(ignored)
+            .count()
+            < n
+        {
+            assert!(Instant::now() < deadline, "SIGHUP {n} was never logged");
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+        let r = client
+            .get(format!("{url}/healthz"))
+            .send()
+            .await
+            .expect("the daemon still answers after SIGHUP");
+        assert_eq!(r.status().as_u16(), 200);
+    }
+    let status = terminate(child).await;
+    let text = std::fs::read_to_string(&log).expect("log");
+    assert_eq!(status.code(), Some(0), "{text}");
+    assert!(
+        text.lines()
+            .any(|l| l.contains("WARN") && l.contains(ignored)),
+        "{text}"
+    );
+    assert!(text.contains("store flushed and checkpointed"), "{text}");
+}
+
 /// Sends SIGTERM to the daemon and waits for its exit.
 async fn terminate(mut child: std::process::Child) -> std::process::ExitStatus {
     let term = Command::new("kill")
