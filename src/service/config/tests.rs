@@ -142,6 +142,55 @@ fn environment_overrides() {
     assert!(e.message.starts_with("GATEWATCH_LOG_FORMAT"));
 }
 
+/// `log.level` is checked with `EnvFilter`'s own parser, and a bare word that is not a level
+/// is refused: `EnvFilter` reads `debugg` as a target name, and every log went silent while
+/// `check-config` said ok.
+#[test]
+fn an_invalid_log_level_is_refused_naming_the_key_line_and_the_levels() {
+    let e = err("[server]\nmax_gates = 8\n[log]\nlevel = \"debugg\"\n");
+    assert!(e.starts_with("log.level: `debugg` is not a level"), "{e}");
+    assert!(e.ends_with(", line 4"), "{e}");
+    for level in [
+        "off",
+        "error",
+        "warn",
+        "info",
+        "debug",
+        "trace",
+        "target=level",
+    ] {
+        assert!(e.contains(level), "{level}: {e}");
+    }
+    // a directive's level is parsed by EnvFilter itself
+    let e = err("[log]\nlevel = \"info,gatewatch=verbose\"\n");
+    assert!(
+        e.starts_with("log.level: `info,gatewatch=verbose`: "),
+        "{e}"
+    );
+    assert!(e.ends_with(", line 2"), "{e}");
+    assert!(err("[log]\nlevel = \"\"\n").starts_with("log.level: must not be empty"));
+    for ok in [
+        "info",
+        "WARN",
+        "debug,cranelift_jit=warn",
+        "gatewatch::service=debug",
+        "0",
+    ] {
+        let c = Config::from_toml(&format!("[log]\nlevel = \"{ok}\"\n"));
+        assert!(c.is_ok(), "{ok}: {c:?}");
+    }
+    let mut c = Config::default();
+    let e = c
+        .apply_env(|k| (k == "GATEWATCH_LOG_LEVEL").then(|| "inf".to_string()))
+        .unwrap_err();
+    assert!(
+        e.message
+            .starts_with("GATEWATCH_LOG_LEVEL: `inf` is not a level"),
+        "{e}"
+    );
+    assert_eq!(c.log.level, "info");
+}
+
 /// `GATEWATCH_TCP_ALLOWED_NETWORKS` sets the allow-list (comma-separated, validated), and a
 /// TCP listener beyond loopback with a loopback-only list warns: the Dockerfile's own example
 /// (`GATEWATCH_TCP_LISTEN=0.0.0.0:8094` alone) refused every client through the published port.
