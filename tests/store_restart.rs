@@ -512,9 +512,11 @@ async fn a_second_daemon_on_the_same_store_is_refused_naming_the_holder() {
     let _ = first.wait();
 }
 
-/// `rm gw.db*` under the running daemon: `/readyz` turns 503, the writes are counted as
-/// `file_gone`, the log names the file, and SIGTERM exits 1 (the `.db` file does not hold what
-/// the daemon identified) with a line naming it.
+/// `rm gw.db*` under the running daemon: `/readyz` turns 503, and so does `/healthz` (only a
+/// restart gets a store again: a liveness probe must restart the pod, not leave it out of its
+/// endpoints for ever), both naming the file; the writes are counted as `file_gone`, the log
+/// names the file, and SIGTERM exits 1 (the `.db` file does not hold what the daemon
+/// identified) with a line naming it.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_deleted_store_file_fails_readiness_is_counted_and_exits_1() {
     let dir = tempfile::tempdir().expect("tempdir");
@@ -553,10 +555,20 @@ async fn a_deleted_store_file_fails_readiness_is_counted_and_exits_1() {
         );
         tokio::time::sleep(Duration::from_millis(300)).await;
     }
+    let name = db.display().to_string();
+    for (path, start) in [("/healthz", "unhealthy: "), ("/readyz", "not ready: ")] {
+        let r = client.get(format!("{url}{path}")).send().await.expect(path);
+        let status = r.status().as_u16();
+        let body = r.text().await.expect("body");
+        assert_eq!(status, 503, "{path}: {body}");
+        assert!(
+            body.starts_with(start) && body.contains(&name) && body.contains("deleted"),
+            "{path} names the file: {body}"
+        );
+    }
     let status = terminate(child).await;
     let text = std::fs::read_to_string(&log).expect("log");
     assert_eq!(status.code(), Some(1), "{text}");
-    let name = db.display().to_string();
     assert!(
         text.lines()
             .any(|l| l.contains("ERROR") && l.contains(&name) && l.contains("deleted")),
