@@ -164,6 +164,20 @@ pub async fn run_with_persistence(
                 "plain HTTP on a non-loopback address: bearer tokens and data cross the network \
                  in clear; put a TLS reverse proxy in front (docs/security.md) or listen on 127.0.0.1"
             );
+            if state.config.server.auth_tokens.is_empty() {
+                let gates = if state.config.server.accept_unknown_gates {
+                    ", create gates"
+                } else {
+                    ""
+                };
+                tracing::warn!(
+                    addr = %a,
+                    "no authentication on a non-loopback address: server.auth_tokens is empty, \
+                     so anyone who reaches this port can ingest samples{gates} and read the API; \
+                     set server.auth_tokens (or GATEWATCH_AUTH_TOKENS), or set server.listen \
+                     to 127.0.0.1 (docs/security.md)"
+                );
+            }
         }
     }
     state.listeners_up.store(true, Ordering::SeqCst);
