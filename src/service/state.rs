@@ -641,6 +641,12 @@ impl AppState {
                     e.trend_estimate
                 });
                 self.metrics.set_trend(g, d.zeta0_interval, trend.as_ref());
+                // the unit of the signal, hence of the limit cycle's amplitude
+                let amplitude_unit = match self.config.gate(g).map(|c| c.signal) {
+                    Some(crate::analysis::Signal::Force) => "N",
+                    Some(crate::analysis::Signal::Displacement) => "m",
+                    None => "",
+                };
                 let events = inner.alerts.observe(
                     g,
                     &Observation {
@@ -651,7 +657,9 @@ impl AppState {
                         ambient_ratio: d.ambient_ratio,
                         departure_ratio: d.departure_ratio,
                         frequency_hz: d.frequency_hz,
+                        zeta0_source: d.zeta0_source,
                         limit_cycle_amplitude: d.limit_cycle_amplitude,
+                        amplitude_unit,
                         time_to_limit: d.time_to_limit,
                         equation: &a.equation,
                     },
