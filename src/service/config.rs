@@ -579,8 +579,8 @@ impl Config {
                 .collect()
         };
         if let Some(v) = get("GATEWATCH_TCP_ALLOWED_NETWORKS") {
-            // what a container started with GATEWATCH_TCP_LISTEN needs, whose clients come
-            // through the runtime's bridge
+            // what a container started with GATEWATCH_TCP_LISTEN needs (its clients' networks:
+            // docs/security.md, "How the raw TCP ingest is protected")
             self.server.tcp_allowed_networks = list(v);
         }
         if let Some(v) = get("GATEWATCH_AUTH_TOKENS") {

@@ -210,10 +210,13 @@ fn tcp_allowed_networks_from_the_environment_and_the_loopback_only_warning() {
         .unwrap();
     assert!(warned(&c), "{:?}", c.warnings());
     c.apply_env(|k| {
-        (k == "GATEWATCH_TCP_ALLOWED_NETWORKS").then(|| " 172.16.0.0/12, ::1/128,".to_string())
+        (k == "GATEWATCH_TCP_ALLOWED_NETWORKS").then(|| " 10.20.0.0/16, 172.17.0.1,".to_string())
     })
     .unwrap();
-    assert_eq!(c.server.tcp_allowed_networks, ["172.16.0.0/12", "::1/128"]);
+    assert_eq!(
+        c.server.tcp_allowed_networks,
+        ["10.20.0.0/16", "172.17.0.1"]
+    );
     assert!(!warned(&c), "{:?}", c.warnings());
     let e = c
         .apply_env(|k| (k == "GATEWATCH_TCP_ALLOWED_NETWORKS").then(|| "10.0.0/8".to_string()))
