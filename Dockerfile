@@ -1,11 +1,15 @@
 # Multi-stage build of the gatewatch daemon.
 #   docker build -t gatewatch .
 #   docker run -p 9464:9464 -p 8094:8094 -e GATEWATCH_TCP_LISTEN=0.0.0.0:8094 \
-#       -e GATEWATCH_TCP_ALLOWED_NETWORKS=172.16.0.0/12 gatewatch
+#       -e GATEWATCH_TCP_ALLOWED_NETWORKS=10.20.0.0/16,172.17.0.1 gatewatch
 # The raw TCP port has no tokens: only `tcp_allowed_networks` may use it (loopback by default).
-# Through a published port the clients arrive from the bridge network's gateway (Docker's
-# default bridge lies in 172.16.0.0/12); without the second variable every one is refused, and
-# `serve` warns at start.
+# With rootful Docker a client on another host reaches a published port through iptables' DNAT
+# and keeps its own source address: list the sensors' networks (10.20.0.0/16 above), not the
+# bridge's. Only a client on the Docker host itself (to 127.0.0.1:8094, through docker-proxy)
+# arrives from the bridge's gateway (172.17.0.1 on the default bridge), and another container
+# from its own bridge address. Rootless Docker or Podman may hide the source address, depending
+# on their port driver. A refused client is logged with the address gatewatch sees. Without
+# the second variable every client but loopback is refused, and `serve` warns at start.
 #
 # HEALTHCHECK: debian:bookworm-slim has no curl or wget, so none is declared here; use the
 # orchestrator's HTTP probes on /healthz (liveness) and /readyz (readiness) instead (see

@@ -144,6 +144,7 @@ fn obs(z: f64) -> Observation<'static> {
         trend: None,
         ambient_ratio: None,
         departure_ratio: None,
+        ..Default::default()
     }
 }
 

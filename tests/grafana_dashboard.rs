@@ -194,6 +194,20 @@ fn every_metric_the_dashboard_reads_is_exported() {
     while get(port, "/readyz").is_none() && Instant::now() < deadline {
         std::thread::sleep(Duration::from_millis(50));
     }
+    // a gate that sent a few samples and was never identified (a dead sensor, a gate with a
+    // firing GateDataStale): the `gate` variable must list it all the same
+    let now = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .as_secs_f64();
+    let body = format!(
+        "{{\"gate\": \"silent\", \"start\": {now}, \"rate_hz\": 200.0, \"values\": [0.0, 0.1, 0.2]}}"
+    );
+    assert_eq!(
+        post(port, "/api/v1/samples", &body).as_deref(),
+        Some("HTTP/1.0 204"),
+        "{body}"
+    );
     // one gate with an identified window, so that the per-gate families have series
     let sim = Command::new(BIN)
         .args(["simulate", "--url", &format!("http://127.0.0.1:{port}")])
@@ -248,4 +262,44 @@ fn every_metric_the_dashboard_reads_is_exported() {
     );
     // label names the queries group by exist on their metrics
     assert!(metrics.contains("gatewatch_http_requests_total{code="));
+    // the `gate` variable's metric has a series of every gate from its creation, identified
+    // (g1) or not (silent); gatewatch_damping_ratio, which it read before, hid the silent one
+    let gate_var = d["templating"]["list"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|v| v["name"] == "gate")
+        .and_then(|v| v["definition"].as_str())
+        .unwrap();
+    let metric = gate_var
+        .strip_prefix("label_values(")
+        .and_then(|r| r.strip_suffix(", gate)"))
+        .unwrap_or_else(|| panic!("{gate_var}"));
+    for gate in ["g1", "silent"] {
+        assert!(
+            metrics
+                .lines()
+                .any(|l| l.starts_with(&format!("{metric}{{"))
+                    && l.contains(&format!("gate=\"{gate}\""))),
+            "{gate_var} does not list gate {gate}:\n{metrics}"
+        );
+    }
+    assert!(!metrics.contains("gatewatch_damping_ratio{gate=\"silent\"}"));
+}
+
+/// POSTs a JSON body; the status line without its reason (`HTTP/1.0 204`).
+fn post(port: u16, path: &str, body: &str) -> Option<String> {
+    let mut s = std::net::TcpStream::connect(("127.0.0.1", port)).ok()?;
+    s.set_read_timeout(Some(Duration::from_secs(5))).ok()?;
+    write!(
+        s,
+        "POST {path} HTTP/1.0\r\nHost: x\r\nContent-Type: application/json\r\n\
+         Content-Length: {}\r\n\r\n{body}",
+        body.len()
+    )
+    .ok()?;
+    let mut out = String::new();
+    s.read_to_string(&mut out).ok()?;
+    let line = out.lines().next()?;
+    Some(line.splitn(3, ' ').take(2).collect::<Vec<_>>().join(" "))
 }

@@ -230,6 +230,11 @@ async fn ping_health_and_query() {
         (v["name"].as_str(), v["status"].as_str()),
         (Some("gatewatch"), Some("fail"))
     );
+    // why, as /readyz says it (not the v2 error shape's generic "service unavailable")
+    assert_eq!(
+        v["message"], "not ready: listeners not up (starting or shutting down)",
+        "{v}"
+    );
     let auth = format!("Bearer {TOKEN}");
     let bearer = ("authorization", auth.as_str());
     let (s, v, _) = request(

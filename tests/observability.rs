@@ -207,8 +207,9 @@ fn text_logs_to_a_file_have_no_colour_codes_and_plain_peers() {
     assert!(shown.contains("peer=127.0.0.1:"), "{shown}");
     assert!(!shown.contains("Some("), "{shown}");
     assert!(shown.contains("shut down"), "logs go to stderr:\n{shown}");
-    // loopback only: no plain-HTTP warning (see the next test)
+    // loopback only: no plain-HTTP warning, no missing-authentication one (see the next test)
     assert!(!shown.contains("plain HTTP"), "{shown}");
+    assert!(!shown.contains("no authentication"), "{shown}");
 }
 
 /// Issue 12 point 10: `serve` on a non-loopback address warns at start that tokens and data
@@ -255,4 +256,64 @@ fn plain_http_on_a_non_loopback_address_is_a_logged_warning() {
     assert!(warning.contains("WARN"), "{warning}");
     assert!(warning.contains(&format!("0.0.0.0:{http}")), "{warning}");
     assert!(warning.contains("TLS reverse proxy"), "{warning}");
+    // and, without tokens, that anyone who reaches the port can write, naming the keys
+    let warning = shown
+        .lines()
+        .find(|l| l.contains("no authentication on a non-loopback address"))
+        .unwrap_or_else(|| panic!("no warning about the missing tokens:\n{shown}"));
+    assert!(warning.contains("WARN"), "{warning}");
+    assert!(warning.contains(&format!("0.0.0.0:{http}")), "{warning}");
+    for key in [
+        "server.auth_tokens",
+        "GATEWATCH_AUTH_TOKENS",
+        "server.listen",
+    ] {
+        assert!(warning.contains(key), "{key}: {warning}");
+    }
+    assert!(warning.contains("create gates"), "{warning}");
+}
+
+/// A port already in use stops `serve` (exit 1) with a line naming the key and the address,
+/// for either listener: the OS's `Address already in use (os error 98)` alone did not say
+/// which of the two ports clashed, nor with what.
+#[test]
+fn a_port_in_use_is_named_by_its_key_and_address() {
+    let taken = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = taken.local_addr().unwrap().port();
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = dir.path().join("gatewatch.toml");
+    for (key, server) in [
+        ("server.listen", format!("listen = \"127.0.0.1:{port}\"")),
+        (
+            "server.tcp_listen",
+            format!(
+                "listen = \"127.0.0.1:{}\"\ntcp_listen = \"127.0.0.1:{port}\"",
+                free_port()
+            ),
+        ),
+    ] {
+        std::fs::write(
+            &cfg,
+            format!("[server]\n{server}\nworker_threads = 1\n[storage]\npath = \"gw.db\"\n"),
+        )
+        .unwrap();
+        let out = Command::new(env!("CARGO_BIN_EXE_gatewatch"))
+            .args(["serve", "--config"])
+            .arg(&cfg)
+            .env_remove("RUST_LOG")
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{err}");
+        let line = err
+            .lines()
+            .rfind(|l| l.starts_with("gatewatch: "))
+            .unwrap_or_else(|| panic!("no error line:\n{err}"));
+        assert_eq!(
+            line,
+            format!("gatewatch: {key} 127.0.0.1:{port}: cannot bind: Address already in use"),
+            "{err}"
+        );
+    }
+    drop(taken);
 }

@@ -354,3 +354,63 @@ async fn a_forgotten_gate_leaves_no_memory_even_with_a_job_in_flight() {
     assert_eq!(pool.remembered_gates(), 2);
     pool.shutdown(Duration::from_secs(5)).await;
 }
+
+/// A fake whose `remember` panics: outside the job's `catch_unwind`, so the worker thread dies,
+/// as a bug there would kill it in production.
+struct DiesAfterTheFirstWindow(Fake);
+
+impl gatewatch::service::worker::WindowAnalyzer for DiesAfterTheFirstWindow {
+    fn analyze(
+        &self,
+        gate: &str,
+        input: gatewatch::analysis::WindowInput<'_>,
+        warm: Option<&[f64]>,
+        seed: u64,
+    ) -> Result<gatewatch::analysis::WindowAnalysis, gatewatch::analysis::AnalysisError> {
+        self.0.analyze(gate, input, warm, seed)
+    }
+
+    fn remember(
+        &self,
+        _: &str,
+        _: Option<&gatewatch::analysis::Previous>,
+        _: &gatewatch::analysis::WindowAnalysis,
+        _: f64,
+        _: f64,
+    ) -> gatewatch::analysis::Previous {
+        panic!("scripted bug outside the job's catch_unwind");
+    }
+}
+
+/// A worker thread that died is counted out, and `/healthz` (liveness) answers 503 naming it:
+/// nothing restarts the thread, so only a restart of the daemon brings identification back.
+/// `/readyz` says why too.
+#[tokio::test]
+async fn a_dead_worker_thread_fails_liveness_naming_it() {
+    let (app, state) = gatewatch::service::server::build_app(
+        config(""),
+        Arc::new(DiesAfterTheFirstWindow(Fake::default())),
+    )
+    .unwrap();
+    let (s, body, _) = send(&app, "GET", "/healthz", Body::empty(), None).await;
+    assert_eq!(s, StatusCode::OK, "{body}");
+    assert_eq!(
+        post_json(&app, uniform("g1", 0.0, 100)).await.0,
+        StatusCode::NO_CONTENT
+    );
+    wait_until(|| state.pool().running_workers() == 0).await;
+    let (s, body, _) = send(&app, "GET", "/healthz", Body::empty(), None).await;
+    assert_eq!(s, StatusCode::SERVICE_UNAVAILABLE);
+    let text = body.as_str().unwrap_or_default().to_string();
+    assert!(
+        text.contains("0 of 1 identification worker threads running"),
+        "{body}"
+    );
+    let (s, body, _) = send(&app, "GET", "/readyz", Body::empty(), None).await;
+    assert_eq!(s, StatusCode::SERVICE_UNAVAILABLE);
+    assert!(
+        body.as_str()
+            .is_some_and(|t| t.contains("0 of 1 identification worker threads running")),
+        "{body}"
+    );
+}

@@ -512,9 +512,11 @@ async fn a_second_daemon_on_the_same_store_is_refused_naming_the_holder() {
     let _ = first.wait();
 }
 
-/// `rm gw.db*` under the running daemon: `/readyz` turns 503, the writes are counted as
-/// `file_gone`, the log names the file, and SIGTERM exits 1 (the `.db` file does not hold what
-/// the daemon identified) with a line naming it.
+/// `rm gw.db*` under the running daemon: `/readyz` turns 503, and so does `/healthz` (only a
+/// restart gets a store again: a liveness probe must restart the pod, not leave it out of its
+/// endpoints for ever), both naming the file; the writes are counted as `file_gone`, the log
+/// names the file, and SIGTERM exits 1 (the `.db` file does not hold what the daemon
+/// identified) with a line naming it.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_deleted_store_file_fails_readiness_is_counted_and_exits_1() {
     let dir = tempfile::tempdir().expect("tempdir");
@@ -553,10 +555,20 @@ async fn a_deleted_store_file_fails_readiness_is_counted_and_exits_1() {
         );
         tokio::time::sleep(Duration::from_millis(300)).await;
     }
+    let name = db.display().to_string();
+    for (path, start) in [("/healthz", "unhealthy: "), ("/readyz", "not ready: ")] {
+        let r = client.get(format!("{url}{path}")).send().await.expect(path);
+        let status = r.status().as_u16();
+        let body = r.text().await.expect("body");
+        assert_eq!(status, 503, "{path}: {body}");
+        assert!(
+            body.starts_with(start) && body.contains(&name) && body.contains("deleted"),
+            "{path} names the file: {body}"
+        );
+    }
     let status = terminate(child).await;
     let text = std::fs::read_to_string(&log).expect("log");
     assert_eq!(status.code(), Some(1), "{text}");
-    let name = db.display().to_string();
     assert!(
         text.lines()
             .any(|l| l.contains("ERROR") && l.contains(&name) && l.contains("deleted")),
@@ -568,6 +580,54 @@ async fn a_deleted_store_file_fails_readiness_is_counted_and_exits_1() {
         .expect("the exit line");
     assert!(last.contains(&name) && last.contains("deleted"), "{last}");
     assert!(!text.contains("panicked"), "{text}");
+}
+
+/// SIGHUP (what `systemctl reload`, `kill -HUP` or a closed terminal sends) is logged as
+/// ignored and the daemon goes on: it still answers, and SIGTERM then flushes the store and
+/// exits 0. SIGHUP's default action used to kill it (exit 129) with no flush.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn sighup_is_logged_and_ignored_and_sigterm_still_exits_0() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let cfg = write_config(dir.path(), free_port());
+    let log = dir.path().join("gatewatch.log");
+    let child = serve_logging(&cfg, &log);
+    let url = daemon_url(&cfg);
+    gatewatch::service::client::ensure_crypto_provider();
+    let client = reqwest::Client::new();
+    wait_ready(&client, &url).await;
+    let ignored = gatewatch::service::shutdown::SIGHUP_IGNORED;
+    for n in 1..=2 {
+        let hup = Command::new("kill")
+            .args(["-HUP", &child.id().to_string()])
+            .status()
+            .expect("kill -HUP");
+        assert!(hup.success());
+        let deadline = Instant::now() + WAIT;
+        while std::fs::read_to_string(&log)
+            .unwrap_or_default()
+            .matches(ignored)
+            .count()
+            < n
+        {
+            assert!(Instant::now() < deadline, "SIGHUP {n} was never logged");
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+        let r = client
+            .get(format!("{url}/healthz"))
+            .send()
+            .await
+            .expect("the daemon still answers after SIGHUP");
+        assert_eq!(r.status().as_u16(), 200);
+    }
+    let status = terminate(child).await;
+    let text = std::fs::read_to_string(&log).expect("log");
+    assert_eq!(status.code(), Some(0), "{text}");
+    assert!(
+        text.lines()
+            .any(|l| l.contains("WARN") && l.contains(ignored)),
+        "{text}"
+    );
+    assert!(text.contains("store flushed and checkpointed"), "{text}");
 }
 
 /// Sends SIGTERM to the daemon and waits for its exit.

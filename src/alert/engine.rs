@@ -16,11 +16,11 @@ mod trend_alert;
 
 use annotations::{damping_alert, damping_annotations, stale_alert};
 #[cfg(test)]
-use annotations::{fmt_hz, fmt_percent};
+use annotations::{fmt_hz, fmt_percent, fmt_sig};
 pub use rules::{AlertRules, RulesError};
 use trend_alert::Declining;
 
-use crate::analysis::TrendEstimate;
+use crate::analysis::{TrendEstimate, Zeta0Source};
 
 /// `alertname` of the alert raised when a gate's identified damping at rest is negative.
 pub const ALERT_NEGATIVE_DAMPING: &str = "GateNegativeDamping";
@@ -86,8 +86,14 @@ pub struct Observation<'a> {
     pub departure_ratio: Option<f64>,
     /// Frequency of the (self-excited) oscillation, Hz.
     pub frequency_hz: Option<f64>,
-    /// Predicted amplitude of the limit cycle.
+    /// Where `zeta0` comes from (`DampingReport::zeta0_source`): the annotations credit the
+    /// identified equation only when it is [`Zeta0Source::Model`]. `None`: not reported.
+    pub zeta0_source: Option<Zeta0Source>,
+    /// Predicted amplitude of the limit cycle, in [`Self::amplitude_unit`].
     pub limit_cycle_amplitude: Option<f64>,
+    /// The unit of the gate's signal and of `limit_cycle_amplitude` (`N` in force mode, `m` in
+    /// displacement mode); empty: not said.
+    pub amplitude_unit: &'a str,
     /// Predicted time until the amplitude limit is reached, seconds.
     pub time_to_limit: Option<f64>,
     /// The identified equation of motion, as text.
@@ -105,8 +111,9 @@ pub struct Alert {
     pub name: String,
     /// `alertname`, `gate`, `severity`.
     pub labels: BTreeMap<String, String>,
-    /// `summary`, `description`, and for negative damping `damping_ratio`, `frequency_hz`,
-    /// `limit_cycle_amplitude`, `time_to_limit_seconds`, `equation` (each only when known).
+    /// `summary`, `description`, and for negative damping `damping_ratio`, `zeta0_source`,
+    /// `frequency_hz`, `limit_cycle_amplitude`, `time_to_limit_seconds`, `equation` (each only
+    /// when known).
     pub annotations: BTreeMap<String, String>,
     /// When the condition started (first negative window, or detection of staleness).
     pub starts_at: SystemTime,

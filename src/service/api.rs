@@ -351,15 +351,27 @@ async fn get_gate(
         .ok_or_else(|| HttpError::NotFound(format!("unknown gate `{id}`")))
 }
 
-async fn healthz() -> &'static str {
-    "ok\n"
+/// Liveness: 200 `ok` unless the daemon is in a state only a restart ends
+/// ([`AppState::unrecoverable`]), then 503 naming it.
+async fn healthz(State(state): State<Arc<AppState>>) -> Response {
+    let why = state.unrecoverable();
+    if why.is_empty() {
+        (StatusCode::OK, "ok\n").into_response()
+    } else {
+        let body = format!("unhealthy: {}\n", why.join("; "));
+        (StatusCode::SERVICE_UNAVAILABLE, body).into_response()
+    }
 }
 
+/// Readiness: 200 `ready`, or 503 `not ready: ` and why ([`AppState::not_ready`]).
 async fn readyz(State(state): State<Arc<AppState>>) -> Response {
-    if state.ready() {
-        (StatusCode::OK, "ready\n").into_response()
-    } else {
-        (StatusCode::SERVICE_UNAVAILABLE, "not ready\n").into_response()
+    match state.not_ready() {
+        None => (StatusCode::OK, "ready\n").into_response(),
+        Some(why) => (
+            StatusCode::SERVICE_UNAVAILABLE,
+            format!("not ready: {why}\n"),
+        )
+            .into_response(),
     }
 }
 

@@ -210,6 +210,36 @@ impl Default for LogConfig {
     }
 }
 
+/// What `log.level` accepts, for its error message.
+const LOG_LEVEL_HELP: &str = "valid levels are off, error, warn, info, debug and trace; or \
+     comma-separated tracing EnvFilter directives target=level, e.g. \"info,gatewatch::service=debug\"";
+
+/// Checks a `log.level` value with the parser `serve` gives it to (tracing's `EnvFilter`), and
+/// refuses a bare word that is not a level: `EnvFilter` reads `debugg` as "everything of the
+/// target `debugg`", which no event has, so a typo used to silence every log without a word.
+pub fn check_log_level(level: &str) -> Result<(), String> {
+    if level.trim().is_empty() {
+        return Err(format!("must not be empty: {LOG_LEVEL_HELP}"));
+    }
+    for directive in level.split(',').map(str::trim).filter(|d| !d.is_empty()) {
+        let bare = !directive.contains('=') && !directive.contains('[');
+        if bare
+            && directive
+                .parse::<tracing::level_filters::LevelFilter>()
+                .is_err()
+        {
+            return Err(format!(
+                "`{directive}` is not a level ({LOG_LEVEL_HELP}; a target alone needs its \
+                 level: `{directive}=trace`)"
+            ));
+        }
+    }
+    tracing_subscriber::EnvFilter::builder()
+        .parse(level)
+        .map(drop)
+        .map_err(|e| format!("`{level}`: {e} ({LOG_LEVEL_HELP})"))
+}
+
 /// Timestamp precision of line protocol.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "lowercase")]
@@ -549,8 +579,8 @@ impl Config {
                 .collect()
         };
         if let Some(v) = get("GATEWATCH_TCP_ALLOWED_NETWORKS") {
-            // what a container started with GATEWATCH_TCP_LISTEN needs, whose clients come
-            // through the runtime's bridge
+            // what a container started with GATEWATCH_TCP_LISTEN needs (its clients' networks:
+            // docs/security.md, "How the raw TCP ingest is protected")
             self.server.tcp_allowed_networks = list(v);
         }
         if let Some(v) = get("GATEWATCH_AUTH_TOKENS") {
@@ -580,6 +610,8 @@ impl Config {
             self.storage.path = v;
         }
         if let Some(v) = get("GATEWATCH_LOG_LEVEL") {
+            check_log_level(&v)
+                .map_err(|e| ConfigError::new(format!("GATEWATCH_LOG_LEVEL: {e}")))?;
             self.log.level = v;
         }
         let parse_usize = |name: &str, v: String| {
@@ -667,6 +699,9 @@ impl Config {
             );
         }
         s.validate_net()?;
+        if let Err(e) = check_log_level(&self.log.level) {
+            return Err(ConfigError::new(format!("log.level: {e}")));
+        }
         if self.ingest.gate_tag.is_empty() {
             return Err(ConfigError::new("ingest.gate_tag: must not be empty"));
         }

@@ -41,16 +41,31 @@ pub struct Listeners {
 }
 
 impl Listeners {
-    /// Binds `server.listen` and `server.tcp_listen` (when set).
-    pub async fn bind(config: &Config) -> std::io::Result<Listeners> {
-        let http = TcpListener::bind(&config.server.listen).await?;
+    /// Binds `server.listen` and `server.tcp_listen` (when set). An error names the key and the
+    /// address (`server.listen 0.0.0.0:9464: cannot bind: Address already in use`): the OS's
+    /// message alone did not say which of the two ports clashed.
+    pub async fn bind(config: &Config) -> anyhow::Result<Listeners> {
+        let http = bind_named("server.listen", &config.server.listen).await?;
         let tcp = if config.server.tcp_listen.is_empty() {
             None
         } else {
-            Some(TcpListener::bind(&config.server.tcp_listen).await?)
+            Some(bind_named("server.tcp_listen", &config.server.tcp_listen).await?)
         };
         Ok(Listeners { http, tcp })
     }
+}
+
+/// Binds `addr`, the value of the configuration key `key`; an error names both, with the OS's
+/// reason without its code (`(os error 98)` tells an operator nothing more).
+async fn bind_named(key: &str, addr: &str) -> anyhow::Result<TcpListener> {
+    TcpListener::bind(addr).await.map_err(|e| {
+        let reason = e.to_string();
+        let reason = match reason.rfind(" (os error ") {
+            Some(i) if reason.ends_with(')') => &reason[..i],
+            _ => &reason,
+        };
+        anyhow::anyhow!("{key} {addr}: cannot bind: {reason}")
+    })
 }
 
 /// Builds the state and the router without serving (for tests with `oneshot`).
@@ -149,6 +164,20 @@ pub async fn run_with_persistence(
                 "plain HTTP on a non-loopback address: bearer tokens and data cross the network \
                  in clear; put a TLS reverse proxy in front (docs/security.md) or listen on 127.0.0.1"
             );
+            if state.config.server.auth_tokens.is_empty() {
+                let gates = if state.config.server.accept_unknown_gates {
+                    ", create gates"
+                } else {
+                    ""
+                };
+                tracing::warn!(
+                    addr = %a,
+                    "no authentication on a non-loopback address: server.auth_tokens is empty, \
+                     so anyone who reaches this port can ingest samples{gates} and read the API; \
+                     set server.auth_tokens (or GATEWATCH_AUTH_TOKENS), or set server.listen \
+                     to 127.0.0.1 (docs/security.md)"
+                );
+            }
         }
     }
     state.listeners_up.store(true, Ordering::SeqCst);

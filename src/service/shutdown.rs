@@ -1,6 +1,14 @@
 //! Shutdown signals.
 
-/// Resolves on SIGINT (Ctrl-C) or SIGTERM.
+/// What the log says when SIGHUP arrives. Many daemons reload their configuration on SIGHUP;
+/// gatewatch does not (its gates, workers, listeners and store are built once from it), and
+/// SIGHUP's default action would kill the process with no flush of the store (exit 129).
+pub const SIGHUP_IGNORED: &str =
+    "SIGHUP received and ignored: gatewatch does not reload its configuration; restart it to \
+     apply changes";
+
+/// Resolves on SIGINT (Ctrl-C) or SIGTERM. SIGHUP, once this future is polled, is logged as a
+/// warning ([`SIGHUP_IGNORED`]) and otherwise ignored: the daemon keeps running.
 pub async fn signal() {
     let ctrl_c = async {
         if let Err(e) = tokio::signal::ctrl_c().await {
@@ -22,8 +30,26 @@ pub async fn signal() {
     };
     #[cfg(not(unix))]
     let term = std::future::pending::<()>();
+    // never resolves: each SIGHUP is logged and the wait goes on
+    #[cfg(unix)]
+    let hup = async {
+        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::hangup()) {
+            Ok(mut s) => {
+                while s.recv().await.is_some() {
+                    tracing::warn!("{SIGHUP_IGNORED}");
+                }
+            }
+            Err(e) => {
+                tracing::error!(error = %e, "cannot listen for SIGHUP (it would stop the daemon)")
+            }
+        }
+        std::future::pending::<()>().await;
+    };
+    #[cfg(not(unix))]
+    let hup = std::future::pending::<()>();
     tokio::select! {
         _ = ctrl_c => tracing::info!("SIGINT received, shutting down"),
         _ = term => tracing::info!("SIGTERM received, shutting down"),
+        _ = hup => {}
     }
 }

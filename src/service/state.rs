@@ -252,9 +252,46 @@ impl AppState {
     /// Ready: listeners up, every worker running, and the store (when there is one) still
     /// writing to its file (not deleted or replaced under the daemon: `StoreWriter::healthy`).
     pub fn ready(&self) -> bool {
-        self.listeners_up.load(Ordering::SeqCst)
-            && self.pool().running_workers() == self.config.server.effective_worker_threads()
-            && self.persistence.as_ref().is_none_or(|p| p.writer.healthy())
+        self.not_ready().is_none()
+    }
+
+    /// Why the daemon is not ready (`/readyz` 503 says it), or `None` when it is: the listeners
+    /// are not up (starting, or shutting down), or one of [`Self::unrecoverable`].
+    pub fn not_ready(&self) -> Option<String> {
+        let mut why = Vec::new();
+        if !self.listeners_up.load(Ordering::SeqCst) {
+            why.push("listeners not up (starting or shutting down)".to_string());
+        }
+        why.extend(self.unrecoverable());
+        (!why.is_empty()).then(|| why.join("; "))
+    }
+
+    /// Why the daemon cannot recover without a restart (`/healthz` 503 says it, so that an
+    /// orchestrator's liveness probe restarts it), or `None`. Two states: an identification
+    /// worker thread no longer runs (nothing restarts it: the gates' windows pile up unanalysed),
+    /// or the store's file was deleted or replaced under the daemon (every write is refused
+    /// until the same file is back at its path, which a deletion never brings). Readiness alone
+    /// failed there, and a pod out of its endpoints with a live `/healthz` was never restarted.
+    pub fn unrecoverable(&self) -> Vec<String> {
+        let mut why = Vec::new();
+        let (running, wanted) = (
+            self.pool().running_workers(),
+            self.config.server.effective_worker_threads(),
+        );
+        // fewer only after a worker thread died, or once the shutdown closed the pool
+        if running < wanted {
+            why.push(format!(
+                "{running} of {wanted} identification worker threads running"
+            ));
+        }
+        if let Some(p) = self.persistence.as_ref().filter(|p| !p.writer.healthy()) {
+            why.push(format!(
+                "store {}: the file was deleted or replaced under the daemon, every write is \
+                 refused; restart gatewatch",
+                p.store.location()
+            ));
+        }
+        why
     }
 
     fn ensure_gate<'a>(
@@ -604,6 +641,12 @@ impl AppState {
                     e.trend_estimate
                 });
                 self.metrics.set_trend(g, d.zeta0_interval, trend.as_ref());
+                // the unit of the signal, hence of the limit cycle's amplitude
+                let amplitude_unit = match self.config.gate(g).map(|c| c.signal) {
+                    Some(crate::analysis::Signal::Force) => "N",
+                    Some(crate::analysis::Signal::Displacement) => "m",
+                    None => "",
+                };
                 let events = inner.alerts.observe(
                     g,
                     &Observation {
@@ -614,7 +657,9 @@ impl AppState {
                         ambient_ratio: d.ambient_ratio,
                         departure_ratio: d.departure_ratio,
                         frequency_hz: d.frequency_hz,
+                        zeta0_source: d.zeta0_source,
                         limit_cycle_amplitude: d.limit_cycle_amplitude,
+                        amplitude_unit,
                         time_to_limit: d.time_to_limit,
                         equation: &a.equation,
                     },

@@ -392,13 +392,25 @@ impl WorkerPool {
     }
 }
 
+/// Counts its worker out of `running_workers` when the thread ends: at the pool's shutdown, or
+/// by a panic outside the job's `catch_unwind` (then nothing restarts the thread, and
+/// `/healthz` says so).
+struct Running(Arc<Shared>);
+
+impl Drop for Running {
+    fn drop(&mut self) {
+        lock(&self.0.sched).running_workers -= 1;
+    }
+}
+
 fn worker_loop(shared: Arc<Shared>) {
+    // dropped after any guard of the loop below (declared first), so its lock does not deadlock
+    let _running = Running(shared.clone());
     loop {
         let (job, previous) = {
             let mut s = lock(&shared.sched);
             loop {
                 if s.closed {
-                    s.running_workers -= 1;
                     return;
                 }
                 // the oldest waiting gate that is not in flight

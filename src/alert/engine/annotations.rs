@@ -4,6 +4,7 @@ use std::collections::BTreeMap;
 use std::time::{Duration, SystemTime};
 
 use super::{rfc3339, Alert, AlertRules, Observation, ALERT_DATA_STALE, ALERT_NEGATIVE_DAMPING};
+use crate::analysis::Zeta0Source;
 
 fn finite(x: Option<f64>) -> Option<f64> {
     x.filter(|v| v.is_finite())
@@ -29,6 +30,47 @@ pub(super) fn fmt_hz(f: f64) -> String {
     }
 }
 
+/// `x` to 4 significant digits with the trailing zeros dropped (`49.55`, `-0.012`, `4270`),
+/// in scientific notation outside 1e-3..1e6 (`1.235e7`): what an operator reads in an alert,
+/// not the 17 digits of an `f64` (`49.54840061414192`).
+pub(super) fn fmt_sig(x: f64) -> String {
+    fn trim(s: &str) -> &str {
+        if s.contains('.') {
+            s.trim_end_matches('0').trim_end_matches('.')
+        } else {
+            s
+        }
+    }
+    let a = x.abs();
+    if a == 0.0 || !a.is_finite() {
+        return format!("{x}");
+    }
+    if !(1e-3..1e6).contains(&a) {
+        let s = format!("{x:.3e}");
+        return match s.split_once('e') {
+            Some((mantissa, exp)) => format!("{}e{exp}", trim(mantissa)),
+            None => s,
+        };
+    }
+    let decimals = (3 - a.log10().floor() as i32).max(0) as usize;
+    trim(&format!("{x:.decimals$}")).to_string()
+}
+
+/// How a `zeta0` that is not the model's was estimated, for the description.
+fn source_phrase(source: Zeta0Source) -> &'static str {
+    match source {
+        Zeta0Source::Model => "from the identified equation of motion",
+        Zeta0Source::Ambient => "estimated model-free from the ambient vibration",
+        Zeta0Source::Envelope => {
+            "estimated model-free from the relaxation of the limit cycle's envelope"
+        }
+        Zeta0Source::Amplitude => {
+            "read from the limit cycle's amplitude through the damping law of the gate's last \
+             growth"
+        }
+    }
+}
+
 pub(super) fn damping_annotations(
     gate: &str,
     rules: &AlertRules,
@@ -47,33 +89,70 @@ pub(super) fn damping_annotations(
         ),
         None => format!("gate {gate}: damping ratio {pct} % (self-excited vibration)"),
     };
-    let mut description = format!(
-        "The equation of motion identified for gate {gate} has negative damping at rest \
-         (damping ratio {pct} %, below {} %): oscillations grow by themselves.",
-        fmt_percent(rules.fire_below)
-    );
+    let below = fmt_percent(rules.fire_below);
+    // The equation is credited with the damping only when it is where zeta0 came from: a
+    // model-free estimate (ambient, envelope, amplitude) said "the equation of motion ... has
+    // negative damping" next to an equation that may not.
+    let by_model = obs.zeta0_source == Some(Zeta0Source::Model);
+    let mut description = match obs.zeta0_source {
+        Some(Zeta0Source::Model) => format!(
+            "The equation of motion identified for gate {gate} has negative damping at rest \
+             (damping ratio {pct} %, below {below} %): oscillations grow by themselves."
+        ),
+        Some(source) => format!(
+            "Gate {gate} has negative damping at rest (damping ratio {pct} %, below {below} %, \
+             {} (zeta0_source {source})): oscillations grow by themselves.",
+            source_phrase(source)
+        ),
+        None => format!(
+            "Gate {gate} has negative damping at rest (damping ratio {pct} %, below {below} %): \
+             oscillations grow by themselves."
+        ),
+    };
+    let unit = if obs.amplitude_unit.is_empty() {
+        String::new()
+    } else {
+        format!(" {}", obs.amplitude_unit)
+    };
     if let Some(a) = amp {
-        description.push_str(&format!(" Predicted limit-cycle amplitude: {a}."));
+        description.push_str(&format!(
+            " Limit-cycle amplitude predicted by the identified equation: {}{unit}.",
+            fmt_sig(a)
+        ));
     }
     if let Some(t) = ttl {
-        description.push_str(&format!(" Time to reach the amplitude limit: {t:.1} s."));
+        description.push_str(&format!(
+            " Time to reach the amplitude limit: {} s.",
+            fmt_sig(t)
+        ));
     }
     if !obs.equation.is_empty() {
-        description.push_str(&format!(" Identified equation: {}", obs.equation));
+        if by_model {
+            description.push_str(&format!(" Identified equation: {}", obs.equation));
+        } else {
+            description.push_str(&format!(
+                " Equation identified in the same window (not the source of this damping \
+                 ratio): {}",
+                obs.equation
+            ));
+        }
     }
     a.insert("summary".to_string(), summary);
     a.insert("description".to_string(), description);
     if let Some(z) = zeta {
-        a.insert("damping_ratio".to_string(), z.to_string());
+        a.insert("damping_ratio".to_string(), fmt_sig(z));
+    }
+    if let Some(s) = obs.zeta0_source {
+        a.insert("zeta0_source".to_string(), s.as_str().to_string());
     }
     if let Some(f) = freq {
-        a.insert("frequency_hz".to_string(), f.to_string());
+        a.insert("frequency_hz".to_string(), fmt_sig(f));
     }
     if let Some(v) = amp {
-        a.insert("limit_cycle_amplitude".to_string(), v.to_string());
+        a.insert("limit_cycle_amplitude".to_string(), fmt_sig(v));
     }
     if let Some(t) = ttl {
-        a.insert("time_to_limit_seconds".to_string(), t.to_string());
+        a.insert("time_to_limit_seconds".to_string(), fmt_sig(t));
     }
     if !obs.equation.is_empty() {
         a.insert("equation".to_string(), obs.equation.to_string());

@@ -11,7 +11,9 @@ fn win(z: f64) -> Observation<'static> {
         zeta0_interval: Some((z, z)), // a point: these tests are about the counting
         trusted: true,
         frequency_hz: Some(10.4),
+        zeta0_source: Some(Zeta0Source::Model),
         limit_cycle_amplitude: Some(0.05),
+        amplitude_unit: "N",
         time_to_limit: Some(12.5),
         equation: "ydd + (-0.8 + 2*yd^2)*yd + 4270*y = 0",
         trend: None,
@@ -388,11 +390,14 @@ fn firing_annotations_and_refresh() {
         a.annotations["equation"],
         "ydd + (-0.8 + 2*yd^2)*yd + 4270*y = 0"
     );
+    assert_eq!(a.annotations["zeta0_source"], "model");
     let d = &a.annotations["description"];
-    assert!(d.contains("negative damping"), "{d}");
-    assert!(
-        d.contains("0.05") && d.contains("12.5 s") && d.contains("4270*y"),
-        "{d}"
+    assert_eq!(
+        d,
+        "The equation of motion identified for gate g1 has negative damping at rest (damping \
+         ratio -1.2 %, below 0.0 %): oscillations grow by themselves. Limit-cycle amplitude \
+         predicted by the identified equation: 0.05 N. Time to reach the amplitude limit: \
+         12.5 s. Identified equation: ydd + (-0.8 + 2*yd^2)*yd + 4270*y = 0"
     );
     // A later negative window refreshes the figures, keeping labels, startsAt, fingerprint.
     let fp = a.fingerprint.clone();
@@ -404,6 +409,8 @@ fn firing_annotations_and_refresh() {
         equation: "",
         trusted: true,
         zeta0_interval: Some((-0.03, -0.03)),
+        zeta0_source: None,
+        amplitude_unit: "",
         trend: None,
         ambient_ratio: None,
         departure_ratio: None,
@@ -425,6 +432,73 @@ fn firing_annotations_and_refresh() {
     ] {
         assert!(!f.annotations.contains_key(k), "{k}");
     }
+}
+
+/// A zeta0 estimated model-free (here the ambient SSI-COV estimate) is said to be so: the
+/// description does not credit the equation shown beside it, which may not have negative
+/// damping. Figures are rounded to 4 significant digits, the amplitude with its unit.
+#[test]
+fn model_free_annotations_name_their_source_and_not_the_equation() {
+    let mut e = engine();
+    let obs = Observation {
+        zeta0_source: Some(Zeta0Source::Ambient),
+        limit_cycle_amplitude: Some(49.54840061414192),
+        time_to_limit: Some(3.141_72),
+        frequency_hz: Some(10.41666666666),
+        ..win(-0.0123456789)
+    };
+    e.observe("g1", &obs, t(0));
+    let ev = e.observe("g1", &obs, t(1));
+    let a = ev[0].alert();
+    let d = &a.annotations["description"];
+    assert_eq!(
+        d,
+        "Gate g1 has negative damping at rest (damping ratio -1.2 %, below 0.0 %, estimated \
+         model-free from the ambient vibration (zeta0_source ambient)): oscillations grow by \
+         themselves. Limit-cycle amplitude predicted by the identified equation: 49.55 N. Time \
+         to reach the amplitude limit: 3.142 s. Equation identified in the same window (not the \
+         source of this damping ratio): ydd + (-0.8 + 2*yd^2)*yd + 4270*y = 0"
+    );
+    assert!(!d.contains("The equation of motion"), "{d}");
+    assert_eq!(a.annotations["zeta0_source"], "ambient");
+    assert_eq!(a.annotations["damping_ratio"], "-0.01235");
+    assert_eq!(a.annotations["limit_cycle_amplitude"], "49.55");
+    assert_eq!(a.annotations["time_to_limit_seconds"], "3.142");
+    assert_eq!(a.annotations["frequency_hz"], "10.42");
+    for (source, says) in [
+        (
+            Zeta0Source::Envelope,
+            "relaxation of the limit cycle's envelope",
+        ),
+        (
+            Zeta0Source::Amplitude,
+            "damping law of the gate's last growth",
+        ),
+    ] {
+        let obs = Observation {
+            zeta0_source: Some(source),
+            ..obs
+        };
+        let d = &damping_annotations("g1", &AlertRules::default(), &obs)["description"];
+        assert!(
+            d.starts_with("Gate g1 has negative damping") && d.contains(says),
+            "{d}"
+        );
+        assert!(d.contains("not the source of this damping ratio"), "{d}");
+    }
+}
+
+#[test]
+fn significant_digits() {
+    assert_eq!(fmt_sig(49.54840061414192), "49.55");
+    assert_eq!(fmt_sig(-0.012), "-0.012");
+    assert_eq!(fmt_sig(4270.0), "4270");
+    assert_eq!(fmt_sig(123_456.0), "123456");
+    assert_eq!(fmt_sig(12_345_678.9), "1.235e7");
+    assert_eq!(fmt_sig(0.000_123_46), "1.235e-4");
+    assert_eq!(fmt_sig(2e-5), "2e-5");
+    assert_eq!(fmt_sig(0.0), "0");
+    assert_eq!(fmt_sig(1.0), "1");
 }
 
 #[test]

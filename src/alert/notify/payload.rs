@@ -210,6 +210,7 @@ mod tests {
             trend: None,
             ambient_ratio: None,
             departure_ratio: None,
+            ..Default::default()
         }
     }
 

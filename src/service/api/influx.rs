@@ -161,32 +161,30 @@ pub async fn ping() -> Response {
         .into_response()
 }
 
-/// `GET /health` in InfluxDB 2.x's shape: 200 `"status": "pass"` when ready (both listeners
-/// up, all workers running: as `/readyz`), otherwise 503 `"status": "fail"` as InfluxDB answers
-/// while it starts.
+/// `GET /health` in InfluxDB 2.x's shape: 200 `"status": "pass"` when ready (as `/readyz`),
+/// otherwise 503 `"status": "fail"` as InfluxDB answers while it starts, the message saying why
+/// (as `/readyz`'s body; also as `error`, which [`v2_errors`] makes the 503's `message`).
 pub async fn health(State(state): State<Arc<AppState>>) -> Response {
-    let ready = state.ready();
-    let (status, verdict, message) = if ready {
-        (StatusCode::OK, "pass", "ready for writes")
-    } else {
-        (
+    let (status, verdict, message) = match state.not_ready() {
+        None => (StatusCode::OK, "pass", "ready for writes".to_string()),
+        Some(why) => (
             StatusCode::SERVICE_UNAVAILABLE,
             "fail",
-            "not ready: listeners or identification workers not up",
-        )
+            format!("not ready: {why}"),
+        ),
     };
-    (
-        status,
-        Json(json!({
-            "name": "gatewatch",
-            "message": message,
-            "status": verdict,
-            "checks": [],
-            "version": VERSION,
-            "commit": "",
-        })),
-    )
-        .into_response()
+    let mut body = json!({
+        "name": "gatewatch",
+        "message": message,
+        "status": verdict,
+        "checks": [],
+        "version": VERSION,
+        "commit": "",
+    });
+    if status != StatusCode::OK {
+        body["error"] = message.into();
+    }
+    (status, Json(body)).into_response()
 }
 
 /// `GET`/`POST /query` (InfluxDB 1.x): `q` from the URL or a form body. Only `CREATE DATABASE`

@@ -33,9 +33,10 @@ impl ServerConfig {
     }
 
     /// A warning when the raw TCP listener listens beyond loopback but only loopback clients
-    /// may use it: every client from another host (or through a container's published port,
-    /// which arrives from the bridge's address) is refused at accept, one log line each, and
-    /// nothing at start said so (`GATEWATCH_TCP_LISTEN=0.0.0.0:8094` alone in a container).
+    /// may use it: every client from another host (also through a container's published port:
+    /// with rootful Docker a remote client keeps its own address, a client on the same host
+    /// arrives from the bridge's gateway) is refused at accept, one log line each, and nothing
+    /// at start said so (`GATEWATCH_TCP_LISTEN=0.0.0.0:8094` alone in a container).
     pub fn tcp_loopback_only_warning(&self) -> Option<String> {
         let addr = self.tcp_listen.parse::<std::net::SocketAddr>().ok()?;
         let networks = self.tcp_networks().ok()?;
@@ -45,7 +46,8 @@ impl ServerConfig {
                 "server.tcp_listen = \"{}\" listens beyond loopback, but \
                  server.tcp_allowed_networks ({}) lets in loopback clients only: every other \
                  client is refused (set it, or GATEWATCH_TCP_ALLOWED_NETWORKS, to the clients' \
-                 networks, e.g. a container runtime's bridge network)",
+                 networks; in a container, the remote clients' own networks, and the bridge's \
+                 gateway for a client on the same host: docs/security.md)",
                 self.tcp_listen,
                 if self.tcp_allowed_networks.is_empty() {
                     "empty".to_string()

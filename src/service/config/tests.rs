@@ -142,6 +142,55 @@ fn environment_overrides() {
     assert!(e.message.starts_with("GATEWATCH_LOG_FORMAT"));
 }
 
+/// `log.level` is checked with `EnvFilter`'s own parser, and a bare word that is not a level
+/// is refused: `EnvFilter` reads `debugg` as a target name, and every log went silent while
+/// `check-config` said ok.
+#[test]
+fn an_invalid_log_level_is_refused_naming_the_key_line_and_the_levels() {
+    let e = err("[server]\nmax_gates = 8\n[log]\nlevel = \"debugg\"\n");
+    assert!(e.starts_with("log.level: `debugg` is not a level"), "{e}");
+    assert!(e.ends_with(", line 4"), "{e}");
+    for level in [
+        "off",
+        "error",
+        "warn",
+        "info",
+        "debug",
+        "trace",
+        "target=level",
+    ] {
+        assert!(e.contains(level), "{level}: {e}");
+    }
+    // a directive's level is parsed by EnvFilter itself
+    let e = err("[log]\nlevel = \"info,gatewatch=verbose\"\n");
+    assert!(
+        e.starts_with("log.level: `info,gatewatch=verbose`: "),
+        "{e}"
+    );
+    assert!(e.ends_with(", line 2"), "{e}");
+    assert!(err("[log]\nlevel = \"\"\n").starts_with("log.level: must not be empty"));
+    for ok in [
+        "info",
+        "WARN",
+        "debug,cranelift_jit=warn",
+        "gatewatch::service=debug",
+        "0",
+    ] {
+        let c = Config::from_toml(&format!("[log]\nlevel = \"{ok}\"\n"));
+        assert!(c.is_ok(), "{ok}: {c:?}");
+    }
+    let mut c = Config::default();
+    let e = c
+        .apply_env(|k| (k == "GATEWATCH_LOG_LEVEL").then(|| "inf".to_string()))
+        .unwrap_err();
+    assert!(
+        e.message
+            .starts_with("GATEWATCH_LOG_LEVEL: `inf` is not a level"),
+        "{e}"
+    );
+    assert_eq!(c.log.level, "info");
+}
+
 /// `GATEWATCH_TCP_ALLOWED_NETWORKS` sets the allow-list (comma-separated, validated), and a
 /// TCP listener beyond loopback with a loopback-only list warns: the Dockerfile's own example
 /// (`GATEWATCH_TCP_LISTEN=0.0.0.0:8094` alone) refused every client through the published port.
@@ -161,10 +210,13 @@ fn tcp_allowed_networks_from_the_environment_and_the_loopback_only_warning() {
         .unwrap();
     assert!(warned(&c), "{:?}", c.warnings());
     c.apply_env(|k| {
-        (k == "GATEWATCH_TCP_ALLOWED_NETWORKS").then(|| " 172.16.0.0/12, ::1/128,".to_string())
+        (k == "GATEWATCH_TCP_ALLOWED_NETWORKS").then(|| " 10.20.0.0/16, 172.17.0.1,".to_string())
     })
     .unwrap();
-    assert_eq!(c.server.tcp_allowed_networks, ["172.16.0.0/12", "::1/128"]);
+    assert_eq!(
+        c.server.tcp_allowed_networks,
+        ["10.20.0.0/16", "172.17.0.1"]
+    );
     assert!(!warned(&c), "{:?}", c.warnings());
     let e = c
         .apply_env(|k| (k == "GATEWATCH_TCP_ALLOWED_NETWORKS").then(|| "10.0.0/8".to_string()))
