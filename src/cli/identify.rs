@@ -54,13 +54,13 @@ pub struct IdentifyArgs {
     /// Seed of the train/test split.
     #[arg(long, default_value_t = 1)]
     split_seed: u64,
-    /// DE population size.
+    /// DE population size (4 to 10000: each member costs an integration per generation).
     #[arg(long, default_value_t = 50)]
     population: usize,
-    /// DE generations.
+    /// DE generations (at most 100000).
     #[arg(long, default_value_t = 120)]
     generations: usize,
-    /// Independent runs.
+    /// Independent runs (1 to 1000).
     #[arg(long, default_value_t = 1)]
     runs: usize,
     /// Seed of the first run.
@@ -397,6 +397,7 @@ fn in_flags(e: IdentifyError) -> String {
         "initial" => return "--y0 and --v0 must be finite numbers".to_string(),
         "train_fraction" => "--train-fraction",
         "population" => "--population",
+        "generations" => "--generations",
         "runs" => "--runs",
         "rtol" => "--rtol",
         "test_rtol" => "--test-rtol",
