@@ -116,7 +116,8 @@ pub struct IdentifyArgs {
     /// Print exactly one JSON object on stdout.
     #[arg(long)]
     json: bool,
-    /// Write pictures of the result into DIR (created if needed): fit, phase, convergence.
+    /// Write pictures of the result into DIR (created if needed): fit, phase, convergence,
+    /// damping and, for force signals, hysteresis.
     #[arg(long, value_name = "DIR")]
     plot: Option<PathBuf>,
     /// Format of the --plot pictures: svg or png.
