@@ -53,6 +53,12 @@ const POINTS_PER_PERIOD: usize = 50;
 /// (`POINTS_PER_PERIOD` a period: 40 MB at the bound), and `--periods 1e12` asked for 400 TB.
 pub const MAX_PERIODS: f64 = 100_000.0;
 
+/// Most Monte Carlo samples (trials) of a map. Why: a trial over the default 10 periods takes
+/// about 10 µs (10^6 trials: 10 s on two cores), but its cost grows with the horizon (up to
+/// [`MAX_PERIODS`] periods), and each trial is a line of the CSV and a marker of the picture
+/// (about 90 bytes of SVG: 90 MB at the bound). `--samples 1e8` ran for hours without a word.
+pub const MAX_SAMPLES: usize = 1_000_000;
+
 /// A ranged coefficient: `c{index+1}` drawn uniformly from `[min, max]`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Range {
@@ -88,7 +94,7 @@ pub struct MapSpec {
     pub periods: f64,
     /// Horizon instead of `periods` periods.
     pub t_end: Option<f64>,
-    /// Monte Carlo samples.
+    /// Monte Carlo samples (1 to [`MAX_SAMPLES`]).
     pub samples: usize,
     /// Seed of the sample stream.
     pub seed: u64,
@@ -272,6 +278,12 @@ fn check(model: &Model, spec: &MapSpec) -> Result<Vec<f64>, StabilityError> {
     }
     if spec.samples == 0 {
         return option("--samples must be at least 1".to_string());
+    }
+    if spec.samples > MAX_SAMPLES {
+        return option(format!(
+            "--samples must be at most {MAX_SAMPLES}, got {}",
+            spec.samples
+        ));
     }
     if !(spec.y0.is_finite() && spec.v0.is_finite()) {
         return option("--y0 and --v0 must be finite".to_string());

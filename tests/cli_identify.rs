@@ -1271,9 +1271,40 @@ fn a_model_that_cannot_be_simulated_is_refused_not_reported() {
         let args: Vec<&str> = args.iter().map(String::as_str).collect();
         bad(
             &args,
-            &[&data, "the model could not be simulated on this data"],
+            &[
+                &data,
+                "the model could not be simulated on this data",
+                // the input is named first: the sample rate the times imply, in seconds
+                "the times imply a sample rate of",
+                "they must be in seconds",
+                "else the equation: a division by zero",
+            ],
         );
     }
+    // An absurd stiffness is an input problem, and the hint says so with the number.
+    let gate = d.case("gate_example");
+    bad(
+        &[
+            "identify",
+            "--input",
+            &gate,
+            "--signal",
+            "force",
+            "--stiffness",
+            "1e300",
+            "--model",
+            "c1*ydd + (c2 + c3*yd^2)*yd + k*y = 0",
+            "--generations",
+            "5",
+            "--population",
+            "10",
+        ],
+        &[
+            &gate,
+            "the model could not be simulated on this data",
+            "--stiffness/--param k=1e300 is far outside a physical size",
+        ],
+    );
 }
 
 /// Semicolon- and tab-separated files and other encodings are explained, with the file and

@@ -448,6 +448,34 @@ fn force_pictures_show_the_whole_force_a_zoom_with_its_residual_and_the_data() {
     let svg = read("fit.svg");
     let labels: Vec<String> = texts(&svg).into_iter().map(|t| t.1).collect();
     assert!(labels.iter().any(|t| t.ends_with("(zoom)")), "{labels:?}");
+    // The zoom ends before the last half second, where the centred moving average (1 s by
+    // default) is truncated and the data carry its lag: it ended at the last sample, where
+    // the residual jumped from ~0 to +6 N. Its title says the unit of its times.
+    let t_last: f64 = std::fs::read_to_string(&data)
+        .unwrap()
+        .lines()
+        .last()
+        .and_then(|l| l.split(',').next()?.parse().ok())
+        .unwrap();
+    let title = labels.iter().find(|t| t.ends_with("(zoom)")).unwrap();
+    let end: f64 = title
+        .split(" to ")
+        .nth(1)
+        .and_then(|r| r.strip_suffix(" s (zoom)"))
+        .and_then(|v| v.parse().ok())
+        .unwrap_or_else(|| panic!("{title}"));
+    assert!(end <= t_last - 0.45, "the zoom ends at {end} of {t_last}");
+    assert!(labels.iter().any(|t| t == "residual [N]"), "{labels:?}");
+    assert!(
+        labels
+            .iter()
+            .any(|t| t.starts_with("edges: moving average truncated")),
+        "{labels:?}"
+    );
+    assert!(
+        read("convergence.svg").contains("best training cost (MAE) [N], log scale"),
+        "the cost's unit"
+    );
     assert!(
         labels
             .iter()

@@ -526,3 +526,93 @@ fn benches_refuse_out_of_range_numbers_as_input() {
         assert!(o.stdout.is_empty(), "{args:?} ran: {}", text(&o.stdout));
     }
 }
+
+/// Sizes past their documented bounds are refused at once, naming the flag and the bound (exit
+/// 2): `identify --population 100000000` grew to gigabytes heading for an out-of-memory kill
+/// without a word, `--generations`/`--runs 1e11` aborted on a failed allocation, and
+/// `stability-map --samples 100000000` ran for hours.
+#[test]
+fn absurd_sizes_are_refused_naming_the_flag_and_its_bound() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("d.csv");
+    write_series(&data);
+    let data = data.to_str().unwrap();
+    let identify = |flag: &str, value: &str| {
+        vec![
+            "identify".to_string(),
+            "--input".into(),
+            data.into(),
+            "--model".into(),
+            "ydd + c1*yd + c2*y = 0".into(),
+            flag.into(),
+            value.into(),
+        ]
+    };
+    let owned = |args: &[&str]| args.iter().map(|s| s.to_string()).collect::<Vec<_>>();
+    for (args, needle) in [
+        (
+            identify("--population", "100000000"),
+            "--population must be at most 10000, got 100000000",
+        ),
+        (
+            identify("--generations", "100000000000"),
+            "--generations must be at most 100000, got 100000000000",
+        ),
+        (
+            identify("--runs", "100000000000"),
+            "--runs must be at most 1000, got 100000000000",
+        ),
+        (
+            owned(&[
+                "stability-map",
+                "--model",
+                "ydd + c1*yd + c2*y = 0",
+                "--range",
+                "c1=-1:1",
+                "--range",
+                "c2=0.1:2",
+                "--samples",
+                "100000000",
+            ]),
+            "--samples must be at most 1000000, got 100000000",
+        ),
+        (
+            owned(&["bench", "seed-cases", "--runs", "100000"]),
+            "--runs must be at most 1000, got 100000",
+        ),
+        (
+            owned(&["bench", "gate-example", "--population", "100000"]),
+            "--population must be at most 10000, got 100000",
+        ),
+        (
+            owned(&["bench", "gate-example", "--generations", "1000000"]),
+            "--generations must be at most 100000, got 1000000",
+        ),
+    ] {
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        let o = gw(&args);
+        let err = text(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {err}");
+        assert!(err.contains(needle), "{args:?}: {err}");
+        assert_eq!(err.trim_end().lines().count(), 1, "{args:?}: {err}");
+        assert!(o.stdout.is_empty(), "{args:?} ran: {}", text(&o.stdout));
+    }
+    // A size within its bound still runs (checked on the cheapest command).
+    let o = gw(&[
+        "stability-map",
+        "--model",
+        "ydd + c1*yd + c2*y = 0",
+        "--range",
+        "c1=-1:1",
+        "--range",
+        "c2=0.1:2",
+        "--samples",
+        "1000",
+    ]);
+    assert_eq!(o.status.code(), Some(0), "{}", text(&o.stderr));
+    // The daemon's configuration is held to the same bounds when it is loaded.
+    config_error(
+        "[defaults]\npopulation = 100000\n",
+        &["population", "must be <= 10000"],
+    );
+}

@@ -612,6 +612,23 @@ fn bad_settings_are_errors_naming_the_field_not_a_flag() {
     let m = message(bad.validate().unwrap_err());
     assert!(m.starts_with("refine_substeps "), "{m}");
     assert!(Search::default().with_population(4).is_ok());
+    // The upper bounds, named in the library's terms too.
+    let m = message(
+        Search::default()
+            .with_population(identify::MAX_POPULATION + 1)
+            .unwrap_err(),
+    );
+    assert_eq!(m, "population must be at most 10000, got 10001");
+    assert!(Search::default()
+        .with_population(identify::MAX_POPULATION)
+        .is_ok());
+    let m = message(Protocol::default().with_runs(1001, 1).unwrap_err());
+    assert_eq!(m, "runs must be at most 1000, got 1001");
+    let long = Search {
+        generations: identify::MAX_GENERATIONS + 1,
+        ..Search::default()
+    };
+    assert!(message(long.validate().unwrap_err()).starts_with("generations must be at most"));
 
     let c = case("van_der_pol_2");
     let (model, data) = (c.compiled().unwrap(), c.generate().unwrap());

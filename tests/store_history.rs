@@ -34,7 +34,7 @@ fn record(gate: &str, i: usize) -> IdentificationRecord {
         equation: format!("ydd + {:.5}*yd + 88.8*y = 0", 2.0 * z * 9.42),
         coefficients: vec![("c1".into(), 2.0 * z * 9.42), ("c3".into(), 88.8)],
         damping: serde_json::json!({"zeta0": z, "zeta0_interval": [z - 0.004, z + 0.004],
-            "trusted": true, "frequency_hz": 1.5}),
+            "trusted": i % 10 != 5, "frequency_hz": 1.5}),
         verdict: if z < 0.0 { "self_excited" } else { "damped" }.into(),
         fit_nmae: 0.03,
         path: "full".into(),
@@ -386,13 +386,36 @@ fn history_plot_draws_the_damping_over_time_from_a_real_database() {
     let t = texts(&svg);
     let has = |s: &str| t.iter().any(|x| x.contains(s));
     // the series and the gate's own thresholds (not the defaults)
-    assert!(has("zeta0 (200 windows)"), "{t:?}");
+    // every tenth window untrusted: off the line, hollow grey circles, named as such
+    assert!(has("zeta0, trusted (180 windows)"), "{t:?}");
+    assert!(
+        has("zeta0, untrusted (20 windows): not fed to the alerts"),
+        "{t:?}"
+    );
+    let hollow = svg
+        .split("<circle ")
+        .skip(1)
+        .filter(|c| c.contains("fill=\"none\"") && c.contains("stroke=\"#5A5A5A\""))
+        .count();
+    assert_eq!(hollow, 20 + 1, "20 windows and the legend's sample");
     assert!(has("95 % interval of zeta0"), "{t:?}");
     assert!(has("fire below -0.2 %"), "{t:?}");
     assert!(has("clear above 0.8 %"), "{t:?}");
     // one verdict change: damped to self_excited where zeta0 crosses 0 (window 67)
     assert!(has("verdict change (1)"), "{t:?}");
     assert!(has("self_excited"), "{t:?}");
+    // the verdict labels stay inside the plot, clear of the legend (upper left): at the
+    // bottom, a label right of the middle ending at its mark
+    let label = svg
+        .split("<text ")
+        .find(|e| e.contains("self_excited"))
+        .expect("the verdict label");
+    let attr = |name: &str| -> f64 {
+        let v = label.split(&format!("{name}=\"")).nth(1).unwrap();
+        v[..v.find('"').unwrap()].parse().unwrap()
+    };
+    assert!(attr("y") > 400.0, "a label at the bottom: {label}");
+    assert!(attr("x") < 980.0, "{label}");
     // the time axis spans the rows: 199 windows of 30 s = 99.5 min, named in its title
     assert!(
         has("min since 2024-05-01T12:00:00Z (to 2024-05-01T13:39:30Z, 200 windows)"),

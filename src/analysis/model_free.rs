@@ -30,16 +30,20 @@ pub const CLEAN_GROWTH_FLOOR: f64 = 1e-9;
 /// uniformly sampled and the average is shorter than the series.
 pub(super) fn preprocess(series: &TimeSeries, opts: &SeriesOptions) -> TimeSeries {
     let mut data = series.clone();
-    let n = series.len();
-    if opts.signal == Signal::Force && opts.moving_average_seconds > 0.0 {
-        if let Some(fs) = series.uniform_step().map(|h| 1.0 / h) {
-            let w = ((opts.moving_average_seconds * fs).round() as usize) | 1;
-            if w > 1 && w < n {
-                crate::spectral::remove_moving_average(&series.y, w, &mut data.y);
-            }
-        }
+    if let Some(w) = moving_average_window(series, opts) {
+        crate::spectral::remove_moving_average(&series.y, w, &mut data.y);
     }
     data
+}
+
+/// The samples of the centred moving average [`preprocess`] removes (odd), when it removes one.
+pub(super) fn moving_average_window(series: &TimeSeries, opts: &SeriesOptions) -> Option<usize> {
+    if opts.signal != Signal::Force || opts.moving_average_seconds <= 0.0 {
+        return None;
+    }
+    let fs = 1.0 / series.uniform_step()?;
+    let w = ((opts.moving_average_seconds * fs).round() as usize) | 1;
+    (w > 1 && w < series.len()).then_some(w)
 }
 
 /// What the model-free analysis of the (pre-processed) window found.

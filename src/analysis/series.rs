@@ -3,7 +3,7 @@
 //! population, the identification, the damping figures and the verdict.
 
 use super::linearisation::{equivalent_damping, limit_cycle, time_to_amplitude, Linearization};
-use super::model_free::{model_free, preprocess, rms_swing, ModelFree};
+use super::model_free::{model_free, moving_average_window, preprocess, rms_swing, ModelFree};
 use super::model_interval::{zeta0_interval, FittedModel};
 use super::population::{initial_population, PopulationInputs, SpectralTarget};
 use super::report::{AmbientZeta, DampingReport, Verdict, Zeta0Source};
@@ -82,6 +82,11 @@ pub struct SeriesAnalysis {
     pub damping: DampingReport,
     /// The data as identified (after pre-processing).
     pub data: TimeSeries,
+    /// Samples at each end of `data` where the centred moving average of the pre-processing
+    /// was truncated (its half width; 0 without one): there the average lags the drift, so
+    /// the data carry an offset the model does not (`spectral::remove_moving_average`). A
+    /// picture of "the last periods" ends before them.
+    pub edge_samples: usize,
     /// The model's output at every sample (displacement or support force).
     pub prediction: Option<Vec<f64>>,
     /// The model's state `[y, yd]` at every sample.
@@ -256,6 +261,7 @@ fn analyze(
     }
     let t0 = series.t[0];
     let data = preprocess(series, opts);
+    let edge_samples = moving_average_window(series, opts).map_or(0, |w| w / 2);
     let free = model_free(&data, history, opts, spectral);
 
     let mut config = opts.identify.clone();
@@ -403,6 +409,7 @@ fn analyze(
         initial: best.initial,
         damping,
         data,
+        edge_samples,
         prediction,
         trajectory,
         linearization: lin,

@@ -2,6 +2,7 @@
 
 use super::{input, opt, CliError};
 use crate::bench;
+use crate::identify::{MAX_GENERATIONS, MAX_POPULATION, MAX_RUNS};
 use clap::Args;
 use serde_json::json;
 use std::io::Write;
@@ -38,6 +39,26 @@ pub struct GateExampleArgs {
 pub(super) fn run(a: GateExampleArgs) -> Result<(), CliError> {
     if a.runs == 0 {
         return Err(input("--runs must be at least 1"));
+    }
+    // The library's bounds (crate::identify::MAX_RUNS and the others say why), checked here
+    // in this command's flags before any run starts.
+    if a.runs > MAX_RUNS {
+        return Err(input(format!(
+            "--runs must be at most {MAX_RUNS}, got {}",
+            a.runs
+        )));
+    }
+    if a.population > MAX_POPULATION {
+        return Err(input(format!(
+            "--population must be at most {MAX_POPULATION}, got {}",
+            a.population
+        )));
+    }
+    if a.generations > MAX_GENERATIONS {
+        return Err(input(format!(
+            "--generations must be at most {MAX_GENERATIONS}, got {}",
+            a.generations
+        )));
     }
     if !(0.0..1.0).contains(&a.noise) {
         return Err(input("--noise must be in [0, 1)"));

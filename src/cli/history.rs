@@ -149,6 +149,12 @@ fn point(r: &IdentificationRecord) -> DampingPoint {
         zeta0: r.zeta0(),
         interval: r.zeta0_interval(),
         verdict: r.verdict.clone(),
+        // An old row without the field was not known to be trusted.
+        trusted: r
+            .damping
+            .get("trusted")
+            .and_then(serde_json::Value::as_bool)
+            .unwrap_or(false),
     }
 }
 

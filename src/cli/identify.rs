@@ -54,13 +54,13 @@ pub struct IdentifyArgs {
     /// Seed of the train/test split.
     #[arg(long, default_value_t = 1)]
     split_seed: u64,
-    /// DE population size.
+    /// DE population size (4 to 10000: each member costs an integration per generation).
     #[arg(long, default_value_t = 50)]
     population: usize,
-    /// DE generations.
+    /// DE generations (at most 100000).
     #[arg(long, default_value_t = 120)]
     generations: usize,
-    /// Independent runs.
+    /// Independent runs (1 to 1000).
     #[arg(long, default_value_t = 1)]
     runs: usize,
     /// Seed of the first run.
@@ -116,7 +116,8 @@ pub struct IdentifyArgs {
     /// Print exactly one JSON object on stdout.
     #[arg(long)]
     json: bool,
-    /// Write pictures of the result into DIR (created if needed): fit, phase, convergence.
+    /// Write pictures of the result into DIR (created if needed): fit, phase, convergence,
+    /// damping and, for force signals, hysteresis.
     #[arg(long, value_name = "DIR")]
     plot: Option<PathBuf>,
     /// Format of the --plot pictures: svg or png.
@@ -300,8 +301,9 @@ pub(super) fn run(a: IdentifyArgs) -> Result<(), CliError> {
     // failed is still reported, with "n/a" and a fit NMAE of inf, and is not called agreeing.)
     if !result.identification.best_run().train_integrated {
         return Err(input(format!(
-            "{}: the model could not be simulated on this data: no trial of the identification integrated over the record (check the equation for a division by zero or a vanishing factor of ydd)",
-            a.input.display()
+            "{}: the model could not be simulated on this data: no trial of the identification integrated over the record; {}",
+            a.input.display(),
+            not_integrated_hint(&series, &params)
         )));
     }
     let mut out = std::io::stdout().lock();
@@ -397,6 +399,7 @@ fn in_flags(e: IdentifyError) -> String {
         "initial" => return "--y0 and --v0 must be finite numbers".to_string(),
         "train_fraction" => "--train-fraction",
         "population" => "--population",
+        "generations" => "--generations",
         "runs" => "--runs",
         "rtol" => "--rtol",
         "test_rtol" => "--test-rtol",
@@ -405,4 +408,44 @@ fn in_flags(e: IdentifyError) -> String {
         _ => return e.to_string(),
     };
     format!("{flag} {reason}")
+}
+
+/// What to check when no trial integrated: the input first (a time column in milliseconds
+/// makes every period a thousand times longer than the solver's step budget; a stiffness of
+/// 1e300 overflows the state), then the equation. Said with the numbers: the sample rate and
+/// length the times imply, and the known constants far from any physical size.
+fn not_integrated_hint(series: &TimeSeries, params: &[(String, f64)]) -> String {
+    let mut steps: Vec<f64> = series.t.windows(2).map(|w| w[1] - w[0]).collect();
+    steps.sort_by(f64::total_cmp);
+    let mut hint = String::from("check the input: ");
+    if let Some(&step) = steps.get(steps.len() / 2) {
+        let span = series.t[series.len() - 1] - series.t[0];
+        hint.push_str(&format!(
+            "the times imply a sample rate of {:.4} Hz over {span:.6} s; they must be in seconds (times in milliseconds make this 1000 times too low)",
+            1.0 / step
+        ));
+    }
+    // Constants whose size no double-precision integration of a gate survives.
+    let extreme: Vec<String> = params
+        .iter()
+        .filter(|(_, v)| *v != 0.0 && !(1e-9..=1e12).contains(&v.abs()))
+        .map(|(n, v)| {
+            let flag = if n == "k" {
+                "--stiffness/--param"
+            } else {
+                "--param"
+            };
+            format!("{flag} {n}={v:e}")
+        })
+        .collect();
+    if !extreme.is_empty() {
+        hint.push_str(&format!(
+            "; {} is far outside a physical size (N/m, kg, N s/m)",
+            extreme.join(", ")
+        ));
+    } else if !params.is_empty() {
+        hint.push_str("; and the sizes of --stiffness/--param against the data");
+    }
+    hint.push_str("; else the equation: a division by zero or a vanishing factor of ydd");
+    hint
 }

@@ -52,6 +52,14 @@ pub(super) fn run(a: SeedCasesArgs) -> Result<(), CliError> {
     if a.runs == 0 {
         return Err(input("--runs must be at least 1"));
     }
+    // The library's bound (crate::identify::MAX_RUNS says why), checked before any case runs.
+    if a.runs > crate::identify::MAX_RUNS {
+        return Err(input(format!(
+            "--runs must be at most {}, got {}",
+            crate::identify::MAX_RUNS,
+            a.runs
+        )));
+    }
     if !matches!(a.lanes, 1 | 4 | 8) {
         return Err(input("--lanes must be 1, 4 or 8"));
     }

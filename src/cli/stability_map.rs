@@ -43,7 +43,7 @@ pub struct StabilityMapArgs {
         allow_negative_numbers = true
     )]
     t_end: Option<f64>,
-    /// Monte Carlo samples.
+    /// Monte Carlo samples (1 to 1000000: each is a trial, a CSV line and a marker).
     #[arg(long, default_value_t = 6000)]
     samples: usize,
     /// Seed of the samples.

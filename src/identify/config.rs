@@ -16,13 +16,32 @@ use crate::model::Model;
 use crate::ode::Method;
 use serde::Serialize;
 
+/// Largest DE population [`Search::validate`] accepts. Why: the DE keeps about 150 bytes per
+/// member (its coordinates twice, the trial, the cost, its own `F` and `CR`), so memory is not
+/// the limit here (1.5 MB), but time is: every member costs one integration over the training
+/// samples per generation, and 10 000 members over the default 120 generations are 1.2 million
+/// integrations, a minute on a 2000-sample record on one core. The chapter uses 20 to 200; a
+/// population of 10^8 (a typo) allocated gigabytes and ran toward an out-of-memory kill.
+pub const MAX_POPULATION: usize = 10_000;
+
+/// Most DE generations [`Search::validate`] accepts. Why: the convergence history is allocated
+/// up front (8 bytes a generation: `--generations 1e11` aborted on an 800 GB allocation), and a
+/// generation costs a population's integrations, so 10^5 generations of the default 50 members
+/// is already hours on a long record. The chapter uses 120 to 250.
+pub const MAX_GENERATIONS: usize = 100_000;
+
+/// Most independent runs [`Protocol::validate`] accepts. Why: each run is a whole search
+/// (seconds to minutes) and its result is kept for the report (`--runs 1e11` aborted on a 13 TB
+/// allocation); the chapter's protocol uses 25.
+pub const MAX_RUNS: usize = 1_000;
+
 /// How one DE run searches: population, generations, the fitness solver, the polish, the
 /// continuation. [`Search::default`] is the chapter's settings with the improvements on.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Search {
-    /// DE population size (at least 4).
+    /// DE population size (4 to [`MAX_POPULATION`]).
     pub population: usize,
-    /// DE generations.
+    /// DE generations (at most [`MAX_GENERATIONS`]).
     pub generations: usize,
     /// Solver used in the fitness.
     pub solver: Method,
@@ -99,6 +118,21 @@ impl Search {
         if self.population < 4 {
             return Err(invalid("population", "must be at least 4"));
         }
+        if self.population > MAX_POPULATION {
+            return Err(invalid(
+                "population",
+                format!("must be at most {MAX_POPULATION}, got {}", self.population),
+            ));
+        }
+        if self.generations > MAX_GENERATIONS {
+            return Err(invalid(
+                "generations",
+                format!(
+                    "must be at most {MAX_GENERATIONS}, got {}",
+                    self.generations
+                ),
+            ));
+        }
         tolerance("rtol", self.rtol)?;
         tolerance("refine_rtol", self.refine_rtol)?;
         if self.substeps == 0 || self.substeps > 1000 {
@@ -157,7 +191,7 @@ impl Search {
 /// with seed 1 on a half split.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Protocol {
-    /// Independent runs (seeds `seed`, `seed + 1`, ...), at least 1.
+    /// Independent runs (seeds `seed`, `seed + 1`, ...), 1 to [`MAX_RUNS`].
     pub runs: usize,
     /// Seed of the first run.
     pub seed: u64,
@@ -200,6 +234,12 @@ impl Protocol {
         }
         if self.runs == 0 {
             return Err(invalid("runs", "must be at least 1"));
+        }
+        if self.runs > MAX_RUNS {
+            return Err(invalid(
+                "runs",
+                format!("must be at most {MAX_RUNS}, got {}", self.runs),
+            ));
         }
         tolerance("test_rtol", self.test_rtol)
     }

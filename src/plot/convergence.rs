@@ -7,6 +7,8 @@ struct ConvergenceFigure<'a> {
     history: &'a [f64],
     /// The training cost after the polish, drawn one step after the last generation.
     polished: Option<f64>,
+    /// Unit of the cost (the data's), when known.
+    unit: Option<&'a str>,
 }
 
 impl Figure for ConvergenceFigure<'_> {
@@ -29,6 +31,15 @@ impl Figure for ConvergenceFigure<'_> {
             (n.max(2) - 1) as f64
         };
         let title = "Differential evolution: convergence";
+        // The cost is a mean absolute error of the data, so it has their unit.
+        let cost = match self.unit {
+            Some(u) if !u.is_empty() => format!("best training cost (MAE) [{u}]"),
+            _ => "best training cost (MAE, unit of the data)".to_string(),
+        };
+        let unit = self
+            .unit
+            .filter(|u| !u.is_empty())
+            .map_or(String::new(), |u| format!(" {u}"));
         let x_desc = if self.polished.is_some() {
             "generation (last point: after the polish)"
         } else {
@@ -45,7 +56,7 @@ impl Figure for ConvergenceFigure<'_> {
             chart
                 .configure_mesh()
                 .x_desc(x_desc)
-                .y_desc("best training cost (MAE)")
+                .y_desc(cost.as_str())
                 .label_style((FONT, LABEL_SIZE))
                 .axis_desc_style((FONT, DESC_SIZE))
                 .draw()?;
@@ -84,7 +95,7 @@ impl Figure for ConvergenceFigure<'_> {
         chart
             .configure_mesh()
             .x_desc(x_desc)
-            .y_desc("best training cost (MAE), log scale")
+            .y_desc(format!("{cost}, log scale"))
             .y_label_formatter(&fmt)
             .x_label_formatter(&generation)
             .label_style((FONT, LABEL_SIZE))
@@ -132,7 +143,9 @@ impl Figure for ConvergenceFigure<'_> {
             ))?;
             chart
                 .draw_series([Circle::new(at, 6, GREEN.filled())])?
-                .label(format!("after the polish: {p:.3e} (the training error)"))
+                .label(format!(
+                    "after the polish: {p:.3e}{unit} (the training error)"
+                ))
                 .legend(|(x, y)| Circle::new((x + 10, y), 5, GREEN.filled()));
         }
         if has_zero {
@@ -156,9 +169,22 @@ impl Figure for ConvergenceFigure<'_> {
 /// marked floor below the smallest positive cost; if every cost is 0 the scale is linear.
 /// `polished`, the training cost after the local polish of the DE winner, is drawn one step
 /// after the last generation, so the curve ends at the training error the run reports.
-pub fn convergence(path: &Path, history: &[f64], polished: Option<f64>) -> Result<(), PlotError> {
+/// `unit` is the data's (the cost is their mean absolute error), when known.
+pub fn convergence(
+    path: &Path,
+    history: &[f64],
+    polished: Option<f64>,
+    unit: Option<&str>,
+) -> Result<(), PlotError> {
     if history.is_empty() {
         return Err(no_data(path, "the convergence history is empty"));
     }
-    render(path, &ConvergenceFigure { history, polished })
+    render(
+        path,
+        &ConvergenceFigure {
+            history,
+            polished,
+            unit,
+        },
+    )
 }

@@ -15,6 +15,9 @@ pub struct DampingPoint {
     pub interval: Option<(f64, f64)>,
     /// The window's verdict (`damped`, `self_excited`, ...).
     pub verdict: String,
+    /// Whether the window's report was trusted (it fed the alerts). Untrusted windows are drawn
+    /// apart: hollow grey circles, off the zeta0 line and its band.
+    pub trusted: bool,
 }
 
 /// The alert rule's thresholds on zeta0 (`[defaults.alert]` or the gate's).
@@ -80,8 +83,10 @@ impl Figure for HistoryFigure<'_> {
             .map(pct)
             .collect();
         let (y0, y1) = span(&values);
-        // room above the data for the legend and the verdict labels
-        let y1 = y1 + 0.3 * (y1 - y0);
+        // room above the data for the legend, and below it for the verdict labels (at the top
+        // they were hidden under the legend)
+        let h = y1 - y0;
+        let (y0, y1) = (y0 - 0.1 * h, y1 + 0.3 * h);
         let caption = format!("Damping of gate {} over time", self.gate);
         let mut chart = ChartBuilder::on(root)
             .caption(&caption, (FONT, TITLE_SIZE))
@@ -107,7 +112,7 @@ impl Figure for HistoryFigure<'_> {
         // the band: one polygon per run of consecutive windows with an interval
         let mut runs: Vec<Vec<(f64, (f64, f64))>> = Vec::new();
         let mut open = false;
-        for q in p {
+        for q in p.iter().filter(|q| q.trusted) {
             match q.interval {
                 Some((a, b)) if a.is_finite() && b.is_finite() => {
                     if !open {
@@ -128,7 +133,7 @@ impl Figure for HistoryFigure<'_> {
                 let lower = r.iter().rev().map(|(t, (a, _))| (*t, *a));
                 Polygon::new(upper.chain(lower).collect::<Vec<_>>(), band.filled())
             }))?
-            .label("95 % interval of zeta0")
+            .label("95 % interval of zeta0 (trusted windows)")
             .legend(move |(x, y)| Rectangle::new([(x, y - 6), (x + 20, y + 6)], band.filled()));
         chart.draw_series(LineSeries::new([(x0, 0.0), (x1, 0.0)], GREY))?;
         if let Some(t) = self.thresholds {
@@ -155,22 +160,41 @@ impl Figure for HistoryFigure<'_> {
                     PathElement::new(vec![(x, y), (x + 20, y)], GREEN.stroke_width(2))
                 });
         }
-        let zeta: Vec<(f64, f64)> = p
-            .iter()
-            .filter_map(|q| {
-                q.zeta0
-                    .filter(|z| z.is_finite())
-                    .map(|z| (x(q.time), pct(z)))
-            })
-            .collect();
-        let (xs, ys): (Vec<f64>, Vec<f64>) = zeta.iter().copied().unzip();
+        // zeta0 of the trusted windows as a line (the alerts' input), the untrusted ones as
+        // hollow grey circles off it: drawn alike, a window the daemon ignored read as evidence.
+        let zeta = |trusted: bool| -> Vec<(f64, f64)> {
+            p.iter()
+                .filter(|q| q.trusted == trusted)
+                .filter_map(|q| {
+                    q.zeta0
+                        .filter(|z| z.is_finite())
+                        .map(|z| (x(q.time), pct(z)))
+                })
+                .collect()
+        };
+        let (trusted, untrusted) = (zeta(true), zeta(false));
+        let (xs, ys): (Vec<f64>, Vec<f64>) = trusted.iter().copied().unzip();
         chart
             .draw_series(LineSeries::new(
                 thin(&xs, &ys, (x0, x1), (y0, y1)),
                 BLUE.stroke_width(2),
             ))?
-            .label(format!("zeta0 ({} windows)", zeta.len()))
+            .label(if untrusted.is_empty() {
+                format!("zeta0 ({} windows)", trusted.len())
+            } else {
+                format!("zeta0, trusted ({} windows)", trusted.len())
+            })
             .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLUE.stroke_width(2)));
+        if !untrusted.is_empty() {
+            let hollow = GREY.stroke_width(1);
+            chart
+                .draw_series(untrusted.iter().map(|&q| Circle::new(q, 4, hollow)))?
+                .label(format!(
+                    "zeta0, untrusted ({} windows): not fed to the alerts",
+                    untrusted.len()
+                ))
+                .legend(move |(x, y)| Circle::new((x + 10, y), 4, hollow));
+        }
         // verdict changes: a vertical mark, labelled with the new verdict
         let changes: Vec<(f64, &str)> = p
             .windows(2)
@@ -178,6 +202,7 @@ impl Figure for HistoryFigure<'_> {
             .map(|w| (x(w[1].time), w[1].verdict.as_str()))
             .collect();
         let top = y1 - 0.04 * (y1 - y0);
+        let bottom = y0 + 0.015 * (y1 - y0);
         chart
             .draw_series(
                 changes
@@ -187,11 +212,22 @@ impl Figure for HistoryFigure<'_> {
             .label(format!("verdict change ({})", changes.len()))
             .legend(|(x, y)| PathElement::new(vec![(x + 10, y - 8), (x + 10, y + 8)], GREY));
         if changes.len() <= MAX_VERDICT_LABELS {
+            // At the bottom, beside the mark: to its right in the left half, to its left in the
+            // right half, so a change near the end is not clipped at the plot's edge.
+            use plotters::style::text_anchor::{HPos, Pos, VPos};
+            let mid = 0.5 * (x0 + x1);
             chart.draw_series(changes.iter().map(|(t, v)| {
+                let (h, text) = if *t <= mid {
+                    (HPos::Left, format!(" {v}"))
+                } else {
+                    (HPos::Right, format!("{v} "))
+                };
                 Text::new(
-                    v.to_string(),
-                    (*t, top),
-                    (FONT, LABEL_SIZE - 4).into_font().color(&GREY),
+                    text,
+                    (*t, bottom),
+                    TextStyle::from((FONT, LABEL_SIZE - 4).into_font())
+                        .color(&GREY)
+                        .pos(Pos::new(h, VPos::Bottom)),
                 )
             }))?;
         }
@@ -199,8 +235,8 @@ impl Figure for HistoryFigure<'_> {
     }
 }
 
-/// Damping over time for gate `gate`: zeta0 (percent) of each window against its end time,
-/// the 95 % interval as a band, the alert thresholds as dashed lines when known, a mark at
+/// Damping over time for gate `gate`: zeta0 (percent) of each trusted window against its end
+/// time as a line, untrusted windows as hollow grey circles, the 95 % interval as a band, the alert thresholds as dashed lines when known, a mark at
 /// each verdict change. `points` oldest first. The x axis counts from the first window (in s,
 /// min or h, by the span), and its title names the first and last window ends in RFC 3339.
 pub fn damping_history(

@@ -70,13 +70,14 @@ pub fn prepare_dir(dir: &Path) -> Result<(), PlotError> {
 /// The pictures of an identification, written into `dir` (created if needed), with `format`'s
 /// extension; returns the files written:
 /// - `fit`: the data with the model. Displacement: the whole record, training and test samples
-///   apart, the model as a line. Force: a zoom on the last few periods (samples and model) above
-///   the residual over the whole record.
+///   apart, the model as a line. Force: a zoom on the last few periods before the edge samples
+///   the moving average spoils (samples and model) above the residual over the whole record,
+///   those edges shaded.
 /// - `phase`: the model's phase plane, with the states estimated from the data beside it
 ///   (displacement: `y` and its central difference; force: `F/k`, the quasi-static deflection the
 ///   pre-run starts from, and its central difference).
 /// - `hysteresis` (force): the whole support force against the deflection over the last three
-///   periods, measured and model: the chapter's Figure 8.15, whose area is the energy fed in per
+///   periods before those edges, measured and model: the chapter's Figure 8.15, whose area is the energy fed in per
 ///   cycle.
 /// - `damping`: the model's equivalent damping ratio `zeta_eq(A)` over the amplitudes the window
 ///   visited (the report's `zeta_eq_curve`), when the model is an oscillator at rest.
@@ -105,6 +106,16 @@ pub fn identification(
     // at most) so its curves are smooth where the samples are sparse.
     let points = (series.len() * 8).clamp(2000, 20_000);
     let (mt, my, myd) = trajectory(model, c, best.initial, t0, t1, points);
+    // The last periods of the record are drawn from before the edge samples whose centred
+    // moving average was truncated (`SeriesAnalysis::edge_samples`): there the data carry the
+    // average's lag as an offset, and the zoom showed a residual of ~0 jump to +6 N and the
+    // loop's measured points 1 to 8 N above the model's.
+    let edge = analysis.edge_samples;
+    let (v0, v1) = if series.len() > 2 * edge + 1 {
+        (series.t[edge], series.t[series.len() - 1 - edge])
+    } else {
+        (t0, t1)
+    };
     let period = analysis
         .linearization
         .omega0()
@@ -119,11 +130,19 @@ pub fn identification(
                 .zip(my.iter().zip(&myd))
                 .map(|(&t, (&y, &yd))| model.residual(t, y, yd, c))
                 .collect();
-            // Four periods when the period is known and shorter than the record; else a tenth.
-            let width = period.map_or((t1 - t0) / 10.0, |p| (4.0 * p).min(t1 - t0));
-            let zoom = (t1 - width, t1);
+            // Four periods when the period is known and shorter than the reliable part of the
+            // record; else a tenth of it.
+            let width = period.map_or((v1 - v0) / 10.0, |p| (4.0 * p).min(v1 - v0));
+            let zoom = (v1 - width, v1);
             fit_zoom(
-                &fit_path, &series.t, &series.y, predicted, &mt, &force, zoom, units,
+                &fit_path,
+                &series.t,
+                &series.y,
+                predicted,
+                (&mt, &force),
+                zoom,
+                (v0, v1),
+                units,
             )?;
         }
         _ => {
@@ -155,17 +174,18 @@ pub fn identification(
         let data_yd = central_difference(&series.t, &data_y);
         // A force record holds many periods of a slowly changing orbit, which drawn whole fill
         // a disc: show the last three periods, as the hysteresis loop does.
-        let from = match (signal, period) {
+        // (Before the moving average's truncated edge, as the zoom.)
+        let (from, to) = match (signal, period) {
             // Unless the model's trajectory ended early (it diverged): then all of it.
-            (Signal::Force, Some(p)) if mt.last().is_some_and(|&t| t >= t1 - 3.0 * p) => {
-                t1 - 3.0 * p
+            (Signal::Force, Some(p)) if mt.last().is_some_and(|&t| t >= v1 - 3.0 * p) => {
+                (v1 - 3.0 * p, v1)
             }
-            _ => f64::NEG_INFINITY,
+            _ => (f64::NEG_INFINITY, f64::INFINITY),
         };
         let keep = |t: &[f64], a: &[f64]| -> Vec<f64> {
             t.iter()
                 .zip(a)
-                .filter(|(t, _)| **t >= from)
+                .filter(|(t, _)| **t >= from && **t <= to)
                 .map(|(_, v)| *v)
                 .collect()
         };
@@ -178,13 +198,15 @@ pub fn identification(
     }
 
     if let (Signal::Force, Some(period), Some(tr)) = (signal, period, &analysis.trajectory) {
-        // The last three periods: the loop the gate is on now.
-        let from = t1 - 3.0 * period;
+        // The last three periods before the moving average's truncated edge: the loop the gate
+        // is on now.
+        let (from, to) = (v1 - 3.0 * period, v1);
+        let inside = |t: f64| t >= from && t <= to;
         // The model's restoring force at rest: what the velocity-dependent part leaves out.
         let restoring = |t: f64, y: f64| model.residual(t, y, 0.0, c);
         let mut measured = (Vec::new(), Vec::new(), Vec::new());
         for (s, (&t, &f)) in tr.iter().zip(series.t.iter().zip(&series.y)) {
-            if t >= from {
+            if inside(t) {
                 measured.0.push(s[0]);
                 measured.1.push(f);
                 measured.2.push(f - restoring(t, s[0]));
@@ -192,7 +214,7 @@ pub fn identification(
         }
         let mut modelled = (Vec::new(), Vec::new(), Vec::new());
         for (&t, (&y, &yd)) in mt.iter().zip(my.iter().zip(&myd)) {
-            if t >= from {
+            if inside(t) {
                 let f = model.residual(t, y, yd, c);
                 modelled.0.push(y);
                 modelled.1.push(f);
@@ -225,7 +247,11 @@ pub fn identification(
 
     let p = file("convergence");
     let polished = (best.refine_evaluations > 0).then_some(best.train_mae);
-    convergence(&p, &best.history, polished)?;
+    let cost_unit = match signal {
+        Signal::Force => units.force.as_deref(),
+        Signal::Displacement => units.signal.as_deref(),
+    };
+    convergence(&p, &best.history, polished, cost_unit)?;
     written.push(p);
     Ok(written)
 }

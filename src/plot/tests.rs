@@ -71,12 +71,16 @@ fn svg_and_png_files_are_written() {
 fn convergence_with_zero_costs_draws_them_on_a_floor() {
     let dir = tempfile::tempdir().unwrap();
     let p = dir.path().join("c.svg");
-    convergence(&p, &[1e3, 10.0, 0.5, 0.0, 0.0], None).unwrap();
+    convergence(&p, &[1e3, 10.0, 0.5, 0.0, 0.0], None, Some("N")).unwrap();
     let text = std::fs::read_to_string(&p).unwrap();
     assert!(text.contains("log scale") && text.contains("drawn at the floor"));
-    convergence(&p, &[0.0, 0.0], None).unwrap();
-    assert!(!std::fs::read_to_string(&p).unwrap().contains("log scale"));
-    assert!(convergence(&p, &[], None).is_err());
+    // The cost has the data's unit.
+    assert!(text.contains("best training cost (MAE) [N], log scale"));
+    convergence(&p, &[0.0, 0.0], None, None).unwrap();
+    let text = std::fs::read_to_string(&p).unwrap();
+    assert!(!text.contains("log scale"));
+    assert!(text.contains("best training cost (MAE, unit of the data)"));
+    assert!(convergence(&p, &[], None, None).is_err());
 }
 
 #[test]

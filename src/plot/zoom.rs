@@ -12,6 +12,8 @@ struct ZoomFigure<'a> {
     model_t: &'a [f64],
     model_y: &'a [f64],
     zoom: (f64, f64),
+    /// The part of the record the pre-processing left reliable; the rest is shaded.
+    valid: (f64, f64),
     units: &'a Units,
 }
 
@@ -47,7 +49,13 @@ impl Figure for ZoomFigure<'_> {
         let time_desc = label("time t", self.units.time.as_deref());
         let mut chart = ChartBuilder::on(&top)
             .caption(
-                format!("Measured and identified model, t = {z0:.2} to {z1:.2} (zoom)"),
+                format!(
+                    "Measured and identified model, t = {z0:.2} to {z1:.2}{} (zoom)",
+                    self.units
+                        .time
+                        .as_deref()
+                        .map_or(String::new(), |u| format!(" {u}"))
+                ),
                 (FONT, TITLE_SIZE),
             )
             .margin(20)
@@ -92,7 +100,10 @@ impl Figure for ZoomFigure<'_> {
         chart
             .configure_mesh()
             .x_desc(time_desc.as_str())
-            .y_desc("residual")
+            .y_desc(label(
+                "residual",
+                self.units.force.as_deref().or(self.units.signal.as_deref()),
+            ))
             .x_label_formatter(&tick_format(x0, x1))
             .y_label_formatter(&tick_format(r0, r1))
             .label_style((FONT, LABEL_SIZE))
@@ -104,6 +115,24 @@ impl Figure for ZoomFigure<'_> {
             [(z0, r0), (z1, r1)],
             GREY.mix(0.15).filled(),
         )])?;
+        // The edges where the centred moving average was truncated: the data carry its lag
+        // there, so the residual leaves zero for a reason that is not the model's.
+        let (v0, v1) = self.valid;
+        let edges: Vec<(f64, f64)> = [(x0, v0.max(x0)), (v1.min(x1), x1)]
+            .into_iter()
+            .filter(|(a, b)| b > a)
+            .collect();
+        if !edges.is_empty() {
+            let tint = ORANGE.mix(0.12);
+            chart
+                .draw_series(
+                    edges
+                        .iter()
+                        .map(|&(a, b)| Rectangle::new([(a, r0), (b, r1)], tint.filled())),
+                )?
+                .label("edges: moving average truncated (not fitted to)")
+                .legend(move |(x, y)| Rectangle::new([(x, y - 6), (x + 20, y + 6)], tint.filled()));
+        }
         chart.draw_series(LineSeries::new([(x0, 0.0), (x1, 0.0)], GREY.mix(0.6)))?;
         let pts = thin(self.t, &residual, (x0, x1), (r0, r1));
         chart
@@ -115,17 +144,18 @@ impl Figure for ZoomFigure<'_> {
 }
 
 /// The fit of a long record: the samples (`t`, `measured`) and the model (densely sampled
-/// `model_t`, `model_y`) over `zoom` (a few periods), above the residual `measured -
-/// predicted` (`predicted`: the model at the samples) over the whole record.
+/// `model = (t, y)`) over `zoom` (a few periods), above the residual `measured - predicted`
+/// (`predicted`: the model at the samples) over the whole record, with the times outside
+/// `valid` (where a pre-processing such as a truncated moving average spoils the data) shaded.
 #[allow(clippy::too_many_arguments)]
 pub fn fit_zoom(
     path: &Path,
     t: &[f64],
     measured: &[f64],
     predicted: &[f64],
-    model_t: &[f64],
-    model_y: &[f64],
+    (model_t, model_y): (&[f64], &[f64]),
     zoom: (f64, f64),
+    valid: (f64, f64),
     units: &Units,
 ) -> Result<(), PlotError> {
     if t.is_empty() || t.len() != measured.len() || t.len() != predicted.len() {
@@ -149,6 +179,7 @@ pub fn fit_zoom(
             model_t,
             model_y,
             zoom,
+            valid,
             units,
         },
     )

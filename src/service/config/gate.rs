@@ -75,8 +75,22 @@ impl GateConfig {
         if self.population < 4 {
             return err("population", "must be >= 4");
         }
+        // The library's bounds (crate::identify::MAX_POPULATION says why), refused when the
+        // configuration is loaded rather than by every window's analysis.
+        if self.population > crate::identify::MAX_POPULATION {
+            return err(
+                "population",
+                &format!("must be <= {}", crate::identify::MAX_POPULATION),
+            );
+        }
         if self.generations == 0 {
             return err("generations", "must be > 0");
+        }
+        if self.generations > crate::identify::MAX_GENERATIONS {
+            return err(
+                "generations",
+                &format!("must be <= {}", crate::identify::MAX_GENERATIONS),
+            );
         }
         if let Some(a) = self.amplitude_limit {
             if !(a.is_finite() && a > 0.0) {
