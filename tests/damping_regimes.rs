@@ -122,6 +122,23 @@ fn limit_cycle_envelope_lab_gate() {
     assert!(cov >= 0.9, "coverage {cov}");
 }
 
+/// Near-normal noise of unit variance (a sum of 12 xorshift uniforms), seeded: the sensor noise
+/// of the steady-sine records.
+fn seeded_normal(seed: u64) -> impl FnMut() -> f64 {
+    let mut s = seed;
+    move || {
+        (0..12)
+            .map(|_| {
+                s ^= s << 13;
+                s ^= s >> 7;
+                s ^= s << 17;
+                (s >> 11) as f64 / (1u64 << 53) as f64
+            })
+            .sum::<f64>()
+            - 6.0
+    }
+}
+
 /// A steady sine with sensor noise (a forced vibration, or a cycle no turbulence kicks) is not
 /// a limit cycle whose relaxation can be read: its envelope moves only by the band-pass's
 /// ripple and the noise, which decorrelate within about a period, and the fit read that as
@@ -135,19 +152,7 @@ fn a_steady_sine_with_sensor_noise_has_no_relaxation_to_read() {
         let n = (100.0 / f * rate) as usize;
         let mut sa = SpectralAnalyzer::new(n, rate).unwrap();
         for noise in [0.0, 0.2, 2.0, 10.0] {
-            let mut s = 0x9e37_79b9_7f4a_7c15u64;
-            // a sum of 12 uniforms: near-normal noise of unit variance, seeded
-            let mut normal = || {
-                (0..12)
-                    .map(|_| {
-                        s ^= s << 13;
-                        s ^= s >> 7;
-                        s ^= s << 17;
-                        (s >> 11) as f64 / (1u64 << 53) as f64
-                    })
-                    .sum::<f64>()
-                    - 6.0
-            };
+            let mut normal = seeded_normal(0x9e37_79b9_7f4a_7c15);
             let x: Vec<f64> = (0..n)
                 .map(|i| {
                     let t = i as f64 / rate;
@@ -220,19 +225,11 @@ fn explore_relaxation_floor() {
     for (rate, f) in [(200.0, 10.38), (100.0, 5.03), (50.0, 2.01)] {
         let n = (100.0 / f * rate) as usize;
         for noise in [0.0, 0.2, 2.0, 10.0] {
-            let mut s = 0x2545_f491_4f6c_dd1du64;
+            let mut normal = seeded_normal(0x2545_f491_4f6c_dd1d);
             let x: Vec<f64> = (0..n)
                 .map(|i| {
-                    let u: f64 = (0..12)
-                        .map(|_| {
-                            s ^= s << 13;
-                            s ^= s >> 7;
-                            s ^= s << 17;
-                            (s >> 11) as f64 / (1u64 << 53) as f64
-                        })
-                        .sum::<f64>()
-                        - 6.0;
-                    200.0 * (2.0 * std::f64::consts::PI * f * i as f64 / rate).sin() + noise * u
+                    200.0 * (2.0 * std::f64::consts::PI * f * i as f64 / rate).sin()
+                        + noise * normal()
                 })
                 .collect();
             eprintln!("sine {f} Hz, noise {noise}: {}", floor_of(&x, rate, f));

@@ -209,17 +209,8 @@ impl SimulateArgs {
 /// `--scenario`, with `--noise-abs`/`--noise-rel` sensor noise, seeded with `--seed`. Sample 0
 /// is the scenario's `t = 0`: the named scenarios' warm-up is run and not sent.
 pub fn simulator(args: &SimulateArgs) -> anyhow::Result<crate::simulate::GateSimulator> {
-    let rate = args.effective_rate();
-    anyhow::ensure!(
-        rate > 0.0 && rate.is_finite(),
-        "--rate must be > 0 (or 0 for the preset's rate), got {}",
-        args.rate
-    );
     // before the warm-up, which runs at this rate
-    anyhow::ensure!(
-        rate <= SIMULATE_MAX_RATE_HZ,
-        "--rate must be at most {SIMULATE_MAX_RATE_HZ} Hz, got {rate}"
-    );
+    let rate = checked_rate(args)?;
     let (onset_hold, onset_ramp) = args.onset_shape();
     anyhow::ensure!(
         onset_hold >= 0.0 && onset_hold.is_finite(),
@@ -269,10 +260,9 @@ pub fn simulator(args: &SimulateArgs) -> anyhow::Result<crate::simulate::GateSim
     }
 }
 
-/// Checks the flags of the stream ([`simulate_with_source`], which runs it first); the error
-/// names the flag. `gatewatch simulate` runs it before anything else, so that a bad flag is
-/// refused as input (exit 2), not as a failure of the stream (exit 1).
-pub fn check_stream(args: &SimulateArgs) -> anyhow::Result<()> {
+/// The sample rate of `args` (`--rate`, 0 for the preset's), refused naming `--rate` when it is
+/// not positive and finite or above [`SIMULATE_MAX_RATE_HZ`].
+fn checked_rate(args: &SimulateArgs) -> anyhow::Result<f64> {
     let rate = args.effective_rate();
     anyhow::ensure!(
         rate > 0.0 && rate.is_finite(),
@@ -283,6 +273,14 @@ pub fn check_stream(args: &SimulateArgs) -> anyhow::Result<()> {
         rate <= SIMULATE_MAX_RATE_HZ,
         "--rate must be at most {SIMULATE_MAX_RATE_HZ} Hz, got {rate}"
     );
+    Ok(rate)
+}
+
+/// Checks the flags of the stream ([`simulate_with_source`], which runs it first); the error
+/// names the flag. `gatewatch simulate` runs it before anything else, so that a bad flag is
+/// refused as input (exit 2), not as a failure of the stream (exit 1).
+pub fn check_stream(args: &SimulateArgs) -> anyhow::Result<()> {
+    checked_rate(args)?;
     let duration = args.effective_duration();
     anyhow::ensure!(
         duration > 0.0 && duration.is_finite(),
