@@ -16,6 +16,17 @@ fn text(bytes: &[u8]) -> String {
     String::from_utf8_lossy(bytes).into_owned()
 }
 
+/// `gatewatch ARGS` is refused as input: exit 2, one stderr line holding `needle`, nothing on
+/// stdout (nothing ran).
+fn refused_as_input(args: &[&str], needle: &str) {
+    let o = gw(args);
+    let err = text(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{args:?}: {err}");
+    assert!(err.contains(needle), "{args:?}: {err}");
+    assert_eq!(err.trim_end().lines().count(), 1, "{args:?}: {err}");
+    assert!(o.stdout.is_empty(), "{args:?} ran: {}", text(&o.stdout));
+}
+
 #[test]
 fn a_mistyped_command_gets_the_did_you_mean_hint_and_the_usage() {
     let o = gw(&["identfy", "--input", "x.csv"]);
@@ -271,12 +282,7 @@ fn simulate_refuses_bad_stream_flags_as_input_naming_them() {
             all.extend(["--url", "http://127.0.0.1:9"]);
         }
         all.extend(args);
-        let o = gw(&all);
-        let err = text(&o.stderr);
-        assert_eq!(o.status.code(), Some(2), "{args:?}: {err}");
-        assert!(err.contains(needle), "{args:?}: {err}");
-        assert_eq!(err.trim_end().lines().count(), 1, "{args:?}: {err}");
-        assert!(o.stdout.is_empty(), "{args:?}: {}", text(&o.stdout));
+        refused_as_input(&all, needle);
     }
 }
 
@@ -518,12 +524,7 @@ fn benches_refuse_out_of_range_numbers_as_input() {
             "--rate must be > 0 (or 0 for the preset's rate), got -5",
         ),
     ] {
-        let o = gw(args);
-        let err = text(&o.stderr);
-        assert_eq!(o.status.code(), Some(2), "{args:?}: {err}");
-        assert!(err.contains(needle), "{args:?}: {err}");
-        assert_eq!(err.trim_end().lines().count(), 1, "{args:?}: {err}");
-        assert!(o.stdout.is_empty(), "{args:?} ran: {}", text(&o.stdout));
+        refused_as_input(args, needle);
     }
 }
 
@@ -590,12 +591,7 @@ fn absurd_sizes_are_refused_naming_the_flag_and_its_bound() {
         ),
     ] {
         let args: Vec<&str> = args.iter().map(String::as_str).collect();
-        let o = gw(&args);
-        let err = text(&o.stderr);
-        assert_eq!(o.status.code(), Some(2), "{args:?}: {err}");
-        assert!(err.contains(needle), "{args:?}: {err}");
-        assert_eq!(err.trim_end().lines().count(), 1, "{args:?}: {err}");
-        assert!(o.stdout.is_empty(), "{args:?} ran: {}", text(&o.stdout));
+        refused_as_input(&args, needle);
     }
     // A size within its bound still runs (checked on the cheapest command).
     let o = gw(&[
