@@ -56,12 +56,14 @@ fn servers_installed(bins: &[&str]) -> bool {
     false
 }
 
-fn free_port() -> u16 {
-    TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
+/// `N` distinct free loopback ports. The listeners are all held until every port is chosen, so
+/// the kernel cannot hand the same port out twice (released one by one, two calls could collide,
+/// and a server started on a taken port dies before it is ready).
+fn free_ports<const N: usize>() -> [u16; N] {
+    let held: Vec<TcpListener> = (0..N)
+        .map(|_| TcpListener::bind("127.0.0.1:0").unwrap())
+        .collect();
+    std::array::from_fn(|i| held[i].local_addr().unwrap().port())
 }
 
 /// A child process killed when dropped (a failing assertion must not leave servers behind).
@@ -90,6 +92,31 @@ impl Proc {
         format!("--- {} log ---\n{}", self.name, lines[from..].join("\n"))
     }
 
+    /// Waits up to `timeout` until `ready` holds. Fails at once, with the server's log, when the
+    /// server exits (a port taken, a bad flag), and with the log on a timeout.
+    fn wait_ready(&mut self, timeout: Duration, mut ready: impl FnMut() -> bool) {
+        let deadline = Instant::now() + timeout;
+        loop {
+            if ready() {
+                return;
+            }
+            if let Ok(Some(status)) = self.child.try_wait() {
+                panic!(
+                    "{} exited ({status}) before it was ready\n{}",
+                    self.name,
+                    self.log_tail()
+                );
+            }
+            assert!(
+                Instant::now() < deadline,
+                "timed out after {timeout:?} waiting for {} to be ready\n{}",
+                self.name,
+                self.log_tail()
+            );
+            std::thread::sleep(Duration::from_millis(250));
+        }
+    }
+
     /// SIGTERM, then wait up to `grace` for a clean exit (SIGKILL after).
     fn terminate(&mut self, grace: Duration) -> bool {
         let _ = Command::new("kill")
@@ -115,8 +142,8 @@ impl Drop for Proc {
     }
 }
 
-/// Debian's Alertmanager on `port` (its cluster listener on a free port) with `config`, its data
-/// in `dir`.
+/// Debian's Alertmanager on `port` with `config`, its data in `dir`. Its cluster (gossip)
+/// listener is off: one instance needs no peers, and one port fewer is one race fewer.
 fn spawn_alertmanager(config: &Path, port: u16, dir: &Path) -> Proc {
     Proc::spawn(
         "alertmanager",
@@ -124,10 +151,7 @@ fn spawn_alertmanager(config: &Path, port: u16, dir: &Path) -> Proc {
             .arg(format!("--config.file={}", config.display()))
             .arg(format!("--storage.path={}", dir.join("am-data").display()))
             .arg(format!("--web.listen-address=127.0.0.1:{port}"))
-            .arg(format!(
-                "--cluster.listen-address=127.0.0.1:{}",
-                free_port()
-            )),
+            .arg("--cluster.listen-address="),
         dir,
     )
 }
@@ -304,7 +328,7 @@ fn onset_restart_and_recovery_through_prometheus_and_alertmanager() {
     }
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let (gw, prom, am) = (free_port(), free_port(), free_port());
+    let [gw, prom, am] = free_ports();
     let (hook, seen) = receiver();
 
     // Alertmanager: one route to the test's receiver, resolved notifications on.
@@ -318,10 +342,10 @@ fn onset_restart_and_recovery_through_prometheus_and_alertmanager() {
         ),
     )
     .unwrap();
-    let am_proc = spawn_alertmanager(&d.join("alertmanager.yml"), am, d);
+    let mut am_proc = spawn_alertmanager(&d.join("alertmanager.yml"), am, d);
     std::fs::write(d.join("prometheus.yml"), test_prometheus_yml(gw, am)).unwrap();
     std::fs::write(d.join("gatewatch-rules.yml"), test_rules()).unwrap();
-    let prom_proc = Proc::spawn(
+    let mut prom_proc = Proc::spawn(
         "prometheus",
         Command::new(PROMETHEUS)
             .arg(format!(
@@ -348,13 +372,9 @@ fn onset_restart_and_recovery_through_prometheus_and_alertmanager() {
     let mut gw_proc = serve();
     let ready = |port: u16, path: &str| http_get(port, path).is_some_and(|r| r.0 == 200);
     let up = Duration::from_secs(30);
-    wait_until("gatewatch ready", up, || ready(gw, "/readyz").then_some(()));
-    wait_until("alertmanager ready", up, || {
-        ready(am, "/-/ready").then_some(())
-    });
-    wait_until("prometheus ready", up, || {
-        ready(prom, "/-/ready").then_some(())
-    });
+    gw_proc.wait_ready(up, || ready(gw, "/readyz"));
+    am_proc.wait_ready(up, || ready(am, "/-/ready"));
+    prom_proc.wait_ready(up, || ready(prom, "/-/ready"));
     let logs = || {
         format!(
             "{}\n{}\n{}",
@@ -407,9 +427,7 @@ fn onset_restart_and_recovery_through_prometheus_and_alertmanager() {
     );
     drop(gw_proc);
     gw_proc = serve();
-    wait_until("gatewatch ready again", up, || {
-        ready(gw, "/readyz").then_some(())
-    });
+    gw_proc.wait_ready(up, || ready(gw, "/readyz"));
     let out = simulate(
         gw,
         &[
@@ -541,11 +559,11 @@ fn the_shipped_alertmanager_config_inhibits_the_warning_under_the_critical_alert
     }
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    let am = free_port();
+    let [am] = free_ports();
     let shipped = Path::new(ROOT).join("deploy/alertmanager/alertmanager.yml");
-    let am_proc = spawn_alertmanager(&shipped, am, d);
-    wait_until("Alertmanager ready", Duration::from_secs(30), || {
-        http_get(am, "/-/ready").filter(|(s, _)| *s == 200)
+    let mut am_proc = spawn_alertmanager(&shipped, am, d);
+    am_proc.wait_ready(Duration::from_secs(30), || {
+        http_get(am, "/-/ready").is_some_and(|(s, _)| s == 200)
     });
     let alert = |name: &str, gate: &str, severity: &str| {
         json!({"labels": {"alertname": name, "gate": gate, "severity": severity},
