@@ -9,6 +9,9 @@ use std::f64::consts::PI;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 
+#[path = "cli_identify/compare.rs"]
+mod compare;
+
 const VDP: &str = "ydd + (c1 + c2*y^2)*yd + y = 0";
 const VDP_TRUTH: [f64; 2] = [-1.2218, 1.2218];
 

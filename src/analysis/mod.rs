@@ -20,6 +20,8 @@
 //! - `analyzer`: the daemon's per-gate [`Analyzer`].
 //! - `trend`: the robust weighted trend of `zeta0` over recent windows and its predicted
 //!   crossing of a threshold (the `GateDampingDeclining` warning's evidence).
+//! - `selection`: ranking candidate equations of one record (information criteria and the
+//!   accuracy/complexity front): the seam for structure discovery.
 //! - `early_warning`: the model-free critical-slowing-down indicators (rolling variance, lag-1
 //!   autocorrelation, Kendall tau), the baseline the trend is compared against.
 
@@ -33,6 +35,7 @@ mod model_interval;
 mod pooling;
 mod population;
 mod report;
+mod selection;
 mod series;
 #[cfg(test)]
 mod tests;
@@ -55,6 +58,9 @@ pub use model_interval::{zeta0_interval, FittedModel};
 pub use pooling::{PoolingSettings, ZetaPools};
 pub use population::{biased_population, SpectralTarget};
 pub use report::{AmbientZeta, DampingReport, Verdict, Zeta0Source};
+pub use selection::{
+    correlation_factor, information_criteria, rank, CandidateFit, RankedCandidate,
+};
 pub use series::{
     analyze_series, analyze_series_with, polish_substeps, pre_run, term_scales, track_series_with,
     SeriesAnalysis, SeriesOptions, DAMPING_FORCE_FRACTION, GROWTH_MIN_REACH,

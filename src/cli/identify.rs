@@ -17,9 +17,11 @@ pub struct IdentifyArgs {
     /// CSV file with a header row.
     #[arg(long, value_name = "FILE")]
     input: PathBuf,
-    /// The equation, e.g. 'ydd + (c1 + c2*y^2)*yd + y = 0'.
-    #[arg(long, value_name = "EQUATION")]
-    model: String,
+    /// The equation, e.g. 'ydd + (c1 + c2*y^2)*yd + y = 0'. Repeat it to compare candidate
+    /// structures on the record: each is identified with the same seeds and they are ranked by
+    /// BIC, with the accuracy/complexity front (docs/damping.md, "Which equation").
+    #[arg(long = "model", value_name = "EQUATION", required = true)]
+    models: Vec<String>,
     /// Known initial displacement y(t0) (with --v0).
     #[arg(
         long,
@@ -134,14 +136,48 @@ enum SignalArg {
     Force,
 }
 
-pub(super) fn run(a: IdentifyArgs) -> Result<(), CliError> {
+/// The record and the settings every candidate equation is identified with.
+pub(super) struct Prepared {
+    /// The record as loaded (times as in the file).
+    pub series: TimeSeries,
+    /// The analysis settings.
+    pub opts: SeriesOptions,
+    /// The identification settings (also in `opts`).
+    pub config: Config,
+    /// What the values are.
+    pub signal: Signal,
+}
+
+/// `--param` and, where the equation names `k`, `--stiffness` as the constant `k`.
+fn params_for(a: &IdentifyArgs, equation: &str) -> Vec<(String, f64)> {
     let mut params = a.params.clone();
+    if let Some(k) = a.stiffness {
+        if !params.iter().any(|(n, _)| n == "k") && equation.contains('k') {
+            params.push(("k".to_string(), k));
+        }
+    }
+    params
+}
+
+/// The series an equation is identified on: time counted from the first sample unless the
+/// equation uses `t`. Why: at Unix-epoch times (1.7e9 s) a float holds a time to 2.4e-7 s, and
+/// the analysis lost its precision there (a fit NMAE of 0.5 where the same record from t = 0
+/// fits to 0.01, or a failed test integration). For a model without `t` the shift changes
+/// nothing else; a model with `t` (a forcing `sin(c3*t)`) keeps the file's times, which its
+/// coefficients refer to. No output prints an absolute time.
+pub(super) fn series_for(model: &Model, series: &TimeSeries) -> TimeSeries {
+    let mut series = series.clone();
+    if !model.uses_time() {
+        let t0 = series.t[0];
+        series.t.iter_mut().for_each(|t| *t -= t0);
+    }
+    series
+}
+
+pub(super) fn run(a: IdentifyArgs) -> Result<(), CliError> {
     if let Some(k) = a.stiffness {
         if !(k.is_finite() && k > 0.0) {
             return Err(input("--stiffness must be a positive number"));
-        }
-        if !params.iter().any(|(n, _)| n == "k") && a.model.contains('k') {
-            params.push(("k".to_string(), k));
         }
     }
     let signal = match a.signal {
@@ -177,8 +213,29 @@ pub(super) fn run(a: IdentifyArgs) -> Result<(), CliError> {
             a.time_column
         )));
     }
-    let model = Model::parse(&a.model, &params).map_err(|e| input(format!("model: {e}")))?;
-    let (mut series, lines) =
+    if a.models.len() > 1 && a.plot.is_some() {
+        return Err(input(
+            "--plot draws one equation: compare the candidates first, then run identify with the chosen --model and --plot",
+        ));
+    }
+    // Every equation is parsed before the record is read and before any fit, which can take
+    // minutes: a typo in the third candidate is named at once.
+    let several = a.models.len() > 1;
+    let models = a
+        .models
+        .iter()
+        .enumerate()
+        .map(|(i, eq)| {
+            Model::parse(eq, &params_for(&a, eq)).map_err(|e| {
+                if several {
+                    input(format!("--model {} ('{eq}'): {e}", i + 1))
+                } else {
+                    input(format!("model: {e}"))
+                }
+            })
+        })
+        .collect::<Result<Vec<Model>, CliError>>()?;
+    let (series, lines) =
         TimeSeries::from_csv_with_lines(&a.input, &a.time_column, &a.value_column)
             .map_err(input)?;
     // A force signal's drift removal and spectral analysis need a uniform grid; without one they
@@ -192,15 +249,6 @@ pub(super) fn run(a: IdentifyArgs) -> Result<(), CliError> {
                 describe_departure(&series, &lines, departure)
             )));
         }
-    }
-    // Time counted from the first sample. Why: at Unix-epoch times (1.7e9 s) a float holds a
-    // time to 2.4e-7 s, and the analysis lost its precision there (a fit NMAE of 0.5 where the
-    // same record from t = 0 fits to 0.01, or a failed test integration). For a model without
-    // `t` the shift changes nothing else; a model with `t` (a forcing `sin(c3*t)`) keeps the
-    // file's times, which its coefficients refer to. No output prints an absolute time.
-    if !model.uses_time() {
-        let t0 = series.t[0];
-        series.t.iter_mut().for_each(|t| *t -= t0);
     }
     let (solver, substeps) = match a.solver.as_str() {
         "auto" if signal == Signal::Force && series.uniform_step().is_some() => {
@@ -287,9 +335,27 @@ pub(super) fn run(a: IdentifyArgs) -> Result<(), CliError> {
         check_plot_dir(dir)?;
         crate::plot::prepare_dir(dir).map_err(|e| input(format!("--plot: {e}")))?;
     }
+    let prepared = Prepared {
+        series,
+        opts,
+        config,
+        signal,
+    };
+    if several {
+        return super::compare::run(&a.models, &models, &prepared, a.json, a.input.as_path());
+    }
+    let Prepared {
+        series,
+        opts,
+        config,
+        signal,
+    } = prepared;
+    let model = &models[0];
+    let params = params_for(&a, &a.models[0]);
+    let series = series_for(model, &series);
     let total = (a.runs * a.generations) as u64;
     let bar = progress_bar(total, "identify");
-    let result = analysis::analyze_series(&model, &series, &opts, None, |r, g, _| {
+    let result = analysis::analyze_series(model, &series, &opts, None, |r, g, _| {
         bar.set_position((r * a.generations + g) as u64)
     })
     .map_err(|e| input(format!("{}: {e}", a.input.display())))?;
@@ -308,10 +374,10 @@ pub(super) fn run(a: IdentifyArgs) -> Result<(), CliError> {
     }
     let mut out = std::io::stdout().lock();
     if a.json {
-        let v = identification_json(&model, &result);
+        let v = identification_json(model, &result);
         writeln!(out, "{v}")?;
     } else {
-        write_identification(&mut out, &model, &result, &config, a.max_fit_nmae, signal)?;
+        write_identification(&mut out, model, &result, &config, a.max_fit_nmae, signal)?;
     }
     if let Some(dir) = &a.plot {
         let units = match signal {
@@ -323,7 +389,7 @@ pub(super) fn run(a: IdentifyArgs) -> Result<(), CliError> {
             },
             Signal::Displacement => crate::plot::Units::default(),
         };
-        crate::plot::identification(dir, a.plot_format, &model, &result, signal, &units)
+        crate::plot::identification(dir, a.plot_format, model, &result, signal, &units)
             .map_err(|e| input(format!("--plot: {e}")))?;
     }
     Ok(())

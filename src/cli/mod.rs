@@ -11,6 +11,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use std::io::Write;
 use std::process::ExitCode;
 
+mod compare;
 mod gate_example;
 mod generate;
 mod history;
