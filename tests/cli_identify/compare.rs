@@ -78,6 +78,21 @@ fn a_bad_candidate_is_named_by_its_place_and_plot_takes_one_equation() {
         &["--plot draws one equation"],
     );
     assert!(!plot.exists(), "nothing is drawn");
+    // A candidate that cannot be simulated is listed last, not fitted, with why; the others
+    // are ranked. When none can be, exit 2 naming each.
+    let broken = "ydd + c1*yd + c2*y/(y-y) = 0";
+    let out = ok(&compare_args(&f, &[broken, VDP], &[]));
+    let s = text(&out.stdout);
+    assert!(s.contains(&format!("not fitted: '{broken}'")), "{s}");
+    let rows: Vec<&str> = s
+        .lines()
+        .filter(|l| l.trim_start().starts_with(['1', '2']))
+        .collect();
+    assert!(rows[0].ends_with(VDP) && rows[1].contains("n/a"), "{s}");
+    bad(
+        &compare_args(&f, &[broken, "ydd + c1*yd/(yd-yd) + c2*y = 0"], &[]),
+        &["no candidate could be fitted", broken, "(yd-yd)"],
+    );
     // One --model stays the single identification (its report, not a ranking).
     let out = gw(&compare_args(&f, &[VDP], &[]));
     assert_eq!(out.status.code(), Some(0));
