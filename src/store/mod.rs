@@ -10,7 +10,7 @@
 //!
 //! # Layout
 //! - this file: the trait, the records it keeps, its error type;
-//! - `config`: [`StorageConfig`] (`[storage]`) and the bounds;
+//! - `config`: [`StorageConfig`] (`[storage]`: which backend, where) and the bounds;
 //! - `sqlite`: [`SqliteStore`]: the queries, the pruning and the size bound;
 //! - `nats`: [`NatsStore`]: the history, the alert states and the outbox as JetStream
 //!   streams, called through a small runtime of its own with a timeout;
@@ -34,7 +34,9 @@ mod schema;
 mod sqlite;
 mod writer;
 
-pub use config::{StorageConfig, MAX_HISTORY_LIMIT, MIN_USEFUL_SIZE_MB, STORE_QUEUE_CAPACITY};
+pub use config::{
+    StorageBackend, StorageConfig, MAX_HISTORY_LIMIT, MIN_USEFUL_SIZE_MB, STORE_QUEUE_CAPACITY,
+};
 pub use file::{lock_path, QUICK_CHECK_MAX_BYTES};
 pub use history::{
     history_csv, history_csv_rows, history_json_rows, parse_time, HISTORY_CSV_HEADER,
