@@ -32,7 +32,8 @@
 //!   Prometheus metrics, alert wiring, HTTP API, graceful shutdown, and the `check-config` and
 //!   `simulate` commands.
 //! - [`store`]: the daemon's persistence behind one trait: the SQLite file (history, alert
-//!   state, notification outbox), its writer thread, its size bound, and its lock.
+//!   state, notification outbox), its writer thread, its size bound, and its lock; the same on
+//!   NATS JetStream streams (`store::NatsStore`), for daemons that share their gates.
 //!
 //! Front ends:
 //! - [`cli`]: the command-line interface behind `src/main.rs`.

@@ -20,8 +20,8 @@ use crate::alert::notify::NotifierHandle;
 use crate::alert::{AlertEngine, AlertEvent, GateSnapshot};
 use crate::analysis::WindowAnalysis;
 use crate::store::{
-    IdentificationRecord, NewOutboxRow, SqliteStore, StorageConfig, Store, StoreError, StoreWriter,
-    WriteBatch,
+    IdentificationRecord, NatsOptions, NatsStore, NewOutboxRow, SqliteStore, StorageBackend,
+    StorageConfig, Store, StoreError, StoreWriter, WriteBatch,
 };
 
 /// The store as the daemon holds it.
@@ -47,9 +47,13 @@ impl std::fmt::Debug for Persistence {
 }
 
 impl Persistence {
-    /// Opens the SQLite store at `path` and starts its writer thread. The error names the
-    /// file; there is no in-memory fallback.
+    /// Opens the store of `config.backend` (the SQLite file at `path`, or the NATS server at
+    /// `config.nats_url`) and starts its writer thread. The error names the file or the server;
+    /// there is no in-memory fallback.
     pub fn open(path: &Path, config: &StorageConfig) -> Result<Persistence, StoreError> {
+        if config.backend == StorageBackend::Nats {
+            return Persistence::open_nats(config);
+        }
         let store = Arc::new(SqliteStore::open(path, config.max_size_mb)?);
         tracing::info!(path = %path.display(), "store opened");
         let writer = StoreWriter::start(store.clone(), config.retention(), config.max_history_rows)
@@ -60,6 +64,26 @@ impl Persistence {
         let mut p = Persistence::with(store.clone(), writer);
         p.sqlite = Some(store);
         Ok(p)
+    }
+
+    /// Connects to the NATS store of `config` and starts its writer thread.
+    fn open_nats(config: &StorageConfig) -> Result<Persistence, StoreError> {
+        let options = NatsOptions {
+            prefix: config.nats_prefix.clone(),
+            ..NatsOptions::new(
+                &config.nats_url,
+                config.retention(),
+                config.max_history_rows,
+            )
+        };
+        let store = Arc::new(NatsStore::open(&options)?);
+        tracing::info!(location = %store.location(), "store opened");
+        let writer = StoreWriter::start(store.clone(), config.retention(), config.max_history_rows)
+            .map_err(|e| StoreError::Open {
+                path: store.location(),
+                message: format!("cannot start the writer thread: {e}"),
+            })?;
+        Ok(Persistence::with(store, writer))
     }
 
     /// Wraps any store (tests, another implementation).

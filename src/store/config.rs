@@ -25,10 +25,30 @@ pub const MAX_HISTORY_LIMIT: usize = 20_000;
 /// minutes long: a warning, not a refusal.
 pub const MIN_USEFUL_SIZE_MB: u64 = 16;
 
+/// Which store the daemon keeps its state in (`storage.backend`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum StorageBackend {
+    /// One SQLite file (`storage.path`), for one daemon.
+    #[default]
+    Sqlite,
+    /// JetStream streams on a NATS server (`storage.nats_url`), shared by several daemons.
+    Nats,
+}
+
 /// `[storage]` in the configuration.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct StorageConfig {
+    /// `sqlite` (default): one file, `path`; `nats`: JetStream streams on the server at
+    /// `nats_url`, named with `nats_prefix` (`docs/design.md`, "The NATS store").
+    pub backend: StorageBackend,
+    /// The NATS server of the `nats` backend (default `nats://127.0.0.1:4222`).
+    pub nats_url: String,
+    /// Prefix of the `nats` backend's streams and subjects (default `GATEWATCH`: streams
+    /// `GATEWATCH_HISTORY`, `GATEWATCH_ALERTS`, `GATEWATCH_OUTBOX`); letters, digits, `-` and
+    /// `_`. Daemons that share their gates use the same prefix.
+    pub nats_prefix: String,
     /// The SQLite file (default `gatewatch.db`). A relative path is taken relative to the
     /// directory of the configuration file (the working directory without one), like
     /// Prometheus does. Its directory must exist and be writable (the WAL and shared-memory
@@ -60,6 +80,9 @@ pub struct StorageConfig {
 impl Default for StorageConfig {
     fn default() -> Self {
         StorageConfig {
+            backend: StorageBackend::Sqlite,
+            nats_url: "nats://127.0.0.1:4222".to_string(),
+            nats_prefix: "GATEWATCH".to_string(),
             path: "gatewatch.db".to_string(),
             retention_days: 30.0,
             max_history_rows: 10_000_000,
@@ -75,6 +98,19 @@ impl StorageConfig {
     pub fn validate(&self) -> Result<(), String> {
         if self.path.trim().is_empty() {
             return Err("storage.path: must not be empty".into());
+        }
+        let url = self.nats_url.trim();
+        if url.is_empty() || url.contains(char::is_whitespace) {
+            return Err(format!(
+                "storage.nats_url: {:?} is not a server URL (e.g. nats://127.0.0.1:4222)",
+                self.nats_url
+            ));
+        }
+        if !super::valid_nats_prefix(&self.nats_prefix) {
+            return Err(format!(
+                "storage.nats_prefix: {:?}: letters, digits, '-' and '_' only, not empty",
+                self.nats_prefix
+            ));
         }
         if !(self.retention_days.is_finite() && self.retention_days > 0.0) {
             return Err("storage.retention_days: must be > 0".into());

@@ -2,15 +2,18 @@
 //! notification outbox, behind one small trait, [`Store`].
 //!
 //! The service talks to the trait only, so the embedded implementation ([`SqliteStore`], one
-//! SQLite file in WAL mode) can be replaced by a distributed one (NATS JetStream) without the
-//! alert engine, the notifier or the worker pool knowing. Nothing in the numerical core imports
-//! this module. Why SQLite and WAL, the migrations and the outbox semantics are in
-//! `docs/design.md` ("The store").
+//! SQLite file in WAL mode) can be replaced by a distributed one ([`NatsStore`], NATS
+//! JetStream streams shared by several daemons) without the alert engine, the notifier or the
+//! worker pool knowing. Nothing in the numerical core imports this module. Why SQLite and WAL,
+//! the migrations and the outbox semantics are in `docs/design.md` ("The store"), the NATS
+//! mapping in its "The NATS store".
 //!
 //! # Layout
 //! - this file: the trait, the records it keeps, its error type;
-//! - `config`: [`StorageConfig`] (`[storage]`) and the bounds;
+//! - `config`: [`StorageConfig`] (`[storage]`: which backend, where) and the bounds;
 //! - `sqlite`: [`SqliteStore`]: the queries, the pruning and the size bound;
+//! - `nats`: [`NatsStore`]: the history, the alert states and the outbox as JetStream
+//!   streams, called through a small runtime of its own with a timeout;
 //! - `file`: the store's file on disk: the lock (one daemon per file), the damage check at
 //!   open, the read-only copy's URI;
 //! - `schema`: the schema and its migrations (version 2 clusters a gate's rows and keeps the
@@ -25,15 +28,23 @@
 mod config;
 mod file;
 mod history;
+mod nats;
 mod row;
 mod schema;
 mod sqlite;
 mod writer;
 
-pub use config::{StorageConfig, MAX_HISTORY_LIMIT, MIN_USEFUL_SIZE_MB, STORE_QUEUE_CAPACITY};
+pub use config::{
+    StorageBackend, StorageConfig, MAX_HISTORY_LIMIT, MIN_USEFUL_SIZE_MB, STORE_QUEUE_CAPACITY,
+};
 pub use file::{lock_path, QUICK_CHECK_MAX_BYTES};
 pub use history::{
     history_csv, history_csv_rows, history_json_rows, parse_time, HISTORY_CSV_HEADER,
+};
+pub use nats::{
+    decode as decode_nats_name, encode as encode_nats_name, valid_prefix as valid_nats_prefix,
+    NatsOptions, NatsStore, NATS_RUNTIME_THREADS, OPERATION_TIMEOUT as NATS_OPERATION_TIMEOUT,
+    PRUNE_SCAN_MAX as NATS_PRUNE_SCAN_MAX,
 };
 pub use row::{HistoryRow, CURVE_STORED_DIGITS, CURVE_STORED_POINTS};
 pub use schema::SCHEMA_VERSION;
@@ -94,6 +105,17 @@ pub enum StoreError {
         /// The file.
         path: String,
         /// Why, and what it means for a copy of the file.
+        message: String,
+    },
+    /// The NATS server did not do what was asked: down, silent past the timeout, or refusing
+    /// (`NatsStore`).
+    #[error("storage on NATS server {url}: {operation}: {message}")]
+    Nats {
+        /// The server.
+        url: String,
+        /// What was being done (`write`, `history`, ...).
+        operation: &'static str,
+        /// What the client or the server said.
         message: String,
     },
     /// A stored value does not decode (a row written by a newer or broken version).

@@ -11,6 +11,7 @@
 //! analysis's own points) at 4 significant digits draws the same picture. The figures an
 //! engineer reads (zeta0 and its interval, frequency, growth, fit...) are kept exactly.
 
+use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
 use super::{IdentificationRecord, StoreError};
@@ -21,8 +22,9 @@ pub const CURVE_STORED_POINTS: usize = 9;
 /// Significant digits of the stored curve's numbers (the picture needs 3).
 pub const CURVE_STORED_DIGITS: usize = 4;
 
-/// One stored identification: the summary columns, and the stored JSON as text.
-#[derive(Debug, Clone, PartialEq)]
+/// One stored identification: the summary columns, and the stored JSON as text. Its serde form
+/// is the message the NATS store keeps for it (`nats`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct HistoryRow {
     /// Gate id.
     pub gate: String,
@@ -74,6 +76,30 @@ impl HistoryRow {
             fit_nmae: self.fit_nmae,
             path: self.path,
         })
+    }
+}
+
+/// The row a store keeps for `r`: its damping report compacted ([`compact_damping`]), the
+/// summary taken from the compacted report, the coefficients and the report as JSON text. What
+/// SQLite's columns hold, for a store without columns (`nats`).
+pub(crate) fn stored_row(r: &IdentificationRecord) -> HistoryRow {
+    let damping = compact_damping(&r.damping);
+    let summary = Summary::of(&damping);
+    HistoryRow {
+        gate: r.gate.clone(),
+        time: r.time,
+        window_start: r.window_start,
+        window_end: r.window_end,
+        equation: r.equation.clone(),
+        coefficients: serde_json::to_string(&r.coefficients).unwrap_or_else(|_| "[]".into()),
+        damping: damping.to_string(),
+        verdict: r.verdict.clone(),
+        fit_nmae: r.fit_nmae,
+        path: r.path.clone(),
+        zeta0: summary.zeta0,
+        zeta0_interval: summary.zeta0_low.zip(summary.zeta0_high),
+        frequency_hz: summary.frequency_hz,
+        trusted: summary.trusted,
     }
 }
 

@@ -410,3 +410,21 @@ fn the_shipped_file_shows_every_option() {
         "options not shown in config/gatewatch.toml: {missing:?}"
     );
 }
+
+#[test]
+fn the_storage_backend_and_its_nats_keys_are_checked_naming_the_key() {
+    let c = Config::from_toml(
+        "[storage]\nbackend = \"nats\"\nnats_url = \"nats://10.0.0.5:4222\"\nnats_prefix = \"SITE_2\"\n",
+    )
+    .unwrap();
+    assert_eq!(c.storage.backend, crate::store::StorageBackend::Nats);
+    assert_eq!(c.storage.nats_url, "nats://10.0.0.5:4222");
+    assert_eq!(
+        Config::default().storage.backend,
+        crate::store::StorageBackend::Sqlite
+    );
+    assert!(err("[storage]\nbackend = \"redis\"\n").starts_with("storage.backend"));
+    assert!(err("[storage]\nnats_prefix = \"a.b\"\n").starts_with("storage.nats_prefix"));
+    assert!(err("[storage]\nnats_prefix = \"\"\n").starts_with("storage.nats_prefix"));
+    assert!(err("[storage]\nnats_url = \"\"\n").starts_with("storage.nats_url"));
+}

@@ -1,0 +1,365 @@
+//! The store's operations as they run on its runtime: the connection and the streams at
+//! open, reading a subject through an ephemeral consumer, the write of a batch in its order,
+//! the pruning. Each returns the failure as text; `NatsStore` names the server and the
+//! operation around it.
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use async_nats::jetstream;
+use async_nats::jetstream::consumer::{pull, AckPolicy, DeliverPolicy};
+use async_nats::jetstream::message::PublishMessage as Publish;
+use async_nats::jetstream::stream::{
+    self, DeleteMessageErrorKind, DiscardPolicy, LastRawMessageErrorKind, StorageType,
+};
+use async_nats::jetstream::ErrorCode;
+use futures_util::StreamExt;
+
+use super::super::row::{stored_row, HistoryRow};
+use super::super::{Pruned, WriteBatch};
+use super::names::{decode, encode, Names};
+use super::{ctx, Conn, Failure, NatsOptions, StoredOutbox, FETCH_BATCH, PRUNE_SCAN_MAX};
+
+/// Connects and makes sure the three streams exist with the options' limits.
+pub(super) async fn connect(o: NatsOptions, names: Names) -> Result<Conn, Failure> {
+    let client = async_nats::ConnectOptions::new()
+        .name("gatewatch")
+        .connection_timeout(o.timeout)
+        .connect(o.url.as_str())
+        .await
+        .map_err(|e| format!("cannot connect: {e}"))?;
+    let mut js = jetstream::new(client);
+    js.set_timeout(o.timeout);
+    let history = js
+        .create_or_update_stream(stream::Config {
+            name: names.history.clone(),
+            description: Some("gatewatch: identification history, one subject per gate".into()),
+            subjects: vec![format!("{}.history.*", names.prefix)],
+            max_age: o.retention,
+            max_messages: i64::try_from(o.max_history_rows).unwrap_or(i64::MAX),
+            discard: DiscardPolicy::Old,
+            storage: StorageType::File,
+            ..Default::default()
+        })
+        .await
+        .map_err(|e| format!("stream {}: {e}", names.history))?;
+    let outbox = js
+        .create_or_update_stream(stream::Config {
+            name: names.outbox.clone(),
+            description: Some("gatewatch: undelivered notifications".into()),
+            subjects: vec![format!("{}.outbox.*.*", names.prefix)],
+            storage: StorageType::File,
+            ..Default::default()
+        })
+        .await
+        .map_err(|e| format!("stream {}: {e}", names.outbox))?;
+    // A key-value table as JetStream's KV buckets are underneath: one subject per key, the
+    // newest message of each kept. Not the client's KV API: its bucket creation (0.46) does not
+    // read nats-server 2.9's answer.
+    let alerts = js
+        .create_or_update_stream(stream::Config {
+            name: names.alerts.clone(),
+            description: Some("gatewatch: each gate's alert state, one subject per gate".into()),
+            subjects: vec![format!("{}.alert.*", names.prefix)],
+            max_messages_per_subject: 1,
+            storage: StorageType::File,
+            ..Default::default()
+        })
+        .await
+        .map_err(|e| format!("stream {}: {e}", names.alerts))?;
+    let history = js
+        .get_stream(&history.config.name)
+        .await
+        .map_err(|e| format!("stream {}: {e}", names.history))?;
+    let outbox = js
+        .get_stream(&outbox.config.name)
+        .await
+        .map_err(|e| format!("stream {}: {e}", names.outbox))?;
+    let alerts = js
+        .get_stream(&alerts.config.name)
+        .await
+        .map_err(|e| format!("stream {}: {e}", names.alerts))?;
+    Ok(Conn {
+        js,
+        history,
+        outbox,
+        alerts,
+        names,
+    })
+}
+
+/// Every message of `subject` in `stream`, `(sequence, payload)` in stream order.
+pub(super) async fn read_subject(
+    stream: &stream::Stream,
+    subject: String,
+) -> Result<Vec<(u64, Vec<u8>)>, Failure> {
+    let all = read_from(stream, subject, usize::MAX).await?;
+    Ok(all.into_iter().map(|(seq, _, p)| (seq, p)).collect())
+}
+
+/// Every message of `subject` (a filter) in `stream`, `(subject, payload)` in stream order.
+pub(super) async fn read_messages(
+    stream: &stream::Stream,
+    subject: String,
+) -> Result<Vec<(String, Vec<u8>)>, Failure> {
+    let all = read_from(stream, subject, usize::MAX).await?;
+    Ok(all.into_iter().map(|(_, s, p)| (s, p)).collect())
+}
+
+/// The first `max` messages of `subject` (a filter) in `stream`, `(sequence, subject,
+/// payload)` in stream order: an ephemeral consumer without acks, fetched [`FETCH_BATCH`] at a
+/// time until none is pending.
+pub(super) async fn read_from(
+    stream: &stream::Stream,
+    subject: String,
+    max: usize,
+) -> Result<Vec<(u64, String, Vec<u8>)>, Failure> {
+    let mut consumer = stream
+        .create_consumer(pull::Config {
+            filter_subject: subject.clone(),
+            deliver_policy: DeliverPolicy::All,
+            ack_policy: AckPolicy::None,
+            // an abandoned reader's consumer goes away by itself
+            inactive_threshold: Duration::from_secs(60),
+            memory_storage: true,
+            ..Default::default()
+        })
+        .await
+        .map_err(|e| format!("reader of {subject}: {e}"))?;
+    let info = consumer
+        .info()
+        .await
+        .map_err(|e| format!("reader of {subject}: {e}"))?;
+    let name = info.name.clone();
+    let mut pending = info.num_pending;
+    let mut out = Vec::new();
+    let result: Result<(), Failure> = async {
+        while pending > 0 && out.len() < max {
+            let want = (max - out.len()).min(FETCH_BATCH);
+            let mut batch = consumer
+                .fetch()
+                .max_messages(want)
+                .messages()
+                .await
+                .map_err(|e| format!("read of {subject}: {e}"))?;
+            let before = out.len();
+            while let Some(m) = batch.next().await {
+                let m = m.map_err(|e| format!("read of {subject}: {e}"))?;
+                let info = m.info().map_err(|e| format!("read of {subject}: {e}"))?;
+                pending = info.pending;
+                out.push((
+                    info.stream_sequence,
+                    m.message.subject.to_string(),
+                    m.message.payload.to_vec(),
+                ));
+            }
+            if out.len() == before {
+                break; // nothing more came: the rest was deleted meanwhile
+            }
+        }
+        Ok(())
+    }
+    .await;
+    // the consumer is not needed any more (and expires by itself if this fails)
+    let _ = stream.delete_consumer(&name).await;
+    result.map(|()| out)
+}
+
+/// Deletes outbox row `seq`; a row that is already gone (delivered twice, or an id the stream
+/// never had) is no error, as a `DELETE` of a missing row is none in SQLite. The server says so
+/// in more than one way (`no message found`; `stream store EOF` past the last sequence), so a
+/// refused deletion is checked by reading the row.
+pub(super) async fn delete_outbox_row(c: &Conn, seq: u64) -> Result<(), Failure> {
+    let Err(e) = c.outbox.delete_message(seq).await else {
+        return Ok(());
+    };
+    // the server answered (it is up): is the row there?
+    if matches!(e.kind(), DeleteMessageErrorKind::JetStream(_)) {
+        let gone = match c.outbox.get_raw_message(seq).await {
+            Err(g) => match g.kind() {
+                LastRawMessageErrorKind::NoMessageFound => true,
+                LastRawMessageErrorKind::JetStream(j) => {
+                    j.error_code() == ErrorCode::NO_MESSAGE_FOUND
+                }
+                _ => false,
+            },
+            Ok(_) => false,
+        };
+        if gone {
+            return Ok(());
+        }
+    }
+    Err(format!("deletion of outbox row {seq}: {e}"))
+}
+
+/// Publishes one message and waits for the server to store it; its stream sequence.
+pub(super) async fn publish(c: &Conn, subject: String, publish: Publish) -> Result<u64, Failure> {
+    let ack =
+        c.js.send_publish(subject.clone(), publish)
+            .await
+            .map_err(ctx(format!("publish to {subject}")))?
+            .await
+            .map_err(ctx(format!("publish to {subject}")))?;
+    Ok(ack.sequence)
+}
+
+/// [`Store::write`] on the runtime, in the order the module gives.
+pub(super) async fn write_batch(c: Arc<Conn>, batch: WriteBatch) -> Result<Vec<i64>, Failure> {
+    for r in &batch.identifications {
+        let row = stored_row(r);
+        let payload = serde_json::to_vec(&row).map_err(ctx(format!("history of {}", r.gate)))?;
+        // the same window of the same gate is one message even when a batch is retried
+        let id = format!(
+            "{}-{:016x}-{:016x}",
+            encode(&r.gate),
+            r.window_end.to_bits(),
+            r.time.to_bits()
+        );
+        publish(
+            &c,
+            c.names.history_subject(&r.gate),
+            Publish::build().payload(payload.into()).message_id(id),
+        )
+        .await?;
+    }
+    let mut ids = Vec::with_capacity(batch.outbox.len());
+    for r in &batch.outbox {
+        let subject = c.names.outbox_subject(&r.target, &r.fingerprint);
+        let stored = StoredOutbox {
+            target: r.target.clone(),
+            fingerprint: r.fingerprint.clone(),
+            status: r.status.clone(),
+            created: r.created,
+            batch: r.batch,
+            payload: r.payload.clone(),
+        };
+        let payload = serde_json::to_vec(&stored).map_err(ctx("outbox row"))?;
+        let seq = publish(
+            &c,
+            subject.clone(),
+            Publish::build().payload(payload.into()),
+        )
+        .await?;
+        if r.supersedes {
+            // the older rows of the same target and fingerprint: all but the newest message
+            // of the subject (published first, so a crash here leaves one row too many, sent
+            // twice, never one too few)
+            c.outbox
+                .purge()
+                .filter(subject.clone())
+                .keep(1)
+                .await
+                .map_err(ctx(format!("purge of {subject}")))?;
+        }
+        ids.push(i64::try_from(seq).map_err(ctx("outbox sequence"))?);
+    }
+    for (gate, state) in &batch.alert_states {
+        // the stream keeps the newest message of a subject: this replaces the stored state
+        publish(
+            &c,
+            c.names.alert_subject(gate),
+            Publish::build().payload(state.clone().into_bytes().into()),
+        )
+        .await?;
+    }
+    for gate in &batch.forget_gates {
+        c.alerts
+            .purge()
+            .filter(c.names.alert_subject(gate))
+            .await
+            .map_err(ctx(format!("deletion of the alert state of gate {gate}")))?;
+    }
+    for id in &batch.delivered {
+        // a negative id is no row
+        if let Ok(seq) = u64::try_from(*id) {
+            delete_outbox_row(&c, seq).await?;
+        }
+    }
+    Ok(ids)
+}
+
+/// The alert states, sorted by gate: every message of the alert stream (one per gate).
+pub(super) async fn read_alert_states(c: Arc<Conn>) -> Result<Vec<(String, String)>, Failure> {
+    let filter = format!("{}.alert.*", c.names.prefix);
+    let messages = read_messages(&c.alerts, filter).await?;
+    let mut out = Vec::with_capacity(messages.len());
+    for (subject, payload) in messages {
+        let token = subject.rsplit('.').next().unwrap_or_default();
+        let gate = decode(token)
+            .ok_or_else(|| format!("alert state subject {subject:?} is not a gate"))?;
+        let state =
+            String::from_utf8(payload).map_err(ctx(format!("alert state of gate {gate}")))?;
+        out.push((gate, state));
+    }
+    out.sort();
+    Ok(out)
+}
+
+/// The gates of the history stream's subjects, sorted.
+pub(super) async fn read_history_gates(c: Arc<Conn>) -> Result<Vec<String>, Failure> {
+    let filter = format!("{}.history.*", c.names.prefix);
+    let mut info = c
+        .history
+        .info_with_subjects(&filter)
+        .await
+        .map_err(ctx("subjects of the history"))?;
+    let mut gates = Vec::new();
+    while let Some(s) = info.next().await {
+        let (subject, count) = s.map_err(ctx("subjects of the history"))?;
+        let token = subject.rsplit('.').next().unwrap_or_default();
+        let gate =
+            decode(token).ok_or_else(|| format!("history subject {subject:?} is not a gate"))?;
+        if count > 0 {
+            gates.push(gate);
+        }
+    }
+    gates.sort();
+    Ok(gates)
+}
+
+/// [`Store::prune`] on the runtime: the expired rows at the start of the stream, then the
+/// oldest beyond `max_rows`.
+pub(super) async fn prune(c: Arc<Conn>, cutoff: f64, max_rows: u64) -> Result<Pruned, Failure> {
+    let filter = format!("{}.history.*", c.names.prefix);
+    // The stream is in the order of publication, which is the order of the windows' ends
+    // except for a late window: the expired rows are a prefix of it. Its end is the first row
+    // that has not expired; what expired behind it goes with `max_age`.
+    let head = read_from(&c.history, filter, PRUNE_SCAN_MAX).await?;
+    let mut expired = 0;
+    let mut keep_from = None;
+    for (seq, _, payload) in &head {
+        let row: HistoryRow =
+            serde_json::from_slice(payload).map_err(ctx(format!("history message {seq}")))?;
+        if row.window_end >= cutoff {
+            keep_from = Some(*seq);
+            break;
+        }
+        expired += 1;
+    }
+    if expired > 0 {
+        let purge = c.history.purge();
+        let purged = match keep_from {
+            Some(seq) => purge.sequence(seq).await,
+            // everything read expired: up to the last one read
+            None => {
+                purge
+                    .sequence(head.last().map_or(0, |(s, _, _)| s + 1))
+                    .await
+            }
+        }
+        .map_err(ctx("purge of the expired history"))?;
+        expired = purged.purged;
+    }
+    let info = c.history.get_info().await.map_err(ctx("history info"))?;
+    let mut over_size = 0;
+    if info.state.messages > max_rows {
+        over_size = c
+            .history
+            .purge()
+            .keep(max_rows)
+            .await
+            .map_err(ctx("purge of the history beyond max_history_rows"))?
+            .purged;
+    }
+    Ok(Pruned { expired, over_size })
+}

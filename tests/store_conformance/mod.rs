@@ -1,0 +1,229 @@
+//! What every [`Store`] must do, written once and run against each implementation (the SQLite
+//! file and a real NATS server, `tests/store_nats.rs`), so the two cannot drift apart. The
+//! expectations are the SQLite store's (`src/store/tests.rs`). Each check takes an empty store.
+
+use gatewatch::store::{
+    HistoryQuery, HistoryRow, IdentificationRecord, NewOutboxRow, Store, WriteBatch,
+};
+
+/// The gate name no subject or key could hold as it is.
+pub const AWKWARD_GATE: &str = "a.b c*>/é";
+
+pub fn record(gate: &str, end: f64, zeta: f64) -> IdentificationRecord {
+    IdentificationRecord {
+        gate: gate.into(),
+        time: end + 0.5,
+        window_start: end - 10.0,
+        window_end: end,
+        equation: format!("ydd + {zeta}*yd + y = 0"),
+        coefficients: vec![("c1".into(), zeta), ("k".into(), 1.0)],
+        damping: serde_json::json!({"zeta0": zeta, "zeta0_interval": [zeta - 0.01, zeta + 0.01],
+            "trusted": true, "frequency_hz": 1.5}),
+        verdict: "damped".into(),
+        fit_nmae: 0.02,
+        path: "full".into(),
+    }
+}
+
+fn outbox_row(target: &str, fp: &str, status: &str, supersedes: bool) -> NewOutboxRow {
+    NewOutboxRow {
+        target: target.into(),
+        fingerprint: fp.into(),
+        status: status.into(),
+        created: 100.0,
+        batch: 1,
+        payload: "{}".into(),
+        supersedes,
+    }
+}
+
+fn query(gate: &str, from: Option<f64>, to: Option<f64>, limit: usize) -> HistoryQuery {
+    HistoryQuery {
+        gate: gate.into(),
+        from,
+        to,
+        limit,
+    }
+}
+
+fn ends(rows: &[HistoryRow]) -> Vec<f64> {
+    rows.iter().map(|r| r.window_end).collect()
+}
+
+/// The newest rows of a gate come oldest first, capped at `n`; the gates with history come
+/// by name, capped at `limit`.
+pub fn latest_rows_and_gates(s: &dyn Store) {
+    let batch = WriteBatch {
+        identifications: (0..10)
+            .map(|i| record("g1", 1000.0 + 5.0 * f64::from(i), 0.01))
+            .chain([record("g0", 990.0, -0.02), record("g2", 2000.0, 0.03)])
+            .collect(),
+        ..Default::default()
+    };
+    s.write(&batch).expect("write");
+    assert_eq!(
+        ends(&s.latest_history_rows("g1", 3).expect("latest")),
+        [1035.0, 1040.0, 1045.0]
+    );
+    assert_eq!(s.latest_history_rows("g1", 100).expect("all").len(), 10);
+    assert!(s.latest_history_rows("nobody", 3).expect("none").is_empty());
+    let g0 = s.latest_history_rows("g0", 1).expect("g0");
+    assert_eq!(g0[0].zeta0, Some(-0.02));
+    assert_eq!(g0[0].zeta0_interval, Some((-0.03, -0.01)));
+    assert_eq!(s.history_gates(10).expect("gates"), ["g0", "g1", "g2"]);
+    assert_eq!(s.history_gates(2).expect("gates"), ["g0", "g1"]);
+}
+
+/// Written rows come back as written, filtered by gate, inclusive bounds on the window end and
+/// the limit, oldest first (also when written out of order).
+pub fn history_round_trip_with_bounds_and_limit(s: &dyn Store) {
+    let batch = WriteBatch {
+        identifications: (0..10)
+            .rev()
+            .map(|i| record("g1", 1000.0 + 5.0 * f64::from(i), 0.01))
+            .chain([record("g2", 1010.0, -0.02)])
+            .collect(),
+        ..Default::default()
+    };
+    s.write(&batch).expect("write");
+    let all = s.history(&query("g1", None, None, 100)).expect("history");
+    assert_eq!(all.len(), 10);
+    assert_eq!(all[0], record("g1", 1000.0, 0.01), "round trip");
+    assert!(all.windows(2).all(|w| w[0].window_end < w[1].window_end));
+    let some = s
+        .history_rows(&query("g1", Some(1010.0), Some(1020.0), 100))
+        .expect("history");
+    assert_eq!(ends(&some), [1010.0, 1015.0, 1020.0]);
+    let from = s
+        .history_rows(&query("g1", Some(1030.0), None, 2))
+        .expect("history");
+    assert_eq!(ends(&from), [1030.0, 1035.0], "from, then the limit");
+    assert_eq!(
+        s.history(&query("g1", None, None, 3))
+            .expect("history")
+            .len(),
+        3
+    );
+    let g2 = s.history(&query("g2", None, None, 10)).expect("history");
+    assert_eq!(g2.len(), 1);
+    assert_eq!(g2[0].zeta0(), Some(-0.02));
+    assert_eq!(g2[0].zeta0_interval(), Some((-0.03, -0.01)));
+    assert!(s
+        .history(&query("nobody", None, None, 10))
+        .expect("history")
+        .is_empty());
+}
+
+/// A gate's alert state is replaced by the next one and deleted when the gate is forgotten.
+pub fn alert_states_are_replaced_and_forgotten(s: &dyn Store) {
+    let put = |gate: &str, state: &str| WriteBatch {
+        alert_states: vec![(gate.into(), state.into())],
+        ..Default::default()
+    };
+    s.write(&put("g1", "a")).expect("write");
+    s.write(&put("g2", "b")).expect("write");
+    s.write(&put("g1", "c")).expect("write");
+    assert_eq!(
+        s.alert_states().expect("read"),
+        [("g1".into(), "c".into()), ("g2".into(), "b".into())]
+    );
+    s.write(&WriteBatch {
+        forget_gates: vec!["g1".into(), "never stored".into()],
+        ..Default::default()
+    })
+    .expect("write");
+    assert_eq!(s.alert_states().expect("read"), [("g2".into(), "b".into())]);
+}
+
+/// Outbox ids grow in the order written; a superseding row removes the older rows of its
+/// target and fingerprint; delivered ids are deleted (an unknown one is no error).
+pub fn outbox_ids_supersede_and_delivery(s: &dyn Store) {
+    let ids = s
+        .write(&WriteBatch {
+            outbox: vec![
+                outbox_row("webhook a", "f1", "firing", true),
+                outbox_row("webhook b", "f1", "firing", true),
+                outbox_row("webhook a", "f1", "resolved", false),
+                outbox_row("webhook a", "f2", "firing", true),
+            ],
+            ..Default::default()
+        })
+        .expect("write");
+    assert_eq!(ids.len(), 4);
+    assert!(ids.windows(2).all(|w| w[0] < w[1]), "ids in order: {ids:?}");
+    let all = s.outbox().expect("read");
+    assert_eq!(all.iter().map(|r| r.id).collect::<Vec<_>>(), ids);
+    assert_eq!(all[2].row, outbox_row("webhook a", "f1", "resolved", false));
+    let newer = s
+        .write(&WriteBatch {
+            outbox: vec![outbox_row("webhook a", "f1", "firing", true)],
+            delivered: vec![ids[3], 987_654],
+            ..Default::default()
+        })
+        .expect("write");
+    let left: Vec<(i64, String, String)> = s
+        .outbox()
+        .expect("read")
+        .into_iter()
+        .map(|r| (r.id, r.row.target, r.row.fingerprint))
+        .collect();
+    assert_eq!(
+        left,
+        [
+            (ids[1], "webhook b".into(), "f1".into()),
+            (newer[0], "webhook a".into(), "f1".into())
+        ]
+    );
+}
+
+/// Pruning deletes the rows whose window ended before the cutoff, then the oldest beyond the
+/// row bound.
+pub fn prune_applies_retention_then_the_row_bound(s: &dyn Store) {
+    s.write(&WriteBatch {
+        identifications: (0..20).map(|i| record("g", f64::from(i), 0.0)).collect(),
+        ..Default::default()
+    })
+    .expect("write");
+    let p = s.prune(5.0, 10).expect("prune");
+    assert_eq!((p.expired, p.over_size), (5, 5));
+    let left = s.history(&query("g", None, None, 100)).expect("history");
+    assert_eq!(left.first().map(|r| r.window_end), Some(10.0));
+    assert_eq!(left.len(), 10);
+    let p = s.prune(5.0, 10).expect("prune again");
+    assert_eq!((p.expired, p.over_size), (0, 0), "nothing left to prune");
+}
+
+/// A gate name with dots, spaces, wildcards, a slash and non-ASCII is stored and found as it is.
+pub fn awkward_gate_names(s: &dyn Store) {
+    s.write(&WriteBatch {
+        identifications: vec![record(AWKWARD_GATE, 10.0, 0.01), record("a", 11.0, 0.01)],
+        alert_states: vec![(AWKWARD_GATE.into(), "{\"x\":1}".into())],
+        ..Default::default()
+    })
+    .expect("write");
+    assert_eq!(s.history_gates(10).expect("gates"), ["a", AWKWARD_GATE]);
+    let rows = s
+        .history(&query(AWKWARD_GATE, None, None, 10))
+        .expect("history");
+    assert_eq!(rows, [record(AWKWARD_GATE, 10.0, 0.01)]);
+    assert_eq!(
+        s.alert_states().expect("states"),
+        [(AWKWARD_GATE.to_string(), "{\"x\":1}".to_string())]
+    );
+}
+
+/// One check of an empty store.
+pub type Check = fn(&dyn Store);
+
+/// Every check, by name.
+pub const CHECKS: &[(&str, Check)] = &[
+    ("latest rows and gates", latest_rows_and_gates),
+    (
+        "history round trip",
+        history_round_trip_with_bounds_and_limit,
+    ),
+    ("alert states", alert_states_are_replaced_and_forgotten),
+    ("outbox", outbox_ids_supersede_and_delivery),
+    ("prune", prune_applies_retention_then_the_row_bound),
+    ("awkward gate names", awkward_gate_names),
+];
