@@ -433,3 +433,66 @@ async fn a_restored_alert_of_an_unknown_gate_that_stays_silent_expires_after_a_r
     let left: Vec<&str> = m.lines().filter(|l| l.contains("gate=\"junk\"")).collect();
     assert!(left.is_empty(), "{left:?}");
 }
+
+/// `AppState` on the SQLite store at `db`, with `fake` as its analyzer (the configuration has
+/// no `[gates.*]` table: every gate is accepted automatically).
+fn with_store(
+    db: &std::path::Path,
+    fake: Arc<Fake>,
+) -> (axum::Router, Arc<gatewatch::service::state::AppState>) {
+    let c = config("unknown_gate_expiry_seconds = 600\n");
+    let p = gatewatch::service::storage::Persistence::open(db, &c.storage).expect("store");
+    let state =
+        gatewatch::service::state::AppState::with_persistence(c, fake, Some(p)).expect("state");
+    (gatewatch::service::api::router(state.clone()), state)
+}
+
+const G7_FIRING: &str = "gatewatch_alert_firing{alertname=\"GateNegativeDamping\",gate=\"g7\"}";
+
+/// A first run on `db`: the auto-accepted gate g7 goes self-excited (`GateNegativeDamping`
+/// fires), then the daemon stops with its writes flushed. The samples sent so far.
+async fn g7_fires_then_stops(db: &std::path::Path) -> usize {
+    let mut sent = 0usize;
+    let fake = Arc::new(Fake {
+        zeta: vec![0.05, -0.02, -0.03, -0.03],
+        ..Default::default()
+    });
+    let (app, state) = with_store(db, fake.clone());
+    for k in 0..4 {
+        let n = if k == 0 { 100 } else { 50 };
+        post_json(&app, uniform("g7", sent as f64 / 100.0, n)).await;
+        sent += n;
+        wait_until(|| fake.calls.lock().unwrap().len() == k + 1 && state.pool().in_flight() == 0)
+            .await;
+    }
+    wait_until(|| state.alert_state("g7") == Some("firing")).await;
+    assert_eq!(metric(&state, G7_FIRING), 1.0);
+    let p = state.persistence.clone().unwrap();
+    assert!(p.writer.close(Duration::from_secs(10)), "flushed");
+    sent
+}
+
+/// An auto-accepted gate (no `[gates.*]` table) firing `GateNegativeDamping` when the daemon
+/// stops: after the restart its `gatewatch_alert_firing` series stays 1 once its samples
+/// arrive again. Before, its first samples reset the gauge to 0 (the shipped rule
+/// `gatewatch_alert_firing == 1` resolved on a gate still self-excited) while the API and
+/// `gatewatch_alert_state` still said firing.
+#[tokio::test]
+async fn a_restored_firing_unknown_gate_keeps_its_firing_gauge_when_it_sends_again() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let db = dir.path().join("gw.db");
+    let sent = g7_fires_then_stops(&db).await;
+    let (app, state) = with_store(&db, Arc::new(Fake::default()));
+    assert_eq!(metric(&state, G7_FIRING), 1.0, "restored");
+    let (s, _) = post_json(&app, uniform("g7", sent as f64 / 100.0, 20)).await;
+    assert_eq!(s, StatusCode::NO_CONTENT);
+    assert_eq!(state.alert_state("g7"), Some("firing"));
+    assert_eq!(
+        metric(
+            &state,
+            "gatewatch_alert_state{gate=\"g7\",state=\"firing\"}"
+        ),
+        1.0
+    );
+    assert_eq!(metric(&state, G7_FIRING), 1.0, "{}", state.render_metrics());
+}

@@ -509,13 +509,17 @@ impl Metrics {
         }
     }
 
-    /// Exports a new gate's series at their initial value: its counters at 0 and none of
-    /// gatewatch's alerts firing.
-    pub fn init_gate(&self, gate: &str) {
+    /// Exports a new gate's series at their initial value: its counters at 0, and
+    /// `gatewatch_alert_firing` at 1 for the alerts in `firing` (the gate's alerts the engine
+    /// already holds: restored from the store at start) and 0 for the others. A gate entry made
+    /// after the restart used to set all of them to 0, and the shipped rule
+    /// `gatewatch_alert_firing == 1` resolved on a gate whose alert was still firing.
+    pub fn init_gate(&self, gate: &str, firing: &[&str]) {
         self.samples_ingested.with_label_values(&[gate]);
         self.window_gaps.with_label_values(&[gate]);
         for name in ALERT_NAMES {
-            self.alert_firing.with_label_values(&[gate, name]).set(0.0);
+            let on = firing.contains(name);
+            self.set_alert_firing(gate, name, on);
         }
     }
 
@@ -690,7 +694,7 @@ mod tests {
     #[test]
     fn the_warning_is_an_alert_name_from_the_start() {
         let m = Metrics::new();
-        m.init_gate("g1");
+        m.init_gate("g1", &[]);
         let text = m.render();
         assert!(text
             .contains("gatewatch_alert_firing{alertname=\"GateDampingDeclining\",gate=\"g1\"} 0"));

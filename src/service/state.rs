@@ -318,7 +318,15 @@ impl AppState {
                     CycleAmplitude::default(),
                 ),
             };
-            self.metrics.init_gate(id);
+            // the alerts restored for the gate stay firing on /metrics as in the API
+            let firing: Vec<String> = inner
+                .alerts
+                .firing_of(id)
+                .into_iter()
+                .map(|a| a.name)
+                .collect();
+            let firing: Vec<&str> = firing.iter().map(String::as_str).collect();
+            self.metrics.init_gate(id, &firing);
             if trend_estimate.is_some() {
                 // the restored trend on the dashboard before the first window, as in the API
                 self.metrics.set_trend(id, None, trend_estimate.as_ref());
