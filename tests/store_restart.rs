@@ -655,3 +655,57 @@ fn refused_start(cfg: &Path) -> String {
     assert_eq!(out.status.code(), Some(1), "{err}");
     err
 }
+
+/// The one-daemon lock follows the file, not its name: a symbolic link to the store (another
+/// directory's `gw.db -> ../a/gw.db`) is refused while a daemon holds the file, naming the link,
+/// the real file and the holder; a hard link (a second name of the same inode, which SQLite
+/// would give a second `-wal` file, losing one daemon's rows) is refused under either name,
+/// naming it and why. Before, the lock was `<path>.lock` on the path's text and both opened.
+#[test]
+fn a_second_name_of_the_store_file_is_refused_naming_the_file() {
+    use gatewatch::store::SqliteStore;
+    let dir = tempfile::tempdir().expect("tempdir");
+    for d in ["a", "b", "c"] {
+        std::fs::create_dir(dir.path().join(d)).expect("mkdir");
+    }
+    let db = dir.path().join("a").join("gw.db");
+    let first = SqliteStore::open(&db, 64).expect("open");
+    let link = dir.path().join("b").join("gw.db");
+    std::os::unix::fs::symlink("../a/gw.db", &link).expect("symlink");
+    let err = match SqliteStore::open(&link, 64) {
+        Ok(_) => panic!("a second open through a symbolic link was not refused"),
+        Err(e) => e.to_string(),
+    };
+    assert!(
+        err.contains(&link.display().to_string()),
+        "names the link: {err}"
+    );
+    let real = std::fs::canonicalize(&db).expect("canonicalize");
+    assert!(
+        err.contains(&real.display().to_string()),
+        "names the real file: {err}"
+    );
+    assert!(
+        err.contains(&format!("process {}", std::process::id())),
+        "names the holder: {err}"
+    );
+    drop(first);
+
+    let hard = dir.path().join("c").join("gw.db");
+    std::fs::hard_link(&db, &hard).expect("hard link");
+    for name in [&hard, &db] {
+        let err = match SqliteStore::open(name, 64) {
+            Ok(_) => panic!("{} (hard-linked) was not refused", name.display()),
+            Err(e) => e.to_string(),
+        };
+        assert!(
+            err.contains(&name.display().to_string()),
+            "names the file: {err}"
+        );
+        assert!(err.contains("2 hard links"), "says why: {err}");
+    }
+    assert!(
+        !dir.path().join("c").join("gw.db-wal").exists(),
+        "nothing opened"
+    );
+}

@@ -21,7 +21,7 @@ use std::sync::Mutex;
 
 use rusqlite::{params, Connection, OpenFlags};
 
-use super::file::{immutable_uri, quick_check, take_lock};
+use super::file::{immutable_uri, quick_check, real_path, refuse_hard_links, take_lock};
 use super::row::{compact_damping, HistoryRow, Summary};
 use super::schema::{insert_row, migrate, NewRow, SCHEMA_VERSION};
 use super::{
@@ -131,7 +131,11 @@ impl SqliteStore {
                 ),
             });
         }
-        let lock_file = take_lock(path, &name)?;
+        // the lock next to the real file, whatever name (symbolic link) leads to it; a second
+        // name of the same file (hard link) is refused outright
+        refuse_hard_links(path, &name)?;
+        let real = real_path(path, &name)?;
+        let lock_file = take_lock(&real, &name)?;
         let mut write = Connection::open(path).map_err(open_err)?;
         if write.is_readonly(rusqlite::MAIN_DB).map_err(open_err)? {
             return Err(StoreError::Open {
