@@ -80,10 +80,12 @@ impl Persistence {
     }
 
     /// Writes the WAL into the database file (at shutdown, after [`StoreWriter::close`]), so a
-    /// copy of the `.db` file alone is complete. A store that is not SQLite has nothing to do.
-    pub fn checkpoint(&self) -> Result<(), StoreError> {
+    /// copy of the `.db` file alone is complete, waiting at most `within` for a lock another
+    /// connection holds (what is left of the shutdown deadline). A store that is not SQLite has
+    /// nothing to do.
+    pub fn checkpoint(&self, within: std::time::Duration) -> Result<(), StoreError> {
         match &self.sqlite {
-            Some(s) => s.checkpoint(),
+            Some(s) => s.checkpoint_within(within),
             None => Ok(()),
         }
     }

@@ -394,19 +394,34 @@ impl SqliteStore {
     /// connection (a `gatewatch history`, a backup) still reads the WAL after the busy
     /// timeout: SQLite reports that last one in the pragma's answer, not as an error.
     pub fn checkpoint(&self) -> Result<(), StoreError> {
+        self.checkpoint_within(BUSY_TIMEOUT)
+    }
+
+    /// [`SqliteStore::checkpoint`], waiting at most `within` (not the 5 s busy timeout) for a
+    /// lock another connection holds: at shutdown, what is left of the deadline.
+    pub fn checkpoint_within(&self, within: std::time::Duration) -> Result<(), StoreError> {
         self.check()?;
-        let (busy, log, done): (i64, i64, i64) = lock(&self.write)
-            .query_row("PRAGMA wal_checkpoint(TRUNCATE)", [], |r| {
-                Ok((r.get(0)?, r.get(1)?, r.get(2)?))
-            })
+        let c = lock(&self.write);
+        c.busy_timeout(within.min(BUSY_TIMEOUT))
             .map_err(sq("checkpoint"))?;
+        let result = c.query_row("PRAGMA wal_checkpoint(TRUNCATE)", [], |r| {
+            Ok((
+                r.get::<_, i64>(0)?,
+                r.get::<_, i64>(1)?,
+                r.get::<_, i64>(2)?,
+            ))
+        });
+        // the connection's usual patience back (a no-op error: the same call succeeded above)
+        let _ = c.busy_timeout(BUSY_TIMEOUT);
+        drop(c);
+        let (busy, log, done) = result.map_err(sq("checkpoint"))?;
         if busy != 0 || log != done {
             return Err(StoreError::Checkpoint {
                 path: self.path.clone(),
                 message: format!(
-                    "checkpoint incomplete: another connection still reads the WAL \
-                     ({done} of {log} pages written back); the .db file alone is not complete, \
-                     keep its -wal file with it"
+                    "checkpoint incomplete: another connection holds a lock on the \
+                     database or still reads the WAL ({done} of {log} pages written back); the \
+                     .db file alone is not complete, keep its -wal file with it"
                 ),
             });
         }
