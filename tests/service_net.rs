@@ -559,3 +559,33 @@ async fn restored_gates_beyond_max_gates_leave_the_firing_one_in_the_api() {
     state.tick(start + Duration::from_secs(601));
     assert_eq!(state.alert_state("a1"), None, "forgotten after the expiry");
 }
+
+/// A stored alert state that does not decode (a newer or damaged row) is skipped at start and
+/// counted in `gatewatch_store_restore_skipped_total{what="alert_state"}` (before: an error
+/// line only), the other gates' states restored.
+#[tokio::test]
+async fn an_undecodable_alert_state_is_counted_at_start() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let db = dir.path().join("gw.db");
+    g7_fires_then_stops(&db).await;
+    {
+        use gatewatch::store::{SqliteStore, Store, WriteBatch};
+        let store = SqliteStore::open(&db, 64).expect("open");
+        store
+            .write(&WriteBatch {
+                alert_states: vec![("g9".into(), "{not json".into())],
+                ..Default::default()
+            })
+            .expect("write");
+    }
+    let (_, state) = with_store(&db, Arc::new(Fake::default()));
+    assert_eq!(
+        metric(
+            &state,
+            "gatewatch_store_restore_skipped_total{what=\"alert_state\"}"
+        ),
+        1.0
+    );
+    assert_eq!(state.alert_state("g9"), None);
+    assert_eq!(state.alert_state("g7"), Some("firing"));
+}

@@ -222,6 +222,12 @@ impl AppState {
             }
             _ => BTreeMap::new(),
         };
+        let skipped: usize = resumed.values().map(|m| m.skipped).sum();
+        state
+            .metrics
+            .store_restore_skipped
+            .with_label_values(&["history"])
+            .inc_by(skipped as u64);
         lock(&state.inner).resumed = resumed;
         let pool = WorkerPool::start(
             threads,
