@@ -291,6 +291,10 @@ pub async fn run_with_persistence(
                 pending + failed,
                 within.as_secs_f64()
             )),
+            // SQLite's own words ("database or disk is full") do not name the file
+            Ok(Ok(Err(e))) if !e.to_string().contains(location.as_str()) => {
+                Err(anyhow::anyhow!("store {location}: at shutdown: {e}"))
+            }
             Ok(Ok(Err(e))) => Err(anyhow::anyhow!("at shutdown: {e}")),
             Err(e) => Err(anyhow::anyhow!("store {location}: flush failed: {e}")),
         };
