@@ -783,3 +783,28 @@ async fn sigterm_under_a_foreign_write_lock_exits_within_the_grace_period() {
     );
     assert!(!text.contains("panicked"), "{text}");
 }
+
+/// A zero-byte store file (a failed copy, a full disk) opens as a new store, as SQLite does,
+/// but no longer silently: a warning names the file and what is missing.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_empty_store_file_is_a_warning_naming_it() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let cfg = write_config(dir.path(), free_port());
+    let db = dir.path().join("gw.db");
+    std::fs::write(&db, b"").expect("empty file");
+    let log = dir.path().join("gatewatch.log");
+    let child = serve_logging(&cfg, &log);
+    let url = daemon_url(&cfg);
+    gatewatch::service::client::ensure_crypto_provider();
+    let client = reqwest::Client::new();
+    wait_ready(&client, &url).await;
+    let status = terminate(child).await;
+    let text = std::fs::read_to_string(&log).expect("log");
+    assert_eq!(status.code(), Some(0), "{text}");
+    assert!(
+        text.lines().any(|l| l.contains("WARN")
+            && l.contains(&db.display().to_string())
+            && l.contains("empty: starting without history or alert state")),
+        "{text}"
+    );
+}

@@ -136,6 +136,16 @@ impl SqliteStore {
         refuse_hard_links(path, &name)?;
         let real = real_path(path, &name)?;
         let lock_file = take_lock(&real, &name)?;
+        // SQLite opens an empty file as a new database without a word: a file truncated by a
+        // failed copy or a full disk would silently cost the history, the alert states and
+        // the undelivered notifications
+        if std::fs::metadata(path).is_ok_and(|m| m.is_file() && m.len() == 0) {
+            tracing::warn!(
+                store = %name,
+                "store {name} is empty: starting without history or alert state (a new store, \
+                 or a file truncated by a failed copy or a full disk)"
+            );
+        }
         let mut write = Connection::open(path).map_err(open_err)?;
         if write.is_readonly(rusqlite::MAIN_DB).map_err(open_err)? {
             return Err(StoreError::Open {
