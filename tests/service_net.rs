@@ -433,3 +433,159 @@ async fn a_restored_alert_of_an_unknown_gate_that_stays_silent_expires_after_a_r
     let left: Vec<&str> = m.lines().filter(|l| l.contains("gate=\"junk\"")).collect();
     assert!(left.is_empty(), "{left:?}");
 }
+
+/// `AppState` on the SQLite store at `db`, with `fake` as its analyzer (the configuration has
+/// no `[gates.*]` table: every gate is accepted automatically).
+fn with_store(
+    db: &std::path::Path,
+    fake: Arc<Fake>,
+) -> (axum::Router, Arc<gatewatch::service::state::AppState>) {
+    with_store_max(db, fake, 64)
+}
+
+/// [`with_store`] with `server.max_gates = max_gates`.
+fn with_store_max(
+    db: &std::path::Path,
+    fake: Arc<Fake>,
+    max_gates: usize,
+) -> (axum::Router, Arc<gatewatch::service::state::AppState>) {
+    let c = config(&format!(
+        "unknown_gate_expiry_seconds = 600\nmax_gates = {max_gates}\n"
+    ));
+    let p = gatewatch::service::storage::Persistence::open(db, &c.storage).expect("store");
+    let state =
+        gatewatch::service::state::AppState::with_persistence(c, fake, Some(p)).expect("state");
+    (gatewatch::service::api::router(state.clone()), state)
+}
+
+const G7_FIRING: &str = "gatewatch_alert_firing{alertname=\"GateNegativeDamping\",gate=\"g7\"}";
+
+/// A first run on `db`: the auto-accepted gate g7 goes self-excited (`GateNegativeDamping`
+/// fires), then the daemon stops with its writes flushed. The samples sent so far.
+async fn g7_fires_then_stops(db: &std::path::Path) -> usize {
+    let mut sent = 0usize;
+    let fake = Arc::new(Fake {
+        zeta: vec![0.05, -0.02, -0.03, -0.03],
+        ..Default::default()
+    });
+    let (app, state) = with_store(db, fake.clone());
+    for k in 0..4 {
+        let n = if k == 0 { 100 } else { 50 };
+        post_json(&app, uniform("g7", sent as f64 / 100.0, n)).await;
+        sent += n;
+        wait_until(|| fake.calls.lock().unwrap().len() == k + 1 && state.pool().in_flight() == 0)
+            .await;
+    }
+    wait_until(|| state.alert_state("g7") == Some("firing")).await;
+    assert_eq!(metric(&state, G7_FIRING), 1.0);
+    let p = state.persistence.clone().unwrap();
+    assert!(p.writer.close(Duration::from_secs(10)), "flushed");
+    sent
+}
+
+/// An auto-accepted gate (no `[gates.*]` table) firing `GateNegativeDamping` when the daemon
+/// stops: after the restart its `gatewatch_alert_firing` series stays 1 once its samples
+/// arrive again. Before, its first samples reset the gauge to 0 (the shipped rule
+/// `gatewatch_alert_firing == 1` resolved on a gate still self-excited) while the API and
+/// `gatewatch_alert_state` still said firing.
+#[tokio::test]
+async fn a_restored_firing_unknown_gate_keeps_its_firing_gauge_when_it_sends_again() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let db = dir.path().join("gw.db");
+    let sent = g7_fires_then_stops(&db).await;
+    let (app, state) = with_store(&db, Arc::new(Fake::default()));
+    assert_eq!(metric(&state, G7_FIRING), 1.0, "restored");
+    let (s, _) = post_json(&app, uniform("g7", sent as f64 / 100.0, 20)).await;
+    assert_eq!(s, StatusCode::NO_CONTENT);
+    assert_eq!(state.alert_state("g7"), Some("firing"));
+    assert_eq!(
+        metric(
+            &state,
+            "gatewatch_alert_state{gate=\"g7\",state=\"firing\"}"
+        ),
+        1.0
+    );
+    assert_eq!(metric(&state, G7_FIRING), 1.0, "{}", state.render_metrics());
+}
+
+/// The same restart: before any new sample, the API lists the auto-accepted gate with its
+/// firing alert (it was absent, `/api/v1/gates/g7` said unknown gate, while `/metrics` showed
+/// its alert firing).
+#[tokio::test]
+async fn a_restored_unknown_gate_is_in_the_api_before_its_first_sample() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let db = dir.path().join("gw.db");
+    g7_fires_then_stops(&db).await;
+    let (app, state) = with_store(&db, Arc::new(Fake::default()));
+    let (s, list, _) = send(&app, "GET", "/api/v1/gates", Body::empty(), None).await;
+    assert_eq!(s, StatusCode::OK, "{list}");
+    let gates = list["gates"].as_array().expect("gates");
+    assert_eq!(gates.len(), 1, "{list}");
+    assert_eq!(gates[0]["gate"], "g7", "{list}");
+    assert_eq!(gates[0]["firing"], true, "{list}");
+    let (s, view, _) = send(&app, "GET", "/api/v1/gates/g7", Body::empty(), None).await;
+    assert_eq!(s, StatusCode::OK, "{view}");
+    assert_eq!(view["alert_state"], "firing", "{view}");
+    assert!(
+        view["alerts"].to_string().contains("GateNegativeDamping"),
+        "{view}"
+    );
+    assert_eq!(metric(&state, G7_FIRING), 1.0);
+}
+
+/// More gates restored than `server.max_gates` leaves room for: the firing one gets its entry
+/// (though its name sorts last), the other keeps only its alert state, is not in the API, and
+/// is forgotten `unknown_gate_expiry_seconds` after the start as before.
+#[tokio::test]
+async fn restored_gates_beyond_max_gates_leave_the_firing_one_in_the_api() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let db = dir.path().join("gw.db");
+    g7_fires_then_stops(&db).await;
+    // a second run: gate "a1" sends one window (damped), then the daemon stops
+    {
+        let fake = Arc::new(Fake::default());
+        let (app, state) = with_store(&db, fake.clone());
+        post_json(&app, uniform("a1", 0.0, 100)).await;
+        wait_until(|| fake.calls.lock().unwrap().len() == 1 && state.pool().in_flight() == 0).await;
+        wait_until(|| state.alert_state("a1") == Some("ok")).await;
+        let p = state.persistence.clone().unwrap();
+        assert!(p.writer.close(Duration::from_secs(10)), "flushed");
+    }
+    let (_, state) = with_store_max(&db, Arc::new(Fake::default()), 1);
+    assert_eq!(state.gate_ids(), ["g7"], "the firing gate first");
+    assert!(state.gate_view("a1").is_none());
+    assert_eq!(state.alert_state("a1"), Some("ok"), "its alert state kept");
+    let start = SystemTime::now();
+    state.tick(start + Duration::from_secs(601));
+    assert_eq!(state.alert_state("a1"), None, "forgotten after the expiry");
+}
+
+/// A stored alert state that does not decode (a newer or damaged row) is skipped at start and
+/// counted in `gatewatch_store_restore_skipped_total{what="alert_state"}` (before: an error
+/// line only), the other gates' states restored.
+#[tokio::test]
+async fn an_undecodable_alert_state_is_counted_at_start() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let db = dir.path().join("gw.db");
+    g7_fires_then_stops(&db).await;
+    {
+        use gatewatch::store::{SqliteStore, Store, WriteBatch};
+        let store = SqliteStore::open(&db, 64).expect("open");
+        store
+            .write(&WriteBatch {
+                alert_states: vec![("g9".into(), "{not json".into())],
+                ..Default::default()
+            })
+            .expect("write");
+    }
+    let (_, state) = with_store(&db, Arc::new(Fake::default()));
+    assert_eq!(
+        metric(
+            &state,
+            "gatewatch_store_restore_skipped_total{what=\"alert_state\"}"
+        ),
+        1.0
+    );
+    assert_eq!(state.alert_state("g9"), None);
+    assert_eq!(state.alert_state("g7"), Some("firing"));
+}

@@ -655,3 +655,156 @@ fn refused_start(cfg: &Path) -> String {
     assert_eq!(out.status.code(), Some(1), "{err}");
     err
 }
+
+/// The one-daemon lock follows the file, not its name: a symbolic link to the store (another
+/// directory's `gw.db -> ../a/gw.db`) is refused while a daemon holds the file, naming the link,
+/// the real file and the holder; a hard link (a second name of the same inode, which SQLite
+/// would give a second `-wal` file, losing one daemon's rows) is refused under either name,
+/// naming it and why. Before, the lock was `<path>.lock` on the path's text and both opened.
+#[test]
+fn a_second_name_of_the_store_file_is_refused_naming_the_file() {
+    use gatewatch::store::SqliteStore;
+    let dir = tempfile::tempdir().expect("tempdir");
+    for d in ["a", "b", "c"] {
+        std::fs::create_dir(dir.path().join(d)).expect("mkdir");
+    }
+    let db = dir.path().join("a").join("gw.db");
+    let first = SqliteStore::open(&db, 64).expect("open");
+    let link = dir.path().join("b").join("gw.db");
+    std::os::unix::fs::symlink("../a/gw.db", &link).expect("symlink");
+    let err = match SqliteStore::open(&link, 64) {
+        Ok(_) => panic!("a second open through a symbolic link was not refused"),
+        Err(e) => e.to_string(),
+    };
+    assert!(
+        err.contains(&link.display().to_string()),
+        "names the link: {err}"
+    );
+    let real = std::fs::canonicalize(&db).expect("canonicalize");
+    assert!(
+        err.contains(&real.display().to_string()),
+        "names the real file: {err}"
+    );
+    assert!(
+        err.contains(&format!("process {}", std::process::id())),
+        "names the holder: {err}"
+    );
+    drop(first);
+
+    let hard = dir.path().join("c").join("gw.db");
+    std::fs::hard_link(&db, &hard).expect("hard link");
+    for name in [&hard, &db] {
+        let err = match SqliteStore::open(name, 64) {
+            Ok(_) => panic!("{} (hard-linked) was not refused", name.display()),
+            Err(e) => e.to_string(),
+        };
+        assert!(
+            err.contains(&name.display().to_string()),
+            "names the file: {err}"
+        );
+        assert!(err.contains("2 hard links"), "says why: {err}");
+    }
+    assert!(
+        !dir.path().join("c").join("gw.db-wal").exists(),
+        "nothing opened"
+    );
+}
+
+/// SIGTERM while another process holds SQLite's write lock on the store (`BEGIN EXCLUSIVE` in
+/// a connection of this test, while a gate streams): the daemon exits within
+/// `shutdown_grace_seconds` (10 s here, as by default) plus a generous margin, with exit 1 and a
+/// log line giving the number of writes not committed. Before, the checkpoint still ran after
+/// the failed flush, waiting for the writer (which retried its queued requests one by one,
+/// each waiting out SQLite's 5 s busy timeout) and for the busy timeout itself: 16 to 30 s,
+/// past systemd's `TimeoutStopSec=30s` and Kubernetes' 30 s grace. The bound is a behaviour
+/// (the orchestrator's kill), not a speed: its margin is 5 s.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn sigterm_under_a_foreign_write_lock_exits_within_the_grace_period() {
+    const GRACE: f64 = 10.0;
+    let dir = tempfile::tempdir().expect("tempdir");
+    let cfg = write_config(dir.path(), free_port());
+    let text = std::fs::read_to_string(&cfg).expect("read config");
+    std::fs::write(
+        &cfg,
+        text.replace(
+            "shutdown_grace_seconds = 2.0",
+            &format!("shutdown_grace_seconds = {GRACE:.1}"),
+        ),
+    )
+    .expect("write config");
+    let db = dir.path().join("gw.db");
+    let log = dir.path().join("gatewatch.log");
+    let child = serve_logging(&cfg, &log);
+    let url = daemon_url(&cfg);
+    gatewatch::service::client::ensure_crypto_provider();
+    let client = reqwest::Client::new();
+    wait_ready(&client, &url).await;
+    let mut stream = Stream::new();
+    for _ in 0..3 {
+        stream.send(&client, &url).await;
+    }
+    // the foreign lock: every write of the daemon now waits out its busy timeout and fails
+    let foreign = rusqlite::Connection::open(&db).expect("open the store");
+    foreign
+        .busy_timeout(Duration::from_secs(10))
+        .expect("busy timeout");
+    foreign
+        .execute_batch("BEGIN EXCLUSIVE")
+        .expect("take the write lock");
+    // windows keep being identified, their writes queue behind the lock
+    for _ in 0..8 {
+        stream.send(&client, &url).await;
+        tokio::time::sleep(Duration::from_millis(500)).await;
+    }
+    let signalled = Instant::now();
+    let status = terminate(child).await;
+    let took = signalled.elapsed();
+    let text = std::fs::read_to_string(&log).expect("log");
+    drop(foreign);
+    assert!(
+        took < Duration::from_secs_f64(GRACE + 5.0),
+        "exited {took:?} after SIGTERM (grace {GRACE} s):\n{text}"
+    );
+    assert_eq!(status.code(), Some(1), "{text}");
+    let line = text
+        .lines()
+        .find(|l| l.contains("writes not committed"))
+        .unwrap_or_else(|| panic!("no line gives the writes not committed:\n{text}"));
+    let count = line
+        .split("writes not committed")
+        .next()
+        .and_then(|before| before.split_whitespace().last())
+        .and_then(|n| n.parse::<u64>().ok())
+        .unwrap_or_else(|| panic!("the count before `writes not committed`: {line}"));
+    assert!(count > 0, "{line}");
+    assert!(
+        line.contains(&db.display().to_string()),
+        "names the file: {line}"
+    );
+    assert!(!text.contains("panicked"), "{text}");
+}
+
+/// A zero-byte store file (a failed copy, a full disk) opens as a new store, as SQLite does,
+/// but no longer silently: a warning names the file and what is missing.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_empty_store_file_is_a_warning_naming_it() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let cfg = write_config(dir.path(), free_port());
+    let db = dir.path().join("gw.db");
+    std::fs::write(&db, b"").expect("empty file");
+    let log = dir.path().join("gatewatch.log");
+    let child = serve_logging(&cfg, &log);
+    let url = daemon_url(&cfg);
+    gatewatch::service::client::ensure_crypto_provider();
+    let client = reqwest::Client::new();
+    wait_ready(&client, &url).await;
+    let status = terminate(child).await;
+    let text = std::fs::read_to_string(&log).expect("log");
+    assert_eq!(status.code(), Some(0), "{text}");
+    assert!(
+        text.lines().any(|l| l.contains("WARN")
+            && l.contains(&db.display().to_string())
+            && l.contains("empty: starting without history or alert state")),
+        "{text}"
+    );
+}

@@ -106,6 +106,9 @@ pub struct Metrics {
     pub store_write_errors: IntCounterVec,
     /// `gatewatch_store_pruned_rows_total{reason}`: history rows deleted ([`STORE_PRUNE_REASONS`]).
     pub store_pruned_rows: IntCounterVec,
+    /// `gatewatch_store_restore_skipped_total{what}`: stored rows that did not decode at start
+    /// ([`STORE_RESTORE_SKIPPED`]).
+    pub store_restore_skipped: IntCounterVec,
 }
 
 /// Why samples were rejected or dropped: the `reason` label of
@@ -209,6 +212,11 @@ pub const STORE_WRITE_ERRORS: &[&str] = &["failed", "queue_full", "file_gone"];
 /// Reasons of `gatewatch_store_pruned_rows_total`: `age` (`retention_days`), `rows`
 /// (`max_history_rows`), `size` (`max_size_mb`: the oldest history pruned to stay under it).
 pub const STORE_PRUNE_REASONS: &[&str] = &["age", "rows", "size"];
+
+/// What a stored row skipped at start was: the `what` label of
+/// `gatewatch_store_restore_skipped_total` (a gate's alert state, which then starts fresh, or
+/// one of the windows its analysis memory is rebuilt from).
+pub const STORE_RESTORE_SKIPPED: &[&str] = &["alert_state", "history"];
 
 /// Outcomes of `gatewatch_notifications_total`, per target and batch: `delivered`, `failed`
 /// (given up after retries, or refused) and `dropped` (queue full, or abandoned at the shutdown
@@ -450,6 +458,11 @@ impl Metrics {
                 "History rows deleted by the store's bounds: age (retention), rows, size.",
                 &["reason"],
             ),
+            store_restore_skipped: counter(
+                "gatewatch_store_restore_skipped_total",
+                "Stored rows that did not decode at start and were skipped: a gate's alert state (the gate starts fresh) or a window of its rebuilt memory.",
+                &["what"],
+            ),
             registry,
         };
         m.build_info
@@ -477,6 +490,9 @@ impl Metrics {
         }
         for r in STORE_PRUNE_REASONS {
             m.store_pruned_rows.with_label_values(&[r]);
+        }
+        for w in STORE_RESTORE_SKIPPED {
+            m.store_restore_skipped.with_label_values(&[w]);
         }
         m
     }
@@ -509,13 +525,17 @@ impl Metrics {
         }
     }
 
-    /// Exports a new gate's series at their initial value: its counters at 0 and none of
-    /// gatewatch's alerts firing.
-    pub fn init_gate(&self, gate: &str) {
+    /// Exports a new gate's series at their initial value: its counters at 0, and
+    /// `gatewatch_alert_firing` at 1 for the alerts in `firing` (the gate's alerts the engine
+    /// already holds: restored from the store at start) and 0 for the others. A gate entry made
+    /// after the restart used to set all of them to 0, and the shipped rule
+    /// `gatewatch_alert_firing == 1` resolved on a gate whose alert was still firing.
+    pub fn init_gate(&self, gate: &str, firing: &[&str]) {
         self.samples_ingested.with_label_values(&[gate]);
         self.window_gaps.with_label_values(&[gate]);
         for name in ALERT_NAMES {
-            self.alert_firing.with_label_values(&[gate, name]).set(0.0);
+            let on = firing.contains(name);
+            self.set_alert_firing(gate, name, on);
         }
     }
 
@@ -690,7 +710,7 @@ mod tests {
     #[test]
     fn the_warning_is_an_alert_name_from_the_start() {
         let m = Metrics::new();
-        m.init_gate("g1");
+        m.init_gate("g1", &[]);
         let text = m.render();
         assert!(text
             .contains("gatewatch_alert_firing{alertname=\"GateDampingDeclining\",gate=\"g1\"} 0"));

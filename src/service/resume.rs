@@ -201,6 +201,16 @@ pub fn read(
         match store.latest_history_rows(&gate, n) {
             Ok(rows) => {
                 if let Some(m) = rebuild(&gate, &rows, &cfg.alert, analyzer, now) {
+                    if m.skipped > 0 {
+                        tracing::warn!(
+                            %gate,
+                            skipped = m.skipped,
+                            store = %store.location(),
+                            "{} stored windows of gate {gate} do not decode, its memory is \
+                             rebuilt without them",
+                            m.skipped
+                        );
+                    }
                     windows += m.windows;
                     skipped += m.skipped;
                     memories.insert(gate, m);

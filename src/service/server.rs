@@ -127,10 +127,17 @@ pub async fn run_with_persistence(
     let (stop_tx, stop_rx) = watch::channel(false);
     // when the stop signal came: the one shutdown deadline is counted from it
     let stopped_at = Arc::new(OnceLock::new());
+    // the store's failed writes when it came: those after it are lost at the shutdown
+    let failed_at_stop = Arc::new(OnceLock::new());
     {
         let stopped_at = stopped_at.clone();
+        let failed_at_stop = failed_at_stop.clone();
+        let persistence = state.persistence.clone();
         tokio::spawn(async move {
             shutdown.await;
+            if let Some(p) = persistence {
+                let _ = failed_at_stop.set(p.writer.failed_writes());
+            }
             let _ = stopped_at.set(Instant::now());
             let _ = stop_tx.send(true);
         });
@@ -251,22 +258,44 @@ pub async fn run_with_persistence(
             .saturating_duration_since(Instant::now())
             .max(Duration::from_secs(1));
         let location = p.store.location();
+        let until = std::time::Instant::now() + within;
+        let failed_before = failed_at_stop.get().copied().unwrap_or(0);
+        // The flush and the checkpoint share what is left of the deadline. When writes were
+        // lost (still queued at the deadline, or failed since the stop signal) the checkpoint
+        // is skipped: whatever failed them (a lock another process holds, a stalled or full
+        // disk) would hold the checkpoint too, which waited for the writer's connection and
+        // then SQLite's 5 s busy timeout, past the deadline by tens of seconds.
         let flushed = tokio::task::spawn_blocking(move || {
             let flushed = p.writer.close(within);
-            (flushed, p.checkpoint())
+            let failed = p.writer.failed_writes().saturating_sub(failed_before);
+            if !flushed || failed > 0 {
+                return Err((p.writer.pending(), failed));
+            }
+            let left = until
+                .saturating_duration_since(std::time::Instant::now())
+                .max(Duration::from_millis(100));
+            Ok(p.checkpoint(left))
         })
         .await;
         store_result = match flushed {
-            Ok((true, Ok(()))) => {
+            Ok(Ok(Ok(()))) => {
                 tracing::info!("store flushed and checkpointed");
                 Ok(())
             }
-            Ok((false, _)) => Err(anyhow::anyhow!(
-                "store {location}: the last writes were not committed within {} s of the \
-                 shutdown deadline: they are lost",
+            Ok(Err((pending, failed))) => Err(anyhow::anyhow!(
+                "store {location}: {} writes not committed at shutdown ({failed} failed since \
+                 the stop signal, {pending} still queued when the {:.1} s left for the store \
+                 ran out; another process holding the database's lock, or a stalled or full \
+                 disk: see the errors above): they are lost; checkpoint skipped, keep the -wal \
+                 file with the .db",
+                pending + failed,
                 within.as_secs_f64()
             )),
-            Ok((true, Err(e))) => Err(anyhow::anyhow!("at shutdown: {e}")),
+            // SQLite's own words ("database or disk is full") do not name the file
+            Ok(Ok(Err(e))) if !e.to_string().contains(location.as_str()) => {
+                Err(anyhow::anyhow!("store {location}: at shutdown: {e}"))
+            }
+            Ok(Ok(Err(e))) => Err(anyhow::anyhow!("at shutdown: {e}")),
             Err(e) => Err(anyhow::anyhow!("store {location}: flush failed: {e}")),
         };
         if let Err(e) = &store_result {

@@ -32,6 +32,10 @@ use crate::analysis::{
 
 pub use super::window::RATE_TOLERANCE;
 
+/// Gates named at most in one log line about many (the restored gates left out at start by
+/// `server.max_gates`): the line stays readable, its count says how many there were.
+const LOGGED_GATES: usize = 20;
+
 /// Why a request's samples were refused (nothing was applied).
 #[derive(Debug, Clone, PartialEq)]
 pub enum IngestError {
@@ -218,6 +222,12 @@ impl AppState {
             }
             _ => BTreeMap::new(),
         };
+        let skipped: usize = resumed.values().map(|m| m.skipped).sum();
+        state
+            .metrics
+            .store_restore_skipped
+            .with_label_values(&["history"])
+            .inc_by(skipped as u64);
         lock(&state.inner).resumed = resumed;
         let pool = WorkerPool::start(
             threads,
@@ -235,10 +245,11 @@ impl AppState {
             let now = SystemTime::now();
             let mut inner = lock(&state.inner);
             for id in config.gates.keys() {
-                state.ensure_gate(&mut inner, id, now);
+                state.ensure_gate(&mut inner, id, now, true);
             }
             if let Some(p) = &state.persistence {
                 super::storage::resume(&state.metrics, p, &mut inner.alerts, &state.notifier, now);
+                state.materialise_restored(&mut inner, p, now);
             }
         }
         Ok(state)
@@ -294,11 +305,18 @@ impl AppState {
         why
     }
 
+    /// The entry of gate `id`, made when it has none (`None` when the configuration does not
+    /// accept the gate). `seen`: the sensor counts as seen now (a new gate, or samples
+    /// arriving), which restarts its staleness clock and resolves a firing `GateDataStale`;
+    /// false for a gate materialised at start from its restored alert state, whose clock
+    /// [`AlertEngine::restore_gate`] already set (a `GateDataStale` restored firing stays
+    /// firing until samples arrive).
     fn ensure_gate<'a>(
         &self,
         inner: &'a mut Inner,
         id: &str,
         now: SystemTime,
+        seen: bool,
     ) -> Option<&'a mut GateEntry> {
         if !inner.gates.contains_key(id) {
             let cfg = self.config.gate(id)?.clone();
@@ -318,13 +336,25 @@ impl AppState {
                     CycleAmplitude::default(),
                 ),
             };
-            self.metrics.init_gate(id);
+            // the alerts restored for the gate stay firing on /metrics as in the API
+            let firing: Vec<String> = inner
+                .alerts
+                .firing_of(id)
+                .into_iter()
+                .map(|a| a.name)
+                .collect();
+            let firing: Vec<&str> = firing.iter().map(String::as_str).collect();
+            self.metrics.init_gate(id, &firing);
             if trend_estimate.is_some() {
                 // the restored trend on the dashboard before the first window, as in the API
                 self.metrics.set_trend(id, None, trend_estimate.as_ref());
             }
             // the sensor counts as seen at creation, so a gate that never sends goes stale
-            let events = inner.alerts.data_seen(id, now);
+            let events = if seen {
+                inner.alerts.data_seen(id, now)
+            } else {
+                Vec::new()
+            };
             let state = inner.alerts.state(id).unwrap_or(GateState::Unknown);
             self.metrics.set_alert_state(id, state_name(state));
             self.notify(events);
@@ -360,6 +390,67 @@ impl AppState {
             );
         }
         inner.gates.get_mut(id)
+    }
+
+    /// At start, after the alert states are restored: gives the restored gates the
+    /// configuration accepts (auto-accepted gates of the last run above all) their entries, so
+    /// the API lists them and their alerts before their first new sample, as `/metrics` and
+    /// Alertmanager show them. They count against `server.max_gates`: when more are restored
+    /// than it leaves room for, the gates with a firing alert come first, then the most
+    /// recently active (newest stored window), then by name; the rest are logged and keep only
+    /// their alert state, which `expire_restored_orphans` forgets
+    /// `server.unknown_gate_expiry_seconds` after the start unless they send again (each then
+    /// gets its entry if there is room, like any new gate). A materialised auto-accepted gate
+    /// that stays silent expires like any unknown gate: `last_data` is the start.
+    fn materialise_restored(&self, inner: &mut Inner, p: &Persistence, now: SystemTime) {
+        let mut restored: Vec<(bool, f64, String)> = inner
+            .alerts
+            .gates()
+            .into_iter()
+            .filter(|g| !inner.gates.contains_key(g) && self.config.gate(g).is_some())
+            .map(|g| {
+                let firing = !inner.alerts.firing_of(&g).is_empty();
+                let newest = match p.store.latest_history_rows(&g, 1) {
+                    Ok(rows) => rows.last().map_or(f64::NEG_INFINITY, |r| r.time),
+                    Err(e) => {
+                        tracing::warn!(gate = %g, store = %p.store.location(), "cannot read the gate's newest window, it ranks last among the restored gates: {e}");
+                        f64::NEG_INFINITY
+                    }
+                };
+                (firing, newest, g)
+            })
+            .collect();
+        restored.sort_by(|a, b| {
+            b.0.cmp(&a.0)
+                .then(b.1.total_cmp(&a.1))
+                .then_with(|| a.2.cmp(&b.2))
+        });
+        let room = self
+            .config
+            .server
+            .max_gates
+            .saturating_sub(inner.gates.len());
+        let left: Vec<String> = restored.iter().skip(room).map(|r| r.2.clone()).collect();
+        let made = restored.len() - left.len();
+        for (_, _, g) in restored.into_iter().take(room) {
+            self.ensure_gate(inner, &g, now, false);
+        }
+        if !left.is_empty() {
+            tracing::warn!(
+                max_gates = self.config.server.max_gates,
+                materialised = made,
+                left = left.len(),
+                gates = %left.iter().take(LOGGED_GATES).cloned().collect::<Vec<_>>().join(","),
+                "more gates restored from the store than server.max_gates leaves room for: \
+                 these are not in the API until they send again (if there is room then); \
+                 their alerts are forgotten server.unknown_gate_expiry_seconds after the start"
+            );
+        } else if made > 0 {
+            tracing::info!(
+                gates = made,
+                "gates restored from the store are listed in the API"
+            );
+        }
     }
 
     fn notify(&self, events: Vec<AlertEvent>) {
@@ -426,7 +517,7 @@ impl AppState {
                 return Err(e);
             }
             for batch in batches {
-                let Some(entry) = self.ensure_gate(&mut inner, &batch.gate, now) else {
+                let Some(entry) = self.ensure_gate(&mut inner, &batch.gate, now, true) else {
                     continue; // validated above
                 };
                 entry.last_data = now;

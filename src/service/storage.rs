@@ -104,17 +104,26 @@ impl Persistence {
     }
 
     /// Writes the WAL into the database file (at shutdown, after [`StoreWriter::close`]), so a
-    /// copy of the `.db` file alone is complete. A store that is not SQLite has nothing to do.
-    pub fn checkpoint(&self) -> Result<(), StoreError> {
+    /// copy of the `.db` file alone is complete, waiting at most `within` for a lock another
+    /// connection holds (what is left of the shutdown deadline). A store that is not SQLite has
+    /// nothing to do.
+    pub fn checkpoint(&self, within: std::time::Duration) -> Result<(), StoreError> {
         match &self.sqlite {
-            Some(s) => s.checkpoint(),
+            Some(s) => s.checkpoint_within(within),
             None => Ok(()),
         }
     }
 
     /// Restores every persisted gate state into `engine` (at start, before any window).
-    /// A state that does not decode is logged and skipped (the gate starts fresh).
-    pub fn restore_alerts(&self, engine: &mut AlertEngine, now: SystemTime) -> usize {
+    /// A state that does not decode is logged naming the gate and the file, counted in
+    /// `gatewatch_store_restore_skipped_total{what="alert_state"}`, and skipped (the gate
+    /// starts fresh).
+    pub fn restore_alerts(
+        &self,
+        engine: &mut AlertEngine,
+        now: SystemTime,
+        metrics: &Metrics,
+    ) -> usize {
         let states = match self.store.alert_states() {
             Ok(s) => s,
             Err(e) => {
@@ -131,7 +140,19 @@ impl Persistence {
                     written.insert(gate, json);
                     n += 1;
                 }
-                Err(e) => tracing::error!(%gate, "stored alert state does not decode: {e}"),
+                Err(e) => {
+                    metrics
+                        .store_restore_skipped
+                        .with_label_values(&["alert_state"])
+                        .inc();
+                    tracing::error!(
+                        %gate,
+                        store = %self.store.location(),
+                        "stored alert state of gate {gate} in {} does not decode, the gate starts \
+                         without it: {e}",
+                        self.store.location()
+                    )
+                }
             }
         }
         n
@@ -307,7 +328,7 @@ pub fn resume(
     notifier: &NotifierHandle,
     now: SystemTime,
 ) {
-    let restored = p.restore_alerts(engine, now);
+    let restored = p.restore_alerts(engine, now, metrics);
     for gate in engine.gates() {
         if let Some(s) = engine.state(&gate) {
             metrics.set_alert_state(&gate, s.as_str());

@@ -21,11 +21,72 @@ use super::StoreError;
 /// "Start").
 pub const QUICK_CHECK_MAX_BYTES: u64 = 1 << 30;
 
-/// The lock file of the store at `db`: `<db>.lock`, next to it.
+/// The lock file of the store at `db`: `<db>.lock`, next to it. The daemon passes the
+/// resolved path ([`real_path`]), so the lock is next to the real file.
 pub fn lock_path(db: &Path) -> PathBuf {
     let mut s = db.as_os_str().to_owned();
     s.push(".lock");
     PathBuf::from(s)
+}
+
+/// The path of the file `db` names, every symbolic link resolved (`std::fs::canonicalize`),
+/// the lock ([`take_lock`]) is derived from. A file not yet created: its directory resolved,
+/// its name kept. Why: the lock was keyed on the path's text, so `b/gw.db -> ../a/gw.db`
+/// took `b/gw.db.lock` and a second daemon wrote the first's file. A symbolic link to a
+/// missing file (SQLite would create the target) is refused rather than guessed at.
+pub(super) fn real_path(db: &Path, name: &str) -> Result<PathBuf, StoreError> {
+    let err = |message: String| StoreError::Open {
+        path: name.to_string(),
+        message,
+    };
+    match std::fs::canonicalize(db) {
+        Ok(p) => return Ok(p),
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+            return Err(err(format!("cannot resolve its path: {e}")))
+        }
+        Err(_) => {}
+    }
+    if std::fs::symlink_metadata(db).is_ok() {
+        return Err(err(
+            "is a symbolic link to a missing file: point storage.path at the real file".into(),
+        ));
+    }
+    let (Some(dir), Some(file)) = (db.parent(), db.file_name()) else {
+        return Err(err("is not the path of a file".into()));
+    };
+    let dir = if dir.as_os_str().is_empty() {
+        Path::new(".")
+    } else {
+        dir
+    };
+    let dir = std::fs::canonicalize(dir).map_err(|e| {
+        err(format!(
+            "cannot resolve its directory {}: {e}",
+            dir.display()
+        ))
+    })?;
+    Ok(dir.join(file))
+}
+
+/// Refuses a database file with more than one hard link (`st_nlink > 1`), naming the count.
+/// Why: SQLite keys its `-wal` and `-shm` files on the path, so two names of one file get two
+/// WALs over one database: each daemon's commits are invisible to the other, and a checkpoint
+/// of one overwrites pages the other wrote (rows silently lost, the file possibly corrupt).
+/// The lock beside the file cannot see a second name either. A file not yet created passes.
+pub(super) fn refuse_hard_links(db: &Path, name: &str) -> Result<(), StoreError> {
+    use std::os::unix::fs::MetadataExt;
+    match std::fs::metadata(db) {
+        Ok(m) if m.nlink() > 1 => Err(StoreError::Open {
+            path: name.to_string(),
+            message: format!(
+                "has {} hard links (names): a SQLite file in WAL mode opened under two names \
+                 gets a -wal file per name and loses or corrupts the writes of one; remove the \
+                 other names (find / -samefile {name}) or copy the file",
+                m.nlink()
+            ),
+        }),
+        _ => Ok(()),
+    }
 }
 
 /// Takes the exclusive advisory lock (`flock`, non-blocking) on `<db>.lock` and writes this process's id
@@ -69,8 +130,15 @@ pub(super) fn take_lock(db: &Path, name: &str) -> Result<File, StoreError> {
                 Ok(pid) => format!("process {pid}"),
                 Err(_) => "another process".to_string(),
             };
+            // the same file under another name (a symbolic link, a directory link): say which
+            let named = std::path::absolute(name).unwrap_or_else(|_| PathBuf::from(name));
+            let same = if named != db {
+                format!(", the same file as {}", db.display())
+            } else {
+                String::new()
+            };
             return Err(open_err(format!(
-                "in use: {holder} holds its lock {} (one daemon per store file)",
+                "in use: {holder} holds its lock {} (one daemon per store file{same})",
                 path.display()
             )));
         }

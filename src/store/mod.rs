@@ -129,6 +129,23 @@ pub enum StoreError {
 }
 
 impl StoreError {
+    /// Whether SQLite could not get its lock within the busy timeout (`SQLITE_BUSY`,
+    /// `SQLITE_LOCKED`): another connection (another process) holds the database. Every
+    /// write fails alike until it lets go, so the writer does not retry a merged write's
+    /// requests one by one for it (each would wait out the busy timeout again).
+    pub fn is_busy(&self) -> bool {
+        match self {
+            StoreError::Sqlite {
+                source: rusqlite::Error::SqliteFailure(e, _),
+                ..
+            } => matches!(
+                e.code,
+                rusqlite::ErrorCode::DatabaseBusy | rusqlite::ErrorCode::DatabaseLocked
+            ),
+            _ => false,
+        }
+    }
+
     /// Whether the store refused the write because it is full: its size bound
     /// (`max_size_mb`) or the disk (SQLite's `SQLITE_FULL`).
     pub fn is_full(&self) -> bool {

@@ -21,7 +21,7 @@ use std::sync::Mutex;
 
 use rusqlite::{params, Connection, OpenFlags};
 
-use super::file::{immutable_uri, quick_check, take_lock};
+use super::file::{immutable_uri, quick_check, real_path, refuse_hard_links, take_lock};
 use super::row::{compact_damping, HistoryRow, Summary};
 use super::schema::{insert_row, migrate, NewRow, SCHEMA_VERSION};
 use super::{
@@ -131,7 +131,21 @@ impl SqliteStore {
                 ),
             });
         }
-        let lock_file = take_lock(path, &name)?;
+        // the lock next to the real file, whatever name (symbolic link) leads to it; a second
+        // name of the same file (hard link) is refused outright
+        refuse_hard_links(path, &name)?;
+        let real = real_path(path, &name)?;
+        let lock_file = take_lock(&real, &name)?;
+        // SQLite opens an empty file as a new database without a word: a file truncated by a
+        // failed copy or a full disk would silently cost the history, the alert states and
+        // the undelivered notifications
+        if std::fs::metadata(path).is_ok_and(|m| m.is_file() && m.len() == 0) {
+            tracing::warn!(
+                store = %name,
+                "store {name} is empty: starting without history or alert state (a new store, \
+                 or a file truncated by a failed copy or a full disk)"
+            );
+        }
         let mut write = Connection::open(path).map_err(open_err)?;
         if write.is_readonly(rusqlite::MAIN_DB).map_err(open_err)? {
             return Err(StoreError::Open {
@@ -390,19 +404,34 @@ impl SqliteStore {
     /// connection (a `gatewatch history`, a backup) still reads the WAL after the busy
     /// timeout: SQLite reports that last one in the pragma's answer, not as an error.
     pub fn checkpoint(&self) -> Result<(), StoreError> {
+        self.checkpoint_within(BUSY_TIMEOUT)
+    }
+
+    /// [`SqliteStore::checkpoint`], waiting at most `within` (not the 5 s busy timeout) for a
+    /// lock another connection holds: at shutdown, what is left of the deadline.
+    pub fn checkpoint_within(&self, within: std::time::Duration) -> Result<(), StoreError> {
         self.check()?;
-        let (busy, log, done): (i64, i64, i64) = lock(&self.write)
-            .query_row("PRAGMA wal_checkpoint(TRUNCATE)", [], |r| {
-                Ok((r.get(0)?, r.get(1)?, r.get(2)?))
-            })
+        let c = lock(&self.write);
+        c.busy_timeout(within.min(BUSY_TIMEOUT))
             .map_err(sq("checkpoint"))?;
+        let result = c.query_row("PRAGMA wal_checkpoint(TRUNCATE)", [], |r| {
+            Ok((
+                r.get::<_, i64>(0)?,
+                r.get::<_, i64>(1)?,
+                r.get::<_, i64>(2)?,
+            ))
+        });
+        // the connection's usual patience back (a no-op error: the same call succeeded above)
+        let _ = c.busy_timeout(BUSY_TIMEOUT);
+        drop(c);
+        let (busy, log, done) = result.map_err(sq("checkpoint"))?;
         if busy != 0 || log != done {
             return Err(StoreError::Checkpoint {
                 path: self.path.clone(),
                 message: format!(
-                    "checkpoint incomplete: another connection still reads the WAL \
-                     ({done} of {log} pages written back); the .db file alone is not complete, \
-                     keep its -wal file with it"
+                    "checkpoint incomplete: another connection holds a lock on the \
+                     database or still reads the WAL ({done} of {log} pages written back); the \
+                     .db file alone is not complete, keep its -wal file with it"
                 ),
             });
         }

@@ -9,8 +9,11 @@
 //! retried once.
 //!
 //! Up to [`MAX_MERGED`] queued requests are merged into one transaction (one fsync for a
-//! burst). When it fails for another reason than a full store (one request's value refused by
-//! SQLite, say), the requests are written again one by one, so only the bad one is lost.
+//! burst). When it fails for another reason than a full store or a lock held by another
+//! connection (one request's value refused by SQLite, say), the requests are written again one
+//! by one, so only the bad one is lost. Not for a lock (`SQLITE_BUSY`): every request would
+//! fail alike, each after waiting out the busy timeout (5 s), and a shutdown behind them
+//! overran its deadline by tens of seconds.
 //!
 //! A write that fails (disk full, I/O error) or does not fit in the queue is counted in
 //! [`StoreStats`] (exported as `gatewatch_store_write_errors_total`) and logged as an error
@@ -113,6 +116,9 @@ pub struct StoreStats {
     pub over_size_rows: AtomicU64,
     /// History rows deleted by the size bound (`max_size_mb`).
     pub over_bytes_rows: AtomicU64,
+    /// Write requests queued or being written, not yet committed or failed: at a shutdown
+    /// whose flush missed its deadline, the writes that are lost.
+    pub pending: AtomicU64,
 }
 
 /// Handle to the writer thread. Cheap to clone.
@@ -186,7 +192,9 @@ impl StoreWriter {
                             next = rx.try_recv().ok();
                         }
                     }
+                    let n = writes.len() as u64;
                     w.commit(store.as_ref(), writes);
+                    w.stats.pending.fetch_sub(n, Ordering::Relaxed);
                     for f in flushes {
                         let _ = f.send(());
                     }
@@ -194,6 +202,16 @@ impl StoreWriter {
             })?;
         *writer.thread.lock().unwrap_or_else(|p| p.into_inner()) = Some(thread);
         Ok(writer)
+    }
+
+    /// Write requests SQLite failed so far ([`StoreStats::write_failed`]).
+    pub fn failed_writes(&self) -> u64 {
+        self.stats.write_failed.load(Ordering::Relaxed)
+    }
+
+    /// Write requests queued or being written ([`StoreStats::pending`]).
+    pub fn pending(&self) -> u64 {
+        self.stats.pending.load(Ordering::Relaxed)
     }
 
     /// The counters.
@@ -248,11 +266,14 @@ impl StoreWriter {
             }
             return;
         };
+        // counted before the send: the writer may take it at once
+        self.stats.pending.fetch_add(1, Ordering::Relaxed);
         match tx.try_send(Request::Write(batch, then)) {
             Ok(()) => {}
             Err(TrySendError::Full(Request::Write(_, then)))
             | Err(TrySendError::Disconnected(Request::Write(_, then))) => {
                 drop(guard);
+                self.stats.pending.fetch_sub(1, Ordering::Relaxed);
                 self.failed(
                     &format!("write queue full ({STORE_QUEUE_CAPACITY} requests)"),
                     &self.stats.queue_full,
@@ -344,10 +365,11 @@ impl StoreWriter {
                     }
                 }
             }
-            Err(e) if !e.is_full() && thens.len() > 1 => {
+            Err(e) if !e.is_full() && !e.is_busy() && thens.len() > 1 => {
                 // One request can sink the merged transaction for a reason of its own (a
                 // constraint, a value SQLite refuses): the others are written one by one, so
-                // only the bad one is lost. Not after a full store: every one would fail alike.
+                // only the bad one is lost. Not after a full store or a lock held elsewhere:
+                // every one would fail alike (a lock: each after the busy timeout).
                 tracing::debug!(store = %self.location, "merged write failed ({e}), retrying its {} requests one by one", thens.len());
                 let mut first_error = None;
                 for (p, then) in parts.into_iter().zip(thens) {
