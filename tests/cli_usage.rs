@@ -365,6 +365,58 @@ fn a_closed_stdout_ends_the_command_quietly() {
     }
 }
 
+/// The same for the commands of the service, which printed with `println!` and panicked (exit
+/// 101, "failed printing to stdout: Broken pipe"): `demo` ends (its daemon stopped) when the
+/// reader goes away, long before its `--duration`; the benches end at their first line.
+#[test]
+fn a_closed_stdout_ends_the_service_commands_quietly() {
+    for args in [
+        &["demo", "--duration", "600"][..],
+        &[
+            "bench",
+            "history",
+            "--gates",
+            "1",
+            "--hours",
+            "0.1",
+            "--queries",
+            "1",
+        ][..],
+        &[
+            "bench",
+            "daemon",
+            "--samples",
+            "2000",
+            "--senders",
+            "1",
+            "--skip",
+            "latency",
+            "--skip",
+            "capacity",
+        ][..],
+    ] {
+        let mut child = Command::new(env!("CARGO_BIN_EXE_gatewatch"))
+            .args(args)
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("gatewatch runs");
+        drop(child.stdout.take());
+        let began = std::time::Instant::now();
+        let o = child.wait_with_output().unwrap();
+        let err = text(&o.stderr);
+        assert_eq!(o.status.code(), Some(0), "{args:?}: {err}");
+        // `demo` may say its port is busy; nothing else is written
+        assert!(
+            err.lines().all(|l| l.contains("is busy")),
+            "{args:?}: {err}"
+        );
+        // not a timing test: the demo would otherwise run its 600 s
+        assert!(began.elapsed().as_secs() < 120, "{args:?} ran on");
+    }
+}
+
 /// `bench generate --output` names an unwritable path and exits 2, like stability-map's.
 #[test]
 fn generate_names_an_unwritable_output() {

@@ -28,14 +28,15 @@
 //!   of the history, the alert states and the outbox; [`history`]: `GET .../history`;
 //!   [`resume`]: each gate's analysis memory (trend, ambient level, tracking model) rebuilt
 //!   from its latest stored windows at start.
-//! - [`clock`], [`sync`]: Unix seconds and the poison-tolerant lock, shared by the above.
+//! - [`clock`], [`sync`]: Unix seconds and the poison-tolerant lock, shared by the above;
+//!   [`stdout`]: command output that ends quietly when its reader goes away.
 //!
 //! Imports go one way (no circle): `cli` -> `server`, `demo`, `client`, `shutdown`; `demo`,
 //! `bench` -> `server`, `client`; `bench_warning` -> `state`, `worker`, `ingest`, `config`;
 //! `server` -> `api`, `listen`, `tcp`, `state`, `worker`; `api`, `tcp` -> `state`, `ingest`,
 //! `metrics`, `limits`; `state` -> `worker`, `window`, `ingest`, `ingest_checks`, `metrics`,
 //! `config`, `resume`; `resume` -> `worker`, `config`; `ingest_checks` -> `ingest`, `metrics`, `config`;
-//! `ingest`, `worker` -> `config`; and `config`, `window`, `clock`, `sync` import nothing of
+//! `ingest`, `worker` -> `config`; and `config`, `window`, `clock`, `sync`, `stdout` import nothing of
 //! the service.
 
 pub mod api;
@@ -60,6 +61,7 @@ pub mod resume;
 pub mod server;
 pub mod shutdown;
 pub mod state;
+pub mod stdout;
 pub mod storage;
 pub mod sync;
 pub mod tcp;
