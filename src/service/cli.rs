@@ -34,10 +34,17 @@ pub struct CheckConfigArgs {
 /// Logs go to stderr, as daemons' logs do (journald and container runtimes collect it; stdout
 /// stays free for command output). Colour codes only when stderr is a terminal: in a file or
 /// journald they are noise that breaks `grep` and log shippers, and JSON never has them.
+///
+/// An invalid `RUST_LOG` ([`super::rust_log`]) does not stop the start: `log.level` is used and
+/// the first line logged is a warning naming `RUST_LOG`, its value and why it is refused.
 pub fn init_tracing(config: &Config) {
     use std::io::IsTerminal;
-    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(log_filter(&config.log.level)));
+    let configured = || tracing_subscriber::EnvFilter::new(log_filter(&config.log.level));
+    let (filter, invalid) = match super::rust_log::read() {
+        Ok(Some(f)) => (f, None),
+        Ok(None) => (configured(), None),
+        Err(invalid) => (configured(), Some(invalid)),
+    };
     let builder = tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr);
@@ -47,6 +54,14 @@ pub fn init_tracing(config: &Config) {
             .with_ansi(std::io::stderr().is_terminal())
             .try_init(),
     };
+    if let Some(bad) = invalid {
+        tracing::warn!(
+            rust_log = %bad.value,
+            error = %bad.reason,
+            log_level = %config.log.level,
+            "RUST_LOG is invalid and ignored; using log.level"
+        );
+    }
 }
 
 /// The compiler's crates, quiet below `warn` unless the configured filter names them.
@@ -141,6 +156,14 @@ pub fn check_config(args: CheckConfigArgs) -> ExitCode {
         Ok(config) => {
             for w in config.warnings() {
                 eprintln!("{}: warning: {w}", args.file.display());
+            }
+            // what `serve` will log at start with the same environment (the unit's ExecStartPre)
+            if let Err(bad) = super::rust_log::read() {
+                eprintln!(
+                    "gatewatch: warning: RUST_LOG={:?} is invalid and ignored ({}); serve will use \
+                     log.level = {:?}",
+                    bad.value, bad.reason, config.log.level
+                );
             }
             // `check-config FILE | head -1`: a closed stdout ends the output, not in a panic
             let mut out = std::io::stdout().lock();

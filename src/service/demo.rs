@@ -134,12 +134,26 @@ pub fn demo(args: DemoArgs) -> ExitCode {
     }
     // Daemon logs (warnings only, unless RUST_LOG says otherwise) go to stderr; stdout is the
     // demo's narrative.
-    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn"));
+    // An invalid RUST_LOG is named, and `warn` used (src/service/rust_log.rs).
+    let (filter, invalid) = match super::rust_log::read() {
+        Ok(Some(f)) => (f, None),
+        Ok(None) => (tracing_subscriber::EnvFilter::new("warn"), None),
+        Err(bad) => (tracing_subscriber::EnvFilter::new("warn"), Some(bad)),
+    };
+    // colour codes only on a terminal, as `serve`'s logs (cli::init_tracing)
+    use std::io::IsTerminal;
     let _ = tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
+        .with_ansi(std::io::stderr().is_terminal())
         .try_init();
+    if let Some(bad) = invalid {
+        tracing::warn!(
+            rust_log = %bad.value,
+            error = %bad.reason,
+            "RUST_LOG is invalid and ignored; using warn"
+        );
+    }
     let rt = match tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()

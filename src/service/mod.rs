@@ -29,15 +29,16 @@
 //!   [`resume`]: each gate's analysis memory (trend, ambient level, tracking model) rebuilt
 //!   from its latest stored windows at start.
 //! - [`clock`], [`sync`]: Unix seconds and the poison-tolerant lock, shared by the above;
-//!   [`stdout`]: command output that ends quietly when its reader goes away.
+//!   [`stdout`]: command output that ends quietly when its reader goes away; [`rust_log`]:
+//!   `RUST_LOG` read and checked (an invalid one is reported and `log.level` used).
 //!
 //! Imports go one way (no circle): `cli` -> `server`, `demo`, `client`, `shutdown`; `demo`,
 //! `bench` -> `server`, `client`; `bench_warning` -> `state`, `worker`, `ingest`, `config`;
 //! `server` -> `api`, `listen`, `tcp`, `state`, `worker`; `api`, `tcp` -> `state`, `ingest`,
 //! `metrics`, `limits`; `state` -> `worker`, `window`, `ingest`, `ingest_checks`, `metrics`,
 //! `config`, `resume`; `resume` -> `worker`, `config`; `ingest_checks` -> `ingest`, `metrics`, `config`;
-//! `ingest`, `worker` -> `config`; and `config`, `window`, `clock`, `sync`, `stdout` import nothing of
-//! the service.
+//! `ingest`, `worker` -> `config`; and `config`, `window`, `clock`, `sync`, `stdout`,
+//! `rust_log` import nothing of the service.
 
 pub mod api;
 pub mod bench;
@@ -58,6 +59,7 @@ pub mod log_limit;
 pub mod malloc;
 pub mod metrics;
 pub mod resume;
+pub mod rust_log;
 pub mod server;
 pub mod shutdown;
 pub mod state;
