@@ -407,3 +407,66 @@ fn an_invalid_rust_log_is_a_warning_naming_it_and_log_level_is_used() {
     );
     drop(taken);
 }
+
+/// With `log.format = "json"`, a failing `serve` wrote its fatal error as a plain
+/// `gatewatch: ...` line after the JSON logs (and its start-up warnings in plain text), which
+/// a shipper parsing JSON drops. Every line is JSON now, the fatal one with the whole reason,
+/// also when `log.level` mutes errors.
+#[test]
+fn json_logs_keep_the_fatal_line_and_the_warnings_json() {
+    let taken = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = taken.local_addr().unwrap().port();
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = dir.path().join("gatewatch.toml");
+    let missing = dir.path().join("no-such-dir").join("gw.db");
+    for (server, storage, level, reason) in [
+        (
+            format!("listen = \"127.0.0.1:{port}\""),
+            "gw.db".to_string(),
+            "info",
+            format!("server.listen 127.0.0.1:{port}: cannot bind"),
+        ),
+        (
+            "listen = \"127.0.0.1:0\"".to_string(),
+            missing.display().to_string(),
+            "off",
+            format!("storage file {}", missing.display()),
+        ),
+    ] {
+        std::fs::write(
+            &cfg,
+            format!(
+                "[server]\n{server}\nworker_threads = 1\n[storage]\npath = {storage:?}\n\
+                 [log]\nformat = \"json\"\nlevel = \"{level}\"\n[notify]\n\
+                 alertmanager_urls = [\"http://127.0.0.1:9093\"]\nresend_interval_seconds = 900\n"
+            ),
+        )
+        .unwrap();
+        let out = Command::new(env!("CARGO_BIN_EXE_gatewatch"))
+            .args(["serve", "--config"])
+            .arg(&cfg)
+            .env_remove("RUST_LOG")
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{err}");
+        let lines: Vec<serde_json::Value> = err
+            .lines()
+            .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("not JSON ({e}): {l}")))
+            .collect();
+        let fatal: Vec<_> = lines.iter().filter(|v| v["level"] == "ERROR").collect();
+        assert_eq!(fatal.len(), 1, "one fatal line:\n{err}");
+        assert_eq!(fatal[0]["fields"]["message"], "gatewatch failed", "{err}");
+        let error = fatal[0]["fields"]["error"].as_str().unwrap_or_default();
+        assert!(error.starts_with(&reason), "{error}");
+        assert!(fatal[0]["timestamp"].as_str().is_some(), "{err}");
+        assert!(
+            lines.iter().any(|v| v["level"] == "WARN"
+                && v["fields"]["message"]
+                    .as_str()
+                    .is_some_and(|m| m.contains("resend_interval_seconds = 900"))),
+            "the configuration's warning:\n{err}"
+        );
+    }
+    drop(taken);
+}

@@ -114,8 +114,10 @@ pub fn serve(args: ServeArgs) -> ExitCode {
     // a relative storage.path is relative to the configuration file, like Prometheus does
     let base = args.config.as_deref().and_then(std::path::Path::parent);
     config.storage.path = config.storage.resolve(base).display().to_string();
+    // From here the log format is known: what serve says on stderr follows it.
+    let format = config.log.format;
     for w in config.warnings() {
-        eprintln!("gatewatch: warning: {w}");
+        start_line(format, "WARN", &w, None);
     }
     init_tracing(&config);
     // before the runtime's threads: the memory bound of docs/design.md depends on it
@@ -126,7 +128,8 @@ pub fn serve(args: ServeArgs) -> ExitCode {
     {
         Ok(rt) => rt,
         Err(e) => {
-            eprintln!("gatewatch: cannot start the runtime: {e}");
+            let e = format!("cannot start the runtime: {e}");
+            start_line(format, "ERROR", "gatewatch failed", Some(&e));
             return ExitCode::FAILURE;
         }
     };
@@ -137,11 +140,45 @@ pub fn serve(args: ServeArgs) -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            tracing::error!(error = %e, "gatewatch failed");
-            eprintln!("gatewatch: {e:#}");
+            if format == LogFormat::Text {
+                tracing::error!(error = %e, "gatewatch failed");
+            }
+            start_line(format, "ERROR", "gatewatch failed", Some(&format!("{e:#}")));
             ExitCode::FAILURE
         }
     }
+}
+
+/// A line `serve` writes to stderr itself, once the configuration is read: a warning of
+/// [`Config::warnings`] (before the logs are set up) or the fatal error it exits with.
+///
+/// Text: `gatewatch: warning: ...` or `gatewatch: <error with its causes>`, as before. JSON: one
+/// object in the shape of the JSON logs (timestamp, level, fields with `message` and `error`,
+/// target), written here rather than through the log filter, so that a log shipper that parses
+/// each line gets these too and a `log.level` or `RUST_LOG` that mutes this module cannot drop
+/// the reason the daemon stopped. (A configuration that cannot be read is reported before its
+/// format is known: that line stays plain text.)
+fn start_line(format: LogFormat, level: &str, message: &str, error: Option<&str>) {
+    let line = match (format, error) {
+        (LogFormat::Text, Some(e)) => format!("gatewatch: {e}"),
+        (LogFormat::Text, None) => format!("gatewatch: warning: {message}"),
+        (LogFormat::Json, _) => {
+            let mut fields = serde_json::json!({ "message": message });
+            if let Some(e) = error {
+                fields["error"] = e.into();
+            }
+            serde_json::json!({
+                "timestamp": humantime::format_rfc3339_micros(std::time::SystemTime::now())
+                    .to_string(),
+                "level": level,
+                "fields": fields,
+                "target": module_path!(),
+            })
+            .to_string()
+        }
+    };
+    // a closed stderr must not turn the message into a panic
+    let _ = writeln!(std::io::stderr(), "{line}");
 }
 
 /// `gatewatch check-config FILE`: exit 0 when valid, 2 with a one-line message naming the key
