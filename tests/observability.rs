@@ -89,6 +89,8 @@ async fn known_label_sets_start_at_zero_and_process_metrics_exist() {
         "gatewatch_notifications_queued_total",
         "gatewatch_notifications_total{outcome=\"delivered\",target=\"webhook\"}",
         "gatewatch_notifications_total{outcome=\"dropped\",target=\"alertmanager\"}",
+        "gatewatch_tcp_connections_rejected_total{reason=\"connection_limit\"}",
+        "gatewatch_tcp_connections_rejected_total{reason=\"not_allowed\"}",
     ] {
         assert_eq!(sample(&m, series), Some(0.0), "{series} in\n{m}");
     }

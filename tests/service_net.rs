@@ -212,7 +212,12 @@ async fn tcp_clients_outside_the_allowed_networks_are_closed_at_accept() {
     assert!(closed_by_server(&mut c).await);
     let (_, m) = get(r.http, "/metrics").await;
     assert!(
-        m.contains("gatewatch_tcp_connections_rejected_total 1"),
+        m.contains("gatewatch_tcp_connections_rejected_total{reason=\"not_allowed\"} 1"),
+        "{m}"
+    );
+    // the other reason is exported, at 0 (rate() sees its first increment)
+    assert!(
+        m.contains("gatewatch_tcp_connections_rejected_total{reason=\"connection_limit\"} 0"),
         "{m}"
     );
     assert_eq!(get(r.http, "/api/v1/gates/outsider").await.0, 404);
