@@ -186,11 +186,24 @@ fn start_line(format: LogFormat, level: &str, message: &str, error: Option<&str>
 ///
 /// It runs exactly what `serve` runs before binding its listeners, [`load_config`]: the file,
 /// the `GATEWATCH_*` environment overrides, every validation (the models are compiled, every
-/// duration is bounded). The systemd unit runs it as `ExecStartPre` with the same environment,
+/// duration is bounded); and the checks of the store's location that `serve` makes when it
+/// opens the store ([`crate::store::check_location`]: its directory exists and is writable). The systemd unit runs it as `ExecStartPre` with the same environment,
 /// so a config it passes does not make `serve` fail at start-up.
 pub fn check_config(args: CheckConfigArgs) -> ExitCode {
     match load_config(Some(&args.file)) {
         Ok(config) => {
+            // The store's location, resolved as `serve` resolves it: `serve` does not create
+            // a missing directory, it stops (exit 1), so a path it cannot open is refused here.
+            let base = args.file.parent();
+            let store = config.storage.resolve(base);
+            if let Err(reason) = crate::store::check_location(&store) {
+                eprintln!(
+                    "gatewatch: {}: storage.path {}: {reason}",
+                    args.file.display(),
+                    store.display()
+                );
+                return ExitCode::from(2);
+            }
             for w in config.warnings() {
                 eprintln!("{}: warning: {w}", args.file.display());
             }
