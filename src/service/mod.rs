@@ -15,8 +15,8 @@
 //!   `/ping`, `/health`, `/query`, gzip bodies, v2-shaped errors.
 //! - [`server`]: `run` and the one-deadline shutdown; [`listen`]: the HTTP accept loop with its
 //!   connection cap and header timeout; [`tcp`]: the raw TCP listener; [`shutdown`]: signals;
-//!   [`log_limit`]: the accept loops' warnings, once per interval; [`malloc`]: large buffers
-//!   back to the OS.
+//!   [`log_limit`]: the accept loops' warnings, once per interval, and the per-gate lines of
+//!   one sweep, at most ten and a summary; [`malloc`]: large buffers back to the OS.
 //! - [`cli`]: command-line entry points; [`client`]: the simulate client (talks to a daemon
 //!   over the network only, and installs the TLS crypto provider its HTTP client needs).
 //! - [`bench`](mod@bench): `gatewatch bench daemon`, load measurements.
@@ -36,7 +36,7 @@
 //! `bench` -> `server`, `client`; `bench_warning` -> `state`, `worker`, `ingest`, `config`;
 //! `server` -> `api`, `listen`, `tcp`, `state`, `worker`; `api`, `tcp` -> `state`, `ingest`,
 //! `metrics`, `limits`; `state` -> `worker`, `window`, `ingest`, `ingest_checks`, `metrics`,
-//! `config`, `resume`; `resume` -> `worker`, `config`; `ingest_checks` -> `ingest`, `metrics`, `config`;
+//! `config`, `resume`, `log_limit`; `resume` -> `worker`, `config`; `ingest_checks` -> `ingest`, `metrics`, `config`;
 //! `ingest`, `worker` -> `config`; and `config`, `window`, `clock`, `sync`, `stdout`,
 //! `rust_log` import nothing of the service.
 
