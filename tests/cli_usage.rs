@@ -151,6 +151,70 @@ fn config_error(toml: &str, needles: &[&str]) {
     }
 }
 
+/// `serve` does not create the store's directory: it stops (exit 1) naming the file. A
+/// configuration `check-config` passed (exit 0) did that to the systemd unit after its
+/// `ExecStartPre`; now `check-config` refuses it (exit 2) naming `storage.path`, the path as
+/// `serve` resolves it (relative to the file) and the same reason.
+#[test]
+fn check_config_refuses_a_store_serve_cannot_open() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("gatewatch.toml");
+    let missing = dir.path().join("no-such-dir");
+    std::fs::create_dir(dir.path().join("a-dir")).unwrap();
+    for (path, resolved, reason) in [
+        (
+            "no-such-dir/gw.db".to_string(),
+            missing.join("gw.db"),
+            format!(
+                "its directory {} does not exist or is not a directory",
+                missing.display()
+            ),
+        ),
+        (
+            missing.join("gw.db").display().to_string(),
+            missing.join("gw.db"),
+            format!(
+                "its directory {} does not exist or is not a directory",
+                missing.display()
+            ),
+        ),
+        (
+            "a-dir".to_string(),
+            dir.path().join("a-dir"),
+            "is a directory".to_string(),
+        ),
+    ] {
+        std::fs::write(
+            &file,
+            format!("[server]\nlisten = \"127.0.0.1:0\"\n[storage]\npath = {path:?}\n"),
+        )
+        .unwrap();
+        let o = gw(&["check-config", file.to_str().unwrap()]);
+        let err = text(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{path}: {err}");
+        assert_eq!(
+            err.trim_end(),
+            format!(
+                "gatewatch: {}: storage.path {}: {reason}",
+                file.display(),
+                resolved.display()
+            )
+        );
+        assert!(o.stdout.is_empty(), "{}", text(&o.stdout));
+        // serve stops on the same reason
+        let o = gw(&["serve", "--config", file.to_str().unwrap()]);
+        let err = text(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{path}: {err}");
+        assert!(err.contains(&reason), "{path}: {err}");
+    }
+    assert!(!missing.exists(), "nothing creates the directory");
+    // the directory there: both accept it
+    std::fs::create_dir(&missing).unwrap();
+    std::fs::write(&file, "[storage]\npath = \"no-such-dir/gw.db\"\n").unwrap();
+    let o = gw(&["check-config", file.to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(0), "{}", text(&o.stderr));
+}
+
 #[test]
 fn check_config_names_the_key_and_the_line() {
     config_error(
@@ -362,6 +426,58 @@ fn a_closed_stdout_ends_the_command_quietly() {
         let err = text(&o.stderr);
         assert_eq!(o.status.code(), Some(0), "{args:?}: {err}");
         assert!(err.is_empty(), "{args:?}: {err}");
+    }
+}
+
+/// The same for the commands of the service, which printed with `println!` and panicked (exit
+/// 101, "failed printing to stdout: Broken pipe"): `demo` ends (its daemon stopped) when the
+/// reader goes away, long before its `--duration`; the benches end at their first line.
+#[test]
+fn a_closed_stdout_ends_the_service_commands_quietly() {
+    for args in [
+        &["demo", "--duration", "600"][..],
+        &[
+            "bench",
+            "history",
+            "--gates",
+            "1",
+            "--hours",
+            "0.1",
+            "--queries",
+            "1",
+        ][..],
+        &[
+            "bench",
+            "daemon",
+            "--samples",
+            "2000",
+            "--senders",
+            "1",
+            "--skip",
+            "latency",
+            "--skip",
+            "capacity",
+        ][..],
+    ] {
+        let mut child = Command::new(env!("CARGO_BIN_EXE_gatewatch"))
+            .args(args)
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("gatewatch runs");
+        drop(child.stdout.take());
+        let began = std::time::Instant::now();
+        let o = child.wait_with_output().unwrap();
+        let err = text(&o.stderr);
+        assert_eq!(o.status.code(), Some(0), "{args:?}: {err}");
+        // `demo` may say its port is busy; nothing else is written
+        assert!(
+            err.lines().all(|l| l.contains("is busy")),
+            "{args:?}: {err}"
+        );
+        // not a timing test: the demo would otherwise run its 600 s
+        assert!(began.elapsed().as_secs() < 120, "{args:?} ran on");
     }
 }
 

@@ -95,3 +95,52 @@ fn the_metric_scan_reads_literals_only() {
     let src = r#"let a = "gatewatch_x_total"; let b = "not_ours"; let c = "gatewatch_Bad";"#;
     assert_eq!(metric_names(src), vec!["gatewatch_x_total".to_string()]);
 }
+
+/// The row of `metric` in docs/api.md's metric table names every label value the code
+/// exports at start-up (a reason added in code and not in the table leaves operators guessing
+/// what it means).
+#[test]
+fn the_metric_table_names_every_reason_of_the_code() {
+    use gatewatch::service::metrics::*;
+    let api = read("docs/api.md");
+    let row = |metric: &str| {
+        let head = format!("| `{metric}` |");
+        api.lines()
+            .find(|l| l.starts_with(&head))
+            .unwrap_or_else(|| panic!("docs/api.md has no row for {metric}"))
+            .to_string()
+    };
+    let samples: Vec<&str> = RejectReason::ALL
+        .iter()
+        .filter(|r| !r.is_request())
+        .map(|r| r.as_str())
+        .collect();
+    let requests: Vec<&str> = RejectReason::ALL
+        .iter()
+        .filter(|r| r.is_request())
+        .map(|r| r.as_str())
+        .collect();
+    for (metric, values) in [
+        (
+            "gatewatch_tcp_connections_rejected_total",
+            TCP_CONNECTION_REJECT_REASONS,
+        ),
+        ("gatewatch_samples_rejected_total", &samples[..]),
+        ("gatewatch_ingest_requests_rejected_total", &requests[..]),
+        (
+            "gatewatch_identification_failures_total",
+            IDENTIFICATION_FAILURES,
+        ),
+        ("gatewatch_notifications_total", NOTIFICATION_OUTCOMES),
+        ("gatewatch_store_write_errors_total", STORE_WRITE_ERRORS),
+        ("gatewatch_store_pruned_rows_total", STORE_PRUNE_REASONS),
+    ] {
+        let row = row(metric);
+        for v in values {
+            assert!(
+                row.contains(&format!("`{v}`")),
+                "{metric} lacks `{v}`: {row}"
+            );
+        }
+    }
+}

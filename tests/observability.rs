@@ -89,6 +89,8 @@ async fn known_label_sets_start_at_zero_and_process_metrics_exist() {
         "gatewatch_notifications_queued_total",
         "gatewatch_notifications_total{outcome=\"delivered\",target=\"webhook\"}",
         "gatewatch_notifications_total{outcome=\"dropped\",target=\"alertmanager\"}",
+        "gatewatch_tcp_connections_rejected_total{reason=\"connection_limit\"}",
+        "gatewatch_tcp_connections_rejected_total{reason=\"not_allowed\"}",
     ] {
         assert_eq!(sample(&m, series), Some(0.0), "{series} in\n{m}");
     }
@@ -313,6 +315,159 @@ fn a_port_in_use_is_named_by_its_key_and_address() {
             line,
             format!("gatewatch: {key} 127.0.0.1:{port}: cannot bind: Address already in use"),
             "{err}"
+        );
+    }
+    drop(taken);
+}
+
+/// An invalid `RUST_LOG` was replaced by `log.level` without a word, and a misspelt level
+/// (`debugg`, valid syntax for "the target `debugg` only") silenced every line. Now `serve`
+/// uses `log.level` and says so in a warning naming `RUST_LOG`, its value and the reason;
+/// `check-config` and `demo` say it too.
+#[test]
+fn an_invalid_rust_log_is_a_warning_naming_it_and_log_level_is_used() {
+    let taken = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = taken.local_addr().unwrap().port();
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = dir.path().join("gatewatch.toml");
+    std::fs::write(
+        &cfg,
+        format!(
+            "[server]\nlisten = \"127.0.0.1:{port}\"\nworker_threads = 1\n[storage]\n\
+             path = \"gw.db\"\n[log]\nlevel = \"info\"\n"
+        ),
+    )
+    .unwrap();
+    for (value, reason) in [
+        ("debugg", "`debugg` is not a level"),
+        (
+            "gatewatch=lol",
+            "`gatewatch=lol`: error parsing level filter",
+        ),
+    ] {
+        // serve (it stops at the port in use, after its first log lines)
+        let out = Command::new(env!("CARGO_BIN_EXE_gatewatch"))
+            .args(["serve", "--config"])
+            .arg(&cfg)
+            .env("RUST_LOG", value)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{err}");
+        let warning = err
+            .lines()
+            .find(|l| l.contains("RUST_LOG is invalid"))
+            .unwrap_or_else(|| panic!("RUST_LOG={value}: no warning:\n{err}"));
+        assert!(warning.contains("WARN"), "{warning}");
+        assert!(warning.contains(&format!("rust_log={value}")), "{warning}");
+        assert!(warning.contains(reason), "{warning}");
+        assert!(warning.contains("log_level=info"), "{warning}");
+        // log.level in force (`debugg` as a filter silenced even this error)
+        assert!(
+            err.lines()
+                .any(|l| l.contains("ERROR") && l.contains("cannot bind")),
+            "RUST_LOG={value}:\n{err}"
+        );
+
+        // check-config: still valid (exit 0), with the warning
+        let out = Command::new(env!("CARGO_BIN_EXE_gatewatch"))
+            .arg("check-config")
+            .arg(&cfg)
+            .env("RUST_LOG", value)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(0), "{err}");
+        assert!(
+            err.contains(&format!("warning: RUST_LOG={value:?} is invalid"))
+                && err.contains(reason),
+            "{err}"
+        );
+    }
+    // a valid RUST_LOG stays silent about itself
+    let out = Command::new(env!("CARGO_BIN_EXE_gatewatch"))
+        .arg("check-config")
+        .arg(&cfg)
+        .env("RUST_LOG", "warn,gatewatch=debug")
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success() && !err.contains("RUST_LOG"), "{err}");
+    // demo: the same warning, on its own default (`warn`)
+    let out = Command::new(env!("CARGO_BIN_EXE_gatewatch"))
+        .args(["demo", "--duration", "0.2"])
+        .env("RUST_LOG", "inof")
+        .stdout(Stdio::null())
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(
+        err.lines()
+            .any(|l| l.contains("RUST_LOG is invalid") && l.contains("rust_log=inof")),
+        "{err}"
+    );
+    drop(taken);
+}
+
+/// With `log.format = "json"`, a failing `serve` wrote its fatal error as a plain
+/// `gatewatch: ...` line after the JSON logs (and its start-up warnings in plain text), which
+/// a shipper parsing JSON drops. Every line is JSON now, the fatal one with the whole reason,
+/// also when `log.level` mutes errors.
+#[test]
+fn json_logs_keep_the_fatal_line_and_the_warnings_json() {
+    let taken = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = taken.local_addr().unwrap().port();
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = dir.path().join("gatewatch.toml");
+    let missing = dir.path().join("no-such-dir").join("gw.db");
+    for (server, storage, level, reason) in [
+        (
+            format!("listen = \"127.0.0.1:{port}\""),
+            "gw.db".to_string(),
+            "info",
+            format!("server.listen 127.0.0.1:{port}: cannot bind"),
+        ),
+        (
+            "listen = \"127.0.0.1:0\"".to_string(),
+            missing.display().to_string(),
+            "off",
+            format!("storage file {}", missing.display()),
+        ),
+    ] {
+        std::fs::write(
+            &cfg,
+            format!(
+                "[server]\n{server}\nworker_threads = 1\n[storage]\npath = {storage:?}\n\
+                 [log]\nformat = \"json\"\nlevel = \"{level}\"\n[notify]\n\
+                 alertmanager_urls = [\"http://127.0.0.1:9093\"]\nresend_interval_seconds = 900\n"
+            ),
+        )
+        .unwrap();
+        let out = Command::new(env!("CARGO_BIN_EXE_gatewatch"))
+            .args(["serve", "--config"])
+            .arg(&cfg)
+            .env_remove("RUST_LOG")
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{err}");
+        let lines: Vec<serde_json::Value> = err
+            .lines()
+            .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("not JSON ({e}): {l}")))
+            .collect();
+        let fatal: Vec<_> = lines.iter().filter(|v| v["level"] == "ERROR").collect();
+        assert_eq!(fatal.len(), 1, "one fatal line:\n{err}");
+        assert_eq!(fatal[0]["fields"]["message"], "gatewatch failed", "{err}");
+        let error = fatal[0]["fields"]["error"].as_str().unwrap_or_default();
+        assert!(error.starts_with(&reason), "{error}");
+        assert!(fatal[0]["timestamp"].as_str().is_some(), "{err}");
+        assert!(
+            lines.iter().any(|v| v["level"] == "WARN"
+                && v["fields"]["message"]
+                    .as_str()
+                    .is_some_and(|m| m.contains("resend_interval_seconds = 900"))),
+            "the configuration's warning:\n{err}"
         );
     }
     drop(taken);

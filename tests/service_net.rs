@@ -212,7 +212,12 @@ async fn tcp_clients_outside_the_allowed_networks_are_closed_at_accept() {
     assert!(closed_by_server(&mut c).await);
     let (_, m) = get(r.http, "/metrics").await;
     assert!(
-        m.contains("gatewatch_tcp_connections_rejected_total 1"),
+        m.contains("gatewatch_tcp_connections_rejected_total{reason=\"not_allowed\"} 1"),
+        "{m}"
+    );
+    // the other reason is exported, at 0 (rate() sees its first increment)
+    assert!(
+        m.contains("gatewatch_tcp_connections_rejected_total{reason=\"connection_limit\"} 0"),
         "{m}"
     );
     assert_eq!(get(r.http, "/api/v1/gates/outsider").await.0, 404);
@@ -249,6 +254,113 @@ async fn a_silent_unknown_gate_expires_and_its_stale_alert_resolves() {
     // configured gates never expire
     state.tick(now + Duration::from_secs(86_400));
     assert!(state.gate_view("kept").is_some());
+}
+
+/// The log lines of one tick are bounded: 60 gates going silent together logged one line per
+/// gate for the stale alerts, then one per gate for the expiry and one per resolved alert (an
+/// earlier review saw about 10 000 lines). Now each batch logs its first
+/// `GATE_LINES_PER_BATCH` gates and one summary with the rest's count, and every event is still
+/// counted (the alerts and the expiry metric see all 60).
+#[tokio::test]
+async fn a_sweep_where_every_gate_goes_stale_logs_a_bounded_number_of_lines() {
+    use gatewatch::service::log_limit::GATE_LINES_PER_BATCH;
+    const GATES: usize = 60;
+    let (app, state) = app_with(
+        config("max_gates = 100\nunknown_gate_expiry_seconds = 600"),
+        Arc::new(Fake::default()),
+    );
+    let now = SystemTime::now();
+    for g in 0..GATES {
+        let (s, _) = post_json(&app, uniform(&format!("g{g}"), 1000.0, 5)).await;
+        assert_eq!(s, StatusCode::NO_CONTENT);
+    }
+    // the ticks' log lines, captured (tick runs on this thread)
+    let logs = Arc::new(std::sync::Mutex::new(Vec::<u8>::new()));
+    let sink = logs.clone();
+    let lines = |f: &dyn Fn()| {
+        logs.lock().unwrap().clear();
+        let sink = sink.clone();
+        let subscriber = tracing_subscriber::fmt()
+            .with_ansi(false)
+            .with_max_level(tracing::Level::INFO)
+            .with_writer(move || Capture(sink.clone()))
+            .finish();
+        tracing::subscriber::with_default(subscriber, f);
+        String::from_utf8(logs.lock().unwrap().clone()).unwrap()
+    };
+    // every gate silent: GateDataStale fires for all 60 in one sweep
+    let stale = lines(&|| state.tick(now + Duration::from_secs(120)));
+    let firing = (0..GATES)
+        .filter(|g| {
+            state
+                .gate_view(&format!("g{g}"))
+                .unwrap()
+                .alerts
+                .iter()
+                .any(|a| a.name == "GateDataStale")
+        })
+        .count();
+    assert_eq!(firing, GATES, "every gate's alert fired");
+    let per_gate = stale.lines().filter(|l| l.contains(" alert gate=")).count();
+    assert_eq!(per_gate, GATE_LINES_PER_BATCH, "{stale}");
+    let held = GATES - GATE_LINES_PER_BATCH;
+    assert!(
+        stale.contains(&format!(
+            "held_back={held} by_kind=GateDataStale firing: {held}"
+        )),
+        "{stale}"
+    );
+    assert_eq!(stale.lines().count(), GATE_LINES_PER_BATCH + 1, "{stale}");
+    // past the expiry: 60 expired, 60 alerts resolved, each logged up to the bound
+    let expiry = lines(&|| state.tick(now + Duration::from_secs(601)));
+    assert_eq!(
+        metric(&state, "gatewatch_gates_expired_total"),
+        GATES as f64
+    );
+    let expired = expiry
+        .lines()
+        .filter(|l| l.contains("unknown gate expired"))
+        .count();
+    let resolved = expiry
+        .lines()
+        .filter(|l| l.contains(" alert gate="))
+        .count();
+    assert_eq!(
+        (expired, resolved),
+        (GATE_LINES_PER_BATCH, GATE_LINES_PER_BATCH),
+        "{expiry}"
+    );
+    assert!(
+        expiry
+            .lines()
+            .any(|l| l.contains("more unknown gates expired")
+                && l.contains(&format!("held_back={held}"))),
+        "{expiry}"
+    );
+    assert!(
+        expiry.contains(&format!(
+            "held_back={held} by_kind=GateDataStale resolved: {held}"
+        )),
+        "{expiry}"
+    );
+    assert_eq!(
+        expiry.lines().count(),
+        2 * (GATE_LINES_PER_BATCH + 1),
+        "{expiry}"
+    );
+}
+
+/// A `MakeWriter` target: the log lines into a shared buffer.
+struct Capture(Arc<std::sync::Mutex<Vec<u8>>>);
+
+impl std::io::Write for Capture {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        self.0.lock().unwrap().extend_from_slice(buf);
+        Ok(buf.len())
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        Ok(())
+    }
 }
 
 /// An expired gate that had been identified leaves no series in a scrape of /metrics: not its

@@ -204,7 +204,14 @@ async fn tcp_connection_limit() {
         .unwrap_or(0);
     assert_eq!(n, 0, "the second connection is closed");
     let (_, m) = get(addr, "/metrics").await;
-    assert!(m.contains("gatewatch_tcp_connections_rejected_total 1"));
+    assert!(
+        m.contains("gatewatch_tcp_connections_rejected_total{reason=\"connection_limit\"} 1"),
+        "{m}"
+    );
+    assert!(
+        m.contains("gatewatch_tcp_connections_rejected_total{reason=\"not_allowed\"} 0"),
+        "{m}"
+    );
     drop(first);
     stop(r).await;
 }

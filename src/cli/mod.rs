@@ -194,21 +194,12 @@ pub fn main() -> ExitCode {
         // it wanted, so the command ends quietly with success, as ripgrep does. (Rust ignores
         // SIGPIPE, so the write fails with this error instead of killing the process as it
         // would a C program; SIGPIPE stays ignored, for the daemon's sockets.)
-        Err(CliError::Other(e)) if is_broken_pipe(&e) => ExitCode::SUCCESS,
+        Err(CliError::Other(e)) if crate::service::stdout::is_broken_pipe(&e) => ExitCode::SUCCESS,
         Err(CliError::Other(e)) => {
             let _ = writeln!(stderr, "gatewatch: error: {e:#}");
             ExitCode::from(1)
         }
     }
-}
-
-/// Whether `e` is, or was caused by, a write to a pipe whose reader has gone.
-fn is_broken_pipe(e: &anyhow::Error) -> bool {
-    e.chain().any(|cause| {
-        cause
-            .downcast_ref::<std::io::Error>()
-            .is_some_and(|io| io.kind() == std::io::ErrorKind::BrokenPipe)
-    })
 }
 
 /// A command-line error as printed: a first line `gatewatch: ...` that names the problem (clap's

@@ -29,6 +29,7 @@ use tokio::io::AsyncWriteExt;
 
 use super::config::Config;
 use super::server::{run_with_persistence, Listeners};
+use super::stdout::outln;
 use super::worker::{AnalyzerMap, WindowAnalyzer};
 use crate::analysis::{
     AnalysisError, Analyzer, DampingReport, Path, Previous, Verdict, WindowAnalysis, WindowInput,
@@ -596,27 +597,28 @@ async fn bench(args: BenchDaemonArgs) -> anyhow::Result<()> {
     super::client::ensure_crypto_provider();
     let skip = |what: &str| args.skip.iter().any(|s| s == what);
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
-    println!("gatewatch bench daemon ({cores} cores)");
+    outln!("gatewatch bench daemon ({cores} cores)")?;
     if !skip("ingest") {
-        println!(
+        outln!(
             "\n1. ingest throughput, trivial analyzer, {} senders, {} samples per request",
-            args.senders, args.batch
-        );
-        println!("| protocol | samples | samples/s |");
-        println!("|---|---:|---:|");
+            args.senders,
+            args.batch
+        )?;
+        outln!("| protocol | samples | samples/s |")?;
+        outln!("|---|---:|---:|")?;
         for (name, p) in [
             ("JSON, POST /api/v1/samples", Proto::Json),
             ("line protocol, POST /api/v2/write", Proto::Line),
             ("line protocol, raw TCP", Proto::Tcp),
         ] {
             let r = ingest_rate(&args, p).await?;
-            println!("| {name} | {} | {:.0} |", args.samples, r);
+            outln!("| {name} | {} | {:.0} |", args.samples, r)?;
         }
     }
     if !skip("latency") {
-        println!(
+        outln!(
             "\n2. identification CPU per window (default gate settings, 10 s at 200 Hz every 5 s)"
-        );
+        )?;
         let windows = args.windows;
         let r = tokio::task::spawn_blocking(move || {
             catch_unwind(AssertUnwindSafe(|| latency(windows)))
@@ -624,15 +626,15 @@ async fn bench(args: BenchDaemonArgs) -> anyhow::Result<()> {
         .await?;
         match r {
             Ok(Ok(rows)) => {
-                println!("| window | cold (full search), s | as the daemon runs it, s | path |");
-                println!("|---:|---:|---:|---|");
+                outln!("| window | cold (full search), s | as the daemon runs it, s | path |")?;
+                outln!("|---:|---:|---:|---|")?;
                 for (i, r) in rows.iter().enumerate() {
-                    println!(
+                    outln!(
                         "| {i} | {:.4} | {:.4} | {} |",
                         r.cold,
                         r.tracked,
                         r.path.as_str()
-                    );
+                    )?;
                 }
                 let cold = median(rows.iter().map(|r| r.cold).collect());
                 let tracked: Vec<f64> = rows
@@ -640,28 +642,28 @@ async fn bench(args: BenchDaemonArgs) -> anyhow::Result<()> {
                     .filter(|r| r.path == Path::Tracked)
                     .map(|r| r.tracked)
                     .collect();
-                println!(
+                outln!(
                     "median cold {cold:.4} s; median tracked {:.4} s ({} of {} windows tracked)",
                     median(tracked.clone()),
                     tracked.len(),
                     rows.len()
-                );
+                )?;
             }
-            Ok(Err(e)) => println!("analysis failed: {e}"),
-            Err(_) => println!("the analyzer panicked (not implemented in this build?)"),
+            Ok(Err(e)) => outln!("analysis failed: {e}")?,
+            Err(_) => outln!("the analyzer panicked (not implemented in this build?)")?,
         }
     }
     if !skip("capacity") {
-        println!(
+        outln!(
             "\n3. gates sustained: 200 Hz, 10 s windows every 5 s, real-time pace for {} s",
             args.seconds
-        );
-        println!(
+        )?;
+        outln!(
             "| gates | workers | gates/worker | jobs finished | tracked | replaced | first round s \
              (replaced in it) | queue full | failures | process CPU s/window | RSS MiB (peak) \
              | sustained | after the first round |"
-        );
-        println!("|---:|---:|---:|---:|---:|---:|---|---:|---:|---:|---:|---|---|");
+        )?;
+        outln!("|---:|---:|---:|---:|---:|---:|---|---:|---:|---:|---:|---|---|")?;
         let sweep = !args.gates.is_empty();
         let counts: Vec<usize> = if sweep {
             args.gates.clone()
@@ -693,7 +695,7 @@ async fn bench(args: BenchDaemonArgs) -> anyhow::Result<()> {
             }
             let (mut ok, mut steady) = (true, true);
             for (k, (label, c)) in runs.iter().enumerate() {
-                let (o, s) = capacity_row(label, gates, c);
+                let (o, s) = capacity_row(label, gates, c)?;
                 ok &= o;
                 steady &= s;
                 // The restarted daemon's row on its own: its first round is tracked.
@@ -710,22 +712,22 @@ async fn bench(args: BenchDaemonArgs) -> anyhow::Result<()> {
                 break;
             }
         }
-        println!(
+        outln!(
             "\nsustained: {best} gates (largest count tried with no job replaced); \
              after the first round: {best_steady} gates"
-        );
+        )?;
         if args.restart {
-            println!(
+            outln!(
                 "restarted from the store: {best_restarted} gates (largest count whose restarted \
                  daemon replaced no job)"
-            );
+            )?;
         }
     }
     Ok(())
 }
 
 /// Prints one row of the capacity table; returns (sustained, sustained after the first round).
-fn capacity_row(label: &str, gates: usize, c: &Capacity) -> (bool, bool) {
+fn capacity_row(label: &str, gates: usize, c: &Capacity) -> std::io::Result<(bool, bool)> {
     {
         {
             let clean = c.dropped == 0.0 && c.failures == 0.0 && c.identifications > 0.0;
@@ -733,7 +735,7 @@ fn capacity_row(label: &str, gates: usize, c: &Capacity) -> (bool, bool) {
             // Steady: no job replaced once every gate had its first window (the first round
             // must end within the run for this to say anything).
             let steady = clean && c.warm_up.is_some_and(|(_, before)| c.replaced == before);
-            println!(
+            outln!(
                 "| {label} | {} | {:.1} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
                 c.workers,
                 gates as f64 / c.workers.max(1) as f64,
@@ -749,8 +751,8 @@ fn capacity_row(label: &str, gates: usize, c: &Capacity) -> (bool, bool) {
                     .map_or("-".into(), |(r, p)| format!("{r:.0} ({p:.0})")),
                 if ok { "yes" } else { "no" },
                 if steady { "sustained" } else { "no" }
-            );
-            (ok, steady)
+            )?;
+            Ok((ok, steady))
         }
     }
 }
@@ -773,9 +775,7 @@ pub fn bench_daemon(args: BenchDaemonArgs) -> ExitCode {
     };
     match rt.block_on(bench(args)) {
         Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("gatewatch bench daemon: {e:#}");
-            ExitCode::FAILURE
-        }
+        // a closed stdout (`| head`) ends the run quietly
+        Err(e) => super::stdout::exit_code("gatewatch bench daemon", &e),
     }
 }

@@ -23,6 +23,7 @@ use rand_chacha::ChaCha8Rng;
 
 use super::config::Config;
 use super::server::{run, Listeners};
+use super::stdout::outln;
 use super::storage::identification_record;
 use super::worker::{AnalyzerMap, WindowAnalyzer};
 use crate::analysis::{WindowAnalysis, WindowInput};
@@ -83,10 +84,8 @@ pub fn bench_history(args: BenchHistoryArgs) -> ExitCode {
     }
     match bench(&args) {
         Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("gatewatch bench history: {e:#}");
-            ExitCode::FAILURE
-        }
+        // a closed stdout (`| head`) ends the run quietly
+        Err(e) => super::stdout::exit_code("gatewatch bench history", &e),
     }
 }
 
@@ -139,12 +138,12 @@ fn bench(args: &BenchHistoryArgs) -> anyhow::Result<()> {
     };
     let config = Config::embedded();
     let templates = templates(&config)?;
-    println!(
+    outln!(
         "templates: {} real window analyses ({} and {} bytes of damping report)",
         templates.len(),
         serde_json::to_string(&templates[0].damping)?.len(),
         serde_json::to_string(&templates[1].damping)?.len()
-    );
+    )?;
 
     // write: every gate at each step, oldest first, ending now
     let store = SqliteStore::open(&path, config.storage.max_size_mb)?;
@@ -179,18 +178,18 @@ fn bench(args: &BenchHistoryArgs) -> anyhow::Result<()> {
     store.checkpoint()?;
     let write_s = began.elapsed().as_secs_f64();
     let size = std::fs::metadata(&path)?.len();
-    println!(
+    outln!(
         "wrote {rows} rows ({} gates x {per_gate}) in {write_s:.1} s ({:.0} rows/s), \
          {} rows per transaction",
         args.gates,
         rows as f64 / write_s,
         ROWS_PER_TRANSACTION
-    );
-    println!(
+    )?;
+    outln!(
         "database file: {size} bytes ({:.1} MiB), {:.0} bytes per row",
         size as f64 / 1048576.0,
         size as f64 / rows as f64
-    );
+    )?;
 
     // the store query alone (what the route runs in spawn_blocking)
     let query = HistoryQuery {
@@ -222,30 +221,31 @@ fn bench(args: &BenchHistoryArgs) -> anyhow::Result<()> {
         let mut warm = ms[1..].to_vec();
         warm.sort_by(f64::total_cmp);
         if warm.is_empty() {
-            println!("{what:<44} first {:8.1} ms", ms[0]);
+            outln!("{what:<44} first {:8.1} ms", ms[0])?;
         } else {
-            println!(
+            outln!(
                 "{what:<44} first {:8.1} ms  median {:8.1} ms  max {:8.1} ms",
                 ms[0],
                 warm[warm.len() / 2],
                 warm[warm.len() - 1]
-            );
+            )?;
         }
+        std::io::Result::Ok(())
     };
-    println!(
+    outln!(
         "one gate's {per_gate} rows ({:.1} h), {} requests each:",
         per_gate as f64 * args.every_seconds / 3600.0,
         args.queries
-    );
-    line("store query (SqliteStore::history_rows)", &store_ms);
+    )?;
+    line("store query (SqliteStore::history_rows)", &store_ms)?;
     line(
         &format!("GET .../history JSON ({:.1} MB)", bytes.0 as f64 / 1e6),
         &json_ms,
-    );
+    )?;
     line(
         &format!("GET .../history CSV ({:.1} MB)", bytes.1 as f64 / 1e6),
         &csv_ms,
-    );
+    )?;
     Ok(())
 }
 

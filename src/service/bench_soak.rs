@@ -29,6 +29,8 @@ use std::time::{Duration, Instant};
 
 use serde::Serialize;
 
+use super::stdout::outln;
+
 mod load;
 
 use load::{broken_request, http_gate, simulator, slow_client, tcp_gate, HttpGate};
@@ -595,11 +597,27 @@ pub fn bench_soak(args: BenchSoakArgs) -> ExitCode {
     let latencies = std::mem::take(&mut *crate::service::sync::lock(&ALL_LATENCIES));
     let mut summary = summarise(&args, &ticks, &latencies, panics, survived, exit_code);
     summary.non_2xx_by_status = std::mem::take(&mut *crate::service::sync::lock(&ALL_STATUSES));
-    if args.json {
-        let out = serde_json::json!({"ticks": ticks, "summary": summary});
-        println!("{out}");
+    // `| head`: the reader has what it wanted; the verdict below is still the exit code
+    if let Err(e) = print_summary(args.json, &ticks, &summary) {
+        if e.kind() != std::io::ErrorKind::BrokenPipe {
+            eprintln!("gatewatch bench soak: writing to stdout: {e}");
+            return ExitCode::FAILURE;
+        }
+    }
+    if summary.targets.iter().all(|(_, ok)| *ok) {
+        ExitCode::SUCCESS
     } else {
-        println!(
+        ExitCode::FAILURE
+    }
+}
+
+/// Prints the records and the summary (JSON), or the summary's line and the targets.
+fn print_summary(json: bool, ticks: &[Tick], summary: &Summary) -> std::io::Result<()> {
+    if json {
+        let out = serde_json::json!({"ticks": ticks, "summary": summary});
+        outln!("{out}")?;
+    } else {
+        outln!(
             "soak {:.1} min: rss {:.1} -> {:.1} MiB after warm-up ({:+.1} MiB/h), peak {:.1} MiB; \
              fds {} -> {}; p99 {:.1} ms (worst interval {:.1} ms) over {} requests, {} non-2xx; \
              jobs replaced {:.0}; panics {}; exit {:?}",
@@ -617,19 +635,15 @@ pub fn bench_soak(args: BenchSoakArgs) -> ExitCode {
             summary.jobs_replaced,
             summary.panics,
             summary.exit_code
-        );
+        )?;
         if !summary.non_2xx_by_status.is_empty() {
-            println!("  non-2xx by status: {:?}", summary.non_2xx_by_status);
+            outln!("  non-2xx by status: {:?}", summary.non_2xx_by_status)?;
         }
         for (name, ok) in &summary.targets {
-            println!("  {} {name}", if *ok { "PASS" } else { "FAIL" });
+            outln!("  {} {name}", if *ok { "PASS" } else { "FAIL" })?;
         }
     }
-    if summary.targets.iter().all(|(_, ok)| *ok) {
-        ExitCode::SUCCESS
-    } else {
-        ExitCode::FAILURE
-    }
+    Ok(())
 }
 
 #[cfg(test)]

@@ -23,6 +23,7 @@ use serde::Serialize;
 use super::config::{Config, GateConfig};
 use super::ingest::Batch;
 use super::state::AppState;
+use super::stdout::outln;
 use super::worker::{AnalyzerMap, WindowAnalyzer};
 use crate::simulate::{GatePreset, NoiseLevel, ScenarioName};
 
@@ -645,23 +646,24 @@ pub fn bench_warning(args: BenchWarningArgs) -> ExitCode {
     );
     match rt.block_on(bench(args)) {
         Ok(report) => {
-            if json {
-                match serde_json::to_string_pretty(&report) {
-                    Ok(s) => println!("{s}"),
-                    Err(e) => {
-                        eprintln!("gatewatch bench warning: {e}");
-                        return ExitCode::FAILURE;
-                    }
-                }
+            let printed = if json {
+                serde_json::to_string_pretty(&report)
+                    .map_err(anyhow::Error::from)
+                    .and_then(|s| Ok(outln!("{s}")?))
             } else {
-                println!("{header}\n");
-                print!("{}", score::render(&report.regimes, &report.alerts));
+                let text = format!(
+                    "{header}\n\n{}",
+                    score::render(&report.regimes, &report.alerts)
+                );
+                std::io::Write::write_all(&mut std::io::stdout().lock(), text.as_bytes())
+                    .map_err(anyhow::Error::from)
+            };
+            match printed {
+                Ok(()) => ExitCode::SUCCESS,
+                // a closed stdout (`| head`) ends the run quietly
+                Err(e) => super::stdout::exit_code("gatewatch bench warning", &e),
             }
-            ExitCode::SUCCESS
         }
-        Err(e) => {
-            eprintln!("gatewatch bench warning: {e:#}");
-            ExitCode::FAILURE
-        }
+        Err(e) => super::stdout::exit_code("gatewatch bench warning", &e),
     }
 }

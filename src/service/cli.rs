@@ -34,10 +34,17 @@ pub struct CheckConfigArgs {
 /// Logs go to stderr, as daemons' logs do (journald and container runtimes collect it; stdout
 /// stays free for command output). Colour codes only when stderr is a terminal: in a file or
 /// journald they are noise that breaks `grep` and log shippers, and JSON never has them.
+///
+/// An invalid `RUST_LOG` ([`super::rust_log`]) does not stop the start: `log.level` is used and
+/// the first line logged is a warning naming `RUST_LOG`, its value and why it is refused.
 pub fn init_tracing(config: &Config) {
     use std::io::IsTerminal;
-    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(log_filter(&config.log.level)));
+    let configured = || tracing_subscriber::EnvFilter::new(log_filter(&config.log.level));
+    let (filter, invalid) = match super::rust_log::read() {
+        Ok(Some(f)) => (f, None),
+        Ok(None) => (configured(), None),
+        Err(invalid) => (configured(), Some(invalid)),
+    };
     let builder = tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr);
@@ -47,6 +54,14 @@ pub fn init_tracing(config: &Config) {
             .with_ansi(std::io::stderr().is_terminal())
             .try_init(),
     };
+    if let Some(bad) = invalid {
+        tracing::warn!(
+            rust_log = %bad.value,
+            error = %bad.reason,
+            log_level = %config.log.level,
+            "RUST_LOG is invalid and ignored; using log.level"
+        );
+    }
 }
 
 /// The compiler's crates, quiet below `warn` unless the configured filter names them.
@@ -99,8 +114,10 @@ pub fn serve(args: ServeArgs) -> ExitCode {
     // a relative storage.path is relative to the configuration file, like Prometheus does
     let base = args.config.as_deref().and_then(std::path::Path::parent);
     config.storage.path = config.storage.resolve(base).display().to_string();
+    // From here the log format is known: what serve says on stderr follows it.
+    let format = config.log.format;
     for w in config.warnings() {
-        eprintln!("gatewatch: warning: {w}");
+        start_line(format, "WARN", &w, None);
     }
     init_tracing(&config);
     // before the runtime's threads: the memory bound of docs/design.md depends on it
@@ -111,7 +128,8 @@ pub fn serve(args: ServeArgs) -> ExitCode {
     {
         Ok(rt) => rt,
         Err(e) => {
-            eprintln!("gatewatch: cannot start the runtime: {e}");
+            let e = format!("cannot start the runtime: {e}");
+            start_line(format, "ERROR", "gatewatch failed", Some(&e));
             return ExitCode::FAILURE;
         }
     };
@@ -122,11 +140,45 @@ pub fn serve(args: ServeArgs) -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            tracing::error!(error = %e, "gatewatch failed");
-            eprintln!("gatewatch: {e:#}");
+            if format == LogFormat::Text {
+                tracing::error!(error = %e, "gatewatch failed");
+            }
+            start_line(format, "ERROR", "gatewatch failed", Some(&format!("{e:#}")));
             ExitCode::FAILURE
         }
     }
+}
+
+/// A line `serve` writes to stderr itself, once the configuration is read: a warning of
+/// [`Config::warnings`] (before the logs are set up) or the fatal error it exits with.
+///
+/// Text: `gatewatch: warning: ...` or `gatewatch: <error with its causes>`, as before. JSON: one
+/// object in the shape of the JSON logs (timestamp, level, fields with `message` and `error`,
+/// target), written here rather than through the log filter, so that a log shipper that parses
+/// each line gets these too and a `log.level` or `RUST_LOG` that mutes this module cannot drop
+/// the reason the daemon stopped. (A configuration that cannot be read is reported before its
+/// format is known: that line stays plain text.)
+fn start_line(format: LogFormat, level: &str, message: &str, error: Option<&str>) {
+    let line = match (format, error) {
+        (LogFormat::Text, Some(e)) => format!("gatewatch: {e}"),
+        (LogFormat::Text, None) => format!("gatewatch: warning: {message}"),
+        (LogFormat::Json, _) => {
+            let mut fields = serde_json::json!({ "message": message });
+            if let Some(e) = error {
+                fields["error"] = e.into();
+            }
+            serde_json::json!({
+                "timestamp": humantime::format_rfc3339_micros(std::time::SystemTime::now())
+                    .to_string(),
+                "level": level,
+                "fields": fields,
+                "target": module_path!(),
+            })
+            .to_string()
+        }
+    };
+    // a closed stderr must not turn the message into a panic
+    let _ = writeln!(std::io::stderr(), "{line}");
 }
 
 /// `gatewatch check-config FILE`: exit 0 when valid, 2 with a one-line message naming the key
@@ -134,13 +186,39 @@ pub fn serve(args: ServeArgs) -> ExitCode {
 ///
 /// It runs exactly what `serve` runs before binding its listeners, [`load_config`]: the file,
 /// the `GATEWATCH_*` environment overrides, every validation (the models are compiled, every
-/// duration is bounded). The systemd unit runs it as `ExecStartPre` with the same environment,
+/// duration is bounded); and the checks of the store's location that `serve` makes when it
+/// opens the store ([`crate::store::check_location`]: its directory exists and is writable). The systemd unit runs it as `ExecStartPre` with the same environment,
 /// so a config it passes does not make `serve` fail at start-up.
 pub fn check_config(args: CheckConfigArgs) -> ExitCode {
     match load_config(Some(&args.file)) {
         Ok(config) => {
+            // The store's location, resolved as `serve` resolves it: `serve` does not create
+            // a missing directory, it stops (exit 1), so a path it cannot open is refused here.
+            // A NATS store has no file: its server is reached at start, not here.
+            let base = args.file.parent();
+            let store = config.storage.resolve(base);
+            let checked = match config.storage.backend {
+                crate::store::StorageBackend::Sqlite => crate::store::check_location(&store),
+                crate::store::StorageBackend::Nats => Ok(()),
+            };
+            if let Err(reason) = checked {
+                eprintln!(
+                    "gatewatch: {}: storage.path {}: {reason}",
+                    args.file.display(),
+                    store.display()
+                );
+                return ExitCode::from(2);
+            }
             for w in config.warnings() {
                 eprintln!("{}: warning: {w}", args.file.display());
+            }
+            // what `serve` will log at start with the same environment (the unit's ExecStartPre)
+            if let Err(bad) = super::rust_log::read() {
+                eprintln!(
+                    "gatewatch: warning: RUST_LOG={:?} is invalid and ignored ({}); serve will use \
+                     log.level = {:?}",
+                    bad.value, bad.reason, config.log.level
+                );
             }
             // `check-config FILE | head -1`: a closed stdout ends the output, not in a panic
             let mut out = std::io::stdout().lock();

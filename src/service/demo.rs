@@ -24,6 +24,7 @@ use super::client::{
 };
 use super::clock::now_unix;
 use super::config::Config;
+use super::stdout::outln;
 use crate::alert::notify::WebhookTarget;
 use crate::simulate::{GateParams, GateSimulator};
 
@@ -133,12 +134,26 @@ pub fn demo(args: DemoArgs) -> ExitCode {
     }
     // Daemon logs (warnings only, unless RUST_LOG says otherwise) go to stderr; stdout is the
     // demo's narrative.
-    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn"));
+    // An invalid RUST_LOG is named, and `warn` used (src/service/rust_log.rs).
+    let (filter, invalid) = match super::rust_log::read() {
+        Ok(Some(f)) => (f, None),
+        Ok(None) => (tracing_subscriber::EnvFilter::new("warn"), None),
+        Err(bad) => (tracing_subscriber::EnvFilter::new("warn"), Some(bad)),
+    };
+    // colour codes only on a terminal, as `serve`'s logs (cli::init_tracing)
+    use std::io::IsTerminal;
     let _ = tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
+        .with_ansi(std::io::stderr().is_terminal())
         .try_init();
+    if let Some(bad) = invalid {
+        tracing::warn!(
+            rust_log = %bad.value,
+            error = %bad.reason,
+            "RUST_LOG is invalid and ignored; using warn"
+        );
+    }
     let rt = match tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()
@@ -151,10 +166,31 @@ pub fn demo(args: DemoArgs) -> ExitCode {
     };
     match rt.block_on(run_demo(args, super::shutdown::signal())) {
         Ok(_) => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("gatewatch demo: {e:#}");
-            ExitCode::FAILURE
+        // `gatewatch demo | head -1`: the daemon is stopped as after Ctrl-C, then a quiet exit
+        Err(e) => super::stdout::exit_code("gatewatch demo", &e),
+    }
+}
+
+/// The demo's stdout: once a write fails (the reader went away), nothing more is written and
+/// the demo ends as after Ctrl-C, stopping its daemon; the error is the demo's result.
+#[derive(Debug, Default)]
+struct Narrative {
+    failed: Option<std::io::Error>,
+}
+
+impl Narrative {
+    /// Writes one line, unless an earlier write failed.
+    fn line(&mut self, line: std::fmt::Arguments<'_>) {
+        if self.failed.is_none() {
+            if let Err(e) = outln!("{line}") {
+                self.failed = Some(e);
+            }
         }
+    }
+
+    /// Whether stdout has failed (the demo should end).
+    fn ended(&self) -> bool {
+        self.failed.is_some()
     }
 }
 
@@ -185,7 +221,8 @@ impl DemoSummary {
     }
 }
 
-/// The demo, until `--duration` has passed or `interrupt` resolves.
+/// The demo, until `--duration` has passed or `interrupt` resolves; a failed write to stdout
+/// ends it the same way (its daemon stopped) and is its error.
 pub async fn run_demo(
     args: DemoArgs,
     interrupt: impl std::future::Future<Output = ()>,
@@ -217,19 +254,27 @@ pub async fn run_demo(
     let rules = config.defaults.alert.clone();
     let base = format!("http://{daemon_addr}");
 
-    println!("gatewatch demo: daemon on {base} (embedded default configuration)");
-    println!("  metrics:  {base}/metrics      gate: {base}/api/v1/gates/{DEMO_GATE}");
-    println!("  webhook receiver: http://{hook_addr}/hook");
-    println!(
+    let mut out = Narrative::default();
+    out.line(format_args!(
+        "gatewatch demo: daemon on {base} (embedded default configuration)"
+    ));
+    out.line(format_args!(
+        "  metrics:  {base}/metrics      gate: {base}/api/v1/gates/{DEMO_GATE}"
+    ));
+    out.line(format_args!("  webhook receiver: http://{hook_addr}/hook"));
+    out.line(format_args!(
         "  simulated gate `{DEMO_GATE}`: lab gate (10.4 Hz), damping +2 % for {} s, then a ramp to \
          -2 % over {} s (sample time), streamed at {}x through POST /api/v1/samples",
         args.onset_hold, args.onset_ramp, args.speed
-    );
+    ));
     for line in rule_lines(&rules) {
-        println!("  {line}");
+        out.line(format_args!("  {line}"));
     }
-    println!("  running for {} s (Ctrl-C ends earlier)", args.duration);
-    println!();
+    out.line(format_args!(
+        "  running for {} s (Ctrl-C ends earlier)",
+        args.duration
+    ));
+    out.line(format_args!(""));
 
     let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
     let daemon = tokio::spawn(super::server::run(
@@ -289,23 +334,24 @@ pub async fn run_demo(
     tokio::pin!(deadline);
     tokio::pin!(interrupt);
     let mut streamer = Some(streamer);
-    loop {
+    // until the duration, Ctrl-C, or stdout's reader going away
+    while !out.ended() {
         tokio::select! {
             _ = &mut deadline => break,
             _ = &mut interrupt => {
-                println!("\ninterrupted");
+                out.line(format_args!("\ninterrupted"));
                 break;
             }
             Some(payload) = hooks.recv() => {
                 for line in alert_lines(&payload) {
                     summary.count(&line);
-                    println!("[{:6.1} s] webhook: {line}", began.elapsed().as_secs_f64());
+                    out.line(format_args!("[{:6.1} s] webhook: {line}", began.elapsed().as_secs_f64()));
                 }
             }
             r = async { streamer.as_mut().expect("checked by the guard").await }, if streamer.is_some() => {
                 streamer = None;
                 match r {
-                    Ok(Ok(n)) => println!("[{:6.1} s] simulated stream ended after {n} samples", began.elapsed().as_secs_f64()),
+                    Ok(Ok(n)) => out.line(format_args!("[{:6.1} s] simulated stream ended after {n} samples", began.elapsed().as_secs_f64())),
                     Ok(Err(e)) => eprintln!("simulated stream failed: {e:#}"),
                     Err(e) => eprintln!("simulated stream task failed: {e}"),
                 }
@@ -327,7 +373,7 @@ pub async fn run_demo(
                 } else {
                     v["alert_state"].as_str().unwrap_or("?").to_string()
                 };
-                println!(
+                out.line(format_args!(
                     "[{:6.1} s] identification of {DEMO_GATE} (window ending at t = {:6.1} s): \
                      zeta0 {}{} from {} (true {}), f {} Hz, fit NMAE {}, trusted {}, state {}",
                     began.elapsed().as_secs_f64(),
@@ -344,7 +390,7 @@ pub async fn run_demo(
                     d["fit_nmae"].as_f64().map(|f| format!("{f:.3}")).unwrap_or_else(|| "n/a".into()),
                     d["trusted"].as_bool().unwrap_or(false),
                     state,
-                );
+                ));
             }
         }
     }
@@ -372,13 +418,16 @@ pub async fn run_demo(
     while let Ok(payload) = hooks.try_recv() {
         for line in alert_lines(&payload) {
             summary.count(&line);
-            println!("[{:6.1} s] webhook: {line}", began.elapsed().as_secs_f64());
+            out.line(format_args!(
+                "[{:6.1} s] webhook: {line}",
+                began.elapsed().as_secs_f64()
+            ));
         }
     }
     hook_task.abort();
 
-    println!();
-    println!(
+    out.line(format_args!(""));
+    out.line(format_args!(
         "summary after {:.0} s: {} identifications, {} alerts received by the webhook (firing: \
          {} GateDampingDeclining, {} GateNegativeDamping)",
         began.elapsed().as_secs_f64(),
@@ -386,14 +435,19 @@ pub async fn run_demo(
         summary.alerts,
         summary.declining_fired,
         summary.negative_damping_fired
-    );
+    ));
     if summary.damping_metric_lines.is_empty() {
-        println!("no gatewatch_damping_ratio yet (no successful identification)");
+        out.line(format_args!(
+            "no gatewatch_damping_ratio yet (no successful identification)"
+        ));
     }
     for l in &summary.damping_metric_lines {
-        println!("  {l}");
+        out.line(format_args!("  {l}"));
     }
-    Ok(summary)
+    match out.failed {
+        Some(e) => Err(anyhow::Error::new(e).context("writing to stdout")),
+        None => Ok(summary),
+    }
 }
 
 /// The alert rules as the demo states them: what `AlertEngine` decides on (the interval, the

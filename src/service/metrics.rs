@@ -94,8 +94,9 @@ pub struct Metrics {
     /// `gatewatch_notifications_total{target,outcome}`: per target, batches delivered, failed
     /// or dropped.
     pub notifications: IntCounterVec,
-    /// `gatewatch_tcp_connections_rejected_total`.
-    pub tcp_connections_rejected: IntCounter,
+    /// `gatewatch_tcp_connections_rejected_total{reason}`: raw TCP connections closed at
+    /// accept ([`TCP_CONNECTION_REJECT_REASONS`]).
+    pub tcp_connections_rejected: IntCounterVec,
     /// `gatewatch_http_connections_rejected_total`: closed at accept, over
     /// `server.max_http_connections`.
     pub http_connections_rejected: IntCounter,
@@ -217,6 +218,16 @@ pub const STORE_PRUNE_REASONS: &[&str] = &["age", "rows", "size"];
 /// `gatewatch_store_restore_skipped_total` (a gate's alert state, which then starts fresh, or
 /// one of the windows its analysis memory is rebuilt from).
 pub const STORE_RESTORE_SKIPPED: &[&str] = &["alert_state", "history"];
+/// Reasons of `gatewatch_tcp_connections_rejected_total`, in connections closed at accept
+/// before a byte is read: `connection_limit` when `server.max_tcp_connections` are already
+/// served (an overloaded or leaking client: raise the limit or fix the client), `not_allowed`
+/// when the client's address is outside `server.tcp_allowed_networks` (a refused client: widen
+/// the list or move the client). Two causes with two remedies, so one label each.
+pub const TCP_CONNECTION_REJECT_REASONS: &[&str] = &[TCP_CONNECTION_LIMIT, TCP_NOT_ALLOWED];
+/// `reason="connection_limit"` of `gatewatch_tcp_connections_rejected_total`.
+pub const TCP_CONNECTION_LIMIT: &str = "connection_limit";
+/// `reason="not_allowed"` of `gatewatch_tcp_connections_rejected_total`.
+pub const TCP_NOT_ALLOWED: &str = "not_allowed";
 
 /// Outcomes of `gatewatch_notifications_total`, per target and batch: `delivered`, `failed`
 /// (given up after retries, or refused) and `dropped` (queue full, or abandoned at the shutdown
@@ -270,14 +281,6 @@ impl Metrics {
         .expect("valid metric");
         registry
             .register(Box::new(jobs_replaced.clone()))
-            .expect("unique metric");
-        let tcp_connections_rejected = IntCounter::new(
-            "gatewatch_tcp_connections_rejected_total",
-            "Raw TCP connections closed at accept: connection limit reached or client network not allowed.",
-        )
-        .expect("valid metric");
-        registry
-            .register(Box::new(tcp_connections_rejected.clone()))
             .expect("unique metric");
         let http_connections_rejected = IntCounter::new(
             "gatewatch_http_connections_rejected_total",
@@ -445,7 +448,11 @@ impl Metrics {
                 "Alert notification batches per target kind: delivered, failed or dropped.",
                 &["target", "outcome"],
             ),
-            tcp_connections_rejected,
+            tcp_connections_rejected: counter(
+                "gatewatch_tcp_connections_rejected_total",
+                "Raw TCP connections closed at accept, by reason: connection_limit (server.max_tcp_connections) or not_allowed (client outside server.tcp_allowed_networks).",
+                &["reason"],
+            ),
             http_connections_rejected,
             gates_expired,
             store_write_errors: counter(
@@ -484,6 +491,9 @@ impl Metrics {
         }
         for r in IDENTIFICATION_FAILURES {
             m.identification_failures.with_label_values(&[r]);
+        }
+        for r in TCP_CONNECTION_REJECT_REASONS {
+            m.tcp_connections_rejected.with_label_values(&[r]);
         }
         for r in STORE_WRITE_ERRORS {
             m.store_write_errors.with_label_values(&[r]);

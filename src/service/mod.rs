@@ -15,8 +15,8 @@
 //!   `/ping`, `/health`, `/query`, gzip bodies, v2-shaped errors.
 //! - [`server`]: `run` and the one-deadline shutdown; [`listen`]: the HTTP accept loop with its
 //!   connection cap and header timeout; [`tcp`]: the raw TCP listener; [`shutdown`]: signals;
-//!   [`log_limit`]: the accept loops' warnings, once per interval; [`malloc`]: large buffers
-//!   back to the OS.
+//!   [`log_limit`]: the accept loops' warnings, once per interval, and the per-gate lines of
+//!   one sweep, at most ten and a summary; [`malloc`]: large buffers back to the OS.
 //! - [`cli`]: command-line entry points; [`client`]: the simulate client (talks to a daemon
 //!   over the network only, and installs the TLS crypto provider its HTTP client needs).
 //! - [`bench`](mod@bench): `gatewatch bench daemon`, load measurements.
@@ -28,15 +28,17 @@
 //!   of the history, the alert states and the outbox; [`history`]: `GET .../history`;
 //!   [`resume`]: each gate's analysis memory (trend, ambient level, tracking model) rebuilt
 //!   from its latest stored windows at start.
-//! - [`clock`], [`sync`]: Unix seconds and the poison-tolerant lock, shared by the above.
+//! - [`clock`], [`sync`]: Unix seconds and the poison-tolerant lock, shared by the above;
+//!   [`stdout`]: command output that ends quietly when its reader goes away; [`rust_log`]:
+//!   `RUST_LOG` read and checked (an invalid one is reported and `log.level` used).
 //!
 //! Imports go one way (no circle): `cli` -> `server`, `demo`, `client`, `shutdown`; `demo`,
 //! `bench` -> `server`, `client`; `bench_warning` -> `state`, `worker`, `ingest`, `config`;
 //! `server` -> `api`, `listen`, `tcp`, `state`, `worker`; `api`, `tcp` -> `state`, `ingest`,
 //! `metrics`, `limits`; `state` -> `worker`, `window`, `ingest`, `ingest_checks`, `metrics`,
-//! `config`, `resume`; `resume` -> `worker`, `config`; `ingest_checks` -> `ingest`, `metrics`, `config`;
-//! `ingest`, `worker` -> `config`; and `config`, `window`, `clock`, `sync` import nothing of
-//! the service.
+//! `config`, `resume`, `log_limit`; `resume` -> `worker`, `config`; `ingest_checks` -> `ingest`, `metrics`, `config`;
+//! `ingest`, `worker` -> `config`; and `config`, `window`, `clock`, `sync`, `stdout`,
+//! `rust_log` import nothing of the service.
 
 pub mod api;
 pub mod bench;
@@ -57,9 +59,11 @@ pub mod log_limit;
 pub mod malloc;
 pub mod metrics;
 pub mod resume;
+pub mod rust_log;
 pub mod server;
 pub mod shutdown;
 pub mod state;
+pub mod stdout;
 pub mod storage;
 pub mod sync;
 pub mod tcp;

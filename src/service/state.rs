@@ -18,6 +18,7 @@ use serde::Serialize;
 use super::clock::unix_seconds;
 use super::config::{Config, GateConfig};
 use super::ingest::{BadRequest, Batch};
+use super::log_limit::BatchLog;
 use super::metrics::{Metrics, NotificationCounts, RejectReason};
 use super::storage::{identification_record, Persistence};
 use super::sync::lock;
@@ -466,16 +467,29 @@ impl AppState {
             }
             return;
         }
+        // one line per event up to a bound, then one summary (log_limit.rs: a sweep where every
+        // gate went stale logged one line per gate)
+        let mut lines = BatchLog::new();
         for e in &events {
             let a = e.alert();
             self.metrics
                 .set_alert_firing(a.gate(), &a.name, e.is_firing());
+            if lines.allow(|| format!("{} {}", a.name, e.status())) {
+                tracing::info!(
+                    gate = a.gate(),
+                    alert = %a.name,
+                    status = e.status(),
+                    summary = a.annotations.get("summary").map(String::as_str).unwrap_or(""),
+                    "alert"
+                );
+            }
+        }
+        if let Some((held_back, by_kind)) = lines.held_back() {
             tracing::info!(
-                gate = a.gate(),
-                alert = %a.name,
-                status = e.status(),
-                summary = a.annotations.get("summary").map(String::as_str).unwrap_or(""),
-                "alert"
+                held_back,
+                by_kind = %by_kind,
+                "more alerts in the same batch, not logged one by one (each is notified, stored \
+                 and in gatewatch_alert_firing)"
             );
         }
         if let Some(p) = &self.persistence {

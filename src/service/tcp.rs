@@ -38,7 +38,7 @@ use super::clock::now_unix;
 use super::ingest::line_protocol::{self, Mapping};
 use super::limits::for_log;
 use super::log_limit::{LogLimiter, ACCEPT_WARNING_INTERVAL};
-use super::metrics::RejectReason;
+use super::metrics::{RejectReason, TCP_CONNECTION_LIMIT, TCP_NOT_ALLOWED};
 use super::state::{AppState, IngestError};
 
 /// Bad lines of one connection are logged at most once per this interval (with a count).
@@ -81,7 +81,11 @@ pub async fn serve(
             .iter()
             .any(|n| n.contains(&peer.ip().to_canonical()))
         {
-            state.metrics.tcp_connections_rejected.inc();
+            state
+                .metrics
+                .tcp_connections_rejected
+                .with_label_values(&[TCP_NOT_ALLOWED])
+                .inc();
             if let Some(held_back) = outsiders.allow(Instant::now()) {
                 tracing::warn!(%peer, held_back, "tcp client outside server.tcp_allowed_networks, closing");
             }
@@ -89,7 +93,11 @@ pub async fn serve(
             continue;
         }
         let Ok(permit) = limit.clone().try_acquire_owned() else {
-            state.metrics.tcp_connections_rejected.inc();
+            state
+                .metrics
+                .tcp_connections_rejected
+                .with_label_values(&[TCP_CONNECTION_LIMIT])
+                .inc();
             if let Some(held_back) = refusals.allow(Instant::now()) {
                 tracing::warn!(%peer, held_back, "tcp connection limit reached, closing");
             }

@@ -32,7 +32,8 @@ pub enum StorageBackend {
     /// One SQLite file (`storage.path`), for one daemon.
     #[default]
     Sqlite,
-    /// JetStream streams on a NATS server (`storage.nats_url`), shared by several daemons.
+    /// JetStream streams on a NATS server (`storage.nats_url`), one daemon per prefix
+    /// (`docs/design.md`, "The NATS store").
     Nats,
 }
 

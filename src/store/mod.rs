@@ -49,8 +49,8 @@ pub use nats::{
 pub use row::{HistoryRow, CURVE_STORED_DIGITS, CURVE_STORED_POINTS};
 pub use schema::SCHEMA_VERSION;
 pub use sqlite::{
-    prune_batch_rows, wal_budget, SqliteStore, PRUNE_BATCH_ROWS, SIZE_HIGH_WATERMARK,
-    SIZE_LOW_WATERMARK,
+    check_location, prune_batch_rows, wal_budget, SqliteStore, PRUNE_BATCH_ROWS,
+    SIZE_HIGH_WATERMARK, SIZE_LOW_WATERMARK,
 };
 pub use writer::{StoreStats, StoreWriter};
 

@@ -101,6 +101,41 @@ fn sq(operation: &'static str) -> impl FnOnce(rusqlite::Error) -> StoreError {
     move |source| StoreError::Sqlite { operation, source }
 }
 
+/// Whether the daemon can open a store at `path`, as far as the file system tells before
+/// SQLite is asked: `path` is not a directory, its directory exists, and the directory (where
+/// SQLite creates the WAL, shared-memory and lock files) and an existing file are writable by
+/// this process. The reason, when not, says which (SQLite's own "unable to open database file"
+/// does not).
+///
+/// [`SqliteStore::open`] runs it first; `gatewatch check-config` runs it too, so that a
+/// configuration it passes does not make `serve` fail at start on its store (the systemd unit
+/// runs it as `ExecStartPre`, as the same user, after systemd created `StateDirectory`). The
+/// daemon never creates the directory: a missing one is more often a typo or an unmounted
+/// volume than a wish, and a store silently created elsewhere would lose the history.
+pub fn check_location(path: &Path) -> Result<(), String> {
+    use rustix::fs::{access, Access};
+    if path.is_dir() {
+        return Err("is a directory".into());
+    }
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    if !dir.is_dir() {
+        return Err(format!(
+            "its directory {} does not exist or is not a directory",
+            dir.display()
+        ));
+    }
+    if access(dir, Access::WRITE_OK | Access::EXEC_OK).is_err() {
+        return Err(format!("its directory {} is not writable", dir.display()));
+    }
+    if path.exists() && access(path, Access::WRITE_OK).is_err() {
+        return Err("is not writable".into());
+    }
+    Ok(())
+}
+
 impl SqliteStore {
     /// Opens (creating it if needed) the database at `path` for the daemon: WAL mode, schema
     /// migrated, writable, at most `max_size_mb` MiB. Fails with an error naming the file when
@@ -111,26 +146,10 @@ impl SqliteStore {
             path: name.clone(),
             message: e.to_string(),
         };
-        if path.is_dir() {
-            return Err(StoreError::Open {
-                path: name,
-                message: "is a directory".into(),
-            });
-        }
-        // SQLite's "unable to open database file" does not say that the directory is missing
-        let dir = match path.parent() {
-            Some(d) if !d.as_os_str().is_empty() => d,
-            _ => Path::new("."),
-        };
-        if !dir.is_dir() {
-            return Err(StoreError::Open {
-                path: name,
-                message: format!(
-                    "its directory {} does not exist or is not a directory",
-                    dir.display()
-                ),
-            });
-        }
+        check_location(path).map_err(|message| StoreError::Open {
+            path: name.clone(),
+            message,
+        })?;
         // the lock next to the real file, whatever name (symbolic link) leads to it; a second
         // name of the same file (hard link) is refused outright
         refuse_hard_links(path, &name)?;

@@ -65,14 +65,24 @@ impl AppState {
             .filter(|g| !inner.gates.contains_key(g))
             .collect();
         let mut events = Vec::new();
+        let mut lines = BatchLog::new();
         for id in &orphans {
             events.extend(inner.alerts.remove_gate(id, now));
             self.metrics.remove_gate(id);
             self.metrics.gates_expired.inc();
+            if lines.allow(|| "expired".into()) {
+                tracing::info!(
+                    gate = %id,
+                    "alert state restored at start for a gate that did not send again expired \
+                     (server.unknown_gate_expiry_seconds)"
+                );
+            }
+        }
+        if let Some((held_back, _)) = lines.held_back() {
             tracing::info!(
-                gate = %id,
-                "alert state restored at start for a gate that did not send again expired \
-                 (server.unknown_gate_expiry_seconds)"
+                held_back,
+                "more restored alert states expired, not logged one by one \
+                 (gatewatch_gates_expired_total counts each)"
             );
         }
         (events, orphans)
@@ -120,13 +130,23 @@ impl AppState {
             .map(|(id, _)| id.clone())
             .collect();
         let mut events = Vec::new();
+        let mut lines = BatchLog::new();
         for id in &expired {
             inner.gates.remove(id);
             self.pool().forget(id);
             events.extend(inner.alerts.remove_gate(id, now));
             self.metrics.remove_gate(id);
             self.metrics.gates_expired.inc();
-            tracing::info!(gate = %id, "unknown gate expired (server.unknown_gate_expiry_seconds)");
+            if lines.allow(|| "expired".into()) {
+                tracing::info!(gate = %id, "unknown gate expired (server.unknown_gate_expiry_seconds)");
+            }
+        }
+        if let Some((held_back, _)) = lines.held_back() {
+            tracing::info!(
+                held_back,
+                "more unknown gates expired in the same sweep, not logged one by one \
+                 (gatewatch_gates_expired_total counts each)"
+            );
         }
         (events, expired)
     }
