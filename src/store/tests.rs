@@ -1,4 +1,7 @@
-//! The SQLite store on real files in a temporary directory.
+//! The SQLite store on real files in a temporary directory: what only SQLite does (files,
+//! locks, damage, migrations, the size bound). What every store must do (history bounds,
+//! alert states, the outbox, pruning) is checked once for both stores in
+//! `tests/store_conformance`, run on SQLite by `tests/store_nats.rs`.
 
 use std::sync::Arc;
 use std::time::Duration;
@@ -35,37 +38,6 @@ fn outbox_row(target: &str, fp: &str, status: &str, supersedes: bool) -> NewOutb
 
 fn open(dir: &tempfile::TempDir) -> SqliteStore {
     SqliteStore::open(&dir.path().join("gw.db"), 64).expect("open")
-}
-
-/// The newest rows of a gate come oldest first, capped at `n` (and at `MAX_HISTORY_LIMIT`);
-/// the gates with history come by name, capped at `limit`.
-#[test]
-fn the_latest_rows_of_a_gate_and_the_gates_with_history() {
-    let dir = tempfile::tempdir().expect("tempdir");
-    let s = open(&dir);
-    let batch = WriteBatch {
-        identifications: (0..10)
-            .map(|i| record("g1", 1000.0 + 5.0 * f64::from(i), 0.01))
-            .chain([record("g0", 990.0, -0.02), record("g2", 2000.0, 0.03)])
-            .collect(),
-        ..Default::default()
-    };
-    s.write(&batch).expect("write");
-    let ends = |rows: Vec<HistoryRow>| rows.iter().map(|r| r.window_end).collect::<Vec<_>>();
-    assert_eq!(
-        ends(s.latest_history_rows("g1", 3).expect("latest")),
-        [1035.0, 1040.0, 1045.0]
-    );
-    assert_eq!(
-        ends(s.latest_history_rows("g1", 100).expect("all")).len(),
-        10
-    );
-    assert!(s.latest_history_rows("nobody", 3).expect("none").is_empty());
-    let g0 = s.latest_history_rows("g0", 1).expect("g0");
-    assert_eq!(g0[0].zeta0, Some(-0.02));
-    assert_eq!(g0[0].zeta0_interval, Some((-0.03, -0.01)));
-    assert_eq!(s.history_gates(10).expect("gates"), ["g0", "g1", "g2"]);
-    assert_eq!(s.history_gates(2).expect("gates"), ["g0", "g1"]);
 }
 
 #[test]
@@ -110,92 +82,6 @@ fn history_survives_reopening_and_is_filtered_by_gate_range_and_limit() {
     assert_eq!(g2.len(), 1);
     assert_eq!(g2[0].zeta0(), Some(-0.02));
     assert_eq!(g2[0].zeta0_interval(), Some((-0.03, -0.01)));
-}
-
-#[test]
-fn alert_states_are_replaced_and_forgotten() {
-    let dir = tempfile::tempdir().expect("tempdir");
-    let s = open(&dir);
-    let put = |gate: &str, state: &str| WriteBatch {
-        alert_states: vec![(gate.into(), state.into())],
-        ..Default::default()
-    };
-    s.write(&put("g1", "a")).expect("write");
-    s.write(&put("g2", "b")).expect("write");
-    s.write(&put("g1", "c")).expect("write");
-    assert_eq!(
-        s.alert_states().expect("read"),
-        [("g1".into(), "c".into()), ("g2".into(), "b".into())]
-    );
-    s.write(&WriteBatch {
-        forget_gates: vec!["g1".into()],
-        ..Default::default()
-    })
-    .expect("write");
-    assert_eq!(s.alert_states().expect("read"), [("g2".into(), "b".into())]);
-}
-
-#[test]
-fn outbox_keeps_order_supersedes_per_target_and_fingerprint_and_deletes() {
-    let dir = tempfile::tempdir().expect("tempdir");
-    let s = open(&dir);
-    let ids = s
-        .write(&WriteBatch {
-            outbox: vec![
-                outbox_row("webhook a", "f1", "firing", true),
-                outbox_row("webhook b", "f1", "firing", true),
-                outbox_row("webhook a", "f1", "resolved", false),
-                outbox_row("webhook a", "f2", "firing", true),
-            ],
-            ..Default::default()
-        })
-        .expect("write");
-    assert_eq!(ids.len(), 4);
-    assert!(ids.windows(2).all(|w| w[0] < w[1]), "ids in order: {ids:?}");
-    // a re-fire of f1 for target a supersedes its undelivered firing and resolved
-    let newer = s
-        .write(&WriteBatch {
-            outbox: vec![outbox_row("webhook a", "f1", "firing", true)],
-            delivered: vec![ids[3]],
-            ..Default::default()
-        })
-        .expect("write");
-    let left: Vec<(i64, String, String)> = s
-        .outbox()
-        .expect("read")
-        .into_iter()
-        .map(|r| (r.id, r.row.target, r.row.fingerprint))
-        .collect();
-    assert_eq!(
-        left,
-        [
-            (ids[1], "webhook b".into(), "f1".into()),
-            (newer[0], "webhook a".into(), "f1".into())
-        ]
-    );
-}
-
-#[test]
-fn prune_applies_retention_then_the_row_bound() {
-    let dir = tempfile::tempdir().expect("tempdir");
-    let s = open(&dir);
-    s.write(&WriteBatch {
-        identifications: (0..20).map(|i| record("g", f64::from(i), 0.0)).collect(),
-        ..Default::default()
-    })
-    .expect("write");
-    let p = s.prune(5.0, 10).expect("prune");
-    assert_eq!((p.expired, p.over_size), (5, 5));
-    let left = s
-        .history(&HistoryQuery {
-            gate: "g".into(),
-            from: None,
-            to: None,
-            limit: 100,
-        })
-        .expect("history");
-    assert_eq!(left.first().map(|r| r.window_end), Some(10.0));
-    assert_eq!(left.len(), 10);
 }
 
 #[test]
