@@ -405,6 +405,16 @@ async fn sigterm_flushes_the_last_identifications_into_the_database_file() {
     assert_eq!(state, 1, "the gate's alert state too");
 }
 
+/// `serve` on `cfg` logging to `log`, once it is ready: the child, its URL and a client.
+async fn serve_ready(cfg: &Path, log: &Path) -> (Child, String, reqwest::Client) {
+    let child = serve_logging(cfg, log);
+    let url = daemon_url(cfg);
+    gatewatch::service::client::ensure_crypto_provider();
+    let client = reqwest::Client::new();
+    wait_ready(&client, &url).await;
+    (child, url, client)
+}
+
 /// Polls `/readyz` until 200 (bounded by [`WAIT`]).
 async fn wait_ready(client: &reqwest::Client, url: &str) {
     let deadline = Instant::now() + WAIT;
@@ -523,11 +533,7 @@ async fn a_deleted_store_file_fails_readiness_is_counted_and_exits_1() {
     let cfg = write_config(dir.path(), free_port());
     let db = dir.path().join("gw.db");
     let log = dir.path().join("gatewatch.log");
-    let child = serve_logging(&cfg, &log);
-    let url = daemon_url(&cfg);
-    gatewatch::service::client::ensure_crypto_provider();
-    let client = reqwest::Client::new();
-    wait_ready(&client, &url).await;
+    let (child, url, client) = serve_ready(&cfg, &log).await;
     let mut stream = Stream::new();
     for _ in 0..3 {
         stream.send(&client, &url).await;
@@ -590,11 +596,7 @@ async fn sighup_is_logged_and_ignored_and_sigterm_still_exits_0() {
     let dir = tempfile::tempdir().expect("tempdir");
     let cfg = write_config(dir.path(), free_port());
     let log = dir.path().join("gatewatch.log");
-    let child = serve_logging(&cfg, &log);
-    let url = daemon_url(&cfg);
-    gatewatch::service::client::ensure_crypto_provider();
-    let client = reqwest::Client::new();
-    wait_ready(&client, &url).await;
+    let (child, url, client) = serve_ready(&cfg, &log).await;
     let ignored = gatewatch::service::shutdown::SIGHUP_IGNORED;
     for n in 1..=2 {
         let hup = Command::new("kill")
@@ -734,11 +736,7 @@ async fn sigterm_under_a_foreign_write_lock_exits_within_the_grace_period() {
     .expect("write config");
     let db = dir.path().join("gw.db");
     let log = dir.path().join("gatewatch.log");
-    let child = serve_logging(&cfg, &log);
-    let url = daemon_url(&cfg);
-    gatewatch::service::client::ensure_crypto_provider();
-    let client = reqwest::Client::new();
-    wait_ready(&client, &url).await;
+    let (child, url, client) = serve_ready(&cfg, &log).await;
     let mut stream = Stream::new();
     for _ in 0..3 {
         stream.send(&client, &url).await;
@@ -793,11 +791,7 @@ async fn an_empty_store_file_is_a_warning_naming_it() {
     let db = dir.path().join("gw.db");
     std::fs::write(&db, b"").expect("empty file");
     let log = dir.path().join("gatewatch.log");
-    let child = serve_logging(&cfg, &log);
-    let url = daemon_url(&cfg);
-    gatewatch::service::client::ensure_crypto_provider();
-    let client = reqwest::Client::new();
-    wait_ready(&client, &url).await;
+    let (child, _, _) = serve_ready(&cfg, &log).await;
     let status = terminate(child).await;
     let text = std::fs::read_to_string(&log).expect("log");
     assert_eq!(status.code(), Some(0), "{text}");

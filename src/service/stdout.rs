@@ -4,7 +4,7 @@
 //! Rust ignores SIGPIPE, so the write fails with `BrokenPipe` instead of killing the process as
 //! it would a C program, and `println!` turns that failure into a panic (exit 101 and a
 //! backtrace). The commands of the service (`demo`, `bench daemon`, `bench soak`, `bench
-//! warning`, `bench history`) write with [`outln!`] instead, which returns the error, and end
+//! warning`, `bench history`) write with `outln!` instead, which returns the error, and end
 //! with [`exit_code`]: a broken pipe is a reader that has what it wanted, so the command ends
 //! quietly with success, as the other commands of `gatewatch` do (`cli::main`).
 

@@ -22,7 +22,7 @@ use super::StoreError;
 pub const QUICK_CHECK_MAX_BYTES: u64 = 1 << 30;
 
 /// The lock file of the store at `db`: `<db>.lock`, next to it. The daemon passes the
-/// resolved path ([`real_path`]), so the lock is next to the real file.
+/// resolved path (`real_path`), so the lock is next to the real file.
 pub fn lock_path(db: &Path) -> PathBuf {
     let mut s = db.as_os_str().to_owned();
     s.push(".lock");
