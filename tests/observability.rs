@@ -154,6 +154,26 @@ fn free_port() -> u16 {
         .port()
 }
 
+/// `gatewatch ARGS CFG` with `RUST_LOG` set to `rust_log` (removed when `None`): its exit
+/// status and its stderr.
+fn gw_with_config(
+    args: &[&str],
+    cfg: &std::path::Path,
+    rust_log: Option<&str>,
+) -> (std::process::ExitStatus, String) {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_gatewatch"));
+    cmd.args(args).arg(cfg);
+    match rust_log {
+        Some(v) => cmd.env("RUST_LOG", v),
+        None => cmd.env_remove("RUST_LOG"),
+    };
+    let out = cmd.output().unwrap();
+    (
+        out.status,
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
 /// `serve` with text logs and stderr to a file (as under systemd with `StandardError=file:`
 /// or a shell redirect): no ESC byte, and the TCP peer printed as an address.
 #[test]
@@ -299,14 +319,8 @@ fn a_port_in_use_is_named_by_its_key_and_address() {
             format!("[server]\n{server}\nworker_threads = 1\n[storage]\npath = \"gw.db\"\n"),
         )
         .unwrap();
-        let out = Command::new(env!("CARGO_BIN_EXE_gatewatch"))
-            .args(["serve", "--config"])
-            .arg(&cfg)
-            .env_remove("RUST_LOG")
-            .output()
-            .unwrap();
-        let err = String::from_utf8_lossy(&out.stderr);
-        assert_eq!(out.status.code(), Some(1), "{err}");
+        let (status, err) = gw_with_config(&["serve", "--config"], &cfg, None);
+        assert_eq!(status.code(), Some(1), "{err}");
         let line = err
             .lines()
             .rfind(|l| l.starts_with("gatewatch: "))
@@ -346,14 +360,8 @@ fn an_invalid_rust_log_is_a_warning_naming_it_and_log_level_is_used() {
         ),
     ] {
         // serve (it stops at the port in use, after its first log lines)
-        let out = Command::new(env!("CARGO_BIN_EXE_gatewatch"))
-            .args(["serve", "--config"])
-            .arg(&cfg)
-            .env("RUST_LOG", value)
-            .output()
-            .unwrap();
-        let err = String::from_utf8_lossy(&out.stderr);
-        assert_eq!(out.status.code(), Some(1), "{err}");
+        let (status, err) = gw_with_config(&["serve", "--config"], &cfg, Some(value));
+        assert_eq!(status.code(), Some(1), "{err}");
         let warning = err
             .lines()
             .find(|l| l.contains("RUST_LOG is invalid"))
@@ -370,14 +378,8 @@ fn an_invalid_rust_log_is_a_warning_naming_it_and_log_level_is_used() {
         );
 
         // check-config: still valid (exit 0), with the warning
-        let out = Command::new(env!("CARGO_BIN_EXE_gatewatch"))
-            .arg("check-config")
-            .arg(&cfg)
-            .env("RUST_LOG", value)
-            .output()
-            .unwrap();
-        let err = String::from_utf8_lossy(&out.stderr);
-        assert_eq!(out.status.code(), Some(0), "{err}");
+        let (status, err) = gw_with_config(&["check-config"], &cfg, Some(value));
+        assert_eq!(status.code(), Some(0), "{err}");
         assert!(
             err.contains(&format!("warning: RUST_LOG={value:?} is invalid"))
                 && err.contains(reason),
@@ -385,14 +387,8 @@ fn an_invalid_rust_log_is_a_warning_naming_it_and_log_level_is_used() {
         );
     }
     // a valid RUST_LOG stays silent about itself
-    let out = Command::new(env!("CARGO_BIN_EXE_gatewatch"))
-        .arg("check-config")
-        .arg(&cfg)
-        .env("RUST_LOG", "warn,gatewatch=debug")
-        .output()
-        .unwrap();
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success() && !err.contains("RUST_LOG"), "{err}");
+    let (status, err) = gw_with_config(&["check-config"], &cfg, Some("warn,gatewatch=debug"));
+    assert!(status.success() && !err.contains("RUST_LOG"), "{err}");
     // demo: the same warning, on its own default (`warn`)
     let out = Command::new(env!("CARGO_BIN_EXE_gatewatch"))
         .args(["demo", "--duration", "0.2"])
@@ -401,7 +397,7 @@ fn an_invalid_rust_log_is_a_warning_naming_it_and_log_level_is_used() {
         .output()
         .unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "{err}");
+    assert!(status.success(), "{err}");
     assert!(
         err.lines()
             .any(|l| l.contains("RUST_LOG is invalid") && l.contains("rust_log=inof")),
@@ -444,14 +440,8 @@ fn json_logs_keep_the_fatal_line_and_the_warnings_json() {
             ),
         )
         .unwrap();
-        let out = Command::new(env!("CARGO_BIN_EXE_gatewatch"))
-            .args(["serve", "--config"])
-            .arg(&cfg)
-            .env_remove("RUST_LOG")
-            .output()
-            .unwrap();
-        let err = String::from_utf8_lossy(&out.stderr);
-        assert_eq!(out.status.code(), Some(1), "{err}");
+        let (status, err) = gw_with_config(&["serve", "--config"], &cfg, None);
+        assert_eq!(status.code(), Some(1), "{err}");
         let lines: Vec<serde_json::Value> = err
             .lines()
             .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("not JSON ({e}): {l}")))
