@@ -413,20 +413,25 @@ fn a_closed_stdout_ends_the_command_quietly() {
         &["bench", "generate", "--case", "van_der_pol_2"][..],
         &["completions", "bash"][..],
     ] {
-        let mut child = Command::new(env!("CARGO_BIN_EXE_gatewatch"))
-            .args(args)
-            .stdin(Stdio::null())
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped())
-            .spawn()
-            .expect("gatewatch runs");
-        // the reader goes away before the output is written (at worst after it: exit 0 too)
-        drop(child.stdout.take());
-        let o = child.wait_with_output().unwrap();
+        let o = with_stdout_closed(args);
         let err = text(&o.stderr);
         assert_eq!(o.status.code(), Some(0), "{args:?}: {err}");
         assert!(err.is_empty(), "{args:?}: {err}");
     }
+}
+
+/// `gatewatch ARGS` whose stdout's reader goes away at once, before the output is written (at
+/// worst after it: exit 0 too).
+fn with_stdout_closed(args: &[&str]) -> std::process::Output {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_gatewatch"))
+        .args(args)
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("gatewatch runs");
+    drop(child.stdout.take());
+    child.wait_with_output().unwrap()
 }
 
 /// The same for the commands of the service, which printed with `println!` and panicked (exit
@@ -459,16 +464,8 @@ fn a_closed_stdout_ends_the_service_commands_quietly() {
             "capacity",
         ][..],
     ] {
-        let mut child = Command::new(env!("CARGO_BIN_EXE_gatewatch"))
-            .args(args)
-            .stdin(Stdio::null())
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped())
-            .spawn()
-            .expect("gatewatch runs");
-        drop(child.stdout.take());
         let began = std::time::Instant::now();
-        let o = child.wait_with_output().unwrap();
+        let o = with_stdout_closed(args);
         let err = text(&o.stderr);
         assert_eq!(o.status.code(), Some(0), "{args:?}: {err}");
         // `demo` may say its port is busy; nothing else is written
