@@ -347,6 +347,7 @@ pub fn run_gate_example(opts: &GateExampleOptions) -> Result<Vec<GateExampleRun>
     use crate::simulate::{self, WorkedExampleOptions};
     let analyzer = Analyzer::new(AnalysisSettings {
         signal: Signal::Force,
+        force_terms: Default::default(),
         stiffness: Some(simulate::EX_K),
         model: "c1*ydd + (c2 + c3*yd^2)*yd + k*y = 0".to_string(),
         params: vec![("k".to_string(), simulate::EX_K)],

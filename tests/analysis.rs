@@ -8,6 +8,7 @@ const MODEL: &str = "c1*ydd + (c2 + c3*yd^2)*yd + k*y = 0";
 fn analyzer() -> Analyzer {
     Analyzer::new(AnalysisSettings {
         signal: Signal::Force,
+        force_terms: Default::default(),
         stiffness: Some(81360.0),
         model: MODEL.to_string(),
         params: vec![("k".to_string(), 81360.0)],

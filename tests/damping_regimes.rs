@@ -335,6 +335,7 @@ fn force_analyzer(p: &GateParams) -> gatewatch::analysis::Analyzer {
     use gatewatch::analysis::{AnalysisSettings, Analyzer, Signal};
     Analyzer::new(AnalysisSettings {
         signal: Signal::Force,
+        force_terms: Default::default(),
         stiffness: Some(p.stiffness),
         model: "c1*ydd + (c2 + c3*yd^2)*yd + k*y = 0".into(),
         params: vec![("k".into(), p.stiffness)],

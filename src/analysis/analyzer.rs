@@ -174,6 +174,7 @@ impl Analyzer {
         let s = &self.settings;
         let mut opts = SeriesOptions {
             signal: s.signal,
+            force_terms: s.force_terms,
             stiffness: s.stiffness,
             identify: identify::Config {
                 search: identify::Search {

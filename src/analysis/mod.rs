@@ -87,11 +87,52 @@ pub enum Signal {
     Displacement,
 }
 
+/// What a force signal holds (`force_terms`; docs/damping.md, "What the support force holds").
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "kebab-case")]
+pub enum ForceTerms {
+    /// Every term of the equation but the inertia: the damping force plus the stiffness force
+    /// (the chapter's section 8.5, equation 8.7).
+    #[default]
+    All,
+    /// The terms without `yd`: the stiffness force alone (a load cell in series with the
+    /// gate's spring, the flow's damping acting on the gate's body).
+    Stiffness,
+}
+
+impl ForceTerms {
+    /// The identification's output for a force signal holding these terms.
+    pub fn output(self) -> crate::identify::Output {
+        match self {
+            ForceTerms::All => crate::identify::Output::Force,
+            ForceTerms::Stiffness => crate::identify::Output::RestoringForce,
+        }
+    }
+}
+
+impl std::str::FromStr for ForceTerms {
+    type Err = String;
+
+    /// The configuration's spelling: `all` or `stiffness`.
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "all" => Ok(ForceTerms::All),
+            "stiffness" => Ok(ForceTerms::Stiffness),
+            _ => Err(format!(
+                "unknown force terms `{s}`: expected all or stiffness"
+            )),
+        }
+    }
+}
+
 /// Settings of the analysis of one gate.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct AnalysisSettings {
     /// What the samples are.
     pub signal: Signal,
+    /// What a force signal holds: every term but the inertia, or the stiffness force alone.
+    #[serde(default)]
+    pub force_terms: ForceTerms,
     /// Installed stiffness in N/m (force mode: converts force to displacement; known constant `k`).
     pub stiffness: Option<f64>,
     /// The equation of motion, in the model language (see [`crate::model`]).

@@ -8,7 +8,9 @@ use super::model_interval::{zeta0_interval, FittedModel};
 use super::population::{initial_population, PopulationInputs, SpectralTarget};
 use super::report::{AmbientZeta, DampingReport, Verdict, Zeta0Source};
 use super::verdict::{agrees, decide, VerdictFacts, WindowGrowth};
-use super::{AnalysisError, ModelInterval, PolishSolver, Signal, MIN_RK4_STEPS_PER_CYCLE};
+use super::{
+    AnalysisError, ForceTerms, ModelInterval, PolishSolver, Signal, MIN_RK4_STEPS_PER_CYCLE,
+};
 use crate::data::TimeSeries;
 use crate::identify::{self, Identification, InitialValues};
 use crate::model::Model;
@@ -20,6 +22,8 @@ use std::f64::consts::PI;
 pub struct SeriesOptions {
     /// What the samples are.
     pub signal: Signal,
+    /// What a force signal holds (the identification's output in force mode).
+    pub force_terms: ForceTerms,
     /// Installed stiffness, N/m (force mode).
     pub stiffness: Option<f64>,
     /// The identification's settings (population, generations, runs, seeds, solver, ...). In
@@ -46,6 +50,7 @@ impl Default for SeriesOptions {
     fn default() -> Self {
         SeriesOptions {
             signal: Signal::Displacement,
+            force_terms: ForceTerms::All,
             stiffness: None,
             identify: identify::Config::default(),
             fft_bias: true,
@@ -459,7 +464,7 @@ fn scale_problem(
             }
             let y_scale = std::f64::consts::SQRT_2 * f_rms / k;
             config.initial = identify::Initial::Known { y0, v0 };
-            config.output = identify::Output::Force;
+            config.output = opts.force_terms.output();
             config.scales = term_scales(model, t0, y_scale, w, f_rms);
             config.y_scale = Some(y_scale);
             config.polish_initial = Some((y_scale, y_scale * w));

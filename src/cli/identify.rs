@@ -95,6 +95,11 @@ pub struct IdentifyArgs {
     /// What the values are: displacement, or the support force (section 8.5).
     #[arg(long, value_enum, default_value = "displacement")]
     signal: SignalArg,
+    /// What a force signal holds: all (every term but the inertia, the damping plus the
+    /// stiffness force: section 8.5) or stiffness (the terms without yd: a load cell in series
+    /// with the spring; docs/damping.md, "What the support force holds").
+    #[arg(long, value_name = "TERMS")]
+    force_terms: Option<analysis::ForceTerms>,
     /// Installed stiffness in N/m (force signals; also usable as the constant `k`).
     #[arg(long, allow_negative_numbers = true, value_name = "N/m")]
     stiffness: Option<f64>,
@@ -193,6 +198,10 @@ pub(super) fn run(a: IdentifyArgs) -> Result<(), CliError> {
         if a.y0.is_some() || a.fit_initial {
             return Err(input("--signal force takes its initial conditions from the pre-run: drop --y0/--v0/--fit-initial"));
         }
+    } else if a.force_terms.is_some() {
+        return Err(input(
+            "--force-terms says what a force signal holds: it needs --signal force",
+        ));
     }
     if !(a.moving_average >= 0.0 && a.moving_average.is_finite()) {
         return Err(input("--moving-average must be >= 0 seconds"));
@@ -320,6 +329,7 @@ pub(super) fn run(a: IdentifyArgs) -> Result<(), CliError> {
     }
     let opts = SeriesOptions {
         signal,
+        force_terms: a.force_terms.unwrap_or_default(),
         stiffness: a.stiffness,
         identify: config.clone(),
         fft_bias: !a.no_fft_bias,

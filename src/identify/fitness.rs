@@ -94,7 +94,7 @@ impl<'a> Fitness<'a> {
             Output::Displacement => bound + data_scale,
             // Forces of a completing candidate are not bounded by the state bound; failures are
             // made dominant by a base far above any plausible force error instead.
-            Output::Force => 1e12 * data_scale,
+            Output::Force | Output::RestoringForce => 1e12 * data_scale,
         };
         Fitness {
             model,
@@ -211,7 +211,10 @@ impl<'a> Fitness<'a> {
             }
             let value = match self.output {
                 Output::Displacement => s[0],
-                Output::Force => self.model.residual(times[i], s[0], s[1], coeffs),
+                Output::Force | Output::RestoringForce => {
+                    self.model
+                        .residual(times[i], s[0], self.output.force_yd(s[1]), coeffs)
+                }
             };
             each(i, value)
         })
@@ -229,7 +232,7 @@ impl<'a> Fitness<'a> {
                 }
                 ControlFlow::Continue(())
             }),
-            Output::Force => {
+            Output::Force | Output::RestoringForce => {
                 // The states first, the model's force at them afterwards, 8 samples at a time.
                 let mut states = Vec::with_capacity(self.n_train);
                 let (coeffs, y0, v0) = self.physical(x, &mut buf);
@@ -268,7 +271,9 @@ impl<'a> Fitness<'a> {
                 let (i, a, b) = chunk[l.min(chunk.len() - 1)];
                 (t[l], y[l], yd[l]) = (self.t[i], a, b);
             }
-            let v = self.model.residual_lanes(&t, &y, &yd, &c);
+            let v = self
+                .model
+                .residual_lanes(&t, &y, &self.output.force_yd_lanes(&yd), &c);
             for (l, &(i, _, _)) in chunk.iter().enumerate() {
                 out.push(v[l] - self.y[i]);
             }
@@ -335,7 +340,7 @@ impl<'a> Fitness<'a> {
         let (y0, live) = self.load_lanes(xs, n, &mut c);
         let mut res: Vec<Vec<f64>> = (0..n).map(|_| Vec::with_capacity(self.n_train)).collect();
         // Dormand-Prince with a force output: each lane's states, the forces afterwards.
-        let defer = !matches!(self.method, Method::Rk4) && matches!(self.output, Output::Force);
+        let defer = !matches!(self.method, Method::Rk4) && self.output.is_force();
         let mut states: Vec<Vec<(usize, f64, f64)>> = (0..if defer { n } else { 0 })
             .map(|_| Vec::with_capacity(self.n_train))
             .collect();
@@ -352,7 +357,12 @@ impl<'a> Fitness<'a> {
                 }
                 let v = match self.output {
                     Output::Displacement => s[0],
-                    Output::Force => self.model.residual_lanes(&[times[i]; L], &s[0], &s[1], c),
+                    Output::Force | Output::RestoringForce => self.model.residual_lanes(
+                        &[times[i]; L],
+                        &s[0],
+                        &self.output.force_yd_lanes(&s[1]),
+                        c,
+                    ),
                 };
                 for (l, r) in res.iter_mut().enumerate() {
                     if live[l] {
@@ -366,7 +376,7 @@ impl<'a> Fitness<'a> {
                 }
                 match self.output {
                     Output::Displacement => res[l].push(s[0] - self.y[i]),
-                    Output::Force => states[l].push((i, s[0], s[1])),
+                    Output::Force | Output::RestoringForce => states[l].push((i, s[0], s[1])),
                 }
                 ControlFlow::Continue(())
             }),
@@ -502,7 +512,12 @@ impl Fitness<'_> {
                 }
                 let v = match self.output {
                     Output::Displacement => s[0],
-                    Output::Force => self.model.residual_lanes(&[times[i]; L], &s[0], &s[1], c),
+                    Output::Force | Output::RestoringForce => self.model.residual_lanes(
+                        &[times[i]; L],
+                        &s[0],
+                        &self.output.force_yd_lanes(&s[1]),
+                        c,
+                    ),
                 };
                 for l in 0..L {
                     if live[l] && tally[l].add(self, i, v[l]).is_break() {
@@ -516,12 +531,13 @@ impl Fitness<'_> {
                 }
                 let v = match self.output {
                     Output::Displacement => s[0],
-                    Output::Force => {
+                    Output::Force | Output::RestoringForce => {
                         // The lanes reach a sample at different moments: lane by lane.
                         for (b, ck) in buf.iter_mut().zip(c) {
                             *b = ck[l];
                         }
-                        self.model.residual(times[i], s[0], s[1], &buf[..nc])
+                        self.model
+                            .residual(times[i], s[0], self.output.force_yd(s[1]), &buf[..nc])
                     }
                 };
                 tally[l].add(self, i, v)

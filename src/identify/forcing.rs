@@ -111,8 +111,8 @@ pub fn covariance_under_forcing(optimum: &Optimum<'_>) -> Option<Covariance> {
         a.push([[0.0, 1.0], [dy, dv]]);
         c.push(match output {
             Output::Displacement => [1.0, 0.0],
-            Output::Force => {
-                let r = |y: f64, v: f64| model.residual(t, y, v, coefficients);
+            Output::Force | Output::RestoringForce => {
+                let r = |y: f64, v: f64| model.residual(t, y, output.force_yd(v), coefficients);
                 [
                     (r(s[0] + hy, s[1]) - r(s[0] - hy, s[1])) / (2.0 * hy),
                     (r(s[0], s[1] + hv) - r(s[0], s[1] - hv)) / (2.0 * hv),

@@ -334,7 +334,7 @@ pub(crate) fn setup<'a>(
     // Only the displacement is blind to a common factor of M and R; a force output is R itself.
     let scale_groups = match problem.output {
         Output::Displacement => problem.model.scale_groups(),
-        Output::Force => Vec::new(),
+        Output::Force | Output::RestoringForce => Vec::new(),
     };
     let n = problem.series.len();
     let (train, test) = split(n, protocol.train_fraction, protocol.split_seed)?;

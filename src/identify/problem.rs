@@ -196,4 +196,38 @@ pub enum Output {
     /// The support force `R(t, y, yd)`: everything in `M*ydd + R = 0` but the inertia term,
     /// i.e. the damping force plus the stiffness force (section 8.5, equation 8.7).
     Force,
+    /// The restoring force `R(t, y, 0)`: the terms of `R` without `yd`, the stiffness force
+    /// alone. A load cell in series with the gate's spring measures this when the damping
+    /// (the flow's, which drives a self-excitation) acts on the gate's body, not through the
+    /// support. The damping then shows only through the motion, as in the displacement.
+    #[serde(rename = "restoring-force")]
+    RestoringForce,
+}
+
+impl Output {
+    /// Whether the output is a force (`R` or its restoring part), not the displacement.
+    pub fn is_force(self) -> bool {
+        !matches!(self, Output::Displacement)
+    }
+
+    /// The `yd` at which the model's `R` is evaluated for this output: the state's own, or 0
+    /// for the restoring force.
+    #[inline]
+    pub fn force_yd(self, yd: f64) -> f64 {
+        if self == Output::RestoringForce {
+            0.0
+        } else {
+            yd
+        }
+    }
+
+    /// [`Output::force_yd`] on `L` lanes.
+    #[inline]
+    pub fn force_yd_lanes<const L: usize>(self, yd: &[f64; L]) -> [f64; L] {
+        if self == Output::RestoringForce {
+            [0.0; L]
+        } else {
+            *yd
+        }
+    }
 }

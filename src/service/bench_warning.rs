@@ -84,6 +84,10 @@ pub struct BenchWarningArgs {
     /// configuration's default) or forcing.
     #[arg(long)]
     pub model_interval: Option<crate::analysis::ModelInterval>,
+    /// What the gates' force signal holds (`force_terms`): all (the configuration's default)
+    /// or stiffness, which is what the simulator records (`F = k*y`).
+    #[arg(long)]
+    pub force_terms: Option<crate::analysis::ForceTerms>,
     /// `GateNegativeDamping`'s `fire_at_once_probability` (default: the configuration's).
     #[arg(long)]
     pub fire_at_once_probability: Option<f64>,
@@ -546,6 +550,9 @@ fn configure(args: &BenchWarningArgs, gate: GatePreset) -> anyhow::Result<Config
     for (name, g) in config.gates.iter_mut() {
         if let Some(m) = args.model_interval {
             g.model_interval = m;
+        }
+        if let Some(t) = args.force_terms {
+            g.force_terms = t;
         }
         if let Some(p) = args.fire_at_once_probability {
             g.alert.fire_at_once_probability = p;

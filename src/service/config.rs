@@ -317,6 +317,8 @@ impl Default for IngestConfig {
 pub struct GateConfig {
     /// force | displacement.
     pub signal: Signal,
+    /// What a force signal holds: all (damping plus stiffness force) | stiffness.
+    pub force_terms: crate::analysis::ForceTerms,
     /// Sample rate, Hz.
     pub rate_hz: f64,
     /// Installed stiffness, N/m (needed for `signal = "force"`).
@@ -365,6 +367,7 @@ impl Default for GateConfig {
     fn default() -> Self {
         GateConfig {
             signal: Signal::Force,
+            force_terms: crate::analysis::ForceTerms::All,
             rate_hz: 200.0,
             stiffness: Some(81_360.0),
             model: DEFAULT_MODEL.into(),

@@ -39,6 +39,7 @@ impl GateConfig {
         }
         AnalysisSettings {
             signal: self.signal,
+            force_terms: self.force_terms,
             stiffness: self.stiffness,
             model: self.model.clone(),
             params,

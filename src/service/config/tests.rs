@@ -112,6 +112,8 @@ fn errors_name_the_key() {
     );
     assert!(err("[gates.g1]\nmodel_interval = \"bootstrap\"\n")
         .starts_with("gates.g1.model_interval: unknown variant `bootstrap`"));
+    assert!(err("[gates.g1]\nforce_terms = \"damping\"\n")
+        .starts_with("gates.g1.force_terms: unknown variant `damping`"));
     assert!(err("[gates.\"bad id!\"]\n").starts_with("gates.bad id!:"));
     assert!(err("[server\n").contains("invalid") || !err("[server\n").is_empty());
     assert!(!err("[gates.g1]\nrate_hz = 0.0\n").contains('\n'));
@@ -343,6 +345,17 @@ fn model_interval_defaults_to_newey_west_and_reads_forcing() {
         g1.analysis_settings().model_interval,
         ModelInterval::Forcing
     );
+}
+
+#[test]
+fn force_terms_default_to_all_and_read_stiffness_per_gate() {
+    use crate::analysis::ForceTerms;
+    assert_eq!(Config::embedded().defaults.force_terms, ForceTerms::All);
+    let text = "[gates.g1]\nforce_terms = \"stiffness\"\n[gates.g2]\n";
+    let config = Config::from_toml(text).expect("valid");
+    let settings = |g: &str| config.gate(g).expect("gate").analysis_settings();
+    assert_eq!(settings("g1").force_terms, ForceTerms::Stiffness);
+    assert_eq!(settings("g2").force_terms, ForceTerms::All);
 }
 
 /// Every option of `Config::default()` is shown in `config/gatewatch.toml` (set or commented
