@@ -478,6 +478,48 @@ fn a_closed_stdout_ends_the_service_commands_quietly() {
     }
 }
 
+/// `gatewatch ARGS` whose stderr's reader goes away at once.
+fn with_stderr_closed(args: &[&str]) -> std::process::Output {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_gatewatch"))
+        .args(args)
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("gatewatch runs");
+    drop(child.stderr.take());
+    child.wait_with_output().unwrap()
+}
+
+/// Progress and error lines on a stderr whose reader has gone (a log collector restarted, `2>`
+/// into a closed pipe) are dropped, not a panic: `bench warning` printed its progress with
+/// `eprintln!` and ended with exit 101 and no table; a refused configuration exits 2, as with
+/// a stderr to read (it too was 101).
+#[test]
+fn a_closed_stderr_does_not_crash_the_service_commands() {
+    let o = with_stderr_closed(&[
+        "bench",
+        "warning",
+        "--seeds",
+        "1",
+        "--gates",
+        "lab",
+        "--scenarios",
+        "step",
+    ]);
+    assert_eq!(o.status.code(), Some(0));
+    let table = text(&o.stdout);
+    assert!(
+        table.contains("| step | lab | GateNegativeDamping |"),
+        "{table}"
+    );
+    let dir = tempfile::tempdir().unwrap();
+    let bad = dir.path().join("bad.toml");
+    std::fs::write(&bad, "[server]\nmax_gates = 0\n").unwrap();
+    let o = with_stderr_closed(&["check-config", bad.to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(2));
+}
+
 /// `bench generate --output` names an unwritable path and exits 2, like stability-map's.
 #[test]
 fn generate_names_an_unwritable_output() {

@@ -29,7 +29,7 @@ use tokio::io::AsyncWriteExt;
 
 use super::config::Config;
 use super::server::{run_with_persistence, Listeners};
-use super::stdout::outln;
+use super::stdout::{errln, outln};
 use super::worker::{AnalyzerMap, WindowAnalyzer};
 use crate::analysis::{
     AnalysisError, Analyzer, DampingReport, Path, Previous, Verdict, WindowAnalysis, WindowInput,
@@ -760,7 +760,7 @@ fn capacity_row(label: &str, gates: usize, c: &Capacity) -> std::io::Result<(boo
 /// `gatewatch bench daemon`.
 pub fn bench_daemon(args: BenchDaemonArgs) -> ExitCode {
     if let Err(e) = check(&args) {
-        eprintln!("gatewatch bench daemon: {e}");
+        errln!("gatewatch bench daemon: {e}");
         return ExitCode::from(2);
     }
     let rt = match tokio::runtime::Builder::new_multi_thread()
@@ -769,7 +769,7 @@ pub fn bench_daemon(args: BenchDaemonArgs) -> ExitCode {
     {
         Ok(rt) => rt,
         Err(e) => {
-            eprintln!("gatewatch bench daemon: {e}");
+            errln!("gatewatch bench daemon: {e}");
             return ExitCode::FAILURE;
         }
     };

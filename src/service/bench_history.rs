@@ -23,7 +23,7 @@ use rand_chacha::ChaCha8Rng;
 
 use super::config::Config;
 use super::server::{run, Listeners};
-use super::stdout::outln;
+use super::stdout::{errln, outln};
 use super::storage::identification_record;
 use super::worker::{AnalyzerMap, WindowAnalyzer};
 use crate::analysis::{WindowAnalysis, WindowInput};
@@ -79,7 +79,7 @@ impl Drop for TempDir {
 /// Runs the benchmark; the report goes to stdout.
 pub fn bench_history(args: BenchHistoryArgs) -> ExitCode {
     if let Err(e) = check(&args) {
-        eprintln!("gatewatch bench history: {e}");
+        errln!("gatewatch bench history: {e}");
         return ExitCode::from(2);
     }
     match bench(&args) {

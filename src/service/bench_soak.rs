@@ -29,7 +29,7 @@ use std::time::{Duration, Instant};
 
 use serde::Serialize;
 
-use super::stdout::outln;
+use super::stdout::{errln, outln};
 
 mod load;
 
@@ -404,7 +404,7 @@ async fn soak(args: &BenchSoakArgs, daemon: &mut Daemon) -> anyhow::Result<Vec<T
             jobs_replaced: metric_sum(&metrics, "gatewatch_identification_jobs_replaced_total"),
         };
         if !args.json {
-            eprintln!(
+            errln!(
                 "{:7.0} s  rss {:7.1} MiB  peak {:7.1} MiB  fds {:5}  req {:5}  p50 {:6.1} ms  p99 {:6.1} ms  non-2xx {:3}  replaced {:6.0}",
                 tick.t, tick.rss_mib, tick.hwm_mib, tick.fds, tick.requests, tick.p50_ms,
                 tick.p99_ms, tick.non_2xx, tick.jobs_replaced
@@ -547,7 +547,7 @@ pub fn bench_soak(args: BenchSoakArgs) -> ExitCode {
         || !(args.broken_per_second == 0.0 || positive(args.broken_per_second))
         || !(args.warmup == 0.0 || positive(args.warmup))
     {
-        eprintln!(
+        errln!(
             "gatewatch bench soak: --minutes, --interval, --rate and --rss-bound-mib must be \
              > 0, --broken-per-second and --warmup >= 0"
         );
@@ -556,7 +556,7 @@ pub fn bench_soak(args: BenchSoakArgs) -> ExitCode {
     let mut daemon = match start_daemon(&args) {
         Ok(d) => d,
         Err(e) => {
-            eprintln!("gatewatch bench soak: {e:#}");
+            errln!("gatewatch bench soak: {e:#}");
             return ExitCode::FAILURE;
         }
     };
@@ -567,7 +567,7 @@ pub fn bench_soak(args: BenchSoakArgs) -> ExitCode {
     {
         Ok(r) => r,
         Err(e) => {
-            eprintln!("gatewatch bench soak: starting the load's runtime: {e}");
+            errln!("gatewatch bench soak: starting the load's runtime: {e}");
             let _ = daemon.child.kill();
             return ExitCode::FAILURE;
         }
@@ -588,7 +588,7 @@ pub fn bench_soak(args: BenchSoakArgs) -> ExitCode {
     let ticks = match result {
         Ok(t) => t,
         Err(e) => {
-            eprintln!("gatewatch bench soak: {e:#}");
+            errln!("gatewatch bench soak: {e:#}");
             let _ = daemon.child.kill();
             return ExitCode::FAILURE;
         }
@@ -600,7 +600,7 @@ pub fn bench_soak(args: BenchSoakArgs) -> ExitCode {
     // `| head`: the reader has what it wanted; the verdict below is still the exit code
     if let Err(e) = print_summary(args.json, &ticks, &summary) {
         if e.kind() != std::io::ErrorKind::BrokenPipe {
-            eprintln!("gatewatch bench soak: writing to stdout: {e}");
+            errln!("gatewatch bench soak: writing to stdout: {e}");
             return ExitCode::FAILURE;
         }
     }

@@ -23,7 +23,7 @@ use serde::Serialize;
 use super::config::{Config, GateConfig};
 use super::ingest::Batch;
 use super::state::AppState;
-use super::stdout::outln;
+use super::stdout::{errln, outln};
 use super::worker::{AnalyzerMap, WindowAnalyzer};
 use crate::simulate::{GatePreset, NoiseLevel, ScenarioName};
 
@@ -390,7 +390,7 @@ pub async fn run_stream(
                     t.crossing_seconds_confident,
                 )
             });
-            eprintln!(
+            errln!(
                 "t {end:7.1}  true {:+.2} %  zeta0 {:?} {:?} {:?} trusted {trusted}  trend \
                  (%/min, upper %/min, confident crossing s) {trend:?}  firing {firing:?}  (regime, pooled, ssi, ambient ratio, model, fit nmae, agrees, rms swing, path) {facts:?}  scored {} (true mean {:+.2} %)  f {:?} Hz{}",
                 100.0 * truth_centre,
@@ -602,7 +602,7 @@ async fn bench(args: BenchWarningArgs) -> anyhow::Result<Report> {
                 a
             }
         };
-        eprintln!(
+        errln!(
             "[{}/{}] {} on {} gate, seed {}, {:.0} s of sample time",
             i + 1,
             specs.len(),
@@ -626,7 +626,7 @@ async fn bench(args: BenchWarningArgs) -> anyhow::Result<Report> {
 /// the table), 2 on bad arguments, 1 when a run failed.
 pub fn bench_warning(args: BenchWarningArgs) -> ExitCode {
     if let Err(e) = plan(&args) {
-        eprintln!("gatewatch bench warning: {e:#}");
+        errln!("gatewatch bench warning: {e:#}");
         return ExitCode::from(2);
     }
     let rt = match tokio::runtime::Builder::new_multi_thread()
@@ -636,7 +636,7 @@ pub fn bench_warning(args: BenchWarningArgs) -> ExitCode {
     {
         Ok(rt) => rt,
         Err(e) => {
-            eprintln!("gatewatch bench warning: {e}");
+            errln!("gatewatch bench warning: {e}");
             return ExitCode::FAILURE;
         }
     };

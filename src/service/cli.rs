@@ -13,6 +13,7 @@ use super::client::{check_stream, simulate_with_source, simulator};
 pub use super::client::{Protocol, Scenario, SimulateArgs};
 use super::config::{Config, LogFormat};
 pub use super::demo::{demo, DemoArgs};
+use super::stdout::errln;
 
 /// `gatewatch serve`.
 #[derive(Debug, Clone, clap::Args)]
@@ -107,7 +108,7 @@ pub fn serve(args: ServeArgs) -> ExitCode {
     let mut config = match load_config(args.config.as_deref()) {
         Ok(c) => c,
         Err(e) => {
-            eprintln!("{}", config_error_line(args.config.as_deref(), &e));
+            errln!("{}", config_error_line(args.config.as_deref(), &e));
             return ExitCode::from(2);
         }
     };
@@ -202,7 +203,7 @@ pub fn check_config(args: CheckConfigArgs) -> ExitCode {
                 crate::store::StorageBackend::Nats => Ok(()),
             };
             if let Err(reason) = checked {
-                eprintln!(
+                errln!(
                     "gatewatch: {}: storage.path {}: {reason}",
                     args.file.display(),
                     store.display()
@@ -210,11 +211,11 @@ pub fn check_config(args: CheckConfigArgs) -> ExitCode {
                 return ExitCode::from(2);
             }
             for w in config.warnings() {
-                eprintln!("{}: warning: {w}", args.file.display());
+                errln!("{}: warning: {w}", args.file.display());
             }
             // what `serve` will log at start with the same environment (the unit's ExecStartPre)
             if let Err(bad) = super::rust_log::read() {
-                eprintln!(
+                errln!(
                     "gatewatch: warning: RUST_LOG={:?} is invalid and ignored ({}); serve will use \
                      log.level = {:?}",
                     bad.value, bad.reason, config.log.level
@@ -236,7 +237,7 @@ pub fn check_config(args: CheckConfigArgs) -> ExitCode {
             ExitCode::SUCCESS
         }
         Err(e) => {
-            eprintln!("{}", config_error_line(Some(&args.file), &e));
+            errln!("{}", config_error_line(Some(&args.file), &e));
             ExitCode::from(2)
         }
     }
@@ -248,7 +249,7 @@ pub fn simulate(args: SimulateArgs) -> ExitCode {
     let mut sim = match check_stream(&args).and_then(|()| simulator(&args)) {
         Ok(s) => s,
         Err(e) => {
-            eprintln!("gatewatch simulate: {e:#}");
+            errln!("gatewatch simulate: {e:#}");
             return ExitCode::from(2);
         }
     };
@@ -258,7 +259,7 @@ pub fn simulate(args: SimulateArgs) -> ExitCode {
     {
         Ok(rt) => rt,
         Err(e) => {
-            eprintln!("gatewatch: {e}");
+            errln!("gatewatch: {e}");
             return ExitCode::FAILURE;
         }
     };
@@ -269,7 +270,7 @@ pub fn simulate(args: SimulateArgs) -> ExitCode {
             ExitCode::SUCCESS
         }
         Err(e) => {
-            eprintln!("gatewatch simulate: {e:#}");
+            errln!("gatewatch simulate: {e:#}");
             ExitCode::FAILURE
         }
     }

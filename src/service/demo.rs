@@ -24,7 +24,7 @@ use super::client::{
 };
 use super::clock::now_unix;
 use super::config::Config;
-use super::stdout::outln;
+use super::stdout::{errln, outln};
 use crate::alert::notify::WebhookTarget;
 use crate::simulate::{GateParams, GateSimulator};
 
@@ -80,7 +80,7 @@ pub async fn webhook_receiver(
     let addr = listener.local_addr()?;
     let task = tokio::spawn(async move {
         if let Err(e) = axum::serve(listener, app).await {
-            eprintln!("demo webhook receiver failed: {e}");
+            errln!("demo webhook receiver failed: {e}");
         }
     });
     Ok((addr, rx, task))
@@ -92,7 +92,7 @@ async fn bind_loopback(listen: &str) -> std::io::Result<TcpListener> {
     match TcpListener::bind((Ipv4Addr::LOCALHOST, port)).await {
         Ok(l) => Ok(l),
         Err(e) => {
-            eprintln!("port {port} is busy ({e}); using an ephemeral port");
+            errln!("port {port} is busy ({e}); using an ephemeral port");
             TcpListener::bind((Ipv4Addr::LOCALHOST, 0)).await
         }
     }
@@ -125,11 +125,11 @@ fn alert_lines(payload: &Value) -> Vec<String> {
 /// `gatewatch demo`: exit 0 after `--duration` or Ctrl-C, 1 when something cannot start.
 pub fn demo(args: DemoArgs) -> ExitCode {
     if !(args.duration > 0.0 && args.duration.is_finite()) {
-        eprintln!("gatewatch demo: --duration must be > 0");
+        errln!("gatewatch demo: --duration must be > 0");
         return ExitCode::from(2);
     }
     if !(args.speed > 0.0 && args.speed.is_finite()) {
-        eprintln!("gatewatch demo: --speed must be > 0");
+        errln!("gatewatch demo: --speed must be > 0");
         return ExitCode::from(2);
     }
     // Daemon logs (warnings only, unless RUST_LOG says otherwise) go to stderr; stdout is the
@@ -160,7 +160,7 @@ pub fn demo(args: DemoArgs) -> ExitCode {
     {
         Ok(rt) => rt,
         Err(e) => {
-            eprintln!("gatewatch demo: cannot start the runtime: {e}");
+            errln!("gatewatch demo: cannot start the runtime: {e}");
             return ExitCode::FAILURE;
         }
     };
@@ -352,8 +352,8 @@ pub async fn run_demo(
                 streamer = None;
                 match r {
                     Ok(Ok(n)) => out.line(format_args!("[{:6.1} s] simulated stream ended after {n} samples", began.elapsed().as_secs_f64())),
-                    Ok(Err(e)) => eprintln!("simulated stream failed: {e:#}"),
-                    Err(e) => eprintln!("simulated stream task failed: {e}"),
+                    Ok(Err(e)) => errln!("simulated stream failed: {e:#}"),
+                    Err(e) => errln!("simulated stream task failed: {e}"),
                 }
             }
             _ = poll.tick() => {
@@ -410,9 +410,9 @@ pub async fn run_demo(
     let _ = stop_tx.send(());
     match tokio::time::timeout(Duration::from_secs(15), daemon).await {
         Ok(Ok(Ok(()))) => {}
-        Ok(Ok(Err(e))) => eprintln!("daemon: {e:#}"),
-        Ok(Err(e)) => eprintln!("daemon task: {e}"),
-        Err(_) => eprintln!("daemon did not stop within 15 s"),
+        Ok(Ok(Err(e))) => errln!("daemon: {e:#}"),
+        Ok(Err(e)) => errln!("daemon task: {e}"),
+        Err(_) => errln!("daemon did not stop within 15 s"),
     }
     // alerts flushed by the daemon's shutdown
     while let Ok(payload) = hooks.try_recv() {

@@ -19,6 +19,17 @@ macro_rules! outln {
 }
 pub(crate) use outln;
 
+/// `eprintln!` that drops the line when stderr is closed or its reader has gone, where
+/// `eprintln!` panics ("failed printing to stderr"): a command's progress and error lines are
+/// no reason to crash it (`gatewatch bench warning 2>&- > table.md`).
+macro_rules! errln {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        let _ = writeln!(std::io::stderr().lock(), $($arg)*);
+    }};
+}
+pub(crate) use errln;
+
 /// Whether `e` is, or was caused by, a write to a pipe whose reader has gone.
 pub fn is_broken_pipe(e: &anyhow::Error) -> bool {
     e.chain().any(|cause| {
