@@ -214,10 +214,11 @@ pub const STORE_WRITE_ERRORS: &[&str] = &["failed", "queue_full", "file_gone"];
 /// (`max_history_rows`), `size` (`max_size_mb`: the oldest history pruned to stay under it).
 pub const STORE_PRUNE_REASONS: &[&str] = &["age", "rows", "size"];
 
-/// What a stored row skipped at start was: the `what` label of
-/// `gatewatch_store_restore_skipped_total` (a gate's alert state, which then starts fresh, or
-/// one of the windows its analysis memory is rebuilt from).
-pub const STORE_RESTORE_SKIPPED: &[&str] = &["alert_state", "history"];
+/// What was skipped at start: the `what` label of `gatewatch_store_restore_skipped_total` (a
+/// gate's alert state, which then starts fresh; one of the windows its analysis memory is
+/// rebuilt from; or a frame of the store's `-wal` file SQLite dropped because an earlier frame
+/// was damaged, counted in frames, the WAL kept beside the store as `FILE-wal.damaged-SECS`).
+pub const STORE_RESTORE_SKIPPED: &[&str] = &["alert_state", "history", "wal_frame"];
 /// Reasons of `gatewatch_tcp_connections_rejected_total`, in connections closed at accept
 /// before a byte is read: `connection_limit` when `server.max_tcp_connections` are already
 /// served (an overloaded or leaking client: raise the limit or fix the client), `not_allowed`
@@ -467,7 +468,7 @@ impl Metrics {
             ),
             store_restore_skipped: counter(
                 "gatewatch_store_restore_skipped_total",
-                "Stored rows that did not decode at start and were skipped: a gate's alert state (the gate starts fresh) or a window of its rebuilt memory.",
+                "Stored rows that did not decode at start and were skipped: a gate's alert state (the gate starts fresh), a window of its rebuilt memory, or a WAL frame SQLite dropped after a damaged one.",
                 &["what"],
             ),
             registry,

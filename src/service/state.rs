@@ -229,6 +229,13 @@ impl AppState {
             .store_restore_skipped
             .with_label_values(&["history"])
             .inc_by(skipped as u64);
+        if let Some(p) = &state.persistence {
+            state
+                .metrics
+                .store_restore_skipped
+                .with_label_values(&["wal_frame"])
+                .inc_by(p.wal_frames_dropped());
+        }
         lock(&state.inner).resumed = resumed;
         let pool = WorkerPool::start(
             threads,

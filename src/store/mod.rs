@@ -22,6 +22,8 @@
 //!   compaction of a record before it is stored;
 //! - `writer`: [`StoreWriter`], the dedicated thread that takes every write off the callers'
 //!   threads through a bounded queue;
+//! - `wal`: the check of the `-wal` file before SQLite opens it (a damaged frame makes SQLite
+//!   drop every later frame without a word: the WAL is copied aside and the loss logged);
 //! - `history`: time parsing (`RFC 3339` or Unix seconds) and the CSV form of the history,
 //!   shared by the HTTP route and `gatewatch history`.
 
@@ -32,6 +34,7 @@ mod nats;
 mod row;
 mod schema;
 mod sqlite;
+mod wal;
 mod writer;
 
 pub use config::{

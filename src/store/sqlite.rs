@@ -89,6 +89,8 @@ pub struct SqliteStore {
     /// what the path names now. `None` read-only.
     file: PathBuf,
     identity: Option<(u64, u64)>,
+    /// Frames of a damaged `-wal` SQLite dropped at open (`wal::keep_damaged`); 0 read-only.
+    wal_frames_dropped: u64,
 }
 
 fn lock(m: &Mutex<Connection>) -> std::sync::MutexGuard<'_, Connection> {
@@ -155,6 +157,8 @@ impl SqliteStore {
         refuse_hard_links(path, &name)?;
         let real = real_path(path, &name)?;
         let lock_file = take_lock(&real, &name)?;
+        // before SQLite's recovery silently drops what follows a damaged frame
+        let wal_frames_dropped = super::wal::keep_damaged(path, &name)?;
         // SQLite opens an empty file as a new database without a word: a file truncated by a
         // failed copy or a full disk would silently cost the history, the alert states and
         // the undelivered notifications
@@ -237,6 +241,7 @@ impl SqliteStore {
             read: Mutex::new(read),
             max_bytes: Some(pages * page_size),
             _lock: Some(lock_file),
+            wal_frames_dropped,
         })
     }
 
@@ -328,6 +333,7 @@ impl SqliteStore {
             read: Mutex::new(read),
             max_bytes: None,
             _lock: None,
+            wal_frames_dropped: 0,
         })
     }
 
@@ -377,6 +383,12 @@ impl SqliteStore {
             reason,
             source: Box::new(source),
         }
+    }
+
+    /// Frames of the last writes SQLite dropped at open because the `-wal` file was damaged
+    /// before them (a copy of the WAL was kept and a warning logged); 0 when none.
+    pub fn wal_frames_dropped(&self) -> u64 {
+        self.wal_frames_dropped
     }
 
     /// The file.
