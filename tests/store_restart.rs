@@ -890,3 +890,132 @@ async fn a_damaged_wal_is_kept_and_its_dropped_frames_logged_naming_it() {
     assert!(db.exists());
     assert!(!text.contains("panicked"), "{text}");
 }
+
+/// `gatewatch serve --config cfg` as a user file permissions apply to: this test's own when it
+/// is not root, `nobody` (setpriv) when it is (root writes anywhere). `None` when neither can
+/// be had (no setpriv): the caller skips. Exit code and stderr.
+fn serve_unprivileged(cfg: &Path) -> Option<(Option<i32>, String)> {
+    let probe = tempfile::tempdir().expect("tempdir");
+    let sealed = probe.path().join("sealed");
+    std::fs::create_dir(&sealed).expect("mkdir");
+    set_mode(&sealed, 0o555);
+    let root = std::fs::write(sealed.join("probe"), b"").is_ok();
+    let mut cmd = if root {
+        let mut c = Command::new("setpriv");
+        c.args(["--reuid=65534", "--regid=65534", "--clear-groups", BIN]);
+        c
+    } else {
+        Command::new(BIN)
+    };
+    let out = match cmd.args(["serve", "--config"]).arg(cfg).output() {
+        Ok(o) => o,
+        Err(e) => {
+            eprintln!("skipped: cannot run gatewatch as an unprivileged user ({e})");
+            return None;
+        }
+    };
+    Some((
+        out.status.code(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    ))
+}
+
+fn set_mode(path: &Path, mode: u32) {
+    use std::os::unix::fs::PermissionsExt;
+    std::fs::set_permissions(path, std::fs::Permissions::from_mode(mode)).expect("chmod");
+}
+
+/// A store directory for `nobody` (uid 65534, what [`serve_unprivileged`] runs as under root):
+/// the test directory traversable, `store` and what is in it owned by it.
+fn hand_to_nobody(top: &Path, store: &Path) {
+    set_mode(top, 0o755);
+    for p in std::iter::once(store.to_path_buf()).chain(
+        std::fs::read_dir(store)
+            .expect("read dir")
+            .map(|e| e.expect("entry").path()),
+    ) {
+        // as another user than root this fails, and the files are the test's own anyway
+        let _ = std::os::unix::fs::chown(&p, Some(65534), Some(65534));
+    }
+}
+
+/// A store directory the daemon cannot write, holding a store and a non-empty `-wal` (writes
+/// not yet checkpointed): SQLite would open it, read-only, and every write would fail. The
+/// start is refused, exit 1, naming the directory and why.
+#[test]
+fn a_store_directory_it_cannot_write_stops_the_start_naming_it() {
+    use gatewatch::store::{SqliteStore, Store, WriteBatch};
+    let dir = tempfile::tempdir().expect("tempdir");
+    let store_dir = dir.path().join("store");
+    std::fs::create_dir(&store_dir).expect("mkdir");
+    let cfg = write_config(&store_dir, free_port());
+    {
+        let live = dir.path().join("live.db");
+        let store = SqliteStore::open(&live, 64).expect("open");
+        store
+            .write(&WriteBatch {
+                identifications: vec![recent_record(60.0)],
+                ..Default::default()
+            })
+            .expect("write");
+        std::fs::copy(&live, store_dir.join("gw.db")).expect("copy");
+        std::fs::copy(dir.path().join("live.db-wal"), store_dir.join("gw.db-wal"))
+            .expect("copy the WAL");
+    }
+    assert!(
+        std::fs::metadata(store_dir.join("gw.db-wal"))
+            .expect("wal")
+            .len()
+            > 0
+    );
+    hand_to_nobody(dir.path(), &store_dir);
+    set_mode(&store_dir, 0o555);
+    let result = serve_unprivileged(&cfg);
+    set_mode(&store_dir, 0o755);
+    let Some((code, err)) = result else { return };
+    assert_eq!(code, Some(1), "{err}");
+    let line = err
+        .lines()
+        .find(|l| l.starts_with("gatewatch: "))
+        .unwrap_or_else(|| panic!("the message line: {err}"));
+    assert!(
+        line.contains(&format!(
+            "its directory {} is not writable",
+            store_dir.display()
+        )),
+        "{line}"
+    );
+    assert!(line.to_lowercase().contains("permission denied"), "{line}");
+    assert!(!err.contains("panicked"), "{err}");
+}
+
+/// A store file with mode 000: the start stops, exit 1, with a line naming the file, "permission
+/// denied" and what the daemon cannot do with it (read, write), its mode and owner. Before:
+/// "is not writable" (or SQLite's "unable to open database file").
+#[test]
+fn a_store_file_it_cannot_read_stops_the_start_saying_permission_denied() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let store_dir = dir.path().join("store");
+    std::fs::create_dir(&store_dir).expect("mkdir");
+    let cfg = write_config(&store_dir, free_port());
+    let db = store_dir.join("gw.db");
+    drop(gatewatch::store::SqliteStore::open(&db, 64).expect("create the store"));
+    hand_to_nobody(dir.path(), &store_dir);
+    set_mode(&db, 0o000);
+    let Some((code, err)) = serve_unprivileged(&cfg) else {
+        return;
+    };
+    assert_eq!(code, Some(1), "{err}");
+    let line = err
+        .lines()
+        .find(|l| l.starts_with("gatewatch: "))
+        .unwrap_or_else(|| panic!("the message line: {err}"));
+    assert!(
+        line.contains(&db.display().to_string()),
+        "names the file: {line}"
+    );
+    assert!(line.contains("permission denied"), "{line}");
+    assert!(line.contains("cannot read or write it"), "{line}");
+    assert!(line.contains("mode 000"), "{line}");
+    assert!(!err.contains("panicked"), "{err}");
+}

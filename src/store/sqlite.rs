@@ -123,17 +123,60 @@ pub fn check_location(path: &Path) -> Result<(), String> {
         Some(d) if !d.as_os_str().is_empty() => d,
         _ => Path::new("."),
     };
+    // named absolutely: "its directory . is not writable" said little
+    let shown = std::path::absolute(dir).unwrap_or_else(|_| dir.to_path_buf());
     if !dir.is_dir() {
         return Err(format!(
             "its directory {} does not exist or is not a directory",
-            dir.display()
+            shown.display()
         ));
     }
-    if access(dir, Access::WRITE_OK | Access::EXEC_OK).is_err() {
-        return Err(format!("its directory {} is not writable", dir.display()));
+    if let Err(e) = access(dir, Access::WRITE_OK | Access::EXEC_OK) {
+        return Err(format!(
+            "its directory {} is not writable ({}): SQLite creates and writes the -wal, -shm \
+             and lock files there, and a store opened read-only would fail every write",
+            shown.display(),
+            std::io::Error::from(e)
+        ));
     }
-    if path.exists() && access(path, Access::WRITE_OK).is_err() {
-        return Err("is not writable".into());
+    // the file, and SQLite's files beside it: one it cannot write makes the store read-only
+    for (suffix, what) in [
+        ("", "it"),
+        ("-wal", "its WAL file"),
+        ("-shm", "its shared-memory file"),
+    ] {
+        let mut file = path.as_os_str().to_owned();
+        file.push(suffix);
+        let file = PathBuf::from(file);
+        let Ok(meta) = std::fs::metadata(&file) else {
+            continue;
+        };
+        let denied = |a: Access| access(&file, a).err().map(std::io::Error::from);
+        let missing: Vec<(&str, std::io::Error)> =
+            [("read", Access::READ_OK), ("write", Access::WRITE_OK)]
+                .into_iter()
+                .filter_map(|(name, a)| denied(a).map(|e| (name, e)))
+                .collect();
+        let Some((_, first)) = missing.first() else {
+            continue;
+        };
+        let cause = match first.kind() {
+            std::io::ErrorKind::PermissionDenied => "permission denied".to_string(),
+            _ => first.to_string(),
+        };
+        let verbs: Vec<&str> = missing.iter().map(|(v, _)| *v).collect();
+        let named = if suffix.is_empty() {
+            String::new()
+        } else {
+            format!(" {}", file.display())
+        };
+        return Err(format!(
+            "{cause}: this process cannot {} {what}{named} (mode {:03o}, owner uid {} gid {})",
+            verbs.join(" or "),
+            meta.mode() & 0o7777,
+            meta.uid(),
+            meta.gid()
+        ));
     }
     Ok(())
 }
