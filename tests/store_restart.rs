@@ -308,6 +308,19 @@ async fn a_full_database_is_counted_and_logged_naming_the_file_and_ingestion_goe
         );
         tokio::time::sleep(Duration::from_millis(300)).await;
     };
+    // not ready while the store refuses writes, saying which file and why (it said 200)
+    let r = client
+        .get(format!("{url}/readyz"))
+        .send()
+        .await
+        .expect("/readyz");
+    let ready = r.status().as_u16();
+    let body = r.text().await.expect("body");
+    assert_eq!(ready, 503, "{body}");
+    assert!(
+        body.contains(&db.display().to_string()) && body.contains("full"),
+        "{body}"
+    );
     // still answering: ingestion accepted, the gate's identification readable
     let status = stream.send(&client, &url).await;
     assert!(
@@ -1018,4 +1031,70 @@ fn a_store_file_it_cannot_read_stops_the_start_saying_permission_denied() {
     assert!(line.contains("cannot read or write it"), "{line}");
     assert!(line.contains("mode 000"), "{line}");
     assert!(!err.contains("panicked"), "{err}");
+}
+
+/// `/readyz` while the store's writes fail for real: another process holds the store's write
+/// lock (`BEGIN EXCLUSIVE`), so each write fails after SQLite's busy timeout, as on a full
+/// disk or an I/O error. `/readyz` answers 503 naming the file and the error; once the lock is
+/// let go (and no more samples sent: a load balancer stops them when `/readyz` fails) a write
+/// succeeds, a line at level info says writes resumed with the write requests lost, and
+/// `/readyz` answers 200 again. Before, `/readyz` stayed 200 throughout.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn failing_store_writes_fail_readiness_until_a_write_succeeds() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let cfg = write_config(dir.path(), free_port());
+    let db = dir.path().join("gw.db");
+    let log = dir.path().join("gatewatch.log");
+    let (child, url, client) = serve_ready(&cfg, &log).await;
+    let mut stream = Stream::new();
+    let foreign = rusqlite::Connection::open(&db).expect("open the store");
+    foreign
+        .execute_batch("BEGIN EXCLUSIVE")
+        .expect("take the write lock");
+    let ready = |client: reqwest::Client, url: String| async move {
+        let r = client.get(format!("{url}/readyz")).send().await.ok()?;
+        Some((r.status().as_u16(), r.text().await.unwrap_or_default()))
+    };
+    let deadline = Instant::now() + WAIT;
+    let body = loop {
+        stream.send(&client, &url).await;
+        if let Some((503, body)) = ready(client.clone(), url.clone()).await {
+            break body;
+        }
+        assert!(Instant::now() < deadline, "/readyz never failed");
+        tokio::time::sleep(Duration::from_millis(300)).await;
+    };
+    assert!(
+        body.starts_with("not ready: ")
+            && body.contains(&db.display().to_string())
+            && body.contains("writes fail")
+            && body.contains("locked"),
+        "{body}"
+    );
+    foreign.execute_batch("ROLLBACK").expect("let go");
+    drop(foreign);
+    let deadline = Instant::now() + WAIT;
+    loop {
+        if let Some((200, _)) = ready(client.clone(), url.clone()).await {
+            break;
+        }
+        assert!(Instant::now() < deadline, "/readyz never recovered");
+        tokio::time::sleep(Duration::from_millis(300)).await;
+    }
+    let status = terminate(child).await;
+    let text = std::fs::read_to_string(&log).expect("log");
+    assert_eq!(status.code(), Some(0), "{text}");
+    let line = text
+        .lines()
+        .find(|l| l.contains("writes resumed"))
+        .unwrap_or_else(|| panic!("no line says writes resumed:\n{text}"));
+    assert!(
+        line.contains("INFO") && line.contains(&db.display().to_string()),
+        "{line}"
+    );
+    assert!(
+        line.contains("write requests were lost meanwhile"),
+        "{line}"
+    );
+    assert!(!text.contains("panicked"), "{text}");
 }

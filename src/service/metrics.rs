@@ -204,7 +204,7 @@ pub const IDENTIFICATION_FAILURES: &[&str] = &["settings", "window", "panic", "q
 
 /// Reasons of `gatewatch_store_write_errors_total`, in write requests (one identification, or
 /// one alert transition with its state): `failed` when SQLite refused the transaction (disk
-/// full, I/O error, the `storage.max_size_mb` bound), `queue_full` when the writer's queue
+/// full, I/O error, the `storage.max_size_mb` bound; `/readyz` fails until a write succeeds), `queue_full` when the writer's queue
 /// (`store::STORE_QUEUE_CAPACITY`) had no room, `file_gone` when the store's file was deleted
 /// or replaced under the daemon (`Store::check`; `/readyz` fails meanwhile). Either way the
 /// daemon goes on from memory.

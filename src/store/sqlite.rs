@@ -669,6 +669,27 @@ impl Store for SqliteStore {
         })
     }
 
+    fn probe(&self) -> Option<Result<(), StoreError>> {
+        self.identity?;
+        let c = lock(&self.write);
+        // the schema version written back unchanged: one page (the header) through the WAL
+        let probe = || -> rusqlite::Result<()> {
+            let v: i64 = c.query_row("PRAGMA user_version", [], |r| r.get(0))?;
+            c.execute_batch(&format!("PRAGMA user_version = {v}"))
+        };
+        Some(probe().map_err(sq("write probe")))
+    }
+
+    fn space_left(&self) -> Option<u64> {
+        self.identity?;
+        let dir = match self.file.parent() {
+            Some(d) if !d.as_os_str().is_empty() => d,
+            _ => Path::new("."),
+        };
+        let v = rustix::fs::statvfs(dir).ok()?;
+        Some(v.f_bavail.saturating_mul(v.f_frsize))
+    }
+
     fn write(&self, batch: &WriteBatch) -> Result<Vec<i64>, StoreError> {
         let mut c = lock(&self.write);
         write_batch(&mut c, batch).map_err(|e| self.explain_full(&c, e))
