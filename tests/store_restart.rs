@@ -308,6 +308,19 @@ async fn a_full_database_is_counted_and_logged_naming_the_file_and_ingestion_goe
         );
         tokio::time::sleep(Duration::from_millis(300)).await;
     };
+    // not ready while the store refuses writes, saying which file and why (it said 200)
+    let r = client
+        .get(format!("{url}/readyz"))
+        .send()
+        .await
+        .expect("/readyz");
+    let ready = r.status().as_u16();
+    let body = r.text().await.expect("body");
+    assert_eq!(ready, 503, "{body}");
+    assert!(
+        body.contains(&db.display().to_string()) && body.contains("full"),
+        "{body}"
+    );
     // still answering: ingestion accepted, the gate's identification readable
     let status = stream.send(&client, &url).await;
     assert!(
@@ -801,4 +814,287 @@ async fn an_empty_store_file_is_a_warning_naming_it() {
             && l.contains("empty: starting without history or alert state")),
         "{text}"
     );
+}
+
+/// A byte flipped in a middle frame of the `-wal` file a `kill -9` left behind: SQLite's
+/// recovery drops that frame and every one after it without a word (and `quick_check` passes).
+/// Now the daemon finds it first: a warning names the WAL, the byte offset and the frames
+/// dropped, the whole WAL is kept as `gw.db-wal.damaged-SECS` (byte for byte the damaged one),
+/// the frames are counted in `gatewatch_store_restore_skipped_total{what="wal_frame"}`, and
+/// the daemon starts. Before, none of it: the rows were gone silently.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_damaged_wal_is_kept_and_its_dropped_frames_logged_naming_it() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let cfg = write_config(dir.path(), free_port());
+    let db = dir.path().join("gw.db");
+    let wal = dir.path().join("gw.db-wal");
+    let log = dir.path().join("first.log");
+    let (mut first, url, client) = serve_ready(&cfg, &log).await;
+    let mut stream = Stream::new();
+    let deadline = Instant::now() + WAIT;
+    loop {
+        stream.send(&client, &url).await;
+        let n = metric(&client, &url, IDENTIFIED).await.unwrap_or(0.0);
+        if n >= 6.0 {
+            break;
+        }
+        assert!(Instant::now() < deadline, "identified {n}");
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    }
+    // the writes committed (the history route reads them), then kill -9: they are in the WAL
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    first.kill().expect("kill -9");
+    let _ = first.wait();
+    let mut bytes = std::fs::read(&wal).expect("the WAL kill -9 left");
+    let page = u32::from_be_bytes(bytes[8..12].try_into().expect("4 bytes")) as usize;
+    let frame = 24 + page;
+    let frames = (bytes.len() - 32) / frame;
+    assert!(frames >= 4, "{frames} frames in the WAL");
+    let middle = frames / 2;
+    let offset = 32 + middle * frame;
+    bytes[offset + 24 + page / 2] ^= 0x01;
+    std::fs::write(&wal, &bytes).expect("damage the WAL");
+
+    let log = dir.path().join("second.log");
+    let (second, url, client) = serve_ready(&cfg, &log).await;
+    let dropped = metric(
+        &client,
+        &url,
+        "gatewatch_store_restore_skipped_total{what=\"wal_frame\"}",
+    )
+    .await
+    .unwrap_or(0.0);
+    let status = terminate(second).await;
+    let text = std::fs::read_to_string(&log).expect("log");
+    assert_eq!(status.code(), Some(0), "{text}");
+    let line = text
+        .lines()
+        .find(|l| l.contains("WARN") && l.contains("damaged at byte"))
+        .unwrap_or_else(|| panic!("no warning of the damaged WAL:\n{text}"));
+    assert!(
+        line.contains(&wal.display().to_string()),
+        "names the WAL: {line}"
+    );
+    assert!(
+        line.contains(&format!("byte {offset}")),
+        "the offset {offset}: {line}"
+    );
+    let copies: Vec<PathBuf> = std::fs::read_dir(dir.path())
+        .expect("read dir")
+        .map(|e| e.expect("entry").path())
+        .filter(|p| {
+            p.file_name()
+                .and_then(|n| n.to_str())
+                .is_some_and(|n| n.starts_with("gw.db-wal.damaged-"))
+        })
+        .collect();
+    assert_eq!(copies.len(), 1, "one copy: {copies:?}");
+    assert!(
+        line.contains(&copies[0].display().to_string()),
+        "names the copy: {line}"
+    );
+    assert_eq!(
+        std::fs::read(&copies[0]).expect("copy"),
+        bytes,
+        "the damaged WAL, whole"
+    );
+    assert!(dropped >= 1.0, "wal_frame counted {dropped}");
+    assert!(line.contains(&format!("{dropped} frames")), "{line}");
+    assert!(db.exists());
+    assert!(!text.contains("panicked"), "{text}");
+}
+
+/// `gatewatch serve --config cfg` as a user file permissions apply to: this test's own when it
+/// is not root, `nobody` (setpriv) when it is (root writes anywhere). `None` when neither can
+/// be had (no setpriv): the caller skips. Exit code and stderr.
+fn serve_unprivileged(cfg: &Path) -> Option<(Option<i32>, String)> {
+    let probe = tempfile::tempdir().expect("tempdir");
+    let sealed = probe.path().join("sealed");
+    std::fs::create_dir(&sealed).expect("mkdir");
+    set_mode(&sealed, 0o555);
+    let root = std::fs::write(sealed.join("probe"), b"").is_ok();
+    let mut cmd = if root {
+        let mut c = Command::new("setpriv");
+        c.args(["--reuid=65534", "--regid=65534", "--clear-groups", BIN]);
+        c
+    } else {
+        Command::new(BIN)
+    };
+    let out = match cmd.args(["serve", "--config"]).arg(cfg).output() {
+        Ok(o) => o,
+        Err(e) => {
+            eprintln!("skipped: cannot run gatewatch as an unprivileged user ({e})");
+            return None;
+        }
+    };
+    Some((
+        out.status.code(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    ))
+}
+
+fn set_mode(path: &Path, mode: u32) {
+    use std::os::unix::fs::PermissionsExt;
+    std::fs::set_permissions(path, std::fs::Permissions::from_mode(mode)).expect("chmod");
+}
+
+/// A store directory for `nobody` (uid 65534, what [`serve_unprivileged`] runs as under root):
+/// the test directory traversable, `store` and what is in it owned by it.
+fn hand_to_nobody(top: &Path, store: &Path) {
+    set_mode(top, 0o755);
+    for p in std::iter::once(store.to_path_buf()).chain(
+        std::fs::read_dir(store)
+            .expect("read dir")
+            .map(|e| e.expect("entry").path()),
+    ) {
+        // as another user than root this fails, and the files are the test's own anyway
+        let _ = std::os::unix::fs::chown(&p, Some(65534), Some(65534));
+    }
+}
+
+/// A store directory the daemon cannot write, holding a store and a non-empty `-wal` (writes
+/// not yet checkpointed): SQLite would open it, read-only, and every write would fail. The
+/// start is refused, exit 1, naming the directory and why.
+#[test]
+fn a_store_directory_it_cannot_write_stops_the_start_naming_it() {
+    use gatewatch::store::{SqliteStore, Store, WriteBatch};
+    let dir = tempfile::tempdir().expect("tempdir");
+    let store_dir = dir.path().join("store");
+    std::fs::create_dir(&store_dir).expect("mkdir");
+    let cfg = write_config(&store_dir, free_port());
+    {
+        let live = dir.path().join("live.db");
+        let store = SqliteStore::open(&live, 64).expect("open");
+        store
+            .write(&WriteBatch {
+                identifications: vec![recent_record(60.0)],
+                ..Default::default()
+            })
+            .expect("write");
+        std::fs::copy(&live, store_dir.join("gw.db")).expect("copy");
+        std::fs::copy(dir.path().join("live.db-wal"), store_dir.join("gw.db-wal"))
+            .expect("copy the WAL");
+    }
+    assert!(
+        std::fs::metadata(store_dir.join("gw.db-wal"))
+            .expect("wal")
+            .len()
+            > 0
+    );
+    hand_to_nobody(dir.path(), &store_dir);
+    set_mode(&store_dir, 0o555);
+    let result = serve_unprivileged(&cfg);
+    set_mode(&store_dir, 0o755);
+    let Some((code, err)) = result else { return };
+    assert_eq!(code, Some(1), "{err}");
+    let line = err
+        .lines()
+        .find(|l| l.starts_with("gatewatch: "))
+        .unwrap_or_else(|| panic!("the message line: {err}"));
+    assert!(
+        line.contains(&format!(
+            "its directory {} is not writable",
+            store_dir.display()
+        )),
+        "{line}"
+    );
+    assert!(line.to_lowercase().contains("permission denied"), "{line}");
+    assert!(!err.contains("panicked"), "{err}");
+}
+
+/// A store file with mode 000: the start stops, exit 1, with a line naming the file, "permission
+/// denied" and what the daemon cannot do with it (read, write), its mode and owner. Before:
+/// "is not writable" (or SQLite's "unable to open database file").
+#[test]
+fn a_store_file_it_cannot_read_stops_the_start_saying_permission_denied() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let store_dir = dir.path().join("store");
+    std::fs::create_dir(&store_dir).expect("mkdir");
+    let cfg = write_config(&store_dir, free_port());
+    let db = store_dir.join("gw.db");
+    drop(gatewatch::store::SqliteStore::open(&db, 64).expect("create the store"));
+    hand_to_nobody(dir.path(), &store_dir);
+    set_mode(&db, 0o000);
+    let Some((code, err)) = serve_unprivileged(&cfg) else {
+        return;
+    };
+    assert_eq!(code, Some(1), "{err}");
+    let line = err
+        .lines()
+        .find(|l| l.starts_with("gatewatch: "))
+        .unwrap_or_else(|| panic!("the message line: {err}"));
+    assert!(
+        line.contains(&db.display().to_string()),
+        "names the file: {line}"
+    );
+    assert!(line.contains("permission denied"), "{line}");
+    assert!(line.contains("cannot read or write it"), "{line}");
+    assert!(line.contains("mode 000"), "{line}");
+    assert!(!err.contains("panicked"), "{err}");
+}
+
+/// `/readyz` while the store's writes fail for real: another process holds the store's write
+/// lock (`BEGIN EXCLUSIVE`), so each write fails after SQLite's busy timeout, as on a full
+/// disk or an I/O error. `/readyz` answers 503 naming the file and the error; once the lock is
+/// let go (and no more samples sent: a load balancer stops them when `/readyz` fails) a write
+/// succeeds, a line at level info says writes resumed with the write requests lost, and
+/// `/readyz` answers 200 again. Before, `/readyz` stayed 200 throughout.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn failing_store_writes_fail_readiness_until_a_write_succeeds() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let cfg = write_config(dir.path(), free_port());
+    let db = dir.path().join("gw.db");
+    let log = dir.path().join("gatewatch.log");
+    let (child, url, client) = serve_ready(&cfg, &log).await;
+    let mut stream = Stream::new();
+    let foreign = rusqlite::Connection::open(&db).expect("open the store");
+    foreign
+        .execute_batch("BEGIN EXCLUSIVE")
+        .expect("take the write lock");
+    let ready = |client: reqwest::Client, url: String| async move {
+        let r = client.get(format!("{url}/readyz")).send().await.ok()?;
+        Some((r.status().as_u16(), r.text().await.unwrap_or_default()))
+    };
+    let deadline = Instant::now() + WAIT;
+    let body = loop {
+        stream.send(&client, &url).await;
+        if let Some((503, body)) = ready(client.clone(), url.clone()).await {
+            break body;
+        }
+        assert!(Instant::now() < deadline, "/readyz never failed");
+        tokio::time::sleep(Duration::from_millis(300)).await;
+    };
+    assert!(
+        body.starts_with("not ready: ")
+            && body.contains(&db.display().to_string())
+            && body.contains("writes fail")
+            && body.contains("locked"),
+        "{body}"
+    );
+    foreign.execute_batch("ROLLBACK").expect("let go");
+    drop(foreign);
+    let deadline = Instant::now() + WAIT;
+    loop {
+        if let Some((200, _)) = ready(client.clone(), url.clone()).await {
+            break;
+        }
+        assert!(Instant::now() < deadline, "/readyz never recovered");
+        tokio::time::sleep(Duration::from_millis(300)).await;
+    }
+    let status = terminate(child).await;
+    let text = std::fs::read_to_string(&log).expect("log");
+    assert_eq!(status.code(), Some(0), "{text}");
+    let line = text
+        .lines()
+        .find(|l| l.contains("writes resumed"))
+        .unwrap_or_else(|| panic!("no line says writes resumed:\n{text}"));
+    assert!(
+        line.contains("INFO") && line.contains(&db.display().to_string()),
+        "{line}"
+    );
+    assert!(
+        line.contains("write requests were lost meanwhile"),
+        "{line}"
+    );
+    assert!(!text.contains("panicked"), "{text}");
 }

@@ -204,7 +204,7 @@ pub const IDENTIFICATION_FAILURES: &[&str] = &["settings", "window", "panic", "q
 
 /// Reasons of `gatewatch_store_write_errors_total`, in write requests (one identification, or
 /// one alert transition with its state): `failed` when SQLite refused the transaction (disk
-/// full, I/O error, the `storage.max_size_mb` bound), `queue_full` when the writer's queue
+/// full, I/O error, the `storage.max_size_mb` bound; `/readyz` fails until a write succeeds), `queue_full` when the writer's queue
 /// (`store::STORE_QUEUE_CAPACITY`) had no room, `file_gone` when the store's file was deleted
 /// or replaced under the daemon (`Store::check`; `/readyz` fails meanwhile). Either way the
 /// daemon goes on from memory.
@@ -214,10 +214,11 @@ pub const STORE_WRITE_ERRORS: &[&str] = &["failed", "queue_full", "file_gone"];
 /// (`max_history_rows`), `size` (`max_size_mb`: the oldest history pruned to stay under it).
 pub const STORE_PRUNE_REASONS: &[&str] = &["age", "rows", "size"];
 
-/// What a stored row skipped at start was: the `what` label of
-/// `gatewatch_store_restore_skipped_total` (a gate's alert state, which then starts fresh, or
-/// one of the windows its analysis memory is rebuilt from).
-pub const STORE_RESTORE_SKIPPED: &[&str] = &["alert_state", "history"];
+/// What was skipped at start: the `what` label of `gatewatch_store_restore_skipped_total` (a
+/// gate's alert state, which then starts fresh; one of the windows its analysis memory is
+/// rebuilt from; or a frame of the store's `-wal` file SQLite dropped because an earlier frame
+/// was damaged, counted in frames, the WAL kept beside the store as `FILE-wal.damaged-SECS`).
+pub const STORE_RESTORE_SKIPPED: &[&str] = &["alert_state", "history", "wal_frame"];
 /// Reasons of `gatewatch_tcp_connections_rejected_total`, in connections closed at accept
 /// before a byte is read: `connection_limit` when `server.max_tcp_connections` are already
 /// served (an overloaded or leaking client: raise the limit or fix the client), `not_allowed`
@@ -467,7 +468,7 @@ impl Metrics {
             ),
             store_restore_skipped: counter(
                 "gatewatch_store_restore_skipped_total",
-                "Stored rows that did not decode at start and were skipped: a gate's alert state (the gate starts fresh) or a window of its rebuilt memory.",
+                "Stored rows that did not decode at start and were skipped: a gate's alert state (the gate starts fresh), a window of its rebuilt memory, or a WAL frame SQLite dropped after a damaged one.",
                 &["what"],
             ),
             registry,

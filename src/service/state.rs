@@ -229,6 +229,13 @@ impl AppState {
             .store_restore_skipped
             .with_label_values(&["history"])
             .inc_by(skipped as u64);
+        if let Some(p) = &state.persistence {
+            state
+                .metrics
+                .store_restore_skipped
+                .with_label_values(&["wal_frame"])
+                .inc_by(p.wal_frames_dropped());
+        }
         lock(&state.inner).resumed = resumed;
         let pool = WorkerPool::start(
             threads,
@@ -262,17 +269,23 @@ impl AppState {
     }
 
     /// Ready: listeners up, every worker running, and the store (when there is one) still
-    /// writing to its file (not deleted or replaced under the daemon: `StoreWriter::healthy`).
+    /// writing to its file (not deleted or replaced under the daemon: `StoreWriter::healthy`;
+    /// its last write did not fail: `StoreWriter::failing`).
     pub fn ready(&self) -> bool {
         self.not_ready().is_none()
     }
 
     /// Why the daemon is not ready (`/readyz` 503 says it), or `None` when it is: the listeners
-    /// are not up (starting, or shutting down), or one of [`Self::unrecoverable`].
+    /// are not up (starting, or shutting down), the store's writes fail (a full disk, an I/O
+    /// error: `StoreWriter::failing`, naming the file; cleared by the next write that
+    /// succeeds, so not a liveness failure), or one of [`Self::unrecoverable`].
     pub fn not_ready(&self) -> Option<String> {
         let mut why = Vec::new();
         if !self.listeners_up.load(Ordering::SeqCst) {
             why.push("listeners not up (starting or shutting down)".to_string());
+        }
+        if let Some(failing) = self.persistence.as_ref().and_then(|p| p.writer.failing()) {
+            why.push(failing);
         }
         why.extend(self.unrecoverable());
         (!why.is_empty()).then(|| why.join("; "))

@@ -103,6 +103,12 @@ impl Persistence {
         self.counts.sync(metrics, &self.writer.stats());
     }
 
+    /// Frames of a damaged `-wal` file SQLite dropped when the store was opened (0 when none,
+    /// or not SQLite): `gatewatch_store_restore_skipped_total{what="wal_frame"}`.
+    pub fn wal_frames_dropped(&self) -> u64 {
+        self.sqlite.as_ref().map_or(0, |s| s.wal_frames_dropped())
+    }
+
     /// Writes the WAL into the database file (at shutdown, after [`StoreWriter::close`]), so a
     /// copy of the `.db` file alone is complete, waiting at most `within` for a lock another
     /// connection holds (what is left of the shutdown deadline). A store that is not SQLite has

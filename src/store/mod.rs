@@ -22,6 +22,8 @@
 //!   compaction of a record before it is stored;
 //! - `writer`: [`StoreWriter`], the dedicated thread that takes every write off the callers'
 //!   threads through a bounded queue;
+//! - `wal`: the check of the `-wal` file before SQLite opens it (a damaged frame makes SQLite
+//!   drop every later frame without a word: the WAL is copied aside and the loss logged);
 //! - `history`: time parsing (`RFC 3339` or Unix seconds) and the CSV form of the history,
 //!   shared by the HTTP route and `gatewatch history`.
 
@@ -32,6 +34,7 @@ mod nats;
 mod row;
 mod schema;
 mod sqlite;
+mod wal;
 mod writer;
 
 pub use config::{
@@ -52,7 +55,7 @@ pub use sqlite::{
     check_location, prune_batch_rows, wal_budget, SqliteStore, PRUNE_BATCH_ROWS,
     SIZE_HIGH_WATERMARK, SIZE_LOW_WATERMARK,
 };
-pub use writer::{StoreStats, StoreWriter};
+pub use writer::{StoreStats, StoreWriter, LOW_SPACE_BYTES};
 
 use serde::{Deserialize, Serialize};
 
@@ -308,6 +311,21 @@ pub trait Store: Send + Sync + 'static {
     /// every `CHECK_INTERVAL` when idle. A store without a file has nothing to check.
     fn check(&self) -> Result<(), StoreError> {
         Ok(())
+    }
+
+    /// Bytes free to this process on the file system holding the store, when it has one
+    /// (`statvfs`): the writer warns when it is nearly full ([`StoreWriter`]). `None`: no file,
+    /// or the file system does not say.
+    fn space_left(&self) -> Option<u64> {
+        None
+    }
+
+    /// A write that changes nothing (`None`: the store has none), which the writer runs every
+    /// `CHECK_INTERVAL` while writes fail: `/readyz` fails meanwhile, so the ingestion whose
+    /// writes would show the store is back may stop arriving (a load balancer takes the
+    /// instance out); the probe brings it back without them.
+    fn probe(&self) -> Option<Result<(), StoreError>> {
+        None
     }
 
     /// Applies a batch in one transaction. Returns the ids given to `batch.outbox`, in order.

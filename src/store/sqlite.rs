@@ -89,6 +89,8 @@ pub struct SqliteStore {
     /// what the path names now. `None` read-only.
     file: PathBuf,
     identity: Option<(u64, u64)>,
+    /// Frames of a damaged `-wal` SQLite dropped at open (`wal::keep_damaged`); 0 read-only.
+    wal_frames_dropped: u64,
 }
 
 fn lock(m: &Mutex<Connection>) -> std::sync::MutexGuard<'_, Connection> {
@@ -121,17 +123,60 @@ pub fn check_location(path: &Path) -> Result<(), String> {
         Some(d) if !d.as_os_str().is_empty() => d,
         _ => Path::new("."),
     };
+    // named absolutely: "its directory . is not writable" said little
+    let shown = std::path::absolute(dir).unwrap_or_else(|_| dir.to_path_buf());
     if !dir.is_dir() {
         return Err(format!(
             "its directory {} does not exist or is not a directory",
-            dir.display()
+            shown.display()
         ));
     }
-    if access(dir, Access::WRITE_OK | Access::EXEC_OK).is_err() {
-        return Err(format!("its directory {} is not writable", dir.display()));
+    if let Err(e) = access(dir, Access::WRITE_OK | Access::EXEC_OK) {
+        return Err(format!(
+            "its directory {} is not writable ({}): SQLite creates and writes the -wal, -shm \
+             and lock files there, and a store opened read-only would fail every write",
+            shown.display(),
+            std::io::Error::from(e)
+        ));
     }
-    if path.exists() && access(path, Access::WRITE_OK).is_err() {
-        return Err("is not writable".into());
+    // the file, and SQLite's files beside it: one it cannot write makes the store read-only
+    for (suffix, what) in [
+        ("", "it"),
+        ("-wal", "its WAL file"),
+        ("-shm", "its shared-memory file"),
+    ] {
+        let mut file = path.as_os_str().to_owned();
+        file.push(suffix);
+        let file = PathBuf::from(file);
+        let Ok(meta) = std::fs::metadata(&file) else {
+            continue;
+        };
+        let denied = |a: Access| access(&file, a).err().map(std::io::Error::from);
+        let missing: Vec<(&str, std::io::Error)> =
+            [("read", Access::READ_OK), ("write", Access::WRITE_OK)]
+                .into_iter()
+                .filter_map(|(name, a)| denied(a).map(|e| (name, e)))
+                .collect();
+        let Some((_, first)) = missing.first() else {
+            continue;
+        };
+        let cause = match first.kind() {
+            std::io::ErrorKind::PermissionDenied => "permission denied".to_string(),
+            _ => first.to_string(),
+        };
+        let verbs: Vec<&str> = missing.iter().map(|(v, _)| *v).collect();
+        let named = if suffix.is_empty() {
+            String::new()
+        } else {
+            format!(" {}", file.display())
+        };
+        return Err(format!(
+            "{cause}: this process cannot {} {what}{named} (mode {:03o}, owner uid {} gid {})",
+            verbs.join(" or "),
+            meta.mode() & 0o7777,
+            meta.uid(),
+            meta.gid()
+        ));
     }
     Ok(())
 }
@@ -155,6 +200,8 @@ impl SqliteStore {
         refuse_hard_links(path, &name)?;
         let real = real_path(path, &name)?;
         let lock_file = take_lock(&real, &name)?;
+        // before SQLite's recovery silently drops what follows a damaged frame
+        let wal_frames_dropped = super::wal::keep_damaged(path, &name)?;
         // SQLite opens an empty file as a new database without a word: a file truncated by a
         // failed copy or a full disk would silently cost the history, the alert states and
         // the undelivered notifications
@@ -237,6 +284,7 @@ impl SqliteStore {
             read: Mutex::new(read),
             max_bytes: Some(pages * page_size),
             _lock: Some(lock_file),
+            wal_frames_dropped,
         })
     }
 
@@ -328,6 +376,7 @@ impl SqliteStore {
             read: Mutex::new(read),
             max_bytes: None,
             _lock: None,
+            wal_frames_dropped: 0,
         })
     }
 
@@ -377,6 +426,12 @@ impl SqliteStore {
             reason,
             source: Box::new(source),
         }
+    }
+
+    /// Frames of the last writes SQLite dropped at open because the `-wal` file was damaged
+    /// before them (a copy of the WAL was kept and a warning logged); 0 when none.
+    pub fn wal_frames_dropped(&self) -> u64 {
+        self.wal_frames_dropped
     }
 
     /// The file.
@@ -612,6 +667,27 @@ impl Store for SqliteStore {
                  exit, so they are refused; restore the file or restart the daemon"
             ),
         })
+    }
+
+    fn probe(&self) -> Option<Result<(), StoreError>> {
+        self.identity?;
+        let c = lock(&self.write);
+        // the schema version written back unchanged: one page (the header) through the WAL
+        let probe = || -> rusqlite::Result<()> {
+            let v: i64 = c.query_row("PRAGMA user_version", [], |r| r.get(0))?;
+            c.execute_batch(&format!("PRAGMA user_version = {v}"))
+        };
+        Some(probe().map_err(sq("write probe")))
+    }
+
+    fn space_left(&self) -> Option<u64> {
+        self.identity?;
+        let dir = match self.file.parent() {
+            Some(d) if !d.as_os_str().is_empty() => d,
+            _ => Path::new("."),
+        };
+        let v = rustix::fs::statvfs(dir).ok()?;
+        Some(v.f_bavail.saturating_mul(v.f_frsize))
     }
 
     fn write(&self, batch: &WriteBatch) -> Result<Vec<i64>, StoreError> {

@@ -29,6 +29,21 @@
 //! (`gatewatch_store_write_errors_total{reason="file_gone"}`), the first detection is logged
 //! at once as an error naming the file, and [`StoreWriter::healthy`] is false (`/readyz`
 //! answers 503) until the file is back.
+//!
+//! A write the store refuses (a full disk, an I/O error, a lock another process holds past
+//! the busy timeout) makes [`StoreWriter::failing`] say so, naming the file and SQLite's error,
+//! and `/readyz` answers 503 with it: an instance whose every write is lost is not one to
+//! route to. The next commit that succeeds clears it and logs at level info that writes
+//! resumed, with the write requests lost meanwhile; so does a write probe ([`Store::probe`])
+//! every [`CHECK_INTERVAL`] while the writes fail and none was tried for that long, since with
+//! `/readyz` failing the ingestion may stop arriving (a load balancer takes the instance out)
+//! and nothing else would write.
+//! Why: the failures were only counted and
+//! logged, and a daemon that could not write for hours looked ready. Every
+//! [`CHECK_INTERVAL`] the writer also asks how much space is left on the store's file system
+//! ([`Store::space_left`]) and warns, once until it recovers, under [`LOW_SPACE_BYTES`]: a
+//! disk full at start used to say nothing until a write failed, and a write into space the
+//! WAL already holds does not fail.
 
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::mpsc::{self, RecvTimeoutError, SyncSender, TrySendError};
@@ -51,6 +66,23 @@ const MAX_MERGED: usize = 256;
 
 /// A failing store logs at most one error this often.
 const WARN_EVERY: Duration = Duration::from_secs(30);
+
+/// Under this many bytes free on the store's file system the writer warns (16 MiB: one WAL
+/// budget of a small store, a few thousand rows).
+pub const LOW_SPACE_BYTES: u64 = 16 << 20;
+
+/// Since when the store's writes fail, and why.
+#[derive(Debug, Clone)]
+struct Failing {
+    /// The first failure's error.
+    message: String,
+    /// When it happened.
+    since: Instant,
+    /// When the last write failed (the probe waits for the writes to go quiet).
+    last: Instant,
+    /// [`StoreStats::write_failed`] before it: the requests lost since are the difference.
+    failed_before: u64,
+}
 
 /// What a write's callback is told: the outbox ids, or why nothing was written.
 pub type WriteResult = Result<Vec<i64>, String>;
@@ -130,6 +162,10 @@ pub struct StoreWriter {
     warn: Arc<Mutex<(Option<Instant>, u64)>>,
     /// [`Store::location`], so the log of a failed write names the file.
     location: Arc<str>,
+    /// Set while the store's writes fail; cleared by the next commit.
+    failing: Arc<Mutex<Option<Failing>>>,
+    /// Whether the low-space warning was given (until space is back above the mark).
+    low_space: Arc<AtomicBool>,
 }
 
 impl std::fmt::Debug for StoreWriter {
@@ -156,6 +192,8 @@ impl StoreWriter {
             stats: stats.clone(),
             warn: warn.clone(),
             location: store.location().into(),
+            failing: Arc::new(Mutex::new(None)),
+            low_space: Arc::new(AtomicBool::new(false)),
         };
         let w = writer.clone();
         let thread = std::thread::Builder::new()
@@ -166,6 +204,8 @@ impl StoreWriter {
                 loop {
                     if Instant::now() >= next_check {
                         let _ = w.check(store.as_ref());
+                        w.check_space(store.as_ref());
+                        w.probe(store.as_ref(), CHECK_INTERVAL);
                         next_check = Instant::now() + CHECK_INTERVAL;
                     }
                     if Instant::now() >= next_prune {
@@ -223,6 +263,110 @@ impl StoreWriter {
     /// nothing written now survives, and `/readyz` says so.
     pub fn healthy(&self) -> bool {
         !self.stats.gone.load(Ordering::Relaxed)
+    }
+
+    /// Why the store's writes fail, naming its file, the first error and the requests lost
+    /// so far; `None` when the last commit succeeded (or nothing failed yet). `/readyz`
+    /// answers 503 with it.
+    pub fn failing(&self) -> Option<String> {
+        let f = self
+            .failing
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .clone()?;
+        let lost = self.failed_writes().saturating_sub(f.failed_before);
+        Some(format!(
+            "store {}: writes fail since {} s ago ({lost} write requests lost): {}",
+            self.location,
+            f.since.elapsed().as_secs(),
+            f.message
+        ))
+    }
+
+    /// A commit failed with `msg`: the store is failing, from the first such failure on.
+    fn write_failed(&self, msg: &str, failed_before: u64) {
+        let mut f = self.failing.lock().unwrap_or_else(|p| p.into_inner());
+        match f.as_mut() {
+            Some(f) => f.last = Instant::now(),
+            None => {
+                *f = Some(Failing {
+                    message: msg.to_string(),
+                    since: Instant::now(),
+                    last: Instant::now(),
+                    failed_before,
+                })
+            }
+        }
+    }
+
+    /// A commit succeeded: a failing store's writes resumed, said once at level info.
+    fn write_succeeded(&self) {
+        let Some(f) = self
+            .failing
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .take()
+        else {
+            return;
+        };
+        let lost = self.failed_writes().saturating_sub(f.failed_before);
+        tracing::info!(
+            store = %self.location,
+            lost,
+            "store {}: writes resumed after {} s; {lost} write requests were lost meanwhile \
+             (first error: {})",
+            self.location,
+            f.since.elapsed().as_secs(),
+            f.message
+        );
+    }
+
+    /// While writes fail and none was tried for `quiet`, [`Store::probe`]: when it succeeds,
+    /// writes resumed (the ingestion whose writes would show it may have stopped with
+    /// `/readyz`). Not while real writes are tried: they decide, and a probe that passes where
+    /// they fail (a one-page write into space the WAL already holds, on a full disk or at the
+    /// size bound) would make readiness flap.
+    fn probe(&self, store: &dyn Store, quiet: Duration) {
+        let tried = self
+            .failing
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .as_ref()
+            .map(|f| f.last.elapsed());
+        if tried.is_none_or(|t| t < quiet) {
+            return;
+        }
+        if let Some(Ok(())) = store.probe() {
+            self.write_succeeded();
+        }
+    }
+
+    /// Warns once when the store's file system has less than [`LOW_SPACE_BYTES`] free, and
+    /// once more when it has again.
+    fn check_space(&self, store: &dyn Store) {
+        let Some(free) = store.space_left() else {
+            return;
+        };
+        let low = free < LOW_SPACE_BYTES;
+        if self.low_space.swap(low, Ordering::Relaxed) == low {
+            return;
+        }
+        if low {
+            tracing::warn!(
+                store = %self.location,
+                free_bytes = free,
+                "store {}: its file system has {free} bytes free: writes fail once the disk is \
+                 full (then /readyz answers 503 naming the file); free space on that disk",
+                self.location
+            );
+        } else {
+            tracing::info!(
+                store = %self.location,
+                free_bytes = free,
+                "store {}: its file system has {free} bytes free again",
+                self.location
+            );
+        }
     }
 
     /// [`Store::check`], remembered in [`StoreStats::gone`]; the change either way is logged at
@@ -346,6 +490,7 @@ impl StoreWriter {
             merged.append(b);
             thens.push(then);
         }
+        let failed_before = self.failed_writes();
         let mut result = store.write(&merged);
         if result.as_ref().is_err_and(super::StoreError::is_full) {
             // the size bound's margin did not suffice, or the disk is full: free the oldest
@@ -356,6 +501,7 @@ impl StoreWriter {
         match result {
             Ok(ids) => {
                 self.stats.commits.fetch_add(1, Ordering::Relaxed);
+                self.write_succeeded();
                 self.make_room(store, false);
                 let mut ids = ids.into_iter();
                 for (p, then) in parts.into_iter().zip(thens) {
@@ -372,12 +518,14 @@ impl StoreWriter {
                 // every one would fail alike (a lock: each after the busy timeout).
                 tracing::debug!(store = %self.location, "merged write failed ({e}), retrying its {} requests one by one", thens.len());
                 let mut first_error = None;
+                let mut any_ok = false;
                 for (p, then) in parts.into_iter().zip(thens) {
                     let batch = p.take_front(&mut merged);
                     let r = store.write(&batch).map_err(|e| e.to_string());
                     match &r {
                         Ok(_) => {
                             self.stats.commits.fetch_add(1, Ordering::Relaxed);
+                            any_ok = true;
                         }
                         Err(msg) => {
                             self.stats.write_failed.fetch_add(1, Ordering::Relaxed);
@@ -387,6 +535,12 @@ impl StoreWriter {
                     if let Some(then) = then {
                         then(r);
                     }
+                }
+                // one bad request is its own loss; the store fails only when none got through
+                match (&first_error, any_ok) {
+                    (_, true) => self.write_succeeded(),
+                    (Some(msg), false) => self.write_failed(msg, failed_before),
+                    (None, false) => {}
                 }
                 self.make_room(store, false);
                 if let Some(msg) = first_error {
@@ -398,6 +552,7 @@ impl StoreWriter {
                 for _ in &thens {
                     self.stats.write_failed.fetch_add(1, Ordering::Relaxed);
                 }
+                self.write_failed(&msg, failed_before);
                 self.warn(&msg);
                 for then in thens.into_iter().flatten() {
                     then(Err(msg.clone()));
@@ -541,6 +696,51 @@ mod tests {
         let ends: Vec<f64> = rows.iter().map(|r| r.window_end).collect();
         assert_eq!(ends.len(), 2);
         assert!((ends[0] - 1.0).abs() < 1e-9 && (ends[1] - 3.0).abs() < 1e-9);
+        assert!(writer.close(Duration::from_secs(30)));
+    }
+
+    /// The seam `/readyz` reads: a store whose writes fail (a real SQLite error: the file's
+    /// write lock held by another connection, past a short busy timeout) makes
+    /// [`StoreWriter::failing`] name the file and the error; the next commit that succeeds
+    /// clears it.
+    #[test]
+    fn failing_writes_are_reported_until_one_succeeds() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let db = dir.path().join("gw.db");
+        let store = Arc::new(SqliteStore::open(&db, 64).expect("open"));
+        let writer = StoreWriter::start(store.clone(), Duration::from_secs(u64::MAX / 4), 1 << 20)
+            .expect("writer");
+        let batch = || {
+            vec![(
+                WriteBatch {
+                    identifications: vec![record(1.0)],
+                    ..Default::default()
+                },
+                None,
+            )]
+        };
+        writer.commit(store.as_ref(), batch());
+        assert_eq!(writer.failing(), None);
+        let other = rusqlite::Connection::open(&db).expect("open");
+        other.execute_batch("BEGIN EXCLUSIVE").expect("lock");
+        writer.commit(store.as_ref(), batch());
+        writer.commit(store.as_ref(), batch());
+        let why = writer.failing().expect("failing");
+        assert!(
+            why.contains(&db.display().to_string()) && why.contains("2 write requests lost"),
+            "{why}"
+        );
+        assert!(why.contains("locked"), "{why}");
+        other.execute_batch("COMMIT").expect("unlock");
+        writer.commit(store.as_ref(), batch());
+        assert_eq!(writer.failing(), None);
+        // with nothing to write (the ingestion stopped with /readyz), the probe clears it
+        other.execute_batch("BEGIN EXCLUSIVE").expect("lock");
+        writer.commit(store.as_ref(), batch());
+        assert!(writer.failing().is_some());
+        other.execute_batch("COMMIT").expect("unlock");
+        writer.probe(store.as_ref(), Duration::ZERO);
+        assert_eq!(writer.failing(), None);
         assert!(writer.close(Duration::from_secs(30)));
     }
 }
