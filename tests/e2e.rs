@@ -427,15 +427,30 @@ async fn a_stopped_stream_fires_data_stale_and_new_data_resolves_it() {
         gatewatch::simulate::Scenario::Stable,
         3,
     );
-    d.send("quiet", &mut sim, 0, 1.0).await;
+    // a stray sender (a typo in a gate's name): a second of samples, never a full window
+    let mut stray = GateSimulator::scenario(
+        GateParams::default(),
+        gatewatch::simulate::Scenario::Stable,
+        4,
+    );
+    d.send("quiet-typo", &mut stray, 0, 1.0).await;
+    // a window's worth of samples: the auto-accepted gate counts as a sensor
+    d.send("quiet", &mut sim, 0, 10.0).await;
     // the stream stops: the stale check (every second) fires after 1 s of silence
     let seen = hook.wait_for("firing", "GateDataStale", "quiet").await;
     assert!(!seen.iter().any(|a| a.1 == "GateNegativeDamping"));
     let v = d.gate("quiet").await;
     assert_eq!(v["alert_state"], "unknown", "stale data: state unknown");
     assert_eq!(v["alerts"][0]["name"], "GateDataStale");
+    // the stray gate, silent longer, pages nothing (it expires unless it sends again)
+    assert!(
+        !seen.iter().any(|a| a.2 == "quiet-typo"),
+        "a stray gate paged: {seen:?}"
+    );
+    let v = d.gate("quiet-typo").await;
+    assert_eq!(v["alerts"], serde_json::json!([]), "{v}");
     // data again: resolved
-    d.send("quiet", &mut sim, 200, 1.0).await;
+    d.send("quiet", &mut sim, 2000, 1.0).await;
     hook.wait_for("resolved", "GateDataStale", "quiet").await;
     let m = d.metrics().await;
     let delivered = m

@@ -99,6 +99,12 @@ struct GateEntry {
     /// Created by `accept_unknown_gates` (not a `[gates.*]` table): such a gate expires after
     /// `server.unknown_gate_expiry_seconds` of silence, configured gates never do.
     unknown: bool,
+    /// Whether its silence pages (`GateDataStale`): always for a configured gate, and for a
+    /// restored one (it was streaming before the restart); for a gate created by
+    /// `accept_unknown_gates` once its window has filled. A stray sender's few samples (a typo
+    /// in a gate's name, a test) are not a sensor that died, and paged critical within
+    /// `stale_after_seconds` until the gate expired (docs/alerts.md, "GateDataStale").
+    stale_armed: bool,
     /// Which life of the gate this entry is ([`Job::generation`]): an expired gate that sends
     /// again gets a new entry with a new number, so a job of its earlier life still in flight
     /// reports on nothing.
@@ -336,6 +342,8 @@ impl AppState {
             let cfg = self.config.gate(id)?.clone();
             inner.alerts.set_rules(id, cfg.alert.clone());
             let memory = inner.resumed.remove(id);
+            let unknown = !self.config.gates.contains_key(id);
+            let stale_armed = !unknown || !seen || memory.is_some();
             let (trend, trend_estimate, level, cycle) = match memory {
                 Some(m) => {
                     if let Some(p) = m.previous {
@@ -364,7 +372,7 @@ impl AppState {
                 self.metrics.set_trend(id, None, trend_estimate.as_ref());
             }
             // the sensor counts as seen at creation, so a gate that never sends goes stale
-            let events = if seen {
+            let events = if seen && stale_armed {
                 inner.alerts.data_seen(id, now)
             } else {
                 Vec::new()
@@ -399,7 +407,8 @@ impl AppState {
                     last_error: None,
                     trend_estimate,
                     last_data: now,
-                    unknown: !self.config.gates.contains_key(id),
+                    unknown,
+                    stale_armed,
                 },
             );
         }
@@ -599,7 +608,14 @@ impl AppState {
                         generation: entry.generation,
                     });
                 }
-                let events = inner.alerts.data_seen(g, now);
+                // a gate created by accept_unknown_gates counts as a sensor once its window
+                // has filled (`GateEntry::stale_armed`)
+                entry.stale_armed |= fill >= 1.0;
+                let events = if entry.stale_armed {
+                    inner.alerts.data_seen(g, now)
+                } else {
+                    Vec::new()
+                };
                 if !events.is_empty() {
                     let state = inner.alerts.state(g).unwrap_or(GateState::Unknown);
                     self.metrics.set_alert_state(g, state_name(state));
