@@ -3,7 +3,8 @@
 //! refused naming the owner, another prefix is not; a released prefix is taken at once; an
 //! abandoned lease (no release, as after `kill -9`) refuses until it expires, then is taken; of
 //! two conditional writes with the same expected sequence exactly one is stored; a renewing
-//! owner keeps its prefix, and one whose lease was taken writes nothing more.
+//! owner keeps its prefix, and one whose lease was taken writes nothing more; a server away
+//! for longer than the TTL is no loss: writes wait, and resume once the lease is renewed.
 
 use std::sync::{Arc, Barrier};
 use std::time::{Duration, Instant};
@@ -246,4 +247,37 @@ fn an_owner_renews_its_lease_and_one_whose_lease_is_taken_writes_nothing_more() 
     owner.release().expect("release");
     let (_, kept) = thief.owner_lease().expect("read").expect("a lease");
     assert_eq!(kept.host, "elsewhere");
+}
+
+#[test]
+fn an_unreachable_server_is_not_a_loss_and_the_lease_is_renewed_when_it_is_back() {
+    if !nats_installed() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut server = NatsServer::start(dir.path());
+    let url = server.url();
+    let ttl = Duration::from_secs(1);
+    let owner = NatsStore::open(&options(&url, "AWAY", Some(ttl))).expect("owner");
+    let (_, mine) = owner.owner_lease().expect("read").expect("a lease");
+    // the server goes away for longer than the TTL: the renewals fail, the lease expires
+    server.stop();
+    std::thread::sleep(ttl * 2);
+    owner.check().expect("an unreachable server is no loss");
+    let e = owner
+        .write(&one_state())
+        .expect_err("a write on an expired lease");
+    assert!(!e.is_owned(), "{e}");
+    assert!(e.to_string().contains("expired without renewal"), "{e}");
+    // back (same store directory, nobody took the prefix): renewed, writes resume
+    server.restart();
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while let Err(e) = owner.write(&one_state()) {
+        assert!(Instant::now() < deadline, "writes did not resume: {e}");
+        std::thread::sleep(Duration::from_millis(200));
+    }
+    owner.check().expect("still the owner");
+    let (_, now) = owner.owner_lease().expect("read").expect("a lease");
+    assert_eq!(now.instance, mine.instance);
+    assert!(now.expires > mine.expires);
 }

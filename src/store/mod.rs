@@ -13,7 +13,8 @@
 //! - `config`: [`StorageConfig`] (`[storage]`: which backend, where) and the bounds;
 //! - `sqlite`: [`SqliteStore`]: the queries, the pruning and the size bound;
 //! - `nats`: [`NatsStore`]: the history, the alert states and the outbox as JetStream
-//!   streams, called through a small runtime of its own with a timeout;
+//!   streams, called through a small runtime of its own with a timeout, and the owner lease
+//!   ([`LeaseRecord`]: one daemon per prefix);
 //! - `file`: the store's file on disk: the lock (one daemon per file), the damage check at
 //!   open, the read-only copy's URI;
 //! - `schema`: the schema and its migrations (version 2 clusters a gate's rows and keeps the

@@ -285,12 +285,15 @@ pub(super) async fn release(c: &Conn, held: &HeldState) -> Result<(), Failure> {
 }
 
 /// Renews `held` every [`renew_interval`] until it is released or lost (the task is aborted
-/// with the store's runtime). A failed renewal is logged once per run of failures and retried
+/// with the store's runtime), each renewal given at most `timeout` and the interval. A failed renewal is logged once per run of failures and retried
 /// at the next tick; a lost lease is logged as an error naming the new owner and remembered,
 /// which refuses every later write and fails `Store::check`.
 pub(super) async fn keep(c: Arc<Conn>, held: Arc<Held>, url: String, timeout: Duration) {
     let prefix = c.names.prefix.clone();
     let every = renew_interval(held.ttl);
+    // a renewal slower than the interval is given up and tried again: with a short TTL, one
+    // renewal waiting out the whole operation timeout would let the lease expire
+    let timeout = timeout.min(every);
     let (mut failing, mut expired_told) = (false, false);
     loop {
         tokio::time::sleep(every).await;
