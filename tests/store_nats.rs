@@ -44,8 +44,10 @@ fn the_nats_store_passes_the_store_checks() {
     let server = NatsServer::start(dir.path());
     for (i, (name, check)) in CHECKS.iter().enumerate() {
         // each check on streams of its own
+        // with the owner lease `serve` takes: its checks must not get in the way
         let s = NatsStore::open(&NatsOptions {
             prefix: format!("CHECK{i}"),
+            owner_lease: Some(gatewatch::store::NATS_LEASE_TTL),
             ..options(&server.url())
         })
         .expect("open");

@@ -3,7 +3,10 @@
 //! its history lands in the server's stream; a configured gate that never sends fires
 //! `GateDataStale`, whose alert state and notification land there too; after the daemon is
 //! killed and started again, it serves the first run's history from the server and resumes the
-//! stored alert state instead of firing afresh. Every wait is bounded.
+//! stored alert state instead of firing afresh. One daemon per prefix: a second daemon on the
+//! prefix is refused at start naming the first; after the `kill -9` the restart is refused
+//! until the killed daemon's lease expires, then starts; a clean stop releases the lease.
+//! Every wait is bounded.
 
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -17,9 +20,13 @@ use nats_common::{free_port, nats_installed, NatsServer};
 
 const BIN: &str = env!("CARGO_BIN_EXE_gatewatch");
 const WAIT: Duration = Duration::from_secs(60);
+/// The daemons' owner lease: long enough that a restart right after a `kill -9` is refused
+/// (renewed every third, so at least 6.7 s of it are left), short enough to wait out.
+const LEASE_SECONDS: f64 = 10.0;
 
 /// The daemon's configuration: the NATS backend, a gate `g1` that is streamed, a gate `g2` that
-/// never sends (stale after 1 s), a webhook nobody listens to (its row stays in the outbox).
+/// never sends (stale after 1 s), a webhook nobody listens to (its row stays in the outbox), an
+/// owner lease of [`LEASE_SECONDS`].
 fn write_config(dir: &Path, nats_url: &str, http_port: u16) -> PathBuf {
     let cfg = dir.join("gatewatch.toml");
     std::fs::write(
@@ -27,6 +34,7 @@ fn write_config(dir: &Path, nats_url: &str, http_port: u16) -> PathBuf {
         format!(
             "[server]\nlisten = \"127.0.0.1:{http_port}\"\nworker_threads = 1\nshutdown_grace_seconds = 2.0\n\
              [storage]\nbackend = \"nats\"\nnats_url = \"{nats_url}\"\nnats_prefix = \"E2E\"\n\
+             nats_lease_seconds = {LEASE_SECONDS}\n\
              [notify]\ninitial_backoff_ms = 100\nmax_backoff_ms = 300\nresend_interval_seconds = 0\n\
              [[notify.webhooks]]\nurl = \"http://127.0.0.1:{}/hook\"\n\
              [defaults]\nrate_hz = 100.0\nwindow_seconds = 1.0\nidentify_every_seconds = 0.5\n\
@@ -52,19 +60,31 @@ fn serve(cfg: &Path, log: &Path) -> Child {
 
 /// Waits for `/readyz`; fails with the daemon's log when it exits or is not ready in time.
 async fn wait_ready(client: &reqwest::Client, url: &str, child: &mut Child, log: &Path) {
+    if let Err(log) = ready_or_exit(client, url, child, log).await {
+        panic!("daemon exited: {log}");
+    }
+}
+
+/// Waits for `/readyz` (`Ok`) or the daemon's exit (`Err` with its status and log); fails when
+/// neither comes in time.
+async fn ready_or_exit(
+    client: &reqwest::Client,
+    url: &str,
+    child: &mut Child,
+    log: &Path,
+) -> Result<(), String> {
     let deadline = Instant::now() + WAIT;
     loop {
         if let Ok(r) = client.get(format!("{url}/readyz")).send().await {
             if r.status().is_success() {
-                return;
+                return Ok(());
             }
         }
-        let exited = child.try_wait().ok().flatten();
-        assert!(
-            exited.is_none() && Instant::now() < deadline,
-            "daemon not ready ({exited:?}): {}",
-            std::fs::read_to_string(log).unwrap_or_default()
-        );
+        let text = || std::fs::read_to_string(log).unwrap_or_default();
+        if let Some(status) = child.try_wait().ok().flatten() {
+            return Err(format!("{status}: {}", text()));
+        }
+        assert!(Instant::now() < deadline, "daemon not ready: {}", text());
         tokio::time::sleep(Duration::from_millis(100)).await;
     }
 }
@@ -101,6 +121,31 @@ async fn serve_on_nats_keeps_history_and_alert_state_across_a_restart() {
 
     let mut first = serve(&cfg, &log);
     wait_ready(&client, &url, &mut first, &log).await;
+    // a second daemon on the prefix (its own HTTP port) is refused, naming the first
+    let rival_dir = dir.path().join("rival");
+    std::fs::create_dir(&rival_dir).expect("rival dir");
+    let rival_port = free_port();
+    let rival_cfg = write_config(&rival_dir, &server.url(), rival_port);
+    let rival_log = rival_dir.join("gatewatch.log");
+    let mut rival = serve(&rival_cfg, &rival_log);
+    let refused = ready_or_exit(
+        &client,
+        &format!("http://127.0.0.1:{rival_port}"),
+        &mut rival,
+        &rival_log,
+    )
+    .await
+    .expect_err("a second daemon on the prefix started");
+    let owner = format!(
+        "another gatewatch owns prefix E2E on {}: host ",
+        server.url()
+    );
+    assert!(refused.contains(&owner), "{refused}");
+    assert!(
+        refused.contains(&format!(" pid {} since ", first.id())),
+        "{refused}"
+    );
+    assert!(!refused.starts_with("exit status: 0"), "{refused}");
     // the test reads the same streams as the daemon (on a blocking thread: the store blocks)
     let nats_url = server.url();
     let store = tokio::task::spawn_blocking(move || {
@@ -168,9 +213,31 @@ async fn serve_on_nats_keeps_history_and_alert_state_across_a_restart() {
     assert!(stored["stale"]["starts_at"].is_object(), "{g2_state}");
     first.kill().expect("kill -9");
     let _ = first.wait();
+    let killed = Instant::now();
 
-    let mut second_run = serve(&cfg, &log);
-    wait_ready(&client, &url, &mut second_run, &log).await;
+    // the killed daemon did not release its lease: the restart is refused until it expires
+    // (what a systemd Restart= loop goes through), then starts
+    let mut refusals = 0;
+    let mut second_run = loop {
+        let mut run = serve(&cfg, &log);
+        match ready_or_exit(&client, &url, &mut run, &log).await {
+            Ok(()) => break run,
+            Err(refused) => {
+                assert!(refused.contains(&owner), "{refused}");
+                assert!(refused.contains("its lease expires in"), "{refused}");
+                assert!(
+                    killed.elapsed() < Duration::from_secs_f64(LEASE_SECONDS) + WAIT,
+                    "still refused long after the lease: {refused}"
+                );
+                refusals += 1;
+                tokio::time::sleep(Duration::from_millis(500)).await;
+            }
+        }
+    };
+    assert!(
+        refusals >= 1,
+        "the restart was not refused within the lease"
+    );
     // the first run's history, served by the second daemon from the server
     let served: Value = client
         .get(format!("{url}/api/v1/gates/g1/history?limit=1000"))
@@ -197,6 +264,29 @@ async fn serve_on_nats_keeps_history_and_alert_state_across_a_restart() {
         .expect("join");
     let now = states.into_iter().find(|(g, _)| g == "g2").map(|(_, s)| s);
     assert_eq!(now.as_deref(), Some(g2_state.as_str()), "alert state of g2");
-    let _ = second_run.kill();
-    let _ = second_run.wait();
+    // a clean stop releases the lease: the next daemon would not wait
+    let stopped = Command::new("kill")
+        .args(["-TERM", &second_run.id().to_string()])
+        .status()
+        .expect("kill -TERM");
+    assert!(stopped.success());
+    let deadline = Instant::now() + WAIT;
+    while second_run.try_wait().ok().flatten().is_none() {
+        assert!(Instant::now() < deadline, "the daemon did not stop");
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    let s = store.clone();
+    let (_, lease) = tokio::task::spawn_blocking(move || s.owner_lease().expect("lease"))
+        .await
+        .expect("join")
+        .expect("a lease record");
+    let now = SystemTime::now()
+        .duration_since(SystemTime::UNIX_EPOCH)
+        .expect("clock")
+        .as_secs_f64();
+    assert!(
+        !lease.live(now),
+        "lease not released at a clean stop: {lease:?}: {}",
+        std::fs::read_to_string(&log).unwrap_or_default()
+    );
 }

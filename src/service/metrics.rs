@@ -206,7 +206,8 @@ pub const IDENTIFICATION_FAILURES: &[&str] = &["settings", "window", "panic", "q
 /// one alert transition with its state): `failed` when SQLite refused the transaction (disk
 /// full, I/O error, the `storage.max_size_mb` bound; `/readyz` fails until a write succeeds), `queue_full` when the writer's queue
 /// (`store::STORE_QUEUE_CAPACITY`) had no room, `file_gone` when the store's file was deleted
-/// or replaced under the daemon (`Store::check`; `/readyz` fails meanwhile). Either way the
+/// or replaced under the daemon, or the NATS store's owner lease was lost to another daemon
+/// (`Store::check`; `/readyz` fails meanwhile). Either way the
 /// daemon goes on from memory.
 pub const STORE_WRITE_ERRORS: &[&str] = &["failed", "queue_full", "file_gone"];
 

@@ -267,6 +267,8 @@ pub async fn run_with_persistence(
         // then SQLite's 5 s busy timeout, past the deadline by tens of seconds.
         let flushed = tokio::task::spawn_blocking(move || {
             let flushed = p.writer.close(within);
+            // the writer is closed: nothing is written after the lease is released
+            p.release();
             let failed = p.writer.failed_writes().saturating_sub(failed_before);
             if !flushed || failed > 0 {
                 return Err((p.writer.pending(), failed));

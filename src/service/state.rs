@@ -301,8 +301,10 @@ impl AppState {
     /// orchestrator's liveness probe restarts it), or `None`. Two states: an identification
     /// worker thread no longer runs (nothing restarts it: the gates' windows pile up unanalysed),
     /// or the store's file was deleted or replaced under the daemon (every write is refused
-    /// until the same file is back at its path, which a deletion never brings). Readiness alone
-    /// failed there, and a pod out of its endpoints with a live `/healthz` was never restarted.
+    /// until the same file is back at its path, which a deletion never brings) or the NATS
+    /// store's prefix was taken by another daemon (its owner lease lost: nothing is written
+    /// any more). Readiness alone failed there, and a pod out of its endpoints with a live
+    /// `/healthz` was never restarted.
     pub fn unrecoverable(&self) -> Vec<String> {
         let mut why = Vec::new();
         let (running, wanted) = (
@@ -316,11 +318,15 @@ impl AppState {
             ));
         }
         if let Some(p) = self.persistence.as_ref().filter(|p| !p.writer.healthy()) {
-            why.push(format!(
-                "store {}: the file was deleted or replaced under the daemon, every write is \
-                 refused; restart gatewatch",
-                p.store.location()
-            ));
+            why.push(match p.store.check() {
+                // the NATS store's prefix taken by another daemon: the message names it
+                Err(e) if e.is_owned() => format!("store {}: {e}", p.store.location()),
+                _ => format!(
+                    "store {}: the file was deleted or replaced under the daemon, every write \
+                     is refused; restart gatewatch",
+                    p.store.location()
+                ),
+            });
         }
         why
     }

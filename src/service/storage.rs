@@ -36,6 +36,8 @@ pub struct Persistence {
     written: Mutex<HashMap<String, String>>,
     /// The SQLite store behind `store`, for its checkpoint.
     sqlite: Option<Arc<SqliteStore>>,
+    /// The NATS store behind `store`, for the release of its owner lease.
+    nats: Option<Arc<NatsStore>>,
     /// The writer's error counters as last exported to Prometheus.
     counts: StoreCounts,
 }
@@ -66,10 +68,12 @@ impl Persistence {
         Ok(p)
     }
 
-    /// Connects to the NATS store of `config` and starts its writer thread.
+    /// Connects to the NATS store of `config`, taking its prefix's owner lease (refused when
+    /// another daemon holds it), and starts its writer thread.
     fn open_nats(config: &StorageConfig) -> Result<Persistence, StoreError> {
         let options = NatsOptions {
             prefix: config.nats_prefix.clone(),
+            owner_lease: Some(config.nats_lease()),
             ..NatsOptions::new(
                 &config.nats_url,
                 config.retention(),
@@ -83,7 +87,9 @@ impl Persistence {
                 path: store.location(),
                 message: format!("cannot start the writer thread: {e}"),
             })?;
-        Ok(Persistence::with(store, writer))
+        let mut p = Persistence::with(store.clone(), writer);
+        p.nats = Some(store);
+        Ok(p)
     }
 
     /// Wraps any store (tests, another implementation).
@@ -94,6 +100,7 @@ impl Persistence {
             batch: AtomicU64::new(1),
             written: Mutex::new(HashMap::new()),
             sqlite: None,
+            nats: None,
             counts: StoreCounts::default(),
         }
     }
@@ -117,6 +124,17 @@ impl Persistence {
         match &self.sqlite {
             Some(s) => s.checkpoint_within(within),
             None => Ok(()),
+        }
+    }
+
+    /// Releases the NATS store's owner lease (at shutdown, after [`StoreWriter::close`]: nothing
+    /// is written after it), so the next daemon takes the prefix at once. A failure is logged:
+    /// the lease then expires by itself. A store that is not NATS has nothing to do.
+    pub fn release(&self) {
+        if let Some(s) = &self.nats {
+            if let Err(e) = s.release() {
+                tracing::warn!("{e}; the next daemon on the prefix waits for the lease to expire");
+            }
         }
     }
 

@@ -48,8 +48,13 @@ pub struct StorageConfig {
     pub nats_url: String,
     /// Prefix of the `nats` backend's streams and subjects (default `GATEWATCH`: streams
     /// `GATEWATCH_HISTORY`, `GATEWATCH_ALERTS`, `GATEWATCH_OUTBOX`); letters, digits, `-` and
-    /// `_`. Daemons that share their gates use the same prefix.
+    /// `_`. One daemon per prefix: `serve` takes the prefix's owner lease and a second daemon
+    /// on it is refused at start (`docs/design.md`, "The owner lease").
     pub nats_prefix: String,
+    /// How long the `nats` backend's owner lease lasts without renewal, in seconds (default
+    /// 30, `store::NATS_LEASE_TTL`; renewed every third of it): how long a prefix stays refused
+    /// after its daemon was killed without releasing it. At least 1.
+    pub nats_lease_seconds: f64,
     /// The SQLite file (default `gatewatch.db`). A relative path is taken relative to the
     /// directory of the configuration file (the working directory without one), like
     /// Prometheus does. Its directory must exist and be writable (the WAL and shared-memory
@@ -84,6 +89,7 @@ impl Default for StorageConfig {
             backend: StorageBackend::Sqlite,
             nats_url: "nats://127.0.0.1:4222".to_string(),
             nats_prefix: "GATEWATCH".to_string(),
+            nats_lease_seconds: super::NATS_LEASE_TTL.as_secs_f64(),
             path: "gatewatch.db".to_string(),
             retention_days: 30.0,
             max_history_rows: 10_000_000,
@@ -111,6 +117,12 @@ impl StorageConfig {
             return Err(format!(
                 "storage.nats_prefix: {:?}: letters, digits, '-' and '_' only, not empty",
                 self.nats_prefix
+            ));
+        }
+        if !(self.nats_lease_seconds.is_finite() && self.nats_lease_seconds >= 1.0) {
+            return Err(format!(
+                "storage.nats_lease_seconds: {} must be at least 1 (seconds)",
+                self.nats_lease_seconds
             ));
         }
         if !(self.retention_days.is_finite() && self.retention_days > 0.0) {
@@ -148,6 +160,11 @@ impl StorageConfig {
     /// The retention as a duration.
     pub fn retention(&self) -> Duration {
         Duration::try_from_secs_f64(self.retention_days * 86_400.0).unwrap_or(Duration::MAX)
+    }
+
+    /// The NATS owner lease's time to live as a duration.
+    pub fn nats_lease(&self) -> Duration {
+        Duration::try_from_secs_f64(self.nats_lease_seconds).unwrap_or(super::NATS_LEASE_TTL)
     }
 
     /// The notifications' maximum age as a duration.

@@ -13,7 +13,8 @@
 //! - `config`: [`StorageConfig`] (`[storage]`: which backend, where) and the bounds;
 //! - `sqlite`: [`SqliteStore`]: the queries, the pruning and the size bound;
 //! - `nats`: [`NatsStore`]: the history, the alert states and the outbox as JetStream
-//!   streams, called through a small runtime of its own with a timeout;
+//!   streams, called through a small runtime of its own with a timeout, and the owner lease
+//!   ([`LeaseRecord`]: one daemon per prefix);
 //! - `file`: the store's file on disk: the lock (one daemon per file), the damage check at
 //!   open, the read-only copy's URI;
 //! - `schema`: the schema and its migrations (version 2 clusters a gate's rows and keeps the
@@ -45,9 +46,11 @@ pub use history::{
     history_csv, history_csv_rows, history_json_rows, parse_time, HISTORY_CSV_HEADER,
 };
 pub use nats::{
-    decode as decode_nats_name, encode as encode_nats_name, valid_prefix as valid_nats_prefix,
-    NatsOptions, NatsStore, NATS_RUNTIME_THREADS, OPERATION_TIMEOUT as NATS_OPERATION_TIMEOUT,
-    PRUNE_SCAN_MAX as NATS_PRUNE_SCAN_MAX,
+    decode as decode_nats_name, encode as encode_nats_name,
+    renew_interval as nats_lease_renew_interval, valid_prefix as valid_nats_prefix, LeaseRecord,
+    NatsOptions, NatsStore, LEASE_TTL as NATS_LEASE_TTL, NATS_RUNTIME_THREADS,
+    OPERATION_TIMEOUT as NATS_OPERATION_TIMEOUT, PRUNE_SCAN_MAX as NATS_PRUNE_SCAN_MAX,
+    RENEWALS_PER_TTL as NATS_LEASE_RENEWALS_PER_TTL,
 };
 pub use row::{HistoryRow, CURVE_STORED_DIGITS, CURVE_STORED_POINTS};
 pub use schema::SCHEMA_VERSION;
@@ -121,6 +124,18 @@ pub enum StoreError {
         /// What the client or the server said.
         message: String,
     },
+    /// Another daemon owns the store's NATS prefix: its owner lease was live when this one
+    /// started, or it took the prefix since (`NatsStore`: one daemon per prefix). The message
+    /// names the prefix, the server, the owner's host, pid and start, and when its lease expires.
+    #[error("{message}")]
+    Owned {
+        /// The server.
+        url: String,
+        /// The prefix.
+        prefix: String,
+        /// Who owns it, and what to do.
+        message: String,
+    },
     /// A stored value does not decode (a row written by a newer or broken version).
     #[error("storage {operation}: bad stored value: {message}")]
     Decode {
@@ -167,6 +182,11 @@ impl StoreError {
     /// Whether the store's file was deleted or replaced under the daemon.
     pub fn is_gone(&self) -> bool {
         matches!(self, StoreError::Gone { .. })
+    }
+
+    /// Whether another daemon owns the store's NATS prefix ([`StoreError::Owned`]).
+    pub fn is_owned(&self) -> bool {
+        matches!(self, StoreError::Owned { .. })
     }
 }
 

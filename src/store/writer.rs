@@ -24,7 +24,7 @@
 //!
 //! Before each commit, and every [`CHECK_INTERVAL`] when idle, the thread checks that the store
 //! is still the one it opened ([`Store::check`]: for SQLite, that the path still names the open
-//! file). Once it is not (the file was deleted or replaced under the daemon), every write is
+//! file; for NATS, that no other daemon took the prefix's owner lease). Once it is not (the file was deleted or replaced under the daemon), every write is
 //! refused, counted as [`StoreStats::file_gone`]
 //! (`gatewatch_store_write_errors_total{reason="file_gone"}`), the first detection is logged
 //! at once as an error naming the file, and [`StoreWriter::healthy`] is false (`/readyz`

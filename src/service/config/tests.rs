@@ -440,4 +440,20 @@ fn the_storage_backend_and_its_nats_keys_are_checked_naming_the_key() {
     assert!(err("[storage]\nnats_prefix = \"a.b\"\n").starts_with("storage.nats_prefix"));
     assert!(err("[storage]\nnats_prefix = \"\"\n").starts_with("storage.nats_prefix"));
     assert!(err("[storage]\nnats_url = \"\"\n").starts_with("storage.nats_url"));
+    assert_eq!(
+        Config::default().storage.nats_lease(),
+        crate::store::NATS_LEASE_TTL
+    );
+    let c = Config::from_toml("[storage]\nnats_lease_seconds = 2.5\n").unwrap();
+    assert_eq!(
+        c.storage.nats_lease(),
+        std::time::Duration::from_millis(2500)
+    );
+    for bad in ["0.5", "0.0", "-3.0", "nan"] {
+        assert!(
+            err(&format!("[storage]\nnats_lease_seconds = {bad}\n"))
+                .starts_with("storage.nats_lease_seconds"),
+            "{bad}"
+        );
+    }
 }

@@ -22,17 +22,25 @@
 //! history message with a `Nats-Msg-Id` so a retried batch is not stored twice. What a crash
 //! between two of them leaves is in `docs/design.md`.
 //!
+//! One daemon per prefix: `serve` opens the store with an owner lease ([`NatsOptions::owner_lease`]),
+//! a record in stream `<PREFIX>_OWNER` that it renews and releases at shutdown; a second daemon
+//! on the prefix is refused at start, naming the owner, and a daemon that finds its lease taken
+//! writes nothing more ([`Store::check`] fails, `/readyz` and `/healthz` with it). Why and how
+//! in `lease` and `docs/design.md`, "The owner lease".
+//!
 //! # Layout
 //! - this file: [`NatsStore`], its options, its runtime and the [`Store`] methods;
 //! - `names`: the streams' and subjects' names, and the reversible encoding of gate names;
+//! - `lease`: the owner lease ([`LeaseRecord`]): taken at open, renewed, released;
 //! - `ops`: the operations as they run on the runtime: connecting and declaring the streams,
 //!   reading a subject, writing a batch in its order, pruning.
 
+mod lease;
 mod names;
 mod ops;
 
 use std::future::Future;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use async_nats::jetstream::{self, stream};
@@ -42,6 +50,8 @@ use super::row::HistoryRow;
 use super::{
     HistoryQuery, NewOutboxRow, OutboxRow, Pruned, Store, StoreError, WriteBatch, MAX_HISTORY_LIMIT,
 };
+use lease::{lock, Held, HeldState, Taken};
+pub use lease::{renew_interval, LeaseRecord, LEASE_TTL, RENEWALS_PER_TTL};
 use names::Names;
 pub use names::{decode, encode, valid_prefix};
 
@@ -80,6 +90,10 @@ pub struct NatsOptions {
     pub max_history_rows: u64,
     /// How long one call may take ([`OPERATION_TIMEOUT`] by default).
     pub timeout: Duration,
+    /// `Some(ttl)`: take the prefix's owner lease at open, refused when another daemon holds
+    /// it, and renew it every `ttl / 3` ([`LEASE_TTL`] for `serve`). `None` (the default of
+    /// [`NatsOptions::new`]): no lease, for a store that is only read or a test's.
+    pub owner_lease: Option<Duration>,
 }
 
 impl NatsOptions {
@@ -91,6 +105,7 @@ impl NatsOptions {
             retention,
             max_history_rows,
             timeout: OPERATION_TIMEOUT,
+            owner_lease: None,
         }
     }
 }
@@ -112,6 +127,7 @@ struct Conn {
     history: stream::Stream,
     outbox: stream::Stream,
     alerts: stream::Stream,
+    owner: stream::Stream,
     names: Names,
 }
 
@@ -129,6 +145,10 @@ pub struct NatsStore {
     names: Names,
     timeout: Duration,
     conn: Arc<Conn>,
+    /// The owner lease, when the store was opened with one.
+    held: Option<Arc<Held>>,
+    /// The task that renews it.
+    renewal: Mutex<Option<tokio::task::AbortHandle>>,
     /// The store's own runtime; `None` only while it is dropped.
     runtime: Option<tokio::runtime::Runtime>,
 }
@@ -143,6 +163,9 @@ impl std::fmt::Debug for NatsStore {
 }
 
 impl Drop for NatsStore {
+    /// Stops the runtime, the lease's renewal with it. The lease is not released here (no
+    /// network in a drop): [`NatsStore::release`] does, at a clean shutdown; without it the
+    /// prefix stays owned until the lease expires, as after a crash.
     fn drop(&mut self) {
         // `shutdown_background`, not a plain drop: dropping a runtime blocks, which panics when
         // the last handle goes on an async thread.
@@ -179,9 +202,12 @@ fn call<T: Send + 'static>(
 }
 
 impl NatsStore {
-    /// Connects to the server and creates (or updates to these limits) the history and outbox
-    /// alert-state streams. Fails, within the options' timeout, with an error
-    /// naming the URL when the server is down, has no JetStream, or refuses the streams.
+    /// Connects to the server and creates (or updates to these limits) the history, outbox,
+    /// alert-state and owner streams. Fails, within the options' timeout, with an error
+    /// naming the URL when the server is down, has no JetStream, or refuses the streams. With
+    /// [`NatsOptions::owner_lease`], takes the prefix's owner lease and starts renewing it;
+    /// [`StoreError::Owned`], naming the owner and when its lease expires, when another
+    /// daemon holds it.
     pub fn open(options: &NatsOptions) -> Result<NatsStore, StoreError> {
         let open_err = |message: String| StoreError::Open {
             path: format!("NATS server {}", options.url),
@@ -212,13 +238,119 @@ impl NatsStore {
                 return Err(open_err(e));
             }
         };
+        let conn = Arc::new(conn);
+        let held = match options.owner_lease {
+            None => None,
+            Some(ttl) => match take_lease(&runtime, &conn, options, ttl) {
+                Ok(held) => Some(held),
+                Err(e) => {
+                    runtime.shutdown_background();
+                    return Err(e);
+                }
+            },
+        };
+        let renewal = held.as_ref().map(|h| {
+            let keep = lease::keep(
+                conn.clone(),
+                h.clone(),
+                options.url.clone(),
+                options.timeout,
+            );
+            runtime.spawn(keep).abort_handle()
+        });
         Ok(NatsStore {
             url: options.url.clone(),
             names,
             timeout: options.timeout,
-            conn: Arc::new(conn),
+            conn,
+            held,
+            renewal: Mutex::new(renewal),
             runtime: Some(runtime),
         })
+    }
+
+    /// The prefix's owner lease as stored, with its sequence; `None` when there is none.
+    pub fn owner_lease(&self) -> Result<Option<(u64, LeaseRecord)>, StoreError> {
+        self.run("read of the owner lease", |c| async move {
+            lease::read(&c).await
+        })
+    }
+
+    /// Writes `record` as the prefix's owner lease only if the last one stored is at sequence
+    /// `expected` (0: none): the conditional write the lease is made of, so that of two
+    /// writers that read the same sequence one is stored and the other refused. `Some(seq)`
+    /// when stored, `None` when refused.
+    pub fn claim_owner_lease(
+        &self,
+        expected: u64,
+        record: &LeaseRecord,
+    ) -> Result<Option<u64>, StoreError> {
+        let record = record.clone();
+        self.run("write of the owner lease", move |c| async move {
+            Ok(match lease::claim(&c, expected, &record).await? {
+                lease::Claim::Won(seq) => Some(seq),
+                lease::Claim::Refused => None,
+            })
+        })
+    }
+
+    /// Releases the owner lease (at a clean shutdown, after the last write): its record is
+    /// written expired, so the next daemon takes the prefix at once. Nothing is written after
+    /// it. A store without a lease, or one that lost it, has nothing to release.
+    pub fn release(&self) -> Result<(), StoreError> {
+        let Some(held) = &self.held else {
+            return Ok(());
+        };
+        if let Some(task) = lock(&self.renewal).take() {
+            task.abort();
+        }
+        let state = {
+            let mut s = lock(&held.state);
+            if s.released || s.lost.is_some() {
+                return Ok(());
+            }
+            s.released = true;
+            s.clone()
+        };
+        self.run("release of the owner lease", move |c| async move {
+            lease::release(&c, &state).await
+        })?;
+        tracing::info!(prefix = %self.names.prefix, "owner lease of prefix {} released", self.names.prefix);
+        Ok(())
+    }
+
+    /// Whether this store may write: not when its lease was lost, released, or has expired
+    /// without renewal (the server did not answer the renewals: another daemon may take the
+    /// prefix meanwhile).
+    fn may_write(&self, operation: &'static str) -> Result<(), StoreError> {
+        let Some(held) = &self.held else {
+            return Ok(());
+        };
+        let s = lock(&held.state).clone();
+        if let Some(why) = s.lost {
+            return Err(self.lost(why));
+        }
+        if s.released {
+            return Err(self.error(operation, "the owner lease was released".into()));
+        }
+        if !s.record.live(lease::unix_now()) {
+            return Err(self.error(
+                operation,
+                format!(
+                    "the owner lease of prefix {} expired without renewal (the server did not                      answer); writes wait for its renewal",
+                    self.names.prefix
+                ),
+            ));
+        }
+        Ok(())
+    }
+
+    fn lost(&self, message: String) -> StoreError {
+        StoreError::Owned {
+            url: self.url.clone(),
+            prefix: self.names.prefix.clone(),
+            message,
+        }
     }
 
     /// Runs one operation on the store's runtime; the error names the server and the operation.
@@ -268,6 +400,56 @@ impl NatsStore {
     }
 }
 
+/// Takes the owner lease of `options.prefix` at open (see `lease`).
+fn take_lease(
+    runtime: &tokio::runtime::Runtime,
+    conn: &Arc<Conn>,
+    options: &NatsOptions,
+    ttl: Duration,
+) -> Result<Arc<Held>, StoreError> {
+    let record = LeaseRecord::this_process(ttl);
+    let (c, mine) = (conn.clone(), record.clone());
+    let taken = call(runtime, options.timeout, async move {
+        Ok(lease::acquire(&c, &mine).await)
+    });
+    let seq = match taken {
+        Ok(Ok(seq)) => seq,
+        Ok(Err(Taken::Owned(who))) => {
+            return Err(StoreError::Owned {
+                url: options.url.clone(),
+                prefix: options.prefix.clone(),
+                message: format!(
+                    "another gatewatch owns prefix {} on {}: {who} (one daemon per prefix: \
+                     stop the other one, or give this one another storage.nats_prefix)",
+                    options.prefix, options.url
+                ),
+            })
+        }
+        Ok(Err(Taken::Failed(m))) | Err(m) => {
+            return Err(StoreError::Open {
+                path: format!("NATS server {}", options.url),
+                message: format!("owner lease of prefix {}: {m}", options.prefix),
+            })
+        }
+    };
+    tracing::info!(
+        prefix = %options.prefix,
+        instance = %record.instance,
+        "owner lease of prefix {} taken for {} s",
+        options.prefix,
+        ttl.as_secs_f64()
+    );
+    Ok(Arc::new(Held {
+        ttl,
+        state: Mutex::new(HeldState {
+            record,
+            seq,
+            lost: None,
+            released: false,
+        }),
+    }))
+}
+
 impl Store for NatsStore {
     fn location(&self) -> String {
         format!(
@@ -276,7 +458,17 @@ impl Store for NatsStore {
         )
     }
 
+    /// An error once the owner lease is lost to another daemon: nothing this daemon writes
+    /// may land any more (the writer refuses every write, `/readyz` and `/healthz` fail).
+    fn check(&self) -> Result<(), StoreError> {
+        match self.held.as_ref().and_then(|h| lock(&h.state).lost.clone()) {
+            Some(why) => Err(self.lost(why)),
+            None => Ok(()),
+        }
+    }
+
     fn write(&self, batch: &WriteBatch) -> Result<Vec<i64>, StoreError> {
+        self.may_write("write")?;
         let batch = batch.clone();
         self.run("write", move |c| ops::write_batch(c, batch))
     }
@@ -341,6 +533,7 @@ impl Store for NatsStore {
     /// SQLite store does, the rows whose window ended before `cutoff` (a prefix of the stream,
     /// at most [`PRUNE_SCAN_MAX`] rows read per call) and the oldest beyond `max_rows`.
     fn prune(&self, cutoff: f64, max_rows: u64) -> Result<Pruned, StoreError> {
+        self.may_write("prune")?;
         self.run("prune", move |c| ops::prune(c, cutoff, max_rows))
     }
 

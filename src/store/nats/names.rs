@@ -41,6 +41,7 @@ pub(super) struct Names {
     pub(super) history: String,
     pub(super) outbox: String,
     pub(super) alerts: String,
+    pub(super) owner: String,
     pub(super) prefix: String,
 }
 
@@ -50,11 +51,16 @@ impl Names {
             history: format!("{prefix}_HISTORY"),
             outbox: format!("{prefix}_OUTBOX"),
             alerts: format!("{prefix}_ALERTS"),
+            owner: format!("{prefix}_OWNER"),
             prefix: prefix.to_string(),
         }
     }
     pub(super) fn history_subject(&self, gate: &str) -> String {
         format!("{}.history.{}", self.prefix, encode(gate))
+    }
+    /// The subject of the owner lease (`lease`).
+    pub(super) fn owner_subject(&self) -> String {
+        format!("{}.owner", self.prefix)
     }
     pub(super) fn alert_subject(&self, gate: &str) -> String {
         format!("{}.alert.{}", self.prefix, encode(gate))

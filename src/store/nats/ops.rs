@@ -20,7 +20,7 @@ use super::super::{Pruned, WriteBatch};
 use super::names::{decode, encode, Names};
 use super::{ctx, Conn, Failure, NatsOptions, StoredOutbox, FETCH_BATCH, PRUNE_SCAN_MAX};
 
-/// Connects and makes sure the three streams exist with the options' limits.
+/// Connects and makes sure the four streams exist with the options' limits.
 pub(super) async fn connect(o: NatsOptions, names: Names) -> Result<Conn, Failure> {
     let client = async_nats::ConnectOptions::new()
         .name("gatewatch")
@@ -67,6 +67,18 @@ pub(super) async fn connect(o: NatsOptions, names: Names) -> Result<Conn, Failur
         })
         .await
         .map_err(|e| format!("stream {}: {e}", names.alerts))?;
+    // the owner lease (`lease`): one record, its newest message
+    let owner = js
+        .create_or_update_stream(stream::Config {
+            name: names.owner.clone(),
+            description: Some("gatewatch: the owner lease of the prefix".into()),
+            subjects: vec![names.owner_subject()],
+            max_messages_per_subject: 1,
+            storage: StorageType::File,
+            ..Default::default()
+        })
+        .await
+        .map_err(|e| format!("stream {}: {e}", names.owner))?;
     let history = js
         .get_stream(&history.config.name)
         .await
@@ -79,11 +91,16 @@ pub(super) async fn connect(o: NatsOptions, names: Names) -> Result<Conn, Failur
         .get_stream(&alerts.config.name)
         .await
         .map_err(|e| format!("stream {}: {e}", names.alerts))?;
+    let owner = js
+        .get_stream(&owner.config.name)
+        .await
+        .map_err(|e| format!("stream {}: {e}", names.owner))?;
     Ok(Conn {
         js,
         history,
         outbox,
         alerts,
+        owner,
         names,
     })
 }

@@ -1,0 +1,283 @@
+//! The NATS store's owner lease (one daemon per prefix) against a REAL `nats-server` on
+//! loopback (skipped when it is not installed, failed under CI): a second store on a prefix is
+//! refused naming the owner, another prefix is not; a released prefix is taken at once; an
+//! abandoned lease (no release, as after `kill -9`) refuses until it expires, then is taken; of
+//! two conditional writes with the same expected sequence exactly one is stored; a renewing
+//! owner keeps its prefix, and one whose lease was taken writes nothing more; a server away
+//! for longer than the TTL is no loss: writes wait, and resume once the lease is renewed.
+
+use std::sync::{Arc, Barrier};
+use std::time::{Duration, Instant};
+
+use gatewatch::store::{LeaseRecord, NatsOptions, NatsStore, Store, StoreError, WriteBatch};
+
+mod nats_common;
+use nats_common::{nats_installed, NatsServer};
+
+/// The call timeout of the tests' stores.
+const TEST_TIMEOUT: Duration = Duration::from_secs(5);
+
+fn options(url: &str, prefix: &str, lease: Option<Duration>) -> NatsOptions {
+    NatsOptions {
+        prefix: prefix.into(),
+        timeout: TEST_TIMEOUT,
+        owner_lease: lease,
+        ..NatsOptions::new(url, Duration::from_secs(3600), 1_000_000)
+    }
+}
+
+fn one_state() -> WriteBatch {
+    WriteBatch {
+        alert_states: vec![("g1".into(), "{}".into())],
+        ..Default::default()
+    }
+}
+
+fn refusal(r: Result<NatsStore, StoreError>) -> StoreError {
+    match r {
+        Ok(_) => panic!("a second owner was let in"),
+        Err(e) => e,
+    }
+}
+
+#[test]
+fn a_second_store_on_a_prefix_is_refused_naming_the_owner_and_another_prefix_is_not() {
+    if !nats_installed() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let server = NatsServer::start(dir.path());
+    let url = server.url();
+    let lease = Some(Duration::from_secs(30));
+    let first = NatsStore::open(&options(&url, "ONE", lease)).expect("first owner");
+    let e = refusal(NatsStore::open(&options(&url, "ONE", lease)));
+    let msg = e.to_string();
+    assert!(e.is_owned(), "{msg}");
+    let want = format!("another gatewatch owns prefix ONE on {url}: host ");
+    assert!(msg.starts_with(&want), "{msg}");
+    assert!(
+        msg.contains(&format!(" pid {} since ", std::process::id())),
+        "{msg}"
+    );
+    assert!(msg.contains("; its lease expires in "), "{msg}");
+    // the refused one did not disturb the owner
+    first.check().expect("still the owner");
+    first.write(&one_state()).expect("the owner writes");
+    // another prefix on the same server is another daemon's
+    let other = NatsStore::open(&options(&url, "TWO", lease)).expect("another prefix");
+    other.write(&one_state()).expect("the other owner writes");
+}
+
+#[test]
+fn a_released_prefix_is_taken_at_once_and_the_releaser_writes_nothing_more() {
+    if !nats_installed() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let server = NatsServer::start(dir.path());
+    let url = server.url();
+    let lease = Some(Duration::from_secs(60));
+    let first = NatsStore::open(&options(&url, "REL", lease)).expect("first owner");
+    first.release().expect("release");
+    assert!(first.write(&one_state()).is_err(), "a write after release");
+    let started = Instant::now();
+    let second = NatsStore::open(&options(&url, "REL", lease)).expect("taken after release");
+    assert!(started.elapsed() < Duration::from_secs(5));
+    second.write(&one_state()).expect("the new owner writes");
+}
+
+#[test]
+fn an_abandoned_lease_refuses_until_it_expires_then_is_taken() {
+    if !nats_installed() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let server = NatsServer::start(dir.path());
+    let url = server.url();
+    let ttl = Duration::from_secs(3);
+    let first = NatsStore::open(&options(&url, "GONE", Some(ttl))).expect("first owner");
+    // the owner vanishes without releasing: its runtime (and renewal) stops, as on kill -9
+    drop(first);
+    let gone = Instant::now();
+    let e = refusal(NatsStore::open(&options(&url, "GONE", Some(ttl))));
+    assert!(e.is_owned(), "{e}");
+    // refused while the lease runs, then taken: within the TTL (plus the polling and a
+    // loaded machine's margin)
+    let mut refusals = 1;
+    let second = loop {
+        match NatsStore::open(&options(&url, "GONE", Some(ttl))) {
+            Ok(s) => break s,
+            Err(e) => {
+                assert!(e.is_owned(), "{e}");
+                assert!(
+                    gone.elapsed() < ttl + Duration::from_secs(3),
+                    "still refused {:?} after the owner vanished: {e}",
+                    gone.elapsed()
+                );
+                refusals += 1;
+                std::thread::sleep(Duration::from_millis(200));
+            }
+        }
+    };
+    assert!(refusals >= 2, "refused {refusals} times");
+    second.write(&one_state()).expect("the new owner writes");
+}
+
+#[test]
+fn of_two_claims_with_the_same_expected_sequence_exactly_one_wins() {
+    if !nats_installed() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let server = NatsServer::start(dir.path());
+    let url = server.url();
+    // the conditional write itself: two stores without a lease, both expecting "none"
+    let stores: Vec<Arc<NatsStore>> = (0..2)
+        .map(|_| Arc::new(NatsStore::open(&options(&url, "RACE", None)).expect("open")))
+        .collect();
+    assert!(stores[0].owner_lease().expect("read").is_none());
+    let barrier = Arc::new(Barrier::new(stores.len()));
+    let threads: Vec<_> = stores
+        .iter()
+        .map(|s| {
+            let (s, barrier) = (s.clone(), barrier.clone());
+            std::thread::spawn(move || {
+                let record = LeaseRecord::this_process(Duration::from_secs(60));
+                barrier.wait();
+                s.claim_owner_lease(0, &record).expect("claim")
+            })
+        })
+        .collect();
+    let won: Vec<u64> = threads
+        .into_iter()
+        .filter_map(|t| t.join().expect("join"))
+        .collect();
+    assert_eq!(won.len(), 1, "winners: {won:?}");
+    let (seq, _) = stores[1].owner_lease().expect("read").expect("a lease");
+    assert_eq!(seq, won[0]);
+    // a stale expected sequence is refused; the current one is stored
+    let record = LeaseRecord::this_process(Duration::from_secs(60));
+    assert_eq!(
+        stores[1].claim_owner_lease(0, &record).expect("claim"),
+        None
+    );
+    assert!(stores[1]
+        .claim_owner_lease(seq, &record)
+        .expect("claim")
+        .is_some());
+
+    // whole opens racing on a fresh prefix: exactly one owner
+    let barrier = Arc::new(Barrier::new(4));
+    let opens: Vec<_> = (0..4)
+        .map(|_| {
+            let (url, barrier) = (url.clone(), barrier.clone());
+            std::thread::spawn(move || {
+                barrier.wait();
+                NatsStore::open(&options(&url, "RACE2", Some(Duration::from_secs(60))))
+            })
+        })
+        .collect();
+    let results: Vec<_> = opens.into_iter().map(|t| t.join().expect("join")).collect();
+    let owners = results.iter().filter(|r| r.is_ok()).count();
+    assert_eq!(owners, 1, "{results:?}");
+    for e in results.iter().filter_map(|r| r.as_ref().err()) {
+        assert!(e.is_owned(), "{e}");
+    }
+}
+
+#[test]
+fn an_owner_renews_its_lease_and_one_whose_lease_is_taken_writes_nothing_more() {
+    if !nats_installed() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let server = NatsServer::start(dir.path());
+    let url = server.url();
+    let ttl = Duration::from_secs(1);
+    let owner = NatsStore::open(&options(&url, "KEEP", Some(ttl))).expect("owner");
+    let (seq0, first) = owner.owner_lease().expect("read").expect("a lease");
+    // three TTLs later the lease is still held: renewed, by the same instance
+    std::thread::sleep(ttl * 3);
+    owner.check().expect("still the owner");
+    owner.write(&one_state()).expect("the owner writes");
+    let (seq1, now) = owner.owner_lease().expect("read").expect("a lease");
+    assert!(seq1 > seq0, "renewed: {seq0} -> {seq1}");
+    assert_eq!(now.instance, first.instance);
+    assert!(now.expires > first.expires);
+
+    // another writer takes the lease (as a daemon would after a partition)
+    let thief = NatsStore::open(&options(&url, "KEEP", None)).expect("open");
+    let mut taken = LeaseRecord::this_process(Duration::from_secs(600));
+    taken.host = "elsewhere".into();
+    let stolen = loop {
+        let (seq, _) = thief.owner_lease().expect("read").expect("a lease");
+        if thief
+            .claim_owner_lease(seq, &taken)
+            .expect("claim")
+            .is_some()
+        {
+            break seq;
+        }
+    };
+    assert!(stolen > 0);
+    // at its next renewal the owner finds it lost: it refuses writes and fails its check
+    let deadline = Instant::now() + ttl * 3;
+    let e = loop {
+        match owner.check() {
+            Err(e) => break e,
+            Ok(()) => {
+                assert!(Instant::now() < deadline, "the loss was not noticed");
+                std::thread::sleep(Duration::from_millis(50));
+            }
+        }
+    };
+    let msg = e.to_string();
+    assert!(e.is_owned(), "{msg}");
+    assert!(
+        msg.starts_with(&format!(
+            "another gatewatch took prefix KEEP on {url}: host elsewhere pid "
+        )),
+        "{msg}"
+    );
+    let w = owner
+        .write(&one_state())
+        .expect_err("a write after the loss");
+    assert!(w.is_owned(), "{w}");
+    // the new owner's record is left alone, even by the loser's release
+    owner.release().expect("release");
+    let (_, kept) = thief.owner_lease().expect("read").expect("a lease");
+    assert_eq!(kept.host, "elsewhere");
+}
+
+#[test]
+fn an_unreachable_server_is_not_a_loss_and_the_lease_is_renewed_when_it_is_back() {
+    if !nats_installed() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut server = NatsServer::start(dir.path());
+    let url = server.url();
+    let ttl = Duration::from_secs(1);
+    let owner = NatsStore::open(&options(&url, "AWAY", Some(ttl))).expect("owner");
+    let (_, mine) = owner.owner_lease().expect("read").expect("a lease");
+    // the server goes away for longer than the TTL: the renewals fail, the lease expires
+    server.stop();
+    std::thread::sleep(ttl * 2);
+    owner.check().expect("an unreachable server is no loss");
+    let e = owner
+        .write(&one_state())
+        .expect_err("a write on an expired lease");
+    assert!(!e.is_owned(), "{e}");
+    assert!(e.to_string().contains("expired without renewal"), "{e}");
+    // back (same store directory, nobody took the prefix): renewed, writes resume
+    server.restart();
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while let Err(e) = owner.write(&one_state()) {
+        assert!(Instant::now() < deadline, "writes did not resume: {e}");
+        std::thread::sleep(Duration::from_millis(200));
+    }
+    owner.check().expect("still the owner");
+    let (_, now) = owner.owner_lease().expect("read").expect("a lease");
+    assert_eq!(now.instance, mine.instance);
+    assert!(now.expires > mine.expires);
+}
