@@ -423,6 +423,14 @@ fn a_closed_stdout_ends_the_command_quietly() {
 /// `gatewatch ARGS` whose stdout's reader goes away at once, before the output is written (at
 /// worst after it: exit 0 too).
 fn with_stdout_closed(args: &[&str]) -> std::process::Output {
+    with_reader_gone(args, |c| drop(c.stdout.take()))
+}
+
+/// `gatewatch ARGS` with its stdout and stderr piped, `close` dropping one reader at once.
+fn with_reader_gone(
+    args: &[&str],
+    close: impl FnOnce(&mut std::process::Child),
+) -> std::process::Output {
     let mut child = Command::new(env!("CARGO_BIN_EXE_gatewatch"))
         .args(args)
         .stdin(Stdio::null())
@@ -430,7 +438,7 @@ fn with_stdout_closed(args: &[&str]) -> std::process::Output {
         .stderr(Stdio::piped())
         .spawn()
         .expect("gatewatch runs");
-    drop(child.stdout.take());
+    close(&mut child);
     child.wait_with_output().unwrap()
 }
 
@@ -480,15 +488,7 @@ fn a_closed_stdout_ends_the_service_commands_quietly() {
 
 /// `gatewatch ARGS` whose stderr's reader goes away at once.
 fn with_stderr_closed(args: &[&str]) -> std::process::Output {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_gatewatch"))
-        .args(args)
-        .stdin(Stdio::null())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("gatewatch runs");
-    drop(child.stderr.take());
-    child.wait_with_output().unwrap()
+    with_reader_gone(args, |c| drop(c.stderr.take()))
 }
 
 /// Progress and error lines on a stderr whose reader has gone (a log collector restarted, `2>`
