@@ -229,24 +229,31 @@ async fn a_silent_unknown_gate_expires_and_its_stale_alert_resolves() {
     let cfg = config("unknown_gate_expiry_seconds = 600\n[gates.kept]\n");
     let (app, state) = app_with(cfg, Arc::new(Fake::default()));
     let now = SystemTime::now();
-    for g in ["junk", "kept"] {
-        let (s, _) = post_json(&app, uniform(g, 1000.0, 5)).await;
+    // a window's worth (100 samples) from the unknown gate, a few from the configured one and
+    // from a stray sender (an unknown gate that never fills its window)
+    for (g, n) in [("junk", 100), ("kept", 5), ("stray", 5)] {
+        let (s, _) = post_json(&app, uniform(g, 1000.0, n)).await;
         assert_eq!(s, StatusCode::NO_CONTENT);
     }
-    // silent for a while: both go stale (GateDataStale fires)
+    // silent for a while: the sensors go stale (GateDataStale fires), the stray does not
     state.tick(now + Duration::from_secs(120));
-    assert!(state
-        .gate_view("junk")
-        .unwrap()
-        .alerts
-        .iter()
-        .any(|a| a.name == "GateDataStale"));
-    // past the expiry: the unknown gate is forgotten with its alert; the configured one stays
+    let stale = |g: &str| {
+        state
+            .gate_view(g)
+            .unwrap()
+            .alerts
+            .iter()
+            .any(|a| a.name == "GateDataStale")
+    };
+    assert!(stale("junk") && stale("kept"));
+    assert!(!stale("stray"), "a stray sender pages nothing");
+    // past the expiry: the unknown gates are forgotten with their alerts; the configured one
+    // stays
     state.tick(now + Duration::from_secs(601));
-    assert!(state.gate_view("junk").is_none());
+    assert!(state.gate_view("junk").is_none() && state.gate_view("stray").is_none());
     assert!(state.alert_state("junk").is_none(), "alert state forgotten");
     assert!(state.gate_view("kept").is_some());
-    assert_eq!(metric(&state, "gatewatch_gates_expired_total"), 1.0);
+    assert_eq!(metric(&state, "gatewatch_gates_expired_total"), 2.0);
     let m = state.render_metrics();
     // none of its series is left
     let left: Vec<&str> = m.lines().filter(|l| l.contains("gate=\"junk\"")).collect();
@@ -271,7 +278,8 @@ async fn a_sweep_where_every_gate_goes_stale_logs_a_bounded_number_of_lines() {
     );
     let now = SystemTime::now();
     for g in 0..GATES {
-        let (s, _) = post_json(&app, uniform(&format!("g{g}"), 1000.0, 5)).await;
+        // a window's worth: each gate counts as a sensor (a stray's few samples page nothing)
+        let (s, _) = post_json(&app, uniform(&format!("g{g}"), 1000.0, 100)).await;
         assert_eq!(s, StatusCode::NO_CONTENT);
     }
     // the ticks' log lines, captured (tick runs on this thread)
@@ -508,11 +516,11 @@ async fn a_restored_alert_of_an_unknown_gate_that_stays_silent_expires_after_a_r
         gatewatch::service::state::AppState::with_persistence(c, Arc::new(Fake::default()), Some(p))
             .expect("state")
     };
-    // the first run: the junk gate sends once, goes stale, and the daemon stops
+    // the first run: the junk gate sends a window's worth once, goes stale, and the daemon stops
     {
         let state = with_store(cfg());
         let app = gatewatch::service::api::router(state.clone());
-        let (s, _) = post_json(&app, uniform("junk", 1000.0, 5)).await;
+        let (s, _) = post_json(&app, uniform("junk", 1000.0, 100)).await;
         assert_eq!(s, StatusCode::NO_CONTENT);
         state.tick(SystemTime::now() + Duration::from_secs(120));
         assert!(state
