@@ -108,7 +108,7 @@ pub enum DataError {
     /// The header is one field holding semicolons or tabs: a CSV from a locale whose list
     /// separator is not the comma (European Excel), which the comma-separated reader sees as
     /// a single column.
-    #[error("{path}: line 1: the file looks separated by {separator} (the header reads '{header}'); gatewatch reads comma-separated CSV: save it with commas as the separator")]
+    #[error("{path}: line 1: the file looks separated by {separator} (the header reads '{header}'); gatewatch reads comma-separated CSV with a decimal point: save it with commas as the separator and '.' as the decimal mark (where the comma is the decimal mark, change that first: in Excel, Options > Advanced > Decimal separator)")]
     NotCommaSeparated {
         path: PathBuf,
         separator: &'static str,

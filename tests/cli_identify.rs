@@ -1322,7 +1322,14 @@ fn a_european_csv_is_explained() {
         let f = d.write(name, content);
         bad(
             &["identify", "--input", &f, "--model", VDP],
-            &[&f, "line 1", "looks separated by", sep, "comma-separated"],
+            &[
+                &f,
+                "line 1",
+                "looks separated by",
+                sep,
+                "comma-separated",
+                "decimal mark",
+            ],
         );
     }
     let p = d.path("cp1252.csv");

@@ -433,6 +433,31 @@ async fn simulate_client_streams_through_every_protocol() {
         .await
         .unwrap_or_else(|_| panic!("{gate}: 200 samples arrive"));
     }
+    // without --start, a stream faster than real time is sent from the past: 700 s of samples
+    // as fast as possible stay within the daemon's max_future_seconds (600 s by default), which
+    // refused them from the 600th second when the stream started now
+    let args = SimulateArgs {
+        url: format!("http://{}", r.http),
+        tcp_addr: r.tcp.to_string(),
+        gate: "sf".into(),
+        scenario: Scenario::Stable,
+        speed: 0.0,
+        duration: Some(700.0),
+        seed: 3,
+        protocol: Protocol::Json,
+        rate: 100.0,
+        token: Some(TOKEN.into()),
+        chunk_seconds: 10.0,
+        start: None,
+        onset_hold: None,
+        onset_ramp: None,
+        sensor: Default::default(),
+    };
+    let mut sim = simulator(&args).unwrap();
+    let n = simulate_with_source(&args, |b: &mut [f64]| sim.fill(b))
+        .await
+        .expect("every chunk accepted");
+    assert_eq!(n, 70_000);
     // a wrong token is an error, not a hang
     let args = SimulateArgs {
         url: format!("http://{}", r.http),

@@ -463,7 +463,15 @@ fn history_refuses_bad_input_naming_it_with_exit_code_2() {
     let missing = dir.path().join("missing.db");
     let missing = missing.to_str().unwrap();
     let pdf = svg.replace(".svg", ".pdf");
+    // an empty file is a valid, empty SQLite database: not a gatewatch store, not an old one
+    let empty = dir.path().join("empty.db");
+    std::fs::write(&empty, b"").unwrap();
+    let empty = empty.to_str().unwrap();
     let cases: Vec<(Vec<&str>, Vec<&str>)> = vec![
+        (
+            vec!["--db", empty, "--gate", "g1"],
+            vec!["empty.db", "is not a gatewatch store"],
+        ),
         (
             vec!["--db", missing, "--gate", "g1"],
             vec!["missing.db", "no such file"],

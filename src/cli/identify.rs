@@ -185,6 +185,16 @@ pub(super) fn run(a: IdentifyArgs) -> Result<(), CliError> {
             return Err(input("--stiffness must be a positive number"));
         }
     }
+    // `k` is the stiffness's name in the equation: a `--param k` beside a different
+    // `--stiffness` made the equation use one value and the force-to-deflection conversion the
+    // other, and the coefficients came out scaled (a mass of 192 for 19.14), without a word.
+    if let (Some(k), Some((_, v))) = (a.stiffness, a.params.iter().find(|(n, _)| n == "k")) {
+        if *v != k {
+            return Err(input(format!(
+                "--param k={v} conflicts with --stiffness {k}: `k` in the equation is the stiffness; give it once, as --stiffness"
+            )));
+        }
+    }
     let signal = match a.signal {
         SignalArg::Displacement => Signal::Displacement,
         SignalArg::Force => Signal::Force,

@@ -98,7 +98,8 @@ pub struct SimulateArgs {
     /// Seconds of samples per request.
     #[arg(long, default_value_t = 0.1, allow_negative_numbers = true)]
     pub chunk_seconds: f64,
-    /// Start time, Unix seconds (default: now).
+    /// Start time, Unix seconds (default: now, or for `--speed` above 1 so far back that the
+    /// stream never runs ahead of the wall clock, its last sample timed when it is sent).
     #[arg(long)]
     pub start: Option<f64>,
     /// `onset`: seconds of sample time at +2 % damping before the ramp. Without `--onset-hold`
@@ -307,6 +308,39 @@ pub fn check_stream(args: &SimulateArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// The stream's first sample time when `--start` is not given: now for a stream in real time
+/// or slower; for a faster one, so far back that its last sample's time is the wall time at
+/// which it is sent (`speed <= 0`, as fast as possible: the whole stream in the past). Why: a
+/// stream that started now ran ahead of the daemon's clock at `speed` > 1 and was refused past
+/// `max_future_seconds` (600 s by default) — the README's 1380 s slow drift at 20x stopped at
+/// 600 s, before its zero crossing. Every sample time then lies between `now - duration` and
+/// the wall time it is sent at.
+fn default_start(now: f64, duration: f64, speed: f64) -> f64 {
+    if speed > 0.0 {
+        now - (duration - duration / speed).max(0.0)
+    } else {
+        now - duration
+    }
+}
+
+/// A refused sample rate names what the daemon needs for this preset's gate: a gate the
+/// daemon does not know takes its `[defaults]` (the lab gate's 200 Hz and stiffness), so the
+/// README's lock-gate stream was refused at once with "sample rate 100 Hz disagrees with the
+/// configured 200 Hz", which did not say what to configure.
+fn preset_hint(e: anyhow::Error, args: &SimulateArgs, rate: f64) -> anyhow::Error {
+    if !e.to_string().contains("\"field\":\"rate_hz\"") {
+        return e;
+    }
+    let p = args.sensor.preset.params();
+    anyhow::anyhow!(
+        "{e}; the daemon's configuration needs a table for this gate ({} preset): \
+         [gates.{}] with rate_hz = {rate} and stiffness = {:.1}",
+        args.sensor.preset.as_str(),
+        args.gate,
+        p.stiffness
+    )
+}
+
 /// `--url` is an absolute http(s) URL with a host: "notaurl" failed at the first request, as
 /// "builder error: relative URL without a base", naming no flag.
 fn check_url(url: &str) -> anyhow::Result<()> {
@@ -378,7 +412,9 @@ pub async fn simulate_with_source(
     check_stream(args)?;
     let rate = args.effective_rate();
     let duration = args.effective_duration();
-    let start = args.start.unwrap_or_else(now_unix);
+    let start = args
+        .start
+        .unwrap_or_else(|| default_start(now_unix(), duration, args.speed));
     let total = (duration * rate).round() as u64;
     // never more than the whole stream in one buffer (--chunk-seconds 1e9 asked for 1.6 TB)
     let chunk = ((args.chunk_seconds * rate).round() as usize).clamp(1, total.max(1) as usize);
@@ -411,7 +447,8 @@ pub async fn simulate_with_source(
                     "application/json",
                     body.to_string(),
                 )
-                .await?;
+                .await
+                .map_err(|e| preset_hint(e, args, rate))?;
             }
             Protocol::Line | Protocol::Tcp => {
                 let mut body = String::with_capacity(n * 48);
@@ -492,6 +529,23 @@ mod tests {
         // the lab gate stays the default, at 200 Hz
         let lab = parse(&["--scenario", "stable"]).unwrap();
         assert!((lab.effective_rate() - 200.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_fast_stream_starts_in_the_past_and_never_runs_ahead() {
+        let now = 1.0e9;
+        // real time or slower: now
+        assert_eq!(default_start(now, 1380.0, 1.0), now);
+        assert_eq!(default_start(now, 1380.0, 0.5), now);
+        // as fast as possible: the whole stream in the past
+        assert_eq!(default_start(now, 1380.0, 0.0), now - 1380.0);
+        // 20x: the last sample (start + 1380) is timed when it is sent (now + 69 s), and at
+        // every wall second w before, the sample time start + 20 w is at most now + w
+        let start = default_start(now, 1380.0, 20.0);
+        assert!((start + 1380.0 - (now + 69.0)).abs() < 1e-6, "{start}");
+        for w in [0.0, 10.0, 34.5, 69.0] {
+            assert!(start + 20.0 * w <= now + w + 1e-6, "{w}");
+        }
     }
 
     #[test]

@@ -35,6 +35,10 @@ pub const DEFAULT_REQUEST_TIMEOUT_SECONDS: f64 = 30.0;
 pub const DEFAULT_MAX_GATES: usize = 64;
 /// Hard upper bound on `max_gates`.
 pub const MAX_GATES_LIMIT: usize = 10_000;
+/// Hard upper bound on `worker_threads`: each is an OS thread with an identification's
+/// memory, and more workers than cores only share them (a typo of 100000 reached the process
+/// limit and `serve` exited naming no key).
+pub const MAX_WORKER_THREADS: usize = 256;
 /// Default bound on simultaneous raw TCP connections.
 pub const DEFAULT_MAX_TCP_CONNECTIONS: usize = 64;
 /// Default seconds given to in-flight jobs and notifications at shutdown.
@@ -655,6 +659,27 @@ impl Config {
                 "must be empty or an address like 0.0.0.0:8094",
             );
         }
+        if let (Ok(http), Ok(tcp)) = (
+            s.listen.parse::<SocketAddr>(),
+            s.tcp_listen.parse::<SocketAddr>(),
+        ) {
+            // one port for both listeners: `serve` bound the first and then failed on its own
+            // port ("Address already in use") where check-config had said ok
+            let overlap =
+                http.ip() == tcp.ip() || http.ip().is_unspecified() || tcp.ip().is_unspecified();
+            if http.port() != 0 && http.port() == tcp.port() && overlap {
+                return err(
+                    "tcp_listen",
+                    &format!("{tcp} takes the port of server.listen ({http}): give the line-protocol listener its own port, such as 8094"),
+                );
+            }
+        }
+        if s.worker_threads > MAX_WORKER_THREADS {
+            return err(
+                "worker_threads",
+                &format!("must be at most {MAX_WORKER_THREADS} (0: the cores - 1)"),
+            );
+        }
         if s.auth_tokens.iter().any(|t| t.len() < 16) {
             return err(
                 "auth_tokens",
@@ -750,6 +775,13 @@ impl Config {
                  resolve_timeout ({ALERTMANAGER_RESOLVE_TIMEOUT_SECONDS} s): unless its \
                  resolve_timeout is raised, Alertmanager resolves firing alerts between re-sends"
             ));
+        }
+        if !self.server.accept_unknown_gates && self.gates.is_empty() {
+            out.push(
+                "server.accept_unknown_gates = false and no [gates.*] table: every sample is \
+                 refused (404, unknown gate); configure the gates or accept unknown ones"
+                    .to_string(),
+            );
         }
         if let Some(w) = self.server.tcp_loopback_only_warning() {
             out.push(w);

@@ -360,11 +360,17 @@ impl SqliteStore {
             Err(e) => return Err(open_err(e)),
         };
         if version != SCHEMA_VERSION {
+            // version 0: an empty file or another program's database, not an old gatewatch's
+            let message = if version == 0 {
+                "is not a gatewatch store (no gatewatch schema in it): give the file that \
+                 `serve` writes, its storage.path"
+                    .to_string()
+            } else {
+                format!("schema version {version}, this gatewatch reads version {SCHEMA_VERSION}")
+            };
             return Err(StoreError::Open {
                 path: name.clone(),
-                message: format!(
-                    "schema version {version}, this gatewatch reads version {SCHEMA_VERSION}"
-                ),
+                message,
             });
         }
         let (write, _) = open(immutable).map_err(open_err)?;

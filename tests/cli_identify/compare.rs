@@ -196,4 +196,11 @@ fn the_force_terms_decide_the_ranking_of_the_worked_example() {
         ],
         &["--force-terms", "damping", "all", "stiffness"],
     );
+    // `k` is the stiffness in the equation: a second, different value is refused before the
+    // fit (it scaled every coefficient: a mass of 192 for 19.14)
+    let force = ["--signal", "force", "--stiffness", "81360", "--param"];
+    let mut args = vec!["identify", "--input", &f, "--model", cubic];
+    args.extend_from_slice(&force);
+    args.push("k=5");
+    bad(&args, &["--param k=5", "--stiffness 81360"]);
 }

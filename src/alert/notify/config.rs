@@ -11,7 +11,11 @@ pub const DEFAULT_QUEUE_CAPACITY: usize = 1024;
 
 /// One webhook receiver (anything that understands Alertmanager's webhook format).
 #[derive(Clone, PartialEq, Deserialize)]
-#[serde(deny_unknown_fields)]
+#[serde(
+    deny_unknown_fields,
+    // what a user reads for `webhooks = ["http://..."]`, instead of the type's name
+    expecting = "a table such as { url = \"http://host/hook\" } ([[notify.webhooks]] with url, and optionally bearer_token and receiver)"
+)]
 pub struct WebhookTarget {
     /// Full URL the payload is POSTed to.
     pub url: String,
@@ -133,6 +137,23 @@ impl NotifyConfig {
         }
         for u in &self.alertmanager_urls {
             check("alertmanager", u)?;
+            // gatewatch appends the API path; given twice, every notification went to
+            // `/api/v2/alerts/api/v2/alerts`, a 404, and was lost (a path prefix such as a
+            // reverse proxy's `/alertmanager` stays allowed)
+            let path = reqwest::Url::parse(u).map_or(String::new(), |p| p.path().to_string());
+            let path = path.trim_end_matches('/');
+            if ["/api/v2/alerts", "/api/v1/alerts", "/api/v2", "/api/v1"]
+                .iter()
+                .any(|api| path.ends_with(api))
+            {
+                return Err(NotifyConfigError::BadUrl {
+                    what: "alertmanager",
+                    url: u.clone(),
+                    reason: format!(
+                        "give Alertmanager's base URL (such as http://alertmanager:9093), without the API path {path:?}: gatewatch appends /api/v2/alerts"
+                    ),
+                });
+            }
         }
         if !(self.timeout_seconds.is_finite() && self.timeout_seconds > 0.0) {
             return Err(NotifyConfigError::BadTimeout(self.timeout_seconds));
@@ -235,6 +256,24 @@ mod tests {
             bad.validate(),
             Err(NotifyConfigError::BadUrl { .. })
         ));
+        // the API path given with the base: refused, naming the fix; a proxy's prefix passes
+        for url in [
+            "http://am:9093/api/v2/alerts",
+            "http://am:9093/api/v2/alerts/",
+            "http://am:9093/api/v1",
+        ] {
+            let bad = NotifyConfig {
+                alertmanager_urls: vec![url.into()],
+                ..NotifyConfig::default()
+            };
+            let e = bad.validate().unwrap_err().to_string();
+            assert!(e.contains("base URL") && e.contains(url), "{e}");
+        }
+        let proxied = NotifyConfig {
+            alertmanager_urls: vec!["https://ops.example/alertmanager/".into()],
+            ..NotifyConfig::default()
+        };
+        assert!(proxied.validate().is_ok());
         let bad = NotifyConfig {
             timeout_seconds: 0.0,
             ..NotifyConfig::default()

@@ -73,6 +73,17 @@ impl GateConfig {
                 return err(&format!("params.{name}"), "must be a finite number");
             }
         }
+        // `k` is the stiffness's name in the equation (`analysis_settings`): a different
+        // `params.k` made the equation use it while the force was converted to deflection with
+        // `stiffness`, and every coefficient came out scaled, without a word.
+        if let (Some(k), Some(v)) = (self.stiffness, self.params.get("k")) {
+            if *v != k {
+                return err(
+                    "params.k",
+                    &format!("{v} conflicts with stiffness = {k}: `k` in the equation is the stiffness; set it once, as stiffness"),
+                );
+            }
+        }
         if self.population < 4 {
             return err("population", "must be >= 4");
         }
@@ -207,6 +218,10 @@ impl GateConfig {
         }
         if a.warn_resolve_windows == 0 {
             return err("alert.warn_resolve_windows", "must be >= 1");
+        }
+        // an empty label value is no label to Alertmanager: routes on `severity` miss the alert
+        if a.severity.trim().is_empty() {
+            return err("alert.severity", "must not be empty");
         }
         if a.warn_severity.trim().is_empty() {
             return err("alert.warn_severity", "must not be empty");

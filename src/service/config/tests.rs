@@ -26,6 +26,12 @@ fn notify_targets_parse_and_bad_urls_name_the_section() {
     assert_eq!(c.notify.alertmanager_urls, ["http://am:9093"]);
     assert!(err("[[notify.webhooks]]\nurl = \"ftp://x\"\n").starts_with("notify: "));
     assert!(err("[notify]\nalertmanager_url = \"http://x\"\n").contains("alertmanager_url"));
+    // a list of URLs where tables are expected: told what a target looks like
+    let e = err("[notify]\nwebhooks = [\"http://127.0.0.1:5001/hook\"]\n");
+    assert!(
+        e.contains("webhooks") && e.contains("url = ") && !e.contains("WebhookTarget"),
+        "{e}"
+    );
 }
 
 #[test]
@@ -98,13 +104,44 @@ fn errors_name_the_key() {
         ),
         ("warn_for_windows = 0", "gates.g1.alert.warn_for_windows"),
         ("warn_severity = \"\"", "gates.g1.alert.warn_severity"),
+        ("severity = \" \"", "gates.g1.alert.severity"),
     ] {
         assert!(
             err(&format!("[gates.g1.alert]\n{toml}\n")).starts_with(key),
             "{toml}"
         );
     }
+    // `k` is the stiffness in the equation: a second, different value is refused, the same
+    // value passes
+    let e = err("[gates.g1]\nstiffness = 81360.0\nparams = { k = 5.0 }\n");
+    assert!(
+        e.starts_with("gates.g1.params.k: 5 conflicts with stiffness = 81360"),
+        "{e}"
+    );
+    Config::from_toml("[gates.g1]\nstiffness = 81360.0\nparams = { k = 81360.0 }\n").unwrap();
     assert!(err("[server]\nlisten = \"nope\"\n").starts_with("server.listen:"));
+    for (http, tcp) in [
+        ("127.0.0.1:19477", "127.0.0.1:19477"),
+        ("0.0.0.0:9464", "127.0.0.1:9464"),
+        ("127.0.0.1:9464", "[::]:9464"),
+    ] {
+        let e = err(&format!(
+            "[server]\nlisten = \"{http}\"\ntcp_listen = \"{tcp}\"\n"
+        ));
+        assert!(
+            e.starts_with("server.tcp_listen:") && e.contains("takes the port"),
+            "{e}"
+        );
+    }
+    Config::from_toml("[server]\nlisten = \"127.0.0.1:0\"\ntcp_listen = \"127.0.0.1:0\"\n")
+        .unwrap();
+    Config::from_toml("[server]\nlisten = \"127.0.0.1:9464\"\ntcp_listen = \"127.0.0.2:9464\"\n")
+        .unwrap();
+    let e = err("[server]\nworker_threads = 100000\n");
+    assert!(
+        e.starts_with("server.worker_threads: must be at most 256"),
+        "{e}"
+    );
     assert!(err("[server]\nmax_gates = 0\n").starts_with("server.max_gates:"));
     assert!(err("[server]\nauth_tokens = [\"short\"]\n").starts_with("server.auth_tokens:"));
     assert!(
@@ -456,4 +493,19 @@ fn the_storage_backend_and_its_nats_keys_are_checked_naming_the_key() {
             "{bad}"
         );
     }
+}
+
+#[test]
+fn refusing_unknown_gates_without_any_configured_gate_is_warned() {
+    let warned = |c: &Config| {
+        c.warnings()
+            .iter()
+            .any(|w| w.contains("every sample is refused"))
+    };
+    let c = Config::from_toml(EMBEDDED_CONFIG).unwrap();
+    assert!(!warned(&c), "{:?}", c.warnings());
+    let c = Config::from_toml("[server]\naccept_unknown_gates = false\n").unwrap();
+    assert!(warned(&c), "{:?}", c.warnings());
+    let c = Config::from_toml("[server]\naccept_unknown_gates = false\n[gates.g1]\n").unwrap();
+    assert!(!warned(&c), "{:?}", c.warnings());
 }
