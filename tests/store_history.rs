@@ -357,6 +357,31 @@ fn texts(svg: &str) -> Vec<String> {
         .collect()
 }
 
+/// The number of points of each zeta0 line (a polyline of the series' blue, 2 px), the
+/// legend's 2-point sample left out.
+fn zeta0_lines(svg: &str) -> Vec<usize> {
+    svg.split("<polyline ")
+        .skip(1)
+        .filter(|p| p.contains("stroke=\"#0072B2\" stroke-width=\"2\""))
+        .filter_map(|p| p.split("points=\"").nth(1)?.split('"').next())
+        .map(|p| p.split_whitespace().count())
+        .filter(|&n| n > 2)
+        .collect()
+}
+
+/// The attributes of every `<tag .../>` element.
+fn elements<'a>(svg: &'a str, tag: &str) -> Vec<&'a str> {
+    svg.split(&format!("<{tag} "))
+        .skip(1)
+        .map(|e| &e[..e.find("/>").unwrap_or(e.len())])
+        .collect()
+}
+
+/// The number of pieces of the interval band (filled polygons).
+fn polygons(svg: &str) -> usize {
+    svg.matches("<polygon ").count()
+}
+
 #[test]
 fn history_plot_draws_the_damping_over_time_from_a_real_database() {
     let dir = tempfile::tempdir().expect("tempdir");
@@ -427,15 +452,17 @@ fn history_plot_draws_the_damping_over_time_from_a_real_database() {
         ticks.iter().any(|v| (90.0..=99.5).contains(v)),
         "a tick near the end of the 99.5 min: {ticks:?}"
     );
-    // the zeta0 line: a polyline of the series' blue with (nearly) a point per window
-    let longest = svg
-        .split("<polyline ")
-        .skip(1)
-        .filter(|p| p.contains("stroke=\"#0072B2\" stroke-width=\"2\""))
-        .filter_map(|p| p.split("points=\"").nth(1)?.split('"').next())
-        .map(|p| p.split_whitespace().count())
-        .max();
-    assert!(longest.is_some_and(|n| n >= 150), "{longest:?}");
+    // the zeta0 line, broken at each untrusted window (5, 15, ..., 195): 21 polylines of the
+    // series' blue with a point per window (0-4, 6-14, ..., 186-194, 196-199), no gap in time
+    let mut lines = zeta0_lines(&svg);
+    lines.sort_unstable();
+    assert_eq!(
+        lines,
+        [vec![4, 5], vec![9; 19]].concat(),
+        "points per zeta0 line"
+    );
+    assert_eq!(polygons(&svg), 21, "band pieces");
+    assert!(!has("no windows for over"), "{t:?}");
 
     // without --config: no thresholds
     let (code, _, err) = history(&[
@@ -451,6 +478,150 @@ fn history_plot_draws_the_damping_over_time_from_a_real_database() {
     well_formed(&svg).expect("well-formed SVG");
     assert!(!svg.contains("fire below"));
     assert!(svg.contains("zeta0 (3 windows)"));
+}
+
+/// Gate `gap`, one window every 30 s, with what a line must not cross: a 1 h hole (the daemon
+/// down), three untrusted windows in a row, a 10 min hole (the gate silent); and one missed
+/// window (60 s: a window replaced under load) that must not break it. Window numbers, from
+/// T0 + 30 s * number:
+/// - A: 0..40, trusted;
+/// - 1 h without rows;
+/// - B: 160..200, windows 170, 171, 172 untrusted;
+/// - 10 min without rows;
+/// - C: 220..250 without 235 (the missed one).
+fn gappy_database(dir: &Path) -> PathBuf {
+    let path = dir.join("gaps.db");
+    let store = SqliteStore::open(&path, 64).expect("open the store");
+    let windows = (0..40)
+        .chain(160..200)
+        .chain((220..250).filter(|&i| i != 235));
+    let rows: Vec<IdentificationRecord> = windows
+        .map(|i| {
+            let mut r = record("gap", i);
+            r.damping["trusted"] = Value::Bool(!(170..=172).contains(&i));
+            r
+        })
+        .collect();
+    assert_eq!(rows.len(), 40 + 40 + 29);
+    store
+        .write(&WriteBatch {
+            identifications: rows,
+            ..Default::default()
+        })
+        .expect("write the history");
+    store.checkpoint().expect("checkpoint");
+    path
+}
+
+/// `history --plot` breaks the zeta0 line and its band at the gaps in time and at the
+/// untrusted windows, and at nothing else; the untrusted windows are the hollow circles, as
+/// many as the CSV has `false` in its `trusted` column. It drew one line through them all.
+#[test]
+fn history_plot_breaks_the_line_at_gaps_and_untrusted_windows() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let db = gappy_database(dir.path());
+    let db = db.to_str().unwrap();
+    let svg_path = dir.path().join("gap.svg");
+    let (code, _, err) = history(&[
+        "--db",
+        db,
+        "--gate",
+        "gap",
+        "--plot",
+        svg_path.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    assert!(err.contains("109 windows"), "{err}");
+    let svg = std::fs::read_to_string(&svg_path).expect("the picture");
+    well_formed(&svg).expect("well-formed SVG");
+    let t = texts(&svg);
+    let has = |s: &str| t.iter().any(|x| x.contains(s));
+
+    // four pieces: A (40 windows), B before the untrusted ones (10), B after them (27), C
+    // whole across its missed window (29)
+    let mut lines = zeta0_lines(&svg);
+    lines.sort_unstable();
+    assert_eq!(lines, [10, 27, 29, 40], "points per zeta0 line");
+    assert_eq!(polygons(&svg), 4, "band pieces");
+    // the two holes shaded and named, with the threshold: 3 x the median spacing of 30 s
+    assert!(
+        has("no windows for over 1m 30s (3x the median spacing, 30s): 2 gaps"),
+        "{t:?}"
+    );
+    let shaded: Vec<&str> = elements(&svg, "rect")
+        .into_iter()
+        .filter(|r| r.contains("fill=\"#000000\""))
+        .collect();
+    assert_eq!(
+        shaded.len(),
+        2 + 1,
+        "2 gaps and the legend's sample: {shaded:#?}"
+    );
+
+    // the untrusted windows as the CSV reports them, and as the plot draws them
+    let (code, csv, err) = history(&["--db", db, "--gate", "gap", "--csv"]);
+    assert_eq!(code, 0, "{err}");
+    let column = HISTORY_CSV_HEADER
+        .iter()
+        .position(|h| *h == "trusted")
+        .expect("trusted column");
+    let untrusted = csv
+        .lines()
+        .skip(1)
+        .filter(|l| l.split(',').nth(column) == Some("false"))
+        .count();
+    assert_eq!(untrusted, 3, "{csv}");
+    assert!(has("zeta0, trusted (106 windows)"), "{t:?}");
+    assert!(
+        has("zeta0, untrusted (3 windows): not fed to the alerts"),
+        "{t:?}"
+    );
+    let hollow = elements(&svg, "circle")
+        .iter()
+        .filter(|c| c.contains("fill=\"none\"") && c.contains("stroke=\"#5A5A5A\""))
+        .count();
+    assert_eq!(
+        hollow,
+        untrusted + 1,
+        "the untrusted windows and the legend's sample"
+    );
+
+    // a trusted window alone between an untrusted one and a gap is a dot, not lost
+    let lone = dir.path().join("lone.db");
+    {
+        let store = SqliteStore::open(&lone, 64).expect("open the store");
+        let rows = [0, 1, 2, 3, 4, 100]
+            .into_iter()
+            .map(|i| {
+                let mut r = record("gap", i);
+                r.damping["trusted"] = Value::Bool(i != 3);
+                r
+            })
+            .collect();
+        store
+            .write(&WriteBatch {
+                identifications: rows,
+                ..Default::default()
+            })
+            .expect("write");
+        store.checkpoint().expect("checkpoint");
+    }
+    let (code, _, err) = history(&[
+        "--db",
+        lone.to_str().unwrap(),
+        "--gate",
+        "gap",
+        "--plot",
+        svg_path.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let svg = std::fs::read_to_string(&svg_path).expect("the picture");
+    assert_eq!(zeta0_lines(&svg), [3], "windows 0-2");
+    let dots = elements(&svg, "circle")
+        .iter()
+        .filter(|c| c.contains("fill=\"#0072B2\""))
+        .count();
+    assert_eq!(dots, 2, "windows 4 and 100, each alone");
 }
 
 #[test]

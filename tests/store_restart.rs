@@ -1098,3 +1098,230 @@ async fn failing_store_writes_fail_readiness_until_a_write_succeeds() {
     );
     assert!(!text.contains("panicked"), "{text}");
 }
+
+/// Size of the small file system the low-space test puts the store on, and what a file made
+/// before the daemon starts takes of it: about 4 MiB left, under `store::LOW_SPACE_BYTES`
+/// (16 MiB), and over it again once that file is deleted.
+const SMALL_FS: &str = "24m";
+const FILLER_BYTES: u64 = 20 << 20;
+
+/// Whether this test runs as root (`id -u`).
+fn is_root() -> bool {
+    Command::new("id")
+        .arg("-u")
+        .output()
+        .is_ok_and(|o| String::from_utf8_lossy(&o.stdout).trim() == "0")
+}
+
+/// `unshare` into a mount namespace of its own (with a user namespace when not root): a tmpfs
+/// mounted there is seen by that process and its children only, and goes with them, so a
+/// failed test leaves nothing mounted.
+fn unshare(script: &str, args: &[&std::ffi::OsStr]) -> Command {
+    let mut c = Command::new("unshare");
+    c.arg("--mount");
+    if !is_root() {
+        c.arg("--map-root-user");
+    }
+    c.args(["sh", "-c", script, "sh"]).args(args);
+    c
+}
+
+/// Mounts a tmpfs of [`SMALL_FS`] on `dir` in a namespace of its own, and unmounts it: `Err`
+/// with why when this machine does not let the test do that.
+fn can_mount_small_fs(dir: &Path) -> Result<(), String> {
+    let out = unshare(
+        "mount -t tmpfs -o size=\"$1\" tmpfs \"$2\"",
+        &[SMALL_FS.as_ref(), dir.as_os_str()],
+    )
+    .output()
+    .map_err(|e| format!("cannot run unshare: {e}"))?;
+    if out.status.success() {
+        Ok(())
+    } else {
+        Err(String::from_utf8_lossy(&out.stderr).trim().to_string())
+    }
+}
+
+/// A store on a real, nearly full file system (a tmpfs of 24 MiB, 20 MiB of it taken before
+/// the start): the daemon warns at start, before it listens, naming the file and the bytes
+/// left, and `/readyz` answers 200 (its writes still succeed: docs/api.md). The disk filled to
+/// the last byte, its writes fail with SQLite's real `SQLITE_FULL` and `/readyz` answers 503
+/// naming the file; the space freed, it says so at level info and `/readyz` is 200 again.
+/// Before, the warning had no test (a real full disk needs root and a small file system).
+///
+/// The tmpfs is mounted in a mount namespace of the daemon's own (`unshare`): as root, or
+/// where unprivileged user namespaces are allowed; elsewhere the test is skipped with a
+/// message. Under CI (`CI` set) as root it fails instead: `.ci/run` runs as root on a Debian
+/// machine of its own, where mounting a tmpfs works.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_nearly_full_disk_is_warned_at_start_and_readiness_follows_the_writes() {
+    use gatewatch::store::LOW_SPACE_BYTES;
+    let dir = tempfile::tempdir().expect("tempdir");
+    let small = dir.path().join("small");
+    std::fs::create_dir(&small).expect("mkdir");
+    if let Err(why) = can_mount_small_fs(&small) {
+        assert!(
+            std::env::var_os("CI").is_none() || !is_root(),
+            "CI runs as root on a machine of its own and must be able to mount a tmpfs: {why}"
+        );
+        eprintln!(
+            "skipped: cannot mount a small tmpfs in a mount namespace here ({why}); the \
+             low-space warning needs a real small file system (root, or unprivileged user \
+             namespaces)"
+        );
+        return;
+    }
+    let cfg = write_config(dir.path(), free_port());
+    let db = small.join("gw.db");
+    let text = std::fs::read_to_string(&cfg).expect("config");
+    std::fs::write(
+        &cfg,
+        text.replace("path = \"gw.db\"", &format!("path = \"{}\"", db.display())),
+    )
+    .expect("config");
+    let log = dir.path().join("gatewatch.log");
+    let child = unshare(
+        "mount -t tmpfs -o size=\"$1\" tmpfs \"$2\" && head -c \"$3\" /dev/zero > \"$2/filler\" \
+         && exec \"$4\" serve --config \"$5\"",
+        &[
+            SMALL_FS.as_ref(),
+            small.as_os_str(),
+            FILLER_BYTES.to_string().as_ref(),
+            BIN.as_ref(),
+            cfg.as_os_str(),
+        ],
+    )
+    .env("GATEWATCH_LOG_LEVEL", "info")
+    .stdout(Stdio::null())
+    .stderr(std::fs::File::create(&log).expect("log file"))
+    .spawn()
+    .expect("spawn gatewatch serve in a mount namespace");
+    // unshare and sh exec: the child is the daemon, and its view of the tmpfs is under
+    // /proc/PID/root
+    let inside = PathBuf::from(format!("/proc/{}/root", child.id())).join(
+        small
+            .strip_prefix("/")
+            .expect("an absolute temporary directory"),
+    );
+    let url = daemon_url(&cfg);
+    gatewatch::service::client::ensure_crypto_provider();
+    let client = reqwest::Client::new();
+    let ready = |client: reqwest::Client, url: String| async move {
+        let r = client.get(format!("{url}/readyz")).send().await.ok()?;
+        Some((r.status().as_u16(), r.text().await.unwrap_or_default()))
+    };
+    let wait_for = |want: u16, what: &'static str| {
+        let (client, url) = (client.clone(), url.clone());
+        async move {
+            let deadline = Instant::now() + WAIT;
+            loop {
+                match ready(client.clone(), url.clone()).await {
+                    Some((s, body)) if s == want => return body,
+                    _ => {}
+                }
+                assert!(Instant::now() < deadline, "/readyz never {what}");
+                tokio::time::sleep(Duration::from_millis(200)).await;
+            }
+        }
+    };
+
+    // at start: the warning, before the listener is up, and ready all the same
+    let body = wait_for(200, "answered 200 at start").await;
+    assert_eq!(body.trim(), "ready");
+    let text = std::fs::read_to_string(&log).expect("log");
+    let lines: Vec<&str> = text.lines().collect();
+    let warned = lines
+        .iter()
+        .position(|l| l.contains("bytes free:"))
+        .unwrap_or_else(|| panic!("no low-space warning at start:\n{text}"));
+    let line = lines[warned];
+    assert!(
+        line.contains("WARN") && line.contains(&format!("store {}:", db.display())),
+        "{line}"
+    );
+    let free: u64 = line
+        .split("its file system has ")
+        .nth(1)
+        .and_then(|r| r.split(' ').next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("no byte count: {line}"));
+    assert!(
+        free > 0 && free < LOW_SPACE_BYTES && free <= (24 << 20) - FILLER_BYTES,
+        "{free} bytes free: {line}"
+    );
+    let listening = lines
+        .iter()
+        .position(|l| l.contains("HTTP listener up"))
+        .unwrap_or_else(|| panic!("no listener line:\n{text}"));
+    assert!(warned < listening, "warned after the start:\n{text}");
+
+    // the disk full to the last byte: the daemon's writes fail for real, and /readyz says so
+    {
+        use std::io::Write;
+        let mut f = std::fs::File::create(inside.join("filler2")).expect("a second filler");
+        let chunk = vec![0u8; 64 << 10];
+        let mut n = chunk.len();
+        loop {
+            match f.write(&chunk[..n]) {
+                Ok(0) => break,
+                Ok(_) => {}
+                Err(e) if e.raw_os_error() == Some(28) && n > 1 => n /= 2, // ENOSPC
+                Err(e) if e.raw_os_error() == Some(28) => break,
+                Err(e) => panic!("filling the tmpfs: {e}"),
+            }
+        }
+    }
+    let mut stream = Stream::new();
+    let deadline = Instant::now() + WAIT;
+    let body = loop {
+        stream.send(&client, &url).await;
+        if let Some((503, body)) = ready(client.clone(), url.clone()).await {
+            break body;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "/readyz never failed on a full disk"
+        );
+        tokio::time::sleep(Duration::from_millis(300)).await;
+    };
+    assert!(
+        body.starts_with("not ready: ")
+            && body.contains(&db.display().to_string())
+            && body.contains("writes fail")
+            && body.contains("full"),
+        "{body}"
+    );
+
+    // the space freed: said at level info, and ready again (by the write probe, with no
+    // samples: a load balancer stops them while /readyz fails)
+    for f in ["filler", "filler2"] {
+        std::fs::remove_file(inside.join(f)).expect("free the space");
+    }
+    wait_for(200, "recovered once the space was freed").await;
+    // the space check runs every 5 s (store::CHECK_INTERVAL): the next one says it is back
+    let deadline = Instant::now() + WAIT;
+    while !std::fs::read_to_string(&log)
+        .expect("log")
+        .contains("bytes free again")
+    {
+        assert!(
+            Instant::now() < deadline,
+            "the space back never said:\n{}",
+            std::fs::read_to_string(&log).unwrap_or_default()
+        );
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    }
+    let status = terminate(child).await;
+    let text = std::fs::read_to_string(&log).expect("log");
+    assert_eq!(status.code(), Some(0), "{text}");
+    let again = text
+        .lines()
+        .find(|l| l.contains("bytes free again"))
+        .unwrap_or_else(|| panic!("no line says the space is back:\n{text}"));
+    assert!(
+        again.contains("INFO") && again.contains(&db.display().to_string()),
+        "{again}"
+    );
+    assert!(text.contains("writes resumed"), "{text}");
+    assert!(!text.contains("panicked"), "{text}");
+}

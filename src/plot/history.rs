@@ -33,6 +33,67 @@ pub struct Thresholds {
 /// (a flickering gate would write a wall of text).
 const MAX_VERDICT_LABELS: usize = 20;
 
+/// Consecutive windows further apart than this many times the median spacing of the window
+/// ends are a gap, across which neither the zeta0 line nor its band is drawn.
+///
+/// Why the median spacing: a gate's windows end every `identify_every_seconds`, which the store
+/// does not record (and which may differ between gates and over time), but the median of the
+/// spacings recovers it as long as fewer than half of them are gaps. Why 3: the worker pool
+/// keeps only a gate's newest queued window, so under load one or two windows may be replaced
+/// by the next (a spacing of 2 or 3 cadences) while the daemon runs and the windows, as long as
+/// or longer than the cadence, still cover the signal; more than that is the daemon down, the
+/// gate silent or its data refused, and a line drawn across it would show estimates that do
+/// not exist.
+const GAP_FACTOR: f64 = 3.0;
+
+/// The spacing of window ends beyond which two consecutive windows are not joined:
+/// [`GAP_FACTOR`] times the median of the positive spacings (equal ends, the same window
+/// stored twice, say nothing of the cadence), with that median. `None` with fewer than two
+/// distinct ends: nothing to join.
+fn gap_threshold(points: &[DampingPoint]) -> Option<(f64, f64)> {
+    let mut d: Vec<f64> = points
+        .windows(2)
+        .map(|w| w[1].time - w[0].time)
+        .filter(|d| *d > 0.0)
+        .collect();
+    if d.is_empty() {
+        return None;
+    }
+    d.sort_by(f64::total_cmp);
+    let n = d.len();
+    let median = if n % 2 == 1 {
+        d[n / 2]
+    } else {
+        0.5 * (d[n / 2 - 1] + d[n / 2])
+    };
+    Some((GAP_FACTOR * median, median))
+}
+
+/// Runs of consecutive windows that may be joined by a line, as indices into `points` (oldest
+/// first): a run ends before a window `keep` refuses (untrusted, or without the value drawn)
+/// and before a window that ends more than `gap` seconds after the previous one.
+fn runs(
+    points: &[DampingPoint],
+    gap: f64,
+    keep: impl Fn(&DampingPoint) -> bool,
+) -> Vec<Vec<usize>> {
+    let mut out: Vec<Vec<usize>> = Vec::new();
+    let mut open = false;
+    for (i, q) in points.iter().enumerate() {
+        if !keep(q) {
+            open = false;
+            continue;
+        }
+        let joined = open && i > 0 && q.time - points[i - 1].time <= gap;
+        match out.last_mut() {
+            Some(r) if joined => r.push(i),
+            _ => out.push(vec![i]),
+        }
+        open = true;
+    }
+    out
+}
+
 /// The time axis: the unit that keeps the numbers readable for the span.
 fn time_unit(span_s: f64) -> (f64, &'static str) {
     if span_s <= 600.0 {
@@ -42,6 +103,12 @@ fn time_unit(span_s: f64) -> (f64, &'static str) {
     } else {
         (3600.0, "h")
     }
+}
+
+/// A span of seconds as people read it (`1m 30s`, `500ms`), to the millisecond.
+fn duration(s: f64) -> String {
+    let ms = (s * 1000.0).round().clamp(0.0, u64::MAX as f64) as u64;
+    humantime::format_duration(std::time::Duration::from_millis(ms)).to_string()
 }
 
 fn rfc3339(t: f64) -> String {
@@ -109,32 +176,58 @@ impl Figure for HistoryFigure<'_> {
             .axis_desc_style((FONT, DESC_SIZE))
             .light_line_style(WHITE.mix(0.0))
             .draw()?;
-        // the band: one polygon per run of consecutive windows with an interval
-        let mut runs: Vec<Vec<(f64, (f64, f64))>> = Vec::new();
-        let mut open = false;
-        for q in p.iter().filter(|q| q.trusted) {
-            match q.interval {
-                Some((a, b)) if a.is_finite() && b.is_finite() => {
-                    if !open {
-                        runs.push(Vec::new());
-                    }
-                    if let Some(r) = runs.last_mut() {
-                        r.push((x(q.time), (pct(a), pct(b))));
-                    }
-                    open = true;
-                }
-                _ => open = false,
-            }
+        // gaps in time: shaded, and neither the line nor the band crosses them
+        let (gap, median) = gap_threshold(p).unwrap_or((f64::INFINITY, 0.0));
+        let gaps: Vec<(f64, f64)> = p
+            .windows(2)
+            .filter(|w| w[1].time - w[0].time > gap)
+            .map(|w| (x(w[0].time), x(w[1].time)))
+            .collect();
+        if !gaps.is_empty() {
+            let shade = BLACK.mix(0.07);
+            chart
+                .draw_series(
+                    gaps.iter()
+                        .map(|&(a, b)| Rectangle::new([(a, y0), (b, y1)], shade.filled())),
+                )?
+                .label(format!(
+                    "no windows for over {} ({GAP_FACTOR}x the median spacing, {}): {} gap{}",
+                    duration(gap),
+                    duration(median),
+                    gaps.len(),
+                    if gaps.len() == 1 { "" } else { "s" }
+                ))
+                .legend(move |(x, y)| {
+                    Rectangle::new([(x, y - 6), (x + 20, y + 6)], shade.filled())
+                });
         }
+        // the band: one polygon per run of consecutive trusted windows with an interval, no
+        // run across an untrusted window or a gap; a window alone gets an error bar
+        let interval = |q: &DampingPoint| match q.interval {
+            Some((a, b)) if q.trusted && a.is_finite() && b.is_finite() => Some((a, b)),
+            _ => None,
+        };
+        let band_runs: Vec<Vec<(f64, (f64, f64))>> = runs(p, gap, |q| interval(q).is_some())
+            .iter()
+            .map(|r| {
+                r.iter()
+                    .filter_map(|&i| interval(&p[i]).map(|(a, b)| (x(p[i].time), (pct(a), pct(b)))))
+                    .collect()
+            })
+            .collect();
         let band = BLUE.mix(0.2);
         chart
-            .draw_series(runs.iter().map(|r| {
+            .draw_series(band_runs.iter().filter(|r| r.len() > 1).map(|r| {
                 let upper = r.iter().map(|(t, (_, b))| (*t, *b));
                 let lower = r.iter().rev().map(|(t, (a, _))| (*t, *a));
                 Polygon::new(upper.chain(lower).collect::<Vec<_>>(), band.filled())
             }))?
             .label("95 % interval of zeta0 (trusted windows)")
             .legend(move |(x, y)| Rectangle::new([(x, y - 6), (x + 20, y + 6)], band.filled()));
+        chart.draw_series(band_runs.iter().filter(|r| r.len() == 1).map(|r| {
+            let (t, (a, b)) = r[0];
+            PathElement::new(vec![(t, a), (t, b)], BLUE.mix(0.4).stroke_width(3))
+        }))?;
         chart.draw_series(LineSeries::new([(x0, 0.0), (x1, 0.0)], GREY))?;
         if let Some(t) = self.thresholds {
             chart
@@ -162,23 +255,40 @@ impl Figure for HistoryFigure<'_> {
         }
         // zeta0 of the trusted windows as a line (the alerts' input), the untrusted ones as
         // hollow grey circles off it: drawn alike, a window the daemon ignored read as evidence.
+        // The line is broken at each untrusted window (or one without a finite zeta0) and at
+        // each gap: joined across them it would show estimates nobody made. A trusted window
+        // alone between two breaks is a dot.
+        let finite = |q: &DampingPoint| q.zeta0.filter(|z| z.is_finite());
         let zeta = |trusted: bool| -> Vec<(f64, f64)> {
             p.iter()
                 .filter(|q| q.trusted == trusted)
-                .filter_map(|q| {
-                    q.zeta0
-                        .filter(|z| z.is_finite())
-                        .map(|z| (x(q.time), pct(z)))
-                })
+                .filter_map(|q| finite(q).map(|z| (x(q.time), pct(z))))
                 .collect()
         };
         let (trusted, untrusted) = (zeta(true), zeta(false));
-        let (xs, ys): (Vec<f64>, Vec<f64>) = trusted.iter().copied().unzip();
+        let lines: Vec<Vec<(f64, f64)>> = runs(p, gap, |q| q.trusted && finite(q).is_some())
+            .iter()
+            .map(|r| {
+                let (xs, ys): (Vec<f64>, Vec<f64>) = r
+                    .iter()
+                    .filter_map(|&i| finite(&p[i]).map(|z| (x(p[i].time), pct(z))))
+                    .unzip();
+                thin(&xs, &ys, (x0, x1), (y0, y1))
+            })
+            .collect();
+        chart.draw_series(
+            lines
+                .iter()
+                .filter(|l| l.len() == 1)
+                .map(|l| Circle::new(l[0], 3, BLUE.filled())),
+        )?;
         chart
-            .draw_series(LineSeries::new(
-                thin(&xs, &ys, (x0, x1), (y0, y1)),
-                BLUE.stroke_width(2),
-            ))?
+            .draw_series(
+                lines
+                    .iter()
+                    .filter(|l| l.len() > 1)
+                    .map(|l| PathElement::new(l.clone(), BLUE.stroke_width(2))),
+            )?
             .label(if untrusted.is_empty() {
                 format!("zeta0 ({} windows)", trusted.len())
             } else {
@@ -236,9 +346,13 @@ impl Figure for HistoryFigure<'_> {
 }
 
 /// Damping over time for gate `gate`: zeta0 (percent) of each trusted window against its end
-/// time as a line, untrusted windows as hollow grey circles, the 95 % interval as a band, the alert thresholds as dashed lines when known, a mark at
-/// each verdict change. `points` oldest first. The x axis counts from the first window (in s,
-/// min or h, by the span), and its title names the first and last window ends in RFC 3339.
+/// time as a line, untrusted windows as hollow grey circles, the 95 % interval as a band, the
+/// alert thresholds as dashed lines when known, a mark at each verdict change. The line and
+/// the band break at every untrusted window and at every gap in time (consecutive windows more
+/// than 3 times the median spacing apart, shaded grey): they join only windows that follow one
+/// another and were all trusted. `points` oldest first. The x axis counts from the first
+/// window (in s, min or h, by the span), and its title names the first and last window ends in
+/// RFC 3339.
 pub fn damping_history(
     path: &Path,
     gate: &str,

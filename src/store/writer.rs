@@ -40,10 +40,12 @@
 //! and nothing else would write.
 //! Why: the failures were only counted and
 //! logged, and a daemon that could not write for hours looked ready. Every
-//! [`CHECK_INTERVAL`] the writer also asks how much space is left on the store's file system
-//! ([`Store::space_left`]) and warns, once until it recovers, under [`LOW_SPACE_BYTES`]: a
-//! disk full at start used to say nothing until a write failed, and a write into space the
-//! WAL already holds does not fail.
+//! [`CHECK_INTERVAL`], and once in [`StoreWriter::start`] before the daemon listens, the writer
+//! also asks how much space is left on the store's file system ([`Store::space_left`]) and
+//! warns, naming the file and the bytes free, once until it recovers, under
+//! [`LOW_SPACE_BYTES`]: a disk full at start used to say nothing until a write failed, and a
+//! write into space the WAL already holds does not fail. Low space alone does not fail
+//! `/readyz`: the writes still succeed; a write that fails does.
 
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::mpsc::{self, RecvTimeoutError, SyncSender, TrySendError};
@@ -195,6 +197,11 @@ impl StoreWriter {
             failing: Arc::new(Mutex::new(None)),
             low_space: Arc::new(AtomicBool::new(false)),
         };
+        // The free space once here, on the caller's thread, before the daemon listens: a store
+        // on a nearly full disk is said at start, not only once a write fails (and a write
+        // into space the WAL already holds does not fail). The thread checks again every
+        // CHECK_INTERVAL; `low_space` keeps it from repeating the warning.
+        writer.check_space(store.as_ref());
         let w = writer.clone();
         let thread = std::thread::Builder::new()
             .name("gatewatch-store".into())
