@@ -1284,6 +1284,18 @@ fn a_model_that_cannot_be_simulated_is_refused_not_reported() {
             ],
         );
     }
+    // So is an absurd initial state, named with the record's size (it was blamed on the times
+    // or the equation)
+    let mut args = run("ydd + (c1 + c2*y^2)*yd + y = 0");
+    args.extend(["--y0", "1e308", "--v0", "1e308"].map(String::from));
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    bad(
+        &args,
+        &[
+            "the model could not be simulated on this data",
+            "the initial state --y0 1e308 --v0 1e308 against the record's largest |y|",
+        ],
+    );
     // An absurd stiffness is an input problem, and the hint says so with the number.
     let gate = d.case("gate_example");
     bad(

@@ -350,6 +350,26 @@ fn simulate_refuses_bad_stream_flags_as_input_naming_them() {
     }
 }
 
+/// `demo` refuses a negative onset shape as `simulate` does (`--onset-hold -1` ran).
+#[test]
+fn demo_refuses_a_negative_onset_shape_naming_the_flag() {
+    for (args, needle) in [
+        (
+            &["--onset-hold", "-1"][..],
+            "--onset-hold must be >= 0 seconds, got -1",
+        ),
+        (
+            &["--onset-ramp", "nan"][..],
+            "--onset-ramp must be >= 0 seconds",
+        ),
+        (&["--speed", "0"][..], "--speed must be > 0"),
+    ] {
+        let mut all = vec!["demo"];
+        all.extend(args);
+        refused_as_input(&all, needle);
+    }
+}
+
 /// `stability-map --t-end 1e12`: the solver's smallest step grows with the horizon and was above
 /// every trial's first step; the step size underflow drew all 200 trials unstable (exit 0). It
 /// is the solver's failure, refused as the horizons 1e9..1e11 are.

@@ -389,7 +389,7 @@ pub(super) fn run(a: IdentifyArgs) -> Result<(), CliError> {
         return Err(input(format!(
             "{}: the model could not be simulated on this data: no trial of the identification integrated over the record; {}",
             a.input.display(),
-            not_integrated_hint(&series, &params)
+            not_integrated_hint(&series, &params, a.y0.zip(a.v0))
         )));
     }
     let mut out = std::io::stdout().lock();
@@ -499,8 +499,13 @@ fn in_flags(e: IdentifyError) -> String {
 /// What to check when no trial integrated: the input first (a time column in milliseconds
 /// makes every period a thousand times longer than the solver's step budget; a stiffness of
 /// 1e300 overflows the state), then the equation. Said with the numbers: the sample rate and
-/// length the times imply, and the known constants far from any physical size.
-fn not_integrated_hint(series: &TimeSeries, params: &[(String, f64)]) -> String {
+/// length the times imply, the known constants far from any physical size, and a given initial
+/// state far outside the record (`--y0 1e308` was blamed on the times or the equation).
+fn not_integrated_hint(
+    series: &TimeSeries,
+    params: &[(String, f64)],
+    initial: Option<(f64, f64)>,
+) -> String {
     let mut steps: Vec<f64> = series.t.windows(2).map(|w| w[1] - w[0]).collect();
     steps.sort_by(f64::total_cmp);
     let mut hint = String::from("check the input: ");
@@ -531,6 +536,18 @@ fn not_integrated_hint(series: &TimeSeries, params: &[(String, f64)]) -> String 
         ));
     } else if !params.is_empty() {
         hint.push_str("; and the sizes of --stiffness/--param against the data");
+    }
+    if let Some((y0, v0)) = initial {
+        let largest = series.y.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        // a start a thousand times the largest value recorded is not this record's state
+        if y0.abs() > 1e3 * largest
+            || y0.abs() > crate::data::MAX_ABS_VALUE
+            || v0.abs() > crate::data::MAX_ABS_VALUE
+        {
+            hint.push_str(&format!(
+                "; the initial state --y0 {y0:e} --v0 {v0:e} against the record's largest |y| of {largest:e}"
+            ));
+        }
     }
     hint.push_str("; else the equation: a division by zero or a vanishing factor of ydd");
     hint

@@ -132,6 +132,16 @@ pub fn demo(args: DemoArgs) -> ExitCode {
         errln!("gatewatch demo: --speed must be > 0");
         return ExitCode::from(2);
     }
+    // as `simulate` refuses them (a negative hold ran, as a ramp begun before the stream)
+    for (flag, v) in [
+        ("--onset-hold", args.onset_hold),
+        ("--onset-ramp", args.onset_ramp),
+    ] {
+        if !(v >= 0.0 && v.is_finite()) {
+            errln!("gatewatch demo: {flag} must be >= 0 seconds, got {v}");
+            return ExitCode::from(2);
+        }
+    }
     // Daemon logs (warnings only, unless RUST_LOG says otherwise) go to stderr; stdout is the
     // demo's narrative.
     // An invalid RUST_LOG is named, and `warn` used (src/service/rust_log.rs).
