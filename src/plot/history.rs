@@ -326,16 +326,43 @@ impl Figure for HistoryFigure<'_> {
             // right half, so a change near the end is not clipped at the plot's edge.
             use plotters::style::text_anchor::{HPos, Pos, VPos};
             let mid = 0.5 * (x0 + x1);
-            chart.draw_series(changes.iter().map(|(t, v)| {
+            let size = LABEL_SIZE - 4;
+            // Changes a few pixels apart wrote their labels over each other ("unknowdampedunknown"):
+            // each label takes the lowest of three rows where it overlaps no label already
+            // placed, or stays unlabelled (its mark remains). Its width is estimated from its
+            // characters (0.6 of the font size each, generous for the sans-serif digits and
+            // letters used); the placement is in pixels, from the chart's own mapping.
+            let row_height = (y1 - y0) * 0.045;
+            let mut rows: [Vec<(i32, i32)>; 3] = Default::default();
+            let mut labels = Vec::new();
+            for (t, v) in &changes {
                 let (h, text) = if *t <= mid {
                     (HPos::Left, format!(" {v}"))
                 } else {
                     (HPos::Right, format!("{v} "))
                 };
+                let px = chart.backend_coord(&(*t, bottom)).0;
+                let width = (text.chars().count() as f64 * 0.6 * size as f64).ceil() as i32;
+                let span = if matches!(h, HPos::Left) {
+                    (px, px + width)
+                } else {
+                    (px - width, px)
+                };
+                let free = rows.iter().position(|placed| {
+                    placed
+                        .iter()
+                        .all(|&(a, b)| span.1 + 2 < a || b + 2 < span.0)
+                });
+                if let Some(r) = free {
+                    rows[r].push(span);
+                    labels.push((text, *t, bottom + r as f64 * row_height, h));
+                }
+            }
+            chart.draw_series(labels.into_iter().map(|(text, t, y, h)| {
                 Text::new(
                     text,
-                    (*t, bottom),
-                    TextStyle::from((FONT, LABEL_SIZE - 4).into_font())
+                    (t, y),
+                    TextStyle::from((FONT, size).into_font())
                         .color(&GREY)
                         .pos(Pos::new(h, VPos::Bottom)),
                 )

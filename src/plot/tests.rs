@@ -134,3 +134,59 @@ fn unwritable_or_unknown_paths_are_errors_naming_the_path() {
     .unwrap_err();
     assert!(matches!(e, PlotError::NoData { .. }));
 }
+
+/// Verdict changes a few pixels apart get their labels on separate rows, or none, never one
+/// over another ("unknowdampedunknown" in the audit's picture).
+#[test]
+fn verdict_labels_close_together_do_not_overlap() {
+    let dir = tempfile::tempdir().unwrap();
+    let verdicts = ["damped", "unknown", "self_excited", "unknown", "damped"];
+    let points: Vec<DampingPoint> = (0..720)
+        .map(|i| DampingPoint {
+            time: 1.7e9 + 5.0 * i as f64,
+            zeta0: Some(0.01),
+            interval: Some((0.005, 0.015)),
+            // four changes within 20 s of an hour's plot, one far from them
+            verdict: match i {
+                300..=303 => verdicts[i - 299],
+                600.. => "self_excited",
+                _ => "damped",
+            }
+            .to_string(),
+            trusted: true,
+        })
+        .collect();
+    let p = dir.path().join("h.svg");
+    damping_history(&p, "g1", &points, None).unwrap();
+    let svg = std::fs::read_to_string(&p).unwrap();
+    // (x, y, text) of every verdict label
+    let labels: Vec<(f64, f64, String)> = svg
+        .split("<text")
+        .skip(1)
+        .filter_map(|el| {
+            let attr = |name: &str| -> Option<f64> {
+                let at = el.find(&format!(" {name}=\""))? + name.len() + 3;
+                el[at..].split('"').next()?.parse().ok()
+            };
+            let text = el.split('>').nth(1)?.split('<').next()?.trim().to_string();
+            if !verdicts.contains(&text.as_str()) {
+                return None;
+            }
+            Some((attr("x")?, attr("y")?, text))
+        })
+        .collect();
+    assert!(labels.len() >= 4, "{labels:?}");
+    // some rows differ (the close ones were stacked), and no two on one row overlap
+    assert!(
+        labels.iter().any(|a| labels.iter().any(|b| a.1 != b.1)),
+        "{labels:?}"
+    );
+    for (i, a) in labels.iter().enumerate() {
+        for b in &labels[i + 1..] {
+            if a.1 == b.1 {
+                let width = 0.5 * (a.2.len().max(b.2.len()) as f64) * 8.0;
+                assert!((a.0 - b.0).abs() > width, "{a:?} over {b:?}");
+            }
+        }
+    }
+}
