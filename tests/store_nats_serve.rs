@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant, SystemTime};
 
-use gatewatch::store::{HistoryQuery, NatsOptions, NatsStore, Store};
+use gatewatch::store::{HistoryQuery, NatsStore, Store, NATS_OPERATION_TIMEOUT};
 use serde_json::Value;
 
 mod nats_common;
@@ -146,13 +146,11 @@ async fn serve_on_nats_keeps_history_and_alert_state_across_a_restart() {
         "{refused}"
     );
     assert!(!refused.starts_with("exit status: 0"), "{refused}");
-    // the test reads the same streams as the daemon (on a blocking thread: the store blocks)
+    // the test reads the same streams as the daemon (on a blocking thread: the store blocks),
+    // read-only: as `gatewatch history --nats` does, without declaring them with its own limits
     let nats_url = server.url();
     let store = tokio::task::spawn_blocking(move || {
-        NatsStore::open(&NatsOptions {
-            prefix: "E2E".into(),
-            ..NatsOptions::new(&nats_url, Duration::from_secs(86_400), 1_000_000)
-        })
+        NatsStore::open_read_only(&nats_url, "E2E", NATS_OPERATION_TIMEOUT)
     })
     .await
     .expect("join")
@@ -255,6 +253,52 @@ async fn serve_on_nats_keeps_history_and_alert_state_across_a_restart() {
             r.window_end
         );
     }
+    // and read by `gatewatch history --nats` beside the running daemon: every window the first
+    // run stored, while the daemon keeps its lease (same instance, still live) and stays ready
+    let s = store.clone();
+    let (_, lease) = tokio::task::spawn_blocking(move || s.owner_lease().expect("lease"))
+        .await
+        .expect("join")
+        .expect("the second daemon's lease");
+    let cli = Command::new(BIN)
+        .args(["history", "--nats", &server.url(), "--nats-prefix", "E2E"])
+        .args(["--gate", "g1", "--limit", "1000"])
+        .output()
+        .expect("gatewatch history --nats");
+    let printed = String::from_utf8_lossy(&cli.stdout);
+    assert!(
+        cli.status.success(),
+        "{}",
+        String::from_utf8_lossy(&cli.stderr)
+    );
+    let printed: Vec<f64> = printed
+        .lines()
+        .map(|l| {
+            let v: Value = serde_json::from_str(l).expect("JSON line");
+            v["window_end"].as_f64().expect("window_end")
+        })
+        .collect();
+    for r in &rows {
+        assert!(
+            printed.contains(&r.window_end),
+            "window ending {} missing from gatewatch history: {printed:?}",
+            r.window_end
+        );
+    }
+    let s = store.clone();
+    let (_, after) = tokio::task::spawn_blocking(move || s.owner_lease().expect("lease"))
+        .await
+        .expect("join")
+        .expect("the second daemon's lease");
+    assert_eq!(after.instance, lease.instance, "the reader took the lease");
+    assert_eq!(after.pid, second_run.id());
+    assert!(after.live(
+        SystemTime::now()
+            .duration_since(SystemTime::UNIX_EPOCH)
+            .expect("clock")
+            .as_secs_f64()
+    ));
+    wait_ready(&client, &url, &mut second_run, &log).await;
     // the stored alert state was resumed, not fired afresh (which would rewrite it with a new
     // start): after a few stale periods it is what the first run wrote
     tokio::time::sleep(Duration::from_secs(3)).await;

@@ -1,6 +1,9 @@
-//! `gatewatch history --db FILE --gate ID [--from] [--to] [--limit] [--csv] [--plot FILE.svg]`:
-//! a gate's identification history from the daemon's store, for engineers who work offline.
-//! The file is opened read-only (also while the daemon writes to it: WAL).
+//! `gatewatch history (--db FILE | --nats URL [--nats-prefix P]) --gate ID [--from] [--to]
+//! [--limit] [--csv] [--plot FILE.svg]`: a gate's identification history from the daemon's
+//! store, for engineers who work offline. The store is only read: the SQLite file is opened
+//! read-only (also while the daemon writes to it: WAL), the NATS streams are looked up, not
+//! created or changed, and the daemon's owner lease is left to it
+//! ([`NatsStore::open_read_only`]). Past the opening, both go through the [`Store`] trait.
 
 use std::io::Write;
 use std::path::PathBuf;
@@ -8,16 +11,32 @@ use std::path::PathBuf;
 use super::CliError;
 use crate::plot::{DampingPoint, Thresholds};
 use crate::store::{
-    history_csv, parse_time, HistoryQuery, IdentificationRecord, SqliteStore, Store,
-    MAX_HISTORY_LIMIT,
+    history_csv, parse_time, HistoryQuery, IdentificationRecord, NatsStore, SqliteStore,
+    StorageConfig, Store, StoreError, MAX_HISTORY_LIMIT, NATS_OPERATION_TIMEOUT,
 };
 
 /// Arguments of `gatewatch history`.
+///
+/// The NATS store is named by `--nats URL` and `--nats-prefix`, not by the daemon's
+/// configuration file: `--config` already means "the thresholds for `--plot`", reading
+/// `[storage]` from it as well would make one flag do two things (and read the SQLite `path`
+/// of a file meant for thresholds); and like `--db FILE` the two flags name the store itself,
+/// which is what an operator on another machine (a port-forward to the server) has at hand.
 #[derive(Debug, clap::Args)]
+#[command(group(clap::ArgGroup::new("store").required(true).args(["db", "nats"])))]
 pub struct HistoryArgs {
     /// The store's SQLite file (`[storage] path`).
     #[arg(long)]
-    pub db: PathBuf,
+    pub db: Option<PathBuf>,
+    /// The NATS server of the store (`[storage] nats_url`, e.g. nats://127.0.0.1:4222), read
+    /// without taking its owner lease: a running daemon keeps it.
+    #[arg(long, value_name = "URL")]
+    pub nats: Option<String>,
+    /// The prefix of the NATS store's streams (`[storage] nats_prefix`; default GATEWATCH).
+    // `conflicts_with` as well: clap lets a requirement go unmet when it conflicts with a
+    // present argument (`--nats` with `--db`), which would ignore the prefix without a word
+    #[arg(long, value_name = "PREFIX", requires = "nats", conflicts_with = "db")]
+    pub nats_prefix: Option<String>,
     /// Gate id.
     #[arg(long)]
     pub gate: String,
@@ -41,6 +60,36 @@ pub struct HistoryArgs {
     /// (`fire_below`, `clear_above`).
     #[arg(long, requires = "plot")]
     pub config: Option<PathBuf>,
+}
+
+/// Opens the store the arguments name, read-only; the one place the backends differ. Returns
+/// it with its name for the messages (the file, or the server and the prefix).
+fn open(args: &HistoryArgs) -> Result<(Box<dyn Store>, String), CliError> {
+    if let Some(db) = &args.db {
+        let store = SqliteStore::open_read_only(db).map_err(|e| CliError::Input(e.to_string()))?;
+        return Ok((Box::new(store), db.display().to_string()));
+    }
+    // clap's group makes one of the two present
+    let url = args.nats.as_deref().unwrap_or_default();
+    let prefix = args
+        .nats_prefix
+        .clone()
+        .unwrap_or_else(|| StorageConfig::default().nats_prefix);
+    let name = format!("NATS server {url}, prefix {prefix}");
+    let store = NatsStore::open_read_only(url, &prefix, NATS_OPERATION_TIMEOUT).map_err(|e| {
+        let why = match e {
+            StoreError::Open { message, .. } => message,
+            other => other.to_string(),
+        };
+        // one line: the client's errors may carry the server's multi-line text
+        CliError::Input(format!("{name}: {}", one_line(&why)))
+    })?;
+    Ok((Box::new(store), name))
+}
+
+/// `s` with its line breaks folded into spaces.
+fn one_line(s: &str) -> String {
+    s.split_whitespace().collect::<Vec<_>>().join(" ")
 }
 
 /// Prints the history on stdout, or draws it with `--plot`.
@@ -72,8 +121,7 @@ pub fn run(args: HistoryArgs) -> Result<(), CliError> {
         Some(path) => Some(thresholds(path, &args.gate)?),
         None => None,
     };
-    let store =
-        SqliteStore::open_read_only(&args.db).map_err(|e| CliError::Input(e.to_string()))?;
+    let (store, source) = open(&args)?;
     let rows = store.history(&query).map_err(anyhow::Error::from)?;
     if rows.is_empty() {
         // a loose scan of the key: one lookup per gate, not a read of the table
@@ -84,7 +132,7 @@ pub fn run(args: HistoryArgs) -> Result<(), CliError> {
             return Err(CliError::Input(format!(
                 "unknown gate `{}`: {} has no identification of it (gates: {})",
                 args.gate,
-                args.db.display(),
+                source,
                 gate_list(&gates)
             )));
         }
@@ -95,7 +143,7 @@ pub fn run(args: HistoryArgs) -> Result<(), CliError> {
             args.gate,
             args.from.as_deref().unwrap_or("the first"),
             args.to.as_deref().unwrap_or("the last"),
-            args.db.display(),
+            source,
             if args.plot.is_some() {
                 ": nothing to plot"
             } else {

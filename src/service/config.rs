@@ -616,6 +616,35 @@ impl Config {
         if let Some(v) = get("GATEWATCH_STORAGE_PATH") {
             self.storage.path = v;
         }
+        // the store without a file (a Kubernetes pod on NATS: docs/operations.md, "The store");
+        // each checked here so that the message names the variable, not the key it sets
+        if let Some(v) = get("GATEWATCH_STORAGE_BACKEND") {
+            self.storage.backend = match v.as_str() {
+                "sqlite" => crate::store::StorageBackend::Sqlite,
+                "nats" => crate::store::StorageBackend::Nats,
+                _ => {
+                    return Err(ConfigError::new(format!(
+                        "GATEWATCH_STORAGE_BACKEND: must be \"sqlite\" or \"nats\", not {v:?}"
+                    )))
+                }
+            };
+        }
+        if let Some(v) = get("GATEWATCH_NATS_URL") {
+            if v.trim().is_empty() || v.contains(char::is_whitespace) {
+                return Err(ConfigError::new(format!(
+                    "GATEWATCH_NATS_URL: {v:?} is not a server URL (e.g. nats://127.0.0.1:4222)"
+                )));
+            }
+            self.storage.nats_url = v;
+        }
+        if let Some(v) = get("GATEWATCH_NATS_PREFIX") {
+            if !crate::store::valid_nats_prefix(&v) {
+                return Err(ConfigError::new(format!(
+                    "GATEWATCH_NATS_PREFIX: {v:?}: letters, digits, '-' and '_' only, not empty"
+                )));
+            }
+            self.storage.nats_prefix = v;
+        }
         if let Some(v) = get("GATEWATCH_LOG_LEVEL") {
             check_log_level(&v)
                 .map_err(|e| ConfigError::new(format!("GATEWATCH_LOG_LEVEL: {e}")))?;

@@ -5,6 +5,8 @@ use std::time::Duration;
 
 use serde::{Deserialize, Serialize};
 
+use super::{nats_lease_renew_interval, NATS_LEASE_RENEWALS_PER_TTL, NATS_OPERATION_TIMEOUT};
+
 /// Capacity of the writer thread's queue, in write requests. One identification or one alert
 /// transition is one request; 4096 is minutes of 16 gates at a window a second, far more than
 /// a healthy disk ever lets pile up. When it is full the write is dropped, counted
@@ -154,7 +156,44 @@ impl StorageConfig {
                 self.max_size_mb * 1024 * 1024 * 8 / 10 / 1225
             ));
         }
+        if let Some(w) = self.short_lease_warning() {
+            out.push(w);
+        }
         out
+    }
+
+    /// The NATS owner lease is renewed every TTL / [`NATS_LEASE_RENEWALS_PER_TTL`], and each
+    /// renewal is given up after that interval or the store's operation timeout
+    /// ([`NATS_OPERATION_TIMEOUT`], 10 s), the shorter (`store::nats` `lease::keep`). Below
+    /// TTL = 3 x 10 s the interval is the shorter: a server that answers within the operation
+    /// timeout, as every other store call may, but slower than TTL / 3 fails every renewal, and
+    /// the lease expires after TTL (writes refused, the prefix open to another daemon). From
+    /// 30 s on a renewal gets the whole operation timeout, and two in a row that each take all
+    /// of it still land before the lease expires: the last one stored expires at its start plus
+    /// TTL; the next starts at most 10 s + TTL / 3 later and lands at most 10 s after that,
+    /// and 20 s + TTL / 3 <= TTL exactly when TTL >= 30 s. Only with `backend = "nats"`.
+    fn short_lease_warning(&self) -> Option<String> {
+        if self.backend != StorageBackend::Nats {
+            return None;
+        }
+        // the condition as `lease::keep` has it: the renewal's own bound is the shorter
+        if nats_lease_renew_interval(self.nats_lease()) >= NATS_OPERATION_TIMEOUT {
+            return None;
+        }
+        let timeout = NATS_OPERATION_TIMEOUT.as_secs_f64();
+        let per_ttl = f64::from(NATS_LEASE_RENEWALS_PER_TTL);
+        let enough = per_ttl * timeout;
+        let ttl = self.nats_lease_seconds;
+        Some(format!(
+                "storage.nats_lease_seconds = {ttl} is below {enough} ({NATS_LEASE_RENEWALS_PER_TTL} x \
+                 the NATS operation timeout of {timeout} s): the owner lease is renewed every \
+                 {every:.1} s (a third of it) and a renewal slower than that is given up, so a \
+                 server that answers within the operation timeout but slower than {every:.1} s \
+                 lets the lease expire: writes are refused until a renewal gets through, and \
+                 another daemon may take the prefix meanwhile; from {enough} s on two renewals \
+                 in a row that each take the whole timeout still land before it expires",
+            every = ttl / per_ttl
+        ))
     }
 
     /// The retention as a duration.

@@ -509,3 +509,112 @@ fn refusing_unknown_gates_without_any_configured_gate_is_warned() {
     let c = Config::from_toml("[server]\naccept_unknown_gates = false\n[gates.g1]\n").unwrap();
     assert!(!warned(&c), "{:?}", c.warnings());
 }
+
+/// `GATEWATCH_STORAGE_BACKEND`, `GATEWATCH_NATS_URL` and `GATEWATCH_NATS_PREFIX` set the store
+/// without a configuration file (a Kubernetes pod on NATS); a bad value is refused naming the
+/// variable (and for the backend the values it takes), and leaves the setting as it was.
+#[test]
+fn the_storage_backend_and_the_nats_server_from_the_environment() {
+    let mut c = Config::from_toml(EMBEDDED_CONFIG).unwrap();
+    assert_eq!(c.storage.backend, crate::store::StorageBackend::Sqlite);
+    let env = |k: &str| match k {
+        "GATEWATCH_STORAGE_BACKEND" => Some("nats".to_string()),
+        "GATEWATCH_NATS_URL" => Some("nats://nats.monitoring.svc:4222".to_string()),
+        "GATEWATCH_NATS_PREFIX" => Some("DAM_7".to_string()),
+        _ => None,
+    };
+    c.apply_env(env).unwrap();
+    assert_eq!(c.storage.backend, crate::store::StorageBackend::Nats);
+    assert_eq!(c.storage.nats_url, "nats://nats.monitoring.svc:4222");
+    assert_eq!(c.storage.nats_prefix, "DAM_7");
+    // and back
+    c.apply_env(|k| (k == "GATEWATCH_STORAGE_BACKEND").then(|| "sqlite".to_string()))
+        .unwrap();
+    assert_eq!(c.storage.backend, crate::store::StorageBackend::Sqlite);
+
+    for bad in ["NATS", "jetstream", "", " nats"] {
+        let e = c
+            .apply_env(|k| (k == "GATEWATCH_STORAGE_BACKEND").then(|| bad.to_string()))
+            .unwrap_err();
+        assert!(
+            e.message.starts_with("GATEWATCH_STORAGE_BACKEND: "),
+            "{bad:?}: {e}"
+        );
+        assert!(
+            e.message.contains("\"sqlite\"") && e.message.contains("\"nats\""),
+            "{bad:?}: {e}"
+        );
+        assert!(e.message.contains(&format!("{bad:?}")), "{bad:?}: {e}");
+        assert!(!e.message.contains('\n'), "{e}");
+        assert_eq!(c.storage.backend, crate::store::StorageBackend::Sqlite);
+    }
+    for bad in ["", "  ", "nats://a:4222 nats://b:4222"] {
+        let e = c
+            .apply_env(|k| (k == "GATEWATCH_NATS_URL").then(|| bad.to_string()))
+            .unwrap_err();
+        assert!(
+            e.message.starts_with("GATEWATCH_NATS_URL: "),
+            "{bad:?}: {e}"
+        );
+        assert_eq!(c.storage.nats_url, "nats://nats.monitoring.svc:4222");
+    }
+    for bad in ["", "DAM.7", "DAM 7", "DAM>"] {
+        let e = c
+            .apply_env(|k| (k == "GATEWATCH_NATS_PREFIX").then(|| bad.to_string()))
+            .unwrap_err();
+        assert!(
+            e.message.starts_with("GATEWATCH_NATS_PREFIX: "),
+            "{bad:?}: {e}"
+        );
+        assert_eq!(c.storage.nats_prefix, "DAM_7");
+    }
+}
+
+/// `nats_lease_seconds` below 3 x the NATS operation timeout (30 s) is warned about with the
+/// `nats` backend: a renewal is then given up after a third of the lease, shorter than the
+/// operation timeout, so a server slower than that but within the timeout lets the lease expire.
+#[test]
+fn a_nats_lease_shorter_than_three_operation_timeouts_is_warned_about() {
+    use crate::store::{nats_lease_renew_interval, NATS_OPERATION_TIMEOUT};
+    let lease = |backend: &str, seconds: f64| {
+        Config::from_toml(&format!(
+            "[storage]\nbackend = \"{backend}\"\nnats_lease_seconds = {seconds:?}\n"
+        ))
+        .unwrap()
+        .warnings()
+        .into_iter()
+        .filter(|w| w.starts_with("storage.nats_lease_seconds"))
+        .collect::<Vec<_>>()
+    };
+    let w = lease("nats", 9.0);
+    assert_eq!(w.len(), 1, "{w:?}");
+    let w = &w[0];
+    for part in [
+        "storage.nats_lease_seconds = 9 is below 30",
+        "operation timeout of 10 s",
+        "renewed every 3.0 s",
+        "expire",
+    ] {
+        assert!(w.contains(part), "{part:?} not in {w}");
+    }
+    assert!(!w.contains('\n'), "{w}");
+    // the boundary: a third of the lease against the operation timeout, as `lease::keep` bounds
+    // a renewal by the shorter of the two
+    assert_eq!(lease("nats", 29.9).len(), 1);
+    assert!(lease("nats", 30.0).is_empty());
+    assert!(lease("nats", 120.0).is_empty());
+    for seconds in [1.0, 5.0, 15.0, 29.0, 29.99, 30.0, 30.01, 45.0, 600.0] {
+        let interval = nats_lease_renew_interval(std::time::Duration::from_secs_f64(seconds));
+        assert_eq!(
+            lease("nats", seconds).len() == 1,
+            interval < NATS_OPERATION_TIMEOUT,
+            "{seconds} s"
+        );
+    }
+    // the default lease is not warned about, nor a short one the sqlite backend does not use
+    assert!(Config::from_toml("[storage]\nbackend = \"nats\"\n")
+        .unwrap()
+        .warnings()
+        .is_empty());
+    assert!(lease("sqlite", 9.0).is_empty());
+}

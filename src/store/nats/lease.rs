@@ -43,9 +43,12 @@ use super::{Conn, Failure};
 
 /// How long an owner lease lasts without renewal by default (`storage.nats_lease_seconds`):
 /// how long a prefix stays refused after its daemon was killed without releasing it. 30 s is
-/// three renewals ([`renew_interval`]) of which two may fail (a server restart, a
-/// [`OPERATION_TIMEOUT`](super::OPERATION_TIMEOUT) of 10 s) before the lease is lost, and a
-/// systemd `Restart=` loop after a `kill -9` gets through within half a minute.
+/// the shortest at which a renewal ([`renew_interval`], every 10 s) gets the whole
+/// [`OPERATION_TIMEOUT`](super::OPERATION_TIMEOUT) of 10 s, and two in a row that each take all
+/// of it still land in time (shorter leases are warned about: `StorageConfig::warnings`); one
+/// renewal that fails at once is survived, but one that waits out the whole timeout (a server
+/// restarting) lets the lease lapse until the next gets through (`docs/design.md`, "The owner
+/// lease"). A systemd `Restart=` loop after a `kill -9` gets through within half a minute.
 pub const LEASE_TTL: Duration = Duration::from_secs(30);
 
 /// The renewals per TTL: the lease is written again every TTL / 3.

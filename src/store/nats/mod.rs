@@ -26,14 +26,16 @@
 //! a record in stream `<PREFIX>_OWNER` that it renews and releases at shutdown; a second daemon
 //! on the prefix is refused at start, naming the owner, and a daemon that finds its lease taken
 //! writes nothing more ([`Store::check`] fails, `/readyz` and `/healthz` with it). Why and how
-//! in `lease` and `docs/design.md`, "The owner lease".
+//! in `lease` and `docs/design.md`, "The owner lease". A reader beside the daemon
+//! (`gatewatch history --nats`) opens the store with [`NatsStore::open_read_only`]: no lease,
+//! no stream created or changed, no write.
 //!
 //! # Layout
 //! - this file: [`NatsStore`], its options, its runtime and the [`Store`] methods;
 //! - `names`: the streams' and subjects' names, and the reversible encoding of gate names;
 //! - `lease`: the owner lease ([`LeaseRecord`]): taken at open, renewed, released;
-//! - `ops`: the operations as they run on the runtime: connecting and declaring the streams,
-//!   reading a subject, writing a batch in its order, pruning.
+//! - `ops`: the operations as they run on the runtime: connecting and declaring the streams
+//!   (or only finding them, read-only), reading a subject, writing a batch in its order, pruning.
 
 mod lease;
 mod names;
@@ -149,6 +151,8 @@ pub struct NatsStore {
     held: Option<Arc<Held>>,
     /// The task that renews it.
     renewal: Mutex<Option<tokio::task::AbortHandle>>,
+    /// Opened by [`NatsStore::open_read_only`]: every write and prune is refused.
+    read_only: bool,
     /// The store's own runtime; `None` only while it is dropped.
     runtime: Option<tokio::runtime::Runtime>,
 }
@@ -173,6 +177,16 @@ impl Drop for NatsStore {
             rt.shutdown_background();
         }
     }
+}
+
+/// The store's own runtime ([`NATS_RUNTIME_THREADS`] worker), or why it cannot start.
+fn store_runtime() -> Result<tokio::runtime::Runtime, String> {
+    tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(NATS_RUNTIME_THREADS)
+        .thread_name("gatewatch-nats")
+        .enable_all()
+        .build()
+        .map_err(|e| format!("cannot start the store's runtime: {e}"))
 }
 
 /// Runs `fut` on `runtime` and waits for its answer at most `timeout` (and the future itself
@@ -219,12 +233,7 @@ impl NatsStore {
                 options.prefix
             )));
         }
-        let runtime = tokio::runtime::Builder::new_multi_thread()
-            .worker_threads(NATS_RUNTIME_THREADS)
-            .thread_name("gatewatch-nats")
-            .enable_all()
-            .build()
-            .map_err(|e| open_err(format!("cannot start the store's runtime: {e}")))?;
+        let runtime = store_runtime().map_err(open_err)?;
         let names = Names::new(&options.prefix);
         let conn = call(
             &runtime,
@@ -265,6 +274,55 @@ impl NatsStore {
             conn,
             held,
             renewal: Mutex::new(renewal),
+            read_only: false,
+            runtime: Some(runtime),
+        })
+    }
+
+    /// Opens the store of `prefix` on the server at `url` to read it (`gatewatch history`):
+    /// the streams are looked up, not created or changed (an [`open`](NatsStore::open) would
+    /// set the history stream's limits to its own options, over the daemon's), no owner lease
+    /// is taken (the daemon that holds it keeps it) and every write and prune is refused.
+    /// Reading a subject still makes an ephemeral consumer on the server, deleted after the
+    /// read (and gone by itself a minute later if the reader dies).
+    ///
+    /// Fails within `timeout`, naming the URL, when the server is down or silent, and naming
+    /// the stream and the prefix when nothing was stored under the prefix.
+    pub fn open_read_only(
+        url: &str,
+        prefix: &str,
+        timeout: Duration,
+    ) -> Result<NatsStore, StoreError> {
+        let open_err = |message: String| StoreError::Open {
+            path: format!("NATS server {url}"),
+            message,
+        };
+        if !valid_prefix(prefix) {
+            return Err(open_err(format!(
+                "prefix {prefix:?}: letters, digits, '-' and '_' only"
+            )));
+        }
+        let runtime = store_runtime().map_err(open_err)?;
+        let names = Names::new(prefix);
+        let conn = match call(
+            &runtime,
+            timeout,
+            ops::look_up(url.to_string(), timeout, names.clone()),
+        ) {
+            Ok(c) => c,
+            Err(e) => {
+                runtime.shutdown_background();
+                return Err(open_err(e));
+            }
+        };
+        Ok(NatsStore {
+            url: url.to_string(),
+            names,
+            timeout,
+            conn: Arc::new(conn),
+            held: None,
+            renewal: Mutex::new(None),
+            read_only: true,
             runtime: Some(runtime),
         })
     }
@@ -285,6 +343,12 @@ impl NatsStore {
         expected: u64,
         record: &LeaseRecord,
     ) -> Result<Option<u64>, StoreError> {
+        if self.read_only {
+            return Err(self.error(
+                "write of the owner lease",
+                "the store was opened read-only".into(),
+            ));
+        }
         let record = record.clone();
         self.run("write of the owner lease", move |c| async move {
             Ok(match lease::claim(&c, expected, &record).await? {
@@ -323,6 +387,9 @@ impl NatsStore {
     /// without renewal (the server did not answer the renewals: another daemon may take the
     /// prefix meanwhile).
     fn may_write(&self, operation: &'static str) -> Result<(), StoreError> {
+        if self.read_only {
+            return Err(self.error(operation, "the store was opened read-only".into()));
+        }
         let Some(held) = &self.held else {
             return Ok(());
         };

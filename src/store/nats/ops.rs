@@ -8,6 +8,7 @@ use std::time::Duration;
 
 use async_nats::jetstream;
 use async_nats::jetstream::consumer::{pull, AckPolicy, DeliverPolicy};
+use async_nats::jetstream::context::GetStreamErrorKind;
 use async_nats::jetstream::message::PublishMessage as Publish;
 use async_nats::jetstream::stream::{
     self, DeleteMessageErrorKind, DiscardPolicy, LastRawMessageErrorKind, StorageType,
@@ -20,16 +21,62 @@ use super::super::{Pruned, WriteBatch};
 use super::names::{decode, encode, Names};
 use super::{ctx, Conn, Failure, NatsOptions, StoredOutbox, FETCH_BATCH, PRUNE_SCAN_MAX};
 
-/// Connects and makes sure the four streams exist with the options' limits.
-pub(super) async fn connect(o: NatsOptions, names: Names) -> Result<Conn, Failure> {
+/// The JetStream context of a new connection to `url`, each request given `timeout`.
+async fn context(url: &str, timeout: Duration) -> Result<jetstream::Context, Failure> {
     let client = async_nats::ConnectOptions::new()
         .name("gatewatch")
-        .connection_timeout(o.timeout)
-        .connect(o.url.as_str())
+        .connection_timeout(timeout)
+        .connect(url)
         .await
         .map_err(|e| format!("cannot connect: {e}"))?;
     let mut js = jetstream::new(client);
-    js.set_timeout(o.timeout);
+    js.set_timeout(timeout);
+    Ok(js)
+}
+
+/// Connects and finds the four streams as they are, creating and changing nothing: a missing
+/// one is an error naming it and the prefix (`NatsStore::open_read_only`). The history stream
+/// is looked up first, so a wrong prefix is named by it.
+pub(super) async fn look_up(url: String, timeout: Duration, names: Names) -> Result<Conn, Failure> {
+    let js = context(&url, timeout).await?;
+    let find = |name: String| {
+        let js = js.clone();
+        let prefix = names.prefix.clone();
+        async move {
+            match js.get_stream(&name).await {
+                Ok(s) => Ok(s),
+                Err(e) => match e.kind() {
+                    GetStreamErrorKind::JetStream(j)
+                        if j.error_code() == ErrorCode::STREAM_NOT_FOUND =>
+                    {
+                        Err(format!(
+                            "stream {name} does not exist: nothing was ever stored under prefix \
+                             {prefix} on this server (a daemon with storage.nats_prefix = \
+                             \"{prefix}\" creates it at its first start)"
+                        ))
+                    }
+                    _ => Err(format!("stream {name}: {e}")),
+                },
+            }
+        }
+    };
+    let history = find(names.history.clone()).await?;
+    let outbox = find(names.outbox.clone()).await?;
+    let alerts = find(names.alerts.clone()).await?;
+    let owner = find(names.owner.clone()).await?;
+    Ok(Conn {
+        js,
+        history,
+        outbox,
+        alerts,
+        owner,
+        names,
+    })
+}
+
+/// Connects and makes sure the four streams exist with the options' limits.
+pub(super) async fn connect(o: NatsOptions, names: Names) -> Result<Conn, Failure> {
+    let js = context(&o.url, o.timeout).await?;
     let history = js
         .create_or_update_stream(stream::Config {
             name: names.history.clone(),
