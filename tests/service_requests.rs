@@ -803,6 +803,14 @@ async fn the_gate_list_refuses_unknown_and_repeated_parameters() {
     assert_eq!(v["next"], "b");
     let (_, v, _) = get("/api/v1/gates?cursor=b").await;
     assert_eq!(v["gates"].as_array().map(Vec::len), Some(1));
+    // the gate's view takes none: `?format=csv` would have answered JSON as if read
+    let (s, v, _) = get("/api/v1/gates/a?format=csv").await;
+    assert_eq!(
+        (s, v["field"].as_str()),
+        (StatusCode::BAD_REQUEST, Some("format")),
+        "{v}"
+    );
+    assert_eq!(get("/api/v1/gates/a").await.0, StatusCode::OK);
     // /query: `q` twice is refused; the InfluxDB parameters it ignores are still accepted
     let (s, v, _) = get("/query?q=CREATE+DATABASE+a&q=SHOW+DATABASES").await;
     assert_eq!(

@@ -355,10 +355,20 @@ async fn list_gates(
     Ok(Json(serde_json::json!({ "gates": gates, "next": next })).into_response())
 }
 
+/// `GET /api/v1/gates/{id}`: the gate's view. It takes no parameter, and refuses one as the
+/// list does (`?format=csv` would otherwise answer JSON as if it had been read). The probes,
+/// `/metrics` and the Influx routes are left lenient: a scrape config or a client may add its
+/// own parameters.
 async fn get_gate(
     State(state): State<Arc<AppState>>,
     Path(id): Path<String>,
+    pairs: Result<Query<Vec<(String, String)>>, QueryRejection>,
 ) -> Result<Response, HttpError> {
+    let [] = query_params(
+        query_pairs(pairs)?,
+        [],
+        "the gate view takes none (its history is /api/v1/gates/{id}/history)",
+    )?;
     state
         .gate_view(&id)
         .map(|v| Json(v).into_response())

@@ -40,7 +40,7 @@ fn locate(batch: &Batch, i: usize, e: BadRequest) -> BadRequest {
 /// Refuses `batch` when a sample time is outside the bounds of its gate (`cfg`) around `now`
 /// (Unix seconds, the daemon's clock). Non-finite times are left to the caller's own check.
 /// When the time would be inside the bounds in another unit (a factor 1e3, 1e6 or 1e9 either
-/// way), the message names that unit and how to send it ([`unit_hint`]).
+/// way), the message names that unit and how to send it (`unit_hint`).
 pub fn check_times(
     batch: &Batch,
     cfg: &GateConfig,
