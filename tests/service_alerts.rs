@@ -187,6 +187,94 @@ async fn metrics_exposition_with_a_declining_trend_is_valid() {
     promtool_check_metrics(&text);
 }
 
+/// A gate that stops sending predicts nothing: once `GateDataStale` fires, the zero crossing
+/// leaves the exposition (it stayed frozen at "2m 14s" for as long as the gate was silent);
+/// the slope, a figure of the windows already identified, stays; the next identification sets
+/// the crossing again.
+#[tokio::test]
+async fn a_stale_gate_loses_its_predicted_crossing_until_its_next_window() {
+    let fake = Arc::new(Fake {
+        zeta: (0..13).map(|i| 0.02 - 0.001 * i as f64).collect(),
+        ..Fake::default()
+    });
+    let (app, state) = app_with(config(""), fake.clone());
+    post_json(&app, uniform("g1", 0.0, 100)).await;
+    for i in 1..12 {
+        wait_until(|| fake.calls.lock().unwrap().len() >= i && state.pool().in_flight() == 0).await;
+        post_json(&app, uniform("g1", 0.5 + 0.5 * i as f64, 50)).await;
+    }
+    wait_until(|| fake.calls.lock().unwrap().len() >= 12 && state.pool().in_flight() == 0).await;
+    let exposition = || async {
+        let (s, v, _) = send(&app, "GET", "/metrics", Body::empty(), None).await;
+        assert_eq!(s, StatusCode::OK);
+        v.as_str().unwrap().to_string()
+    };
+    let has = |text: &str, name: &str| text.contains(&format!("{name}{{gate=\"g1\"}} "));
+    let crossing = "gatewatch_damping_zero_crossing_seconds";
+    let slope = "gatewatch_damping_ratio_trend_per_second";
+    let before = exposition().await;
+    assert!(has(&before, crossing) && has(&before, slope), "{before}");
+    // silent past stale_after_seconds (default 30 s)
+    state.tick(std::time::SystemTime::now() + Duration::from_secs(120));
+    let stale = exposition().await;
+    assert!(
+        stale.contains("gatewatch_alert_firing{alertname=\"GateDataStale\",gate=\"g1\"} 1"),
+        "{stale}"
+    );
+    assert!(!has(&stale, crossing), "{stale}");
+    assert!(has(&stale, slope), "{stale}");
+    promtool_check_metrics(&stale);
+    // another tick while still stale fires nothing new and brings nothing back (before the
+    // unknown gate's expiry, 600 s)
+    state.tick(std::time::SystemTime::now() + Duration::from_secs(300));
+    assert!(!has(&exposition().await, crossing));
+    // the gate sends again: its next window predicts again
+    post_json(&app, uniform("g1", 6.5, 50)).await;
+    wait_until(|| fake.calls.lock().unwrap().len() >= 13 && state.pool().in_flight() == 0).await;
+    let after = exposition().await;
+    assert!(has(&after, crossing), "{after}");
+    assert!(
+        after.contains("gatewatch_alert_firing{alertname=\"GateDataStale\",gate=\"g1\"} 0"),
+        "{after}"
+    );
+    promtool_check_metrics(&after);
+}
+
+/// The gate list says whether each `zeta0` is trusted, as the gate's view does
+/// (`identification.damping.trusted`): an untrusted window's `zeta0` was listed alone, read as
+/// the gate's damping.
+#[tokio::test]
+async fn the_gate_list_says_whether_zeta0_is_trusted() {
+    for untrusted in [false, true] {
+        let fake = Arc::new(Fake {
+            zeta: vec![-0.0849],
+            untrusted,
+            ..Fake::default()
+        });
+        let (app, state) = app_with(config(""), fake.clone());
+        // half a window: no identification yet, so null, as zeta0
+        post_json(&app, uniform("tiny", 0.0, 50)).await;
+        let (_, v, _) = send(&app, "GET", "/api/v1/gates", Body::empty(), None).await;
+        let g = &v["gates"][0];
+        assert!(g["trusted"].is_null() && g["zeta0"].is_null(), "{v}");
+        post_json(&app, uniform("tiny", 0.5, 50)).await;
+        wait_until(|| {
+            state
+                .gate_view("tiny")
+                .is_some_and(|v| v.identification.is_some())
+        })
+        .await;
+        let (s, v, _) = send(&app, "GET", "/api/v1/gates", Body::empty(), None).await;
+        assert_eq!(s, StatusCode::OK);
+        let g = &v["gates"][0];
+        assert_eq!(g["gate"], "tiny");
+        assert_eq!(g["zeta0"], -0.0849);
+        assert_eq!(g["trusted"], json!(!untrusted), "{v}");
+        let (_, view, _) = send(&app, "GET", "/api/v1/gates/tiny", Body::empty(), None).await;
+        assert_eq!(g["trusted"], view["identification"]["damping"]["trusted"]);
+    }
+}
+
 #[test]
 fn prometheus_rules_are_valid() {
     let rules = concat!(

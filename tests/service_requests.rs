@@ -339,6 +339,7 @@ async fn max_gates_holds_under_concurrent_new_gates() {
                         rate: None,
                         values_field: "values".into(),
                         lines: None,
+                        precision: None,
                     };
                     start.wait();
                     state.ingest(vec![batch])
@@ -619,4 +620,204 @@ async fn gaps_split_windows_over_the_api() {
         metric(&state, "gatewatch_window_gaps_total{gate=\"g1\"}"),
         1.0
     );
+}
+
+/// A value the analysis refuses (beyond +-1e100, `data::MAX_ABS_VALUE`) is refused at
+/// ingestion naming its sample, as NaN is. Before, 4000 samples with one 1e308 were answered
+/// 204 and every window holding it then failed with "window not analysable".
+#[tokio::test]
+async fn values_beyond_the_analysis_bound_are_refused_naming_the_sample() {
+    let (app, state) = make_app("");
+    let mut values: Vec<f64> = (0..4000).map(|i| (i as f64 * 0.3).sin()).collect();
+    values[1545] = 1e308;
+    let batch = |values: &[f64]| json!({"gate": "big1", "start": 1000.0, "rate_hz": 100.0, "values": values});
+    let (s, v) = post_json(&app, batch(&values)).await;
+    assert_eq!(
+        (s, v["field"].as_str(), v["index"].as_u64()),
+        (StatusCode::BAD_REQUEST, Some("values"), Some(1545)),
+        "{v}"
+    );
+    let e = v["error"].as_str().unwrap();
+    assert!(e.contains("1e308") && e.contains("1e100"), "{e}");
+    assert!(state.gate_view("big1").is_none(), "nothing applied");
+    values[1545] = -2e100;
+    let (s, v) = post_json(&app, batch(&values)).await;
+    assert_eq!(
+        (s, v["index"].as_u64()),
+        (StatusCode::BAD_REQUEST, Some(1545))
+    );
+    // the bound itself is a value the analysis takes
+    values[1545] = -1e100;
+    assert_eq!(
+        post_json(&app, batch(&values)).await.0,
+        StatusCode::NO_CONTENT
+    );
+    // JSON `samples` pairs name the pair
+    let pairs = json!({"gate": "g2", "samples": [[1000.0, 1.0], [1000.01, 1e101]]});
+    let (s, v) = post_json(&app, pairs).await;
+    assert_eq!(
+        (s, v["field"].as_str(), v["index"].as_u64()),
+        (StatusCode::BAD_REQUEST, Some("samples"), Some(1))
+    );
+    // line protocol names the line and the field, on both Influx routes
+    let lp = "m,gate=g3 force=1 1000000000000\nm,gate=g3 force=-1e300 1000010000000\n";
+    for route in ["/api/v2/write", "/write"] {
+        let (s, v, _) = send(&app, "POST", route, lp, None).await;
+        assert_eq!(
+            (s, v["line"].as_u64(), v["field"].as_str()),
+            (StatusCode::BAD_REQUEST, Some(2), Some("force")),
+            "{route}: {v}"
+        );
+        assert!(v["error"].as_str().unwrap().contains("-1e300"), "{v}");
+    }
+    assert!(state.gate_view("g3").is_none());
+    // counted per sample of the refused requests, under their own reason (not `non_finite`)
+    assert_eq!(
+        metric(
+            &state,
+            "gatewatch_samples_rejected_total{reason=\"out_of_range\"}"
+        ),
+        (4000 + 4000 + 2 + 2 + 2) as f64
+    );
+    assert_eq!(
+        metric(
+            &state,
+            "gatewatch_samples_rejected_total{reason=\"non_finite\"}"
+        ),
+        0.0
+    );
+}
+
+/// Timestamps in the wrong unit get a hint naming the likely unit and the fix, when a factor
+/// 1e3, 1e6 or 1e9 makes them plausible; other times out of the bounds get none.
+#[tokio::test]
+async fn timestamps_in_another_unit_get_a_hint_naming_it() {
+    // the default bounds: 600 s ahead, 3600 s behind
+    let cfg = Config::from_toml(
+        "[server]\nworker_threads = 1\n[defaults]\nrate_hz = 100.0\nwindow_seconds = 1.0\n",
+    )
+    .unwrap();
+    let (app, state) = app_with(cfg, Arc::new(Fake::default()));
+    let now = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .as_secs_f64();
+    let lp = |ts: u64| format!("m,gate=g1 force=1 {ts}\n");
+    let error = |v: &serde_json::Value| v["error"].as_str().unwrap_or_default().to_string();
+    // milliseconds read as the default nanoseconds: 1e6 times too small
+    let ms = (now * 1e3) as u64;
+    let (s, v, _) = send(&app, "POST", "/api/v2/write", lp(ms), None).await;
+    assert_eq!(
+        (s, v["field"].as_str(), v["line"].as_u64()),
+        (StatusCode::BAD_REQUEST, Some("timestamp"), Some(1)),
+        "{v}"
+    );
+    let e = error(&v);
+    assert!(e.contains("behind the daemon's clock"), "{e}");
+    assert!(e.contains("in ms?") && e.contains("`?precision=ms`"), "{e}");
+    assert!(e.contains("tcp_precision = \"ms\""), "{e}");
+    // the fix the hint names works
+    let (s, v, _) = send(&app, "POST", "/api/v2/write?precision=ms", lp(ms), None).await;
+    assert_eq!(s, StatusCode::NO_CONTENT, "{v}");
+    // seconds at precision=ms: 1e3 times too small; nanoseconds at precision=s: too large
+    let (_, v, _) = send(
+        &app,
+        "POST",
+        "/write?precision=ms",
+        lp(now as u64 + 1),
+        None,
+    )
+    .await;
+    assert!(error(&v).contains("`?precision=s`"), "{v}");
+    let ns = (now * 1e9) as u64 + 2_000_000_000;
+    let (_, v, _) = send(&app, "POST", "/write?precision=s", lp(ns), None).await;
+    assert!(error(&v).contains("ahead of the daemon's clock"), "{v}");
+    assert!(error(&v).contains("`?precision=ns`"), "{v}");
+    // JSON `start` in milliseconds: seconds is the unit, not a query parameter
+    let (s, v) = post_json(&app, uniform("g2", (now + 5.0) * 1e3, 10)).await;
+    assert_eq!(
+        (s, v["field"].as_str(), v["index"].as_u64()),
+        (StatusCode::BAD_REQUEST, Some("start"), Some(0))
+    );
+    let e = error(&v);
+    assert!(e.contains("in ms?") && e.contains("Unix seconds"), "{e}");
+    assert!(!e.contains("precision"), "{e}");
+    // year 1971 and 2 h behind are no other unit: no hint
+    for start in [40_000_000.0, now - 7200.0] {
+        let (s, v) = post_json(&app, uniform("g2", start, 10)).await;
+        assert_eq!(s, StatusCode::BAD_REQUEST);
+        assert!(!error(&v).contains("plausible"), "{v}");
+    }
+    assert!(state.gate_view("g2").is_none());
+}
+
+/// The gate list takes `limit` and `after` (or `cursor`) and refuses anything else, as the
+/// history route does (one parser): `?limt=2` listed every gate with a 200, and
+/// `?limit=1&limit=2` took the last.
+#[tokio::test]
+async fn the_gate_list_refuses_unknown_and_repeated_parameters() {
+    let (app, _) = make_app("");
+    for g in ["a", "b", "c"] {
+        assert_eq!(
+            post_json(&app, uniform(g, 1000.0, 3)).await.0,
+            StatusCode::NO_CONTENT
+        );
+    }
+    let get = |uri: &'static str| {
+        let app = app.clone();
+        async move { send(&app, "GET", uri, Body::empty(), None).await }
+    };
+    let (s, v, _) = get("/api/v1/gates?limt=2").await;
+    assert_eq!(
+        (s, v["field"].as_str()),
+        (StatusCode::BAD_REQUEST, Some("limt")),
+        "{v}"
+    );
+    assert!(
+        v["error"]
+            .as_str()
+            .unwrap()
+            .contains("unknown parameter `limt`"),
+        "{v}"
+    );
+    let (s, v, _) = get("/api/v1/gates?limit=1&limit=2").await;
+    assert_eq!(
+        (s, v["field"].as_str()),
+        (StatusCode::BAD_REQUEST, Some("limit")),
+        "{v}"
+    );
+    assert!(
+        v["error"].as_str().unwrap().contains("more than once"),
+        "{v}"
+    );
+    let (s, v, _) = get("/api/v1/gates?after=a&cursor=b").await;
+    assert_eq!(
+        (s, v["field"].as_str()),
+        (StatusCode::BAD_REQUEST, Some("cursor")),
+        "{v}"
+    );
+    // the parameters it takes still work
+    let (s, v, _) = get("/api/v1/gates?limit=1&after=a").await;
+    assert_eq!(s, StatusCode::OK, "{v}");
+    assert_eq!(v["gates"][0]["gate"], "b");
+    assert_eq!(v["next"], "b");
+    let (_, v, _) = get("/api/v1/gates?cursor=b").await;
+    assert_eq!(v["gates"].as_array().map(Vec::len), Some(1));
+    // the gate's view takes none: `?format=csv` would have answered JSON as if read
+    let (s, v, _) = get("/api/v1/gates/a?format=csv").await;
+    assert_eq!(
+        (s, v["field"].as_str()),
+        (StatusCode::BAD_REQUEST, Some("format")),
+        "{v}"
+    );
+    assert_eq!(get("/api/v1/gates/a").await.0, StatusCode::OK);
+    // /query: `q` twice is refused; the InfluxDB parameters it ignores are still accepted
+    let (s, v, _) = get("/query?q=CREATE+DATABASE+a&q=SHOW+DATABASES").await;
+    assert_eq!(
+        (s, v["field"].as_str()),
+        (StatusCode::BAD_REQUEST, Some("q")),
+        "{v}"
+    );
+    let (s, v, _) = get("/query?q=CREATE+DATABASE+a&db=x&epoch=ms&pretty=true").await;
+    assert_eq!(s, StatusCode::OK, "{v}");
 }

@@ -18,6 +18,10 @@ async fn tcp_listener_keeps_the_connection_after_bad_lines() {
     let r = start("", Arc::new(Fake::default())).await;
     let mut s = tokio::net::TcpStream::connect(r.tcp).await.unwrap();
     s.write_all(b"m,gate=t1 force=1 1000000000000\nthis is not line protocol\nm,gate=t1 force=NaN 1000010000000\n").await.unwrap();
+    // beyond the analysis' bound (+-1e100): refused like NaN, not put in the window
+    s.write_all(b"m,gate=t1 force=-1e308 1000015000000\n")
+        .await
+        .unwrap();
     s.write_all(b"m,gate=t1 force=2 1000020000000\r\n")
         .await
         .unwrap();
@@ -44,6 +48,10 @@ async fn tcp_listener_keeps_the_connection_after_bad_lines() {
         "{m}"
     );
     assert!(m.contains("gatewatch_samples_rejected_total{reason=\"non_finite\"} 1"));
+    assert!(
+        m.contains("gatewatch_samples_rejected_total{reason=\"out_of_range\"} 1"),
+        "{m}"
+    );
     drop(s);
     stop(r).await;
 }

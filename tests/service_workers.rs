@@ -264,6 +264,7 @@ async fn a_day_of_samples_keeps_the_reported_times_true() {
             rate: None,
             values_field: "values".into(),
             lines: None,
+            precision: None,
         };
         state.ingest(vec![batch]).unwrap();
         i += chunk;

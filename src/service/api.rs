@@ -9,7 +9,7 @@ use std::time::{Duration, Instant};
 
 use axum::body::Bytes;
 use axum::error_handling::HandleErrorLayer;
-use axum::extract::rejection::BytesRejection;
+use axum::extract::rejection::{BytesRejection, QueryRejection};
 use axum::extract::{DefaultBodyLimit, MatchedPath, Path, Query, RawQuery, Request, State};
 use axum::http::{header, HeaderValue, StatusCode};
 use axum::middleware::{self, Next};
@@ -21,6 +21,7 @@ use tower::ServiceBuilder;
 
 use super::clock::now_unix;
 use super::config::{Precision, DEFAULT_RETRY_AFTER_SECONDS};
+use super::history::{query_pairs, query_params};
 use super::ingest::{excerpt, json, line_protocol, BadRequest};
 use super::ingest_checks::single_param;
 use super::limits::{close_connection, for_log, BodyBudget};
@@ -317,9 +318,14 @@ pub const GATES_PAGE_MAX: usize = 1000;
 /// released ([`AppState::gate_page`]).
 async fn list_gates(
     State(state): State<Arc<AppState>>,
-    Query(params): Query<std::collections::HashMap<String, String>>,
+    pairs: Result<Query<Vec<(String, String)>>, QueryRejection>,
 ) -> Result<Response, HttpError> {
-    let limit = match params.get("limit") {
+    let [limit, after, cursor] = query_params(
+        query_pairs(pairs)?,
+        ["limit", "after", "cursor"],
+        "the gate list takes limit and after (or cursor)",
+    )?;
+    let limit = match limit {
         None => GATES_PAGE_DEFAULT,
         Some(s) => s
             .parse::<usize>()
@@ -329,22 +335,40 @@ async fn list_gates(
                 HttpError::BadRequest(
                     BadRequest::new(format!(
                         "invalid limit `{}`: expected 1..={GATES_PAGE_MAX}",
-                        for_log(s)
+                        for_log(&s)
                     ))
                     .field("limit"),
                 )
             })?,
     };
-    // `cursor` is accepted as a synonym of `after`
-    let after = params.get("after").or_else(|| params.get("cursor"));
-    let (gates, next) = state.gate_page(after.map(String::as_str), limit);
+    // `cursor` is accepted as a synonym of `after`; both at once is a parameter given twice
+    let after = match (after, cursor) {
+        (Some(_), Some(_)) => {
+            return Err(HttpError::BadRequest(
+                BadRequest::new("after and cursor are the same parameter; give one")
+                    .field("cursor"),
+            ))
+        }
+        (a, c) => a.or(c),
+    };
+    let (gates, next) = state.gate_page(after.as_deref(), limit);
     Ok(Json(serde_json::json!({ "gates": gates, "next": next })).into_response())
 }
 
+/// `GET /api/v1/gates/{id}`: the gate's view. It takes no parameter, and refuses one as the
+/// list does (`?format=csv` would otherwise answer JSON as if it had been read). The probes,
+/// `/metrics` and the Influx routes are left lenient: a scrape config or a client may add its
+/// own parameters.
 async fn get_gate(
     State(state): State<Arc<AppState>>,
     Path(id): Path<String>,
+    pairs: Result<Query<Vec<(String, String)>>, QueryRejection>,
 ) -> Result<Response, HttpError> {
+    let [] = query_params(
+        query_pairs(pairs)?,
+        [],
+        "the gate view takes none (its history is /api/v1/gates/{id}/history)",
+    )?;
     state
         .gate_view(&id)
         .map(|v| Json(v).into_response())

@@ -296,6 +296,7 @@ pub async fn run_stream(
                 rate: None,
                 values_field: "values".into(),
                 lines: None,
+                precision: None,
             }])
             .map_err(|e| anyhow::anyhow!("ingest refused: {e:?}"))?;
         if summary.jobs == 0 {

@@ -46,6 +46,44 @@ pub struct HistoryParams {
 /// Longest parameter name echoed in an error's `field` (an unknown one is the client's text).
 const MAX_FIELD_ECHO: usize = 64;
 
+/// The values of the query parameters `names`, in their order, from the query string's
+/// `(name, value)` pairs; or a 400 naming the parameter: a name not in `names` (`takes` says
+/// which the route takes), or one given twice, since which one wins is a guess (InfluxDB takes
+/// the first, most frameworks the last). Every `/api/v1` route with query parameters reads them
+/// here: `?limt=2` used to list every gate with a 200.
+pub fn query_params<const N: usize>(
+    pairs: Vec<(String, String)>,
+    names: [&str; N],
+    takes: &str,
+) -> Result<[Option<String>; N], HttpError> {
+    let mut values: [Option<String>; N] = std::array::from_fn(|_| None);
+    for (name, value) in pairs {
+        let Some(k) = names.iter().position(|n| *n == name) else {
+            let shown: String = name.chars().take(MAX_FIELD_ECHO).collect();
+            return Err(bad(format!("unknown parameter `{shown}`: {takes}"), &shown));
+        };
+        if values[k].is_some() {
+            return Err(bad(format!("{name} given more than once"), &name));
+        }
+        values[k] = Some(value);
+    }
+    Ok(values)
+}
+
+/// The `(name, value)` pairs of a query string as axum's extractor gives them, or a 400 in the
+/// JSON shape of every other (pairs of strings: only a query string that is not URL-encoding
+/// at all is refused here).
+pub fn query_pairs(
+    pairs: Result<Query<Vec<(String, String)>>, QueryRejection>,
+) -> Result<Vec<(String, String)>, HttpError> {
+    pairs.map(|Query(p)| p).map_err(|e| {
+        HttpError::BadRequest(BadRequest::new(format!(
+            "bad query string: {}",
+            e.body_text()
+        )))
+    })
+}
+
 impl HistoryParams {
     /// The parameters from the query string's `(name, value)` pairs, or a 400 naming the
     /// parameter: an unknown name, a name given twice, a `limit` that is not a non-negative
@@ -53,27 +91,17 @@ impl HistoryParams {
     /// deserialize query string" where docs/api.md promises the JSON `{"error", "field"}` of
     /// every other 400.
     pub fn from_pairs(pairs: Vec<(String, String)>) -> Result<HistoryParams, HttpError> {
-        let mut p = HistoryParams::default();
-        let mut limit = None;
-        for (name, value) in pairs {
-            let slot = match name.as_str() {
-                "from" => &mut p.from,
-                "to" => &mut p.to,
-                "limit" => &mut limit,
-                "format" => &mut p.format,
-                _ => {
-                    let shown: String = name.chars().take(MAX_FIELD_ECHO).collect();
-                    return Err(bad(
-                        format!("unknown parameter `{shown}`: the history takes from, to, limit and format"),
-                        &shown,
-                    ));
-                }
-            };
-            if slot.is_some() {
-                return Err(bad(format!("{name} given more than once"), &name));
-            }
-            *slot = Some(value);
-        }
+        let [from, to, limit, format] = query_params(
+            pairs,
+            ["from", "to", "limit", "format"],
+            "the history takes from, to, limit and format",
+        )?;
+        let mut p = HistoryParams {
+            from,
+            to,
+            limit: None,
+            format,
+        };
         if let Some(v) = limit {
             p.limit = Some(v.trim().parse::<usize>().map_err(|_| {
                 let shown: String = v.chars().take(MAX_FIELD_ECHO).collect();
@@ -157,14 +185,7 @@ pub async fn get_history(
     pairs: Result<Query<Vec<(String, String)>>, QueryRejection>,
     headers: HeaderMap,
 ) -> Result<Response, HttpError> {
-    // (pairs of strings: only a query string that is not URL-encoding at all is refused here)
-    let Query(pairs) = pairs.map_err(|e| {
-        HttpError::BadRequest(BadRequest::new(format!(
-            "bad query string: {}",
-            e.body_text()
-        )))
-    })?;
-    let params = HistoryParams::from_pairs(pairs)?;
+    let params = HistoryParams::from_pairs(query_pairs(pairs)?)?;
     let Some(p) = state.persistence.clone() else {
         return Err(HttpError::NotFound(
             "no history: this daemon runs without a store".into(),

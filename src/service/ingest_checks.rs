@@ -13,7 +13,7 @@
 //! Both bounds are per gate (`[defaults]` or `[gates.ID]`); 0 turns a bound off, for replaying
 //! recorded data through a test daemon.
 
-use super::config::GateConfig;
+use super::config::{GateConfig, Precision};
 use super::ingest::{BadRequest, Batch};
 use super::metrics::RejectReason;
 
@@ -39,6 +39,8 @@ fn locate(batch: &Batch, i: usize, e: BadRequest) -> BadRequest {
 
 /// Refuses `batch` when a sample time is outside the bounds of its gate (`cfg`) around `now`
 /// (Unix seconds, the daemon's clock). Non-finite times are left to the caller's own check.
+/// When the time would be inside the bounds in another unit (a factor 1e3, 1e6 or 1e9 either
+/// way), the message names that unit and how to send it (`unit_hint`).
 pub fn check_times(
     batch: &Batch,
     cfg: &GateConfig,
@@ -52,24 +54,77 @@ pub fn check_times(
         }
         if future > 0.0 && t > now + future {
             let e = BadRequest::new(format!(
-                "sample time {t} is {:.0} s ahead of the daemon's clock ({now:.0}); gate `{}` \
-                 accepts at most max_future_seconds = {future}",
-                t - now,
-                batch.gate
+                "sample time {t} is {} s ahead of the daemon's clock ({now:.3}); gate `{}` \
+                 accepts at most max_future_seconds = {future}{}",
+                beyond(t - now, future),
+                batch.gate,
+                unit_hint(batch, t, cfg, now),
             ));
             return Err((RejectReason::TooFarInFuture, locate(batch, i, e)));
         }
         if past > 0.0 && t < now - past {
             let e = BadRequest::new(format!(
-                "sample time {t} is {:.0} s behind the daemon's clock ({now:.0}); gate `{}` \
-                 accepts at most max_past_seconds = {past}",
-                now - t,
-                batch.gate
+                "sample time {t} is {} s behind the daemon's clock ({now:.3}); gate `{}` \
+                 accepts at most max_past_seconds = {past}{}",
+                beyond(now - t, past),
+                batch.gate,
+                unit_hint(batch, t, cfg, now),
             ));
             return Err((RejectReason::TooOld, locate(batch, i, e)));
         }
     }
     Ok(())
+}
+
+/// `d` (> `bound`) printed with the fewest decimals (at least one) that still read above
+/// `bound`. Why: rounded to whole seconds, a sample 600.4 s ahead read "600 s ahead ... accepts
+/// at most 600", which contradicts itself.
+fn beyond(d: f64, bound: f64) -> String {
+    (1..=9)
+        .map(|digits| format!("{d:.digits$}"))
+        .find(|s| s.parse::<f64>().is_ok_and(|x| x > bound))
+        // the shortest representation that reads back as `d` itself, which is > bound
+        .unwrap_or_else(|| d.to_string())
+}
+
+/// The hint appended to a time-bound refusal when the time `t` would be inside the gate's
+/// bounds after a factor 1e3, 1e6 or 1e9 either way: the client's timestamps are most likely
+/// in another unit (milliseconds in a JSON `start`, milliseconds sent as line protocol's default
+/// nanoseconds). Empty when no factor makes the time plausible. A bound turned off (0) counts
+/// as a year here, so that a hint still needs the time to come near the clock.
+fn unit_hint(batch: &Batch, t: f64, cfg: &GateConfig, now: f64) -> String {
+    const YEAR: f64 = 365.25 * 86_400.0;
+    let bound = |b: f64| if b > 0.0 { b } else { YEAR };
+    let (future, past) = (bound(cfg.max_future_seconds), bound(cfg.max_past_seconds));
+    let Some(k) = [1e3, 1e6, 1e9, 1e-3, 1e-6, 1e-9]
+        .into_iter()
+        .find(|k| (now - past..=now + future).contains(&(t * k)))
+    else {
+        return String::new();
+    };
+    // the client's unit, in seconds: k times the unit its number was read in
+    let read_in = batch.precision.map_or(1.0, Precision::seconds_per_unit);
+    let unit = read_in * k;
+    let name = [(1e-9, "ns"), (1e-6, "us"), (1e-3, "ms"), (1.0, "s")]
+        .into_iter()
+        .find(|(u, _)| ((unit - u) / u).abs() < 1e-6)
+        .map(|(_, n)| n);
+    let (factor, way) = if k > 1.0 {
+        (k, "larger")
+    } else {
+        (1.0 / k, "smaller")
+    };
+    let plausible = format!("it would be plausible {factor:.0e} times {way}");
+    match (batch.precision, name) {
+        (Some(_), Some(n)) => format!(
+            "; {plausible}: are the timestamps in {n}? send them with `?precision={n}` (raw \
+             TCP: `ingest.tcp_precision = \"{n}\"`)"
+        ),
+        (None, Some(n)) => format!(
+            "; {plausible}: is it in {n}? JSON times are Unix seconds (or RFC 3339 for `start`)"
+        ),
+        (_, None) => format!("; {plausible}: check the unit of the times"),
+    }
 }
 
 /// The one value of query parameter `name` in the raw query string `query` (`None` when
@@ -113,6 +168,7 @@ mod tests {
             rate: None,
             values_field: field.into(),
             lines: None,
+            precision: None,
         }
     }
 
@@ -145,6 +201,56 @@ mod tests {
         lp.lines = Some(vec![3, 5]);
         let (_, e) = check_times(&lp, &gate(), NOW).unwrap_err();
         assert_eq!((e.field.as_deref(), e.line), (Some("timestamp"), Some(5)));
+    }
+
+    /// The numbers of a refusal agree with its bound: "600 s ahead ... at most 600" was a
+    /// sample 600.4 s ahead, rounded.
+    #[test]
+    fn the_distance_is_printed_beyond_the_bound() {
+        assert_eq!(beyond(600.4, 600.0), "600.4");
+        assert_eq!(beyond(600.04, 600.0), "600.04");
+        assert_eq!(beyond(1e6, 600.0), "1000000.0");
+        let b = json_batch(vec![(NOW + 600.4, 1.0)], "values");
+        let (_, e) = check_times(&b, &gate(), NOW).unwrap_err();
+        assert!(e.error.contains("is 600.4 s ahead"), "{}", e.error);
+        // no unit makes it plausible: no hint
+        assert!(!e.error.contains("plausible"), "{}", e.error);
+    }
+
+    #[test]
+    fn a_time_plausible_in_another_unit_names_it() {
+        let hint = |t: f64, precision: Option<Precision>| {
+            let mut b = json_batch(vec![(t, 1.0)], "values");
+            if precision.is_some() {
+                b.lines = Some(vec![1]);
+                b.precision = precision;
+            }
+            check_times(&b, &gate(), NOW).unwrap_err().1.error
+        };
+        // JSON `start` in ms, us, ns; and in ks (1e3 times too small)
+        for (t, unit) in [(NOW * 1e3, "ms"), (NOW * 1e6, "us"), (NOW * 1e9, "ns")] {
+            let e = hint(t, None);
+            assert!(e.contains(&format!("is it in {unit}?")), "{e}");
+            assert!(e.contains("Unix seconds"), "{e}");
+        }
+        let e = hint(NOW / 1e3, None);
+        assert!(
+            e.contains("1e3 times larger") && e.contains("check the unit"),
+            "{e}"
+        );
+        // line protocol: ms read as ns, us read as ns, s read as ms, ns read as s
+        for (t, p, unit) in [
+            (NOW * 1e-6, Precision::Ns, "ms"),
+            (NOW * 1e-3, Precision::Ns, "us"),
+            (NOW * 1e-3, Precision::Ms, "s"),
+            (NOW * 1e9, Precision::S, "ns"),
+        ] {
+            let e = hint(t, Some(p));
+            assert!(e.contains(&format!("`?precision={unit}`")), "{p:?}: {e}");
+        }
+        // 1e3 hours is no unit: the factor only
+        let e = hint(NOW * 1e-3, Some(Precision::H));
+        assert!(e.contains("check the unit"), "{e}");
     }
 
     #[test]

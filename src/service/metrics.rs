@@ -129,6 +129,9 @@ pub enum RejectReason {
     TooManyGates,
     /// A non-finite time or value.
     NonFinite,
+    /// A finite value beyond the analysis' bound (`data::MAX_ABS_VALUE`, 1e100): every window
+    /// holding it would fail.
+    OutOfRange,
     /// Declared or implied rate more than 1 % off the gate's `rate_hz`.
     RateMismatch,
     /// Within half a period of the newest sample.
@@ -145,13 +148,14 @@ pub enum RejectReason {
 
 impl RejectReason {
     /// Every reason, for the counters' initial 0.
-    pub const ALL: [RejectReason; 12] = [
+    pub const ALL: [RejectReason; 13] = [
         RejectReason::Invalid,
         RejectReason::BodyTooLarge,
         RejectReason::Overloaded,
         RejectReason::UnknownGate,
         RejectReason::TooManyGates,
         RejectReason::NonFinite,
+        RejectReason::OutOfRange,
         RejectReason::RateMismatch,
         RejectReason::Duplicate,
         RejectReason::OutOfOrder,
@@ -178,6 +182,7 @@ impl RejectReason {
             RejectReason::UnknownGate => "unknown_gate",
             RejectReason::TooManyGates => "too_many_gates",
             RejectReason::NonFinite => "non_finite",
+            RejectReason::OutOfRange => "out_of_range",
             RejectReason::RateMismatch => "rate_mismatch",
             RejectReason::Duplicate => "duplicate",
             RejectReason::OutOfOrder => "out_of_order",
@@ -571,6 +576,21 @@ impl Metrics {
             &self.damping_zero_crossing,
             trend.and_then(|t| t.crossing_seconds_confident),
         );
+    }
+
+    /// Removes `gate`'s predictions while its data are stale (`GateDataStale` fires);
+    /// [`Metrics::set_trend`] sets them again with the gate's next identification.
+    ///
+    /// Only `gatewatch_damping_zero_crossing_seconds` goes. It counts sample seconds from the
+    /// end of the gate's last window, and is read as "from now" (the shipped rule's "Predicted
+    /// to cross the threshold in 2m 14s"), so frozen while the gate is silent it turns false a
+    /// little more every second. The trend's slope
+    /// (`gatewatch_damping_ratio_trend_per_second`) stays: it describes the windows already
+    /// identified, as `gatewatch_damping_ratio` and its interval do, and does not age with the
+    /// clock; `gatewatch_last_identification_timestamp_seconds` dates all three.
+    pub fn clear_predictions(&self, gate: &str) {
+        // Err only when the series did not exist: nothing to remove.
+        drop(self.damping_zero_crossing.remove_label_values(&[gate]));
     }
 
     /// Removes a forgotten gate's series (label cardinality stays bounded by live gates): every

@@ -30,6 +30,7 @@ use crate::analysis::{
     AmbientLevel, AnalysisError, CycleAmplitude, DampingTrend, TrendEstimate, WindowAnalysis,
     ZetaPools,
 };
+use crate::data::MAX_ABS_VALUE;
 
 pub use super::window::RATE_TOLERANCE;
 
@@ -376,6 +377,10 @@ impl AppState {
             if trend_estimate.is_some() {
                 // the restored trend on the dashboard before the first window, as in the API
                 self.metrics.set_trend(id, None, trend_estimate.as_ref());
+                // restored with its GateDataStale firing: no prediction until it sends again
+                if !seen && inner.alerts.is_stale(id) {
+                    self.metrics.clear_predictions(id);
+                }
             }
             // the sensor counts as seen at creation, so a gate that never sends goes stale
             let events = if seen && stale_armed {
@@ -695,6 +700,20 @@ impl AppState {
                     }
                     return Err((RejectReason::NonFinite, IngestError::BadRequest(e)));
                 }
+                // the analysis refuses the whole window holding such a value, for as long as
+                // it is in the window (`TimeSeries::new`): refused here, by its sample, instead
+                if v.abs() > MAX_ABS_VALUE {
+                    let mut e = BadRequest::new(format!(
+                        "sample value {v:e} is beyond +-{MAX_ABS_VALUE:e}, where the analysis \
+                         overflows (a broken sensor or a unit error?)"
+                    ))
+                    .field(b.values_field.clone());
+                    match &b.lines {
+                        Some(lines) => e.line = lines.get(i).copied(),
+                        None => e.index = Some(i),
+                    }
+                    return Err((RejectReason::OutOfRange, IngestError::BadRequest(e)));
+                }
             }
             // before the window sees them: a far-future time would restart it (see ingest_checks)
             super::ingest_checks::check_times(b, cfg, now)
@@ -881,6 +900,7 @@ impl AppState {
                 samples: e.window.len(),
                 last_sample_time: e.window.last_time(),
                 zeta0: e.latest.as_ref().and_then(|a| a.damping.zeta0),
+                trusted: e.latest.as_ref().map(|a| a.damping.trusted),
             });
         }
         let next = match range.peek() {

@@ -53,6 +53,7 @@ pub fn crate_to_batches(text: &str, m: &Mapping<'_>) -> Result<Vec<Batch>, Strin
                     rate: None,
                     values_field: name.clone(),
                     lines: Some(Vec::new()),
+                    precision: Some(m.precision),
                 });
                 batches.last_mut().expect("just pushed")
             }

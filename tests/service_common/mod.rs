@@ -36,6 +36,8 @@ pub struct Fake {
     pub zeta: Vec<f64>,
     pub sleep: Duration,
     pub panic_on: Option<usize>,
+    /// Every window reported untrusted (`damping.trusted = false`).
+    pub untrusted: bool,
     pub calls: Mutex<Vec<Call>>,
     pub n: AtomicUsize,
 }
@@ -79,7 +81,7 @@ impl WindowAnalyzer for Fake {
                 amplitude: Some(2.5),
                 agrees: true,
                 fit_nmae: 0.01,
-                trusted: true,
+                trusted: !self.untrusted,
                 verdict: if zeta0 < 0.0 {
                     Verdict::SelfExcited
                 } else {

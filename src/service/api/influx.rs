@@ -12,7 +12,7 @@ use std::sync::Arc;
 
 use axum::body::Body;
 use axum::extract::rejection::FormRejection;
-use axum::extract::{Form, Query, Request, State};
+use axum::extract::{Form, RawQuery, Request, State};
 use axum::http::{header, HeaderName, HeaderValue, StatusCode};
 use axum::middleware::Next;
 use axum::response::{IntoResponse, Response};
@@ -22,6 +22,7 @@ use tower_http::decompression::RequestDecompressionLayer;
 
 use super::HttpError;
 use crate::service::ingest::BadRequest;
+use crate::service::ingest_checks::single_param;
 use crate::service::metrics::RejectReason;
 use crate::service::state::AppState;
 
@@ -190,13 +191,16 @@ pub async fn health(State(state): State<Arc<AppState>>) -> Response {
 /// `GET`/`POST /query` (InfluxDB 1.x): `q` from the URL or a form body. Only `CREATE DATABASE`
 /// statements are answered, with success and no effect; anything else is 400 saying that
 /// gatewatch stores nothing to query (its data is at `/api/v1/gates` and `/metrics`).
+///
+/// `q` given twice in the URL is a 400 naming it, as `precision` on `/write`: which one wins
+/// is a guess. Other parameters are accepted and ignored, as InfluxDB's clients send their own
+/// (`db`, `epoch`, `pretty`, `chunked`, `u`, `p`) and InfluxDB ignores the ones it does not use.
 pub async fn query(
-    Query(params): Query<HashMap<String, String>>,
+    RawQuery(raw): RawQuery,
     form: Result<Form<HashMap<String, String>>, FormRejection>,
 ) -> Result<Response, HttpError> {
-    let q = params
-        .get("q")
-        .cloned()
+    let q = single_param(raw.as_deref(), "q")
+        .map_err(HttpError::BadRequest)?
         .or_else(|| form.ok().and_then(|Form(f)| f.get("q").cloned()))
         .ok_or_else(|| {
             HttpError::BadRequest(BadRequest::new("missing required parameter `q`").field("q"))

@@ -367,6 +367,7 @@ fn build(
                 rate: Some((rate, rate_field)),
                 values_field: field,
                 lines: None,
+                precision: None,
             })
         }
         Data::Samples(samples) => {
@@ -389,6 +390,7 @@ fn build(
                 rate,
                 values_field: field,
                 lines: None,
+                precision: None,
             })
         }
     }

@@ -350,7 +350,7 @@ struct Batches {
 
 impl Batches {
     /// The batch of `gate`, created (with `field` as its values field) on its first line.
-    fn of(&mut self, gate: &str, field: &str) -> &mut Batch {
+    fn of(&mut self, gate: &str, field: &str, precision: Precision) -> &mut Batch {
         // consecutive lines of one gate, the usual body, need no lookup
         let i = match self.batches.last() {
             Some(b) if b.gate == gate => self.batches.len() - 1,
@@ -364,6 +364,7 @@ impl Batches {
                         rate: None,
                         values_field: field.to_string(),
                         lines: Some(Vec::new()),
+                        precision: Some(precision),
                     });
                     self.batches.len() - 1
                 }
@@ -444,7 +445,7 @@ fn push_line(
         Some(ts) => ts as f64 * m.precision.seconds_per_unit(),
         None => m.now,
     };
-    let batch = batches.of(gate, name);
+    let batch = batches.of(gate, name, m.precision);
     batch.samples.push((t, v));
     if let Some(l) = batch.lines.as_mut() {
         l.push(line_no);

@@ -9,6 +9,8 @@ use std::borrow::Cow;
 
 use serde::Serialize;
 
+use super::config::Precision;
+
 /// The longest piece of a client's input an error quotes (`excerpt`), in characters.
 pub const EXCERPT_CHARS: usize = 64;
 /// The longest `error` message of a 400, in characters ([`BadRequest::clipped`]).
@@ -53,6 +55,10 @@ pub struct Batch {
     pub values_field: String,
     /// For line protocol: the 1-based line of each sample (errors name the line).
     pub lines: Option<Vec<usize>>,
+    /// For line protocol: the unit its timestamps were read in (`None` for JSON, whose times
+    /// are seconds). A time out of the gate's bounds that would be plausible in another unit
+    /// gets a hint naming that unit (`ingest_checks`).
+    pub precision: Option<Precision>,
 }
 
 /// A precise 400 answer: `{"error": "...", "line": N, "field": "...", "index": N}`.

@@ -23,6 +23,14 @@ impl AppState {
             }
             let state = inner.alerts.state(g).unwrap_or(GateState::Unknown);
             self.metrics.set_alert_state(g, state_name(state));
+            // a silent gate predicts nothing: its zero crossing would stay frozen while the
+            // time it counts down passes (`Metrics::clear_predictions`); the next window sets
+            // it again
+            if let AlertEvent::Firing(a) = e {
+                if a.name == crate::alert::ALERT_DATA_STALE {
+                    self.metrics.clear_predictions(g);
+                }
+            }
         }
         let write =
             crate::service::storage::states_write(self.persistence.as_deref(), &inner.alerts);

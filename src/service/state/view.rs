@@ -47,8 +47,13 @@ pub struct GateSummary {
     pub samples: usize,
     /// Time of the newest sample, Unix seconds.
     pub last_sample_time: Option<f64>,
-    /// Damping ratio of the latest identification.
+    /// Damping ratio of the latest identification: the gate's damping only when `trusted`.
     pub zeta0: Option<f64>,
+    /// Whether the latest identification's `zeta0` may be read as the gate's damping: its
+    /// `identification.damping.trusted` in [`GateView`] (null before the first
+    /// identification, as `zeta0`). An untrusted window still has a `zeta0`, e.g. a chance limit cycle's
+    /// envelope, which listed alone read as the gate's damping.
+    pub trusted: Option<bool>,
 }
 
 /// Window statistics.
