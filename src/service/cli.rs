@@ -117,7 +117,10 @@ pub fn serve(args: ServeArgs) -> ExitCode {
     config.storage.path = config.storage.resolve(base).display().to_string();
     // From here the log format is known: what serve says on stderr follows it.
     let format = config.log.format;
-    for w in config.warnings() {
+    let env = super::config::unknown_env_warnings(
+        std::env::vars_os().filter_map(|(k, _)| k.into_string().ok()),
+    );
+    for w in config.warnings().into_iter().chain(env) {
         start_line(format, "WARN", &w, None);
     }
     init_tracing(&config);
@@ -212,6 +215,11 @@ pub fn check_config(args: CheckConfigArgs) -> ExitCode {
             }
             for w in config.warnings() {
                 errln!("{}: warning: {w}", args.file.display());
+            }
+            for w in super::config::unknown_env_warnings(
+                std::env::vars_os().filter_map(|(k, _)| k.into_string().ok()),
+            ) {
+                errln!("gatewatch: warning: {w}");
             }
             // what `serve` will log at start with the same environment (the unit's ExecStartPre)
             if let Err(bad) = super::rust_log::read() {

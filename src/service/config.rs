@@ -401,9 +401,59 @@ impl Default for GateConfig {
 pub struct ConfigError {
     /// One line.
     pub message: String,
-    /// Whether the message already names the file (it could not be read), so a caller that
-    /// prefixes the file's name does not say it twice.
+    /// Whether the message already names the file (it could not be read), or names the
+    /// environment variable the bad value came from, so a caller that prefixes the file's name
+    /// does not say it twice or blame the file.
     names_file: bool,
+}
+
+/// Every `GATEWATCH_*` variable `serve` reads, with the key it sets (`None`: no key of the file;
+/// `GATEWATCH_JIT` is read by the model compiler, `GATEWATCH_TOKEN` by `simulate`).
+pub const ENV_KEYS: &[(&str, &str)] = &[
+    ("GATEWATCH_LISTEN", "server.listen"),
+    ("GATEWATCH_TCP_LISTEN", "server.tcp_listen"),
+    (
+        "GATEWATCH_TCP_ALLOWED_NETWORKS",
+        "server.tcp_allowed_networks",
+    ),
+    ("GATEWATCH_AUTH_TOKENS", "server.auth_tokens"),
+    ("GATEWATCH_LOG_FORMAT", "log.format"),
+    ("GATEWATCH_LOG_LEVEL", "log.level"),
+    ("GATEWATCH_JIT", "(the model compiler)"),
+    ("GATEWATCH_STORAGE_PATH", "storage.path"),
+    ("GATEWATCH_STORAGE_BACKEND", "storage.backend"),
+    ("GATEWATCH_NATS_URL", "storage.nats_url"),
+    ("GATEWATCH_NATS_PREFIX", "storage.nats_prefix"),
+    ("GATEWATCH_WORKER_THREADS", "server.worker_threads"),
+    ("GATEWATCH_MAX_GATES", "server.max_gates"),
+    (
+        "GATEWATCH_ACCEPT_UNKNOWN_GATES",
+        "server.accept_unknown_gates",
+    ),
+    ("GATEWATCH_TOKEN", "(simulate's token)"),
+    ("GATEWATCH_CONFIG", "(the configuration file)"),
+];
+
+/// A warning for each variable named `GATEWATCH_*` that gatewatch does not read: a mistyped
+/// `GATEWATCH_LISTEN_ADDR` was ignored without a word and the daemon listened elsewhere.
+pub fn unknown_env_warnings(names: impl Iterator<Item = String>) -> Vec<String> {
+    let mut unknown: Vec<String> = names
+        .filter(|n| n.starts_with("GATEWATCH_") && !ENV_KEYS.iter().any(|(k, _)| k == n))
+        .collect();
+    unknown.sort();
+    unknown
+        .into_iter()
+        .map(|n| {
+            format!(
+                "environment variable {n} is not one gatewatch reads (ignored); it reads {}",
+                ENV_KEYS
+                    .iter()
+                    .map(|(k, _)| *k)
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            )
+        })
+        .collect()
 }
 
 impl ConfigError {
@@ -570,7 +620,28 @@ impl Config {
     }
 
     /// Applies `GATEWATCH_*` overrides read through `get` (`std::env::var` in production).
+    /// An error about a value a variable set names the variable, not the file (which may say
+    /// something else: `GATEWATCH_LISTEN=foo` was reported as the file's `server.listen`), and
+    /// is printed without the file's name.
     pub fn apply_env(&mut self, get: impl Fn(&str) -> Option<String>) -> Result<(), ConfigError> {
+        self.apply_env_values(&get).map_err(|mut e| {
+            if let Some((var, key)) = ENV_KEYS
+                .iter()
+                .find(|(var, key)| get(var).is_some() && e.message.starts_with(&format!("{key}:")))
+            {
+                e.message = format!("{var} (sets {key}){}", &e.message[key.len()..]);
+            }
+            if e.message.starts_with("GATEWATCH_") {
+                e.names_file = true;
+            }
+            e
+        })
+    }
+
+    fn apply_env_values(
+        &mut self,
+        get: impl Fn(&str) -> Option<String>,
+    ) -> Result<(), ConfigError> {
         if let Some(v) = get("GATEWATCH_LISTEN") {
             self.server.listen = v;
         }

@@ -261,7 +261,8 @@ fn tcp_allowed_networks_from_the_environment_and_the_loopback_only_warning() {
         .apply_env(|k| (k == "GATEWATCH_TCP_ALLOWED_NETWORKS").then(|| "10.0.0/8".to_string()))
         .unwrap_err();
     assert!(
-        e.message.starts_with("server.tcp_allowed_networks"),
+        e.message
+            .starts_with("GATEWATCH_TCP_ALLOWED_NETWORKS (sets server.tcp_allowed_networks): "),
         "{}",
         e.message
     );
@@ -617,4 +618,55 @@ fn a_nats_lease_shorter_than_three_operation_timeouts_is_warned_about() {
         .warnings()
         .is_empty());
     assert!(lease("sqlite", 9.0).is_empty());
+}
+
+/// A bad value from a variable names the variable and the key it sets, and is not blamed on the
+/// file (`GATEWATCH_LISTEN=foo` read as the file's `server.listen`); a variable gatewatch does
+/// not read is warned about.
+#[test]
+fn environment_errors_name_the_variable_and_unknown_variables_are_warned() {
+    for (var, value, want) in [
+        (
+            "GATEWATCH_LISTEN",
+            "foo",
+            "GATEWATCH_LISTEN (sets server.listen): must be an address",
+        ),
+        (
+            "GATEWATCH_MAX_GATES",
+            "0",
+            "GATEWATCH_MAX_GATES (sets server.max_gates): must be in",
+        ),
+        (
+            "GATEWATCH_AUTH_TOKENS",
+            "short",
+            "GATEWATCH_AUTH_TOKENS (sets server.auth_tokens): ",
+        ),
+        (
+            "GATEWATCH_LOG_FORMAT",
+            "xml",
+            "GATEWATCH_LOG_FORMAT: must be",
+        ),
+    ] {
+        let mut c = Config::from_toml(EMBEDDED_CONFIG).unwrap();
+        let e = c
+            .apply_env(|k| (k == var).then(|| value.to_string()))
+            .unwrap_err();
+        assert!(e.message.starts_with(want), "{var}: {}", e.message);
+        assert!(e.names_file(), "{var}: not prefixed with the file's name");
+    }
+    let w = unknown_env_warnings(
+        [
+            "GATEWATCH_LISTEN_ADDR",
+            "GATEWATCH_LISTEN",
+            "HOME",
+            "GATEWATCH_CONFIG",
+        ]
+        .into_iter()
+        .map(String::from),
+    );
+    assert_eq!(w.len(), 1, "{w:?}");
+    assert!(
+        w[0].contains("GATEWATCH_LISTEN_ADDR is not one gatewatch reads"),
+        "{w:?}"
+    );
 }
