@@ -65,10 +65,11 @@ use serde::{Deserialize, Serialize};
 /// What went wrong in the store, with the file or the operation it concerns.
 #[derive(Debug, thiserror::Error)]
 pub enum StoreError {
-    /// The database file cannot be opened, is not a database, or its schema is unusable.
-    #[error("storage file {path}: {message}")]
+    /// The database file cannot be opened, is not a database, or its schema is unusable (or
+    /// the NATS server, named as such: "storage file NATS server ..." read as a file).
+    #[error("storage {}{path}: {message}", if path.starts_with("NATS ") { "" } else { "file " })]
     Open {
-        /// The file.
+        /// The file, or `NATS server URL`.
         path: String,
         /// What SQLite said, in words.
         message: String,
