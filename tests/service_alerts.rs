@@ -214,6 +214,15 @@ async fn a_stale_gate_loses_its_predicted_crossing_until_its_next_window() {
     let slope = "gatewatch_damping_ratio_trend_per_second";
     let before = exposition().await;
     assert!(has(&before, crossing) && has(&before, slope), "{before}");
+    let view = || async {
+        let (_, v, _) = send(&app, "GET", "/api/v1/gates/g1", Body::empty(), None).await;
+        v["trend"].clone()
+    };
+    assert!(
+        view().await["crossing_seconds"].is_number(),
+        "{}",
+        view().await
+    );
     // silent past stale_after_seconds (default 30 s)
     state.tick(std::time::SystemTime::now() + Duration::from_secs(120));
     let stale = exposition().await;
@@ -223,6 +232,11 @@ async fn a_stale_gate_loses_its_predicted_crossing_until_its_next_window() {
     );
     assert!(!has(&stale, crossing), "{stale}");
     assert!(has(&stale, slope), "{stale}");
+    // the gate's view says the same: the slope stays, the crossing is gone
+    let trend = view().await;
+    assert!(trend["crossing_seconds"].is_null(), "{trend}");
+    assert!(trend["crossing_seconds_confident"].is_null(), "{trend}");
+    assert!(trend["slope_per_second"].is_number(), "{trend}");
     promtool_check_metrics(&stale);
     // another tick while still stale fires nothing new and brings nothing back (before the
     // unknown gate's expiry, 600 s)
@@ -233,6 +247,7 @@ async fn a_stale_gate_loses_its_predicted_crossing_until_its_next_window() {
     wait_until(|| fake.calls.lock().unwrap().len() >= 13 && state.pool().in_flight() == 0).await;
     let after = exposition().await;
     assert!(has(&after, crossing), "{after}");
+    assert!(view().await["crossing_seconds"].is_number());
     assert!(
         after.contains("gatewatch_alert_firing{alertname=\"GateDataStale\",gate=\"g1\"} 0"),
         "{after}"

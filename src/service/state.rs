@@ -947,7 +947,15 @@ impl AppState {
             }),
             last_error: e.last_error.clone(),
             analysed_until: e.analysed_until,
-            trend: e.trend_estimate,
+            // a silent gate predicts nothing, as on /metrics (`Metrics::clear_predictions`): its
+            // crossing would stay frozen while the time it counts down passes
+            trend: e.trend_estimate.map(|mut t| {
+                if inner.alerts.is_stale(id) {
+                    t.crossing_seconds = None;
+                    t.crossing_seconds_confident = None;
+                }
+                t
+            }),
         })
     }
 
