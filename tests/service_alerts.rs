@@ -152,13 +152,17 @@ fn promtool_check_metrics(text: &str) {
     }
 }
 
-/// The series that only a gate with a trend has (`gatewatch_damping_ratio_trend_per_second`,
-/// `gatewatch_damping_zero_crossing_seconds`, issue 8) are in the exposition promtool checks:
-/// twelve windows of a damping that falls by 0.1 points a window.
-#[tokio::test]
-async fn metrics_exposition_with_a_declining_trend_is_valid() {
+/// Gate `g1` after twelve identified windows whose damping falls by 0.1 points a window (a
+/// window every 0.5 s of sample time), its fake analyzer holding `dampings` figures in all.
+async fn declining_gate(
+    dampings: usize,
+) -> (
+    axum::Router,
+    Arc<gatewatch::service::state::AppState>,
+    Arc<Fake>,
+) {
     let fake = Arc::new(Fake {
-        zeta: (0..12).map(|i| 0.02 - 0.001 * i as f64).collect(),
+        zeta: (0..dampings).map(|i| 0.02 - 0.001 * i as f64).collect(),
         ..Fake::default()
     });
     let (app, state) = app_with(config(""), fake.clone());
@@ -170,6 +174,15 @@ async fn metrics_exposition_with_a_declining_trend_is_valid() {
         post_json(&app, uniform("g1", 0.5 + 0.5 * i as f64, 50)).await;
     }
     wait_until(|| fake.calls.lock().unwrap().len() >= 12 && state.pool().in_flight() == 0).await;
+    (app, state, fake)
+}
+
+/// The series that only a gate with a trend has (`gatewatch_damping_ratio_trend_per_second`,
+/// `gatewatch_damping_zero_crossing_seconds`, issue 8) are in the exposition promtool checks:
+/// twelve windows of a damping that falls by 0.1 points a window.
+#[tokio::test]
+async fn metrics_exposition_with_a_declining_trend_is_valid() {
+    let (app, _state, _fake) = declining_gate(12).await;
     let (s, v, _) = send(&app, "GET", "/metrics", Body::empty(), None).await;
     assert_eq!(s, StatusCode::OK);
     let text = v.as_str().unwrap().to_string();
@@ -193,17 +206,8 @@ async fn metrics_exposition_with_a_declining_trend_is_valid() {
 /// the crossing again.
 #[tokio::test]
 async fn a_stale_gate_loses_its_predicted_crossing_until_its_next_window() {
-    let fake = Arc::new(Fake {
-        zeta: (0..13).map(|i| 0.02 - 0.001 * i as f64).collect(),
-        ..Fake::default()
-    });
-    let (app, state) = app_with(config(""), fake.clone());
-    post_json(&app, uniform("g1", 0.0, 100)).await;
-    for i in 1..12 {
-        wait_until(|| fake.calls.lock().unwrap().len() >= i && state.pool().in_flight() == 0).await;
-        post_json(&app, uniform("g1", 0.5 + 0.5 * i as f64, 50)).await;
-    }
-    wait_until(|| fake.calls.lock().unwrap().len() >= 12 && state.pool().in_flight() == 0).await;
+    // a 13th damping for the window after the silence
+    let (app, state, fake) = declining_gate(13).await;
     let exposition = || async {
         let (s, v, _) = send(&app, "GET", "/metrics", Body::empty(), None).await;
         assert_eq!(s, StatusCode::OK);
