@@ -358,6 +358,7 @@ pub fn run_gate_example(opts: &GateExampleOptions) -> Result<Vec<GateExampleRun>
         polish_rtol: crate::analysis::DEFAULT_POLISH_RTOL,
         polish_solver: crate::analysis::PolishSolver::default(),
         model_interval: crate::analysis::ModelInterval::default(),
+        ssi_reference: crate::analysis::SsiReference::default(),
     })
     .map_err(|e| BenchError::Analysis {
         id: "gate_example",

@@ -10,6 +10,8 @@
 //! Numerical core (no tokio, axum or prometheus below this line):
 //! - [`model`]: the model language: parse an equation, check it is linear in `ydd`, compile it
 //!   (to an accumulator program, and to machine code with Cranelift where it can: `model::jit`).
+//! - [`linalg`]: nalgebra's eigen- and singular-value decompositions with an iteration cap, so
+//!   that no matrix can keep a worker spinning.
 //! - [`ode`]: integrators (Dormand-Prince 5(4), fixed-step RK4, Rosenbrock) with failure reports.
 //! - [`de`]: the Cauchy differential evolution, generic over any objective, parallel and seeded.
 //! - [`data`]: time series and their CSV loading, with errors that name line and column.
@@ -48,6 +50,7 @@ pub mod cli;
 pub mod data;
 pub mod de;
 pub mod identify;
+pub mod linalg;
 pub mod model;
 pub mod ode;
 pub mod plot;

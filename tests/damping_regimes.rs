@@ -346,6 +346,7 @@ fn force_analyzer(p: &GateParams) -> gatewatch::analysis::Analyzer {
         polish_rtol: gatewatch::analysis::DEFAULT_POLISH_RTOL,
         polish_solver: gatewatch::analysis::PolishSolver::default(),
         model_interval: gatewatch::analysis::ModelInterval::default(),
+        ssi_reference: gatewatch::analysis::SsiReference::default(),
     })
     .unwrap()
 }

@@ -201,6 +201,7 @@ impl Analyzer {
             fft_bias,
             polish_solver: s.polish_solver,
             model_interval: s.model_interval,
+            ssi_reference: s.ssi_reference,
             ..SeriesOptions::default()
         };
         if let Start::Refine(..) = start {

@@ -155,6 +155,39 @@ pub struct AnalysisSettings {
     pub polish_solver: PolishSolver,
     /// How a model-based zeta0 gets its interval.
     pub model_interval: ModelInterval,
+    /// Which reference instants the ambient SSI-COV correlations use.
+    pub ssi_reference: SsiReference,
+}
+
+/// Which reference instants the ambient (SSI-COV) estimate's correlations sum over
+/// (`ssi_reference` in the daemon's configuration; `spectral::SsiOptions::common_reference`,
+/// docs/damping.md, "Growing windows: the correlations' reference instants").
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "kebab-case")]
+pub enum SsiReference {
+    /// Every lag sums every instant whose partner lies in the window: on a window whose
+    /// variance grows, each longer lag sees a quieter record, so a growth reads as damping.
+    #[default]
+    Lagged,
+    /// Every lag sums the same instants: the mode's damping whatever the window's variance does.
+    /// The window's regime is still classified on the lagged reading, on which the classifier
+    /// was calibrated.
+    Common,
+}
+
+impl std::str::FromStr for SsiReference {
+    type Err = String;
+
+    /// The configuration's spelling: `lagged` or `common`.
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "lagged" => Ok(SsiReference::Lagged),
+            "common" => Ok(SsiReference::Common),
+            _ => Err(format!(
+                "unknown SSI reference `{s}`: expected lagged or common"
+            )),
+        }
+    }
 }
 
 /// How a model-based zeta0 gets its 95 % interval (`model_interval` in the daemon's

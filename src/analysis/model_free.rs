@@ -8,7 +8,7 @@ use super::series::SeriesOptions;
 use super::Signal;
 use crate::data::TimeSeries;
 use crate::identify;
-use crate::spectral::{SpectralAnalyzer, WindowOptions, WindowSpectral};
+use crate::spectral::{AmbientMethod, SpectralAnalyzer, SsiOptions, WindowOptions, WindowSpectral};
 use std::f64::consts::PI;
 
 /// The dominant frequency must have at least this many periods in the window (the spectral
@@ -76,6 +76,10 @@ pub(super) fn model_free(
     let window_options = WindowOptions {
         moving_average: 0,
         min_freq_hz: MIN_PERIODS / duration.max(f64::MIN_POSITIVE),
+        ambient: AmbientMethod::Ssi(SsiOptions {
+            common_reference: opts.ssi_reference == super::SsiReference::Common,
+            ..SsiOptions::default()
+        }),
         ..WindowOptions::default()
     };
     let fits = |sa: &SpectralAnalyzer| {

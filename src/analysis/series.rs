@@ -44,6 +44,8 @@ pub struct SeriesOptions {
     pub polish_solver: PolishSolver,
     /// How a model-based zeta0 gets its interval.
     pub model_interval: ModelInterval,
+    /// Which reference instants the ambient SSI-COV correlations use.
+    pub ssi_reference: super::SsiReference,
 }
 
 impl Default for SeriesOptions {
@@ -61,6 +63,7 @@ impl Default for SeriesOptions {
             // (`AnalysisSettings::polish_solver`).
             polish_solver: PolishSolver::Dopri5,
             model_interval: ModelInterval::NeweyWest,
+            ssi_reference: super::SsiReference::default(),
         }
     }
 }

@@ -120,6 +120,11 @@ pub struct IdentifyArgs {
     /// docs/damping.md, "zeta0_interval").
     #[arg(long, default_value = "newey-west")]
     model_interval: analysis::ModelInterval,
+    /// Which reference instants the ambient (SSI-COV) estimate's correlations use: lagged or
+    /// common (the mode's damping on a record whose variance grows or decays; docs/damping.md,
+    /// "Growing windows: the correlations' reference instants").
+    #[arg(long, default_value = "lagged")]
+    ssi_reference: analysis::SsiReference,
     /// Print exactly one JSON object on stdout.
     #[arg(long)]
     json: bool,
@@ -349,6 +354,7 @@ pub(super) fn run(a: IdentifyArgs) -> Result<(), CliError> {
         // `--solver` and the polish flags choose the integrations here.
         polish_solver: analysis::PolishSolver::Dopri5,
         model_interval: a.model_interval,
+        ssi_reference: a.ssi_reference,
     };
     // Every output is checked before the identification, which can take minutes.
     if let Some(dir) = &a.plot {

@@ -151,7 +151,7 @@ impl Covariance {
         for (j, norm) in column_norms.iter().enumerate() {
             scaled.column_mut(j).unscale_mut(*norm);
         }
-        let svd = scaled.clone().svd(false, true);
+        let svd = crate::linalg::svd(scaled.clone(), false, true)?;
         let v_t = svd.v_t?;
         let s_max = svd.singular_values.max();
         if s_max.is_nan() || s_max <= 0.0 {

@@ -84,6 +84,10 @@ pub struct BenchWarningArgs {
     /// configuration's default) or forcing.
     #[arg(long)]
     pub model_interval: Option<crate::analysis::ModelInterval>,
+    /// Which reference instants the ambient SSI-COV correlations use (`ssi_reference`): lagged
+    /// (the configuration's default) or common.
+    #[arg(long)]
+    pub ssi_reference: Option<crate::analysis::SsiReference>,
     /// What the gates' force signal holds (`force_terms`): all (the configuration's default)
     /// or stiffness, which is what the simulator records (`F = k*y`).
     #[arg(long)]
@@ -393,7 +397,7 @@ pub async fn run_stream(
             });
             errln!(
                 "t {end:7.1}  true {:+.2} %  zeta0 {:?} {:?} {:?} trusted {trusted}  trend \
-                 (%/min, upper %/min, confident crossing s) {trend:?}  firing {firing:?}  (regime, pooled, ssi, ambient ratio, model, fit nmae, agrees, rms swing, path) {facts:?}  scored {} (true mean {:+.2} %)  f {:?} Hz{}",
+                 (%/min, upper %/min, confident crossing s) {trend:?}  firing {firing:?}  (regime, pooled, ssi, ambient ratio, model, fit nmae, agrees, rms swing, path) {facts:?}  scored {} (true mean {:+.2} %)  f {:?} Hz  growth (1/s, se) {:?}{}",
                 100.0 * truth_centre,
                 zeta0.map(|z| (z * 1e4).round() / 100.0),
                 interval.map(|(a, b)| ((a * 1e4).round() / 100.0, (b * 1e4).round() / 100.0)),
@@ -404,6 +408,10 @@ pub async fn run_stream(
                     .as_ref()
                     .and_then(|i| i.damping.frequency_hz)
                     .map(|f| (f * 1e4).round() / 1e4),
+                view.identification.as_ref().map(|i| {
+                    let r = |v: Option<f64>| v.map(|v| (v * 1e4).round() / 1e4);
+                    (r(i.damping.growth_rate), r(i.damping.growth_rate_stderr))
+                }),
                 // a window held back by the ambient pool (its figure is the pool's)
                 if view
                     .identification
@@ -551,6 +559,9 @@ fn configure(args: &BenchWarningArgs, gate: GatePreset) -> anyhow::Result<Config
     for (name, g) in config.gates.iter_mut() {
         if let Some(m) = args.model_interval {
             g.model_interval = m;
+        }
+        if let Some(r) = args.ssi_reference {
+            g.ssi_reference = r;
         }
         if let Some(t) = args.force_terms {
             g.force_terms = t;

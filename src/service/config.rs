@@ -345,6 +345,8 @@ pub struct GateConfig {
     pub polish_solver: crate::analysis::PolishSolver,
     /// How a model-based zeta0 gets its interval: newey-west | forcing.
     pub model_interval: crate::analysis::ModelInterval,
+    /// Which reference instants the ambient SSI-COV correlations use: lagged | common.
+    pub ssi_reference: crate::analysis::SsiReference,
     /// Window length, seconds of sample time.
     pub window_seconds: f64,
     /// Identification cadence, seconds of new sample time.
@@ -383,6 +385,7 @@ impl Default for GateConfig {
             polish_rtol: crate::analysis::DEFAULT_POLISH_RTOL,
             polish_solver: crate::analysis::PolishSolver::default(),
             model_interval: crate::analysis::ModelInterval::default(),
+            ssi_reference: crate::analysis::SsiReference::default(),
             window_seconds: 10.0,
             identify_every_seconds: 5.0,
             stagger: true,

@@ -230,7 +230,8 @@ pub(super) fn ar_roots(a: &[f64]) -> Vec<Complex<f64>> {
     for i in 1..p {
         c[(i, i - 1)] = 1.0;
     }
-    c.complex_eigenvalues().iter().copied().collect()
+    // No roots when the Schur iteration does not converge (`crate::linalg`): no pole, no estimate.
+    crate::linalg::complex_eigenvalues(c).unwrap_or_default()
 }
 
 /// Standard normal quantile (Acklam's rational approximation, relative error < 1.2e-9).

@@ -4,7 +4,7 @@
 use super::preprocess::{damping_from_growth, detrend_linear, hann, remove_moving_average};
 use super::{
     ambient_damping, check_finite, classify, ssi_cov_damping, AmbientDamping, AmbientMethod,
-    ArOptions, SpectralError, WindowOptions, WindowSpectral,
+    ArOptions, SpectralError, SsiOptions, WindowOptions, WindowSpectral,
 };
 use rustfft::num_complex::Complex;
 use rustfft::{Fft, FftPlanner};
@@ -435,8 +435,25 @@ impl SpectralAnalyzer {
         let result = (|| {
             let peak = self.dominant_frequency(&work, opts.min_freq_hz)?;
             let growth = self.growth_rate(&work, peak.frequency_hz, &opts.growth)?;
+            // The regime is classified on the lagged SSI reading, on which the classifier's
+            // limit-cycle test was calibrated (`SsiOptions::common_reference`: a window growing
+            // into its cycle reads as stable there, as a cycle with common instants); with
+            // common instants the report carries the common reading, and the regime costs a
+            // second, lagged SSI estimate.
+            let mut lagged = None;
             let ambient = match opts.ambient {
                 AmbientMethod::Ssi(ssi) => {
+                    if ssi.common_reference {
+                        let l = SsiOptions {
+                            common_reference: false,
+                            ..ssi
+                        };
+                        lagged = Some(
+                            ssi_cov_damping(&work, self.rate_hz, peak.frequency_hz, &l)
+                                .ok()
+                                .map(AmbientDamping::from),
+                        );
+                    }
                     ssi_cov_damping(&work, self.rate_hz, peak.frequency_hz, &ssi)
                         .ok()
                         .map(AmbientDamping::from)
@@ -450,7 +467,8 @@ impl SpectralAnalyzer {
                 }
                 AmbientMethod::Skip => None,
             };
-            let regime = classify(&growth, ambient.as_ref(), &opts.classify);
+            let for_regime = lagged.unwrap_or(ambient);
+            let regime = classify(&growth, for_regime.as_ref(), &opts.classify);
             Ok(WindowSpectral {
                 peak,
                 growth,

@@ -120,7 +120,9 @@ impl Default for WindowOptions {
 /// "Ambient damping under sensor noise"). Its lengths are in periods of the dominant frequency,
 /// so one default serves any gate. SSI also holds when the damping is negative: the correlations
 /// of a noise-driven linear system obey `R(k + j) = A^j R(k)` whether it decays or grows, which
-/// is all the method uses.
+/// is all the method uses, provided every lag sums the same reference instants
+/// ([`SsiOptions::common_reference`]); with the default lagged sums a window whose variance grows
+/// reads too damped (a free growth as `+|zeta|`).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum AmbientMethod {
     /// Covariance-driven stochastic subspace identification ([`super::ssi_cov_damping`]).

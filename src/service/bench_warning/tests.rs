@@ -292,6 +292,7 @@ fn plan_refuses_bad_arguments_naming_the_flag() {
         worker_threads: 1,
         trace: false,
         model_interval: None,
+        ssi_reference: None,
         force_terms: None,
         fire_at_once_probability: None,
         fire_at_once_min_ratio: None,

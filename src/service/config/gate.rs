@@ -50,6 +50,7 @@ impl GateConfig {
             polish_rtol: self.polish_rtol,
             polish_solver: self.polish_solver,
             model_interval: self.model_interval,
+            ssi_reference: self.ssi_reference,
         }
     }
 

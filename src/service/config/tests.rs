@@ -386,6 +386,28 @@ fn model_interval_defaults_to_newey_west_and_reads_forcing() {
 }
 
 #[test]
+fn ssi_reference_defaults_to_lagged_and_reads_common_per_gate() {
+    use crate::analysis::SsiReference;
+    assert_eq!(
+        Config::embedded().defaults.ssi_reference,
+        SsiReference::Lagged
+    );
+    let text = "[gates.g1]\nssi_reference = \"common\"\n[gates.g2]\n";
+    let config = Config::from_toml(text).expect("valid");
+    let setting = |id: &str| {
+        config
+            .gate(id)
+            .expect("gate")
+            .analysis_settings()
+            .ssi_reference
+    };
+    assert_eq!(setting("g1"), SsiReference::Common);
+    assert_eq!(setting("g2"), SsiReference::Lagged);
+    assert!(err("[defaults]\nssi_reference = \"forward\"\n")
+        .starts_with("defaults.ssi_reference: unknown variant `forward`"));
+}
+
+#[test]
 fn force_terms_default_to_all_and_read_stiffness_per_gate() {
     use crate::analysis::ForceTerms;
     assert_eq!(Config::embedded().defaults.force_terms, ForceTerms::All);
