@@ -14,6 +14,9 @@ use gatewatch::service::server::{run, Listeners};
 use gatewatch::store::{IdentificationRecord, SqliteStore, Store, WriteBatch, HISTORY_CSV_HEADER};
 use serde_json::Value;
 
+mod history_common;
+use history_common::history;
+
 const BIN: &str = env!("CARGO_BIN_EXE_gatewatch");
 /// 2024-05-01T12:00:00Z.
 const T0: f64 = 1_714_564_800.0;
@@ -288,19 +291,6 @@ async fn history_route_refuses_bad_parameters_naming_them_and_unknown_gates() {
 }
 
 // ------------------------------------------------------------------ gatewatch history
-
-fn history(args: &[&str]) -> (i32, String, String) {
-    let out = Command::new(BIN)
-        .arg("history")
-        .args(args)
-        .output()
-        .expect("run gatewatch history");
-    (
-        out.status.code().unwrap_or(-1),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
 
 /// A minimal XML well-formedness check (no XML crate in the tree): every element closes in
 /// order, attributes are quoted, nothing follows the root. Enough to catch a truncated or

@@ -6,17 +6,17 @@
 //! and a bad prefix exit 2 with one line naming the server and the prefix, creating nothing.
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
 use std::time::Duration;
 
 use gatewatch::store::{
     IdentificationRecord, NatsOptions, NatsStore, SqliteStore, Store, WriteBatch,
 };
 
+mod history_common;
 mod nats_common;
+use history_common::history;
 use nats_common::{free_port, nats_installed, NatsServer};
 
-const BIN: &str = env!("CARGO_BIN_EXE_gatewatch");
 /// 2024-05-01T12:00:00Z.
 const T0: f64 = 1_714_564_800.0;
 /// Windows of gate g1.
@@ -79,20 +79,6 @@ fn daemon_store(url: &str, prefix: &str) -> NatsStore {
         ..NatsOptions::new(url, RETENTION, MAX_ROWS)
     })
     .expect("open the NATS store with the owner lease")
-}
-
-/// `gatewatch history ARGS`: (exit code, stdout, stderr).
-fn history(args: &[&str]) -> (i32, String, String) {
-    let out = Command::new(BIN)
-        .arg("history")
-        .args(args)
-        .output()
-        .expect("run gatewatch history");
-    (
-        out.status.code().unwrap_or(-1),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
 }
 
 /// A stream's `(max_age, max_messages)` as the server has it, `None` when it does not exist.
