@@ -641,22 +641,6 @@ mod tests {
         assert!(e.blocks >= 4 && e.cycles > 300.0, "{e:?}");
     }
 
-    /// A record that grows: ambient at +2 %, then `zeta` from 2 s before the record's start.
-    fn growing_record(zeta: f64, seed: u64) -> Vec<f64> {
-        let p = GateParams {
-            c3: 0.0,
-            forcing_std: 2.8,
-            noise_std: 0.7,
-            ..GateParams::default()
-        };
-        let schedule = ZetaSchedule::Table(vec![(19.99, 0.02), (20.0, zeta)]);
-        let mut sim = GateSimulator::new(p, schedule, seed);
-        let rate = sim.params().rate_hz;
-        let mut x = vec![0.0; (32.0 * rate) as usize];
-        sim.fill(&mut x);
-        x.split_off((22.0 * rate) as usize)
-    }
-
     /// On a growing record the lagged correlations read the growth as damping, the common
     /// reference instants read the mode (`SsiOptions::common_reference`). 24 seeds of a 10 s
     /// window of the lab gate, 2 s into a growth at -0.5 % from ambient at +2 %: lagged +0.35 %
@@ -672,7 +656,7 @@ mod tests {
         };
         let (mut err_lagged, mut err_common, mut covered) = (vec![], vec![], 0);
         for seed in 0..seeds {
-            let x = growing_record(truth, seed);
+            let x = super::super::tests::growing_record(truth, seed);
             let grown = x[x.len() - 400..].iter().map(|v| v * v).sum::<f64>()
                 / x[..400].iter().map(|v| v * v).sum::<f64>();
             assert!(grown > 4.0, "seed {seed}: the record grows ({grown})");
