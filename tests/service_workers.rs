@@ -415,3 +415,133 @@ async fn a_dead_worker_thread_fails_liveness_naming_it() {
         "{body}"
     );
 }
+
+/// A fake whose first window blocks until `release` is set: a worker stuck in a computation
+/// that does not return (as nalgebra's uncapped Schur iteration once did, session 53).
+#[derive(Default)]
+struct StuckOnce {
+    inner: Fake,
+    release: std::sync::atomic::AtomicBool,
+    entered: std::sync::atomic::AtomicBool,
+}
+
+impl gatewatch::service::worker::WindowAnalyzer for StuckOnce {
+    fn analyze(
+        &self,
+        gate: &str,
+        input: gatewatch::analysis::WindowInput<'_>,
+        warm: Option<&[f64]>,
+        seed: u64,
+    ) -> Result<gatewatch::analysis::WindowAnalysis, gatewatch::analysis::AnalysisError> {
+        if !self.entered.swap(true, Ordering::SeqCst) {
+            while !self.release.load(Ordering::SeqCst) {
+                std::thread::sleep(Duration::from_millis(5));
+            }
+        }
+        self.inner.analyze(gate, input, warm, seed)
+    }
+}
+
+/// `gatewatch_identification_longest_running_seconds` as rendered at a scrape.
+fn longest_running(state: &gatewatch::service::state::AppState) -> f64 {
+    let text = state.render_metrics();
+    let line = text
+        .lines()
+        .find(|l| l.starts_with("gatewatch_identification_longest_running_seconds "))
+        .unwrap_or_else(|| panic!("no longest-running gauge in\n{text}"));
+    line.rsplit(' ').next().unwrap().parse().unwrap()
+}
+
+/// An identification that runs past `server.identification_timeout_seconds` fails liveness
+/// and readiness naming its gate while it runs, shows in the longest-running gauge, is
+/// reported once (the tick logs it), and the daemon is healthy again once the job returns.
+#[tokio::test]
+async fn a_stuck_identification_fails_liveness_until_it_returns() {
+    let stuck = Arc::new(StuckOnce::default());
+    let (app, state) = gatewatch::service::server::build_app(
+        config("identification_timeout_seconds = 0.5"),
+        stuck.clone(),
+    )
+    .unwrap();
+    assert_eq!(longest_running(&state), 0.0);
+    assert_eq!(
+        post_json(&app, uniform("g1", 0.0, 100)).await.0,
+        StatusCode::NO_CONTENT
+    );
+    wait_until(|| stuck.entered.load(Ordering::SeqCst)).await;
+    assert_eq!(state.pool().in_flight(), 1);
+    // the worker is stuck: after the timeout both probes fail, naming the gate and the key
+    let mut body = String::new();
+    wait_until(|| {
+        let why = state.unrecoverable();
+        body = why.join("; ");
+        !why.is_empty()
+    })
+    .await;
+    assert!(
+        body.contains("gate `g1`")
+            && body.contains("past server.identification_timeout_seconds = 0.5")
+            && body.contains("its worker is stuck"),
+        "{body}"
+    );
+    let (s, text, _) = send(&app, "GET", "/healthz", Body::empty(), None).await;
+    assert_eq!(s, StatusCode::SERVICE_UNAVAILABLE, "{text}");
+    assert!(
+        text.as_str().unwrap_or_default().contains("gate `g1`"),
+        "{text}"
+    );
+    let (s, text, _) = send(&app, "GET", "/readyz", Body::empty(), None).await;
+    assert_eq!(s, StatusCode::SERVICE_UNAVAILABLE, "{text}");
+    assert!(longest_running(&state) > 0.5);
+    // the tick reports (logs) the stuck job once: nothing is new afterwards
+    state.tick(std::time::SystemTime::now());
+    assert!(state
+        .pool()
+        .newly_overdue(Duration::from_secs_f64(0.5))
+        .is_empty());
+    assert_eq!(state.pool().overdue(Duration::from_secs_f64(0.5)).len(), 1);
+    // the job returns: healthy again, nothing in flight
+    stuck.release.store(true, Ordering::SeqCst);
+    wait_until(|| state.pool().in_flight() == 0).await;
+    let (s, text, _) = send(&app, "GET", "/healthz", Body::empty(), None).await;
+    assert_eq!(s, StatusCode::OK, "{text}");
+    assert_eq!(longest_running(&state), 0.0);
+    assert_eq!(stuck.inner.n.load(Ordering::SeqCst), 1);
+}
+
+/// A job that ran past the limit is returned once by `newly_overdue` and on every call by
+/// `overdue`; a job within the limit by neither.
+#[tokio::test]
+async fn an_overdue_job_is_new_once() {
+    let stuck = Arc::new(StuckOnce::default());
+    let pool = WorkerPool::start(1, 4, stuck.clone(), Arc::new(|_: &Job, _, _| {})).unwrap();
+    let job = Job {
+        gate: "g1".into(),
+        t0: 0.0,
+        rate_hz: 100.0,
+        values: vec![0.0; 100],
+        history: Vec::new(),
+        end_index: 100,
+        generation: 0,
+    };
+    assert_eq!(pool.submit(job), Submitted::Queued);
+    wait_until(|| stuck.entered.load(Ordering::SeqCst)).await;
+    assert!(pool.overdue(Duration::from_secs(3600)).is_empty());
+    assert!(pool.newly_overdue(Duration::from_secs(3600)).is_empty());
+    tokio::time::sleep(Duration::from_millis(30)).await;
+    let limit = Duration::from_millis(20);
+    let first = pool.newly_overdue(limit);
+    assert_eq!(first.len(), 1);
+    assert_eq!((first[0].gate.as_str(), first[0].end_index), ("g1", 100));
+    assert!(first[0].running > limit);
+    assert!(pool.newly_overdue(limit).is_empty());
+    assert_eq!(pool.overdue(limit).len(), 1);
+    let (gate, running) = pool.longest_running().unwrap();
+    assert_eq!(gate, "g1");
+    assert!(running >= first[0].running);
+    stuck.release.store(true, Ordering::SeqCst);
+    wait_until(|| pool.in_flight() == 0).await;
+    assert!(pool.overdue(Duration::ZERO).is_empty());
+    assert_eq!(pool.longest_running(), None);
+    pool.shutdown(Duration::from_secs(5)).await;
+}

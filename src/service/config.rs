@@ -39,6 +39,11 @@ pub const MAX_GATES_LIMIT: usize = 10_000;
 /// memory, and more workers than cores only share them (a typo of 100000 reached the process
 /// limit and `serve` exited naming no key).
 pub const MAX_WORKER_THREADS: usize = 256;
+/// Default bound on one identification's wall time, seconds. A cold window takes 0.1 s to a
+/// minute on one core (docs/benchmarks.md); five minutes is far past any window that
+/// progresses, and short enough that a stuck worker (a decomposition that never converged, in
+/// session 53) is restarted within minutes by the liveness probe.
+pub const DEFAULT_IDENTIFICATION_TIMEOUT_SECONDS: f64 = 300.0;
 /// Default bound on simultaneous raw TCP connections.
 pub const DEFAULT_MAX_TCP_CONNECTIONS: usize = 64;
 /// Default seconds given to in-flight jobs and notifications at shutdown.
@@ -112,6 +117,10 @@ pub struct ServerConfig {
     pub max_gates: usize,
     /// Most identification jobs waiting (one per gate at most); 0: `max_gates`.
     pub job_queue: usize,
+    /// Seconds one identification may run before the daemon counts its worker as stuck:
+    /// logged, and `/healthz` fails (503) while it runs, so that a liveness probe restarts the
+    /// daemon (a thread cannot be stopped from outside; see `worker.rs`).
+    pub identification_timeout_seconds: f64,
     /// Most simultaneous raw TCP connections.
     pub max_tcp_connections: usize,
     /// Seconds from the stop signal to the end of the shutdown: open requests, in-flight jobs and
@@ -148,6 +157,7 @@ impl Default for ServerConfig {
             worker_threads: 0,
             max_gates: DEFAULT_MAX_GATES,
             job_queue: 0,
+            identification_timeout_seconds: DEFAULT_IDENTIFICATION_TIMEOUT_SECONDS,
             max_tcp_connections: DEFAULT_MAX_TCP_CONNECTIONS,
             shutdown_grace_seconds: DEFAULT_SHUTDOWN_GRACE_SECONDS,
             accept_unknown_gates: true,
@@ -172,6 +182,14 @@ impl ServerConfig {
                 .unwrap_or(1)
                 .max(1)
         }
+    }
+
+    /// [`ServerConfig::identification_timeout_seconds`] as a duration (the default's where the
+    /// value was not validated and is no duration).
+    pub fn identification_timeout(&self) -> std::time::Duration {
+        std::time::Duration::try_from_secs_f64(self.identification_timeout_seconds).unwrap_or(
+            std::time::Duration::from_secs_f64(DEFAULT_IDENTIFICATION_TIMEOUT_SECONDS),
+        )
     }
 
     /// Bound on waiting jobs.
@@ -806,6 +824,15 @@ impl Config {
         {
             return err(
                 "request_timeout_seconds",
+                &format!("must be > 0 and <= {MAX_SECONDS} (one year)"),
+            );
+        }
+        if !(s.identification_timeout_seconds.is_finite()
+            && s.identification_timeout_seconds > 0.0
+            && s.identification_timeout_seconds <= MAX_SECONDS)
+        {
+            return err(
+                "identification_timeout_seconds",
                 &format!("must be > 0 and <= {MAX_SECONDS} (one year)"),
             );
         }

@@ -14,8 +14,8 @@ use std::collections::HashMap;
 
 use prometheus::core::{Collector, MetricVec, MetricVecBuilder};
 use prometheus::{
-    Encoder, GaugeVec, Histogram, HistogramOpts, HistogramVec, IntCounter, IntCounterVec, Opts,
-    Registry, TextEncoder,
+    Encoder, Gauge, GaugeVec, Histogram, HistogramOpts, HistogramVec, IntCounter, IntCounterVec,
+    Opts, Registry, TextEncoder,
 };
 
 use crate::alert::notify::{StatsSnapshot, TargetType};
@@ -80,6 +80,10 @@ pub struct Metrics {
     pub identification_duration: Histogram,
     /// `gatewatch_identification_jobs_replaced_total`.
     pub jobs_replaced: IntCounter,
+    /// `gatewatch_identification_longest_running_seconds`: how long the identification in
+    /// flight the longest has run (0: none runs), set at each scrape. Past
+    /// `server.identification_timeout_seconds` its worker counts as stuck.
+    pub longest_running: Gauge,
     /// `gatewatch_identification_failures_total{reason}`.
     pub identification_failures: IntCounterVec,
     /// `gatewatch_identifications_total{gate,path}`: windows identified, by path ("tracked" or
@@ -305,6 +309,14 @@ impl Metrics {
         registry
             .register(Box::new(gates_expired.clone()))
             .expect("unique metric");
+        let longest_running = Gauge::new(
+            "gatewatch_identification_longest_running_seconds",
+            "How long the identification running the longest has run, seconds (0: none runs); past server.identification_timeout_seconds its worker is stuck and /healthz fails.",
+        )
+        .expect("valid metric");
+        registry
+            .register(Box::new(longest_running.clone()))
+            .expect("unique metric");
         let notifications_queued = IntCounter::new(
             "gatewatch_notifications_queued_total",
             "Batches of alert events handed to the notifier (each then goes to every target).",
@@ -428,6 +440,7 @@ impl Metrics {
             ),
             identification_duration,
             jobs_replaced,
+            longest_running,
             identification_failures: counter(
                 "gatewatch_identification_failures_total",
                 "Identification jobs that failed, by reason.",

@@ -299,9 +299,11 @@ impl AppState {
     }
 
     /// Why the daemon cannot recover without a restart (`/healthz` 503 says it, so that an
-    /// orchestrator's liveness probe restarts it), or `None`. Two states: an identification
+    /// orchestrator's liveness probe restarts it), or `None`. Three states: an identification
     /// worker thread no longer runs (nothing restarts it: the gates' windows pile up unanalysed),
-    /// or the store's file was deleted or replaced under the daemon (every write is refused
+    /// one identification has run past `server.identification_timeout_seconds` (its worker is
+    /// stuck: a thread cannot be stopped from outside, and its gate is not identified again
+    /// while it runs; the state ends by itself if the job returns), or the store's file was deleted or replaced under the daemon (every write is refused
     /// until the same file is back at its path, which a deletion never brings) or the NATS
     /// store's prefix was taken by another daemon (its owner lease lost: nothing is written
     /// any more). Readiness alone failed there, and a pod out of its endpoints with a live
@@ -316,6 +318,17 @@ impl AppState {
         if running < wanted {
             why.push(format!(
                 "{running} of {wanted} identification worker threads running"
+            ));
+        }
+        let limit = &self.config.server;
+        for o in self.pool().overdue(limit.identification_timeout()) {
+            why.push(format!(
+                "the identification of gate `{}` (window ending at sample {}) has run {:.1} s, \
+                 past server.identification_timeout_seconds = {}: its worker is stuck",
+                o.gate,
+                o.end_index,
+                o.running.as_secs_f64(),
+                limit.identification_timeout_seconds
             ));
         }
         if let Some(p) = self.persistence.as_ref().filter(|p| !p.writer.healthy()) {
@@ -538,6 +551,10 @@ impl AppState {
 
     /// The Prometheus text exposition, with the notifier's counters brought up to date.
     pub fn render_metrics(&self) -> String {
+        let longest = self.pool().longest_running().map(|(_, d)| d);
+        self.metrics
+            .longest_running
+            .set(longest.unwrap_or_default().as_secs_f64());
         self.notification_counts
             .sync(&self.metrics, self.notifier.stats().snapshot());
         if let Some(p) = &self.persistence {

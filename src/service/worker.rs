@@ -7,7 +7,11 @@
 //! flight, so the warm start of a gate's next job is always its previous result: the pool keeps
 //! each gate's [`Previous`] (the tracking memory of `analysis::tracking`) and hands it to the
 //! next job. Every job runs under `catch_unwind`: a panic in the numerics is logged and counted
-//! as a failed job.
+//! as a failed job. The pool knows when each job in flight started: one that runs past
+//! `server.identification_timeout_seconds` is reported ([`WorkerPool::overdue`]) so that the
+//! daemon's liveness fails while it runs. Why not cancel it: a thread cannot be stopped from
+//! outside, and a cancellation flag checked between iterations does not reach a call that never
+//! returns, which is what a stuck worker is (docs/operations.md, "A stuck identification").
 
 use std::collections::{HashMap, HashSet, VecDeque};
 use std::panic::{catch_unwind, AssertUnwindSafe};
@@ -229,11 +233,31 @@ pub enum Submitted {
     Closed,
 }
 
+/// A job a worker runs.
+struct Running {
+    started: Instant,
+    end_index: u64,
+    /// Whether [`WorkerPool::newly_overdue`] returned it.
+    reported: bool,
+}
+
+/// A job that has run longer than `server.identification_timeout_seconds`.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Overdue {
+    /// Its gate.
+    pub gate: String,
+    /// Index of the sample after its window's last.
+    pub end_index: u64,
+    /// How long it has run.
+    pub running: Duration,
+}
+
 #[derive(Default)]
 struct Sched {
     pending: HashMap<String, Job>,
     order: VecDeque<String>,
-    in_flight: HashSet<String>,
+    /// The gates whose job a worker runs, with when it started and the window's end index.
+    in_flight: HashMap<String, Running>,
     /// Each gate's tracking memory (bounded by the live gates: an expired gate's is forgotten,
     /// [`WorkerPool::forget`]).
     previous: HashMap<String, Previous>,
@@ -330,7 +354,7 @@ impl WorkerPool {
         if s.pending.remove(gate).is_some() {
             s.order.retain(|g| g != gate);
         }
-        if s.in_flight.contains(gate) {
+        if s.in_flight.contains_key(gate) {
             s.forgotten.insert(gate.to_string());
         }
     }
@@ -361,6 +385,55 @@ impl WorkerPool {
     /// Jobs in flight.
     pub fn in_flight(&self) -> usize {
         lock(&self.shared.sched).in_flight.len()
+    }
+
+    /// The job in flight that has run longest: its gate and how long it has run. `None` when
+    /// no job runs.
+    pub fn longest_running(&self) -> Option<(String, Duration)> {
+        let s = lock(&self.shared.sched);
+        s.in_flight
+            .iter()
+            .map(|(g, r)| (g, r.started.elapsed()))
+            .max_by_key(|(_, d)| *d)
+            .map(|(g, d)| (g.clone(), d))
+    }
+
+    /// The jobs in flight that have run longer than `limit` (gate, window end index, time run),
+    /// longest first.
+    pub fn overdue(&self, limit: Duration) -> Vec<Overdue> {
+        let s = lock(&self.shared.sched);
+        let mut v: Vec<Overdue> = s
+            .in_flight
+            .iter()
+            .map(|(g, r)| Overdue {
+                gate: g.clone(),
+                end_index: r.end_index,
+                running: r.started.elapsed(),
+            })
+            .filter(|o| o.running > limit)
+            .collect();
+        v.sort_by(|a, b| b.running.cmp(&a.running).then_with(|| a.gate.cmp(&b.gate)));
+        v
+    }
+
+    /// [`WorkerPool::overdue`] jobs not returned by an earlier call of this function: each
+    /// overdue job once (to be logged once, not every second while it runs).
+    pub fn newly_overdue(&self, limit: Duration) -> Vec<Overdue> {
+        let mut s = lock(&self.shared.sched);
+        let mut v = Vec::new();
+        for (g, r) in s.in_flight.iter_mut() {
+            let running = r.started.elapsed();
+            if running > limit && !r.reported {
+                r.reported = true;
+                v.push(Overdue {
+                    gate: g.clone(),
+                    end_index: r.end_index,
+                    running,
+                });
+            }
+        }
+        v.sort_by(|a, b| a.gate.cmp(&b.gate));
+        v
     }
 
     /// Stops taking jobs, abandons pending ones and waits up to `grace` for the jobs in flight.
@@ -395,9 +468,9 @@ impl WorkerPool {
 /// Counts its worker out of `running_workers` when the thread ends: at the pool's shutdown, or
 /// by a panic outside the job's `catch_unwind` (then nothing restarts the thread, and
 /// `/healthz` says so).
-struct Running(Arc<Shared>);
+struct WorkerAlive(Arc<Shared>);
 
-impl Drop for Running {
+impl Drop for WorkerAlive {
     fn drop(&mut self) {
         lock(&self.0.sched).running_workers -= 1;
     }
@@ -405,7 +478,7 @@ impl Drop for Running {
 
 fn worker_loop(shared: Arc<Shared>) {
     // dropped after any guard of the loop below (declared first), so its lock does not deadlock
-    let _running = Running(shared.clone());
+    let _alive = WorkerAlive(shared.clone());
     loop {
         let (job, previous) = {
             let mut s = lock(&shared.sched);
@@ -414,11 +487,18 @@ fn worker_loop(shared: Arc<Shared>) {
                     return;
                 }
                 // the oldest waiting gate that is not in flight
-                let pos = s.order.iter().position(|g| !s.in_flight.contains(g));
+                let pos = s.order.iter().position(|g| !s.in_flight.contains_key(g));
                 if let Some(pos) = pos {
                     let gate = s.order.remove(pos).expect("position is in range");
                     let job = s.pending.remove(&gate).expect("order and pending agree");
-                    s.in_flight.insert(gate.clone());
+                    s.in_flight.insert(
+                        gate.clone(),
+                        Running {
+                            started: Instant::now(),
+                            end_index: job.end_index,
+                            reported: false,
+                        },
+                    );
                     let previous = s.previous.get(&gate).cloned();
                     break (job, previous);
                 }

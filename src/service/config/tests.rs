@@ -360,6 +360,18 @@ fn durations_are_bounded_not_panicking() {
             "[defaults]\nmax_past_seconds = 1e300\n",
             "defaults.max_past_seconds",
         ),
+        (
+            "[server]\nidentification_timeout_seconds = 1e300\n",
+            "server.identification_timeout_seconds: must be > 0",
+        ),
+        (
+            "[server]\nidentification_timeout_seconds = 0\n",
+            "server.identification_timeout_seconds: must be > 0",
+        ),
+        (
+            "[server]\nidentification_timeout_seconds = nan\n",
+            "server.identification_timeout_seconds: must be > 0",
+        ),
     ] {
         let e = err(text);
         assert!(e.starts_with(key), "{text}: {e}");
@@ -369,6 +381,19 @@ fn durations_are_bounded_not_panicking() {
         "[server]\nrequest_timeout_seconds = {MAX_SECONDS}\n"
     ))
     .unwrap();
+    let c = Config::from_toml(&format!(
+        "[server]\nidentification_timeout_seconds = {MAX_SECONDS}\n"
+    ))
+    .unwrap();
+    assert_eq!(c.server.identification_timeout().as_secs_f64(), MAX_SECONDS);
+    assert_eq!(
+        Config::from_toml("")
+            .unwrap()
+            .server
+            .identification_timeout()
+            .as_secs_f64(),
+        DEFAULT_IDENTIFICATION_TIMEOUT_SECONDS
+    );
 }
 
 #[test]

@@ -1,12 +1,14 @@
 //! The once-a-second tick: unknown gates that stopped sending expire, silent gates raise
-//! `GateDataStale`.
+//! `GateDataStale`, a stuck identification is logged.
 
 #[allow(unused_imports)]
 use super::*;
 
 impl AppState {
-    /// Once a second: forgets expired unknown gates, raises GateDataStale for silent gates.
+    /// Once a second: logs stuck identifications, forgets expired unknown gates, raises
+    /// GateDataStale for silent gates.
     pub fn tick(&self, now: SystemTime) {
+        self.log_stuck_workers();
         let mut inner = lock(&self.inner);
         let (mut events, mut expired) = self.expire_unknown_gates(&mut inner, now);
         if self.restart_expiry_due(&inner, now) {
@@ -40,6 +42,26 @@ impl AppState {
         // none behind (label cardinality stays bounded by the live gates).
         for id in &expired {
             self.metrics.remove_gate(id);
+        }
+    }
+
+    /// Logs, once per job, each identification that has run past
+    /// `server.identification_timeout_seconds` (`/healthz` fails while it runs).
+    fn log_stuck_workers(&self) {
+        let timeout = self.config.server.identification_timeout_seconds;
+        for o in self
+            .pool()
+            .newly_overdue(self.config.server.identification_timeout())
+        {
+            tracing::error!(
+                gate = %o.gate,
+                end_index = o.end_index,
+                running_seconds = (o.running.as_secs_f64() * 10.0).round() / 10.0,
+                identification_timeout_seconds = timeout,
+                "an identification has run past its timeout: its worker is stuck, the gate is \
+                 not identified while it runs, and /healthz fails (a liveness probe restarts \
+                 the daemon)"
+            );
         }
     }
 
