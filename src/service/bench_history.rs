@@ -309,8 +309,7 @@ fn measure(args: &BenchHistoryArgs, per_gate: usize, target: &Target) -> anyhow:
         .worker_threads(2)
         .enable_all()
         .build()?;
-    let (json_ms, csv_ms, bytes) =
-        runtime.block_on(route(target, &gates[0], start, now, args))?;
+    let (json_ms, csv_ms, bytes) = runtime.block_on(route(target, &gates[0], start, now, args))?;
     let line = |what: &str, ms: &[f64]| {
         let mut warm = ms[1..].to_vec();
         warm.sort_by(f64::total_cmp);

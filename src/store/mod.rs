@@ -357,7 +357,9 @@ pub trait Store: Send + Sync + 'static {
     fn history_rows(&self, query: &HistoryQuery) -> Result<Vec<HistoryRow>, StoreError>;
 
     /// The newest `n` rows of one gate's history (at most [`MAX_HISTORY_LIMIT`]), oldest first:
-    /// what a restart rebuilds the gate's analysis memory from.
+    /// what a restart rebuilds the gate's analysis memory from. SQLite takes the largest window
+    /// ends; NATS the last `n` stored, read from its stream's end, which are the same for the
+    /// rows a daemon writes (a gate's windows in their order).
     fn latest_history_rows(&self, gate: &str, n: usize) -> Result<Vec<HistoryRow>, StoreError>;
 
     /// The gates that have history, by name, at most `limit`.

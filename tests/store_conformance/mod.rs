@@ -261,6 +261,54 @@ pub fn numbers_come_back_bit_for_bit(s: &dyn Store) {
 pub type Check = fn(&dyn Store);
 
 /// Every check, by name.
+/// Five gates written interleaved, as the daemon writes them, 2 600 windows each (more than
+/// one fetch of the NATS reader, and a gate's rows far apart in the stream): the newest rows
+/// of a gate and a bounded range of its history come right, whatever the history's length.
+/// (The NATS store reads the newest rows from the stream's end and keeps only the requested
+/// rows of a range while the subject streams by: `src/store/nats/read.rs`.)
+pub fn many_gates_interleaved(s: &dyn Store) {
+    const GATES: usize = 5;
+    const PER_GATE: usize = 2600;
+    let gate = |g: usize| format!("m{g}");
+    let end = |i: usize| 5000.0 + 5.0 * i as f64;
+    for chunk in (0..PER_GATE).collect::<Vec<_>>().chunks(500) {
+        let identifications = chunk
+            .iter()
+            .flat_map(|&i| (0..GATES).map(move |g| (g, i)))
+            .map(|(g, i)| record(&gate(g), end(i), 0.001 * g as f64))
+            .collect();
+        s.write(&WriteBatch {
+            identifications,
+            ..Default::default()
+        })
+        .expect("write");
+    }
+    let all: Vec<f64> = (0..PER_GATE).map(end).collect();
+    let latest = |g: usize, n: usize| ends(&s.latest_history_rows(&gate(g), n).expect("latest"));
+    assert_eq!(latest(3, 7), all[PER_GATE - 7..], "the newest 7 of m3");
+    assert_eq!(latest(0, 1), [end(PER_GATE - 1)], "the newest of m0");
+    assert_eq!(latest(4, 1999), all[PER_GATE - 1999..]);
+    assert_eq!(latest(2, PER_GATE), all, "exactly all");
+    assert_eq!(latest(1, 10 * PER_GATE), all, "more than there are");
+    assert!(latest(1, 0).is_empty());
+    let rows = s.latest_history_rows(&gate(3), 2).expect("latest");
+    assert!(rows
+        .iter()
+        .all(|r| r.gate == "m3" && r.zeta0 == Some(0.003)));
+    let range = s
+        .history_rows(&query(&gate(1), Some(all[100]), Some(all[2500]), 1500))
+        .expect("range");
+    assert_eq!(ends(&range), all[100..1600], "from, to, then the limit");
+    let whole = s
+        .history_rows(&query(&gate(4), None, None, 100_000))
+        .expect("whole");
+    assert_eq!(ends(&whole), all);
+    assert!(s
+        .history_rows(&query(&gate(2), Some(1e9), None, 10))
+        .expect("past the end")
+        .is_empty());
+}
+
 pub const CHECKS: &[(&str, Check)] = &[
     ("latest rows and gates", latest_rows_and_gates),
     (
@@ -272,4 +320,5 @@ pub const CHECKS: &[(&str, Check)] = &[
     ("prune", prune_applies_retention_then_the_row_bound),
     ("awkward gate names", awkward_gate_names),
     ("numbers bit for bit", numbers_come_back_bit_for_bit),
+    ("many gates interleaved", many_gates_interleaved),
 ];

@@ -40,11 +40,13 @@
 mod lease;
 mod names;
 mod ops;
+mod read;
 
 use std::future::Future;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
+use async_nats::jetstream::consumer::DeliverPolicy;
 use async_nats::jetstream::{self, stream};
 use serde::{Deserialize, Serialize};
 
@@ -58,10 +60,10 @@ use names::Names;
 pub use names::{decode, encode, valid_prefix};
 
 /// How long one store call (a write, a query, the connection at open) may take before it fails
-/// with an error naming the server. The SQLite store waits up to 5 s for a lock; a read of a
-/// gate's whole history (up to [`MAX_HISTORY_LIMIT`] rows in ~1 000-message fetches) takes
-/// well under a second on loopback, so 10 s is a server that is down or overloaded, not a
-/// slow query.
+/// with an error naming the server. The SQLite store waits up to 5 s for a lock. A gate's
+/// newest rows are read from the stream's end in milliseconds; a history range reads the
+/// gate's whole subject (about 1.8 s per week of one gate on loopback, `read`), so 10 s is a
+/// server that is down or overloaded, or a gate kept for more than about a month.
 pub const OPERATION_TIMEOUT: Duration = Duration::from_secs(10);
 
 /// Worker threads of the store's own runtime: one holds the connection and runs the calls; the
@@ -440,31 +442,11 @@ impl NatsStore {
             message,
         }
     }
+}
 
-    /// Every row of one gate, in the order it was stored.
-    fn gate_rows(
-        &self,
-        operation: &'static str,
-        gate: &str,
-    ) -> Result<Vec<HistoryRow>, StoreError> {
-        let subject = self.names.history_subject(gate);
-        let messages = self.run(operation, move |c| async move {
-            ops::read_subject(&c.history, subject).await
-        })?;
-        let mut rows = Vec::with_capacity(messages.len());
-        for (seq, payload) in messages {
-            let row: HistoryRow =
-                serde_json::from_slice(&payload).map_err(|e| StoreError::Decode {
-                    operation,
-                    message: format!("history message {seq} of gate {gate}: {e}"),
-                })?;
-            rows.push(row);
-        }
-        // oldest window first; equal ends in the order stored (a stable sort), as SQLite's
-        // (window_end, seq)
-        rows.sort_by(|a, b| a.window_end.total_cmp(&b.window_end));
-        Ok(rows)
-    }
+/// History message `seq` of `gate` decoded; the failure names both.
+fn decode_row(gate: &str, seq: u64, payload: &[u8]) -> Result<HistoryRow, Failure> {
+    serde_json::from_slice(payload).map_err(ctx(format!("history message {seq} of gate {gate}")))
 }
 
 /// Takes the owner lease of `options.prefix` at open (see `lease`).
@@ -541,20 +523,47 @@ impl Store for NatsStore {
     }
 
     fn history_rows(&self, q: &HistoryQuery) -> Result<Vec<HistoryRow>, StoreError> {
-        let from = q.from.unwrap_or(f64::MIN);
-        let to = q.to.unwrap_or(f64::MAX);
-        Ok(self
-            .gate_rows("history", &q.gate)?
-            .into_iter()
-            .filter(|r| r.window_end >= from && r.window_end <= to)
-            .take(q.limit.min(MAX_HISTORY_LIMIT))
-            .collect())
+        let (from, to) = (q.from.unwrap_or(f64::MIN), q.to.unwrap_or(f64::MAX));
+        let limit = q.limit.min(MAX_HISTORY_LIMIT);
+        let (gate, subject) = (q.gate.clone(), self.names.history_subject(&q.gate));
+        // the whole subject streams by; at most `limit` rows are kept (`read`)
+        self.run("history", move |c| async move {
+            let mut first = read::FirstRows::new(limit);
+            read::read_each(
+                &c.history,
+                subject,
+                DeliverPolicy::All,
+                |seq, _, payload| {
+                    let row = decode_row(&gate, seq, payload)?;
+                    if row.window_end >= from && row.window_end <= to {
+                        first.offer(seq, row);
+                    }
+                    Ok(true)
+                },
+            )
+            .await?;
+            Ok(first.into_rows())
+        })
     }
 
+    /// The last `n` rows stored for the gate, oldest window first: read from the stream's end
+    /// (`read::read_last`), so a restart does not read a month of history per gate. The last
+    /// stored are the newest windows because the daemon writes a gate's windows in their order
+    /// (one job per gate in flight, one writer); rows written out of order (a replay started
+    /// again) come as stored, where SQLite would take the largest window ends.
     fn latest_history_rows(&self, gate: &str, n: usize) -> Result<Vec<HistoryRow>, StoreError> {
-        let mut rows = self.gate_rows("latest history", gate)?;
         let n = n.min(MAX_HISTORY_LIMIT);
-        Ok(rows.split_off(rows.len().saturating_sub(n)))
+        let (gate, subject) = (gate.to_string(), self.names.history_subject(gate));
+        self.run("latest history", move |c| async move {
+            let mut rows = read::read_last(&c.history, subject, n)
+                .await?
+                .into_iter()
+                .map(|(seq, payload)| decode_row(&gate, seq, &payload))
+                .collect::<Result<Vec<_>, Failure>>()?;
+            // oldest window first; equal ends in the order stored (a stable sort)
+            rows.sort_by(|a, b| a.window_end.total_cmp(&b.window_end));
+            Ok(rows)
+        })
     }
 
     fn history_gates(&self, limit: usize) -> Result<Vec<String>, StoreError> {
@@ -570,7 +579,11 @@ impl Store for NatsStore {
     fn outbox(&self) -> Result<Vec<OutboxRow>, StoreError> {
         let filter = format!("{}.outbox.*.*", self.names.prefix);
         let messages = self.run("read of the outbox", move |c| async move {
-            ops::read_subject(&c.outbox, filter).await
+            let all = read::read_from(&c.outbox, filter, usize::MAX).await?;
+            Ok(all
+                .into_iter()
+                .map(|(seq, _, p)| (seq, p))
+                .collect::<Vec<_>>())
         })?;
         messages
             .into_iter()

@@ -1,13 +1,11 @@
 //! The store's operations as they run on its runtime: the connection and the streams at
-//! open, reading a subject through an ephemeral consumer, the write of a batch in its order,
-//! the pruning. Each returns the failure as text; `NatsStore` names the server and the
+//! open, the write of a batch in its order, the pruning (reading a subject: `read`). Each returns the failure as text; `NatsStore` names the server and the
 //! operation around it.
 
 use std::sync::Arc;
 use std::time::Duration;
 
 use async_nats::jetstream;
-use async_nats::jetstream::consumer::{pull, AckPolicy, DeliverPolicy};
 use async_nats::jetstream::context::GetStreamErrorKind;
 use async_nats::jetstream::message::PublishMessage as Publish;
 use async_nats::jetstream::stream::{
@@ -19,7 +17,8 @@ use futures_util::StreamExt;
 use super::super::row::{stored_row, HistoryRow};
 use super::super::{Pruned, WriteBatch};
 use super::names::{decode, encode, Names};
-use super::{ctx, Conn, Failure, NatsOptions, StoredOutbox, FETCH_BATCH, PRUNE_SCAN_MAX};
+use super::read::{read_from, read_messages};
+use super::{ctx, Conn, Failure, NatsOptions, StoredOutbox, PRUNE_SCAN_MAX};
 
 /// The JetStream context of a new connection to `url`, each request given `timeout`.
 async fn context(url: &str, timeout: Duration) -> Result<jetstream::Context, Failure> {
@@ -150,83 +149,6 @@ pub(super) async fn connect(o: NatsOptions, names: Names) -> Result<Conn, Failur
         owner,
         names,
     })
-}
-
-/// Every message of `subject` in `stream`, `(sequence, payload)` in stream order.
-pub(super) async fn read_subject(
-    stream: &stream::Stream,
-    subject: String,
-) -> Result<Vec<(u64, Vec<u8>)>, Failure> {
-    let all = read_from(stream, subject, usize::MAX).await?;
-    Ok(all.into_iter().map(|(seq, _, p)| (seq, p)).collect())
-}
-
-/// Every message of `subject` (a filter) in `stream`, `(subject, payload)` in stream order.
-pub(super) async fn read_messages(
-    stream: &stream::Stream,
-    subject: String,
-) -> Result<Vec<(String, Vec<u8>)>, Failure> {
-    let all = read_from(stream, subject, usize::MAX).await?;
-    Ok(all.into_iter().map(|(_, s, p)| (s, p)).collect())
-}
-
-/// The first `max` messages of `subject` (a filter) in `stream`, `(sequence, subject,
-/// payload)` in stream order: an ephemeral consumer without acks, fetched [`FETCH_BATCH`] at a
-/// time until none is pending.
-pub(super) async fn read_from(
-    stream: &stream::Stream,
-    subject: String,
-    max: usize,
-) -> Result<Vec<(u64, String, Vec<u8>)>, Failure> {
-    let mut consumer = stream
-        .create_consumer(pull::Config {
-            filter_subject: subject.clone(),
-            deliver_policy: DeliverPolicy::All,
-            ack_policy: AckPolicy::None,
-            // an abandoned reader's consumer goes away by itself
-            inactive_threshold: Duration::from_secs(60),
-            memory_storage: true,
-            ..Default::default()
-        })
-        .await
-        .map_err(|e| format!("reader of {subject}: {e}"))?;
-    let info = consumer
-        .info()
-        .await
-        .map_err(|e| format!("reader of {subject}: {e}"))?;
-    let name = info.name.clone();
-    let mut pending = info.num_pending;
-    let mut out = Vec::new();
-    let result: Result<(), Failure> = async {
-        while pending > 0 && out.len() < max {
-            let want = (max - out.len()).min(FETCH_BATCH);
-            let mut batch = consumer
-                .fetch()
-                .max_messages(want)
-                .messages()
-                .await
-                .map_err(|e| format!("read of {subject}: {e}"))?;
-            let before = out.len();
-            while let Some(m) = batch.next().await {
-                let m = m.map_err(|e| format!("read of {subject}: {e}"))?;
-                let info = m.info().map_err(|e| format!("read of {subject}: {e}"))?;
-                pending = info.pending;
-                out.push((
-                    info.stream_sequence,
-                    m.message.subject.to_string(),
-                    m.message.payload.to_vec(),
-                ));
-            }
-            if out.len() == before {
-                break; // nothing more came: the rest was deleted meanwhile
-            }
-        }
-        Ok(())
-    }
-    .await;
-    // the consumer is not needed any more (and expires by itself if this fails)
-    let _ = stream.delete_consumer(&name).await;
-    result.map(|()| out)
 }
 
 /// Deletes outbox row `seq`; a row that is already gone (delivered twice, or an id the stream
