@@ -283,6 +283,45 @@ fn serve_prints_the_same_warning_at_start() {
     );
 }
 
+/// A configuration `serve` cannot read is reported in the log format `GATEWATCH_LOG_FORMAT`
+/// asks for: with `json`, one JSON object naming the file, the key and the line (a log shipper
+/// that parses every line of a pod got this one, the reason it did not start, as plain text);
+/// without it, the plain line. Exit 2 either way.
+#[test]
+fn serve_reports_an_unreadable_configuration_in_the_environments_log_format() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("gatewatch.toml");
+    std::fs::write(&file, "[server]\nlisten = 5\n").unwrap();
+    let run = |format: Option<&str>| {
+        let mut c = Command::new(env!("CARGO_BIN_EXE_gatewatch"));
+        c.args(["serve", "--config", file.to_str().unwrap()])
+            .env_remove("GATEWATCH_LOG_FORMAT");
+        if let Some(f) = format {
+            c.env("GATEWATCH_LOG_FORMAT", f);
+        }
+        c.output().unwrap()
+    };
+    let o = run(Some("json"));
+    assert_eq!(o.status.code(), Some(2));
+    let err = text(&o.stderr);
+    let lines: Vec<&str> = err.lines().collect();
+    assert_eq!(lines.len(), 1, "{err}");
+    let v: serde_json::Value = serde_json::from_str(lines[0]).expect("a JSON line");
+    assert_eq!(v["level"], "ERROR", "{err}");
+    let why = v["fields"]["error"].as_str().unwrap_or_default();
+    assert!(
+        why.contains("gatewatch.toml: server.listen: invalid type") && why.ends_with("line 2"),
+        "{err}"
+    );
+    for format in [None, Some("text"), Some("xml")] {
+        let o = run(format);
+        assert_eq!(o.status.code(), Some(2));
+        let err = text(&o.stderr);
+        assert!(err.starts_with("gatewatch: "), "{format:?}: {err}");
+        assert!(!err.contains('{'), "{format:?}: {err}");
+    }
+}
+
 /// `simulate` refuses what it cannot stream before it connects: a rate of 1e12 Hz (6e14 samples,
 /// streamed for ever), a chunk of 1e9 s (one buffer of the whole stream, which aborted the
 /// process), a NaN speed or start.

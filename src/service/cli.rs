@@ -108,7 +108,19 @@ pub fn serve(args: ServeArgs) -> ExitCode {
     let mut config = match load_config(args.config.as_deref()) {
         Ok(c) => c,
         Err(e) => {
-            errln!("{}", config_error_line(args.config.as_deref(), &e));
+            let line = config_error_line(args.config.as_deref(), &e);
+            match format_before_the_config() {
+                LogFormat::Text => errln!("{line}"),
+                LogFormat::Json => {
+                    let why = line.strip_prefix("gatewatch: ").unwrap_or(&line);
+                    start_line(
+                        LogFormat::Json,
+                        "ERROR",
+                        "gatewatch failed: the configuration",
+                        Some(why),
+                    );
+                }
+            }
             return ExitCode::from(2);
         }
     };
@@ -153,6 +165,17 @@ pub fn serve(args: ServeArgs) -> ExitCode {
     }
 }
 
+/// The log format of a configuration that could not be read: JSON when `GATEWATCH_LOG_FORMAT`
+/// says `json` (how a container's log is parsed is set there, not in a file), else text. Why:
+/// with JSON logs the one line saying why the daemon did not start was the only line a log
+/// shipper could not parse.
+fn format_before_the_config() -> LogFormat {
+    match std::env::var("GATEWATCH_LOG_FORMAT").as_deref() {
+        Ok("json") => LogFormat::Json,
+        _ => LogFormat::Text,
+    }
+}
+
 /// A line `serve` writes to stderr itself, once the configuration is read: a warning of
 /// [`Config::warnings`] (before the logs are set up) or the fatal error it exits with.
 ///
@@ -160,8 +183,8 @@ pub fn serve(args: ServeArgs) -> ExitCode {
 /// object in the shape of the JSON logs (timestamp, level, fields with `message` and `error`,
 /// target), written here rather than through the log filter, so that a log shipper that parses
 /// each line gets these too and a `log.level` or `RUST_LOG` that mutes this module cannot drop
-/// the reason the daemon stopped. (A configuration that cannot be read is reported before its
-/// format is known: that line stays plain text.)
+/// the reason the daemon stopped. (A configuration that cannot be read is reported in
+/// `GATEWATCH_LOG_FORMAT`'s format, [`format_before_the_config`].)
 fn start_line(format: LogFormat, level: &str, message: &str, error: Option<&str>) {
     let line = match (format, error) {
         (LogFormat::Text, Some(e)) => format!("gatewatch: {e}"),
