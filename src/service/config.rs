@@ -445,6 +445,7 @@ pub const ENV_KEYS: &[(&str, &str)] = &[
     ("GATEWATCH_STORAGE_BACKEND", "storage.backend"),
     ("GATEWATCH_NATS_URL", "storage.nats_url"),
     ("GATEWATCH_NATS_PREFIX", "storage.nats_prefix"),
+    ("GATEWATCH_NATS_LEASE_SECONDS", "storage.nats_lease_seconds"),
     ("GATEWATCH_WORKER_THREADS", "server.worker_threads"),
     ("GATEWATCH_MAX_GATES", "server.max_gates"),
     (
@@ -736,6 +737,19 @@ impl Config {
                 )));
             }
             self.storage.nats_prefix = v;
+        }
+        if let Some(v) = get("GATEWATCH_NATS_LEASE_SECONDS") {
+            match v.trim().parse::<f64>() {
+                Ok(t) if t.is_finite() && (1.0..=MAX_SECONDS).contains(&t) => {
+                    self.storage.nats_lease_seconds = t
+                }
+                _ => {
+                    return Err(ConfigError::new(format!(
+                        "GATEWATCH_NATS_LEASE_SECONDS: {v:?} is not a number of seconds \
+                         from 1 to {MAX_SECONDS}"
+                    )))
+                }
+            }
         }
         if let Some(v) = get("GATEWATCH_LOG_LEVEL") {
             check_log_level(&v)

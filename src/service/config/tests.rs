@@ -558,8 +558,8 @@ fn refusing_unknown_gates_without_any_configured_gate_is_warned() {
     assert!(!warned(&c), "{:?}", c.warnings());
 }
 
-/// `GATEWATCH_STORAGE_BACKEND`, `GATEWATCH_NATS_URL` and `GATEWATCH_NATS_PREFIX` set the store
-/// without a configuration file (a Kubernetes pod on NATS); a bad value is refused naming the
+/// `GATEWATCH_STORAGE_BACKEND`, `GATEWATCH_NATS_URL`, `GATEWATCH_NATS_PREFIX` and
+/// `GATEWATCH_NATS_LEASE_SECONDS` set the store without a configuration file (a Kubernetes pod on NATS); a bad value is refused naming the
 /// variable (and for the backend the values it takes), and leaves the setting as it was.
 #[test]
 fn the_storage_backend_and_the_nats_server_from_the_environment() {
@@ -615,6 +615,20 @@ fn the_storage_backend_and_the_nats_server_from_the_environment() {
             "{bad:?}: {e}"
         );
         assert_eq!(c.storage.nats_prefix, "DAM_7");
+    }
+    c.apply_env(|k| (k == "GATEWATCH_NATS_LEASE_SECONDS").then(|| " 45 ".to_string()))
+        .unwrap();
+    assert_eq!(c.storage.nats_lease_seconds, 45.0);
+    for bad in ["", "0.5", "-30", "NaN", "inf", "30s", "1e300"] {
+        let e = c
+            .apply_env(|k| (k == "GATEWATCH_NATS_LEASE_SECONDS").then(|| bad.to_string()))
+            .unwrap_err();
+        assert!(
+            e.message.starts_with("GATEWATCH_NATS_LEASE_SECONDS: ")
+                && e.message.contains(&format!("{bad:?}")),
+            "{bad:?}: {e}"
+        );
+        assert_eq!(c.storage.nats_lease_seconds, 45.0);
     }
 }
 
