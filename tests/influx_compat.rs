@@ -260,6 +260,39 @@ async fn ping_health_and_query() {
     )
     .await;
     assert_eq!(s, StatusCode::OK, "{v}");
+    // q twice in the body, or once in the URL and once in the body: which one wins is a guess
+    // (a form read into a map took the last), so each is a 400 naming q
+    let form = ("content-type", "application/x-www-form-urlencoded");
+    for (uri, body, says) in [
+        (
+            "/query",
+            "q=CREATE+DATABASE+db1&q=SHOW+DATABASES",
+            "given more than once",
+        ),
+        (
+            "/query?q=CREATE+DATABASE+db1",
+            "q=SHOW+DATABASES",
+            "both the URL",
+        ),
+    ] {
+        let (s, v, _) = request(&app, "POST", uri, &[bearer, form], body).await;
+        assert_eq!(s, StatusCode::BAD_REQUEST, "{uri} {body}: {v}");
+        let message = v["message"].as_str().unwrap_or_default();
+        assert!(
+            message.contains(says) && message.contains("SHOW DATABASES"),
+            "{uri} {body}: {v}"
+        );
+    }
+    // a form body without q, q in the URL: the URL's
+    let (s, v, _) = request(
+        &app,
+        "POST",
+        "/query?q=CREATE+DATABASE+db2",
+        &[bearer, form],
+        "db=x&epoch=ms",
+    )
+    .await;
+    assert_eq!(s, StatusCode::OK, "{v}");
     let (s, v, h) = request(
         &app,
         "GET",

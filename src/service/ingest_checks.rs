@@ -131,20 +131,31 @@ fn unit_hint(batch: &Batch, t: f64, cfg: &GateConfig, now: f64) -> String {
 /// absent); a parameter given twice is refused, since which one wins is a guess (InfluxDB
 /// takes the first, most frameworks the last).
 pub fn single_param(query: Option<&str>, name: &str) -> Result<Option<String>, BadRequest> {
-    let mut found: Option<String> = None;
     let Some(query) = query else {
         return Ok(None);
     };
-    for (k, v) in form_urlencoded::parse(query.as_bytes()) {
-        if k == name {
-            if let Some(first) = &found {
-                return Err(BadRequest::new(format!(
-                    "parameter `{name}` given more than once (`{first}` and `{v}`)"
-                ))
-                .field(name));
-            }
-            found = Some(v.into_owned());
+    single_value(form_urlencoded::parse(query.as_bytes()), name)
+}
+
+/// The one value of `name` among urlencoded `pairs` (a query string's or a form body's), as
+/// [`single_param`]: `None` when absent, refused when given twice.
+pub fn single_value<K: AsRef<str>, V: AsRef<str>>(
+    pairs: impl IntoIterator<Item = (K, V)>,
+    name: &str,
+) -> Result<Option<String>, BadRequest> {
+    let mut found: Option<String> = None;
+    for (k, v) in pairs {
+        if k.as_ref() != name {
+            continue;
         }
+        if let Some(first) = &found {
+            return Err(BadRequest::new(format!(
+                "parameter `{name}` given more than once (`{first}` and `{}`)",
+                v.as_ref()
+            ))
+            .field(name));
+        }
+        found = Some(v.as_ref().to_string());
     }
     Ok(found)
 }

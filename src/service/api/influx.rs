@@ -7,13 +7,12 @@
 //! anything (clients such as Telegraf's `outputs.influxdb` and the v1 Python client issue it
 //! before their first write and stop when it fails).
 
-use std::collections::HashMap;
 use std::sync::Arc;
 
 use axum::body::Body;
 use axum::extract::rejection::FormRejection;
 use axum::extract::{Form, RawQuery, Request, State};
-use axum::http::{header, HeaderName, HeaderValue, StatusCode};
+use axum::http::{header, HeaderName, HeaderValue, Method, StatusCode};
 use axum::middleware::Next;
 use axum::response::{IntoResponse, Response};
 use axum::Json;
@@ -22,7 +21,7 @@ use tower_http::decompression::RequestDecompressionLayer;
 
 use super::HttpError;
 use crate::service::ingest::BadRequest;
-use crate::service::ingest_checks::single_param;
+use crate::service::ingest_checks::{single_param, single_value};
 use crate::service::metrics::RejectReason;
 use crate::service::state::AppState;
 
@@ -192,19 +191,40 @@ pub async fn health(State(state): State<Arc<AppState>>) -> Response {
 /// statements are answered, with success and no effect; anything else is 400 saying that
 /// gatewatch stores nothing to query (its data is at `/api/v1/gates` and `/metrics`).
 ///
-/// `q` given twice in the URL is a 400 naming it, as `precision` on `/write`: which one wins
-/// is a guess. Other parameters are accepted and ignored, as InfluxDB's clients send their own
-/// (`db`, `epoch`, `pretty`, `chunked`, `u`, `p`) and InfluxDB ignores the ones it does not use.
+/// `q` given twice is a 400 naming it, as `precision` on `/write`: twice in the URL, twice in
+/// the body, or once in each (which one wins is a guess: InfluxDB's Go server takes the body's,
+/// most frameworks the URL's). Other parameters are accepted and ignored, as InfluxDB's clients
+/// send their own (`db`, `epoch`, `pretty`, `chunked`, `u`, `p`) and InfluxDB ignores the ones
+/// it does not use.
 pub async fn query(
+    method: Method,
     RawQuery(raw): RawQuery,
-    form: Result<Form<HashMap<String, String>>, FormRejection>,
+    form: Result<Form<Vec<(String, String)>>, FormRejection>,
 ) -> Result<Response, HttpError> {
-    let q = single_param(raw.as_deref(), "q")
-        .map_err(HttpError::BadRequest)?
-        .or_else(|| form.ok().and_then(|Form(f)| f.get("q").cloned()))
-        .ok_or_else(|| {
-            HttpError::BadRequest(BadRequest::new("missing required parameter `q`").field("q"))
-        })?;
+    let in_url = single_param(raw.as_deref(), "q").map_err(HttpError::BadRequest)?;
+    // a GET's form is its query string again: only a POST has a body to read
+    let in_body = match form {
+        Ok(Form(pairs)) if method == Method::POST => {
+            single_value(pairs, "q").map_err(HttpError::BadRequest)?
+        }
+        _ => None,
+    };
+    let q = match (in_url, in_body) {
+        (Some(u), Some(b)) => {
+            return Err(HttpError::BadRequest(
+                BadRequest::new(format!(
+                    "parameter `q` given in both the URL (`{u}`) and the body (`{b}`)"
+                ))
+                .field("q"),
+            ))
+        }
+        (Some(q), None) | (None, Some(q)) => q,
+        (None, None) => {
+            return Err(HttpError::BadRequest(
+                BadRequest::new("missing required parameter `q`").field("q"),
+            ))
+        }
+    };
     let results = create_database_statements(&q)
         .map_err(HttpError::BadRequest)?
         .into_iter()
