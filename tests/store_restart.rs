@@ -43,15 +43,43 @@ fn write_config_with(dir: &Path, hook_port: u16, storage: &str) -> PathBuf {
     cfg
 }
 
-fn serve(cfg: &Path) -> Child {
-    Command::new(BIN)
-        .args(["serve", "--config"])
-        .arg(cfg)
-        .env("GATEWATCH_LOG_LEVEL", "info")
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()
-        .expect("spawn gatewatch serve")
+/// A `gatewatch serve` child killed and reaped when dropped: a test that fails half-way (a
+/// panicking assertion) leaves no daemon running, holding its port and its store.
+struct Daemon(Child);
+
+impl std::ops::Deref for Daemon {
+    type Target = Child;
+    fn deref(&self) -> &Child {
+        &self.0
+    }
+}
+
+impl std::ops::DerefMut for Daemon {
+    fn deref_mut(&mut self) -> &mut Child {
+        &mut self.0
+    }
+}
+
+impl Drop for Daemon {
+    fn drop(&mut self) {
+        if let Ok(None) = self.0.try_wait() {
+            let _ = self.0.kill();
+        }
+        let _ = self.0.wait();
+    }
+}
+
+fn serve(cfg: &Path) -> Daemon {
+    Daemon(
+        Command::new(BIN)
+            .args(["serve", "--config"])
+            .arg(cfg)
+            .env("GATEWATCH_LOG_LEVEL", "info")
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("spawn gatewatch serve"),
+    )
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -170,15 +198,17 @@ fn daemon_url(cfg: &Path) -> String {
 }
 
 /// The daemon with its log (info) in `log`.
-fn serve_logging(cfg: &Path, log: &Path) -> Child {
-    Command::new(BIN)
-        .args(["serve", "--config"])
-        .arg(cfg)
-        .env("GATEWATCH_LOG_LEVEL", "info")
-        .stdout(Stdio::null())
-        .stderr(std::fs::File::create(log).expect("log file"))
-        .spawn()
-        .expect("spawn gatewatch serve")
+fn serve_logging(cfg: &Path, log: &Path) -> Daemon {
+    Daemon(
+        Command::new(BIN)
+            .args(["serve", "--config"])
+            .arg(cfg)
+            .env("GATEWATCH_LOG_LEVEL", "info")
+            .stdout(Stdio::null())
+            .stderr(std::fs::File::create(log).expect("log file"))
+            .spawn()
+            .expect("spawn gatewatch serve"),
+    )
 }
 
 /// One metric's value (the first line starting with `line_start`), `None` while the daemon
@@ -419,7 +449,7 @@ async fn sigterm_flushes_the_last_identifications_into_the_database_file() {
 }
 
 /// `serve` on `cfg` logging to `log`, once it is ready: the child, its URL and a client.
-async fn serve_ready(cfg: &Path, log: &Path) -> (Child, String, reqwest::Client) {
+async fn serve_ready(cfg: &Path, log: &Path) -> (Daemon, String, reqwest::Client) {
     let child = serve_logging(cfg, log);
     let url = daemon_url(cfg);
     gatewatch::service::client::ensure_crypto_provider();
@@ -646,7 +676,7 @@ async fn sighup_is_logged_and_ignored_and_sigterm_still_exits_0() {
 }
 
 /// Sends SIGTERM to the daemon and waits for its exit.
-async fn terminate(mut child: std::process::Child) -> std::process::ExitStatus {
+async fn terminate(mut child: Daemon) -> std::process::ExitStatus {
     let term = Command::new("kill")
         .args(["-TERM", &child.id().to_string()])
         .status()
@@ -1177,7 +1207,7 @@ async fn a_nearly_full_disk_is_warned_at_start_and_readiness_follows_the_writes(
     )
     .expect("config");
     let log = dir.path().join("gatewatch.log");
-    let child = unshare(
+    let child = Daemon(unshare(
         "mount -t tmpfs -o size=\"$1\" tmpfs \"$2\" && head -c \"$3\" /dev/zero > \"$2/filler\" \
          && exec \"$4\" serve --config \"$5\"",
         &[
@@ -1192,7 +1222,7 @@ async fn a_nearly_full_disk_is_warned_at_start_and_readiness_follows_the_writes(
     .stdout(Stdio::null())
     .stderr(std::fs::File::create(&log).expect("log file"))
     .spawn()
-    .expect("spawn gatewatch serve in a mount namespace");
+    .expect("spawn gatewatch serve in a mount namespace"));
     // unshare and sh exec: the child is the daemon, and its view of the tmpfs is under
     // /proc/PID/root
     let inside = PathBuf::from(format!("/proc/{}/root", child.id())).join(
