@@ -161,8 +161,21 @@ async fn declining_gate(
     Arc<gatewatch::service::state::AppState>,
     Arc<Fake>,
 ) {
+    declining_gate_with(dampings, None).await
+}
+
+/// [`declining_gate`] whose call `slow.0` sleeps `slow.1` more.
+async fn declining_gate_with(
+    dampings: usize,
+    slow_call: Option<(usize, Duration)>,
+) -> (
+    axum::Router,
+    Arc<gatewatch::service::state::AppState>,
+    Arc<Fake>,
+) {
     let fake = Arc::new(Fake {
         zeta: (0..dampings).map(|i| 0.02 - 0.001 * i as f64).collect(),
+        slow_call,
         ..Fake::default()
     });
     let (app, state) = app_with(config(""), fake.clone());
@@ -198,6 +211,41 @@ async fn metrics_exposition_with_a_declining_trend_is_valid() {
     let crossing = value("gatewatch_damping_zero_crossing_seconds");
     assert!(crossing > 0.0 && crossing < 10.0, "{crossing}");
     promtool_check_metrics(&text);
+}
+
+/// A window in flight when its gate goes stale does not bring the predicted crossing back when
+/// it completes: the gate is still silent (the crossing would count down a time that passes
+/// without data, frozen until the gate sends again).
+#[tokio::test]
+async fn a_window_finishing_after_the_gate_went_stale_predicts_nothing() {
+    // the 13th identification takes 1 s: the gate goes stale while it runs
+    let (app, state, fake) = declining_gate_with(13, Some((12, Duration::from_secs(1)))).await;
+    let crossing = "gatewatch_damping_zero_crossing_seconds{gate=\"g1\"} ";
+    let exposition = || async {
+        let (_, v, _) = send(&app, "GET", "/metrics", Body::empty(), None).await;
+        v.as_str().unwrap().to_string()
+    };
+    assert!(exposition().await.contains(crossing));
+    post_json(&app, uniform("g1", 6.5, 50)).await;
+    wait_until(|| fake.calls.lock().unwrap().len() >= 13).await;
+    assert_eq!(state.pool().in_flight(), 1, "the 13th window runs");
+    state.tick(std::time::SystemTime::now() + Duration::from_secs(120));
+    let stale = exposition().await;
+    assert!(
+        stale.contains("gatewatch_alert_firing{alertname=\"GateDataStale\",gate=\"g1\"} 1"),
+        "{stale}"
+    );
+    assert!(!stale.contains(crossing), "{stale}");
+    wait_until(|| state.pool().in_flight() == 0).await;
+    // the window was identified (its damping is on the gauge) and predicts nothing
+    let after = exposition().await;
+    assert!(
+        after.contains("gatewatch_damping_ratio{gate=\"g1\"} 0.008"),
+        "{after}"
+    );
+    assert!(!after.contains(crossing), "{after}");
+    let (_, v, _) = send(&app, "GET", "/api/v1/gates/g1", Body::empty(), None).await;
+    assert!(v["trend"]["crossing_seconds"].is_null(), "{v}");
 }
 
 /// A gate that stops sending predicts nothing: once `GateDataStale` fires, the zero crossing

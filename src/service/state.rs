@@ -817,6 +817,12 @@ impl AppState {
                     e.trend_estimate
                 });
                 self.metrics.set_trend(g, d.zeta0_interval, trend.as_ref());
+                // a window that was in flight when its gate went silent: the gate still predicts
+                // nothing, as the stale tick left it (`Metrics::clear_predictions`), until it
+                // sends again
+                if inner.alerts.is_stale(g) {
+                    self.metrics.clear_predictions(g);
+                }
                 // the unit of the signal, hence of the limit cycle's amplitude
                 let amplitude_unit = match self.config.gate(g).map(|c| c.signal) {
                     Some(crate::analysis::Signal::Force) => "N",

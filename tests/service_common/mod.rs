@@ -35,6 +35,8 @@ pub struct Call {
 pub struct Fake {
     pub zeta: Vec<f64>,
     pub sleep: Duration,
+    /// Call number `n` (from 0) sleeps this long on top of `sleep`: one job held in flight.
+    pub slow_call: Option<(usize, Duration)>,
     pub panic_on: Option<usize>,
     /// Every window reported untrusted (`damping.trusted = false`).
     pub untrusted: bool,
@@ -59,6 +61,11 @@ impl WindowAnalyzer for Fake {
             seed,
         });
         std::thread::sleep(self.sleep);
+        if let Some((k, extra)) = self.slow_call {
+            if k == n {
+                std::thread::sleep(extra);
+            }
+        }
         if self.panic_on == Some(n) {
             panic!("scripted numerical bug");
         }
