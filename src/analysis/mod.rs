@@ -87,6 +87,24 @@ pub enum Signal {
     Displacement,
 }
 
+/// `FromStr` for a settings enum by its configuration spelling (serde's, kebab-case), so that
+/// a command-line flag that mirrors a configuration key reads the same words; an unknown word
+/// is an error naming `$what` and the words `$expected`.
+macro_rules! from_config_word {
+    ($t:ty, $what:literal, $expected:literal) => {
+        impl std::str::FromStr for $t {
+            type Err = String;
+
+            fn from_str(s: &str) -> Result<Self, String> {
+                use serde::de::value::{Error, StrDeserializer};
+                <$t>::deserialize(StrDeserializer::<Error>::new(s)).map_err(|_| {
+                    format!(concat!("unknown ", $what, " `{}`: expected ", $expected), s)
+                })
+            }
+        }
+    };
+}
+
 /// What a force signal holds (`force_terms`; docs/damping.md, "What the support force holds").
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "kebab-case")]
@@ -110,20 +128,7 @@ impl ForceTerms {
     }
 }
 
-impl std::str::FromStr for ForceTerms {
-    type Err = String;
-
-    /// The configuration's spelling: `all` or `stiffness`.
-    fn from_str(s: &str) -> Result<Self, String> {
-        match s {
-            "all" => Ok(ForceTerms::All),
-            "stiffness" => Ok(ForceTerms::Stiffness),
-            _ => Err(format!(
-                "unknown force terms `{s}`: expected all or stiffness"
-            )),
-        }
-    }
-}
+from_config_word!(ForceTerms, "force terms", "all or stiffness");
 
 /// Settings of the analysis of one gate.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -175,20 +180,7 @@ pub enum SsiReference {
     Common,
 }
 
-impl std::str::FromStr for SsiReference {
-    type Err = String;
-
-    /// The configuration's spelling: `lagged` or `common`.
-    fn from_str(s: &str) -> Result<Self, String> {
-        match s {
-            "lagged" => Ok(SsiReference::Lagged),
-            "common" => Ok(SsiReference::Common),
-            _ => Err(format!(
-                "unknown SSI reference `{s}`: expected lagged or common"
-            )),
-        }
-    }
-}
+from_config_word!(SsiReference, "SSI reference", "lagged or common");
 
 /// How a model-based zeta0 gets its 95 % interval (`model_interval` in the daemon's
 /// configuration; docs/damping.md, "zeta0_interval").
@@ -210,20 +202,7 @@ pub enum ModelInterval {
     Forcing,
 }
 
-impl std::str::FromStr for ModelInterval {
-    type Err = String;
-
-    /// The configuration's spelling: `newey-west` or `forcing`.
-    fn from_str(s: &str) -> Result<Self, String> {
-        match s {
-            "newey-west" => Ok(ModelInterval::NeweyWest),
-            "forcing" => Ok(ModelInterval::Forcing),
-            _ => Err(format!(
-                "unknown model interval `{s}`: expected newey-west or forcing"
-            )),
-        }
-    }
-}
+from_config_word!(ModelInterval, "model interval", "newey-west or forcing");
 
 /// Solver of a window's least-squares integrations (the full search's polish and the tracked
 /// refinement; `polish_solver` in the daemon's configuration).

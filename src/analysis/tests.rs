@@ -273,3 +273,28 @@ fn a_model_windows_verdict_follows_its_interval() {
     bare.zeta0_interval = None;
     assert_eq!(read(bare), (Verdict::SelfExcited, true));
 }
+
+/// The settings enums read their configuration spelling from the command line too, and an
+/// unknown word names what it is and the words expected.
+#[test]
+fn settings_words_parse_as_the_configuration_spells_them() {
+    use super::{ForceTerms, ModelInterval, SsiReference};
+    assert_eq!("all".parse(), Ok(ForceTerms::All));
+    assert_eq!("stiffness".parse(), Ok(ForceTerms::Stiffness));
+    assert_eq!("lagged".parse(), Ok(SsiReference::Lagged));
+    assert_eq!("common".parse(), Ok(SsiReference::Common));
+    assert_eq!("newey-west".parse(), Ok(ModelInterval::NeweyWest));
+    assert_eq!("forcing".parse(), Ok(ModelInterval::Forcing));
+    assert_eq!(
+        "Forcing".parse::<ModelInterval>(),
+        Err("unknown model interval `Forcing`: expected newey-west or forcing".to_string())
+    );
+    assert_eq!(
+        "".parse::<SsiReference>(),
+        Err("unknown SSI reference ``: expected lagged or common".to_string())
+    );
+    assert_eq!(
+        "newey_west".parse::<ForceTerms>(),
+        Err("unknown force terms `newey_west`: expected all or stiffness".to_string())
+    );
+}
