@@ -195,3 +195,52 @@ fn the_history_stream_keeps_at_most_max_history_rows() {
         .collect();
     assert_eq!(ends, [3.0, 4.0, 5.0, 6.0, 7.0], "the oldest went first");
 }
+
+/// A history message that is not a row (written by something else on the subject) is a decode
+/// error naming the message and the gate, for a range and for the newest rows alike; not a
+/// server's failure, and not a row silently dropped.
+#[test]
+fn a_history_message_that_is_no_row_is_a_decode_error_naming_it() {
+    if !nats_installed() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let server = NatsServer::start(dir.path());
+    let s = NatsStore::open(&options(&server.url())).expect("open");
+    s.write(&WriteBatch {
+        identifications: vec![record("g", 1.0, 0.01)],
+        ..Default::default()
+    })
+    .expect("write");
+    let subject = format!(
+        "GATEWATCH.history.{}",
+        gatewatch::store::encode_nats_name("g")
+    );
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .expect("runtime");
+    rt.block_on(async {
+        let client = async_nats::connect(server.url()).await.expect("connect");
+        let js = async_nats::jetstream::new(client);
+        js.publish(subject, "not a row".into())
+            .await
+            .expect("publish")
+            .await
+            .expect("ack");
+    });
+    let q = HistoryQuery {
+        gate: "g".into(),
+        from: None,
+        to: None,
+        limit: 10,
+    };
+    for e in [
+        s.history_rows(&q).expect_err("a range over it"),
+        s.latest_history_rows("g", 1).expect_err("the newest row"),
+    ] {
+        assert!(matches!(e, StoreError::Decode { .. }), "{e:?}");
+        let text = e.to_string();
+        assert!(text.contains("history message 2 of gate g"), "{text}");
+    }
+}

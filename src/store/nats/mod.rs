@@ -444,9 +444,11 @@ impl NatsStore {
     }
 }
 
-/// History message `seq` of `gate` decoded; the failure names both.
-fn decode_row(gate: &str, seq: u64, payload: &[u8]) -> Result<HistoryRow, Failure> {
-    serde_json::from_slice(payload).map_err(ctx(format!("history message {seq} of gate {gate}")))
+/// History message `seq` of `gate` decoded; the failure names both (a [`StoreError::Decode`]
+/// message, not a server's failure).
+fn decode_row(gate: &str, seq: u64, payload: &[u8]) -> Result<HistoryRow, String> {
+    serde_json::from_slice(payload)
+        .map_err(|e| format!("history message {seq} of gate {gate}: {e}"))
 }
 
 /// Takes the owner lease of `options.prefix` at open (see `lease`).
@@ -527,22 +529,30 @@ impl Store for NatsStore {
         let limit = q.limit.min(MAX_HISTORY_LIMIT);
         let (gate, subject) = (q.gate.clone(), self.names.history_subject(&q.gate));
         // the whole subject streams by; at most `limit` rows are kept (`read`)
-        self.run("history", move |c| async move {
+        let rows = self.run("history", move |c| async move {
             let mut first = read::FirstRows::new(limit);
+            let mut bad = None;
             read::read_each(
                 &c.history,
                 subject,
                 DeliverPolicy::All,
                 |seq, _, payload| {
-                    let row = decode_row(&gate, seq, payload)?;
-                    if row.window_end >= from && row.window_end <= to {
-                        first.offer(seq, row);
+                    match decode_row(&gate, seq, payload) {
+                        Ok(row) if row.window_end >= from && row.window_end <= to => {
+                            first.offer(seq, row)
+                        }
+                        Ok(_) => {}
+                        Err(e) => bad = Some(e),
                     }
-                    Ok(true)
+                    Ok(bad.is_none())
                 },
             )
             .await?;
-            Ok(first.into_rows())
+            Ok(bad.map_or_else(|| Ok(first.into_rows()), Err))
+        })?;
+        rows.map_err(|message| StoreError::Decode {
+            operation: "history",
+            message,
         })
     }
 
@@ -553,17 +563,21 @@ impl Store for NatsStore {
     /// again) come as stored, where SQLite would take the largest window ends.
     fn latest_history_rows(&self, gate: &str, n: usize) -> Result<Vec<HistoryRow>, StoreError> {
         let n = n.min(MAX_HISTORY_LIMIT);
-        let (gate, subject) = (gate.to_string(), self.names.history_subject(gate));
-        self.run("latest history", move |c| async move {
-            let mut rows = read::read_last(&c.history, subject, n)
-                .await?
-                .into_iter()
-                .map(|(seq, payload)| decode_row(&gate, seq, &payload))
-                .collect::<Result<Vec<_>, Failure>>()?;
-            // oldest window first; equal ends in the order stored (a stable sort)
-            rows.sort_by(|a, b| a.window_end.total_cmp(&b.window_end));
-            Ok(rows)
-        })
+        let subject = self.names.history_subject(gate);
+        let messages = self.run("latest history", move |c| async move {
+            read::read_last(&c.history, subject, n).await
+        })?;
+        let mut rows = messages
+            .into_iter()
+            .map(|(seq, payload)| decode_row(gate, seq, &payload))
+            .collect::<Result<Vec<_>, String>>()
+            .map_err(|message| StoreError::Decode {
+                operation: "latest history",
+                message,
+            })?;
+        // oldest window first; equal ends in the order stored (a stable sort)
+        rows.sort_by(|a, b| a.window_end.total_cmp(&b.window_end));
+        Ok(rows)
     }
 
     fn history_gates(&self, limit: usize) -> Result<Vec<String>, StoreError> {
