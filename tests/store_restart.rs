@@ -70,13 +70,18 @@ impl Drop for Daemon {
 }
 
 fn serve(cfg: &Path) -> Daemon {
+    spawn_serve(cfg, Stdio::null())
+}
+
+/// `gatewatch serve --config cfg` at log level info, its stderr to `stderr`.
+fn spawn_serve(cfg: &Path, stderr: Stdio) -> Daemon {
     Daemon(
         Command::new(BIN)
             .args(["serve", "--config"])
             .arg(cfg)
             .env("GATEWATCH_LOG_LEVEL", "info")
             .stdout(Stdio::null())
-            .stderr(Stdio::null())
+            .stderr(stderr)
             .spawn()
             .expect("spawn gatewatch serve"),
     )
@@ -199,16 +204,7 @@ fn daemon_url(cfg: &Path) -> String {
 
 /// The daemon with its log (info) in `log`.
 fn serve_logging(cfg: &Path, log: &Path) -> Daemon {
-    Daemon(
-        Command::new(BIN)
-            .args(["serve", "--config"])
-            .arg(cfg)
-            .env("GATEWATCH_LOG_LEVEL", "info")
-            .stdout(Stdio::null())
-            .stderr(std::fs::File::create(log).expect("log file"))
-            .spawn()
-            .expect("spawn gatewatch serve"),
-    )
+    spawn_serve(cfg, std::fs::File::create(log).expect("log file").into())
 }
 
 /// One metric's value (the first line starting with `line_start`), `None` while the daemon
