@@ -512,7 +512,9 @@ async fn a_restored_alert_of_an_unknown_gate_that_stays_silent_expires_after_a_r
     let db = dir.path().join("gw.db");
     let cfg = || config("unknown_gate_expiry_seconds = 600\n[gates.kept]\n");
     let with_store = |c: gatewatch::service::config::Config| {
-        let p = gatewatch::service::storage::Persistence::open(&db, &c.storage).expect("store");
+        let p =
+            gatewatch::service::storage::Persistence::open(&db, &c.storage, c.sample_lead_bound())
+                .expect("store");
         gatewatch::service::state::AppState::with_persistence(c, Arc::new(Fake::default()), Some(p))
             .expect("state")
     };
@@ -572,7 +574,8 @@ fn with_store_max(
     let c = config(&format!(
         "unknown_gate_expiry_seconds = 600\nmax_gates = {max_gates}\n"
     ));
-    let p = gatewatch::service::storage::Persistence::open(db, &c.storage).expect("store");
+    let p = gatewatch::service::storage::Persistence::open(db, &c.storage, c.sample_lead_bound())
+        .expect("store");
     let state =
         gatewatch::service::state::AppState::with_persistence(c, fake, Some(p)).expect("state");
     (gatewatch::service::api::router(state.clone()), state)

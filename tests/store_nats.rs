@@ -44,10 +44,12 @@ fn the_nats_store_passes_the_store_checks() {
     let server = NatsServer::start(dir.path());
     for (i, (name, check)) in CHECKS.iter().enumerate() {
         // each check on streams of its own
-        // with the owner lease `serve` takes: its checks must not get in the way
+        // with the owner lease and the default gates' sample lead `serve` opens it with:
+        // neither may get in the way of the checks
         let s = NatsStore::open(&NatsOptions {
             prefix: format!("CHECK{i}"),
             owner_lease: Some(gatewatch::store::NATS_LEASE_TTL),
+            sample_lead: Some(Duration::from_secs(600)),
             ..options(&server.url())
         })
         .expect("open");
@@ -243,4 +245,70 @@ fn a_history_message_that_is_no_row_is_a_decode_error_naming_it() {
         let text = e.to_string();
         assert!(text.contains("history message 2 of gate g"), "{text}");
     }
+}
+
+/// Unix seconds now.
+fn unix_now() -> f64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .expect("clock")
+        .as_secs_f64()
+}
+
+/// With `sample_lead` (the daemon's gates bound how far ahead of its clock a sample may be), a
+/// range reads the gate's subject only from the messages stored since `from - lead - margin`:
+/// a row that claims to end later than its writer's clock allowed and was stored before that
+/// instant is not read (which is how the shortcut is seen to work), a backfilled row stored
+/// later is, and a reader that does not know the bound reads the whole subject.
+#[test]
+fn a_range_reads_from_the_messages_stored_since_its_start() {
+    if !nats_installed() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let server = NatsServer::start(dir.path());
+    let s = NatsStore::open(&NatsOptions {
+        owner_lease: Some(gatewatch::store::NATS_LEASE_TTL),
+        sample_lead: Some(Duration::ZERO),
+        clock_margin: Duration::from_millis(500),
+        ..options(&server.url())
+    })
+    .expect("open");
+    let t0 = unix_now();
+    let write = |end: f64| {
+        s.write(&WriteBatch {
+            identifications: vec![record("g", end, 0.01)],
+            ..Default::default()
+        })
+        .expect("write")
+    };
+    // stored at t0, claiming an end 50 s ahead: against the contract
+    write(t0 + 50.0);
+    std::thread::sleep(Duration::from_millis(2500));
+    let t1 = unix_now();
+    // stored at t1: a window ending 60 s ahead, and one of yesterday (a backfill)
+    write(t0 + 60.0);
+    write(t0 - 86_400.0);
+    let ends = |store: &NatsStore, from: f64| -> Vec<f64> {
+        let q = HistoryQuery {
+            gate: "g".into(),
+            from: Some(from),
+            to: None,
+            limit: 10,
+        };
+        let rows = store.history_rows(&q).expect("history");
+        rows.iter().map(|r| r.window_end - t0).collect()
+    };
+    // from t1: the read starts at t1 - 0.5 s, after the first message was stored
+    assert_eq!(
+        ends(&s, t1),
+        [60.0],
+        "the message stored before the start is not read"
+    );
+    // from two days back: every message is stored after its start; the backfill included
+    assert_eq!(ends(&s, t0 - 2.0 * 86_400.0), [-86_400.0, 50.0, 60.0]);
+    // a reader beside the daemon does not know the gates' bound: the whole subject
+    let reader =
+        NatsStore::open_read_only(&server.url(), "GATEWATCH", TEST_TIMEOUT).expect("reader");
+    assert_eq!(ends(&reader, t1), [50.0, 60.0]);
 }

@@ -128,11 +128,13 @@ async fn start_with(
 ) -> anyhow::Result<Running> {
     let cfg = Config::from_toml(config_text)?;
     let persistence = if store {
-        let storage = cfg.storage.clone();
+        let (storage, lead) = (cfg.storage.clone(), cfg.sample_lead_bound());
         let path = std::path::PathBuf::from(&storage.path);
         Some(
-            tokio::task::spawn_blocking(move || super::storage::Persistence::open(&path, &storage))
-                .await??,
+            tokio::task::spawn_blocking(move || {
+                super::storage::Persistence::open(&path, &storage, lead)
+            })
+            .await??,
         )
     } else {
         None

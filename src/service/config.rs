@@ -934,6 +934,18 @@ impl Config {
         out
     }
 
+    /// How far ahead of the daemon's clock a gate's samples may be: the largest
+    /// `max_future_seconds` of the defaults and the configured gates, `None` when one of them
+    /// has no bound (0). The NATS store starts a history range's read from it
+    /// (`NatsOptions::sample_lead`).
+    pub fn sample_lead_bound(&self) -> Option<std::time::Duration> {
+        std::iter::once(&self.defaults)
+            .chain(self.gates.values())
+            .map(|g| (g.max_future_seconds > 0.0).then_some(g.max_future_seconds))
+            .try_fold(0.0_f64, |lead, g| g.map(|s| lead.max(s)))
+            .and_then(|s| std::time::Duration::try_from_secs_f64(s).ok())
+    }
+
     /// The settings of `gate`: its own table, or the defaults (`None` when unknown gates are
     /// refused and `gate` is not configured).
     pub fn gate(&self, gate: &str) -> Option<&GateConfig> {

@@ -86,9 +86,9 @@ pub async fn run(
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> anyhow::Result<()> {
     let analyzer = Arc::new(AnalyzerMap::from_config(&config)?);
-    let storage = config.storage.clone();
+    let (storage, lead) = (config.storage.clone(), config.sample_lead_bound());
     let persistence = tokio::task::spawn_blocking(move || {
-        Persistence::open(std::path::Path::new(&storage.path), &storage)
+        Persistence::open(std::path::Path::new(&storage.path), &storage, lead)
     })
     .await
     .map_err(|e| anyhow::anyhow!("opening the store: {e}"))??;

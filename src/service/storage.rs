@@ -10,7 +10,7 @@ use std::collections::HashMap;
 use std::path::Path;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
-use std::time::SystemTime;
+use std::time::{Duration, SystemTime};
 
 use super::clock::unix_seconds;
 use super::metrics::Metrics;
@@ -50,11 +50,17 @@ impl std::fmt::Debug for Persistence {
 
 impl Persistence {
     /// Opens the store of `config.backend` (the SQLite file at `path`, or the NATS server at
-    /// `config.nats_url`) and starts its writer thread. The error names the file or the server;
-    /// there is no in-memory fallback.
-    pub fn open(path: &Path, config: &StorageConfig) -> Result<Persistence, StoreError> {
+    /// `config.nats_url`) and starts its writer thread. `sample_lead` is the gates' bound on
+    /// how far ahead of the clock a sample may be (`Config::sample_lead_bound`), which lets
+    /// the NATS store read a history range from its start only. The error names the file or
+    /// the server; there is no in-memory fallback.
+    pub fn open(
+        path: &Path,
+        config: &StorageConfig,
+        sample_lead: Option<Duration>,
+    ) -> Result<Persistence, StoreError> {
         if config.backend == StorageBackend::Nats {
-            return Persistence::open_nats(config);
+            return Persistence::open_nats(config, sample_lead);
         }
         let store = Arc::new(SqliteStore::open(path, config.max_size_mb)?);
         tracing::info!(path = %path.display(), "store opened");
@@ -70,10 +76,14 @@ impl Persistence {
 
     /// Connects to the NATS store of `config`, taking its prefix's owner lease (refused when
     /// another daemon holds it), and starts its writer thread.
-    fn open_nats(config: &StorageConfig) -> Result<Persistence, StoreError> {
+    fn open_nats(
+        config: &StorageConfig,
+        sample_lead: Option<Duration>,
+    ) -> Result<Persistence, StoreError> {
         let options = NatsOptions {
             prefix: config.nats_prefix.clone(),
             owner_lease: Some(config.nats_lease()),
+            sample_lead,
             ..NatsOptions::new(
                 &config.nats_url,
                 config.retention(),

@@ -15,6 +15,19 @@ fn embedded_config_is_valid_and_has_the_defaults() {
 }
 
 #[test]
+fn the_sample_lead_bound_is_the_largest_max_future_or_none_when_one_is_unbounded() {
+    let lead = |text: &str| Config::from_toml(text).unwrap().sample_lead_bound();
+    let secs = std::time::Duration::from_secs;
+    assert_eq!(lead(""), Some(secs(600)));
+    assert_eq!(
+        lead("[gates.g1]\nmax_future_seconds = 900\n[gates.g2]\nmax_future_seconds = 5\n"),
+        Some(secs(900))
+    );
+    assert_eq!(lead("[gates.g1]\nmax_future_seconds = 0\n"), None);
+    assert_eq!(lead("[defaults]\nmax_future_seconds = 0\n"), None);
+}
+
+#[test]
 fn notify_targets_parse_and_bad_urls_name_the_section() {
     let c = Config::from_toml(
         "[notify]\nalertmanager_urls = [\"http://am:9093\"]\n\

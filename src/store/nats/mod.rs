@@ -62,13 +62,21 @@ pub use names::{decode, encode, valid_prefix};
 /// How long one store call (a write, a query, the connection at open) may take before it fails
 /// with an error naming the server. The SQLite store waits up to 5 s for a lock. A gate's
 /// newest rows are read from the stream's end in milliseconds; a history range reads the
-/// gate's whole subject (about 1.8 s per week of one gate on loopback, `read`), so 10 s is a
-/// server that is down or overloaded, or a gate kept for more than about a month.
+/// gate's subject from the messages stored since its start on (the whole subject when the
+/// daemon's gates accept unbounded sample times, about 1.8 s per week of one gate on loopback,
+/// `read`), so 10 s is a server that is down or overloaded, or such a range over more than
+/// about a month.
 pub const OPERATION_TIMEOUT: Duration = Duration::from_secs(10);
 
 /// Worker threads of the store's own runtime: one holds the connection and runs the calls; the
 /// work is waiting on the network.
 pub const NATS_RUNTIME_THREADS: usize = 1;
+
+/// How far the clock of a daemon that writes the history may be from the NATS server's
+/// (default of [`NatsOptions::clock_margin`]): a history range starts reading this much
+/// earlier than its rows could have been stored. An hour of a gate's rows (720 at the default
+/// cadence) reads in about 25 ms; hosts kept by NTP are within milliseconds.
+pub const CLOCK_MARGIN: Duration = Duration::from_secs(3600);
 
 /// Messages asked for by one fetch when a subject is read: large enough that a day of a gate
 /// (17 280 rows) is a few round trips, small enough that one answer is about a megabyte.
@@ -98,6 +106,17 @@ pub struct NatsOptions {
     /// it, and renew it every `ttl / 3` ([`LEASE_TTL`] for `serve`). `None` (the default of
     /// [`NatsOptions::new`]): no lease, for a store that is only read or a test's.
     pub owner_lease: Option<Duration>,
+    /// How far ahead of its writer's clock a row's window may end: the largest
+    /// `max_future_seconds` of the daemon's gates (`Config::sample_lead_bound`). `Some`: a
+    /// history range from `from` reads only the messages the server stored from
+    /// `from - sample_lead - clock_margin` on, since a row ending at `from` or later cannot
+    /// have been stored before (`range_start`). `None` (the default; a gate without the bound,
+    /// or a reader that does not know the daemon's gates): the gate's whole subject.
+    pub sample_lead: Option<Duration>,
+    /// How far the writers' clocks may be from the server's ([`CLOCK_MARGIN`] by default).
+    /// With an owner lease the store measures its own offset at open; an offset beyond half
+    /// this margin turns the range's shortcut off (logged).
+    pub clock_margin: Duration,
 }
 
 impl NatsOptions {
@@ -110,6 +129,8 @@ impl NatsOptions {
             max_history_rows,
             timeout: OPERATION_TIMEOUT,
             owner_lease: None,
+            sample_lead: None,
+            clock_margin: CLOCK_MARGIN,
         }
     }
 }
@@ -155,6 +176,9 @@ pub struct NatsStore {
     renewal: Mutex<Option<tokio::task::AbortHandle>>,
     /// Opened by [`NatsStore::open_read_only`]: every write and prune is refused.
     read_only: bool,
+    /// Seconds before a range's `from` at which its read starts (`sample_lead` plus the
+    /// clock margin); `None`: the whole subject.
+    range_slack: Option<f64>,
     /// The store's own runtime; `None` only while it is dropped.
     runtime: Option<tokio::runtime::Runtime>,
 }
@@ -250,10 +274,18 @@ impl NatsStore {
             }
         };
         let conn = Arc::new(conn);
+        let mut range_slack = options
+            .sample_lead
+            .map(|lead| (lead + options.clock_margin).as_secs_f64());
         let held = match options.owner_lease {
             None => None,
             Some(ttl) => match take_lease(&runtime, &conn, options, ttl) {
-                Ok(held) => Some(held),
+                Ok((held, offset)) => {
+                    if range_slack.is_some() && !clock_agrees(offset, options) {
+                        range_slack = None;
+                    }
+                    Some(held)
+                }
                 Err(e) => {
                     runtime.shutdown_background();
                     return Err(e);
@@ -277,6 +309,7 @@ impl NatsStore {
             held,
             renewal: Mutex::new(renewal),
             read_only: false,
+            range_slack,
             runtime: Some(runtime),
         })
     }
@@ -325,6 +358,7 @@ impl NatsStore {
             held: None,
             renewal: Mutex::new(None),
             read_only: true,
+            range_slack: None,
             runtime: Some(runtime),
         })
     }
@@ -451,18 +485,74 @@ fn decode_row(gate: &str, seq: u64, payload: &[u8]) -> Result<HistoryRow, String
         .map_err(|e| format!("history message {seq} of gate {gate}: {e}"))
 }
 
-/// Takes the owner lease of `options.prefix` at open (see `lease`).
+/// Where a history range from `from` starts reading: at the messages stored from
+/// `from - slack` on (Unix seconds of the server's clock), or the whole subject without a
+/// slack, a lower bound or a start inside the clock's range. Why this is sound: the daemon
+/// refuses a sample more than `max_future_seconds` ahead of its clock, so a row ending at
+/// `from` or later was written at `from - max_future_seconds` or later by its writer's clock,
+/// and stored then by the server's, within the clock margin (`NatsOptions::sample_lead`).
+/// A row written late (a backfill, a replay of old samples) was stored later still. Why not
+/// always the whole subject: it took 5.5 s for a month of one gate, most of it before `from`
+/// on a query of the last day (docs/benchmarks.md, "History on NATS").
+fn range_start(from: Option<f64>, slack: Option<f64>) -> DeliverPolicy {
+    let start = match (from, slack) {
+        (Some(from), Some(slack)) if from.is_finite() => from - slack,
+        _ => return DeliverPolicy::All,
+    };
+    // i128 nanoseconds hold any f64 in the clock's range; outside it, the whole subject
+    let nanos = start * 1e9;
+    if !(nanos.is_finite() && nanos > 0.0 && nanos < 2.5e20) {
+        return DeliverPolicy::All;
+    }
+    match time::OffsetDateTime::from_unix_timestamp_nanos(nanos as i128) {
+        Ok(start_time) => DeliverPolicy::ByStartTime { start_time },
+        Err(_) => DeliverPolicy::All,
+    }
+}
+
+/// Whether the server's clock, `offset` seconds ahead of this host's (measured at the lease's
+/// write, `take_lease`), is within half the clock margin; logged when it is not (or was not
+/// measured), and the range's shortcut is then off.
+fn clock_agrees(offset: Option<f64>, options: &NatsOptions) -> bool {
+    let half = options.clock_margin.as_secs_f64() / 2.0;
+    match offset {
+        Some(o) if o.abs() <= half => true,
+        Some(o) => {
+            tracing::warn!(
+                url = %options.url,
+                offset_seconds = o,
+                "the NATS server's clock is {o:.1} s from this host's, more than {half} s: \
+                 history ranges read each gate's whole subject (set both clocks by NTP)"
+            );
+            false
+        }
+        None => {
+            tracing::warn!(
+                url = %options.url,
+                "the NATS server's clock could not be read at the owner lease's write: \
+                 history ranges read each gate's whole subject"
+            );
+            false
+        }
+    }
+}
+
+/// Takes the owner lease of `options.prefix` at open (see `lease`); with it, how far the
+/// server's clock is ahead of this host's, from the time the server stored the lease at
+/// (`None` when that read failed).
 fn take_lease(
     runtime: &tokio::runtime::Runtime,
     conn: &Arc<Conn>,
     options: &NatsOptions,
     ttl: Duration,
-) -> Result<Arc<Held>, StoreError> {
+) -> Result<(Arc<Held>, Option<f64>), StoreError> {
     let record = LeaseRecord::this_process(ttl);
     let (c, mine) = (conn.clone(), record.clone());
+    let before = lease::unix_now();
     let taken = call(runtime, options.timeout, async move {
         Ok(lease::acquire(&c, &mine).await)
     });
+    let after = lease::unix_now();
     let seq = match taken {
         Ok(Ok(seq)) => seq,
         Ok(Err(Taken::Owned(who))) => {
@@ -490,7 +580,17 @@ fn take_lease(
         options.prefix,
         ttl.as_secs_f64()
     );
-    Ok(Arc::new(Held {
+    let c = conn.clone();
+    let stored = call(runtime, options.timeout, async move {
+        let m = c
+            .owner
+            .get_raw_message(seq)
+            .await
+            .map_err(ctx("owner lease message"))?;
+        Ok(m.time.unix_timestamp_nanos() as f64 / 1e9)
+    });
+    let offset = stored.ok().map(|t| t - (before + after) / 2.0);
+    let held = Arc::new(Held {
         ttl,
         state: Mutex::new(HeldState {
             record,
@@ -498,7 +598,8 @@ fn take_lease(
             lost: None,
             released: false,
         }),
-    }))
+    });
+    Ok((held, offset))
 }
 
 impl Store for NatsStore {
@@ -528,25 +629,21 @@ impl Store for NatsStore {
         let (from, to) = (q.from.unwrap_or(f64::MIN), q.to.unwrap_or(f64::MAX));
         let limit = q.limit.min(MAX_HISTORY_LIMIT);
         let (gate, subject) = (q.gate.clone(), self.names.history_subject(&q.gate));
-        // the whole subject streams by; at most `limit` rows are kept (`read`)
+        let start = range_start(q.from, self.range_slack);
+        // the subject streams by from `start`; at most `limit` rows are kept (`read`)
         let rows = self.run("history", move |c| async move {
             let mut first = read::FirstRows::new(limit);
             let mut bad = None;
-            read::read_each(
-                &c.history,
-                subject,
-                DeliverPolicy::All,
-                |seq, _, payload| {
-                    match decode_row(&gate, seq, payload) {
-                        Ok(row) if row.window_end >= from && row.window_end <= to => {
-                            first.offer(seq, row)
-                        }
-                        Ok(_) => {}
-                        Err(e) => bad = Some(e),
+            read::read_each(&c.history, subject, start, |seq, _, payload| {
+                match decode_row(&gate, seq, payload) {
+                    Ok(row) if row.window_end >= from && row.window_end <= to => {
+                        first.offer(seq, row)
                     }
-                    Ok(bad.is_none())
-                },
-            )
+                    Ok(_) => {}
+                    Err(e) => bad = Some(e),
+                }
+                Ok(bad.is_none())
+            })
             .await?;
             Ok(bad.map_or_else(|| Ok(first.into_rows()), Err))
         })?;
@@ -633,4 +730,46 @@ impl Store for NatsStore {
 
     // `make_room` is the trait's no-op: the size of the history is bounded by the stream's own
     // limits (`max_age`, `max_msgs`), which the server keeps.
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_range_starts_at_from_less_the_slack_or_reads_everything() {
+        let from = 1_714_564_800.0; // 2024-05-01T12:00:00Z
+        match range_start(Some(from), Some(4200.0)) {
+            DeliverPolicy::ByStartTime { start_time } => {
+                assert_eq!(start_time.unix_timestamp(), 1_714_564_800 - 4200)
+            }
+            other => panic!("{other:?}"),
+        }
+        // no bound on the samples' lead, no lower bound, or a start outside the clock's range
+        for (from, slack) in [
+            (Some(from), None),
+            (None, Some(4200.0)),
+            (Some(f64::MIN), Some(4200.0)),
+            (Some(f64::NEG_INFINITY), Some(4200.0)),
+            (Some(f64::NAN), Some(4200.0)),
+            (Some(3.0), Some(4200.0)),
+            (Some(f64::MAX), Some(4200.0)),
+        ] {
+            assert_eq!(
+                range_start(from, slack),
+                DeliverPolicy::All,
+                "{from:?} {slack:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn a_server_clock_off_by_more_than_half_the_margin_turns_the_shortcut_off() {
+        let o = NatsOptions::new("nats://127.0.0.1:1", Duration::from_secs(60), 10);
+        assert!(clock_agrees(Some(0.003), &o));
+        assert!(clock_agrees(Some(-1799.0), &o));
+        assert!(!clock_agrees(Some(1801.0), &o));
+        assert!(!clock_agrees(Some(-7200.0), &o));
+        assert!(!clock_agrees(None, &o));
+    }
 }
