@@ -258,6 +258,8 @@ enum Want {
     FieldLine(&'static str, u64),
     /// 400 with `line` and `column` (a syntax error).
     LineColumn,
+    /// 400 naming this field, whose error says this (a hint that names the fix).
+    FieldSays(&'static str, &'static str),
 }
 
 struct Case {
@@ -308,6 +310,11 @@ fn check(d: &Daemon, cases: &[Case]) {
             Want::Line(l) => r.status == 400 && v["line"] == *l,
             Want::FieldLine(f, l) => r.status == 400 && v["field"] == *f && v["line"] == *l,
             Want::LineColumn => r.status == 400 && v["line"].is_u64() && v["column"].is_u64(),
+            Want::FieldSays(f, says) => {
+                r.status == 400
+                    && v["field"] == *f
+                    && v["error"].as_str().is_some_and(|e| e.contains(says))
+            }
         };
         if !ok {
             failures.push(format!(
@@ -572,6 +579,21 @@ fn json_cases() -> Vec<Case> {
             "JSON: start 2 h behind",
             good_then("start", json!(t - 7200.0)),
             Want::FieldIndex("start", 0),
+        ),
+        json_case(
+            "JSON: start in milliseconds (hint: JSON times are Unix seconds)",
+            good_then("start", json!((t * 1000.0).round())),
+            Want::FieldSays("start", "is it in ms? JSON times are Unix seconds"),
+        ),
+        json_case(
+            "JSON: a value beyond +-1e100 (1e308 at index 2)",
+            good_then("values", json!([1.0, 2.0, 1e308])),
+            Want::FieldIndex("values", 2),
+        ),
+        json_case(
+            "JSON: a samples pair's value beyond +-1e100",
+            s(json!({"gate": "g", "samples": [[t, 1.0], [t + 0.01, -1e101]]})),
+            Want::FieldIndex("samples", 1),
         ),
         json_case(
             "JSON: start u64::MAX",
@@ -882,6 +904,21 @@ fn lp_cases() -> Vec<Case> {
             v2,
             format!("m,gate=g1 force=1 {}", ns + 1_000_000_000_000_000),
             Want::FieldLine("timestamp", 1),
+        ),
+        lp_case(
+            "LP: a value beyond +-1e100 on line 2",
+            v1,
+            format!(
+                "m,gate=g1 force=1 {ns}\nm,gate=g1 force=-1e300 {}",
+                ns + 10_000_000
+            ),
+            Want::FieldLine("force", 2),
+        ),
+        lp_case(
+            "LP: timestamps in ms without precision (hint: ?precision=ms)",
+            v2,
+            format!("m,gate=g1 force=1 {}", ns / 1_000_000),
+            Want::FieldSays("timestamp", "?precision=ms"),
         ),
         lp_case(
             "LP: timestamp in 1971",
