@@ -486,8 +486,8 @@ fn decode_row(gate: &str, seq: u64, payload: &[u8]) -> Result<HistoryRow, String
 }
 
 /// Where a history range from `from` starts reading: at the messages stored from
-/// `from - slack` on (Unix seconds of the server's clock), or the whole subject without a
-/// slack, a lower bound or a start inside the clock's range. Why this is sound: the daemon
+/// `from - slack` on (Unix seconds of the server's clock); the whole subject without a
+/// slack or a lower bound, or when that start lies before 1970 or past year 9999. Why this is sound: the daemon
 /// refuses a sample more than `max_future_seconds` ahead of its clock, so a row ending at
 /// `from` or later was written at `from - max_future_seconds` or later by its writer's clock,
 /// and stored then by the server's, within the clock margin (`NatsOptions::sample_lead`).
@@ -499,7 +499,7 @@ fn range_start(from: Option<f64>, slack: Option<f64>) -> DeliverPolicy {
         (Some(from), Some(slack)) if from.is_finite() => from - slack,
         _ => return DeliverPolicy::All,
     };
-    // i128 nanoseconds hold any f64 in the clock's range; outside it, the whole subject
+    // `OffsetDateTime` holds years up to 9999: about 2.5e20 ns after 1970
     let nanos = start * 1e9;
     if !(nanos.is_finite() && nanos > 0.0 && nanos < 2.5e20) {
         return DeliverPolicy::All;
