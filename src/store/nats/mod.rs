@@ -573,13 +573,6 @@ fn take_lease(
             })
         }
     };
-    tracing::info!(
-        prefix = %options.prefix,
-        instance = %record.instance,
-        "owner lease of prefix {} taken for {} s",
-        options.prefix,
-        ttl.as_secs_f64()
-    );
     let c = conn.clone();
     let stored = call(runtime, options.timeout, async move {
         let m = c
@@ -590,6 +583,14 @@ fn take_lease(
         Ok(m.time.unix_timestamp_nanos() as f64 / 1e9)
     });
     let offset = stored.ok().map(|t| t - (before + after) / 2.0);
+    tracing::info!(
+        prefix = %options.prefix,
+        instance = %record.instance,
+        server_clock_ahead_seconds = offset,
+        "owner lease of prefix {} taken for {} s",
+        options.prefix,
+        ttl.as_secs_f64()
+    );
     let held = Arc::new(Held {
         ttl,
         state: Mutex::new(HeldState {
