@@ -48,9 +48,9 @@ pub use history::{
 pub use nats::{
     decode as decode_nats_name, encode as encode_nats_name,
     renew_interval as nats_lease_renew_interval, valid_prefix as valid_nats_prefix, LeaseRecord,
-    NatsOptions, NatsStore, LEASE_TTL as NATS_LEASE_TTL, NATS_RUNTIME_THREADS,
-    OPERATION_TIMEOUT as NATS_OPERATION_TIMEOUT, PRUNE_SCAN_MAX as NATS_PRUNE_SCAN_MAX,
-    RENEWALS_PER_TTL as NATS_LEASE_RENEWALS_PER_TTL,
+    NatsOptions, NatsStore, CLOCK_MARGIN as NATS_CLOCK_MARGIN, LEASE_TTL as NATS_LEASE_TTL,
+    NATS_RUNTIME_THREADS, OPERATION_TIMEOUT as NATS_OPERATION_TIMEOUT,
+    PRUNE_SCAN_MAX as NATS_PRUNE_SCAN_MAX, RENEWALS_PER_TTL as NATS_LEASE_RENEWALS_PER_TTL,
 };
 pub use row::{HistoryRow, CURVE_STORED_DIGITS, CURVE_STORED_POINTS};
 pub use schema::SCHEMA_VERSION;
