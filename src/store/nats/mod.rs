@@ -75,7 +75,8 @@ pub const NATS_RUNTIME_THREADS: usize = 1;
 /// How far the clock of a daemon that writes the history may be from the NATS server's
 /// (default of [`NatsOptions::clock_margin`]): a history range starts reading this much
 /// earlier than its rows could have been stored. An hour of a gate's rows (720 at the default
-/// cadence) reads in about 25 ms; hosts kept by NTP are within milliseconds.
+/// cadence) reads in about 10 ms at the measured 1.8 s per week (docs/benchmarks.md, "History
+/// on NATS"); hosts kept by NTP are within milliseconds.
 pub const CLOCK_MARGIN: Duration = Duration::from_secs(3600);
 
 /// Messages asked for by one fetch when a subject is read: large enough that a day of a gate
