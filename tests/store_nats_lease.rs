@@ -4,12 +4,16 @@
 //! abandoned lease (no release, as after `kill -9`) refuses until it expires, then is taken; of
 //! two conditional writes with the same expected sequence exactly one is stored; a renewing
 //! owner keeps its prefix, and one whose lease was taken writes nothing more; a server away
-//! for longer than the TTL is no loss: writes wait, and resume once the lease is renewed.
+//! for longer than the TTL is no loss: writes wait, and resume once the lease is renewed, within
+//! seconds of the server's return.
 
 use std::sync::{Arc, Barrier};
 use std::time::{Duration, Instant};
 
-use gatewatch::store::{LeaseRecord, NatsOptions, NatsStore, Store, StoreError, WriteBatch};
+use gatewatch::store::{
+    nats_lease_renew_interval, nats_lease_retry_interval, LeaseRecord, NatsOptions, NatsStore,
+    Store, StoreError, WriteBatch, NATS_RECONNECT_DELAY_MAX,
+};
 
 mod nats_common;
 use nats_common::{nats_installed, NatsServer};
@@ -280,4 +284,52 @@ fn an_unreachable_server_is_not_a_loss_and_the_lease_is_renewed_when_it_is_back(
     let (_, now) = owner.owner_lease().expect("read").expect("a lease");
     assert_eq!(now.instance, mine.instance);
     assert!(now.expires > mine.expires);
+}
+
+/// A server away for longer than the lease lets it expire, and every write is refused until a
+/// renewal gets through. Once the server is back that takes a retry of the renewal (every fifth
+/// of the renewal interval) after the client's reconnection (at most a second apart), not the
+/// next whole interval after a reconnection up to 4 s apart (the client's default): before
+/// session 56 that was 0 to 8 s with this TTL, and up to 14 s at the default 30 s.
+#[test]
+fn writes_resume_within_seconds_of_the_server_back_after_the_lease_expired() {
+    if !nats_installed() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut server = NatsServer::start(dir.path());
+    let url = server.url();
+    // renewed every 4 s, a failed renewal retried every 0.8 s
+    let ttl = Duration::from_secs(12);
+    assert_eq!(nats_lease_renew_interval(ttl), Duration::from_secs(4));
+    assert_eq!(nats_lease_retry_interval(ttl), Duration::from_millis(800));
+    let owner = NatsStore::open(&options(&url, "BACK", Some(ttl))).expect("owner");
+    owner.write(&one_state()).expect("the owner writes");
+    server.stop();
+    // away until the lease expired: writes are refused as such
+    let deadline = Instant::now() + ttl * 2;
+    loop {
+        match owner.write(&one_state()) {
+            Err(e) if e.to_string().contains("expired without renewal") => break,
+            other => {
+                assert!(
+                    Instant::now() < deadline,
+                    "the lease did not expire: {other:?}"
+                );
+                std::thread::sleep(Duration::from_millis(200));
+            }
+        }
+    }
+    server.restart();
+    let back = Instant::now();
+    // the bound: a reconnection and a retry, with a second of slack for a loaded machine
+    let bound = NATS_RECONNECT_DELAY_MAX + nats_lease_retry_interval(ttl) + Duration::from_secs(1);
+    while let Err(e) = owner.write(&one_state()) {
+        assert!(
+            back.elapsed() < bound,
+            "writes did not resume within {bound:?} of the server's return: {e}"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    owner.check().expect("still the owner");
 }

@@ -47,10 +47,13 @@ pub use history::{
 };
 pub use nats::{
     decode as decode_nats_name, encode as encode_nats_name,
-    renew_interval as nats_lease_renew_interval, valid_prefix as valid_nats_prefix, LeaseRecord,
+    reconnect_delay as nats_reconnect_delay, renew_interval as nats_lease_renew_interval,
+    retry_interval as nats_lease_retry_interval, valid_prefix as valid_nats_prefix, LeaseRecord,
     NatsOptions, NatsStore, CLOCK_MARGIN as NATS_CLOCK_MARGIN, LEASE_TTL as NATS_LEASE_TTL,
     NATS_RUNTIME_THREADS, OPERATION_TIMEOUT as NATS_OPERATION_TIMEOUT,
-    PRUNE_SCAN_MAX as NATS_PRUNE_SCAN_MAX, RENEWALS_PER_TTL as NATS_LEASE_RENEWALS_PER_TTL,
+    PRUNE_SCAN_MAX as NATS_PRUNE_SCAN_MAX, RECONNECT_DELAY_MAX as NATS_RECONNECT_DELAY_MAX,
+    RENEWALS_PER_TTL as NATS_LEASE_RENEWALS_PER_TTL,
+    RETRIES_PER_RENEWAL as NATS_LEASE_RETRIES_PER_RENEWAL,
 };
 pub use row::{HistoryRow, CURVE_STORED_DIGITS, CURVE_STORED_POINTS};
 pub use schema::SCHEMA_VERSION;

@@ -17,8 +17,9 @@
 //!   owner and when its lease expires; an expired or released one (or none) is taken.
 //! - Every [`renew_interval`] (a third of the TTL, so two renewals may fail before the lease
 //!   expires) the owner writes its record again, expected sequence = the one it last wrote
-//!   ([`renew`]). A server that does not answer is not a loss: the renewal is retried at the
-//!   next tick. A refused renewal means someone else wrote: when it is a live lease of another
+//!   ([`renew`]). A server that does not answer is not a loss: the renewal is retried every
+//!   [`retry_interval`] (a fifth of the interval) until one gets through. A refused renewal
+//!   means someone else wrote: when it is a live lease of another
 //!   instance, this daemon has lost the prefix ([`Renewal::Lost`]); when the record is its own
 //!   (an earlier renewal stored whose answer was lost) it goes on from it; when it is expired,
 //!   released or gone, the prefix is taken again as at start.
@@ -45,10 +46,9 @@ use super::{Conn, Failure};
 /// how long a prefix stays refused after its daemon was killed without releasing it. 30 s is
 /// the shortest at which a renewal ([`renew_interval`], every 10 s) gets the whole
 /// [`OPERATION_TIMEOUT`](super::OPERATION_TIMEOUT) of 10 s, and two in a row that each take all
-/// of it still land in time (shorter leases are warned about: `StorageConfig::warnings`); one
-/// renewal that fails at once is survived, but one that waits out the whole timeout (a server
-/// restarting) lets the lease lapse until the next gets through (`docs/design.md`, "The owner
-/// lease"). A systemd `Restart=` loop after a `kill -9` gets through within half a minute.
+/// of it still land in time (shorter leases are warned about: `StorageConfig::warnings`); a
+/// failed renewal is retried every [`retry_interval`] until the expiry (`docs/design.md`, "The
+/// owner lease"). A systemd `Restart=` loop after a `kill -9` gets through within half a minute.
 pub const LEASE_TTL: Duration = Duration::from_secs(30);
 
 /// The renewals per TTL: the lease is written again every TTL / 3.
@@ -57,6 +57,19 @@ pub const RENEWALS_PER_TTL: u32 = 3;
 /// How often an owner renews a lease of `ttl`.
 pub fn renew_interval(ttl: Duration) -> Duration {
     (ttl / RENEWALS_PER_TTL).max(Duration::from_millis(100))
+}
+
+/// Failed renewals of the lease are retried this many times per [`renew_interval`].
+pub const RETRIES_PER_RENEWAL: u32 = 5;
+
+/// How soon a renewal that failed is tried again: a fifth of [`renew_interval`] (2 s at the
+/// default 30 s TTL), at least 100 ms. Why not at the next renewal: a server that was away (a
+/// restart, an upgrade) for longer than the lease has let it expire, and the store refuses
+/// every write until a renewal gets through. Waiting out a whole interval after the server
+/// was back lost up to 10 s of writes at the default TTL (session 56); the retries bound that
+/// to about 2 s plus the client's reconnection (at most [`super::RECONNECT_DELAY_MAX`] apart).
+pub fn retry_interval(ttl: Duration) -> Duration {
+    (renew_interval(ttl) / RETRIES_PER_RENEWAL).max(Duration::from_millis(100))
 }
 
 /// Who owns a prefix, as its lease message holds it (JSON).
@@ -288,8 +301,9 @@ pub(super) async fn release(c: &Conn, held: &HeldState) -> Result<(), Failure> {
 }
 
 /// Renews `held` every [`renew_interval`] until it is released or lost (the task is aborted
-/// with the store's runtime), each renewal given at most `timeout` and the interval. A failed renewal is logged once per run of failures and retried
-/// at the next tick; a lost lease is logged as an error naming the new owner and remembered,
+/// with the store's runtime), each renewal given at most `timeout` and the interval. A failed
+/// renewal is logged once per run of failures and retried after [`retry_interval`]; a lost
+/// lease is logged as an error naming the new owner and remembered,
 /// which refuses every later write and fails `Store::check`.
 pub(super) async fn keep(c: Arc<Conn>, held: Arc<Held>, url: String, timeout: Duration) {
     let prefix = c.names.prefix.clone();
@@ -299,7 +313,12 @@ pub(super) async fn keep(c: Arc<Conn>, held: Arc<Held>, url: String, timeout: Du
     let timeout = timeout.min(every);
     let (mut failing, mut expired_told) = (false, false);
     loop {
-        tokio::time::sleep(every).await;
+        let pause = if failing {
+            retry_interval(held.ttl)
+        } else {
+            every
+        };
+        tokio::time::sleep(pause).await;
         let state = lock(&held.state).clone();
         if state.released || state.lost.is_some() {
             return;
@@ -337,7 +356,7 @@ pub(super) async fn keep(c: Arc<Conn>, held: Arc<Held>, url: String, timeout: Du
                         %prefix,
                         "renewal of the owner lease of prefix {prefix} on {url} failed, retried \
                          every {:.1} s: {f}",
-                        every.as_secs_f64()
+                        retry_interval(held.ttl).as_secs_f64()
                     );
                 }
                 if expired && !expired_told {

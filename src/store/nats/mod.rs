@@ -55,9 +55,12 @@ use super::{
     HistoryQuery, NewOutboxRow, OutboxRow, Pruned, Store, StoreError, WriteBatch, MAX_HISTORY_LIMIT,
 };
 use lease::{lock, Held, HeldState, Taken};
-pub use lease::{renew_interval, LeaseRecord, LEASE_TTL, RENEWALS_PER_TTL};
+pub use lease::{
+    renew_interval, retry_interval, LeaseRecord, LEASE_TTL, RENEWALS_PER_TTL, RETRIES_PER_RENEWAL,
+};
 use names::Names;
 pub use names::{decode, encode, valid_prefix};
+pub use ops::{reconnect_delay, RECONNECT_DELAY_MAX};
 
 /// How long one store call (a write, a query, the connection at open) may take before it fails
 /// with an error naming the server. The SQLite store waits up to 5 s for a lock. A gate's
@@ -441,7 +444,8 @@ impl NatsStore {
             return Err(self.error(
                 operation,
                 format!(
-                    "the owner lease of prefix {} expired without renewal (the server did not                      answer); writes wait for its renewal",
+                    "the owner lease of prefix {} expired without renewal (the server did not \
+                     answer); writes wait for its renewal",
                     self.names.prefix
                 ),
             ));
@@ -773,5 +777,31 @@ mod tests {
         assert!(!clock_agrees(Some(1801.0), &o));
         assert!(!clock_agrees(Some(-7200.0), &o));
         assert!(!clock_agrees(None, &o));
+    }
+
+    #[test]
+    fn reconnection_starts_at_once_and_never_waits_more_than_a_second() {
+        assert_eq!(reconnect_delay(0), Duration::ZERO);
+        assert_eq!(reconnect_delay(1), Duration::ZERO);
+        assert_eq!(reconnect_delay(2), Duration::from_millis(2));
+        assert_eq!(reconnect_delay(5), Duration::from_millis(16));
+        assert_eq!(reconnect_delay(10), Duration::from_millis(512));
+        for attempts in [11, 64, 65, usize::MAX] {
+            assert_eq!(reconnect_delay(attempts), RECONNECT_DELAY_MAX, "{attempts}");
+        }
+    }
+
+    #[test]
+    fn a_failed_renewal_is_retried_five_times_an_interval() {
+        assert_eq!(retry_interval(LEASE_TTL), Duration::from_secs(2));
+        assert_eq!(
+            retry_interval(Duration::from_secs(12)),
+            Duration::from_millis(800)
+        );
+        // never busier than ten tries a second, however short the lease
+        assert_eq!(
+            retry_interval(Duration::from_millis(30)),
+            Duration::from_millis(100)
+        );
     }
 }

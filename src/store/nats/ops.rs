@@ -20,11 +20,30 @@ use super::names::{decode, encode, Names};
 use super::read::{read_from, read_messages};
 use super::{ctx, Conn, Failure, NatsOptions, StoredOutbox, PRUNE_SCAN_MAX};
 
+/// The longest wait between two attempts to reconnect to a server that went away.
+///
+/// Why not the client's default (doubling from 2 ms up to 4 s): while the connection is down
+/// every write fails, and once the server is back a write waits for the next attempt. At 4 s
+/// that was most of what an outage cost beyond its own length; a daemon's one connection
+/// trying once a second is nothing to a server.
+pub const RECONNECT_DELAY_MAX: Duration = Duration::from_secs(1);
+
+/// The wait before reconnection attempt `attempts` (1, 2, ...): none for the first, then
+/// doubling from 2 ms up to [`RECONNECT_DELAY_MAX`].
+pub fn reconnect_delay(attempts: usize) -> Duration {
+    let doublings = u32::try_from(attempts.saturating_sub(1)).unwrap_or(u32::MAX);
+    if doublings == 0 {
+        return Duration::ZERO;
+    }
+    Duration::from_millis(2u64.saturating_pow(doublings)).min(RECONNECT_DELAY_MAX)
+}
+
 /// The JetStream context of a new connection to `url`, each request given `timeout`.
 async fn context(url: &str, timeout: Duration) -> Result<jetstream::Context, Failure> {
     let client = async_nats::ConnectOptions::new()
         .name("gatewatch")
         .connection_timeout(timeout)
+        .reconnect_delay_callback(reconnect_delay)
         .connect(url)
         .await
         .map_err(|e| format!("cannot connect: {e}"))?;
