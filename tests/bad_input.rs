@@ -260,6 +260,8 @@ enum Want {
     LineColumn,
     /// 400 naming this field, whose error says this (a hint that names the fix).
     FieldSays(&'static str, &'static str),
+    /// This status, with a JSON `error` that says this.
+    StatusSays(u16, &'static str),
 }
 
 struct Case {
@@ -314,6 +316,9 @@ fn check(d: &Daemon, cases: &[Case]) {
                 r.status == 400
                     && v["field"] == *f
                     && v["error"].as_str().is_some_and(|e| e.contains(says))
+            }
+            Want::StatusSays(s, says) => {
+                r.status == *s && v["error"].as_str().is_some_and(|e| e.contains(says))
             }
         };
         if !ok {
@@ -507,6 +512,16 @@ fn json_cases() -> Vec<Case> {
         json_case(
             "JSON: gate with a newline",
             good_then("gate", json!("g\n1")),
+            Want::Field("gate"),
+        ),
+        json_case(
+            "JSON: gate `.`",
+            good_then("gate", json!(".")),
+            Want::Field("gate"),
+        ),
+        json_case(
+            "JSON: gate `..`",
+            good_then("gate", json!("..")),
             Want::Field("gate"),
         ),
         // start
@@ -984,6 +999,21 @@ fn lp_cases() -> Vec<Case> {
             format!("m,gate=gäte force=1 {ns}"),
             Want::FieldLine("gate", 1),
         ),
+        lp_case(
+            "LP: gate id `..`",
+            v1,
+            format!("m,gate=.. force=1 {ns}"),
+            Want::FieldLine("gate", 1),
+        ),
+        lp_case(
+            "LP: gate id `.` on line 2",
+            v2,
+            format!(
+                "m,gate=g1 force=1 {ns}\nm,gate=. force=1 {}",
+                ns + 10_000_000
+            ),
+            Want::FieldLine("gate", 2),
+        ),
         lp_case("LP: trailing backslash", v2, "m,gate=g1\\", Want::Line(1)),
         lp_case("LP: tag without value", v2, "m,gate force=1", Want::Line(1)),
         lp_case(
@@ -1128,10 +1158,17 @@ fn http_cases() -> Vec<Case> {
         want,
     };
     let g = good("g1").to_string();
+    // a gate id that is client input in the path: quoted as an excerpt (`ingest::EXCERPT_CHARS`)
+    let long_view = format!("/api/v1/gates/{}", "a".repeat(60_000));
+    let long_history = format!("{long_view}/history");
     vec![
         with("HTTP: unknown route", "GET", "/nope", &[], b"", Want::Status(404)),
         with("HTTP: path traversal", "GET", "/api/v1/../../etc/passwd", &[], b"", Want::Status(404)),
         with("HTTP: unknown gate view", "GET", "/api/v1/gates/%2e%2e", &[], b"", Want::Status(404)),
+        with("HTTP: a 60 000-character gate id", "GET", &long_view, &[], b"", Want::StatusSays(404, "... (60000 bytes)`")),
+        with("HTTP: a 60 000-character gate id's history", "GET", &long_history, &[], b"", Want::StatusSays(404, "... (60000 bytes)`")),
+        with("HTTP: gate id not UTF-8 (%ff%fe)", "GET", "/api/v1/gates/%ff%fe", &[], b"", Want::Field("id")),
+        with("HTTP: gate id not UTF-8 in the history (%ff)", "GET", "/api/v1/gates/%ff/history", &[], b"", Want::Field("id")),
         with("HTTP: GET on the ingestion route", "GET", "/api/v1/samples", &[], b"", Want::Status(405)),
         with("HTTP: PUT on /write", "PUT", "/write", &[], b"m,gate=g1 force=1", Want::Status(405)),
         with("HTTP: DELETE on a gate", "DELETE", "/api/v1/gates/g1", &[], b"", Want::Status(405)),
@@ -1200,6 +1237,11 @@ fn tcp_cases() -> Vec<(&'static str, String, &'static str)> {
         (
             "TCP: invalid gate id",
             format!("m,gate=a/b force=1 {ns}"),
+            "bad_line",
+        ),
+        (
+            "TCP: gate id `..`",
+            format!("m,gate=.. force=1 {ns}"),
             "bad_line",
         ),
         (
@@ -1663,6 +1705,18 @@ fn bad_configs() -> Vec<(&'static str, String, &'static str, Option<usize>)> {
             None,
         ),
         c(
+            "gate id `..`",
+            "[gates.\"..\"]\n",
+            "gates...: gate id must be",
+            None,
+        ),
+        c(
+            "gate id `.`",
+            "[gates.\".\"]\nrate_hz = 100.0\n",
+            "gates..: gate id must be",
+            None,
+        ),
+        c(
             "fire_below above clear_above",
             "[defaults.alert]\nfire_below = 0.1\nclear_above = 0.0\n",
             "defaults.alert.clear_above",
@@ -1709,6 +1763,39 @@ fn bad_configs() -> Vec<(&'static str, String, &'static str, Option<usize>)> {
             "[defaults.pooling]\nmin_cycle = 100.0\n",
             "defaults.pooling.min_cycle",
             Some(2),
+        ),
+        // a param the model refuses is its own key's fault, at its line (it was `model`, at
+        // the table's header or line 1)
+        c(
+            "reserved param name under [defaults]",
+            "[server]\nmax_gates = 4\n\n[defaults]\nrate_hz = 200.0\nparams = { yd = 2.0 }\n",
+            "defaults.params.yd: param name 'yd' is reserved",
+            Some(6),
+        ),
+        c(
+            "reserved param name in a gate",
+            "[gates.g1]\nrate_hz = 100.0\nparams = { c1 = 2.0 }\n",
+            "gates.g1.params.c1: param name 'c1' is reserved",
+            Some(3),
+        ),
+        c(
+            "param name that is no name",
+            "[defaults]\nparams = { \"a b\" = 2.0 }\n",
+            "defaults.params.a b: invalid param name",
+            Some(2),
+        ),
+        // a value field no line can carry: every write was refused once the daemon ran
+        c(
+            "empty value field",
+            "[ingest]\nvalue_fields = [\"force\", \"\"]\n",
+            "ingest.value_fields[1]: must not be empty",
+            Some(2),
+        ),
+        c(
+            "value field ending with a backslash",
+            "[ingest]\nvalue_fields = [\n  \"force\\\\\",\n]\n",
+            "ingest.value_fields[0]: \"force\\\\\" ends with a backslash",
+            Some(3),
         ),
     ]
 }

@@ -215,6 +215,91 @@ fn check_config_refuses_a_store_serve_cannot_open() {
     assert_eq!(o.status.code(), Some(0), "{}", text(&o.stderr));
 }
 
+/// `GATEWATCH_STORAGE_PATH` pointing where `serve` cannot open the store is refused by
+/// `check-config` naming the variable and the key it sets, not the file: the file's
+/// `storage.path` may say something else, and the line blamed the file for the environment's
+/// value.
+#[test]
+fn check_config_names_the_variable_that_set_a_store_serve_cannot_open() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("main.toml");
+    std::fs::write(&file, "[server]\nlisten = \"127.0.0.1:0\"\n").unwrap();
+    let missing = dir.path().join("no-such-dir");
+    let o = Command::new(env!("CARGO_BIN_EXE_gatewatch"))
+        .args(["check-config", file.to_str().unwrap()])
+        .env("GATEWATCH_STORAGE_PATH", missing.join("x.db"))
+        .output()
+        .unwrap();
+    let err = text(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert_eq!(
+        err.trim_end(),
+        format!(
+            "gatewatch: GATEWATCH_STORAGE_PATH (sets storage.path) {}: its directory {} does \
+             not exist or is not a directory",
+            missing.join("x.db").display(),
+            missing.display()
+        )
+    );
+    assert!(o.stdout.is_empty(), "{}", text(&o.stdout));
+}
+
+/// `GATEWATCH_AUTH_TOKENS` set to no token (empty, blanks, only commas) stops `serve` and
+/// `check-config` (exit 2, one line naming the variable): it replaced the file's tokens with
+/// none, `check-config` said ok, and `serve` answered the API without authentication.
+#[test]
+fn an_auth_tokens_variable_without_a_token_is_refused_at_start() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("tok.toml");
+    std::fs::write(
+        &file,
+        "[server]\nlisten = \"127.0.0.1:0\"\nauth_tokens = [\"0123456789abcdef0123\"]\n\
+         [storage]\npath = \"gw.db\"\n",
+    )
+    .unwrap();
+    let file = file.to_str().unwrap();
+    let run = |args: &[&str], tokens: &str| {
+        let mut child = Command::new(env!("CARGO_BIN_EXE_gatewatch"))
+            .args(args)
+            .env("GATEWATCH_AUTH_TOKENS", tokens)
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        // a guard against a daemon that started, not a timing assertion
+        let deadline = std::time::Instant::now() + std::time::Duration::from_secs(60);
+        while child.try_wait().unwrap().is_none() {
+            if std::time::Instant::now() > deadline {
+                let _ = child.kill();
+                let _ = child.wait();
+                panic!("{args:?} with GATEWATCH_AUTH_TOKENS={tokens:?} started");
+            }
+            std::thread::sleep(std::time::Duration::from_millis(20));
+        }
+        child.wait_with_output().unwrap()
+    };
+    for tokens in ["", " ", ",", " , "] {
+        for args in [vec!["check-config", file], vec!["serve", "--config", file]] {
+            let o = run(&args, tokens);
+            let err = text(&o.stderr);
+            assert_eq!(o.status.code(), Some(2), "{args:?} {tokens:?}: {err}");
+            assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+            assert!(
+                err.starts_with(&format!(
+                    "gatewatch: GATEWATCH_AUTH_TOKENS (sets server.auth_tokens): {tokens:?} \
+                     holds no token"
+                )),
+                "{args:?}: {err}"
+            );
+            assert!(!err.contains("tok.toml"), "blamed on the file: {err}");
+        }
+    }
+    // a token in the variable passes
+    let o = run(&["check-config", file], "aaaaaaaaaaaaaaaa");
+    assert_eq!(o.status.code(), Some(0), "{}", text(&o.stderr));
+}
+
 #[test]
 fn check_config_names_the_key_and_the_line() {
     config_error(

@@ -560,6 +560,87 @@ async fn unknown_route_and_method() {
     assert!(!text.contains("passwd"));
 }
 
+/// A gate id in the path is client input like any other: a 60 000-character one was echoed
+/// whole in the 404 (`ingest::EXCERPT_CHARS`), and a percent-encoding that is not UTF-8 got
+/// axum's text/plain `Invalid URL: Invalid UTF-8 in `id`` instead of the JSON error.
+#[tokio::test]
+async fn path_parameters_are_quoted_as_an_excerpt_and_refused_in_json() {
+    use gatewatch::service::ingest::{EXCERPT_CHARS, MAX_ERROR_CHARS};
+    let (app, _) = make_app("");
+    let long = "a".repeat(60_000);
+    let (s, v, _) = send(
+        &app,
+        "GET",
+        &format!("/api/v1/gates/{long}"),
+        Body::empty(),
+        None,
+    )
+    .await;
+    assert_eq!(s, StatusCode::NOT_FOUND, "{v}");
+    let e = v["error"].as_str().expect("a JSON error");
+    assert!(
+        e.chars().count() <= MAX_ERROR_CHARS,
+        "{} characters",
+        e.len()
+    );
+    let quoted = format!("unknown gate `{}... (60000 bytes)`", &long[..EXCERPT_CHARS]);
+    assert_eq!(e, quoted);
+    for uri in [
+        "/api/v1/gates/%ff%fe",
+        "/api/v1/gates/%ff/history",
+        "/api/v1/gates/g%c3/history?limit=1",
+    ] {
+        let (s, v, headers) = send(&app, "GET", uri, Body::empty(), None).await;
+        assert_eq!(s, StatusCode::BAD_REQUEST, "{uri}: {v}");
+        assert_eq!(
+            headers.get("content-type").map(|c| c.as_bytes()),
+            Some(&b"application/json"[..]),
+            "{uri}"
+        );
+        assert_eq!(v["field"], "id", "{uri}: {v}");
+        assert!(
+            v["error"].as_str().is_some_and(|e| e.contains("not UTF-8")),
+            "{uri}: {v}"
+        );
+    }
+}
+
+/// Gate ids of dots only (`.`, `..`) were ingested, then listed but not readable: clients
+/// normalise `/api/v1/gates/..` to `/api/v1/`. They are refused as every other bad id, over JSON
+/// and line protocol, and an id with dots among other characters still passes.
+#[tokio::test]
+async fn gate_ids_of_dots_only_are_refused() {
+    let (app, state) = make_app("");
+    for gate in [".", "..", "..."] {
+        let (s, v) = post_json(&app, uniform(gate, 1000.0, 3)).await;
+        assert_eq!(
+            (s, v["field"].as_str()),
+            (StatusCode::BAD_REQUEST, Some("gate")),
+            "{gate:?}: {v}"
+        );
+        assert!(
+            v["error"]
+                .as_str()
+                .is_some_and(|e| e.contains("not only dots")),
+            "{v}"
+        );
+        for route in ["/api/v2/write", "/write"] {
+            let body = format!("m,gate={gate} force=1 1000000000000\n");
+            let (s, v, _) = send(&app, "POST", route, body, None).await;
+            assert_eq!(
+                (s, v["field"].as_str(), v["line"].as_u64()),
+                (StatusCode::BAD_REQUEST, Some("gate"), Some(1)),
+                "{route} {gate:?}: {v}"
+            );
+        }
+    }
+    assert!(state.gate_ids().is_empty(), "{:?}", state.gate_ids());
+    for gate in ["a.b", ".g1", "v1.."] {
+        let (s, v) = post_json(&app, uniform(gate, 1000.0, 3)).await;
+        assert_eq!(s, StatusCode::NO_CONTENT, "{gate:?}: {v}");
+    }
+}
+
 #[tokio::test]
 async fn duplicates_and_out_of_order_are_counted() {
     let (app, state) = make_app("");

@@ -9,7 +9,8 @@ use std::time::{Duration, Instant};
 
 use axum::body::Bytes;
 use axum::error_handling::HandleErrorLayer;
-use axum::extract::rejection::{BytesRejection, QueryRejection};
+use axum::extract::path::ErrorKind;
+use axum::extract::rejection::{BytesRejection, PathRejection, QueryRejection};
 use axum::extract::{DefaultBodyLimit, MatchedPath, Path, Query, RawQuery, Request, State};
 use axum::http::{header, HeaderValue, StatusCode};
 use axum::middleware::{self, Next};
@@ -82,7 +83,7 @@ impl IntoResponse for HttpError {
                     .insert(header::WWW_AUTHENTICATE, HeaderValue::from_static("Bearer"));
                 return r;
             }
-            HttpError::NotFound(m) => (StatusCode::NOT_FOUND, BadRequest::new(m)),
+            HttpError::NotFound(m) => (StatusCode::NOT_FOUND, BadRequest::new(m).clipped()),
             HttpError::PayloadTooLarge(limit) => {
                 // the body is left unread: the connection ends (`limits::close_connection`)
                 return close_connection(
@@ -355,15 +356,69 @@ async fn list_gates(
     Ok(Json(serde_json::json!({ "gates": gates, "next": next })).into_response())
 }
 
+/// The value of a route's path parameter as axum's extractor gives it, or a 400 in the JSON
+/// shape of every other answer, naming the parameter in `field` and quoting the value as an
+/// [`excerpt`]: axum's own rejection is a text/plain ``Invalid URL: Invalid UTF-8 in `id` ``
+/// (`/api/v1/gates/%ff`). A rejection that is the route's own fault (a parameter the route
+/// does not have) is a 500, as axum has it. Every `/api/v1` route with a path parameter reads it
+/// here, as it reads its query string with `history::query_pairs`.
+pub fn path_param<T>(p: Result<Path<T>, PathRejection>) -> Result<T, HttpError> {
+    let e = match p {
+        Ok(Path(v)) => return Ok(v),
+        Err(e) => e,
+    };
+    if e.status().is_server_error() {
+        return Err(HttpError::Internal(format!(
+            "path parameters: {}",
+            e.body_text()
+        )));
+    }
+    let PathRejection::FailedToDeserializePathParams(failed) = &e else {
+        return Err(HttpError::BadRequest(BadRequest::new(e.body_text())));
+    };
+    let cannot =
+        |value: &str, expected: &str| format!("cannot read `{}` as {expected}", excerpt(value));
+    let (key, why) = match failed.kind() {
+        ErrorKind::InvalidUtf8InPathParam { key } => {
+            (Some(key), "not UTF-8 once percent-decoded".to_string())
+        }
+        ErrorKind::ParseErrorAtKey {
+            key,
+            value,
+            expected_type,
+        } => (Some(key), cannot(value, expected_type)),
+        ErrorKind::DeserializeError {
+            key,
+            value,
+            message,
+        } => (Some(key), format!("`{}`: {message}", excerpt(value))),
+        ErrorKind::ParseError {
+            value,
+            expected_type,
+        }
+        | ErrorKind::ParseErrorAtIndex {
+            value,
+            expected_type,
+            ..
+        } => (None, cannot(value, expected_type)),
+        other => (None, other.to_string()),
+    };
+    Err(HttpError::BadRequest(match key {
+        Some(key) => BadRequest::new(format!("path parameter `{key}`: {why}")).field(key.clone()),
+        None => BadRequest::new(format!("path parameter: {why}")),
+    }))
+}
+
 /// `GET /api/v1/gates/{id}`: the gate's view. It takes no parameter, and refuses one as the
 /// list does (`?format=csv` would otherwise answer JSON as if it had been read). The probes,
 /// `/metrics` and the Influx routes are left lenient: a scrape config or a client may add its
 /// own parameters.
 async fn get_gate(
     State(state): State<Arc<AppState>>,
-    Path(id): Path<String>,
+    id: Result<Path<String>, PathRejection>,
     pairs: Result<Query<Vec<(String, String)>>, QueryRejection>,
 ) -> Result<Response, HttpError> {
+    let id = path_param(id)?;
     let [] = query_params(
         query_pairs(pairs)?,
         [],
@@ -372,7 +427,7 @@ async fn get_gate(
     state
         .gate_view(&id)
         .map(|v| Json(v).into_response())
-        .ok_or_else(|| HttpError::NotFound(format!("unknown gate `{id}`")))
+        .ok_or_else(|| HttpError::NotFound(format!("unknown gate `{}`", excerpt(&id))))
 }
 
 /// Liveness: 200 `ok` unless the daemon is in a state only a restart ends

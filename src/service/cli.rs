@@ -220,20 +220,12 @@ pub fn check_config(args: CheckConfigArgs) -> ExitCode {
     match load_config(Some(&args.file)) {
         Ok(config) => {
             // The store's location, resolved as `serve` resolves it: `serve` does not create
-            // a missing directory, it stops (exit 1), so a path it cannot open is refused here.
-            // A NATS store has no file: its server is reached at start, not here.
-            let base = args.file.parent();
-            let store = config.storage.resolve(base);
-            let checked = match config.storage.backend {
-                crate::store::StorageBackend::Sqlite => crate::store::check_location(&store),
-                crate::store::StorageBackend::Nats => Ok(()),
-            };
-            if let Err(reason) = checked {
-                errln!(
-                    "gatewatch: {}: storage.path {}: {reason}",
-                    args.file.display(),
-                    store.display()
-                );
+            // a missing directory, it stops (exit 1), so a path it cannot open is refused here
+            // (naming `GATEWATCH_STORAGE_PATH` when the variable set it, not the file).
+            if let Err(e) =
+                config.check_store_location(args.file.parent(), |k| std::env::var(k).ok())
+            {
+                errln!("{}", config_error_line(Some(&args.file), &e));
                 return ExitCode::from(2);
             }
             for w in config.warnings() {

@@ -99,7 +99,8 @@ pub struct ServerConfig {
     pub listen: String,
     /// Raw TCP line-protocol listen address; empty: off.
     pub tcp_listen: String,
-    /// Bearer tokens; empty: no authentication.
+    /// Bearer tokens; empty: no authentication (decided in the file only: a
+    /// `GATEWATCH_AUTH_TOKENS` holding no token is refused, [`Config::apply_env`]).
     pub auth_tokens: Vec<String>,
     /// Whether /metrics also needs a token (when tokens are configured).
     pub metrics_auth: bool,
@@ -260,6 +261,32 @@ pub fn check_log_level(level: &str) -> Result<(), String> {
         .parse(level)
         .map(drop)
         .map_err(|e| format!("`{level}`: {e} ({LOG_LEVEL_HELP})"))
+}
+
+/// Checks a key gatewatch looks for in line protocol (`ingest.gate_tag`, each of
+/// `ingest.value_fields`): refuses what no line can carry as a key, so that the daemon does not
+/// start and refuse every write (`value_fields = [""]` passed, and then every line got
+/// `missing field, expected one of [""]`). A line carries a tag or field key of at least one
+/// character; it cannot hold a newline, which ends the line; and it cannot end with a
+/// backslash, which escapes the `=` after it (`service::ingest::line_protocol`: `\,`, `\=` and
+/// `\ ` are escapes in keys, so a comma, an equals sign or a space can be carried, escaped).
+fn check_line_protocol_key(key: &str) -> Result<(), String> {
+    if key.is_empty() {
+        return Err("must not be empty: a line-protocol key has at least one character".into());
+    }
+    if key.contains('\n') {
+        return Err(format!(
+            "{key:?} holds a newline, which ends a line of line protocol: no line can carry \
+             this key"
+        ));
+    }
+    if key.ends_with('\\') {
+        return Err(format!(
+            "{key:?} ends with a backslash, which escapes the '=' after the key in line \
+             protocol: no line can carry this key"
+        ));
+    }
+    Ok(())
 }
 
 /// Timestamp precision of line protocol.
@@ -537,7 +564,7 @@ fn with_line(text: &str, err: ConfigError) -> ConfigError {
     let Some((key, _)) = err.message.split_once(": ") else {
         return err;
     };
-    let path: Vec<String> = key.split('.').map(String::from).collect();
+    let path = locate::key_path(key);
     let line = locate::line_of(text, &path)
         .filter(|_| path.len() > 1)
         .or_else(|| {
@@ -577,13 +604,21 @@ fn gate_from_table(
     Ok(gate)
 }
 
-/// A valid gate id: 1..=64 characters of `[A-Za-z0-9_.-]` (bounded metric labels, safe paths).
+/// What [`valid_gate_id`] requires, as the errors refusing an id say it.
+pub const GATE_ID_RULE: &str =
+    "gate id must be 1..=64 characters of A-Z a-z 0-9 _ - ., not only dots";
+
+/// A valid gate id: 1..=64 characters of `[A-Za-z0-9_.-]` (bounded metric labels, safe paths),
+/// not only dots. Why not `.` or `..`: clients (curl, browsers, HTTP libraries) normalise them
+/// as path segments, so `/api/v1/gates/..` never reaches the gate: it would be ingested and
+/// listed but not readable by its URL.
 pub fn valid_gate_id(id: &str) -> bool {
     !id.is_empty()
         && id.len() <= 64
         && id
             .bytes()
             .all(|b| b.is_ascii_alphanumeric() || matches!(b, b'_' | b'-' | b'.'))
+        && !id.bytes().all(|b| b == b'.')
 }
 
 impl Config {
@@ -611,9 +646,7 @@ impl Config {
         for (id, table) in gates {
             let prefix = format!("gates.{id}");
             if !valid_gate_id(&id) {
-                return Err(ConfigError::new(format!(
-                    "{prefix}: gate id must be 1..=64 characters of A-Z a-z 0-9 _ - ."
-                )));
+                return Err(ConfigError::new(format!("{prefix}: {GATE_ID_RULE}")));
             }
             let toml::Value::Table(table) = table else {
                 return Err(ConfigError::new(format!("{prefix}: must be a table")));
@@ -660,6 +693,37 @@ impl Config {
         })
     }
 
+    /// Whether `serve` can open the store where this configuration puts it, as
+    /// [`crate::store::check_location`] tells (a SQLite store only: a NATS store has no file,
+    /// its server is reached at start). `storage.path` is resolved against `base` (the file's
+    /// directory) as `serve` resolves it. `get` reads the environment, as for
+    /// [`Config::apply_env`]: a path `GATEWATCH_STORAGE_PATH` set is refused naming the variable
+    /// and not the file (`GATEWATCH_STORAGE_PATH=/nonexist/x.db` was reported as the file's
+    /// `storage.path`), as every other bad value from the environment is.
+    pub fn check_store_location(
+        &self,
+        base: Option<&Path>,
+        get: impl Fn(&str) -> Option<String>,
+    ) -> Result<(), ConfigError> {
+        if self.storage.backend != crate::store::StorageBackend::Sqlite {
+            return Ok(());
+        }
+        let store = self.storage.resolve(base);
+        crate::store::check_location(&store).map_err(|reason| {
+            if get("GATEWATCH_STORAGE_PATH").is_some() {
+                ConfigError {
+                    names_file: true,
+                    ..ConfigError::new(format!(
+                        "GATEWATCH_STORAGE_PATH (sets storage.path) {}: {reason}",
+                        store.display()
+                    ))
+                }
+            } else {
+                ConfigError::new(format!("storage.path {}: {reason}", store.display()))
+            }
+        })
+    }
+
     fn apply_env_values(
         &mut self,
         get: impl Fn(&str) -> Option<String>,
@@ -684,7 +748,21 @@ impl Config {
             self.server.tcp_allowed_networks = list(v);
         }
         if let Some(v) = get("GATEWATCH_AUTH_TOKENS") {
-            self.server.auth_tokens = list(v);
+            // A variable set to nothing (`GATEWATCH_AUTH_TOKENS=`, an empty Secret, `,`) used
+            // to replace the file's tokens with none, which is no authentication at all, and
+            // `check-config` said ok. No token in the variable is taken as a mistake, never as
+            // a wish: a daemon without authentication is configured in the file, where it is
+            // written down (`auth_tokens = []`).
+            let tokens = list(v.clone());
+            if tokens.is_empty() {
+                return Err(ConfigError::new(format!(
+                    "server.auth_tokens: {v:?} holds no token, and would turn authentication \
+                     off: give comma-separated tokens of at least 16 characters, or unset the \
+                     variable to keep the file's server.auth_tokens (to run without \
+                     authentication, unset it and set server.auth_tokens = [] in the file)"
+                )));
+            }
+            self.server.auth_tokens = tokens;
         }
         if let Some(v) = get("GATEWATCH_LOG_FORMAT") {
             self.log.format = match v.as_str() {
@@ -874,11 +952,16 @@ impl Config {
         if let Err(e) = check_log_level(&self.log.level) {
             return Err(ConfigError::new(format!("log.level: {e}")));
         }
-        if self.ingest.gate_tag.is_empty() {
-            return Err(ConfigError::new("ingest.gate_tag: must not be empty"));
+        if let Err(e) = check_line_protocol_key(&self.ingest.gate_tag) {
+            return Err(ConfigError::new(format!("ingest.gate_tag: {e}")));
         }
         if self.ingest.value_fields.is_empty() {
             return Err(ConfigError::new("ingest.value_fields: must not be empty"));
+        }
+        for (i, field) in self.ingest.value_fields.iter().enumerate() {
+            if let Err(e) = check_line_protocol_key(field) {
+                return Err(ConfigError::new(format!("ingest.value_fields[{i}]: {e}")));
+            }
         }
         if self.ingest.tcp_max_line_bytes < 64 {
             return Err(ConfigError::new("ingest.tcp_max_line_bytes: must be >= 64"));

@@ -4,15 +4,15 @@
 use std::sync::Arc;
 
 use axum::body::{Body, Bytes};
-use axum::extract::rejection::QueryRejection;
+use axum::extract::rejection::{PathRejection, QueryRejection};
 use axum::extract::{Path, Query, State};
 use axum::http::{header, HeaderMap};
 use axum::response::{IntoResponse, Response};
 use serde::Deserialize;
 use tokio::sync::Semaphore;
 
-use super::api::HttpError;
-use super::ingest::BadRequest;
+use super::api::{path_param, HttpError};
+use super::ingest::{excerpt, BadRequest};
 use super::state::AppState;
 use crate::store::{
     history_csv_rows, history_json_rows, parse_time, HistoryQuery, HistoryRow, MAX_HISTORY_LIMIT,
@@ -181,10 +181,11 @@ async fn has_history(p: &Arc<super::storage::Persistence>, gate: &str) -> Result
 /// The handler.
 pub async fn get_history(
     State(state): State<Arc<AppState>>,
-    Path(id): Path<String>,
+    id: Result<Path<String>, PathRejection>,
     pairs: Result<Query<Vec<(String, String)>>, QueryRejection>,
     headers: HeaderMap,
 ) -> Result<Response, HttpError> {
+    let id = path_param(id)?;
     let params = HistoryParams::from_pairs(query_pairs(pairs)?)?;
     let Some(p) = state.persistence.clone() else {
         return Err(HttpError::NotFound(
@@ -196,7 +197,10 @@ pub async fn get_history(
     // with nothing in the range, so a typo in the id is a 404, not an empty day.
     let known = state.config.gates.contains_key(&id) || state.gate_ids().contains(&id);
     if !known && state.config.gate(&id).is_none() {
-        return Err(HttpError::NotFound(format!("unknown gate `{id}`")));
+        return Err(HttpError::NotFound(format!(
+            "unknown gate `{}`",
+            excerpt(&id)
+        )));
     }
     let q = query(&id, &params)?;
     let csv = wants_csv(
@@ -214,7 +218,8 @@ pub async fn get_history(
     // (the lookup holds the same permit)
     if rows.is_empty() && !known && !has_history(&p, &id).await? {
         return Err(HttpError::NotFound(format!(
-            "unknown gate `{id}`: not configured, not live, and nothing stored"
+            "unknown gate `{}`: not configured, not live, and nothing stored",
+            excerpt(&id)
         )));
     }
     drop(permit);

@@ -178,6 +178,17 @@ impl GateConfig {
         // the model is compiled here as `serve` compiles it, so `check-config` refuses what
         // `serve` would refuse (a model that does not parse, has no `ydd` or no unknowns)
         if let Err(e) = Analyzer::new(self.analysis_settings()) {
+            // A param the model language refuses whatever the equation (its name: `yd`, `c1`,
+            // `a b`) is the fault of its own key, `params.NAME`: it was reported as `model`,
+            // at the line of the table's header, and the user looked for the fault in the
+            // equation.
+            if let Some((name, msg)) = self
+                .params
+                .iter()
+                .find_map(|(name, v)| param_fault(name, *v).map(|m| (name, m)))
+            {
+                return err(&format!("params.{name}"), &msg);
+            }
             let msg = match e {
                 AnalysisError::Settings(m) => m,
                 other => other.to_string(),
@@ -229,4 +240,19 @@ impl GateConfig {
         }
         Ok(())
     }
+}
+
+/// An equation every param may stand beside: it uses only names no param can take (`y`, `ydd`,
+/// `c1`), and a param the equation does not use is no fault, so it compiles with any param the
+/// model language accepts.
+const PARAM_PROBE_EQUATION: &str = "ydd + c1*y = 0";
+
+/// Why the model language refuses the param `name = value` whatever the equation, if it does.
+/// The model checks its params before it reads the equation (`Model::parse`), so a param
+/// refused beside [`PARAM_PROBE_EQUATION`] is refused beside any equation, with the same
+/// message; the rule itself stays in the model, in one place.
+fn param_fault(name: &str, value: f64) -> Option<String> {
+    crate::model::Model::parse(PARAM_PROBE_EQUATION, &[(name.to_string(), value)])
+        .err()
+        .map(|e| e.message)
 }

@@ -73,6 +73,27 @@ fn dotted(path: &[String]) -> String {
     out
 }
 
+/// The segments of a key as [`dotted`] writes it: `ingest.value_fields[1]` is `ingest`,
+/// `value_fields`, `1`, so that [`line_of`] finds an entry of an array, not only its table.
+pub(super) fn key_path(key: &str) -> Vec<String> {
+    let mut out = Vec::new();
+    for part in key.split('.') {
+        // the trailing `[digits]`, read from the end; anything else stays part of the name
+        let mut name = part;
+        let mut indices = Vec::new();
+        while let Some((before, index)) = name.strip_suffix(']').and_then(|h| h.rsplit_once('[')) {
+            if index.is_empty() || !index.bytes().all(|b| b.is_ascii_digit()) {
+                break;
+            }
+            indices.push(index.to_string());
+            name = before;
+        }
+        out.push(name.to_string());
+        out.extend(indices.into_iter().rev());
+    }
+    out
+}
+
 /// The key of serde's "unknown field `foo`, expected ..." message.
 fn unknown_field(message: &str) -> Option<&str> {
     let rest = message.strip_prefix("unknown field `")?;
@@ -90,6 +111,11 @@ pub(super) fn line_of(text: &str, path: &[String]) -> Option<usize> {
             let Some(item) = seg.parse::<usize>().ok().and_then(|i| items.get(i)) else {
                 break;
             };
+            // an entry of a list written over several lines is on its own line; a table of an
+            // array of tables (`[[notify.webhooks]]`) is found by its keys below
+            if !matches!(item.get_ref(), DeValue::Table(_)) {
+                found = Some(item.span().start);
+            }
             item
         } else {
             let Some((key, value)) = table

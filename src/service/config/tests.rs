@@ -744,3 +744,177 @@ fn environment_errors_name_the_variable_and_unknown_variables_are_warned() {
         "{w:?}"
     );
 }
+
+/// `GATEWATCH_AUTH_TOKENS` set to no token (empty, blanks, commas: an empty Secret, a
+/// `GATEWATCH_AUTH_TOKENS=` left in an env file) is refused naming the variable, and the file's
+/// tokens stay: it replaced them with none, which turned authentication off while
+/// `check-config` said ok.
+#[test]
+fn auth_tokens_from_the_environment_that_hold_no_token_are_refused() {
+    let file = "[server]\nauth_tokens = [\"0123456789abcdef0123\"]\n";
+    for bad in ["", " ", ",", " , ,", "\t"] {
+        let mut c = Config::from_toml(file).unwrap();
+        let e = c
+            .apply_env(|k| (k == "GATEWATCH_AUTH_TOKENS").then(|| bad.to_string()))
+            .unwrap_err();
+        assert!(
+            e.message.starts_with(&format!(
+                "GATEWATCH_AUTH_TOKENS (sets server.auth_tokens): {bad:?} holds no token"
+            )),
+            "{bad:?}: {}",
+            e.message
+        );
+        // how to keep the file's tokens, and the one way to run without authentication
+        assert!(e.message.contains("unset the variable"), "{}", e.message);
+        assert!(
+            e.message.contains("server.auth_tokens = [] in the file"),
+            "{}",
+            e.message
+        );
+        assert!(e.names_file(), "{bad:?}: blamed on the file");
+        assert!(!e.message.contains('\n'), "{}", e.message);
+        assert_eq!(c.server.auth_tokens, ["0123456789abcdef0123"], "{bad:?}");
+    }
+    // tokens in the variable still replace the file's, blanks and empty items dropped
+    let mut c = Config::from_toml(file).unwrap();
+    c.apply_env(|k| (k == "GATEWATCH_AUTH_TOKENS").then(|| ",aaaaaaaaaaaaaaaa ,".to_string()))
+        .unwrap();
+    assert_eq!(c.server.auth_tokens, ["aaaaaaaaaaaaaaaa"]);
+}
+
+/// A store `GATEWATCH_STORAGE_PATH` put where `serve` cannot open it is refused naming the
+/// variable, not the file (the file's `storage.path` may say something else); the file's own
+/// path is still named as the file's key.
+#[test]
+fn a_store_location_from_the_environment_names_the_variable() {
+    let dir = tempfile::tempdir().unwrap();
+    let missing = dir.path().join("no-such-dir");
+    let reason = format!(
+        "its directory {} does not exist or is not a directory",
+        missing.display()
+    );
+    let mut c = Config::from_toml("[storage]\npath = \"gw.db\"\n").unwrap();
+    let env = |k: &str| {
+        (k == "GATEWATCH_STORAGE_PATH").then(|| missing.join("x.db").display().to_string())
+    };
+    c.apply_env(env).unwrap();
+    let e = c.check_store_location(Some(dir.path()), env).unwrap_err();
+    assert_eq!(
+        e.message,
+        format!(
+            "GATEWATCH_STORAGE_PATH (sets storage.path) {}: {reason}",
+            missing.join("x.db").display()
+        )
+    );
+    assert!(e.names_file(), "blamed on the file");
+    // from the file: the key, and the caller names the file
+    let c = Config::from_toml("[storage]\npath = \"no-such-dir/x.db\"\n").unwrap();
+    let e = c
+        .check_store_location(Some(dir.path()), |_| None)
+        .unwrap_err();
+    assert_eq!(
+        e.message,
+        format!("storage.path {}: {reason}", missing.join("x.db").display())
+    );
+    assert!(!e.names_file());
+    // a directory that exists passes, and a NATS store has no file to check
+    std::fs::create_dir(&missing).unwrap();
+    c.check_store_location(Some(dir.path()), |_| None).unwrap();
+    let nats =
+        Config::from_toml("[storage]\nbackend = \"nats\"\npath = \"/nonexist/x.db\"\n").unwrap();
+    nats.check_store_location(None, |_| None).unwrap();
+}
+
+/// A param the model language refuses by itself (a reserved or invalid name) is named by its
+/// own key, `params.NAME`, at its line: it was reported as `model`, at the line of the
+/// table's header, or at line 1.
+#[test]
+fn a_bad_param_names_its_own_key_and_line() {
+    let e = err("[server]\nmax_gates = 4\n\n[defaults]\nrate_hz = 200.0\nparams = { yd = 2.0 }\n");
+    assert!(
+        e.starts_with("defaults.params.yd: param name 'yd' is reserved"),
+        "{e}"
+    );
+    assert!(e.ends_with(", line 6"), "{e}");
+    let e = err("[gates.g1]\nrate_hz = 100.0\nparams = { c1 = 2.0 }\n");
+    assert!(
+        e.starts_with("gates.g1.params.c1: param name 'c1' is reserved"),
+        "{e}"
+    );
+    assert!(e.ends_with(", line 3"), "{e}");
+    let e = err("[defaults]\nparams = { \"a b\" = 2.0 }\n");
+    assert!(
+        e.starts_with("defaults.params.a b: invalid param name 'a b'"),
+        "{e}"
+    );
+    assert!(e.ends_with(", line 2"), "{e}");
+    // over several lines: the line of the param itself
+    let e = err("[defaults.params]\nm = 2.0\nsin = 1.0\n");
+    assert!(
+        e.starts_with("defaults.params.sin: param name 'sin'"),
+        "{e}"
+    );
+    assert!(e.ends_with(", line 3"), "{e}");
+    // a param the equation uses is fine, and a fault of the equation is still the model's
+    Config::from_toml("[defaults]\nmodel = \"m*ydd + c1*yd + k*y = 0\"\nparams = { m = 2.0 }\n")
+        .unwrap();
+    let e = err("[defaults]\nmodel = \"m*ydd + c1*yd + q*y = 0\"\nparams = { m = 2.0 }\n");
+    assert!(e.starts_with("defaults.model: "), "{e}");
+    assert!(e.ends_with(", line 2"), "{e}");
+}
+
+/// Every entry of `ingest.value_fields` (and `ingest.gate_tag`) must be a key a line of line
+/// protocol can carry: `value_fields = [""]` passed, and every write was then refused with
+/// `missing field, expected one of [""]`. The error names the entry and its line.
+#[test]
+fn line_protocol_keys_no_line_can_carry_are_refused_naming_the_entry() {
+    let e = err("[server]\nmax_gates = 4\n[ingest]\nvalue_fields = [\"\"]\n");
+    assert_eq!(
+        e,
+        "ingest.value_fields[0]: must not be empty: a line-protocol key has at least one \
+         character, line 4"
+    );
+    let e = err("[ingest]\nvalue_fields = [\n  \"force\",\n  \"value\\\\\",\n]\n");
+    assert!(
+        e.starts_with("ingest.value_fields[1]: \"value\\\\\" ends with a backslash"),
+        "{e}"
+    );
+    assert!(e.ends_with(", line 4"), "{e}");
+    let e = err("[ingest]\nvalue_fields = [\"force\", \"a\\nb\"]\n");
+    assert!(
+        e.starts_with("ingest.value_fields[1]: \"a\\nb\" holds a newline"),
+        "{e}"
+    );
+    assert!(err("[ingest]\nvalue_fields = []\n").starts_with("ingest.value_fields: must not"));
+    assert!(err("[ingest]\ngate_tag = \"\"\n").starts_with("ingest.gate_tag: must not be empty"));
+    assert!(err("[ingest]\ngate_tag = \"g\\\\\"\n").starts_with("ingest.gate_tag: \"g\\\\\" ends"));
+    // what is accepted is what a line carries, escaped where line protocol escapes
+    use crate::service::ingest::line_protocol::{parse_line, FieldValue};
+    for (key, written) in [
+        ("force", "force"),
+        ("a b", "a\\ b"),
+        ("a,b=c", "a\\,b\\=c"),
+        ("a\\b", "a\\b"),
+        ("ü", "ü"),
+    ] {
+        let c = Config::from_toml(&format!(
+            "[ingest]\ngate_tag = {key:?}\nvalue_fields = [{key:?}]\n"
+        ))
+        .unwrap();
+        let line = parse_line(&format!("m,{written}=g1 {written}=1.5"), 1)
+            .unwrap()
+            .unwrap();
+        assert_eq!(line.tags, [(c.ingest.gate_tag.clone(), "g1".to_string())]);
+        assert_eq!(
+            line.fields,
+            [(c.ingest.value_fields[0].clone(), FieldValue::Float(1.5))]
+        );
+    }
+    // and what is refused is not: a trailing backslash escapes the `=`
+    assert!(parse_line("m,gate=g1 value\\=1.5", 1).is_err());
+    let line = parse_line("m,gate=g1 value\\\\=1.5", 1);
+    assert!(
+        !matches!(&line, Ok(Some(l)) if l.fields.iter().any(|(k, _)| k == "value\\")),
+        "{line:?}"
+    );
+}

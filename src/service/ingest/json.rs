@@ -18,7 +18,7 @@ use std::fmt;
 use serde::de::{self, DeserializeSeed, Deserializer, IgnoredAny, MapAccess, SeqAccess, Visitor};
 
 use super::{implied_rate, BadRequest, Batch};
-use crate::service::config::valid_gate_id;
+use crate::service::config::{valid_gate_id, GATE_ID_RULE};
 
 /// Parses a request body into batches.
 pub fn parse(body: &[u8]) -> Result<Vec<Batch>, BadRequest> {
@@ -321,12 +321,7 @@ fn build(
 ) -> Result<Batch, BadRequest> {
     let gate = match gate {
         Some(Scalar::Str(g)) if valid_gate_id(&g) => g,
-        Some(Scalar::Str(_)) => {
-            return Err(
-                BadRequest::new("gate id must be 1..=64 characters of A-Z a-z 0-9 _ - .")
-                    .field(format!("{p}gate")),
-            )
-        }
+        Some(Scalar::Str(_)) => return Err(BadRequest::new(GATE_ID_RULE).field(format!("{p}gate"))),
         Some(v) => {
             return Err(
                 BadRequest::new(format!("expected a string, got {}", v.type_name()))

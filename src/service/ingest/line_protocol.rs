@@ -21,7 +21,7 @@
 use std::fmt;
 
 use super::{excerpt, BadRequest, Batch};
-use crate::service::config::{valid_gate_id, Precision};
+use crate::service::config::{valid_gate_id, Precision, GATE_ID_RULE};
 
 /// The most tags one line may carry. Why a bound: a 4 MiB line of 400 000 tags became
 /// 400 000 pairs of strings while parsed, about 100 bytes each (40 MB from a 4 MiB body: the
@@ -413,11 +413,9 @@ fn push_line(
                 .field(m.gate_tag)
         })?;
     if !valid_gate_id(gate) {
-        return Err(
-            BadRequest::new("gate id must be 1..=64 characters of A-Z a-z 0-9 _ - .")
-                .line(line_no)
-                .field(m.gate_tag),
-        );
+        return Err(BadRequest::new(GATE_ID_RULE)
+            .line(line_no)
+            .field(m.gate_tag));
     }
     let (name, value) = m
         .value_fields
