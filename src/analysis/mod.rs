@@ -14,6 +14,8 @@
 //! - `verdict`: agreement with the spectrum and the verdict table of `docs/damping.md`.
 //! - `report`: the damping report and its parts.
 //! - `ambient_level`: the gate's ambient level and how far a window stands above it.
+//! - `growing`: a noise-driven window whose variance grows, read over common reference
+//!   instants instead of the lagged ones.
 //! - `cycle_amplitude`: a limit cycle's zeta0 from its amplitude and the damping law of the
 //!   gate's last growth.
 //! - `tracking`: when a window may refine the previous window's model instead of searching.
@@ -29,6 +31,7 @@ mod ambient_level;
 mod analyzer;
 mod cycle_amplitude;
 mod early_warning;
+mod growing;
 mod linearisation;
 mod model_free;
 mod model_interval;
@@ -52,6 +55,7 @@ pub use cycle_amplitude::{
     CycleAmplitude, LAW_AMPLITUDE_TOLERANCE, LAW_INTERVAL_INFLATION, LAW_MAX_AGE_SECONDS,
 };
 pub use early_warning::{kendall_tau, lag1_autocorrelation, rolling, variance, EwsIndicators};
+pub use growing::{read_growing_window, GROWING_MIN_RATIO, GROWING_MIN_SHIFT};
 pub use linearisation::{equivalent_damping, limit_cycle, time_to_amplitude, Linearization};
 pub use model_free::{relaxation_detrend_degree, rms_swing, BEND_DEGREE, BEND_LEVEL_CHANGE};
 pub use model_interval::{zeta0_interval, FittedModel};

@@ -12,8 +12,9 @@
 //! window's own figure and interval with the pooled ones. It runs on the gate's memory, in window order, after [`super::decide`] chose
 //! the source; the verdict is then re-read from the pooled interval by the same rows.
 //!
-//! A model-based window, an untrusted one, or an ambient one that left the gate's ambient level
-//! (`analysis::departed`) empties both pools: the regime changed (growth) or the estimate is no
+//! A model-based window, an untrusted one, an ambient one that left the gate's ambient level
+//! (`analysis::departed`) or one whose variance grows (`analysis::read_growing_window`) empties
+//! both pools: the regime changed (growth) or the estimate is no
 //! evidence, and a pool must never carry a stale regime into the next. (The last: on the lock
 //! gate's onset ramp the ambient pool of the +1 % windows read +1.28 % (-0.17, +2.73) at a true
 //! -0.67 % on a window 3.5 times above the level.)
@@ -102,7 +103,7 @@ impl ZetaPools {
         let source = d.zeta0_source;
         let pooled = match (source, d.zeta0, d.zeta0_interval, d.frequency_hz) {
             (Some(Zeta0Source::Ambient), Some(z), Some(iv), Some(f))
-                if d.trusted && !departed(d) =>
+                if d.trusted && !departed(d) && !d.ssi_growing =>
             {
                 self.envelope.clear();
                 // "the same mode" is tested on the estimate's own pole, not the spectral peak:
@@ -148,18 +149,26 @@ impl ZetaPools {
         d.zeta0_interval = Some(p.interval);
         d.zeta0_windows = Some(p.windows);
         d.zeta0_held = p.held;
-        let (low, high) = p.interval;
-        let alarm = matches!(d.regime, Some(Regime::SelfExcited | Regime::LimitCycle));
         (d.verdict, d.trusted) = match source {
             // the rows of `decide` for the envelope: negative, or cannot tell (untrusted)
-            Some(Zeta0Source::Envelope) if high < 0.0 => (Verdict::SelfExcited, true),
+            Some(Zeta0Source::Envelope) if p.interval.1 < 0.0 => (Verdict::SelfExcited, true),
             Some(Zeta0Source::Envelope) => (Verdict::Unknown, false),
-            // and for the ambient estimate
-            _ if high < 0.0 => (Verdict::SelfExcited, true),
-            _ if low > 0.0 && alarm => (Verdict::Unknown, false),
-            _ if low > 0.0 => (Verdict::Damped, true),
-            _ => (Verdict::Unknown, true),
+            _ => ambient_rows(p.interval, d.regime),
         };
+    }
+}
+
+/// The verdict and `trusted` of an ambient estimate with 95 % interval `(low, high)` on a
+/// window of `regime`: the rows of `decide` for the ambient estimate (below zero: self-excited;
+/// above zero: damped, or cannot tell on a window the spectrum calls growing or a limit cycle;
+/// across zero: undecided, trusted).
+pub(super) fn ambient_rows((low, high): (f64, f64), regime: Option<Regime>) -> (Verdict, bool) {
+    let alarm = matches!(regime, Some(Regime::SelfExcited | Regime::LimitCycle));
+    match () {
+        _ if high < 0.0 => (Verdict::SelfExcited, true),
+        _ if low > 0.0 && alarm => (Verdict::Unknown, false),
+        _ if low > 0.0 => (Verdict::Damped, true),
+        _ => (Verdict::Unknown, true),
     }
 }
 

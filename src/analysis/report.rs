@@ -121,6 +121,11 @@ pub struct DampingReport {
     pub growth_rate_stderr: Option<f64>,
     /// Model-free damping ratio of a noise-driven window (SSI-COV) before pooling and its 95 % interval.
     pub ambient_zeta: Option<AmbientZeta>,
+    /// The same window's SSI-COV reading over common reference instants (`ambient_zeta` is the
+    /// lagged one unless `ssi_reference = "common"`), with its 95 % interval: where it lies
+    /// well below the lagged one, the window's variance grows ([`DampingReport::ssi_growing`]).
+    #[serde(default)]
+    pub ambient_common_zeta: Option<AmbientZeta>,
     /// `zeta0` of a limit-cycle window from the relaxation of its envelope, or from its drift
     /// where the relaxation refused the window (not on a saturated cycle), with its 95 %
     /// interval (`[zeta, low, high]`; `docs/damping.md`, "The limit cycle").
@@ -215,6 +220,14 @@ pub struct DampingReport {
     /// (`docs/damping.md`, "A window that holds two states").
     #[serde(default)]
     pub spans_change: bool,
+    /// Whether the window is a noise-driven one whose variance grows: above 1.5 times the
+    /// gate's ambient level, without an abrupt change inside it (`rms_swing` below 4), its
+    /// lagged SSI-COV reading lies more than 0.4 of its standard error above the common-instant
+    /// one. `zeta0` and its interval are then the common
+    /// reading, alone (`zeta0_windows` 1), and the ambient pool starts afresh after it
+    /// (`docs/damping.md`, "A growing window read over common instants").
+    #[serde(default)]
+    pub ssi_growing: bool,
 }
 
 impl DampingReport {
@@ -244,6 +257,7 @@ impl DampingReport {
             growth_rate: None,
             growth_rate_stderr: None,
             ambient_zeta: None,
+            ambient_common_zeta: None,
             envelope_zeta: None,
             model_zeta: None,
             amplitude_zeta: None,
@@ -265,6 +279,7 @@ impl DampingReport {
             window_cycles: None,
             rms_swing: None,
             spans_change: false,
+            ssi_growing: false,
         }
     }
 }

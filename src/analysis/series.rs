@@ -372,6 +372,7 @@ fn analyze(
         damping.growth_rate = Some(s.growth.sigma);
         damping.growth_rate_stderr = Some(s.growth.stderr);
         damping.ambient_zeta = s.ambient.as_ref().map(AmbientZeta::from);
+        damping.ambient_common_zeta = s.ambient_common.as_ref().map(AmbientZeta::from);
         damping.ambient_frequency_hz = s.ambient.as_ref().map(|a| a.frequency_hz);
         damping.signal_rms = Some(identify::std_dev(&data.y)).filter(|r| r.is_finite());
         damping.rms_swing = rms_swing(&data.y);

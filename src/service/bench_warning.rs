@@ -386,6 +386,8 @@ pub async fn run_stream(
                     i.damping.agrees,
                     i.damping.rms_swing.map(|r| (r * 100.0).round() / 100.0),
                     i.path,
+                    i.damping.ssi_growing,
+                    i.damping.ambient_common_zeta.as_ref().map(pct),
                 )
             });
             let trend = view.trend.as_ref().map(|t| {
@@ -397,7 +399,7 @@ pub async fn run_stream(
             });
             errln!(
                 "t {end:7.1}  true {:+.2} %  zeta0 {:?} {:?} {:?} trusted {trusted}  trend \
-                 (%/min, upper %/min, confident crossing s) {trend:?}  firing {firing:?}  (regime, pooled, ssi, ambient ratio, model, fit nmae, agrees, rms swing, path) {facts:?}  scored {} (true mean {:+.2} %)  f {:?} Hz  growth (1/s, se) {:?}{}",
+                 (%/min, upper %/min, confident crossing s) {trend:?}  firing {firing:?}  (regime, pooled, ssi, ambient ratio, model, fit nmae, agrees, rms swing, path, growing, ssi common) {facts:?}  scored {} (true mean {:+.2} %)  f {:?} Hz  growth (1/s, se) {:?}{}",
                 100.0 * truth_centre,
                 zeta0.map(|z| (z * 1e4).round() / 100.0),
                 interval.map(|(a, b)| ((a * 1e4).round() / 100.0, (b * 1e4).round() / 100.0)),

@@ -775,6 +775,7 @@ impl AppState {
         match outcome {
             JobOutcome::Done(mut a) => {
                 e.level.observe_span(&mut a.damping, window.0, window.1);
+                crate::analysis::read_growing_window(&mut a.damping);
                 if let Some(p) = e.pools.as_mut() {
                     p.apply(window.0, window.1, &mut a.damping);
                 }

@@ -150,6 +150,11 @@ pub struct WindowSpectral {
     pub growth: GrowthRate,
     /// Ambient damping (`None` if the estimate failed or was skipped).
     pub ambient: Option<AmbientDamping>,
+    /// With SSI-COV, the reading over common reference instants
+    /// ([`SsiOptions::common_reference`]) whatever the options chose for `ambient` (the same
+    /// estimate when they chose it): beside the lagged reading it shows a window whose variance
+    /// grows (`analysis::read_growing_window`). `None` with another method or when it failed.
+    pub ambient_common: Option<AmbientDamping>,
     /// The regime.
     pub regime: Regime,
 }
