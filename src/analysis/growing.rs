@@ -29,7 +29,7 @@
 //! pool starts afresh after it. Measured in docs/benchmarks.md ("A growing window read over
 //! common instants (session 56)").
 
-use super::ambient_level::{departed, STATE_CHANGE_SWING};
+use super::ambient_level::STATE_CHANGE_SWING;
 use super::pooling::ambient_rows;
 use super::report::{DampingReport, Zeta0Source};
 
@@ -59,9 +59,16 @@ pub fn read_growing_window(d: &mut DampingReport) -> bool {
         return false;
     };
     let stderr = (lagged.high - lagged.low) / (2.0 * crate::spectral::normal_quantile(0.975));
-    let finite = [common.zeta, common.low, common.high, stderr]
-        .iter()
-        .all(|v| v.is_finite());
+    let finite = [
+        lagged.zeta,
+        common.zeta,
+        common.low,
+        common.high,
+        stderr,
+        ratio,
+    ]
+    .iter()
+    .all(|v| v.is_finite());
     // a window whose response changed abruptly inside it (a burst beginning or ending, a step)
     // holds two states, not one growing state: neither reading is the gate's, and its interval
     // may span the previous window's reading already (`spans_change`)
@@ -70,7 +77,7 @@ pub fn read_growing_window(d: &mut DampingReport) -> bool {
         || two_states
         || stderr <= 0.0
         || common.low > common.high
-        || !(ratio >= GROWING_MIN_RATIO || departed(d))
+        || ratio < GROWING_MIN_RATIO
         || lagged.zeta - common.zeta <= GROWING_MIN_SHIFT * stderr
     {
         return false;
@@ -147,7 +154,8 @@ mod tests {
             assert!(!read_growing_window(&mut d), "case {i}");
             assert_eq!(d, before, "case {i}");
         }
-        // not the ambient estimate's, untrusted, no level yet, no common reading, NaN
+        // not the ambient estimate's, untrusted, no level yet, no common reading, NaN readings
+        // or ratio
         let base = window((0.0054, -0.0148, 0.0256), (-0.0015, -0.0180, 0.0150), 2.56);
         let mut others = vec![base.clone(); 5];
         others[0].zeta0_source = Some(Zeta0Source::Model);
@@ -159,6 +167,14 @@ mod tests {
             low: -0.01,
             high: 0.01,
         });
+        others.push(base.clone());
+        others[5].ambient_zeta = Some(AmbientZeta {
+            zeta: f64::NAN,
+            low: -0.0148,
+            high: 0.0256,
+        });
+        others.push(base.clone());
+        others[6].ambient_ratio = Some(f64::NAN);
         for (i, mut d) in others.into_iter().enumerate() {
             let before = d.clone();
             assert!(!read_growing_window(&mut d), "other {i}");
