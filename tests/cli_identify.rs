@@ -1426,3 +1426,78 @@ fn a_hole_in_a_force_record_is_named_where_it_is() {
     );
     assert!(!line.contains("line 2 "), "{line}");
 }
+
+/// A record in another unit is the same gate: the search follows the record's scale
+/// (`Model::amplitude_exponents`), so van der Pol's record multiplied by 1e4 or 1e-4 gives the
+/// same `c1`, `c2` divided by the factor squared, and the same damping. It failed at 1e4 ("no
+/// trial of the identification integrated", blamed on the times or the equation): the
+/// search drew `c2` of order one against `y^2` of 1e8.
+#[test]
+fn a_record_in_another_unit_identifies_the_same_gate() {
+    let d = Dir::new();
+    let rows = read_csv(&d.case("van_der_pol_2"));
+    let fit = |factor: f64| -> Value {
+        let body: String = rows
+            .iter()
+            .map(|(t, y)| format!("{t:e},{:e}\n", y * factor))
+            .collect();
+        let f = d.write(&format!("vdp_{factor}.csv"), &format!("t,y\n{body}"));
+        let y0 = format!("{:e}", 0.5 * factor);
+        json(&ok(&[
+            "identify", "--input", &f, "--model", VDP, "--y0", &y0, "--v0", "0", "--json",
+        ]))
+    };
+    let unit = fit(1.0);
+    for factor in [1e4, 5e4, 1e-4] {
+        let v = fit(factor);
+        let close = |a: f64, b: f64| (a / b - 1.0).abs() < 1e-6;
+        let (c1, c2) = (num(&v, "/coefficients/c1"), num(&v, "/coefficients/c2"));
+        assert!(close(c1, num(&unit, "/coefficients/c1")), "{factor}: {v}");
+        assert!(
+            close(c2 * factor * factor, num(&unit, "/coefficients/c2")),
+            "{factor}: {v}"
+        );
+        assert!(
+            (c2 * factor * factor / VDP_TRUTH[1] - 1.0).abs() < 1e-3,
+            "{v}"
+        );
+        assert!(
+            close(num(&v, "/damping/zeta0"), num(&unit, "/damping/zeta0")),
+            "{factor}: {v}"
+        );
+    }
+}
+
+/// An equation that fixes its solutions' size (a cubic spring of coefficient 1 beside a linear
+/// one of 1) cannot be rescaled: on a record of amplitude 1e4 the failure names the record's
+/// magnitude against the equation, not only the times.
+#[test]
+fn an_equation_of_fixed_size_on_a_large_record_names_the_magnitude() {
+    let d = Dir::new();
+    let body: String = (0..400)
+        .map(|i| {
+            let t = i as f64 * 0.05;
+            format!("{t},{}\n", 1e4 * (-0.05 * t).exp() * t.cos())
+        })
+        .collect();
+    let f = d.write("big.csv", &format!("t,y\n{body}"));
+    let line = bad(
+        &[
+            "identify",
+            "--input",
+            &f,
+            "--model",
+            "ydd + c1*yd + y + y^3 = 0",
+        ],
+        &[
+            "big.csv",
+            "largest |y| of 1e4",
+            "fixes its solutions' size",
+            "unit",
+        ],
+    );
+    assert!(
+        line.contains("no trial of the identification integrated"),
+        "{line}"
+    );
+}

@@ -176,6 +176,33 @@ pub fn term_scales(model: &Model, t0: f64, a: f64, w: f64, f_rms: f64) -> Vec<f6
         .collect()
 }
 
+/// Displacement mode: the physical value per unit DE coordinate of each coefficient (then of
+/// `y0` and `v0` when they are fitted), from the record's unit `u`, its largest magnitude
+/// rounded to a power of ten: `u^p_j` for the coefficients' amplitude exponents
+/// ([`Model::amplitude_exponents`]), `u` for the initial conditions. Empty (all 1, the chapter's
+/// search box) for a record of order one (largest magnitude from 0.32 to 3.2) and for a model
+/// whose solutions' size is physical. Why a power of ten rather than the magnitude itself: a
+/// record of order one is searched exactly as before, and the unit-scale problem a larger
+/// record becomes is the same whatever its exact amplitude.
+pub fn displacement_scales(model: &Model, magnitude: f64, initial: &identify::Initial) -> Vec<f64> {
+    let unit = 10f64.powf(magnitude.log10().round());
+    if !(unit.is_finite() && unit > 0.0) || unit == 1.0 {
+        return Vec::new();
+    }
+    let Some(p) = model.amplitude_exponents() else {
+        return Vec::new();
+    };
+    let mut scales: Vec<f64> = p.iter().map(|p| unit.powf(*p)).collect();
+    if matches!(initial, identify::Initial::Fit) {
+        scales.extend_from_slice(&[unit, unit]);
+    }
+    if scales.iter().all(|s| s.is_finite() && *s > 0.0) {
+        scales
+    } else {
+        Vec::new()
+    }
+}
+
 /// Fraction of the measured force that one DE unit of a damping-like coefficient represents.
 /// Value: a gate's damping force is about twice its damping ratio times the total force, a few
 /// percent for the chapter's gates (|zeta| of 1-2 %), so 3 % puts their damping coefficients at
@@ -285,8 +312,9 @@ fn analyze(
         }
     }
     let scale = scale_problem(model, &data, opts, &free, &mut config)?;
-    let scales = if config.scales.len() == model.n_coeffs() {
-        config.scales.clone()
+    // The coefficients' scales (a fitted `(y0, v0)` follows them).
+    let scales = if config.scales.len() >= model.n_coeffs() {
+        config.scales[..model.n_coeffs()].to_vec()
     } else {
         vec![1.0; model.n_coeffs()]
     };
@@ -483,6 +511,9 @@ fn scale_problem(
                 .iter()
                 .fold(0.0f64, |m, v| m.max(v.abs()))
                 .max(f64::MIN_POSITIVE);
+            if config.scales.is_empty() {
+                config.scales = displacement_scales(model, y_scale, &config.initial);
+            }
             Ok(ProblemScales {
                 y: y_scale,
                 v: y_scale * free.omega.unwrap_or(1.0),

@@ -395,7 +395,12 @@ pub(super) fn run(a: IdentifyArgs) -> Result<(), CliError> {
         return Err(input(format!(
             "{}: the model could not be simulated on this data: no trial of the identification integrated over the record; {}",
             a.input.display(),
-            not_integrated_hint(&series, &params, a.y0.zip(a.v0))
+            not_integrated_hint(
+                (signal == Signal::Displacement).then_some(model),
+                &series,
+                &params,
+                a.y0.zip(a.v0)
+            )
         )));
     }
     let mut out = std::io::stdout().lock();
@@ -506,8 +511,11 @@ fn in_flags(e: IdentifyError) -> String {
 /// makes every period a thousand times longer than the solver's step budget; a stiffness of
 /// 1e300 overflows the state), then the equation. Said with the numbers: the sample rate and
 /// length the times imply, the known constants far from any physical size, and a given initial
-/// state far outside the record (`--y0 1e308` was blamed on the times or the equation).
+/// state far outside the record (`--y0 1e308` was blamed on the times or the equation), and
+/// (`displacement_model`: displacement data) a record far from order one that the equation
+/// does not let the search rescale.
 fn not_integrated_hint(
+    displacement_model: Option<&Model>,
     series: &TimeSeries,
     params: &[(String, f64)],
     initial: Option<(f64, f64)>,
@@ -543,8 +551,8 @@ fn not_integrated_hint(
     } else if !params.is_empty() {
         hint.push_str("; and the sizes of --stiffness/--param against the data");
     }
+    let largest = series.y.iter().fold(0.0f64, |m, v| m.max(v.abs()));
     if let Some((y0, v0)) = initial {
-        let largest = series.y.iter().fold(0.0f64, |m, v| m.max(v.abs()));
         // a start a thousand times the largest value recorded is not this record's state
         if y0.abs() > 1e3 * largest
             || y0.abs() > crate::data::MAX_ABS_VALUE
@@ -554,6 +562,15 @@ fn not_integrated_hint(
                 "; the initial state --y0 {y0:e} --v0 {v0:e} against the record's largest |y| of {largest:e}"
             ));
         }
+    }
+    // A record far from order one is searched at its own scale (`analysis::displacement_scales`)
+    // unless the equation fixes its solutions' size; then the search starts its coefficients
+    // in [-1, 1], which fit a record of order one.
+    let fixed_size = displacement_model.is_some_and(|m| m.amplitude_exponents().is_none());
+    if fixed_size && !(1e-2..=1e2).contains(&largest) {
+        hint.push_str(&format!(
+            "; the record's largest |y| of {largest:e} against an equation that fixes its solutions' size (a term without a coefficient, such as y^3 beside y, or a coefficient inside a function of y or yd), whose coefficients are searched from [-1, 1]: the data's unit"
+        ));
     }
     hint.push_str("; else the equation: a division by zero or a vanishing factor of ydd");
     hint

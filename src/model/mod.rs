@@ -37,6 +37,7 @@
 //! and the operand stack is a fixed-size array sized at compile time. When `M` is the constant
 //! 1, `accel` skips it entirely.
 
+mod amplitude;
 mod jit;
 mod lexer;
 mod linear;
