@@ -25,6 +25,7 @@
 //!   comparison table.
 //! - [`stability`]: the stability map (Figure 8.13): Monte Carlo over a plane of two coefficients,
 //!   each point simulated and classified stable (the free vibration decays) or unstable.
+//! - [`number`]: numbers in messages: plain when moderate, `1e300` when not ([`number::Num`]).
 //!
 //! Service (tokio, axum, prometheus; nothing in the numerical core depends on it):
 //! - [`alert`]: per-gate alert state machine (negative damping, stale data), delivery to
@@ -52,6 +53,7 @@ pub mod de;
 pub mod identify;
 pub mod linalg;
 pub mod model;
+pub mod number;
 pub mod ode;
 pub mod plot;
 pub mod service;

@@ -36,6 +36,7 @@
 //! linear oscillator (see the tests).
 
 use crate::model::Model;
+use crate::number::Num;
 use crate::ode::{self, Method, Options};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -297,12 +298,12 @@ fn check(model: &Model, spec: &MapSpec) -> Result<Vec<f64>, StabilityError> {
     if !(spec.periods.is_finite() && (1.0..=MAX_PERIODS).contains(&spec.periods)) {
         return option(format!(
             "--periods must be between 1 and {MAX_PERIODS}, got {}",
-            spec.periods
+            Num(spec.periods)
         ));
     }
     if let Some(t) = spec.t_end {
         if !(t.is_finite() && t > 0.0) {
-            return option(format!("--t-end must be positive, got {t}"));
+            return option(format!("--t-end must be positive, got {}", Num(t)));
         }
     }
     Ok(c)
@@ -375,7 +376,8 @@ pub fn map(model: &Model, spec: &MapSpec) -> Result<StabilityMap, StabilityError
     let undecided = outcomes.len() - trials.len();
     if trials.is_empty() {
         return option(format!(
-            "--t-end/--periods: none of the {undecided} trials reached the horizon t = {t_end:.4} within the solver's step limit and above its smallest step; shorten the horizon"
+            "--t-end/--periods: none of the {undecided} trials reached the horizon t = {:.4} within the solver's step limit and above its smallest step; shorten the horizon",
+            Num(t_end)
         ));
     }
     Ok(StabilityMap {

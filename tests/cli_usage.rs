@@ -244,6 +244,43 @@ fn check_config_names_the_variable_that_set_a_store_serve_cannot_open() {
     assert!(o.stdout.is_empty(), "{}", text(&o.stdout));
 }
 
+/// `serve` stopping on a store `GATEWATCH_STORAGE_PATH` put where it cannot be opened names the
+/// variable and the key it sets, as `check-config` does (it said `storage file PATH: ...`, and
+/// the operator looked for the fault in the file's `storage.path`). A path from the file:
+/// `check_config_refuses_a_store_serve_cannot_open`.
+#[test]
+fn serve_names_the_variable_that_set_a_store_it_cannot_open() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("main.toml");
+    std::fs::write(
+        &file,
+        "[server]\nlisten = \"127.0.0.1:0\"\n[storage]\npath = \"gw.db\"\n",
+    )
+    .unwrap();
+    let missing = dir.path().join("no-such-dir");
+    let o = Command::new(env!("CARGO_BIN_EXE_gatewatch"))
+        .args(["serve", "--config", file.to_str().unwrap()])
+        .env("GATEWATCH_STORAGE_PATH", missing.join("x.db"))
+        .env("GATEWATCH_LOG_FORMAT", "text")
+        .stdin(Stdio::null())
+        .output()
+        .unwrap();
+    let err = text(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    let expected = format!(
+        "gatewatch: GATEWATCH_STORAGE_PATH (sets storage.path) {}: its directory {} does not \
+         exist or is not a directory",
+        missing.join("x.db").display(),
+        missing.display()
+    );
+    assert!(err.lines().any(|l| l == expected), "{err}");
+    assert!(!err.contains("storage file"), "{err}");
+    assert!(
+        !dir.path().join("gw.db").exists(),
+        "the file's store was not opened"
+    );
+}
+
 /// `GATEWATCH_AUTH_TOKENS` set to no token (empty, blanks, only commas) stops `serve` and
 /// `check-config` (exit 2, one line naming the variable): it replaced the file's tokens with
 /// none, `check-config` said ok, and `serve` answered the API without authentication.
@@ -910,4 +947,92 @@ fn absurd_sizes_are_refused_naming_the_flag_and_its_bound() {
         "[defaults]\npopulation = 100000\n",
         &["population", "must be <= 10000"],
     );
+}
+
+/// A huge or tiny number the user gave is quoted in scientific form (`1e300`), not as the 301
+/// digits Rust's `{}` prints: in option errors (`simulate`, `stability-map`, `bench
+/// seed-cases`) and in `check-config`'s (a gate's `params.k`, `storage`, `notify`).
+#[test]
+fn huge_and_tiny_numbers_are_quoted_in_scientific_form() {
+    let model = "ydd + c1*yd + c2*y = 0";
+    let map = |flag: &str, value: &str| {
+        [
+            "stability-map",
+            "--model",
+            model,
+            "--range",
+            "c1=-1:1",
+            "--range",
+            "c2=1:2",
+        ]
+        .into_iter()
+        .map(String::from)
+        .chain([format!("{flag}={value}")])
+        .collect::<Vec<_>>()
+    };
+    let owned = |args: &[&str]| args.iter().map(|s| s.to_string()).collect::<Vec<_>>();
+    for (args, needle) in [
+        (
+            owned(&["simulate", "--url", "http://127.0.0.1:9", "--rate", "1e300"]),
+            "--rate must be at most 1000000 Hz, got 1e300",
+        ),
+        (
+            owned(&[
+                "simulate",
+                "--url",
+                "http://127.0.0.1:9",
+                "--duration=-1e300",
+            ]),
+            "--duration must be > 0 seconds, got -1e300",
+        ),
+        (
+            owned(&[
+                "simulate",
+                "--url",
+                "http://127.0.0.1:9",
+                "--noise-abs=-1e-300",
+            ]),
+            "--noise-abs must be >= 0, got -1e-300",
+        ),
+        (
+            map("--t-end", "-1e300"),
+            "--t-end must be positive, got -1e300",
+        ),
+        (
+            map("--periods", "1e300"),
+            "--periods must be between 1 and 100000, got 1e300",
+        ),
+        (
+            owned(&["bench", "seed-cases", "--rtol", "1e300"]),
+            "--rtol must be in (0, 1), got 1e300",
+        ),
+    ] {
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        refused_as_input(&args, needle);
+        let err = text(&gw(&args).stderr);
+        assert!(!err.contains("0000000000"), "{args:?}: {err}");
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("num.toml");
+    for (toml, needle) in [
+        (
+            "[defaults]\nstiffness = 1e300\n[defaults.params]\nk = 2e300\n",
+            "defaults.params.k: 2e300 conflicts with stiffness = 1e300",
+        ),
+        (
+            "[storage]\nnats_lease_seconds = -1e300\n",
+            "storage.nats_lease_seconds: -1e300 must be at least 1",
+        ),
+        (
+            "[notify]\ntimeout_seconds = -1e300\n",
+            "timeout_seconds must be a positive finite number, got -1e300",
+        ),
+    ] {
+        std::fs::write(&file, toml).unwrap();
+        let o = gw(&["check-config", file.to_str().unwrap()]);
+        let err = text(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{toml}: {err}");
+        assert!(err.contains(needle), "{toml}: {err}");
+        assert!(!err.contains("0000000000"), "{toml}: {err}");
+    }
 }

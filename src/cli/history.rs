@@ -113,6 +113,7 @@ pub fn run(args: HistoryArgs) -> Result<(), CliError> {
     };
     if let (Some(f), Some(t)) = (query.from, query.to) {
         if f > t {
+            let (f, t) = (crate::number::Num(f), crate::number::Num(t));
             return Err(CliError::Input(format!("--from ({f}) is after --to ({t})")));
         }
     }

@@ -68,7 +68,10 @@ pub(super) fn run(a: SeedCasesArgs) -> Result<(), CliError> {
     }
     // Checked here, as the other flags: the cases refused it one by one, as an error (exit 1).
     if !(a.rtol > 0.0 && a.rtol < 1.0) {
-        return Err(input(format!("--rtol must be in (0, 1), got {}", a.rtol)));
+        return Err(input(format!(
+            "--rtol must be in (0, 1), got {}",
+            crate::number::Num(a.rtol)
+        )));
     }
     let selected: Vec<&cases::SeedCase> = if a.cases.is_empty() {
         cases::CASES.iter().collect()

@@ -2,6 +2,7 @@
 
 use super::{input, parse_param, CliError};
 use crate::model::Model;
+use crate::number::Num;
 use crate::stability::{self, MapSpec};
 use clap::Args;
 use std::io::Write;
@@ -96,7 +97,7 @@ pub fn run(a: StabilityMapArgs) -> Result<(), CliError> {
             "gatewatch stability-map: {} of {} trials left out of the map, undecided: the solver's step limit or its smallest step stopped them before t = {:.4} (shorten --t-end or --periods)",
             map.undecided,
             map.undecided + map.trials.len(),
-            map.t_end
+            Num(map.t_end)
         );
     }
     match &a.output {
@@ -114,14 +115,14 @@ pub fn run(a: StabilityMapArgs) -> Result<(), CliError> {
         let fixed: Vec<String> = spec
             .fixed
             .iter()
-            .map(|(i, v)| format!("c{} = {v}", i + 1))
+            .map(|(i, v)| format!("c{} = {}", i + 1, Num(*v)))
             .collect();
         let mut note = format!(
             "{}\n\ny0 = {}, v0 = {}\nhorizon t = {:.4}\n",
             model.equation(),
-            spec.y0,
-            spec.v0,
-            map.t_end
+            Num(spec.y0),
+            Num(spec.v0),
+            Num(map.t_end)
         );
         if !fixed.is_empty() {
             note.push_str(&format!("fixed: {}\n", fixed.join(", ")));
@@ -140,7 +141,7 @@ pub fn run(a: StabilityMapArgs) -> Result<(), CliError> {
             std::io::stdout().lock(),
             "{} trials over t = 0..{:.4}: {stable} stable, {} unstable",
             map.trials.len(),
-            map.t_end,
+            Num(map.t_end),
             map.trials.len() - stable
         )?;
     }

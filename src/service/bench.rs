@@ -567,7 +567,10 @@ async fn capacity_run(
 /// The arguments' ranges, before any daemon starts: a bad one is the user's input (exit 2).
 fn check(args: &BenchDaemonArgs) -> Result<(), String> {
     if !(args.seconds.is_finite() && args.seconds > 0.0) {
-        return Err(format!("--seconds must be > 0, got {}", args.seconds));
+        return Err(format!(
+            "--seconds must be > 0, got {}",
+            crate::number::Num(args.seconds)
+        ));
     }
     for (flag, v) in [
         ("--samples", args.samples as usize),

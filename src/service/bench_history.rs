@@ -104,15 +104,19 @@ pub fn bench_history(args: BenchHistoryArgs) -> ExitCode {
 
 /// The arguments' ranges, before anything is written: a bad one is the user's input (exit 2).
 fn check(args: &BenchHistoryArgs) -> anyhow::Result<()> {
+    use crate::number::Num;
     let positive = |v: f64| v.is_finite() && v > 0.0;
     if args.gates == 0 {
         anyhow::bail!("--gates must be >= 1");
     }
     if !positive(args.hours) {
-        anyhow::bail!("--hours must be > 0, got {}", args.hours);
+        anyhow::bail!("--hours must be > 0, got {}", Num(args.hours));
     }
     if !positive(args.every_seconds) {
-        anyhow::bail!("--every-seconds must be > 0, got {}", args.every_seconds);
+        anyhow::bail!(
+            "--every-seconds must be > 0, got {}",
+            Num(args.every_seconds)
+        );
     }
     if args.queries == 0 {
         anyhow::bail!("--queries must be >= 1");

@@ -149,10 +149,15 @@ pub fn serve(args: ServeArgs) -> ExitCode {
             return ExitCode::FAILURE;
         }
     };
-    let result = rt.block_on(async move {
-        let listeners = super::server::Listeners::bind(&config).await?;
-        super::server::run(config, listeners, super::shutdown::signal()).await
-    });
+    // whether GATEWATCH_STORAGE_PATH set the store's path, read as `apply_env` read it
+    let storage_from_env = config.storage.backend == crate::store::StorageBackend::Sqlite
+        && std::env::var("GATEWATCH_STORAGE_PATH").is_ok();
+    let result = rt
+        .block_on(async move {
+            let listeners = super::server::Listeners::bind(&config).await?;
+            super::server::run(config, listeners, super::shutdown::signal()).await
+        })
+        .map_err(|e| name_the_storage_variable(e, storage_from_env));
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
@@ -162,6 +167,23 @@ pub fn serve(args: ServeArgs) -> ExitCode {
             start_line(format, "ERROR", "gatewatch failed", Some(&format!("{e:#}")));
             ExitCode::FAILURE
         }
+    }
+}
+
+/// `e` naming `GATEWATCH_STORAGE_PATH` and the key it sets when the variable set the path
+/// (`from_env`) of the SQLite store that `e` says cannot be opened, as `check-config` names it
+/// ([`Config::check_store_location`]): `GATEWATCH_STORAGE_PATH (sets storage.path) /x/gw.db:
+/// its directory /x does not exist ...`. Why: `serve` said `storage file /x/gw.db: ...`, and an
+/// operator looked for the fault in the file's `storage.path`, which may say something else.
+/// Any other error is returned as it is.
+fn name_the_storage_variable(e: anyhow::Error, from_env: bool) -> anyhow::Error {
+    match e.downcast_ref::<crate::store::StoreError>() {
+        Some(crate::store::StoreError::Open { path, message })
+            if from_env && !path.starts_with("NATS ") =>
+        {
+            anyhow::anyhow!("GATEWATCH_STORAGE_PATH (sets storage.path) {path}: {message}")
+        }
+        _ => e,
     }
 }
 

@@ -8,6 +8,7 @@
 use std::time::Duration;
 
 use super::clock::now_unix;
+use crate::number::Num;
 
 /// Scenario of the simulated gate (see [`crate::simulate::ScenarioName`] and `docs/damping.md`,
 /// "Scenarios").
@@ -226,7 +227,11 @@ pub fn simulator(args: &SimulateArgs) -> anyhow::Result<crate::simulate::GateSim
         ("--noise-rel", args.sensor.noise_rel),
     ] {
         if let Some(v) = v {
-            anyhow::ensure!(v >= 0.0 && v.is_finite(), "{flag} must be >= 0, got {v}");
+            anyhow::ensure!(
+                v >= 0.0 && v.is_finite(),
+                "{flag} must be >= 0, got {}",
+                Num(v)
+            );
         }
     }
     let params = crate::simulate::GateParams {
@@ -268,11 +273,12 @@ fn checked_rate(args: &SimulateArgs) -> anyhow::Result<f64> {
     anyhow::ensure!(
         rate > 0.0 && rate.is_finite(),
         "--rate must be > 0 (or 0 for the preset's rate), got {}",
-        args.rate
+        Num(args.rate)
     );
     anyhow::ensure!(
         rate <= SIMULATE_MAX_RATE_HZ,
-        "--rate must be at most {SIMULATE_MAX_RATE_HZ} Hz, got {rate}"
+        "--rate must be at most {SIMULATE_MAX_RATE_HZ} Hz, got {}",
+        Num(rate)
     );
     Ok(rate)
 }
@@ -285,17 +291,18 @@ pub fn check_stream(args: &SimulateArgs) -> anyhow::Result<()> {
     let duration = args.effective_duration();
     anyhow::ensure!(
         duration > 0.0 && duration.is_finite(),
-        "--duration must be > 0 seconds, got {duration}"
+        "--duration must be > 0 seconds, got {}",
+        Num(duration)
     );
     anyhow::ensure!(
         args.chunk_seconds > 0.0 && args.chunk_seconds.is_finite(),
         "--chunk-seconds must be > 0, got {}",
-        args.chunk_seconds
+        Num(args.chunk_seconds)
     );
     anyhow::ensure!(
         !args.speed.is_nan(),
         "--speed must be a number (<= 0: as fast as possible), got {}",
-        args.speed
+        Num(args.speed)
     );
     anyhow::ensure!(
         args.start.is_none_or(f64::is_finite),

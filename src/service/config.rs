@@ -744,8 +744,21 @@ impl Config {
         };
         if let Some(v) = get("GATEWATCH_TCP_ALLOWED_NETWORKS") {
             // what a container started with GATEWATCH_TCP_LISTEN needs (its clients' networks:
-            // docs/security.md, "How the raw TCP ingest is protected")
-            self.server.tcp_allowed_networks = list(v);
+            // docs/security.md, "How the raw TCP ingest is protected"). A variable set to
+            // nothing (`GATEWATCH_TCP_ALLOWED_NETWORKS=`, an empty ConfigMap value, `,`) was
+            // taken as an empty allow-list: every TCP client was refused at accept, and
+            // `check-config` said ok. As for GATEWATCH_AUTH_TOKENS, no network in the variable
+            // is taken as a mistake.
+            let networks = list(v.clone());
+            if networks.is_empty() {
+                return Err(ConfigError::new(format!(
+                    "server.tcp_allowed_networks: {v:?} holds no network, and would let no \
+                     client in on the raw TCP listener: give comma-separated networks or \
+                     addresses (e.g. 10.20.0.0/16,172.17.0.1), or unset the variable to keep \
+                     the file's server.tcp_allowed_networks"
+                )));
+            }
+            self.server.tcp_allowed_networks = networks;
         }
         if let Some(v) = get("GATEWATCH_AUTH_TOKENS") {
             // A variable set to nothing (`GATEWATCH_AUTH_TOKENS=`, an empty Secret, `,`) used

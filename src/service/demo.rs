@@ -138,7 +138,10 @@ pub fn demo(args: DemoArgs) -> ExitCode {
         ("--onset-ramp", args.onset_ramp),
     ] {
         if !(v >= 0.0 && v.is_finite()) {
-            errln!("gatewatch demo: {flag} must be >= 0 seconds, got {v}");
+            errln!(
+                "gatewatch demo: {flag} must be >= 0 seconds, got {}",
+                crate::number::Num(v)
+            );
             return ExitCode::from(2);
         }
     }

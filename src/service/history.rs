@@ -140,6 +140,7 @@ pub fn query(gate: &str, p: &HistoryParams) -> Result<HistoryQuery, HttpError> {
     let to = time("to", &p.to)?;
     if let (Some(f), Some(t)) = (from, to) {
         if f > t {
+            let (f, t) = (crate::number::Num(f), crate::number::Num(t));
             return Err(bad(format!("from ({f}) is after to ({t})"), "from"));
         }
     }

@@ -16,6 +16,7 @@
 use super::config::{GateConfig, Precision};
 use super::ingest::{BadRequest, Batch};
 use super::metrics::RejectReason;
+use crate::number::Num;
 
 /// The location of the time of sample `i` of `batch`: line protocol names the `line` and the
 /// `timestamp`; JSON `values` batches the `start` they count from (with the index), JSON
@@ -54,8 +55,9 @@ pub fn check_times(
         }
         if future > 0.0 && t > now + future {
             let e = BadRequest::new(format!(
-                "sample time {t} is {} s ahead of the daemon's clock ({now:.3}); gate `{}` \
+                "sample time {} is {} s ahead of the daemon's clock ({now:.3}); gate `{}` \
                  accepts at most max_future_seconds = {future}{}",
+                Num(t),
                 beyond(t - now, future),
                 batch.gate,
                 unit_hint(batch, t, cfg, now),
@@ -64,8 +66,9 @@ pub fn check_times(
         }
         if past > 0.0 && t < now - past {
             let e = BadRequest::new(format!(
-                "sample time {t} is {} s behind the daemon's clock ({now:.3}); gate `{}` \
+                "sample time {} is {} s behind the daemon's clock ({now:.3}); gate `{}` \
                  accepts at most max_past_seconds = {past}{}",
+                Num(t),
                 beyond(now - t, past),
                 batch.gate,
                 unit_hint(batch, t, cfg, now),
@@ -78,8 +81,12 @@ pub fn check_times(
 
 /// `d` (> `bound`) printed with the fewest decimals (at least one) that still read above
 /// `bound`. Why: rounded to whole seconds, a sample 600.4 s ahead read "600 s ahead ... accepts
-/// at most 600", which contradicts itself.
+/// at most 600", which contradicts itself. A `d` far beyond any bound (a time of 1e300) is
+/// printed in scientific form ([`Num`]), not as 300 digits.
 fn beyond(d: f64, bound: f64) -> String {
+    if !Num(d).is_plain() {
+        return Num(d).to_string();
+    }
     (1..=9)
         .map(|digits| format!("{d:.digits$}"))
         .find(|s| s.parse::<f64>().is_ok_and(|x| x > bound))
@@ -226,6 +233,27 @@ mod tests {
         assert!(e.error.contains("is 600.4 s ahead"), "{}", e.error);
         // no unit makes it plausible: no hint
         assert!(!e.error.contains("plausible"), "{}", e.error);
+    }
+
+    /// A time of 1e300 (or -1e300) is quoted as such, not as 301 digits, in the time and in
+    /// the distance.
+    #[test]
+    fn a_huge_time_is_quoted_in_scientific_form() {
+        let b = json_batch(vec![(1e300, 1.0)], "values");
+        let (_, e) = check_times(&b, &gate(), NOW).unwrap_err();
+        assert!(
+            e.error.starts_with("sample time 1e300 is 1e300 s ahead"),
+            "{}",
+            e.error
+        );
+        let b = json_batch(vec![(-1e300, 1.0)], "values");
+        let (_, e) = check_times(&b, &gate(), NOW).unwrap_err();
+        assert!(
+            e.error.starts_with("sample time -1e300 is 1e300 s behind"),
+            "{}",
+            e.error
+        );
+        assert_eq!(beyond(2.5e17, 600.0), "2.5e17");
     }
 
     #[test]

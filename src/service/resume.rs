@@ -182,6 +182,8 @@ pub fn read(
                 stored
                     .into_iter()
                     .filter(|g| !config.gates.contains_key(g))
+                    // a gate `..` of an older version's store, or of a hand-edited file
+                    .filter(|g| super::storage::restorable_gate(g, "history", &store.location()))
                     .take(config.server.max_gates - gates.len()),
             ),
             Err(e) => tracing::error!(

@@ -740,8 +740,10 @@ impl AppState {
                     return Err((
                         RejectReason::RateMismatch,
                         IngestError::BadRequest(BadRequest::new(format!(
-                            "sample rate {rate} Hz disagrees with the configured {} Hz of gate `{}` by more than 1 %",
-                            cfg.rate_hz, b.gate
+                            "sample rate {} Hz disagrees with the configured {} Hz of gate `{}` by more than 1 %",
+                            crate::number::Num(*rate),
+                            crate::number::Num(cfg.rate_hz),
+                            b.gate
                         ))
                         .field(field.clone())),
                     ));

@@ -151,7 +151,8 @@ impl Persistence {
     /// Restores every persisted gate state into `engine` (at start, before any window).
     /// A state that does not decode is logged naming the gate and the file, counted in
     /// `gatewatch_store_restore_skipped_total{what="alert_state"}`, and skipped (the gate
-    /// starts fresh).
+    /// starts fresh); so is the state of a gate whose id is not valid ([`restorable_gate`]),
+    /// which is never restored.
     pub fn restore_alerts(
         &self,
         engine: &mut AlertEngine,
@@ -168,6 +169,13 @@ impl Persistence {
         let mut n = 0;
         let mut written = lock(&self.written);
         for (gate, json) in states {
+            if !restorable_gate(&gate, "alert state", &self.store.location()) {
+                metrics
+                    .store_restore_skipped
+                    .with_label_values(&["alert_state"])
+                    .inc();
+                continue;
+            }
             match serde_json::from_str::<GateSnapshot>(&json) {
                 Ok(snap) => {
                     engine.restore_gate(&gate, snap, now);
@@ -307,6 +315,30 @@ impl Persistence {
             })),
         );
     }
+}
+
+/// Whether gate `gate`, read from the store at `store` (its [`Store::location`]), may be
+/// restored: its id is valid ([`valid_gate_id`]). When not, a warning names the id (quoted,
+/// escaped, and cut when long: [`excerpt`]), what of it was stored (`what`) and the store, and
+/// the caller skips it. Why: ingestion refuses such ids, but a store written by an older
+/// version, or a SQLite file edited by hand, may hold a gate `..`, which was restored unchecked
+/// (listed by the API, yet not readable at its URL).
+///
+/// [`valid_gate_id`]: super::config::valid_gate_id
+/// [`excerpt`]: super::ingest::excerpt
+pub fn restorable_gate(gate: &str, what: &str, store: &str) -> bool {
+    if super::config::valid_gate_id(gate) {
+        return true;
+    }
+    let shown = format!("{:?}", super::ingest::excerpt(gate));
+    tracing::warn!(
+        gate = %shown,
+        store = %store,
+        "stored {what} of gate {shown} in {store} skipped: not a valid gate id ({}); a store \
+         written by an older version, or edited by hand?",
+        super::config::GATE_ID_RULE
+    );
+    false
 }
 
 /// The history row of an identified window.

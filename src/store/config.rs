@@ -124,7 +124,7 @@ impl StorageConfig {
         if !(self.nats_lease_seconds.is_finite() && self.nats_lease_seconds >= 1.0) {
             return Err(format!(
                 "storage.nats_lease_seconds: {} must be at least 1 (seconds)",
-                self.nats_lease_seconds
+                crate::number::Num(self.nats_lease_seconds)
             ));
         }
         if !(self.retention_days.is_finite() && self.retention_days > 0.0) {

@@ -108,10 +108,10 @@ pub enum NotifyConfigError {
         reason: String,
     },
     /// `timeout_seconds` is not a positive finite number.
-    #[error("timeout_seconds must be a positive finite number, got {0}")]
+    #[error("timeout_seconds must be a positive finite number, got {}", crate::number::Num(*.0))]
     BadTimeout(f64),
     /// `resend_interval_seconds` is negative or NaN.
-    #[error("resend_interval_seconds must be >= 0, got {0}")]
+    #[error("resend_interval_seconds must be >= 0, got {}", crate::number::Num(*.0))]
     BadResendInterval(f64),
 }
 

@@ -3,6 +3,7 @@
 
 #[allow(unused_imports)]
 use super::*;
+use crate::number::Num;
 
 impl GateConfig {
     /// Samples in a full window.
@@ -81,7 +82,12 @@ impl GateConfig {
             if *v != k {
                 return err(
                     "params.k",
-                    &format!("{v} conflicts with stiffness = {k}: `k` in the equation is the stiffness; set it once, as stiffness"),
+                    &format!(
+                        "{} conflicts with stiffness = {}: `k` in the equation is the \
+                         stiffness; set it once, as stiffness",
+                        Num(*v),
+                        Num(k)
+                    ),
                 );
             }
         }

@@ -97,6 +97,21 @@ impl ServerConfig {
         if let Err(e) = s.tcp_networks() {
             return err("tcp_allowed_networks", &e);
         }
+        // An empty list with the listener on refuses every client at accept, one log line
+        // each, and nothing at start said so. It is no way to turn the listener off (that is
+        // `tcp_listen = ""`), so it is refused; with the listener off the list is not used.
+        if !s.tcp_listen.is_empty() && s.tcp_allowed_networks.is_empty() {
+            return err(
+                "tcp_allowed_networks",
+                &format!(
+                    "empty, so the raw TCP listener (server.tcp_listen = \"{}\") would refuse \
+                     every client: list the clients' networks (e.g. [\"10.20.0.0/16\"]; \
+                     loopback only: [\"127.0.0.0/8\", \"::1/128\"]), or turn the listener \
+                     off with tcp_listen = \"\"",
+                    s.tcp_listen
+                ),
+            );
+        }
         Ok(())
     }
 }

@@ -286,6 +286,68 @@ fn tcp_allowed_networks_from_the_environment_and_the_loopback_only_warning() {
     assert!(!warned(&c));
 }
 
+/// `GATEWATCH_TCP_ALLOWED_NETWORKS` set to no network (empty, blanks, commas) is refused naming
+/// the variable, and the file's list stays: it replaced the list with none, every TCP client
+/// was refused at accept, and `check-config` said ok.
+#[test]
+fn tcp_allowed_networks_from_the_environment_that_hold_no_network_are_refused() {
+    let file =
+        "[server]\ntcp_listen = \"127.0.0.1:8094\"\ntcp_allowed_networks = [\"10.0.0.0/8\"]\n";
+    for bad in ["", " ", ",", " , ,", "\t"] {
+        let mut c = Config::from_toml(file).unwrap();
+        let e = c
+            .apply_env(|k| (k == "GATEWATCH_TCP_ALLOWED_NETWORKS").then(|| bad.to_string()))
+            .unwrap_err();
+        assert!(
+            e.message.starts_with(&format!(
+                "GATEWATCH_TCP_ALLOWED_NETWORKS (sets server.tcp_allowed_networks): {bad:?} \
+                 holds no network"
+            )),
+            "{bad:?}: {}",
+            e.message
+        );
+        assert!(e.message.contains("unset the variable"), "{}", e.message);
+        assert!(e.names_file(), "{bad:?}: blamed on the file");
+        assert!(!e.message.contains('\n'), "{}", e.message);
+        assert_eq!(c.server.tcp_allowed_networks, ["10.0.0.0/8"], "{bad:?}");
+    }
+    // refused also with the listener off: an empty variable is a deployment's mistake
+    let mut c = Config::default();
+    let e = c
+        .apply_env(|k| (k == "GATEWATCH_TCP_ALLOWED_NETWORKS").then(String::new))
+        .unwrap_err();
+    assert!(e.message.contains("holds no network"), "{}", e.message);
+}
+
+/// An empty `tcp_allowed_networks` in the file is refused while the raw TCP listener is on
+/// (from the file or `GATEWATCH_TCP_LISTEN`): it let no client in, silently. With the listener
+/// off the list is unused and accepted.
+#[test]
+fn an_empty_tcp_allow_list_in_the_file_is_refused_when_the_listener_is_on() {
+    let e = err("[server]\ntcp_listen = \"127.0.0.1:8094\"\ntcp_allowed_networks = []\n");
+    assert!(
+        e.starts_with(
+            "server.tcp_allowed_networks: empty, so the raw TCP listener (server.tcp_listen = \
+             \"127.0.0.1:8094\") would refuse every client"
+        ),
+        "{e}"
+    );
+    assert!(e.contains("tcp_listen = \"\""), "{e}");
+    assert!(e.ends_with(", line 3"), "{e}");
+    let off = "[server]\ntcp_allowed_networks = []\n";
+    let mut c = Config::from_toml(off).unwrap();
+    let e = c
+        .apply_env(|k| (k == "GATEWATCH_TCP_LISTEN").then(|| "0.0.0.0:8094".to_string()))
+        .unwrap_err();
+    assert!(
+        e.message
+            .starts_with("server.tcp_allowed_networks: empty, so the raw TCP listener"),
+        "{}",
+        e.message
+    );
+    assert!(!e.names_file(), "the empty list is the file's");
+}
+
 #[test]
 fn worker_threads_default_is_at_least_one() {
     assert!(ServerConfig::default().effective_worker_threads() >= 1);
