@@ -66,8 +66,9 @@ pub use selection::{
     correlation_factor, information_criteria, rank, CandidateFit, RankedCandidate,
 };
 pub use series::{
-    analyze_series, analyze_series_with, polish_substeps, pre_run, term_scales, track_series_with,
-    SeriesAnalysis, SeriesOptions, DAMPING_FORCE_FRACTION, GROWTH_MIN_REACH,
+    analyze_series, analyze_series_with, displacement_scales, polish_substeps, pre_run,
+    term_scales, track_series_with, SeriesAnalysis, SeriesOptions, DAMPING_FORCE_FRACTION,
+    GROWTH_MIN_REACH,
 };
 pub use tracking::{gate_hash, Path, Previous, TrackingPolicy};
 pub use trend::{

@@ -298,3 +298,25 @@ fn settings_words_parse_as_the_configuration_spells_them() {
         Err("unknown force terms `newey_west`: expected all or stiffness".to_string())
     );
 }
+
+/// A displacement record's scales follow its unit, a power of ten: none for a record of order
+/// one (the chapter's search box), `u^p` for the coefficients and `u` for fitted initial
+/// conditions otherwise, none for an equation that fixes its solutions' size.
+#[test]
+fn displacement_scales_follow_the_records_unit() {
+    let vdp = Model::parse("ydd + (c1 + c2*y^2)*yd + y = 0", &[]).unwrap();
+    let known = crate::identify::Initial::FromData;
+    assert!(displacement_scales(&vdp, 2.0, &known).is_empty());
+    assert!(displacement_scales(&vdp, 0.4, &known).is_empty());
+    let s = displacement_scales(&vdp, 2.6e4, &known);
+    assert_eq!(s.len(), 2);
+    assert_relative_eq!(s[0], 1.0);
+    assert_relative_eq!(s[1], 1e-8, max_relative = 1e-12);
+    let s = displacement_scales(&vdp, 8e-4, &crate::identify::Initial::Fit);
+    assert_eq!(s.len(), 4);
+    assert_relative_eq!(s[1], 1e6, max_relative = 1e-12);
+    assert_relative_eq!(s[2], 1e-3, max_relative = 1e-12);
+    assert_relative_eq!(s[3], 1e-3, max_relative = 1e-12);
+    let fixed = Model::parse("ydd + c1*yd + y + y^3 = 0", &[]).unwrap();
+    assert!(displacement_scales(&fixed, 1e4, &known).is_empty());
+}
