@@ -170,20 +170,33 @@ fn of_two_claims_with_the_same_expected_sequence_exactly_one_wins() {
         .expect("claim")
         .is_some());
 
-    // whole opens racing on a fresh prefix: exactly one owner
+    // whole opens racing on a fresh prefix: exactly one owner. An open that fails for another
+    // reason than the lease (a connection reset or a timeout of a loaded 2-core machine, seen
+    // in a full run beside builds) is tried again, twice at most, still racing the others; the
+    // reasons are kept for the message.
     let barrier = Arc::new(Barrier::new(4));
     let opens: Vec<_> = (0..4)
         .map(|_| {
             let (url, barrier) = (url.clone(), barrier.clone());
             std::thread::spawn(move || {
                 barrier.wait();
-                NatsStore::open(&options(&url, "RACE2", Some(Duration::from_secs(60))))
+                let mut transient = Vec::new();
+                loop {
+                    let r = NatsStore::open(&options(&url, "RACE2", Some(Duration::from_secs(60))));
+                    match r {
+                        Err(e) if !e.is_owned() && transient.len() < 2 => {
+                            transient.push(e.to_string())
+                        }
+                        r => return (r, transient),
+                    }
+                }
             })
         })
         .collect();
-    let results: Vec<_> = opens.into_iter().map(|t| t.join().expect("join")).collect();
+    let (results, transient): (Vec<_>, Vec<_>) =
+        opens.into_iter().map(|t| t.join().expect("join")).unzip();
     let owners = results.iter().filter(|r| r.is_ok()).count();
-    assert_eq!(owners, 1, "{results:?}");
+    assert_eq!(owners, 1, "{results:?}; retried after: {transient:?}");
     for e in results.iter().filter_map(|r| r.as_ref().err()) {
         assert!(e.is_owned(), "{e}");
     }
