@@ -51,17 +51,7 @@ fn points(n: usize) -> Vec<Point> {
         .map(|_| {
             let t = rng.random_range(0.0..10.0);
             let s = std::array::from_fn(|_| rng.random_range(-1.0..1.0));
-            // Magnitudes away from 0 with either sign: a coefficient near 0 hides its terms.
-            let c = (0..n)
-                .map(|_| {
-                    let m: f64 = rng.random_range(0.5..2.0);
-                    if rng.random_bool(0.5) {
-                        m
-                    } else {
-                        -m
-                    }
-                })
-                .collect();
+            let c = super::scaling::random_coefficients(&mut rng, n);
             Point { t, s, c }
         })
         .collect()

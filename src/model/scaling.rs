@@ -90,18 +90,23 @@ fn points(n: usize) -> Vec<(f64, f64, f64, Vec<f64>)> {
             let t = rng.random_range(0.0..10.0);
             let y = rng.random_range(-1.0..1.0);
             let yd = rng.random_range(-1.0..1.0);
-            // Magnitudes away from 0 with either sign: a coefficient near 0 hides its terms.
-            let c = (0..n)
-                .map(|_| {
-                    let m: f64 = rng.random_range(0.5..2.0);
-                    if rng.random_bool(0.5) {
-                        m
-                    } else {
-                        -m
-                    }
-                })
-                .collect();
+            let c = random_coefficients(&mut rng, n);
             (t, y, yd, c)
+        })
+        .collect()
+}
+
+/// `n` test coefficients: magnitudes away from 0 (from 0.5 to 2) with either sign, since a
+/// coefficient near 0 hides its terms.
+pub(super) fn random_coefficients(rng: &mut ChaCha8Rng, n: usize) -> Vec<f64> {
+    (0..n)
+        .map(|_| {
+            let m: f64 = rng.random_range(0.5..2.0);
+            if rng.random_bool(0.5) {
+                m
+            } else {
+                -m
+            }
         })
         .collect()
 }
