@@ -892,31 +892,33 @@ fn a_store_location_from_the_environment_names_the_variable() {
 /// table's header, or at line 1.
 #[test]
 fn a_bad_param_names_its_own_key_and_line() {
-    let e = err("[server]\nmax_gates = 4\n\n[defaults]\nrate_hz = 200.0\nparams = { yd = 2.0 }\n");
-    assert!(
-        e.starts_with("defaults.params.yd: param name 'yd' is reserved"),
-        "{e}"
-    );
-    assert!(e.ends_with(", line 6"), "{e}");
-    let e = err("[gates.g1]\nrate_hz = 100.0\nparams = { c1 = 2.0 }\n");
-    assert!(
-        e.starts_with("gates.g1.params.c1: param name 'c1' is reserved"),
-        "{e}"
-    );
-    assert!(e.ends_with(", line 3"), "{e}");
-    let e = err("[defaults]\nparams = { \"a b\" = 2.0 }\n");
-    assert!(
-        e.starts_with("defaults.params.a b: invalid param name 'a b'"),
-        "{e}"
-    );
-    assert!(e.ends_with(", line 2"), "{e}");
-    // over several lines: the line of the param itself
-    let e = err("[defaults.params]\nm = 2.0\nsin = 1.0\n");
-    assert!(
-        e.starts_with("defaults.params.sin: param name 'sin'"),
-        "{e}"
-    );
-    assert!(e.ends_with(", line 3"), "{e}");
+    for (toml, starts, line) in [
+        (
+            "[server]\nmax_gates = 4\n\n[defaults]\nrate_hz = 200.0\nparams = { yd = 2.0 }\n",
+            "defaults.params.yd: param name 'yd' is reserved",
+            6,
+        ),
+        (
+            "[gates.g1]\nrate_hz = 100.0\nparams = { c1 = 2.0 }\n",
+            "gates.g1.params.c1: param name 'c1' is reserved",
+            3,
+        ),
+        (
+            "[defaults]\nparams = { \"a b\" = 2.0 }\n",
+            "defaults.params.a b: invalid param name 'a b'",
+            2,
+        ),
+        // over several lines: the line of the param itself
+        (
+            "[defaults.params]\nm = 2.0\nsin = 1.0\n",
+            "defaults.params.sin: param name 'sin'",
+            3,
+        ),
+    ] {
+        let e = err(toml);
+        assert!(e.starts_with(starts), "{e}");
+        assert!(e.ends_with(&format!(", line {line}")), "{e}");
+    }
     // a param the equation uses is fine, and a fault of the equation is still the model's
     Config::from_toml("[defaults]\nmodel = \"m*ydd + c1*yd + k*y = 0\"\nparams = { m = 2.0 }\n")
         .unwrap();
