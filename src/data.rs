@@ -18,14 +18,22 @@ pub const MAX_ABS_VALUE: f64 = 1e100;
 /// Why 1 %: a uniformly sampled record exported with rounded times is not exactly uniform. A
 /// 3000 Hz record printed with 6 decimals (as DAQ software and Excel print it) is off its grid by
 /// up to 0.5 us, 0.15 % of its step, and its spacings differ by twice that; a logger's timestamp
-/// jitter adds a few thousandths of a percent. The analysis of a uniform record treats sample
-/// `i` as taken at `t0 + i*h` (rate `1/h`, `h` from the first time to the last): a time off by
-/// `e*h` changes the sample by at most `2*pi*e*f/fs` of the amplitude at frequency `f` and rate
-/// `fs`, 0.6 % at `e` = 1 % for a gate sampled ten times faster than it vibrates, below the
-/// sensor's noise. A missing sample puts the times half a step or more off the grid, irregular
-/// sampling (a clock that speeds up, samples taken when an event comes) more than 1 %: both
-/// are refused.
+/// jitter adds a few thousandths of a percent. The grid is the one that fits the times best
+/// (least squares, [`TimeSeries::nonuniform_at`]). The analysis of a uniform record treats
+/// sample `i` as taken at `t0 + i*h` (rate `1/h`, `h` from the first time to the last); that
+/// grid lies within `e*h` of the fitted one wherever the times do, so a time within `e*h` of
+/// the fitted grid is within `2*e*h` of the analysis's, which changes the sample by at most
+/// `4*pi*e*f/fs` of the amplitude at frequency `f` and rate `fs`: 1.3 % at `e` = 1 % for a
+/// gate sampled ten times faster than it vibrates, at the level of a load cell's noise. A
+/// missing sample puts the times half a step or more off the grid, irregular sampling (a
+/// clock that speeds up, samples taken when an event comes) more than 1 %: both are refused.
 pub const GRID_TOLERANCE: f64 = 0.01;
+
+/// How far, as a fraction of the median spacing, one spacing must be off it for
+/// [`TimeSeries::grid_departure`] to name it as a gap (or as samples crowded together) rather
+/// than as jitter: a missing sample doubles a spacing (100 %); a timestamp jittered by the
+/// 1 % the grid allows moves two spacings by 1 % each.
+pub const GAP_FRACTION: f64 = 0.25;
 
 /// A sampled signal: strictly increasing times and finite values.
 #[derive(Debug, Clone, PartialEq)]
@@ -46,9 +54,10 @@ pub enum GridDeparture {
         spacing: f64,
         step: f64,
     },
-    /// Every spacing is the median's, within rounding, yet sample `index` is `deviation`
-    /// seconds off the grid of `step` from the first time to the last: a slow drift.
-    Drift {
+    /// No spacing is far off the median's, yet sample `index` is `deviation` seconds off the
+    /// least-squares grid of `step`, more than [`GRID_TOLERANCE`] of a step: timestamps that
+    /// jitter, or a clock that drifts.
+    OffGrid {
         index: usize,
         deviation: f64,
         step: f64,
@@ -191,50 +200,67 @@ impl TimeSeries {
         Some((self.t[n - 1] - self.t[0]) / (n - 1) as f64)
     }
 
-    /// The first sample off the uniform grid from the first time to the last, as `(index,
-    /// deviation in s, step in s)`; `None` when every time lies on it within
-    /// [`GRID_TOLERANCE`] of a step plus the rounding of times of that size (eight ulps of the
-    /// largest: about 3e-6 s at Unix epoch seconds). Fewer than two samples have no grid and
-    /// nothing off it (`None`; [`Self::uniform_step`] is `None` for them too).
+    /// The first sample off the uniform grid, as `(index, deviation in s, step in s)`; `None`
+    /// when every time lies on it within [`GRID_TOLERANCE`] of a step plus the rounding of
+    /// times of that size (eight ulps of the largest: about 3e-6 s at Unix epoch seconds). The
+    /// grid is the least-squares line through the times (`t_i ~ a + i*h`). Why not the grid
+    /// from the first time to the last: it is anchored on two samples, so their own jitter
+    /// counted twice, and times jittered by 0.6 % of a step about an exact grid were refused
+    /// while the rule said 1 %. Fewer than two samples have no grid and nothing off it (`None`;
+    /// [`Self::uniform_step`] is `None` for them too).
     pub fn nonuniform_at(&self) -> Option<(usize, f64, f64)> {
-        let n = self.t.len();
-        if n < 2 {
-            return None;
-        }
-        let (t0, tn) = (self.t[0], self.t[n - 1]);
-        let h = (tn - t0) / (n - 1) as f64;
+        let (a, h) = self.fitted_grid()?;
+        let t0 = self.t[0];
+        let tn = self.t[self.t.len() - 1];
         let tol = GRID_TOLERANCE * h + 8.0 * f64::EPSILON * t0.abs().max(tn.abs());
         self.t.iter().enumerate().find_map(|(i, &ti)| {
-            let d = ti - (t0 + i as f64 * h);
+            let d = (ti - t0) - (a + i as f64 * h);
             (d.abs() > tol).then_some((i, d, h))
         })
     }
 
+    /// The least-squares grid of the times, `t_i - t_0 ~ a + i*h`, as `(a, h)` (`None` under
+    /// two samples). Times are taken from the first one, so epoch seconds lose nothing.
+    fn fitted_grid(&self) -> Option<(f64, f64)> {
+        let n = self.t.len();
+        if n < 2 {
+            return None;
+        }
+        let t0 = self.t[0];
+        let mean_i = (n - 1) as f64 / 2.0;
+        let mean_t = self.t.iter().map(|&t| t - t0).sum::<f64>() / n as f64;
+        let (mut sxy, mut sxx) = (0.0, 0.0);
+        for (i, &t) in self.t.iter().enumerate() {
+            let x = i as f64 - mean_i;
+            sxy += x * (t - t0 - mean_t);
+            sxx += x * x;
+        }
+        let h = sxy / sxx;
+        Some((mean_t - h * mean_i, h))
+    }
+
     /// Where the times first leave a uniform grid, told for a person: `None` exactly when
-    /// [`Self::nonuniform_at`] is `None` (that check decides; this one only explains). The step
-    /// is the median spacing, so a hole in the record does not skew it (the step from the first
-    /// time to the last includes the hole, and put the first row "off the grid"); the sample
-    /// named is the first whose spacing departs from it by more than [`GRID_TOLERANCE`] of it.
-    /// When every spacing agrees with the median and the times still drift off a grid, the
-    /// first sample off it is named.
+    /// [`Self::nonuniform_at`] is `None` (that check decides; this one only explains). A
+    /// spacing more than [`GAP_FRACTION`] off the median spacing is named as such (a hole, or
+    /// samples crowded together); the median, so that a hole does not skew the step. Otherwise
+    /// the times jitter or drift off their grid by more than [`GRID_TOLERANCE`] of a step, and
+    /// the first sample off it is named with its share of a step.
     pub fn grid_departure(&self) -> Option<GridDeparture> {
         let (index, deviation, step) = self.nonuniform_at()?;
         let mut spacings: Vec<f64> = self.t.windows(2).map(|w| w[1] - w[0]).collect();
         let mid = spacings.len() / 2;
         let median = *spacings.select_nth_unstable_by(mid, f64::total_cmp).1;
-        let (t0, tn) = (self.t[0], self.t[self.t.len() - 1]);
-        let tol = GRID_TOLERANCE * median + 8.0 * f64::EPSILON * t0.abs().max(tn.abs());
         let gap = self
             .t
             .windows(2)
-            .position(|w| ((w[1] - w[0]) - median).abs() > tol);
+            .position(|w| ((w[1] - w[0]) - median).abs() > GAP_FRACTION * median);
         Some(match gap {
             Some(j) => GridDeparture::Spacing {
                 index: j + 1,
                 spacing: self.t[j + 1] - self.t[j],
                 step: median,
             },
-            None => GridDeparture::Drift {
+            None => GridDeparture::OffGrid {
                 index,
                 deviation,
                 step,
@@ -280,8 +306,11 @@ impl TimeSeries {
                 reason: format!("the file is UTF-16 text, not UTF-8; {SAVE_AS_UTF8}"),
             });
         }
+        // flexible: the fields are counted here, where a line of spaces can be told from a
+        // row that lacks a field
         let mut reader = csv::ReaderBuilder::new()
             .has_headers(true)
+            .flexible(true)
             .trim(csv::Trim::All)
             .comment(Some(b'#'))
             .from_reader(bytes.as_slice());
@@ -349,20 +378,28 @@ impl TimeSeries {
             let line = record
                 .position()
                 .map_or(0, |pos| line_counter.line_at(pos.byte()));
+            if record.len() == 1 && record.get(0) == Some("") {
+                continue; // a line of spaces: blank, as the empty lines the reader skips
+            }
+            check_record(&record, &headers, line).map_err(|reason| DataError::Malformed {
+                path: p(),
+                line,
+                reason,
+            })?;
             let cell = |index: usize, column: &str| -> Result<f64, DataError> {
                 let text = record.get(index).unwrap_or("");
                 let v: f64 = text.parse().map_err(|_| DataError::NotANumber {
                     path: p(),
                     line,
                     column: column.to_string(),
-                    cell: text.to_string(),
+                    cell: shown(text),
                 })?;
                 if !v.is_finite() {
                     return Err(DataError::NotFinite {
                         path: p(),
                         line,
                         column: column.to_string(),
-                        cell: text.to_string(),
+                        cell: shown(text),
                     });
                 }
                 if column == value_column && v.abs() > MAX_ABS_VALUE {
@@ -370,7 +407,7 @@ impl TimeSeries {
                         path: p(),
                         line,
                         column: column.to_string(),
-                        cell: text.to_string(),
+                        cell: shown(text),
                     });
                 }
                 Ok(v)
@@ -412,6 +449,71 @@ impl TimeSeries {
         }
         w.flush()
     }
+}
+
+/// Whether a record read from `line` is one row of the file with the header's fields: a cell
+/// that holds a line break is refused, naming where its quote opened. Why: RFC 4180 lets a
+/// quoted cell run over lines, so one stray `"` (a logger's comment `"valve open`) made every
+/// line up to the next quote part of that cell, and those rows vanished without a word (or
+/// surfaced as a "gap" in the times); a record of measurements has no cell that spans lines.
+fn check_record(
+    record: &csv::StringRecord,
+    headers: &csv::StringRecord,
+    line: u64,
+) -> Result<(), String> {
+    if let Some((j, cell)) = record
+        .iter()
+        .enumerate()
+        .find(|(_, c)| c.contains(['\n', '\r']))
+    {
+        let breaks = cell.matches('\n').count() as u64;
+        let column = headers
+            .get(j)
+            .map_or_else(|| format!("{}", j + 1), |h| format!("'{h}'"));
+        return Err(format!(
+            "column {column}: a quote (\") opens a cell on this line that is not closed on it, so the cell runs over {} lines, to line {} (it reads '{}'); remove the stray quote or close it",
+            breaks + 1,
+            line + breaks,
+            shown(cell)
+        ));
+    }
+    if record.len() != headers.len() {
+        let fields = |n: usize| {
+            if n == 1 {
+                "1 field".to_string()
+            } else {
+                format!("{n} fields")
+            }
+        };
+        return Err(format!(
+            "{}, but the header has {}",
+            fields(record.len()),
+            headers.len()
+        ));
+    }
+    Ok(())
+}
+
+/// Longest part of a cell an error quotes.
+const SHOWN_CHARS: usize = 40;
+
+/// A cell as an error quotes it: control characters escaped (a NUL byte printed raw made
+/// `1.2\0` look like a number on a terminal) and cut after [`SHOWN_CHARS`] characters (a cell
+/// that swallowed the rest of the file was printed whole: 1500 lines as "one line").
+fn shown(cell: &str) -> String {
+    let mut out = String::new();
+    for (i, c) in cell.chars().enumerate() {
+        if i == SHOWN_CHARS {
+            out.push_str("...");
+            break;
+        }
+        if c.is_control() {
+            out.extend(c.escape_default());
+        } else {
+            out.push(c);
+        }
+    }
+    out
 }
 
 /// The way out of an encoding error: Excel's "CSV" is the Windows code page (cp1252: a `µ` or
@@ -474,9 +576,6 @@ fn malformed(path: &Path, bytes: &[u8], e: &csv::Error) -> DataError {
         .position()
         .map_or(0, |p| LineCounter::new(bytes).line_at(p.byte()));
     let reason = match e.kind() {
-        csv::ErrorKind::UnequalLengths {
-            expected_len, len, ..
-        } => format!("{len} fields, but the header has {expected_len}"),
         csv::ErrorKind::Utf8 { .. } => format!("not valid UTF-8; {SAVE_AS_UTF8}"),
         _ => e.to_string(),
     };
@@ -548,6 +647,60 @@ mod tests {
         // at the bound and in the time column (Unix nanoseconds reach 1.7e18) it loads
         assert!(load("t,y\n0,1e100\n1e101,-1e100\n").is_ok());
         assert!(TimeSeries::new(vec![0.0, 1.0], vec![1.0, -1e101]).is_err());
+    }
+
+    /// A stray quote makes the reader run one cell over the following lines; those rows must
+    /// not vanish (they did, exit 0), and the error names the line and column where the quote
+    /// opened, quoting a short, escaped part of the cell, not the rest of the file.
+    #[test]
+    fn a_stray_quote_is_named_not_swallowed() {
+        let mut text = String::from("t,y,comment\n");
+        for i in 0..20 {
+            let note = match i {
+                5 => "\"valve",
+                15 => "open\"",
+                _ => "ok",
+            };
+            text.push_str(&format!("{},{},{note}\n", i as f64 * 0.1, i));
+        }
+        let e = load(&text).unwrap_err();
+        assert!(matches!(e, DataError::Malformed { line: 7, .. }), "{e}");
+        let message = e.to_string();
+        assert!(message.contains("column 'comment'"), "{message}");
+        assert!(
+            message.contains("runs over 11 lines, to line 17"),
+            "{message}"
+        );
+        assert!(message.contains("(it reads 'valve\\n0.6"), "{message}");
+        // an unclosed quote in the value column, to the end of a long file: one short line
+        let mut text = String::from("t,y\n");
+        for i in 0..2000 {
+            let q = if i == 3 { "\"" } else { "" };
+            text.push_str(&format!("{},{q}{}\n", i as f64 * 0.1, i));
+        }
+        let message = load(&text).unwrap_err().to_string();
+        assert!(message.contains("line 5: column 'y'"), "{message}");
+        assert!(message.contains("1997 lines, to line 2001"), "{message}");
+        assert!(message.len() < 400 && !message.contains('\n'), "{message}");
+    }
+
+    /// A line of spaces is blank, like an empty line; a short row says "1 field"; a control
+    /// character in a cell is escaped in the message.
+    #[test]
+    fn blank_lines_short_rows_and_control_characters() {
+        let s = load("t,y\n0,1\n   \n0.1,2\n").unwrap();
+        assert_eq!(s.len(), 2);
+        let e = load("t,y\n0,1\n0.1\n").unwrap_err();
+        assert!(
+            e.to_string()
+                .contains("line 3: 1 field, but the header has 2"),
+            "{e}"
+        );
+        let e = load("t,y\n0,1\n0.1,1.2\u{0}5\n").unwrap_err();
+        assert!(
+            e.to_string().contains("'1.2\\u{0}5' is not a number"),
+            "{e}"
+        );
     }
 
     #[test]
@@ -676,7 +829,7 @@ mod tests {
         let d = TimeSeries::new(drift, vec![0.0; 2000]).unwrap();
         assert!(d.nonuniform_at().is_some());
         assert!(
-            matches!(d.grid_departure(), Some(GridDeparture::Drift { .. })),
+            matches!(d.grid_departure(), Some(GridDeparture::OffGrid { .. })),
             "{:?}",
             d.grid_departure()
         );
@@ -722,18 +875,70 @@ mod tests {
             }
             other => panic!("{other:?}"),
         }
-        // one sample 5 % of a step late
+        // one sample 5 % of a step late: off the grid, not a gap
         let mut late = rounded(3000.0, 3000);
         late[2000] += 0.05 * h;
         let s = TimeSeries::new(late, vec![0.0; 3000]).unwrap();
-        assert!(
-            matches!(
-                s.grid_departure(),
-                Some(GridDeparture::Spacing { index: 2000, .. })
-            ),
-            "{:?}",
-            s.grid_departure()
-        );
+        match s.grid_departure() {
+            Some(GridDeparture::OffGrid {
+                index,
+                deviation,
+                step,
+            }) => {
+                assert_eq!(index, 2000);
+                assert!(
+                    (deviation / step - 0.05).abs() < 0.001,
+                    "{deviation} {step}"
+                );
+            }
+            other => panic!("{other:?}"),
+        }
+    }
+
+    /// "Every time within 1 % of a step of the uniform grid" holds about the grid that fits
+    /// the times best: timestamps alternating 0.6 % of a step either side of an exact 200 Hz
+    /// grid, or jittered at random by up to 0.8 %, are uniform (the grid from the first time to
+    /// the last refused both: its two anchors' jitter counted twice); at 1.5 % they are not, and
+    /// the explanation names the first sample off the grid with the true step, not a gap.
+    #[test]
+    fn jitter_within_the_tolerance_is_uniform_about_the_fitted_grid() {
+        let h = 0.005;
+        let alternating = |e: f64| -> Vec<f64> {
+            (0..2000)
+                .map(|i| (i as f64 + if i % 2 == 0 { -e } else { e }) * h)
+                .collect()
+        };
+        let s = TimeSeries::new(alternating(0.006), vec![0.0; 2000]).unwrap();
+        assert_eq!(s.nonuniform_at(), None);
+        assert!((s.uniform_step().unwrap() - h).abs() < 1e-4 * h);
+        let mut rng = 12345u64;
+        let mut uniform = || {
+            rng = rng
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (rng >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+        };
+        let jittered: Vec<f64> = (0..5000)
+            .map(|i| (i as f64 + 0.008 * uniform()) * h)
+            .collect();
+        let s = TimeSeries::new(jittered, vec![0.0; 5000]).unwrap();
+        assert_eq!(s.nonuniform_at(), None);
+        let s = TimeSeries::new(alternating(0.015), vec![0.0; 2000]).unwrap();
+        match s.grid_departure() {
+            Some(GridDeparture::OffGrid {
+                index,
+                deviation,
+                step,
+            }) => {
+                assert_eq!(index, 0);
+                assert!((step - h).abs() < 1e-4 * h, "{step}");
+                assert!(
+                    (deviation.abs() / step - 0.015).abs() < 0.001,
+                    "{deviation}"
+                );
+            }
+            other => panic!("{other:?}"),
+        }
     }
 
     /// The line of each sample, and of each error, is the file's, past comment and blank

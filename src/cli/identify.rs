@@ -475,14 +475,16 @@ fn describe_departure(series: &TimeSeries, lines: &[u64], d: GridDeparture) -> S
                 time(index)
             )
         }
-        GridDeparture::Drift {
+        GridDeparture::OffGrid {
             index,
             deviation,
             step,
         } => format!(
-            "the times drift: line {} (t = {}) is {deviation:+.3e} s off the uniform grid of step {step:.6e} s from the first time to the last",
+            "line {} (t = {}) is {deviation:+.3e} s ({:.1} % of a step) off the uniform grid of step {step:.6e} s that fits the times best, beyond the {:.0} % allowed (timestamps that jitter, or a clock that drifts)",
             line(index),
-            time(index)
+            time(index),
+            100.0 * deviation.abs() / step,
+            100.0 * crate::data::GRID_TOLERANCE
         ),
     }
 }
