@@ -1856,3 +1856,20 @@ fn a_config_check_config_passes_starts_serve() {
     let (code, err) = run(&["check-config"], &file);
     assert_eq!(code, Some(0), "{err}");
 }
+
+/// A configuration file that is not UTF-8 (a Latin-1 `°` typed in an editor) is named with the
+/// line and column of the first bad byte: the message was "stream did not contain valid UTF-8".
+#[test]
+fn a_config_file_not_in_utf8_names_line_and_column() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("latin1.toml");
+    std::fs::write(&file, b"[server]\nlisten = \"0.0.0.0:9464\xb0\"\n").unwrap();
+    for args in [&["check-config"][..], &["serve", "--config"][..]] {
+        let (code, err) = run(args, &file);
+        assert_eq!(code, Some(2), "{args:?}: {err}");
+        assert!(
+            err.contains("latin1.toml: line 2, column 23: not valid UTF-8 (byte 0xb0)"),
+            "{args:?}: {err}"
+        );
+    }
+}

@@ -529,6 +529,26 @@ fn io_reason(e: &std::io::Error) -> String {
     }
 }
 
+/// Where a file stops being UTF-8, told as its line and column (TOML is UTF-8 by its
+/// specification; the io error said only "stream did not contain valid UTF-8").
+fn not_utf8(bytes: &[u8], valid_up_to: usize) -> String {
+    let before = &bytes[..valid_up_to.min(bytes.len())];
+    let line = before.iter().filter(|&&b| b == b'\n').count() + 1;
+    let line_start = before
+        .iter()
+        .rposition(|&b| b == b'\n')
+        .map_or(0, |i| i + 1);
+    // the valid prefix is UTF-8, so its characters count the column
+    let column = String::from_utf8_lossy(&before[line_start..])
+        .chars()
+        .count()
+        + 1;
+    format!(
+        "line {line}, column {column}: not valid UTF-8 (byte 0x{:02x}); save the file as UTF-8",
+        bytes.get(valid_up_to).copied().unwrap_or(0)
+    )
+}
+
 /// A TOML syntax error (or duplicate key) with what toml's span points at and its line:
 /// `duplicate key `max_gates`, line 3` or `line 1: unclosed table, expected `]`: `[server``.
 fn toml_error(text: &str, e: toml::de::Error) -> ConfigError {
@@ -662,9 +682,17 @@ impl Config {
 
     /// Reads, parses and validates a file.
     pub fn from_file(path: &Path) -> Result<Config, ConfigError> {
-        let text = std::fs::read_to_string(path).map_err(|e| ConfigError {
+        let bytes = std::fs::read(path).map_err(|e| ConfigError {
             names_file: true,
             ..ConfigError::new(format!("{}: {}", path.display(), io_reason(&e)))
+        })?;
+        let text = String::from_utf8(bytes).map_err(|e| ConfigError {
+            names_file: true,
+            ..ConfigError::new(format!(
+                "{}: {}",
+                path.display(),
+                not_utf8(e.as_bytes(), e.utf8_error().valid_up_to())
+            ))
         })?;
         Config::from_toml(&text)
     }
