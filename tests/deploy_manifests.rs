@@ -72,3 +72,41 @@ fn systemd_documentation_is_installed() {
         );
     }
 }
+
+/// The Kubernetes store's volume holds the store's bound: past an emptyDir's `sizeLimit` the
+/// kubelet evicts the pod and the volume goes with it (history, alert states, outbox). The
+/// ConfigMap left the default bound of 12 288 MiB on a 5Gi volume, which 16 gates fill in 11
+/// days.
+#[test]
+fn kubernetes_store_bound_fits_its_volume() {
+    let k8s = read("deploy/kubernetes/gatewatch.yaml");
+    let mut lines = k8s.lines().skip_while(|l| l.trim() != "gatewatch.toml: |");
+    lines.next().expect("ConfigMap has gatewatch.toml");
+    let toml_text: String = lines
+        .take_while(|l| !l.starts_with("---"))
+        .map(|l| l.trim_start().to_string() + "\n")
+        .collect();
+    let config: toml::Table = toml_text.parse().expect("the ConfigMap's TOML parses");
+    let mb = config
+        .get("storage")
+        .and_then(|s| s.get("max_size_mb"))
+        .and_then(|v| v.as_integer())
+        .expect("the ConfigMap sets [storage] max_size_mb for its volume") as u64;
+    let limit = k8s
+        .lines()
+        .skip_while(|l| l.trim() != "- name: state")
+        .find_map(|l| l.split_once("sizeLimit: ").map(|x| x.1))
+        .expect("the state volume's sizeLimit");
+    let gib: u64 = limit
+        .trim_end_matches(['}', ' '])
+        .strip_suffix("Gi")
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("sizeLimit {limit}: expected NGi"));
+    let bound = mb << 20;
+    let wal = gatewatch::store::wal_budget(bound);
+    assert!(
+        bound + wal <= gib << 30,
+        "max_size_mb {mb} plus the WAL's {} MiB exceeds the volume's {gib}Gi",
+        wal >> 20
+    );
+}

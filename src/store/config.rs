@@ -153,7 +153,7 @@ impl StorageConfig {
                  outrun the pruning (writes fail as full) and the store keeps little history \
                  (about {} rows); docs/operations.md, \"Size\"",
                 self.max_size_mb,
-                self.max_size_mb * 1024 * 1024 * 8 / 10 / 1225
+                self.max_size_mb * 1024 * 1024 * 8 / 10 / super::sqlite::ROW_BYTES
             ));
         }
         if let Some(w) = self.short_lease_warning() {

@@ -47,14 +47,14 @@ pub const SIZE_LOW_WATERMARK: f64 = 0.8;
 /// transaction long (the history route reads meanwhile, WAL), and each batch frees pages.
 pub const PRUNE_BATCH_ROWS: u64 = 2000;
 
-/// Bytes of file per stored identification (docs/benchmarks.md, "History": 1 225 with a real
-/// damping report), to turn a size into rows.
-const ROW_BYTES: u64 = 1225;
+/// Bytes of file per stored identification (docs/benchmarks.md, "History": 1 735 with a real
+/// damping report at stop 58, 1 225 when schema 2 was made), to turn a size into rows.
+pub(crate) const ROW_BYTES: u64 = 1735;
 
 /// History rows deleted by one pruning transaction for a bound of `max_bytes`: about 1 % of the
 /// bound, between 16 and [`PRUNE_BATCH_ROWS`]. Why proportional: the pruning stops at the first
 /// batch that brings the store under [`SIZE_LOW_WATERMARK`], so it overshoots by up to one batch;
-/// 2 000 rows (2.4 MB) deleted every row of a 3 MiB store at once, leaving 30 % of it used
+/// 2 000 rows (3.5 MB) deleted every row of a 3 MiB store at once, leaving 30 % of it used
 /// instead of 80 %. For the default 12 GiB bound it is the 2 000.
 pub fn prune_batch_rows(max_bytes: u64) -> u64 {
     (max_bytes / 100 / ROW_BYTES).clamp(16, PRUNE_BATCH_ROWS)

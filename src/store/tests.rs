@@ -249,7 +249,7 @@ fn a_damaged_page_is_refused_at_open() {
 /// follows the bound.
 #[test]
 fn a_small_bound_counts_the_wal_and_prunes_in_proportion() {
-    assert_eq!(prune_batch_rows(3 << 20), 25);
+    assert_eq!(prune_batch_rows(3 << 20), 18);
     assert_eq!(prune_batch_rows(12_288 << 20), PRUNE_BATCH_ROWS);
     assert_eq!(prune_batch_rows(1 << 20), 16);
     assert_eq!(wal_budget(12_288 << 20), 64 << 20);
