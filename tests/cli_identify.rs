@@ -1102,6 +1102,48 @@ fn options_a_displacement_record_does_not_use_are_refused() {
     }
 }
 
+/// A record too short for a spectrum (20 rows of the worked example) has no frequency to
+/// compare the model with: the agreement reads n/a in the text and null in the JSON, where it
+/// read "yes" and `true` beside "frequency: n/a".
+#[test]
+fn without_a_spectrum_the_agreement_is_n_a() {
+    let d = Dir::new();
+    let full = std::fs::read_to_string(d.case("gate_example")).unwrap();
+    let rows: Vec<&str> = full.lines().take(21).collect();
+    let f = d.write("short.csv", &(rows.join("\n") + "\n"));
+    let args = [
+        "identify",
+        "--input",
+        &f,
+        "--signal",
+        "force",
+        "--stiffness",
+        "81360",
+        "--model",
+        "c1*ydd + (c2 + c3*yd^2)*yd + k*y = 0",
+    ];
+    let s = text(&ok(&args).stdout);
+    let line = |key: &str| {
+        s.lines()
+            .find(|l| l.contains(key))
+            .unwrap_or("")
+            .to_string()
+    };
+    assert!(
+        line("frequency:").contains("frequency:              n/a"),
+        "{s}"
+    );
+    assert!(
+        line("fit NMAE").contains("agrees with the spectrum: n/a"),
+        "{s}"
+    );
+    let mut with_json = args.to_vec();
+    with_json.push("--json");
+    let v = json(&ok(&with_json));
+    assert!(v["damping"]["frequency_hz"].is_null(), "{v}");
+    assert!(v["damping"]["agrees"].is_null(), "{v}");
+}
+
 #[test]
 fn force_signal_of_the_gate_example_gives_the_damping_report() {
     let d = Dir::new();
