@@ -11,7 +11,15 @@
 //! setting) over `periods` periods `T = 2*pi/w0` of the undamped linearised frequency
 //! `w0 = sqrt(k)`, `k = -d(ydd)/dy` at `y = yd = 0`, `t = 0`, evaluated at the centre of the map
 //! (both ranged coefficients at the middle of their ranges). A horizon can be given instead
-//! ([`MapSpec::t_end`]); without one, a non-positive `k` at the centre is an error.
+//! ([`MapSpec::t_end`]); without one, a centre with no period is an error that says why: a
+//! factor of `ydd` (the mass) of zero there, a stiffness that cannot be evaluated at rest, or
+//! one that is not positive.
+//!
+//! The model must be autonomous (no `t`): the map asks whether the free vibration dies out, and
+//! a forcing in `t` keeps the response going whatever the damping, so every trial of a forced
+//! model was drawn unstable and the map said nothing. A model whose acceleration cannot be
+//! evaluated at the initial state at any drawn point (`y/0`) is refused, as `identify` refuses
+//! a model no trial can integrate, rather than drawn as a map of unstable trials.
 //!
 //! The state is watched at 50 output times per period through its amplitude
 //! `r = sqrt(y^2 + (yd/w0)^2)` (for a linear oscillator of frequency `w0`, the radius of its
@@ -226,6 +234,14 @@ pub fn parse_range(model: &Model, text: &str) -> Result<Range, StabilityError> {
 
 /// Checks `spec` against `model`; returns the full coefficient vector at the map's centre.
 fn check(model: &Model, spec: &MapSpec) -> Result<Vec<f64>, StabilityError> {
+    if model.uses_time() {
+        return option(
+            "--model: the equation uses t, and the stability map needs an autonomous model: it \
+             asks whether the free vibration dies out, and a forcing in t keeps the response \
+             going whatever the damping (every trial would be drawn unstable); remove the terms in t"
+                .to_string(),
+        );
+    }
     let n = model.n_coeffs();
     if spec.x.index == spec.y.index {
         return option(format!(
@@ -315,6 +331,53 @@ fn linear_stiffness(model: &Model, c: &[f64]) -> f64 {
     -(model.accel(0.0, h, 0.0, c) - model.accel(0.0, -h, 0.0, c)) / (2.0 * h)
 }
 
+/// Why the centre `c` of the map, of linearised stiffness `k`, has no period: the mass (factor
+/// of `ydd`) at rest is zero or not finite, the stiffness is not finite (a division by zero at
+/// rest), or it is not positive. Why the mass first: with a zero mass `k` is infinite, and
+/// "stiffness inf is not positive" named the wrong cause.
+fn no_period(model: &Model, c: &[f64], k: f64) -> StabilityError {
+    let mass = model.mass(0.0, 0.0, 0.0, c);
+    let why = if mass == 0.0 || !mass.is_finite() {
+        format!(
+            "the factor of ydd, the mass, is {} at rest there, so the acceleration is undetermined",
+            Num(mass + 0.0)
+        )
+    } else if !k.is_finite() {
+        format!("the linearised stiffness cannot be evaluated at rest there (it is {k}: a division by zero?)")
+    } else {
+        // `+ 0.0` turns a negative zero (`-(0*y)`) into the zero it is
+        format!("the linearised stiffness {:.3e} is not positive", k + 0.0)
+    };
+    StabilityError::Option(format!(
+        "--periods: the model has no undamped oscillation at the centre of the map ({why}), so it has no period; give the horizon with --t-end"
+    ))
+}
+
+/// Refuses a model whose acceleration at the initial state `(y0, v0)` is not finite at any of
+/// the drawn `points`: no trial could start (`y/0`), and each would be drawn unstable.
+fn check_evaluable(
+    model: &Model,
+    spec: &MapSpec,
+    centre: &[f64],
+    points: &[(f64, f64)],
+) -> Result<(), StabilityError> {
+    let mut c = centre.to_vec();
+    let evaluable = points.iter().any(|&(x, y)| {
+        c[spec.x.index] = x;
+        c[spec.y.index] = y;
+        model.accel(0.0, spec.y0, spec.v0, &c).is_finite()
+    });
+    if evaluable {
+        return Ok(());
+    }
+    option(format!(
+        "--model: the model could not be simulated: its acceleration at the initial state (y0 = {}, v0 = {}) is not finite at any of the {} points of the map (a division by zero or a vanishing factor of ydd)",
+        Num(spec.y0),
+        Num(spec.v0),
+        points.len()
+    ))
+}
+
 /// Draws the trial points: `samples` pairs `(x, y)` from ChaCha8 seeded with `seed`.
 pub fn draw(spec: &MapSpec) -> Vec<(f64, f64)> {
     let mut rng = ChaCha8Rng::seed_from_u64(spec.seed);
@@ -333,6 +396,8 @@ pub fn draw(spec: &MapSpec) -> Vec<(f64, f64)> {
 /// Computes the map (in parallel on rayon's pool; the result does not depend on its size).
 pub fn map(model: &Model, spec: &MapSpec) -> Result<StabilityMap, StabilityError> {
     let centre = check(model, spec)?;
+    let points = draw(spec);
+    check_evaluable(model, spec, &centre, &points)?;
     let k = linear_stiffness(model, &centre);
     let w0 = if k.is_finite() && k > 0.0 {
         Some(k.sqrt())
@@ -344,18 +409,13 @@ pub fn map(model: &Model, spec: &MapSpec) -> Result<StabilityMap, StabilityError
         // Without a linear frequency, the horizon sets the time scale of the amplitude.
         (Some(t), None) => (t, spec.periods * std::f64::consts::TAU / t),
         (None, Some(w)) => (spec.periods * std::f64::consts::TAU / w, w),
-        (None, None) => {
-            return option(format!(
-                "--periods: the model has no undamped oscillation at the centre of the map (linearised stiffness {k:.3e} is not positive), so it has no period; give the horizon with --t-end"
-            ))
-        }
+        (None, None) => return Err(no_period(model, &centre, k)),
     };
     let n_out = ((spec.periods * POINTS_PER_PERIOD as f64).ceil() as usize).max(2) + 1;
     let times: Vec<f64> = (0..n_out)
         .map(|i| t_end * i as f64 / (n_out - 1) as f64)
         .collect();
     let last_period_start = t_end * (1.0 - 1.0 / spec.periods);
-    let points = draw(spec);
     let outcomes: Vec<(f64, f64, Option<bool>)> = points
         .par_iter()
         .map(|&(x, y)| {
@@ -742,5 +802,69 @@ mod tests {
         assert!(e.contains("--t-end"), "{e}");
         s.t_end = Some(40.0);
         assert_eq!(map(&model, &s).unwrap().t_end, 40.0);
+    }
+
+    /// The plane of the reviewer's maps: c1 and c2 over -1..1, centre 0.
+    fn centred(samples: usize) -> MapSpec {
+        let mut s = spec(samples);
+        (s.x.min, s.x.max, s.y.min, s.y.max) = (-1.0, 1.0, -1.0, 1.0);
+        s
+    }
+
+    #[test]
+    fn a_centre_without_a_period_names_its_cause() {
+        // A zero mass at the centre, not an "infinite stiffness".
+        let model = Model::parse("c1*ydd + c2*yd + y = 0", &[]).unwrap();
+        let e = map(&model, &centred(20)).unwrap_err().to_string();
+        assert!(
+            e.contains("the factor of ydd, the mass, is 0 at rest") && e.contains("--t-end"),
+            "{e}"
+        );
+        assert!(!e.contains("inf"), "{e}");
+        // A zero stiffness is 0, not a negative zero.
+        let e = map(&linear(), &centred(20)).unwrap_err().to_string();
+        assert!(
+            e.contains("linearised stiffness 0.000e0 is not positive"),
+            "{e}"
+        );
+        assert!(!e.contains("-0"), "{e}");
+        // A stiffness that cannot be evaluated at rest, the mass being fine.
+        let model = Model::parse("ydd + c1*yd + y/c2 = 0", &[]).unwrap();
+        let e = map(&model, &centred(20)).unwrap_err().to_string();
+        assert!(e.contains("cannot be evaluated at rest"), "{e}");
+        // with a horizon, the trials off the singular centre are mapped
+        let mut s = centred(20);
+        s.t_end = Some(20.0);
+        assert_eq!(map(&model, &s).unwrap().trials.len(), 20);
+    }
+
+    #[test]
+    fn a_model_no_trial_can_start_is_refused() {
+        // `y/0` is no constant part (the parser folds `1/0`): every trial divides by zero.
+        let model = Model::parse("ydd + c1*yd + c2*y/0 = 0", &[]).unwrap();
+        for t_end in [None, Some(5.0)] {
+            let mut s = centred(10);
+            s.t_end = t_end;
+            let e = map(&model, &s).unwrap_err().to_string();
+            assert!(
+                e.starts_with("--model: the model could not be simulated")
+                    && e.contains("not finite at any of the 10 points")
+                    && e.contains("division by zero"),
+                "{e}"
+            );
+        }
+    }
+
+    #[test]
+    fn a_forced_model_is_refused() {
+        let model = Model::parse("ydd + c1*yd + c2*y = c3*sin(t)", &[]).unwrap();
+        let mut s = centred(10);
+        s.fixed = vec![(2, 1.0)];
+        s.t_end = Some(10.0);
+        let e = map(&model, &s).unwrap_err().to_string();
+        assert!(
+            e.starts_with("--model: the equation uses t") && e.contains("autonomous"),
+            "{e}"
+        );
     }
 }

@@ -1116,6 +1116,101 @@ fn force_signal_options_are_checked() {
     );
 }
 
+/// Options a displacement record does not use are refused, naming the option and why, where
+/// they were ignored: `--moving-average` (a force signal's detrending) and `--stiffness` when
+/// no equation names `k` (it is then neither the constant nor a force's conversion). The help
+/// says when each applies, and that `--plot` takes one equation.
+#[test]
+fn options_a_displacement_record_does_not_use_are_refused() {
+    let d = Dir::new();
+    let f = d.case("van_der_pol_2");
+    let base = ["identify", "--input", &f, "--y0", "0.5", "--v0", "0"];
+    let with = |extra: &[&'static str]| -> Vec<&str> {
+        base.iter().copied().chain(extra.iter().copied()).collect()
+    };
+    for value in ["3", "0"] {
+        bad(
+            &with(&["--model", VDP, "--moving-average", value]),
+            &["--moving-average", "--signal force"],
+        );
+    }
+    bad(
+        &with(&["--model", VDP, "--stiffness", "81360"]),
+        &["--stiffness", "does not name `k`", "displacement"],
+    );
+    bad(
+        &with(&[
+            "--model",
+            VDP,
+            "--model",
+            "ydd + c1*yd + c2*y = 0",
+            "--stiffness",
+            "5",
+        ]),
+        &["--stiffness", "no equation names `k`"],
+    );
+    // An equation that names `k` takes it as the constant, on a displacement record too.
+    let small = ["--population", "8", "--generations", "2"];
+    let mut args = with(&[
+        "--model",
+        "ydd + (c1 + c2*y^2)*yd + k*y = 0",
+        "--stiffness",
+        "1",
+    ]);
+    args.extend_from_slice(&small);
+    ok(&args);
+    let help = text(&ok(&["identify", "--help"]).stdout);
+    for said in [
+        "refused on a displacement record",
+        "displacement record whose equations have no `k`",
+        "One equation only: with several --model",
+    ] {
+        assert!(help.contains(said), "{said}: {help}");
+    }
+}
+
+/// A record too short for a spectrum (20 rows of the worked example) has no frequency to
+/// compare the model with: the agreement reads n/a in the text and null in the JSON, where it
+/// read "yes" and `true` beside "frequency: n/a".
+#[test]
+fn without_a_spectrum_the_agreement_is_n_a() {
+    let d = Dir::new();
+    let full = std::fs::read_to_string(d.case("gate_example")).unwrap();
+    let rows: Vec<&str> = full.lines().take(21).collect();
+    let f = d.write("short.csv", &(rows.join("\n") + "\n"));
+    let args = [
+        "identify",
+        "--input",
+        &f,
+        "--signal",
+        "force",
+        "--stiffness",
+        "81360",
+        "--model",
+        "c1*ydd + (c2 + c3*yd^2)*yd + k*y = 0",
+    ];
+    let s = text(&ok(&args).stdout);
+    let line = |key: &str| {
+        s.lines()
+            .find(|l| l.contains(key))
+            .unwrap_or("")
+            .to_string()
+    };
+    assert!(
+        line("frequency:").contains("frequency:              n/a"),
+        "{s}"
+    );
+    assert!(
+        line("fit NMAE").contains("agrees with the spectrum: n/a"),
+        "{s}"
+    );
+    let mut with_json = args.to_vec();
+    with_json.push("--json");
+    let v = json(&ok(&with_json));
+    assert!(v["damping"]["frequency_hz"].is_null(), "{v}");
+    assert!(v["damping"]["agrees"].is_null(), "{v}");
+}
+
 #[test]
 fn force_signal_of_the_gate_example_gives_the_damping_report() {
     let d = Dir::new();

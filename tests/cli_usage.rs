@@ -511,6 +511,45 @@ fn simulate_refuses_bad_stream_flags_as_input_naming_them() {
     }
 }
 
+/// `--onset-hold`/`--onset-ramp` shape the onset scenario only: with another scenario they were
+/// ignored (`--scenario stable --onset-hold 10` streamed a stable gate without a word). Refused
+/// as input before connecting, naming the flag; the help says so.
+#[test]
+fn simulate_refuses_the_onset_shape_with_another_scenario() {
+    for (args, needle) in [
+        (&["--onset-hold", "10"][..], "--onset-hold shapes the onset"),
+        (
+            &["--scenario", "limit-cycle", "--onset-ramp", "5"][..],
+            "--onset-ramp shapes the onset scenario's ramp: it needs --scenario onset (got limit-cycle",
+        ),
+    ] {
+        let mut all = vec!["simulate", "--url", "http://127.0.0.1:9", "--duration", "1"];
+        all.extend(args);
+        refused_as_input(&all, needle);
+    }
+    // with the onset they pass the checks, and the run fails only on the absent daemon
+    let o = gw(&[
+        "simulate",
+        "--url",
+        "http://127.0.0.1:9",
+        "--duration",
+        "1",
+        "--scenario",
+        "onset",
+        "--onset-hold",
+        "10",
+    ]);
+    let err = text(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(!err.contains("--onset-hold"), "{err}");
+    let help = text(&gw(&["simulate", "--help"]).stdout);
+    assert_eq!(
+        help.matches("With --scenario onset only").count(),
+        2,
+        "{help}"
+    );
+}
+
 /// `demo` refuses a negative onset shape as `simulate` does (`--onset-hold -1` ran).
 #[test]
 fn demo_refuses_a_negative_onset_shape_naming_the_flag() {

@@ -72,7 +72,7 @@ fn summary(ws: &[Window]) -> String {
     ws.iter()
         .map(|w| {
             format!(
-                "t0={:5.1} {:7} {:?} fit={:.3} trusted={} agrees={} f={:?} fm={:?} zeta0={:?} c={:?} {:.3}s\n",
+                "t0={:5.1} {:7} {:?} fit={:.3} trusted={} agrees={:?} f={:?} fm={:?} zeta0={:?} c={:?} {:.3}s\n",
                 w.t0,
                 w.a.path.as_str(),
                 w.a.damping.verdict,

@@ -30,7 +30,7 @@ fn limit_cycle_window(rms: f64) -> DampingReport {
         zeta0_interval: Some((-0.024, -0.016)),
         zeta0_source: Some(Zeta0Source::Model),
         trusted: true,
-        agrees: true,
+        agrees: Some(true),
         fit_nmae: 0.1,
         verdict: Verdict::SelfExcited,
         regime: Some(Regime::LimitCycle),

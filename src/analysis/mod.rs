@@ -63,7 +63,7 @@ pub use pooling::{PoolingSettings, ZetaPools};
 pub use population::{biased_population, SpectralTarget};
 pub use report::{AmbientZeta, DampingReport, Verdict, Zeta0Source};
 pub use selection::{
-    correlation_factor, information_criteria, rank, CandidateFit, RankedCandidate,
+    correlation_factor, information_criteria, rank, CandidateFit, RankedCandidate, FRONT_TIE,
 };
 pub use series::{
     analyze_series, analyze_series_with, displacement_scales, polish_substeps, pre_run,

@@ -164,8 +164,12 @@ pub struct DampingReport {
     pub ambient_frequency_hz: Option<f64>,
     /// Displacement amplitude at the end of the window (model), m or the data's unit.
     pub amplitude: Option<f64>,
-    /// Whether the model's frequency and growth agree with the model-free estimates.
-    pub agrees: bool,
+    /// Whether the model's frequency and growth agree with the model-free estimates; `None`
+    /// (`null`) when the window has no spectrum to compare with (too short, or not uniformly
+    /// sampled: no `frequency_hz`), where the fit alone judges. Why not `true` there: `identify`
+    /// on 20 rows printed "frequency: n/a" and then "agrees with the spectrum: yes".
+    #[serde(default)]
+    pub agrees: Option<bool>,
     /// NMAE of the model on the window.
     pub fit_nmae: f64,
     /// Whether the model can be trusted (fits, agrees); an untrusted model never raises an alarm.
@@ -231,7 +235,8 @@ pub struct DampingReport {
 }
 
 impl DampingReport {
-    /// A report that knows nothing: no figures, no fit (`fit_nmae` infinite), untrusted,
+    /// A report that knows nothing: no figures, no fit (`fit_nmae` infinite), no agreement,
+    /// untrusted,
     /// verdict `Unknown`. Callers (and test doubles) set only the fields they know:
     ///
     /// ```
@@ -266,7 +271,7 @@ impl DampingReport {
             model_frequency_hz: None,
             ambient_frequency_hz: None,
             amplitude: None,
-            agrees: false,
+            agrees: None,
             fit_nmae: f64::INFINITY,
             trusted: false,
             verdict: Verdict::Unknown,

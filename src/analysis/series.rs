@@ -392,9 +392,12 @@ fn analyze(
         (Some(sa), Some(p)) => sa.analyze_window(p, &prediction_options).ok(),
         _ => None,
     };
-    // A model that could not be simulated agrees with nothing (`agrees` alone says yes when
-    // neither side has a spectrum).
-    damping.agrees = fit_nmae.is_finite() && agrees(free.spec.as_ref(), model_spec.as_ref());
+    // Without the window's spectrum there is nothing to compare (n/a); with it, a model that
+    // could not be simulated agrees with nothing.
+    damping.agrees = free
+        .spec
+        .as_ref()
+        .map(|d| fit_nmae.is_finite() && agrees(Some(d), model_spec.as_ref()));
     if let Some(s) = &free.spec {
         damping.frequency_hz = Some(s.peak.frequency_hz);
         damping.growth_rate = Some(s.growth.sigma);
@@ -666,7 +669,7 @@ fn conclude(
     let facts = VerdictFacts {
         fit_nmae: damping.fit_nmae,
         max_fit_nmae,
-        agrees: damping.agrees,
+        agrees: damping.agrees != Some(false),
         zeta0_model,
         ambient: damping.ambient_zeta,
         envelope: damping.envelope_zeta,

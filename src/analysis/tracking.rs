@@ -180,7 +180,8 @@ pub struct Previous {
     pub verdict: Verdict,
     /// Whether the last window was trusted (by its model or the ambient estimate).
     pub trusted: bool,
-    /// Whether the last window's model agreed with the model-free estimates.
+    /// Whether the last window's model agreed with the model-free estimates (or had no
+    /// spectrum to be compared with: not contradicted).
     pub agrees: bool,
     /// Time of the last window's first sample.
     pub t_start: f64,
@@ -216,7 +217,7 @@ impl Previous {
             since_full,
             verdict: a.damping.verdict,
             trusted: a.damping.trusted,
-            agrees: a.damping.agrees,
+            agrees: a.damping.agrees != Some(false),
             t_start,
             t_end,
             signal_rms: a.damping.signal_rms,
@@ -400,7 +401,7 @@ fn fit_tests(
     previous: &Previous,
     r: &DampingReport,
 ) -> Result<(), Rejection> {
-    if previous.agrees && !r.agrees {
+    if previous.agrees && r.agrees == Some(false) {
         return Err(Rejection::Disagrees);
     }
     // f64::min ignores NaN: a NaN reference becomes the ceiling too

@@ -39,7 +39,7 @@ fn fitted_model() -> Option<crate::analysis::AmbientZeta> {
 fn report() -> DampingReport {
     DampingReport {
         fit_nmae: 0.025,
-        agrees: true,
+        agrees: Some(true),
         trusted: true,
         verdict: Verdict::Damped,
         frequency_hz: Some(10.4),
@@ -195,7 +195,7 @@ fn accept_refuses_untrusted_disagreeing_changed_or_worse_fits() {
     };
     assert_eq!(accept(&policy, &p, &untrusted), Err(Rejection::Untrusted));
     let disagrees = DampingReport {
-        agrees: false,
+        agrees: Some(false),
         ..report()
     };
     assert_eq!(accept(&policy, &p, &disagrees), Err(Rejection::Disagrees));
@@ -294,7 +294,7 @@ fn waiving() -> TrackingPolicy {
 fn noise_window(rms: f64) -> DampingReport {
     DampingReport {
         fit_nmae: 1.2,
-        agrees: false,
+        agrees: Some(false),
         verdict: Verdict::Unknown,
         regime: Some(Regime::Undecided),
         zeta0_source: Some(Zeta0Source::Ambient),
@@ -309,7 +309,7 @@ fn a_noise_driven_window_is_not_refused_for_its_fit_or_agreement() {
     assert!(noise_driven(&p, &noise_window(1.5)));
     // a noise-driven window that passes the fit tests is simply fitted
     let fits = DampingReport {
-        agrees: true,
+        agrees: Some(true),
         fit_nmae: 0.02,
         ..noise_window(1.5)
     };
@@ -432,7 +432,7 @@ fn a_window_that_rose_grows_or_is_read_by_the_model_keeps_the_fit_tests() {
         ..previous()
     };
     let agreeing = DampingReport {
-        agrees: true,
+        agrees: Some(true),
         model_zeta: fitted_model(),
         ..noise_window(3.0)
     };

@@ -81,7 +81,9 @@ pub struct VerdictFacts {
     pub fit_nmae: f64,
     /// The settings' bound: above it the model is not trusted.
     pub max_fit_nmae: f64,
-    /// Whether the model agrees with the model-free estimates (`agrees`).
+    /// Whether nothing contradicts the model: it agrees with the model-free estimates
+    /// (`agrees`), or there was no spectrum to compare with (`DampingReport::agrees` is
+    /// `None`, where the fit alone judges).
     pub agrees: bool,
     /// The model's damping ratio at rest, when its rest position is an oscillator.
     pub zeta0_model: Option<f64>,

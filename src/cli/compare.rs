@@ -243,8 +243,10 @@ fn write_ranking(
     }
     writeln!(
         out,
-        "front (*): no other candidate fits as well with as few coefficients. A dBIC under about \
+        "front (*): no candidate with fewer coefficients fits as well (residual sums of squares \
+         within {:.3} % count as equal), and none with as many ranks above it. A dBIC under about \
          10 does not decide; where the ranking and the front disagree, the record does not \
-         either (docs/damping.md, \"Which equation\")."
+         either (docs/damping.md, \"Which equation\").",
+        100.0 * analysis::FRONT_TIE
     )
 }

@@ -100,15 +100,18 @@ pub struct IdentifyArgs {
     /// with the spring; docs/damping.md, "What the support force holds").
     #[arg(long, value_name = "TERMS")]
     force_terms: Option<analysis::ForceTerms>,
-    /// Installed stiffness in N/m (force signals; also usable as the constant `k`).
+    /// Installed stiffness in N/m: with --signal force, what turns the force into a deflection
+    /// (required there); and the constant `k` of an equation that names it. Refused on a
+    /// displacement record whose equations have no `k`, where it would do nothing.
     #[arg(long, allow_negative_numbers = true, value_name = "N/m")]
     stiffness: Option<f64>,
     /// Do not bias the initial population with the spectrum's frequency and growth.
     #[arg(long)]
     no_fft_bias: bool,
-    /// Force signals: seconds of the centred moving average removed first (0: none).
-    #[arg(long, allow_negative_numbers = true, default_value_t = 1.0)]
-    moving_average: f64,
+    /// With --signal force only (refused on a displacement record, which is not detrended):
+    /// seconds of the centred moving average removed first (0: none; default 1).
+    #[arg(long, allow_negative_numbers = true)]
+    moving_average: Option<f64>,
     /// Amplitude (unit of the signal) whose time of reach is predicted.
     #[arg(long, allow_negative_numbers = true)]
     amplitude_limit: Option<f64>,
@@ -129,7 +132,8 @@ pub struct IdentifyArgs {
     #[arg(long)]
     json: bool,
     /// Write pictures of the result into DIR (created if needed): fit, phase, convergence,
-    /// damping and, for force signals, hysteresis.
+    /// damping and, for force signals, hysteresis. One equation only: with several --model,
+    /// compare them first, then plot the chosen one.
     #[arg(long, value_name = "DIR")]
     plot: Option<PathBuf>,
     /// Format of the --plot pictures: svg or png.
@@ -217,8 +221,15 @@ pub(super) fn run(a: IdentifyArgs) -> Result<(), CliError> {
         return Err(input(
             "--force-terms says what a force signal holds: it needs --signal force",
         ));
+    } else if a.moving_average.is_some() {
+        return Err(input(
+            "--moving-average removes a force signal's drift: it needs --signal force (a displacement record is fitted as it is)",
+        ));
     }
-    if !(a.moving_average >= 0.0 && a.moving_average.is_finite()) {
+    let moving_average = a
+        .moving_average
+        .unwrap_or(SeriesOptions::default().moving_average_seconds);
+    if !(moving_average >= 0.0 && moving_average.is_finite()) {
         return Err(input("--moving-average must be >= 0 seconds"));
     }
     if a.max_fit_nmae.is_nan() || a.max_fit_nmae <= 0.0 {
@@ -259,6 +270,7 @@ pub(super) fn run(a: IdentifyArgs) -> Result<(), CliError> {
             })
         })
         .collect::<Result<Vec<Model>, CliError>>()?;
+    check_stiffness_used(&a, signal, &models)?;
     let (series, lines) =
         TimeSeries::from_csv_with_lines(&a.input, &a.time_column, &a.value_column)
             .map_err(input)?;
@@ -348,7 +360,7 @@ pub(super) fn run(a: IdentifyArgs) -> Result<(), CliError> {
         stiffness: a.stiffness,
         identify: config.clone(),
         fft_bias: !a.no_fft_bias,
-        moving_average_seconds: a.moving_average,
+        moving_average_seconds: moving_average,
         amplitude_limit: a.amplitude_limit,
         max_fit_nmae: a.max_fit_nmae,
         // `--solver` and the polish flags choose the integrations here.
@@ -424,6 +436,27 @@ pub(super) fn run(a: IdentifyArgs) -> Result<(), CliError> {
             .map_err(|e| input(format!("--plot: {e}")))?;
     }
     Ok(())
+}
+
+/// Refuses `--stiffness` where it does nothing: on a displacement record it is only the
+/// constant `k`, and no equation names `k` (a force record needs it for the deflection).
+fn check_stiffness_used(
+    a: &IdentifyArgs,
+    signal: Signal,
+    models: &[Model],
+) -> Result<(), CliError> {
+    if a.stiffness.is_none() || signal == Signal::Force || models.iter().any(|m| m.uses_param("k"))
+    {
+        return Ok(());
+    }
+    let which = if models.len() > 1 {
+        "no equation names `k`"
+    } else {
+        "the equation does not name `k`"
+    };
+    Err(input(format!(
+        "--stiffness is used as the constant `k` of the equation or, with --signal force, to turn the force into a deflection; {which} and the record is a displacement: drop it, or write `k` in the equation"
+    )))
 }
 
 /// `--plot` names a directory the pictures go into. An existing file was refused only after

@@ -240,7 +240,7 @@ fn write_damping(
     signal: Signal,
 ) -> std::io::Result<()> {
     let units = Units::of(signal);
-    let model_trusted = d.fit_nmae <= max_fit_nmae && d.agrees;
+    let model_trusted = d.fit_nmae <= max_fit_nmae && d.agrees != Some(false);
     let of_model = |v: String| {
         if model_trusted || v == "n/a" {
             v
@@ -316,7 +316,11 @@ fn write_damping(
         out,
         "  fit NMAE:               {:.3e} (bound {max_fit_nmae:.3e}); agrees with the spectrum: {}; model trusted: {}",
         d.fit_nmae,
-        if d.agrees { "yes" } else { "no" },
+        match d.agrees {
+            Some(true) => "yes",
+            Some(false) => "no",
+            None => "n/a (no spectrum to compare with)",
+        },
         if model_trusted { "yes" } else { "no" }
     )?;
     writeln!(
@@ -365,7 +369,7 @@ mod tests {
             energy_per_cycle: Some(2.0598e-3),
             limit_cycle_amplitude: Some(232.05),
             fit_nmae: 0.01,
-            agrees: true,
+            agrees: Some(true),
             trusted: true,
             ..analysis::DampingReport::unknown()
         };
@@ -392,6 +396,38 @@ mod tests {
             line(&u, "report trusted").contains("no: in the daemon it would not feed the alerts"),
             "{u}"
         );
+    }
+
+    /// Without the record's spectrum there is nothing to agree with: n/a, not "yes" (20 rows
+    /// printed "frequency: n/a" and "agrees with the spectrum: yes"); the fit alone judges the
+    /// model's trust there, and a disagreement still withdraws it.
+    #[test]
+    fn the_agreement_reads_n_a_without_a_spectrum() {
+        let fits = analysis::DampingReport {
+            fit_nmae: 0.01,
+            ..analysis::DampingReport::unknown()
+        };
+        for (agrees, said, trusted) in [
+            (None, "agrees with the spectrum: n/a", "model trusted: yes"),
+            (
+                Some(true),
+                "agrees with the spectrum: yes",
+                "model trusted: yes",
+            ),
+            (
+                Some(false),
+                "agrees with the spectrum: no",
+                "model trusted: no",
+            ),
+        ] {
+            let d = analysis::DampingReport {
+                agrees,
+                ..fits.clone()
+            };
+            let text = block(&d, Signal::Force);
+            let l = line(&text, "fit NMAE");
+            assert!(l.contains(said) && l.contains(trusted), "{agrees:?}: {l}");
+        }
     }
 
     /// A diverging interval is printed in scientific notation, not as 100 digits.

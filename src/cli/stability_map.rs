@@ -11,7 +11,8 @@ use std::path::PathBuf;
 /// Arguments of `gatewatch stability-map`.
 #[derive(Debug, Args)]
 pub struct StabilityMapArgs {
-    /// The equation, e.g. 'ydd + (c1 + c2*y + c3*y^2)*yd + y = 0'.
+    /// The equation, e.g. 'ydd + (c1 + c2*y + c3*y^2)*yd + y = 0'; autonomous (no t): the map
+    /// is of the free vibration.
     #[arg(long, value_name = "EQUATION")]
     model: String,
     /// A ranged coefficient, NAME=MIN:MAX, e.g. c1=-3:3 (exactly two).

@@ -122,6 +122,7 @@ pub struct Model {
     equation: String,
     n_coeffs: usize,
     uses_time: bool,
+    params_used: Vec<String>,
     mass: Program,
     residual: Program,
     mass_kind: MassKind,
@@ -365,6 +366,7 @@ impl Model {
             equation: equation.to_string(),
             n_coeffs: facts.coefs_seen.len(),
             uses_time: facts.uses_time,
+            params_used: facts.params_used,
             mass,
             residual,
             mass_kind,
@@ -391,6 +393,13 @@ impl Model {
     /// Whether `t` appears in the equation (the system is non-autonomous).
     pub fn uses_time(&self) -> bool {
         self.uses_time
+    }
+
+    /// Whether the equation names the known constant `name` (given by `--param`): a constant
+    /// given but not named is folded nowhere, and a command whose option only sets it (identify's
+    /// `--stiffness` on a displacement record, as `k`) refuses the option rather than ignore it.
+    pub fn uses_param(&self, name: &str) -> bool {
+        self.params_used.iter().any(|n| n == name)
     }
 
     /// `M(t, y, yd)`, the factor of `ydd`. `c.len()` must be `n_coeffs()` (a missing

@@ -168,6 +168,8 @@ pub(crate) struct Facts {
     pub coef_sites: Vec<CoefSite>,
     /// Indices of coefficients seen (0-based).
     pub coefs_seen: Vec<bool>,
+    /// Names of the known constants (`--param`) the equation names, each once.
+    pub params_used: Vec<String>,
 }
 
 pub(crate) struct Parser<'a> {
@@ -414,6 +416,9 @@ impl<'a> Parser<'a> {
             return Ok(Expr::Coef(index));
         }
         if let Some((_, v)) = self.params.iter().find(|(n, _)| n == name) {
+            if !self.facts.params_used.iter().any(|n| n == name) {
+                self.facts.params_used.push(name.to_string());
+            }
             return Ok(Expr::Num(*v));
         }
         err(format!("unknown symbol '{name}' at column {col}"), col)

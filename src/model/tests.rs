@@ -627,3 +627,16 @@ mod trig_accuracy {
         }
     }
 }
+
+#[test]
+fn the_constants_named_are_known() {
+    let p = |names: &[&str]| -> Vec<(String, f64)> {
+        names.iter().map(|n| (n.to_string(), 2.0)).collect()
+    };
+    let m = Model::parse("m*ydd + c1*yd + k*y + k*y^3 = 0", &p(&["m", "k", "g"])).unwrap();
+    assert!(m.uses_param("m") && m.uses_param("k"));
+    assert!(!m.uses_param("g"), "given, not named");
+    assert!(!m.uses_param("c1") && !m.uses_param("y"), "not constants");
+    let m = Model::parse("ydd + c1*yd + c2*y = 0", &p(&["k"])).unwrap();
+    assert!(!m.uses_param("k"));
+}

@@ -95,7 +95,7 @@ impl WindowAnalyzer for Trivial {
             coefficients: Vec::new(),
             damping: DampingReport {
                 zeta0: Some(0.01),
-                agrees: true,
+                agrees: Some(true),
                 fit_nmae: 0.0,
                 trusted: true,
                 verdict: Verdict::Damped,

@@ -103,13 +103,15 @@ pub struct SimulateArgs {
     /// stream never runs ahead of the wall clock, its last sample timed when it is sent).
     #[arg(long)]
     pub start: Option<f64>,
-    /// `onset`: seconds of sample time at +2 % damping before the ramp. Without `--onset-hold`
-    /// and `--onset-ramp` the onset is `bench warning`'s (120 s, then 60 s of ramp, after a
-    /// warm-up); with either, the ramp starts at the first sample's `t = 0` from rest, and the
-    /// one not given takes the bench's value.
+    /// With --scenario onset only (refused with the others, whose timing is fixed): seconds of
+    /// sample time at +2 % damping before the ramp. Without `--onset-hold` and `--onset-ramp`
+    /// the onset is `bench warning`'s (120 s, then 60 s of ramp, after a warm-up); with either,
+    /// the ramp starts at the first sample's `t = 0` from rest, and the one not given takes the
+    /// bench's value.
     #[arg(long, allow_negative_numbers = true)]
     pub onset_hold: Option<f64>,
-    /// `onset`: seconds of sample time of the ramp from +2 % to -2 % (then -2 %).
+    /// With --scenario onset only (refused with the others): seconds of sample time of the
+    /// ramp from +2 % to -2 % (then -2 %).
     #[arg(long, allow_negative_numbers = true)]
     pub onset_ramp: Option<f64>,
     /// The gate preset and its sensor noise.
@@ -288,6 +290,7 @@ fn checked_rate(args: &SimulateArgs) -> anyhow::Result<f64> {
 /// refused as input (exit 2), not as a failure of the stream (exit 1).
 pub fn check_stream(args: &SimulateArgs) -> anyhow::Result<()> {
     checked_rate(args)?;
+    check_onset_flags(args)?;
     let duration = args.effective_duration();
     anyhow::ensure!(
         duration > 0.0 && duration.is_finite(),
@@ -311,6 +314,30 @@ pub fn check_stream(args: &SimulateArgs) -> anyhow::Result<()> {
     // The raw TCP protocol does not use the URL.
     if args.protocol != Protocol::Tcp {
         check_url(&args.url)?;
+    }
+    Ok(())
+}
+
+/// Refuses `--onset-hold`/`--onset-ramp` with a scenario other than `onset`: the other
+/// scenarios' timing is fixed ([`Scenario::to_simulation`] ignores the shape), and `--scenario
+/// stable --onset-hold 10` streamed a stable gate without a word.
+fn check_onset_flags(args: &SimulateArgs) -> anyhow::Result<()> {
+    if args.scenario == Scenario::Onset {
+        return Ok(());
+    }
+    for (flag, v) in [
+        ("--onset-hold", args.onset_hold),
+        ("--onset-ramp", args.onset_ramp),
+    ] {
+        if v.is_some() {
+            let name = clap::ValueEnum::to_possible_value(&args.scenario).map_or_else(
+                || format!("{:?}", args.scenario),
+                |p| p.get_name().to_string(),
+            );
+            anyhow::bail!(
+                "{flag} shapes the onset scenario's ramp: it needs --scenario onset (got {name}, whose timing is fixed)"
+            );
+        }
     }
     Ok(())
 }

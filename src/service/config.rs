@@ -641,6 +641,27 @@ pub fn valid_gate_id(id: &str) -> bool {
         && !id.bytes().all(|b| b == b'.')
 }
 
+/// Every top-level table of the file. `[defaults]` and `[gates.*]` are taken out before serde
+/// reads the rest (they are merged first), so serde's "expected one of" for an unknown table
+/// named neither, and `[defualts]` or `[gate.g1]` got a hint without the table meant; the
+/// check in [`Config::from_toml`] names them all (a test keeps the list to `Config`'s fields).
+pub const TOP_LEVEL_TABLES: [&str; 7] = [
+    "server", "log", "ingest", "notify", "storage", "defaults", "gates",
+];
+
+/// The error for a top-level key that is no table of [`TOP_LEVEL_TABLES`], with its line.
+fn unknown_top_level(text: &str, key: &str) -> ConfigError {
+    let expected: Vec<String> = TOP_LEVEL_TABLES.iter().map(|t| format!("`{t}`")).collect();
+    let mut message = format!(
+        "{key}: unknown field `{key}`, expected one of {}",
+        expected.join(", ")
+    );
+    if let Some(line) = locate::line_of(text, &[key.to_string()]) {
+        message.push_str(&format!(", line {line}"));
+    }
+    ConfigError::new(message)
+}
+
 impl Config {
     /// Parses and validates TOML text (no environment overrides).
     pub fn from_toml(text: &str) -> Result<Config, ConfigError> {
@@ -661,6 +682,9 @@ impl Config {
             Some(toml::Value::Table(t)) => t,
             Some(_) => return Err(ConfigError::new("gates: must be a table")),
         };
+        if let Some(key) = doc.keys().find(|k| !TOP_LEVEL_TABLES.contains(&k.as_str())) {
+            return Err(unknown_top_level(text, key));
+        }
         let mut config: Config = locate::deserialize(toml::Value::Table(doc), text, &[], &[])?;
         config.defaults = gate_from_table(text, &["defaults"], defaults.clone())?;
         for (id, table) in gates {

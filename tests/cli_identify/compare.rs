@@ -204,3 +204,36 @@ fn the_force_terms_decide_the_ranking_of_the_worked_example() {
     args.push("k=5");
     bad(&args, &["--param k=5", "--stiffness 81360"]);
 }
+
+/// The front measures accuracy as the ranking does. On the worked example the linear equation
+/// and the same with a redundant `y^3` (four coefficients each) fit equally to 2e-6, with the
+/// fit NMAE and the RSS in opposite orders: the front, once made of the NMAE, starred the one
+/// ranked below and not the one above, and its sentence was false. Now the better-ranked of
+/// two as many coefficients is on the front, the other is not, and the sentence says so.
+#[test]
+fn the_front_keeps_the_better_ranked_of_two_equal_fits() {
+    let d = Dir::new();
+    let f = d.case("gate_example");
+    let cubic = "c1*ydd + (c2 + c3*yd^2)*yd + k*y = 0";
+    let linear = "c1*ydd + c2*yd + k*y = 0";
+    let redundant = "c1*ydd + c2*yd + k*y + y^3 = 0";
+    let mut args = vec!["identify", "--input", &f, "--signal", "force"];
+    args.extend_from_slice(&["--stiffness", "81360"]);
+    args.extend_from_slice(&["--model", cubic, "--model", linear, "--model", redundant]);
+    let mut with_json = args.clone();
+    with_json.push("--json");
+    let v = json(&ok(&with_json));
+    let c = v["candidates"].as_array().unwrap();
+    let (second, third) = (&c[1], &c[2]);
+    assert_eq!(num(second, "/parameters"), num(third, "/parameters"), "{v}");
+    assert!(num(second, "/rss") <= num(third, "/rss"), "{v}");
+    assert_eq!(c[0]["on_front"], true, "{v}");
+    assert_eq!(second["on_front"], true, "{v}");
+    assert_eq!(third["on_front"], false, "{v}");
+    let s = text(&ok(&args).stdout);
+    assert!(
+        s.contains("no candidate with fewer coefficients fits as well")
+            && s.contains("none with as many ranks above it"),
+        "{s}"
+    );
+}

@@ -86,7 +86,7 @@ impl WindowAnalyzer for Fake {
                 zeta_eq: Some(zeta0),
                 frequency_hz: Some(1.5),
                 amplitude: Some(2.5),
-                agrees: true,
+                agrees: Some(true),
                 fit_nmae: 0.01,
                 trusted: !self.untrusted,
                 verdict: if zeta0 < 0.0 {

@@ -34,7 +34,7 @@ impl WindowAnalyzer for Scripted {
             damping: DampingReport {
                 zeta0: Some(z),
                 zeta0_interval: Some((z - 0.005, z + 0.005)),
-                agrees: true,
+                agrees: Some(true),
                 fit_nmae: 0.0,
                 trusted: true,
                 verdict: if z < 0.0 {

@@ -82,6 +82,22 @@ fn errors_name_the_key() {
     );
     assert!(err("[server]\nlisten_addr = \"x\"\n").contains("unknown field `listen_addr`"));
     assert!(err("[bogus]\n").contains("unknown field `bogus`"));
+    // an unknown top-level table names every table a file may have, `[defaults]` and
+    // `[gates.*]` too (serde's list left out the two read apart), with its line
+    let every =
+        "expected one of `server`, `log`, `ingest`, `notify`, `storage`, `defaults`, `gates`";
+    assert_eq!(
+        err("[defualts]\nrate_hz = 100.0\n"),
+        format!("defualts: unknown field `defualts`, {every}, line 1")
+    );
+    assert_eq!(
+        err("# gates\n[gate.g1]\nrate_hz = 100.0\n"),
+        format!("gate: unknown field `gate`, {every}, line 2")
+    );
+    assert_eq!(
+        err("bogus = 1\n"),
+        format!("bogus: unknown field `bogus`, {every}, line 1")
+    );
     assert!(err("[gates.g1.alert]\nfor_windows = 0\n").starts_with("gates.g1.alert.for_windows"));
     assert!(err("[gates.g1.alert]\nsevrity = \"x\"\n").contains("sevrity"));
     // the interval and trend rules name their key
@@ -981,4 +997,23 @@ fn line_protocol_keys_no_line_can_carry_are_refused_naming_the_entry() {
         !matches!(&line, Ok(Some(l)) if l.fields.iter().any(|(k, _)| k == "value\\")),
         "{line:?}"
     );
+}
+
+/// [`TOP_LEVEL_TABLES`] is `Config`'s tables: each is accepted alone, and serde's own list of
+/// the fields it reads (what an unknown key would otherwise be told) is in it.
+#[test]
+fn the_top_level_tables_are_the_config_fields() {
+    for table in TOP_LEVEL_TABLES {
+        Config::from_toml(&format!("[{table}]\n")).unwrap();
+    }
+    let doc: toml::Table = "unknown_table = 1".parse().unwrap();
+    let serde_err = locate::deserialize::<Config>(toml::Value::Table(doc), "", &[], &[])
+        .unwrap_err()
+        .message;
+    let (_, listed) = serde_err.split_once("expected one of ").unwrap();
+    for name in listed.split(", ") {
+        let name = name.trim_matches('`');
+        assert!(TOP_LEVEL_TABLES.contains(&name), "{name} in {serde_err}");
+    }
+    assert_eq!(listed.split(", ").count() + 2, TOP_LEVEL_TABLES.len());
 }
