@@ -1,9 +1,11 @@
 //! Network hardening on a real server on port 0 (issue 12): refusals before the body is read
 //! (`Connection: close`, `Expect: 100-continue`), the HTTP connection cap and header timeout,
-//! the TCP idle timeout and client allow-list, unknown-gate expiry, the paginated gate list.
+//! the TCP idle timeout and client allow-list, unknown-gate expiry (and the hold of a gate whose
+//! damping alert fires, and `DELETE /api/v1/gates/{id}`), the paginated gate list.
 //! Every wait is bounded by a timeout (a guard against hanging, not a timing assertion).
 
 mod service_common;
+mod store_common;
 
 use std::sync::Arc;
 use std::time::{Duration, SystemTime};
@@ -356,6 +358,301 @@ async fn a_sweep_where_every_gate_goes_stale_logs_a_bounded_number_of_lines() {
         2 * (GATE_LINES_PER_BATCH + 1),
         "{expiry}"
     );
+}
+
+/// The log lines `f` writes at level info and above (it runs on this thread).
+fn log_of(f: &dyn Fn()) -> String {
+    let logs = Arc::new(std::sync::Mutex::new(Vec::<u8>::new()));
+    let sink = logs.clone();
+    let subscriber = tracing_subscriber::fmt()
+        .with_ansi(false)
+        .with_max_level(tracing::Level::INFO)
+        .with_writer(move || Capture(sink.clone()))
+        .finish();
+    tracing::subscriber::with_default(subscriber, f);
+    let out = logs.lock().unwrap().clone();
+    String::from_utf8(out).unwrap()
+}
+
+/// Drives the auto-accepted gate `gate` through four windows of the fake's schedule (damped,
+/// then three self-excited: `GateNegativeDamping` fires), `token` on each request.
+async fn self_excite(
+    app: &axum::Router,
+    state: &gatewatch::service::state::AppState,
+    fake: &Fake,
+    gate: &str,
+    token: Option<&str>,
+) {
+    let mut sent = 0usize;
+    for k in 0..4 {
+        let n = if k == 0 { 100 } else { 50 };
+        let body = uniform(gate, sent as f64 / 100.0, n).to_string();
+        let (s, v, _) = send(app, "POST", "/api/v1/samples", body, token).await;
+        assert_eq!(s, StatusCode::NO_CONTENT, "{v}");
+        sent += n;
+        wait_until(|| fake.calls.lock().unwrap().len() == k + 1 && state.pool().in_flight() == 0)
+            .await;
+    }
+    wait_until(|| state.alert_state(gate) == Some("firing")).await;
+}
+
+/// The names of `gate`'s firing alerts, from its view.
+fn firing_alerts(state: &gatewatch::service::state::AppState, gate: &str) -> Vec<String> {
+    state
+        .gate_view(gate)
+        .map(|v| v.alerts.into_iter().map(|a| a.name).collect())
+        .unwrap_or_default()
+}
+
+/// An auto-accepted gate whose `GateNegativeDamping` fires when its data stops (a sensor or
+/// cable failing on a self-excited gate) is held at the expiry: it keeps its entry, its alerts
+/// (`GateDataStale` too) and its series, while a silent gate without that alert expires at the
+/// same tick. Before, the expiry resolved the damping alert 600 s into the silence ("resolved"
+/// went to Alertmanager and the webhooks), removed its series, and nothing paged any more. The
+/// hold is logged once, not at every tick.
+#[tokio::test]
+async fn a_silent_unknown_gate_with_a_firing_damping_alert_is_held_not_expired() {
+    // the self-excited gate takes the first four windows, the calm one the fifth
+    let fake = Arc::new(Fake {
+        zeta: vec![0.05, -0.02, -0.03, -0.03, 0.05],
+        ..Default::default()
+    });
+    let (app, state) = app_with(config("unknown_gate_expiry_seconds = 600"), fake.clone());
+    self_excite(&app, &state, &fake, "excited", None).await;
+    let (s, _) = post_json(&app, uniform("calm", 0.0, 100)).await;
+    assert_eq!(s, StatusCode::NO_CONTENT);
+    wait_until(|| fake.calls.lock().unwrap().len() == 5 && state.pool().in_flight() == 0).await;
+    assert_eq!(state.alert_state("calm"), Some("ok"));
+    let now = SystemTime::now();
+    // both silent: both go stale
+    state.tick(now + Duration::from_secs(120));
+    assert_eq!(
+        firing_alerts(&state, "excited"),
+        ["GateNegativeDamping", "GateDataStale"]
+    );
+    assert_eq!(firing_alerts(&state, "calm"), ["GateDataStale"]);
+    // the expiry: the calm gate goes, the self-excited one is held
+    let log = log_of(&|| state.tick(now + Duration::from_secs(601)));
+    assert!(state.gate_view("calm").is_none(), "the calm gate expired");
+    assert_eq!(
+        firing_alerts(&state, "excited"),
+        ["GateNegativeDamping", "GateDataStale"],
+        "held with its alerts"
+    );
+    assert_eq!(metric(&state, "gatewatch_gates_expired_total"), 1.0);
+    let m = state.render_metrics();
+    for series in [
+        "gatewatch_alert_firing{alertname=\"GateNegativeDamping\",gate=\"excited\"} 1",
+        "gatewatch_alert_firing{alertname=\"GateDataStale\",gate=\"excited\"} 1",
+        "gatewatch_alert_state{gate=\"excited\",state=\"unknown\"} 1",
+    ] {
+        assert!(m.lines().any(|l| l == series), "{series}: {m}");
+    }
+    let held: Vec<&str> = log.lines().filter(|l| l.contains("is held")).collect();
+    assert_eq!(held.len(), 1, "{log}");
+    assert!(
+        held[0].contains("gate=excited")
+            && held[0].contains("alert=\"GateNegativeDamping\"")
+            && held[0].contains("DELETE /api/v1/gates/{id}"),
+        "{log}"
+    );
+    assert!(
+        !log.contains("GateNegativeDamping status=\"resolved\""),
+        "{log}"
+    );
+    // later ticks: still held, and not logged again
+    let log = log_of(&|| state.tick(now + Duration::from_secs(3600)));
+    assert!(!log.contains("is held"), "{log}");
+    assert_eq!(
+        firing_alerts(&state, "excited"),
+        ["GateNegativeDamping", "GateDataStale"]
+    );
+    let (_, list, _) = send(&app, "GET", "/api/v1/gates", Body::empty(), None).await;
+    assert_eq!(list["gates"][0]["gate"], "excited", "{list}");
+    assert_eq!(list["gates"][0]["firing"], true, "{list}");
+}
+
+/// An auto-accepted gate whose damping falls by 0.1 points a window (twelve windows, the
+/// trend acting from the first: `trend_min_span_seconds = 0`), so that `GateDampingDeclining`
+/// fires and `GateNegativeDamping` does not. Silent past the expiry it is held too: the data
+/// stopping takes away the evidence, not the decline.
+#[tokio::test]
+async fn a_silent_unknown_gate_with_a_firing_declining_warning_is_held() {
+    let fake = Arc::new(Fake {
+        zeta: (0..12).map(|i| 0.02 - 0.001 * i as f64).collect(),
+        ..Fake::default()
+    });
+    let cfg =
+        config("unknown_gate_expiry_seconds = 600\n[defaults.alert]\ntrend_min_span_seconds = 0.0");
+    let (app, state) = app_with(cfg, fake.clone());
+    post_json(&app, uniform("g1", 0.0, 100)).await;
+    for i in 1..12 {
+        wait_until(|| fake.calls.lock().unwrap().len() >= i && state.pool().in_flight() == 0).await;
+        post_json(&app, uniform("g1", 0.5 + 0.5 * i as f64, 50)).await;
+    }
+    wait_until(|| fake.calls.lock().unwrap().len() >= 12 && state.pool().in_flight() == 0).await;
+    assert_eq!(firing_alerts(&state, "g1"), ["GateDampingDeclining"]);
+    let now = SystemTime::now();
+    state.tick(now + Duration::from_secs(601));
+    assert_eq!(
+        firing_alerts(&state, "g1"),
+        ["GateDataStale", "GateDampingDeclining"],
+        "held"
+    );
+    assert_eq!(metric(&state, "gatewatch_gates_expired_total"), 0.0);
+}
+
+/// A webhook payload's alerts as `(status, alertname, gate)`.
+fn hook_alerts(payload: &serde_json::Value) -> Vec<(String, String, String)> {
+    let field = |a: &serde_json::Value, f: &[&str]| {
+        f.iter()
+            .fold(a, |v, k| &v[*k])
+            .as_str()
+            .unwrap_or("")
+            .to_string()
+    };
+    payload["alerts"]
+        .as_array()
+        .map(|a| {
+            a.iter()
+                .map(|a| {
+                    (
+                        field(a, &["status"]),
+                        field(a, &["labels", "alertname"]),
+                        field(a, &["labels", "gate"]),
+                    )
+                })
+                .collect()
+        })
+        .unwrap_or_default()
+}
+
+/// Waits (at most 10 s) until the webhook receiver got `(status, alertname, gate)`; returns
+/// every alert it got meanwhile.
+async fn hook_waits_for(
+    hook: &mut tokio::sync::mpsc::Receiver<(std::time::Instant, serde_json::Value)>,
+    want: (&str, &str, &str),
+) -> Vec<(String, String, String)> {
+    let mut seen = Vec::new();
+    let found = tokio::time::timeout(Duration::from_secs(10), async {
+        while let Some((_, p)) = hook.recv().await {
+            for a in hook_alerts(&p) {
+                let hit = (a.0.as_str(), a.1.as_str(), a.2.as_str()) == want;
+                seen.push(a);
+                if hit {
+                    return;
+                }
+            }
+        }
+    })
+    .await;
+    assert!(found.is_ok(), "no {want:?} within 10 s; got {seen:?}");
+    seen
+}
+
+/// `DELETE /api/v1/gates/{id}` (authenticated) forgets a held auto-accepted gate as its expiry
+/// would: 200 naming the gate and the alerts resolved, "resolved" delivered to the webhook,
+/// no series left, counted apart from the expiry. 404 for a gate the daemon does not know, 409
+/// naming `[gates.ID]` for a configured one.
+#[tokio::test]
+async fn delete_forgets_an_auto_accepted_gate_and_resolves_its_alerts() {
+    use store_common::{free_port, receiver};
+    let port = free_port();
+    let mut hook = receiver(port).await;
+    let fake = Arc::new(Fake {
+        zeta: vec![0.05, -0.02, -0.03, -0.03],
+        ..Default::default()
+    });
+    let cfg = config(&format!(
+        "unknown_gate_expiry_seconds = 600
+auth_tokens = [\"{TOKEN}\"]
+\
+         [notify]\ninitial_backoff_ms = 50\nmax_backoff_ms = 500\n\
+         [[notify.webhooks]]\nurl = \"http://127.0.0.1:{port}/hook\"\n\
+         [gates.kept]\n"
+    ));
+    let (app, state) = app_with(cfg, fake.clone());
+    self_excite(&app, &state, &fake, "x1", Some(TOKEN)).await;
+    hook_waits_for(&mut hook, ("firing", "GateNegativeDamping", "x1")).await;
+    // its sensor fails: stale, then held past the expiry
+    let now = SystemTime::now();
+    state.tick(now + Duration::from_secs(120));
+    state.tick(now + Duration::from_secs(601));
+    assert_eq!(
+        firing_alerts(&state, "x1"),
+        ["GateNegativeDamping", "GateDataStale"]
+    );
+    // the route is behind the tokens
+    let (s, _, _) = send(&app, "DELETE", "/api/v1/gates/x1", Body::empty(), None).await;
+    assert_eq!(s, StatusCode::UNAUTHORIZED);
+    assert!(state.gate_view("x1").is_some());
+    // the operator retires the sensor
+    let (s, v, _) = send(
+        &app,
+        "DELETE",
+        "/api/v1/gates/x1",
+        Body::empty(),
+        Some(TOKEN),
+    )
+    .await;
+    assert_eq!(s, StatusCode::OK, "{v}");
+    assert_eq!(
+        v,
+        json!({"gate": "x1", "resolved": ["GateNegativeDamping", "GateDataStale"]})
+    );
+    assert!(state.gate_view("x1").is_none() && state.alert_state("x1").is_none());
+    // one batch, the damping alert first
+    let seen = hook_waits_for(&mut hook, ("resolved", "GateDataStale", "x1")).await;
+    let resolved = ("resolved", "GateNegativeDamping", "x1");
+    assert!(
+        seen.iter()
+            .any(|a| (a.0.as_str(), a.1.as_str(), a.2.as_str()) == resolved),
+        "{seen:?}"
+    );
+    assert_eq!(metric(&state, "gatewatch_gates_deleted_total"), 1.0);
+    assert_eq!(metric(&state, "gatewatch_gates_expired_total"), 0.0);
+    let m = state.render_metrics();
+    let left: Vec<&str> = m.lines().filter(|l| l.contains("gate=\"x1\"")).collect();
+    assert!(left.is_empty(), "{left:?}");
+    assert_eq!(state.pool().remembered_gates(), 0, "no worker memory left");
+    // gone: a second DELETE does not know it
+    let (s, v, _) = send(
+        &app,
+        "DELETE",
+        "/api/v1/gates/x1",
+        Body::empty(),
+        Some(TOKEN),
+    )
+    .await;
+    assert_eq!(s, StatusCode::NOT_FOUND, "{v}");
+    assert!(v["error"].as_str().unwrap().contains("`x1`"), "{v}");
+    // a configured gate: the configuration would make it again
+    let (s, v, _) = send(
+        &app,
+        "DELETE",
+        "/api/v1/gates/kept",
+        Body::empty(),
+        Some(TOKEN),
+    )
+    .await;
+    assert_eq!(s, StatusCode::CONFLICT, "{v}");
+    let e = v["error"].as_str().unwrap();
+    assert!(
+        e.contains("[gates.kept]") && e.contains("remove it from the configuration"),
+        "{v}"
+    );
+    assert!(state.gate_view("kept").is_some());
+    // it takes no parameter, as the gate view
+    let (s, v, _) = send(
+        &app,
+        "DELETE",
+        "/api/v1/gates/kept?force=1",
+        Body::empty(),
+        Some(TOKEN),
+    )
+    .await;
+    assert_eq!(s, StatusCode::BAD_REQUEST, "{v}");
+    assert_eq!(v["field"], "force", "{v}");
 }
 
 /// A `MakeWriter` target: the log lines into a shared buffer.
@@ -776,4 +1073,82 @@ async fn a_stored_gate_with_an_invalid_id_is_skipped_at_start() {
         assert!(line.contains("not a valid gate id"), "{line}");
         assert!(line.contains(&db.display().to_string()), "{line}");
     }
+}
+
+/// `AppState` on the SQLite store at `db` with the test configuration and `extra` in
+/// `[server]`.
+fn with_store_config(
+    db: &std::path::Path,
+    extra: &str,
+) -> (axum::Router, Arc<gatewatch::service::state::AppState>) {
+    let c = config(extra);
+    let p = gatewatch::service::storage::Persistence::open(db, &c.storage, c.sample_lead_bound())
+        .expect("store");
+    let state = gatewatch::service::state::AppState::with_persistence(
+        c,
+        Arc::new(Fake::default()),
+        Some(p),
+    )
+    .expect("state");
+    (gatewatch::service::api::router(state.clone()), state)
+}
+
+/// An alert state restored from the store with no gate behind it (here the configuration no
+/// longer accepts unknown gates) whose `GateNegativeDamping` fires is held by the sweep
+/// `unknown_gate_expiry_seconds` after the start, as a silent gate is; `DELETE` forgets it, and
+/// the store with it: the next start does not bring it back.
+#[tokio::test]
+async fn a_held_restored_alert_state_is_forgotten_by_delete_and_in_the_store() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let db = dir.path().join("gw.db");
+    g7_fires_then_stops(&db).await;
+    {
+        let (app, state) = with_store_config(
+            &db,
+            "unknown_gate_expiry_seconds = 600\naccept_unknown_gates = false",
+        );
+        assert!(state.gate_view("g7").is_none(), "no entry: not accepted");
+        let start = SystemTime::now();
+        state.tick(start + Duration::from_secs(601));
+        assert_eq!(state.alert_state("g7"), Some("unknown"), "held");
+        assert_eq!(metric(&state, G7_FIRING), 1.0);
+        let (s, v, _) = send(&app, "DELETE", "/api/v1/gates/g7", Body::empty(), None).await;
+        assert_eq!(s, StatusCode::OK, "{v}");
+        assert_eq!(v["gate"], "g7", "{v}");
+        assert_eq!(v["resolved"][0], "GateNegativeDamping", "{v}");
+        assert_eq!(state.alert_state("g7"), None);
+        let p = state.persistence.clone().unwrap();
+        assert!(p.writer.close(Duration::from_secs(10)), "flushed");
+    }
+    let (_, state) = with_store_config(&db, "unknown_gate_expiry_seconds = 600");
+    assert_eq!(state.alert_state("g7"), None, "not restored");
+    assert!(state.gate_ids().is_empty());
+    assert_eq!(metric(&state, G7_FIRING), 0.0);
+}
+
+/// An unknown gate that expired is not restored at the next start: the expiry deletes its
+/// stored alert state. Before, the store kept its last state, and the restart sent its
+/// `GateDataStale` to the receivers as firing again, for a gate forgotten before the restart,
+/// until it expired a second time.
+#[tokio::test]
+async fn an_expired_gate_is_not_restored_at_the_next_start() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let db = dir.path().join("gw.db");
+    let extra = "unknown_gate_expiry_seconds = 600";
+    {
+        let (app, state) = with_store_config(&db, extra);
+        let (s, _) = post_json(&app, uniform("junk", 1000.0, 100)).await;
+        assert_eq!(s, StatusCode::NO_CONTENT);
+        let now = SystemTime::now();
+        state.tick(now + Duration::from_secs(120));
+        assert_eq!(firing_alerts(&state, "junk"), ["GateDataStale"]);
+        state.tick(now + Duration::from_secs(601));
+        assert!(state.gate_view("junk").is_none(), "expired");
+        let p = state.persistence.clone().unwrap();
+        assert!(p.writer.close(Duration::from_secs(10)), "flushed");
+    }
+    let (_, state) = with_store_config(&db, extra);
+    assert_eq!(state.alert_state("junk"), None, "not restored");
+    let m = state.render_metrics();
+    assert!(!m.contains("gate=\"junk\""), "{m}");
 }

@@ -27,7 +27,7 @@ use super::ingest::{excerpt, json, line_protocol, BadRequest};
 use super::ingest_checks::single_param;
 use super::limits::{close_connection, for_log, BodyBudget};
 use super::metrics::RejectReason;
-use super::state::{AppState, IngestError, IngestSummary};
+use super::state::{AppState, ForgetError, IngestError, IngestSummary};
 
 /// The one error type of the HTTP API: 4xx precise, 5xx generic (detail logged).
 #[derive(Debug)]
@@ -38,6 +38,8 @@ pub enum HttpError {
     Unauthorized,
     /// 404 naming what is missing.
     NotFound(String),
+    /// 409 naming what the request conflicts with and what to do instead.
+    Conflict(String),
     /// 413.
     PayloadTooLarge(usize),
     /// 415: a request body in a `Content-Encoding` other than gzip or identity (named).
@@ -84,6 +86,7 @@ impl IntoResponse for HttpError {
                 return r;
             }
             HttpError::NotFound(m) => (StatusCode::NOT_FOUND, BadRequest::new(m).clipped()),
+            HttpError::Conflict(m) => (StatusCode::CONFLICT, BadRequest::new(m).clipped()),
             HttpError::PayloadTooLarge(limit) => {
                 // the body is left unread: the connection ends (`limits::close_connection`)
                 return close_connection(
@@ -430,6 +433,32 @@ async fn get_gate(
         .ok_or_else(|| HttpError::NotFound(format!("unknown gate `{}`", excerpt(&id))))
 }
 
+/// `DELETE /api/v1/gates/{id}`: forgets an auto-accepted gate now, as its expiry would
+/// ([`AppState::forget_gate`]), and answers 200 `{"gate": ID, "resolved": [ALERT...]}`. The
+/// operator's way to retire a gate whose sensor was taken out of service: a silent gate with a
+/// firing `GateNegativeDamping` is never expired. 404 for a gate the daemon does not know, 409
+/// for a configured one. Like the gate view it takes no query parameter.
+async fn delete_gate(
+    State(state): State<Arc<AppState>>,
+    id: Result<Path<String>, PathRejection>,
+    pairs: Result<Query<Vec<(String, String)>>, QueryRejection>,
+) -> Result<Response, HttpError> {
+    let id = path_param(id)?;
+    let [] = query_params(query_pairs(pairs)?, [], "deleting a gate takes none")?;
+    match state.forget_gate(&id) {
+        Ok(forgotten) => Ok(Json(forgotten).into_response()),
+        Err(ForgetError::Unknown) => Err(HttpError::NotFound(format!(
+            "unknown gate `{}`: no gate and no alert state of that name",
+            excerpt(&id)
+        ))),
+        Err(ForgetError::Configured) => Err(HttpError::Conflict(format!(
+            "gate `{0}` is configured ([gates.{0}]): remove it from the configuration and \
+             restart gatewatch to forget it",
+            excerpt(&id)
+        ))),
+    }
+}
+
 /// Liveness: 200 `ok` unless the daemon is in a state only a restart ends
 /// ([`AppState::unrecoverable`]), then 503 naming it.
 async fn healthz(State(state): State<Arc<AppState>>) -> Response {
@@ -548,7 +577,7 @@ pub fn router(state: Arc<AppState>) -> Router {
     };
     let protected = decoded(Router::new().route("/api/v1/samples", post(post_samples)))
         .route("/api/v1/gates", get(list_gates))
-        .route("/api/v1/gates/{id}", get(get_gate))
+        .route("/api/v1/gates/{id}", get(get_gate).delete(delete_gate))
         .route(
             "/api/v1/gates/{id}/history",
             get(super::history::get_history),

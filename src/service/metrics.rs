@@ -107,6 +107,11 @@ pub struct Metrics {
     /// `gatewatch_gates_expired_total`: gates created by `accept_unknown_gates` forgotten after
     /// `server.unknown_gate_expiry_seconds` of silence.
     pub gates_expired: IntCounter,
+    /// `gatewatch_gates_deleted_total`: gates an operator forgot through
+    /// `DELETE /api/v1/gates/{id}`. Apart from the expiry's count, which says that senders
+    /// went away by themselves: a rule or a dashboard watching that should not see an
+    /// operator's clean-up as senders vanishing.
+    pub gates_deleted: IntCounter,
     /// `gatewatch_store_write_errors_total{reason}`: store writes lost ([`STORE_WRITE_ERRORS`]).
     pub store_write_errors: IntCounterVec,
     /// `gatewatch_store_pruned_rows_total{reason}`: history rows deleted ([`STORE_PRUNE_REASONS`]).
@@ -309,6 +314,14 @@ impl Metrics {
         registry
             .register(Box::new(gates_expired.clone()))
             .expect("unique metric");
+        let gates_deleted = IntCounter::new(
+            "gatewatch_gates_deleted_total",
+            "Gates forgotten by DELETE /api/v1/gates/{id} (an operator's clean-up, not an expiry).",
+        )
+        .expect("valid metric");
+        registry
+            .register(Box::new(gates_deleted.clone()))
+            .expect("unique metric");
         let longest_running = Gauge::new(
             "gatewatch_identification_longest_running_seconds",
             "How long the identification running the longest has run, seconds (0: none runs); past server.identification_timeout_seconds its worker is stuck and /healthz fails.",
@@ -475,6 +488,7 @@ impl Metrics {
             ),
             http_connections_rejected,
             gates_expired,
+            gates_deleted,
             store_write_errors: counter(
                 "gatewatch_store_write_errors_total",
                 "Store write requests lost (history, alert state, outbox), by reason; the daemon goes on from memory.",

@@ -100,6 +100,10 @@ struct GateEntry {
     /// Created by `accept_unknown_gates` (not a `[gates.*]` table): such a gate expires after
     /// `server.unknown_gate_expiry_seconds` of silence, configured gates never do.
     unknown: bool,
+    /// Whether the expiry holds this silent unknown gate because one of its alerts that silence
+    /// does not resolve fires (`expiry::holding_alert`): the hold is logged once, when it
+    /// begins, not once a second; the gate's next samples end it.
+    held: bool,
     /// Whether its silence pages (`GateDataStale`): always for a configured gate, and for a
     /// restored one (it was streaming before the restart); for a gate created by
     /// `accept_unknown_gates` once its window has filled. A stray sender's few samples (a typo
@@ -162,6 +166,7 @@ pub fn state_name(s: GateState) -> &'static str {
 mod expiry;
 mod view;
 
+pub use expiry::{ForgetError, Forgotten};
 pub use view::{GateSummary, GateView, IdentificationView, WindowView};
 
 impl AppState {
@@ -432,6 +437,7 @@ impl AppState {
                     trend_estimate,
                     last_data: now,
                     unknown,
+                    held: false,
                     stale_armed,
                 },
             );
@@ -585,6 +591,7 @@ impl AppState {
                     continue; // validated above
                 };
                 entry.last_data = now;
+                entry.held = false;
                 let (stats, due, n_due) = entry.window.push_latest(batch.samples.iter().copied());
                 let fill = entry.window.fill_ratio();
                 let rate = entry.config.rate_hz;

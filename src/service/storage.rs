@@ -433,6 +433,23 @@ pub fn window_write(
     }
 }
 
+/// What forgetting `gate` writes (its expiry, `DELETE /api/v1/gates/{id}`): the deletion of its
+/// stored alert state. Without it the store kept the gate's last state, firing alerts and all,
+/// and the next start restored them and sent them to Alertmanager again as firing, for a gate
+/// the daemon had forgotten (and with a firing `GateNegativeDamping`, which holds a silent gate,
+/// held it for ever). Its last written state is forgotten too, so a gate of the same name that
+/// comes back has its first state written whatever it is.
+pub fn forget_write(p: Option<&Persistence>, gate: &str) -> WriteBatch {
+    let Some(p) = p else {
+        return WriteBatch::default();
+    };
+    lock(&p.written).remove(gate);
+    WriteBatch {
+        forget_gates: vec![gate.to_string()],
+        ..Default::default()
+    }
+}
+
 /// The alert states that changed since they were last written (each tick).
 pub fn states_write(p: Option<&Persistence>, engine: &AlertEngine) -> WriteBatch {
     let Some(p) = p else {

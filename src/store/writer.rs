@@ -9,7 +9,8 @@
 //! retried once.
 //!
 //! Up to [`MAX_MERGED`] queued requests are merged into one transaction (one fsync for a
-//! burst). When it fails for another reason than a full store or a lock held by another
+//! burst), except that a request writing the state of a gate an earlier one forgot starts the
+//! next (`StoreWriter::commit`). When it fails for another reason than a full store or a lock held by another
 //! connection (one request's value refused by SQLite, say), the requests are written again one
 //! by one, so only the bad one is lost. Not for a lock (`SQLITE_BUSY`): every request would
 //! fail alike, each after waiting out the busy timeout (5 s), and a shutdown behind them
@@ -475,7 +476,32 @@ impl StoreWriter {
         flushed
     }
 
+    /// Commits the requests taken from the queue, merged into as few transactions as their
+    /// order allows: a transaction writes every alert state before it deletes the forgotten
+    /// gates' (`WriteBatch::forget_gates`), so a request that writes the state of a gate an
+    /// earlier request of the same transaction forgot (an expired gate that sends again, a
+    /// gate deleted through the API while its sender goes on) starts the next transaction.
+    /// Merged with it, the new gate's state was written and then deleted in the same commit,
+    /// and a restart lost it.
     fn commit(&self, store: &dyn Store, writes: Vec<(WriteBatch, Option<Then>)>) {
+        let mut group = Vec::with_capacity(writes.len());
+        let mut forgotten = std::collections::HashSet::new();
+        for (b, then) in writes {
+            if b.alert_states
+                .iter()
+                .any(|(g, _)| forgotten.contains(g.as_str()))
+            {
+                self.commit_merged(store, std::mem::take(&mut group));
+                forgotten.clear();
+            }
+            forgotten.extend(b.forget_gates.iter().cloned());
+            group.push((b, then));
+        }
+        self.commit_merged(store, group);
+    }
+
+    /// Commits `writes` in one transaction (retried one by one as the module says).
+    fn commit_merged(&self, store: &dyn Store, writes: Vec<(WriteBatch, Option<Then>)>) {
         if writes.is_empty() {
             return;
         }
@@ -703,6 +729,39 @@ mod tests {
         let ends: Vec<f64> = rows.iter().map(|r| r.window_end).collect();
         assert_eq!(ends.len(), 2);
         assert!((ends[0] - 1.0).abs() < 1e-9 && (ends[1] - 3.0).abs() < 1e-9);
+        assert!(writer.close(Duration::from_secs(30)));
+    }
+
+    /// A gate forgotten (its expiry, `DELETE /api/v1/gates/{id}`) and written again by a later
+    /// request taken in the same burst (it sent again): its new state is kept. Merged into one
+    /// transaction, which writes the states before it deletes, the new state was deleted with
+    /// the old; a state written before the forgetting is still deleted.
+    #[test]
+    fn a_gate_written_again_after_it_was_forgotten_keeps_its_new_state() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let store = Arc::new(SqliteStore::open(&dir.path().join("gw.db"), 64).expect("open"));
+        let writer = StoreWriter::start(store.clone(), Duration::from_secs(u64::MAX / 4), 1 << 20)
+            .expect("writer");
+        let state = |g: &str, v: &str| WriteBatch {
+            alert_states: vec![(g.into(), v.into())],
+            ..Default::default()
+        };
+        let forget = |g: &str| WriteBatch {
+            forget_gates: vec![g.into()],
+            ..Default::default()
+        };
+        writer.commit(
+            store.as_ref(),
+            vec![
+                (state("back", "old"), None),
+                (state("gone", "old"), None),
+                (forget("back"), None),
+                (forget("gone"), None),
+                (state("back", "new"), None),
+            ],
+        );
+        let states = store.alert_states().expect("states");
+        assert_eq!(states, [("back".to_string(), "new".to_string())]);
         assert!(writer.close(Duration::from_secs(30)));
     }
 
