@@ -315,7 +315,7 @@ impl AppState {
     }
 
     /// `DELETE /api/v1/gates/{id}`: forgets the auto-accepted gate `id` now, exactly as its
-    /// expiry would ([`Self::forget`]): its alerts resolved (written to the store and notified:
+    /// expiry would (`AppState::forget`): its alerts resolved (written to the store and notified:
     /// Alertmanager and the webhooks get "resolved"), its stored alert state, series and worker
     /// memory gone; counted in `gatewatch_gates_deleted_total`. Also an alert state restored
     /// from the store with no gate entry. The operator's way out of a hold: a gate whose
