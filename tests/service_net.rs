@@ -586,15 +586,9 @@ auth_tokens = [\"{TOKEN}\"]
     let (s, _, _) = send(&app, "DELETE", "/api/v1/gates/x1", Body::empty(), None).await;
     assert_eq!(s, StatusCode::UNAUTHORIZED);
     assert!(state.gate_view("x1").is_some());
+    let delete = |path: &'static str| send(&app, "DELETE", path, Body::empty(), Some(TOKEN));
     // the operator retires the sensor
-    let (s, v, _) = send(
-        &app,
-        "DELETE",
-        "/api/v1/gates/x1",
-        Body::empty(),
-        Some(TOKEN),
-    )
-    .await;
+    let (s, v, _) = delete("/api/v1/gates/x1").await;
     assert_eq!(s, StatusCode::OK, "{v}");
     assert_eq!(
         v,
@@ -616,25 +610,11 @@ auth_tokens = [\"{TOKEN}\"]
     assert!(left.is_empty(), "{left:?}");
     assert_eq!(state.pool().remembered_gates(), 0, "no worker memory left");
     // gone: a second DELETE does not know it
-    let (s, v, _) = send(
-        &app,
-        "DELETE",
-        "/api/v1/gates/x1",
-        Body::empty(),
-        Some(TOKEN),
-    )
-    .await;
+    let (s, v, _) = delete("/api/v1/gates/x1").await;
     assert_eq!(s, StatusCode::NOT_FOUND, "{v}");
     assert!(v["error"].as_str().unwrap().contains("`x1`"), "{v}");
     // a configured gate: the configuration would make it again
-    let (s, v, _) = send(
-        &app,
-        "DELETE",
-        "/api/v1/gates/kept",
-        Body::empty(),
-        Some(TOKEN),
-    )
-    .await;
+    let (s, v, _) = delete("/api/v1/gates/kept").await;
     assert_eq!(s, StatusCode::CONFLICT, "{v}");
     let e = v["error"].as_str().unwrap();
     assert!(
@@ -643,14 +623,7 @@ auth_tokens = [\"{TOKEN}\"]
     );
     assert!(state.gate_view("kept").is_some());
     // it takes no parameter, as the gate view
-    let (s, v, _) = send(
-        &app,
-        "DELETE",
-        "/api/v1/gates/kept?force=1",
-        Body::empty(),
-        Some(TOKEN),
-    )
-    .await;
+    let (s, v, _) = delete("/api/v1/gates/kept?force=1").await;
     assert_eq!(s, StatusCode::BAD_REQUEST, "{v}");
     assert_eq!(v["field"], "force", "{v}");
 }
