@@ -878,19 +878,23 @@ mod tests {
         // one sample 5 % of a step late: off the grid, not a gap
         let mut late = rounded(3000.0, 3000);
         late[2000] += 0.05 * h;
-        let s = TimeSeries::new(late, vec![0.0; 3000]).unwrap();
+        let (index, deviation, step) = off_grid(&TimeSeries::new(late, vec![0.0; 3000]).unwrap());
+        assert_eq!(index, 2000);
+        assert!(
+            (deviation / step - 0.05).abs() < 0.001,
+            "{deviation} {step}"
+        );
+    }
+
+    /// The sample a series' [`GridDeparture::OffGrid`] names, with its deviation and step
+    /// (panics on any other explanation).
+    fn off_grid(s: &TimeSeries) -> (usize, f64, f64) {
         match s.grid_departure() {
             Some(GridDeparture::OffGrid {
                 index,
                 deviation,
                 step,
-            }) => {
-                assert_eq!(index, 2000);
-                assert!(
-                    (deviation / step - 0.05).abs() < 0.001,
-                    "{deviation} {step}"
-                );
-            }
+            }) => (index, deviation, step),
             other => panic!("{other:?}"),
         }
     }
@@ -923,22 +927,14 @@ mod tests {
             .collect();
         let s = TimeSeries::new(jittered, vec![0.0; 5000]).unwrap();
         assert_eq!(s.nonuniform_at(), None);
-        let s = TimeSeries::new(alternating(0.015), vec![0.0; 2000]).unwrap();
-        match s.grid_departure() {
-            Some(GridDeparture::OffGrid {
-                index,
-                deviation,
-                step,
-            }) => {
-                assert_eq!(index, 0);
-                assert!((step - h).abs() < 1e-4 * h, "{step}");
-                assert!(
-                    (deviation.abs() / step - 0.015).abs() < 0.001,
-                    "{deviation}"
-                );
-            }
-            other => panic!("{other:?}"),
-        }
+        let (index, deviation, step) =
+            off_grid(&TimeSeries::new(alternating(0.015), vec![0.0; 2000]).unwrap());
+        assert_eq!(index, 0);
+        assert!((step - h).abs() < 1e-4 * h, "{step}");
+        assert!(
+            (deviation.abs() / step - 0.015).abs() < 0.001,
+            "{deviation}"
+        );
     }
 
     /// The line of each sample, and of each error, is the file's, past comment and blank
