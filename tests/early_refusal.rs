@@ -6,9 +6,14 @@
 //! not read yet. Real server on port 0, real clients (a raw socket writing its body in slow
 //! chunks and reading only at the end, as simple clients do; reqwest with a 4 MB body). The
 //! waits are guards against hanging, not timing assertions.
+//!
+//! A gzip or chunked body is metered as it is decompressed (`limits::BodyMeter`): small gzip
+//! bodies in flight together cost their size, not the body limit each, and one that outgrows
+//! the budget part-way is answered 503 + Retry-After like a refusal before the body.
 
 mod service_common;
 
+use std::io::Write;
 use std::net::SocketAddr;
 use std::sync::Arc;
 use std::time::Duration;
@@ -168,5 +173,136 @@ async fn reqwest_sending_4_mb_reads_the_503_and_its_retry_after() {
         assert_eq!(resp.headers()["retry-after"], "1");
     }
     drop(holder);
+    stop(r).await;
+}
+
+fn gzip(data: &[u8]) -> Vec<u8> {
+    let mut e = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::best());
+    e.write_all(data).unwrap();
+    e.finish().unwrap()
+}
+
+/// Reads `s` until the server closes it or 10 s pass (lower case).
+async fn read_answer(s: &mut TcpStream) -> String {
+    let mut out = Vec::new();
+    let _ = tokio::time::timeout(Duration::from_secs(10), s.read_to_end(&mut out)).await;
+    String::from_utf8_lossy(&out).to_ascii_lowercase()
+}
+
+/// `gatewatch_ingest_requests_rejected_total{reason="overloaded"}` now.
+async fn overloaded(addr: SocketAddr) -> f64 {
+    let (_, text) = get(addr, "/metrics").await;
+    text.lines()
+        .filter(|l| {
+            l.starts_with("gatewatch_ingest_requests_rejected_total{reason=\"overloaded\"}")
+        })
+        .map(|l| l.rsplit(' ').next().unwrap().parse::<f64>().unwrap())
+        .sum()
+}
+
+#[tokio::test]
+async fn small_gzip_bodies_in_flight_together_cost_their_size_not_the_body_limit() {
+    // an 8 MiB budget and a 4 MiB body limit: before the meter, each gzip body reserved 4 MiB
+    // when admitted, so the third of these six (each about 60 bytes compressed) got a 503
+    let r = start(
+        "body_limit_bytes = 4194304\nmax_body_bytes_in_flight = 8388608",
+        Arc::new(Fake::default()),
+    )
+    .await;
+    let mut open = Vec::new();
+    for i in 0..6 {
+        let body = gzip(uniform(&format!("z{i}"), 1.0e9, 10).to_string().as_bytes());
+        let mut c = TcpStream::connect(r.http).await.unwrap();
+        let head = format!(
+            "POST /api/v1/samples HTTP/1.1\r\nhost: x\r\ncontent-type: application/json\r\n\
+             content-encoding: gzip\r\ncontent-length: {}\r\nconnection: close\r\n\r\n",
+            body.len()
+        );
+        // the head and the first half of the body: admitted, in flight, not complete
+        c.write_all(head.as_bytes()).await.unwrap();
+        c.write_all(&body[..body.len() / 2]).await.unwrap();
+        open.push((c, body));
+    }
+    // every request is admitted (or refused) while all six are in flight
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    for (i, (mut c, body)) in open.into_iter().enumerate() {
+        c.write_all(&body[body.len() / 2..]).await.unwrap();
+        let a = read_answer(&mut c).await;
+        assert!(a.starts_with("http/1.1 204"), "request {i}: {a}");
+    }
+    assert_eq!(overloaded(r.http).await, 0.0);
+    stop(r).await;
+}
+
+#[tokio::test]
+async fn a_gzip_body_that_outgrows_the_budget_part_way_is_answered_503_then_accepted() {
+    // a 1 MiB budget, 600 KiB of it held by a request that declares its size and sends little
+    let r = start(
+        "body_limit_bytes = 1048576\nmax_body_bytes_in_flight = 1048576",
+        Arc::new(Fake::default()),
+    )
+    .await;
+    let mut holder = TcpStream::connect(r.http).await.unwrap();
+    holder
+        .write_all(
+            b"POST /api/v1/samples HTTP/1.1\r\nhost: x\r\ncontent-type: application/json\r\n\
+              content-length: 614400\r\n\r\n{\"gate\"",
+        )
+        .await
+        .unwrap();
+    // 700 KiB of JSON once decompressed (a few KiB on the wire): under the body limit, over
+    // what the budget has left
+    let mut json = String::from(r#"{"gate":"big","start":1000000000,"rate_hz":100,"values":[0"#);
+    while json.len() < 700 * 1024 {
+        json.push_str(",0");
+    }
+    json.push_str("]}");
+    let body = gzip(json.as_bytes());
+    let post = |addr: SocketAddr, body: Vec<u8>| async move {
+        reqwest::Client::new()
+            .post(format!("http://{addr}/api/v1/samples"))
+            .header("content-type", "application/json")
+            .header("content-encoding", "gzip")
+            .body(body)
+            .send()
+            .await
+            .unwrap()
+    };
+    // the holder is admitted before its body is read; poll until its 600 KiB are held
+    let addr = r.http;
+    let resp = tokio::time::timeout(Duration::from_secs(10), async {
+        loop {
+            let resp = post(addr, body.clone()).await;
+            if resp.status() == 503 {
+                break resp;
+            }
+            eprintln!("not yet held: {}", resp.status());
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    })
+    .await
+    .expect("the gzip body is refused while the holder holds the budget");
+    assert_eq!(resp.headers()["retry-after"], "1");
+    assert_eq!(resp.headers()["connection"], "close");
+    assert!(overloaded(r.http).await >= 1.0);
+    // while the holder holds, a small gzip body fits what is left: it was refused part-way,
+    // not at the door (before the meter, every gzip body reserved the whole 1 MiB limit)
+    let small = gzip(uniform("small", 1.0e9, 10).to_string().as_bytes());
+    assert_eq!(post(addr, small).await.status(), 204);
+    // the holder gone, the same body fits
+    drop(holder);
+    tokio::time::timeout(Duration::from_secs(10), async {
+        loop {
+            let resp = post(addr, body.clone()).await;
+            if resp.status() != 503 {
+                // 200 when an earlier attempt, before the holder was in, sent the same samples
+                assert!([200, 204].contains(&resp.status().as_u16()), "{resp:?}");
+                break;
+            }
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    })
+    .await
+    .expect("accepted once the budget is free");
     stop(r).await;
 }

@@ -17,7 +17,9 @@ use axum::middleware::{self, Next};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use axum::{Json, Router};
+use futures_util::StreamExt;
 use subtle::{Choice, ConstantTimeEq};
+use tokio::sync::OwnedSemaphorePermit;
 use tower::ServiceBuilder;
 
 use super::clock::now_unix;
@@ -25,7 +27,7 @@ use super::config::{Precision, DEFAULT_RETRY_AFTER_SECONDS};
 use super::history::{query_pairs, query_params};
 use super::ingest::{excerpt, json, line_protocol, BadRequest};
 use super::ingest_checks::single_param;
-use super::limits::{close_connection, for_log, BodyBudget};
+use super::limits::{close_connection, for_log, BodyBudget, BodyMeter, BudgetExceeded};
 use super::metrics::RejectReason;
 use super::state::{AppState, ForgetError, IngestError, IngestSummary};
 
@@ -139,7 +141,10 @@ impl IntoResponse for HttpError {
 
 fn body(state: &AppState, b: Result<Bytes, BytesRejection>) -> Result<Bytes, HttpError> {
     b.map_err(|r| {
-        if r.status() == StatusCode::PAYLOAD_TOO_LARGE {
+        if budget_exceeded(&r) {
+            state.metrics.reject(RejectReason::Overloaded, 1);
+            HttpError::Overloaded
+        } else if r.status() == StatusCode::PAYLOAD_TOO_LARGE {
             state.metrics.reject(RejectReason::BodyTooLarge, 1);
             HttpError::PayloadTooLarge(state.config.server.body_limit_bytes)
         } else {
@@ -189,9 +194,11 @@ fn content_length(req: &Request) -> Option<usize> {
 
 /// Admits an ingestion request or refuses it before its body is read: 413 when its
 /// `Content-Length` is over `body_limit_bytes`; 503 + Retry-After when its body does not fit
-/// the budget or `max_concurrent_ingest` requests are in progress. A gzip or chunked body
-/// reserves the whole body limit: its decompressed size is known only once read.
-async fn admit_ingest(State(adm): State<Admission>, req: Request, next: Next) -> Response {
+/// the budget or `max_concurrent_ingest` requests are in progress. A body of known size
+/// reserves it here; a gzip or chunked body, whose decompressed size is known only once read,
+/// is metered as it arrives ([`BodyMeter`], through [`meter_body`]) and answered 503 when the
+/// budget runs out part-way.
+async fn admit_ingest(State(adm): State<Admission>, mut req: Request, next: Next) -> Response {
     let state = &adm.state;
     let limit = state.config.server.body_limit_bytes;
     let declared = content_length(&req);
@@ -203,20 +210,64 @@ async fn admit_ingest(State(adm): State<Admission>, req: Request, next: Next) ->
         .headers()
         .get(header::CONTENT_ENCODING)
         .is_some_and(|v| !v.as_bytes().eq_ignore_ascii_case(b"identity"));
-    let cost = match declared {
-        Some(n) if !encoded => n,
-        _ => limit,
+    let reservation = match declared {
+        Some(n) if !encoded => adm
+            .budget
+            .try_reserve(n)
+            .map(|p| Reservation::Fixed { _permit: p }),
+        _ => BodyMeter::start(&adm.budget).map(Reservation::Metered),
     };
     let (Some(bytes), Ok(slot)) = (
-        adm.budget.try_reserve(cost),
+        reservation,
         state.ingest_permits.clone().try_acquire_owned(),
     ) else {
         state.metrics.reject(RejectReason::Overloaded, 1);
         return close_connection(HttpError::Overloaded.into_response());
     };
+    if let Reservation::Metered(m) = &bytes {
+        req.extensions_mut().insert(m.clone());
+    }
     let resp = next.run(req).await;
     drop((bytes, slot));
     resp
+}
+
+/// What an admitted request holds of the body budget until it is answered.
+enum Reservation {
+    /// Its `Content-Length`, reserved before the body is read (held, never read).
+    Fixed { _permit: OwnedSemaphorePermit },
+    /// Its decompressed bytes, reserved as they arrive.
+    Metered(BodyMeter),
+}
+
+/// Innermost on the ingestion routes (after decompression): a body that [`admit_ingest`]
+/// meters is charged chunk by chunk as the handler reads it; the chunk that does not fit
+/// ends the body with [`BudgetExceeded`], which [`body`] answers 503.
+async fn meter_body(req: Request, next: Next) -> Response {
+    let Some(meter) = req.extensions().get::<BodyMeter>().cloned() else {
+        return next.run(req).await;
+    };
+    let req = req.map(|b| {
+        let chunks = b.into_data_stream().map(move |chunk| {
+            let chunk = chunk.map_err(tower::BoxError::from)?;
+            meter.charge(chunk.len())?;
+            Ok::<_, tower::BoxError>(chunk)
+        });
+        axum::body::Body::from_stream(chunks)
+    });
+    next.run(req).await
+}
+
+/// Whether `e` or an error it wraps is the body budget running out part-way.
+fn budget_exceeded(e: &(dyn std::error::Error + 'static)) -> bool {
+    let mut cur = Some(e);
+    while let Some(c) = cur {
+        if c.is::<BudgetExceeded>() {
+            return true;
+        }
+        cur = c.source();
+    }
+    false
 }
 
 async fn post_samples(
@@ -552,10 +603,11 @@ async fn fallback() -> HttpError {
 
 /// The router with every layer.
 ///
-/// Ingestion routes, innermost first: gzip decompression (the body limit then counts
-/// decompressed bytes), `Content-Encoding` check (415), admission before the body is read
-/// (413 on `Content-Length`, 503 on the body budget or the ingestion bound:
-/// `admit_ingest`), bearer auth.
+/// Ingestion routes, innermost first: the body meter of gzip and chunked bodies
+/// (`meter_body`), gzip decompression (the body limit then counts decompressed bytes),
+/// `Content-Encoding` check (415), admission before the body is read (413 on
+/// `Content-Length`, 503 on the body budget or the ingestion bound: `admit_ingest`), bearer
+/// auth.
 /// The Influx routes (`/api/v2/write`, `/write`, `/query`, `/ping`, `/health`) answer errors in
 /// InfluxDB 2.x's shape (`influx::v2_errors`); `/ping` and `/health` are open, as in InfluxDB.
 pub fn router(state: Arc<AppState>) -> Router {
@@ -565,7 +617,8 @@ pub fn router(state: Arc<AppState>) -> Router {
         budget: BodyBudget::new(s.max_body_bytes_in_flight),
     };
     let decoded = |r: Router<Arc<AppState>>| {
-        r.route_layer(influx::decompression())
+        r.route_layer(middleware::from_fn(meter_body))
+            .route_layer(influx::decompression())
             .route_layer(middleware::from_fn_with_state(
                 state.clone(),
                 influx::content_encoding,

@@ -5,8 +5,9 @@
 use super::{ConfigError, ServerConfig};
 
 /// Default bound on the request-body bytes held by ingestion requests at once (16 MiB): each
-/// request reserves its `Content-Length` (its body limit when gzip or chunked) before its body
-/// is read, and gets 503 + Retry-After when the reservation does not fit. With the measured
+/// request reserves its `Content-Length` before its body is read (a gzip or chunked body its
+/// decompressed bytes as they arrive), and gets 503 + Retry-After when the reservation does not
+/// fit. With the measured
 /// per-request peak (docs/design.md, bounds) this is what keeps the daemon inside 512 MiB.
 pub const DEFAULT_MAX_BODY_BYTES_IN_FLIGHT: usize = 16 * 1024 * 1024;
 /// Default bound on simultaneous HTTP connections; further ones are closed at once.
