@@ -201,9 +201,9 @@ async fn overloaded(addr: SocketAddr) -> f64 {
 }
 
 #[tokio::test]
-async fn small_gzip_bodies_in_flight_together_cost_their_size_not_the_body_limit() {
-    // an 8 MiB budget and a 4 MiB body limit: before the meter, each gzip body reserved 4 MiB
-    // when admitted, so the third of these six (each about 60 bytes compressed) got a 503
+async fn small_gzip_and_chunked_bodies_in_flight_together_cost_their_size_not_the_body_limit() {
+    // an 8 MiB budget and a 4 MiB body limit: before the meter, each gzip or chunked body
+    // reserved 4 MiB when admitted, so the third of these six (each under 1 KiB) got a 503
     let r = start(
         "body_limit_bytes = 4194304\nmax_body_bytes_in_flight = 8388608",
         Arc::new(Fake::default()),
@@ -211,22 +211,32 @@ async fn small_gzip_bodies_in_flight_together_cost_their_size_not_the_body_limit
     .await;
     let mut open = Vec::new();
     for i in 0..6 {
-        let body = gzip(uniform(&format!("z{i}"), 1.0e9, 10).to_string().as_bytes());
+        let json = uniform(&format!("z{i}"), 1.0e9, 10).to_string();
+        // even: gzip with its compressed length; odd: plain, chunked (no length at all)
+        let (framing, first, rest) = if i % 2 == 0 {
+            let body = gzip(json.as_bytes());
+            let half = body.len() / 2;
+            let framing = format!("content-encoding: gzip\r\ncontent-length: {}", body.len());
+            (framing, body[..half].to_vec(), body[half..].to_vec())
+        } else {
+            let chunk = format!("{:x}\r\n{json}\r\n", json.len()).into_bytes();
+            let framing = "transfer-encoding: chunked".to_string();
+            (framing, chunk, b"0\r\n\r\n".to_vec())
+        };
         let mut c = TcpStream::connect(r.http).await.unwrap();
         let head = format!(
             "POST /api/v1/samples HTTP/1.1\r\nhost: x\r\ncontent-type: application/json\r\n\
-             content-encoding: gzip\r\ncontent-length: {}\r\nconnection: close\r\n\r\n",
-            body.len()
+             {framing}\r\nconnection: close\r\n\r\n"
         );
-        // the head and the first half of the body: admitted, in flight, not complete
+        // the head and the first part of the body: admitted, in flight, not complete
         c.write_all(head.as_bytes()).await.unwrap();
-        c.write_all(&body[..body.len() / 2]).await.unwrap();
-        open.push((c, body));
+        c.write_all(&first).await.unwrap();
+        open.push((c, rest));
     }
     // every request is admitted (or refused) while all six are in flight
     tokio::time::sleep(Duration::from_millis(300)).await;
-    for (i, (mut c, body)) in open.into_iter().enumerate() {
-        c.write_all(&body[body.len() / 2..]).await.unwrap();
+    for (i, (mut c, rest)) in open.into_iter().enumerate() {
+        c.write_all(&rest).await.unwrap();
         let a = read_answer(&mut c).await;
         assert!(a.starts_with("http/1.1 204"), "request {i}: {a}");
     }
