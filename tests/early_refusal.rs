@@ -97,17 +97,22 @@ async fn a_401_reaches_a_client_still_writing_its_body() {
     stop(r).await;
 }
 
+/// A request that declares `declared` bytes of body and sends a few: once admitted, it holds
+/// that much of the body budget until dropped.
+async fn holder(addr: SocketAddr, declared: usize) -> TcpStream {
+    let mut c = TcpStream::connect(addr).await.unwrap();
+    let head = format!(
+        "POST /api/v1/samples HTTP/1.1\r\nhost: x\r\ncontent-type: application/json\r\n\
+         content-length: {declared}\r\n\r\n{{\"gate\""
+    );
+    c.write_all(head.as_bytes()).await.unwrap();
+    c
+}
+
 /// Holds the whole body budget (8 MiB) with a request that declares 8 MiB and sends a few
 /// bytes, and returns once a small POST is refused with 503.
 async fn hold_the_budget(addr: SocketAddr) -> TcpStream {
-    let mut holder = TcpStream::connect(addr).await.unwrap();
-    holder
-        .write_all(
-            b"POST /api/v1/samples HTTP/1.1\r\nhost: x\r\ncontent-type: application/json\r\n\
-              content-length: 8388608\r\n\r\n{\"gate\"",
-        )
-        .await
-        .unwrap();
+    let holder = holder(addr, 8 * 1024 * 1024).await;
     tokio::time::timeout(Duration::from_secs(10), async {
         loop {
             let resp = reqwest::Client::new()
@@ -252,14 +257,7 @@ async fn a_gzip_body_that_outgrows_the_budget_part_way_is_answered_503_then_acce
         Arc::new(Fake::default()),
     )
     .await;
-    let mut holder = TcpStream::connect(r.http).await.unwrap();
-    holder
-        .write_all(
-            b"POST /api/v1/samples HTTP/1.1\r\nhost: x\r\ncontent-type: application/json\r\n\
-              content-length: 614400\r\n\r\n{\"gate\"",
-        )
-        .await
-        .unwrap();
+    let holder = holder(r.http, 600 * 1024).await;
     // 700 KiB of JSON once decompressed (a few KiB on the wire): under the body limit, over
     // what the budget has left
     let mut json = String::from(r#"{"gate":"big","start":1000000000,"rate_hz":100,"values":[0"#);
