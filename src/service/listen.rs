@@ -25,8 +25,16 @@
 //!   client had not read yet: a client still writing a 4 MB body saw "broken pipe" or
 //!   "connection reset" instead of its 503 and `Retry-After` (issue 12, point 7).
 //!
+//! - `server.request_timeout_seconds` is also the send timeout (`SendTimeout`): a connection
+//!   whose client takes none of its answer for that long is closed. hyper has no write timeout,
+//!   and the request timeout (tower's `TimeoutLayer`) ends when the answer's head is ready, not
+//!   its body: a client that asked for a day of history and read nothing kept the answer (tens
+//!   of megabytes) and its connection for as long as it kept the socket open.
+//!
 //! HTTP/1 only, as before (axum was built without HTTP/2).
 
+use std::future::Future;
+use std::io;
 use std::pin::Pin;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -37,7 +45,7 @@ use axum::http::{header, HeaderValue};
 use axum::Router;
 use hyper::body::{Body, Bytes, Frame, Incoming, SizeHint};
 use hyper_util::rt::{TokioIo, TokioTimer};
-use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt, ReadBuf};
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::{watch, Semaphore};
 use tower::ServiceExt;
@@ -52,6 +60,9 @@ pub struct HttpLimits {
     /// Time to send a request's headers; also the keep-alive idle timeout
     /// (`server.http_header_read_timeout_seconds`).
     pub header_read_timeout: Duration,
+    /// Longest time a write of an answer may wait for the client to take bytes before the
+    /// connection is closed (`server.request_timeout_seconds`, [`SendTimeout`]).
+    pub send_timeout: Duration,
 }
 
 /// Longest time a closing connection keeps reading (and discarding) what its client still
@@ -126,7 +137,8 @@ pub async fn serve(
                 Ok::<_, std::convert::Infallible>(resp)
             })
         });
-        let mut conn = builder.serve_connection(TokioIo::new(stream), service);
+        let io = SendTimeout::new(stream, limits.send_timeout);
+        let mut conn = builder.serve_connection(TokioIo::new(io), service);
         let mut stop = stop.clone();
         let open = open_rx.clone();
         tokio::spawn(async move {
@@ -139,7 +151,7 @@ pub async fn serve(
                 }
             };
             match ended {
-                Ok(()) => linger(conn.into_parts().io.into_inner(), stop).await,
+                Ok(()) => linger(conn.into_parts().io.into_inner().stream, stop).await,
                 // a malformed request, a header timeout, a reset: nothing worth lingering for
                 Err(e) => tracing::debug!(%peer, error = %e, "http connection ended with an error"),
             }
@@ -169,6 +181,100 @@ async fn linger(mut stream: TcpStream, mut stop: watch::Receiver<bool>) {
     tokio::select! {
         _ = tokio::time::timeout(LINGER_TIME, drain) => {}
         _ = async { let _ = stop.wait_for(|s| *s).await; } => {}
+    }
+}
+
+/// A connection's socket whose writes fail with [`io::ErrorKind::TimedOut`] once one has
+/// waited `limit` for the client to take bytes (its receive window stays full): hyper then ends
+/// the connection and drops the answer it was sending. The timer starts when a write finds the
+/// socket full and stops at the next write that goes through, so a client that reads, however
+/// slowly, is not cut; one that stopped reading is, after `limit`. Reads are untouched (their
+/// bound is the header read timeout).
+pub struct SendTimeout {
+    stream: TcpStream,
+    limit: Duration,
+    /// Set while a write waits for room in the socket.
+    stalled: Option<Pin<Box<tokio::time::Sleep>>>,
+}
+
+impl SendTimeout {
+    /// `stream`, its writes given `limit` each to find room.
+    pub fn new(stream: TcpStream, limit: Duration) -> SendTimeout {
+        SendTimeout {
+            stream,
+            limit,
+            stalled: None,
+        }
+    }
+
+    /// What a write that returned `polled` means: its result, or, when it waits for room, an
+    /// error once the wait has lasted `limit` (the timer's wake-up brings hyper back here).
+    fn timed<T>(
+        &mut self,
+        cx: &mut Context<'_>,
+        polled: Poll<io::Result<T>>,
+    ) -> Poll<io::Result<T>> {
+        if polled.is_ready() {
+            self.stalled = None;
+            return polled;
+        }
+        let limit = self.limit;
+        let timer = self
+            .stalled
+            .get_or_insert_with(|| Box::pin(tokio::time::sleep(limit)));
+        if timer.as_mut().poll(cx).is_ready() {
+            self.stalled = None;
+            return Poll::Ready(Err(io::Error::new(
+                io::ErrorKind::TimedOut,
+                format!(
+                    "the client took none of the answer for {:?} (server.request_timeout_seconds)",
+                    limit
+                ),
+            )));
+        }
+        Poll::Pending
+    }
+}
+
+impl AsyncRead for SendTimeout {
+    fn poll_read(
+        mut self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        buf: &mut ReadBuf<'_>,
+    ) -> Poll<io::Result<()>> {
+        Pin::new(&mut self.stream).poll_read(cx, buf)
+    }
+}
+
+impl AsyncWrite for SendTimeout {
+    fn poll_write(
+        mut self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        buf: &[u8],
+    ) -> Poll<io::Result<usize>> {
+        let polled = Pin::new(&mut self.stream).poll_write(cx, buf);
+        self.timed(cx, polled)
+    }
+
+    fn poll_write_vectored(
+        mut self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        bufs: &[io::IoSlice<'_>],
+    ) -> Poll<io::Result<usize>> {
+        let polled = Pin::new(&mut self.stream).poll_write_vectored(cx, bufs);
+        self.timed(cx, polled)
+    }
+
+    fn is_write_vectored(&self) -> bool {
+        self.stream.is_write_vectored()
+    }
+
+    fn poll_flush(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<io::Result<()>> {
+        Pin::new(&mut self.stream).poll_flush(cx)
+    }
+
+    fn poll_shutdown(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<io::Result<()>> {
+        Pin::new(&mut self.stream).poll_shutdown(cx)
     }
 }
 
