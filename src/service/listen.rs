@@ -9,6 +9,8 @@
 //!   counted from the moment the connection waits for them. hyper starts this timer whenever the
 //!   connection waits for a request head, so it is also the keep-alive idle timeout: a slowloris
 //!   or an idle keep-alive connection is closed after it.
+//! - a request head of at most [`MAX_REQUEST_HEAD_BYTES`] (hyper's read buffer): a longer one
+//!   gets 431, so a connection holds at most that while its client sends a head.
 //! - graceful shutdown: on the stop signal, accepting ends and each connection finishes its
 //!   request in progress, then closes; `serve` returns when every connection has ended (the
 //!   caller bounds that wait with the shutdown deadline).
@@ -73,6 +75,17 @@ pub struct HttpLimits {
 /// lingers up to 30 s (`lingering_time`); 5 s is its idle `lingering_timeout`.
 pub const LINGER_TIME: Duration = Duration::from_secs(5);
 
+/// Largest request head (request line and headers), and hyper's read buffer: a longer head
+/// gets 431 and the connection ends. hyper stops reading a head once the buffer holds this
+/// much, and one read adds at most as much again, so a connection holds under 2 x 64 KiB while
+/// its client sends a head: 64 MiB over the 512 connections of `server.max_http_connections`.
+/// hyper's own default is about 400 KiB (8 KiB + 100 x 4 KiB), which a head of 100 KiB in
+/// one header got through, with up to twice that buffered per connection: 400 MiB over 512
+/// connections, which the memory bound of docs/design.md did not count. 64 KiB takes a
+/// 60 000-character path (the longest the tests send) and every real client's headers; nginx
+/// reads at most 4 x 8 KiB, Node.js 16 KiB.
+pub const MAX_REQUEST_HEAD_BYTES: usize = 64 * 1024;
+
 /// Buffer of the lingering read: the discarded bytes go through it, on the connection task.
 const LINGER_BUF_BYTES: usize = 16 * 1024;
 
@@ -93,7 +106,9 @@ pub async fn serve(
     let mut builder = hyper::server::conn::http1::Builder::new();
     builder
         .timer(TokioTimer::new())
-        .header_read_timeout(limits.header_read_timeout);
+        .header_read_timeout(limits.header_read_timeout)
+        .max_header_size(MAX_REQUEST_HEAD_BYTES)
+        .max_buf_size(MAX_REQUEST_HEAD_BYTES);
     // every connection task holds a receiver: `closed()` resolves when the last one ends
     let (open_tx, open_rx) = watch::channel(());
     let mut refusals = LogLimiter::new(ACCEPT_WARNING_INTERVAL);
