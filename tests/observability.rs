@@ -556,3 +556,90 @@ async fn a_gate_whose_windows_fail_logs_one_warning_per_interval() {
     assert_eq!(warned, 1, "{shown}");
     assert!(shown.contains("gate=\"flat\""), "{shown}");
 }
+
+/// A source at another rate than its gate's mismatches every window, and each mismatch logged
+/// a warning; now once per `FAILURE_LOG_INTERVAL` per gate, each sample still counted in
+/// `gatewatch_samples_rejected_total{reason="rate_mismatch"}`. Over raw TCP, where each line is
+/// its own batch (a JSON request of 3 or more samples is refused whole instead).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_source_at_the_wrong_rate_logs_one_warning_per_interval() {
+    gatewatch::service::client::ensure_crypto_provider();
+    let dir = tempfile::tempdir().unwrap();
+    let (http, tcp) = (free_port(), free_port());
+    let cfg = dir.path().join("gatewatch.toml");
+    std::fs::write(
+        &cfg,
+        format!(
+            "[server]\nlisten = \"127.0.0.1:{http}\"\ntcp_listen = \"127.0.0.1:{tcp}\"\n\
+             shutdown_grace_seconds = 2.0\nworker_threads = 1\n\
+             [log]\nformat = \"text\"\nlevel = \"info\"\n\
+             [storage]\npath = \"{}\"\n\
+             [defaults]\nrate_hz = 100.0\nwindow_seconds = 1.0\nidentify_every_seconds = 0.5\n\
+             stagger = false\n",
+            dir.path().join("gw.db").display()
+        ),
+    )
+    .unwrap();
+    let log = dir.path().join("stderr.log");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_gatewatch"))
+        .args(["serve", "--config"])
+        .arg(&cfg)
+        .env_remove("RUST_LOG")
+        .stdout(Stdio::null())
+        .stderr(Stdio::from(std::fs::File::create(&log).unwrap()))
+        .spawn()
+        .unwrap();
+    let deadline = Instant::now() + Duration::from_secs(30);
+    let mut sock = loop {
+        if let Ok(s) = std::net::TcpStream::connect(("127.0.0.1", tcp)) {
+            break s;
+        }
+        assert!(Instant::now() < deadline, "the TCP listener never came up");
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    // 30 s at 125 Hz on a 100 Hz gate: every window of 100 samples mismatches
+    let start = SystemTime::now()
+        .duration_since(SystemTime::UNIX_EPOCH)
+        .unwrap()
+        .as_secs_f64()
+        - 40.0;
+    let lines: String = (0..3750)
+        .map(|i| {
+            let ns = ((start + f64::from(i) / 125.0) * 1e9) as i64;
+            format!("m,gate=fast force={} {ns}\n", f64::from(i % 5) * 0.1)
+        })
+        .collect();
+    sock.write_all(lines.as_bytes()).unwrap();
+    drop(sock);
+    let base = format!("http://127.0.0.1:{http}");
+    let deadline = Instant::now() + Duration::from_secs(30);
+    let mismatched = loop {
+        if let Ok(r) = reqwest::get(format!("{base}/metrics")).await {
+            let m = r.text().await.unwrap();
+            let mismatched = sample(
+                &m,
+                "gatewatch_samples_rejected_total{reason=\"rate_mismatch\"}",
+            );
+            // every line applied (the window takes each sample, mismatched or not)
+            if sample(&m, "gatewatch_samples_ingested_total{gate=\"fast\"}") >= Some(3750.0) {
+                break mismatched.unwrap_or(0.0);
+            }
+        }
+        assert!(
+            Instant::now() < deadline,
+            "the lines were never all applied"
+        );
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    };
+    assert!(mismatched > 1000.0, "{mismatched}");
+    let _ = Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status();
+    assert!(child.wait().unwrap().success());
+    let shown = std::fs::read_to_string(&log).unwrap();
+    let warned = shown
+        .lines()
+        .filter(|l| l.contains("WARN") && l.contains("imply another sample rate"))
+        .count();
+    assert_eq!(warned, 1, "{shown}");
+}

@@ -79,7 +79,9 @@ pub struct IngestSummary {
 /// held back: a window that cannot be analysed (a constant signal) fails every
 /// `identify_every_seconds`, and logged a warning each time (17 280 lines a day per gate at 5 s,
 /// 1.1 million at 64 gates). Every failure is still counted
-/// (`gatewatch_identification_failures_total`) and the gate's view shows the last error.
+/// (`gatewatch_identification_failures_total`) and the gate's view shows the last error. The
+/// same interval bounds a gate's sample-rate warnings (a source at the wrong rate mismatches
+/// every window; each is counted in `gatewatch_samples_rejected_total{reason="rate_mismatch"}`).
 pub const FAILURE_LOG_INTERVAL: Duration = Duration::from_secs(60);
 
 struct GateEntry {
@@ -94,6 +96,8 @@ struct GateEntry {
     last_error: Option<String>,
     /// Its failed identifications' warnings, at most one per [`FAILURE_LOG_INTERVAL`].
     failure_log: LogLimiter,
+    /// Its sample-rate mismatches' warnings, at most one per [`FAILURE_LOG_INTERVAL`].
+    rate_log: LogLimiter,
     /// Trend of `zeta0` over the last `alert.trend_horizon_seconds` (GateDampingDeclining).
     trend: DampingTrend,
     /// Its latest estimate, for the API.
@@ -444,6 +448,7 @@ impl AppState {
                     analysed_until: None,
                     last_error: None,
                     failure_log: LogLimiter::new(FAILURE_LOG_INTERVAL),
+                    rate_log: LogLimiter::new(FAILURE_LOG_INTERVAL),
                     trend_estimate,
                     last_data: now,
                     unknown,
@@ -630,13 +635,17 @@ impl AppState {
                 if let Some(implied) = stats.implied_rate_hz {
                     self.metrics
                         .reject(RejectReason::RateMismatch, stats.rate_mismatch);
-                    tracing::warn!(
-                        gate = g,
-                        implied_rate_hz = implied,
-                        rate_hz = rate,
-                        samples = stats.rate_mismatch,
-                        "samples imply another sample rate than the gate's (more than 1 % off): their window was not identified and the window restarted; fix the source's rate or the gate's rate_hz"
-                    );
+                    // a source at the wrong rate mismatches every window: one line a minute
+                    if let Some(held_back) = entry.rate_log.allow(std::time::Instant::now()) {
+                        tracing::warn!(
+                            gate = g,
+                            implied_rate_hz = implied,
+                            rate_hz = rate,
+                            samples = stats.rate_mismatch,
+                            held_back,
+                            "samples imply another sample rate than the gate's (more than 1 % off): their window was not identified and the window restarted; fix the source's rate or the gate's rate_hz"
+                        );
+                    }
                 }
                 // only the newest due window matters: older ones are replaced before queueing
                 if let Some(w) = due {
