@@ -462,3 +462,184 @@ fn json_logs_keep_the_fatal_line_and_the_warnings_json() {
     }
     drop(taken);
 }
+
+/// A gate whose windows cannot be analysed (a constant signal: a sensor stuck, a gate at rest)
+/// fails every `identify_every_seconds`; each failure logged a warning (17 280 lines a day per
+/// gate at 5 s). Now a gate's failures are logged once per `FAILURE_LOG_INTERVAL` (60 s), each
+/// still counted in `gatewatch_identification_failures_total`.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_gate_whose_windows_fail_logs_one_warning_per_interval() {
+    gatewatch::service::client::ensure_crypto_provider();
+    let dir = tempfile::tempdir().unwrap();
+    let http = free_port();
+    let cfg = dir.path().join("gatewatch.toml");
+    std::fs::write(
+        &cfg,
+        format!(
+            "[server]\nlisten = \"127.0.0.1:{http}\"\nshutdown_grace_seconds = 2.0\n\
+             worker_threads = 1\n[log]\nformat = \"text\"\nlevel = \"info\"\n\
+             [storage]\npath = \"{}\"\n\
+             [defaults]\nrate_hz = 100.0\nwindow_seconds = 1.0\nidentify_every_seconds = 0.5\n\
+             stagger = false\n",
+            dir.path().join("gw.db").display()
+        ),
+    )
+    .unwrap();
+    let log = dir.path().join("stderr.log");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_gatewatch"))
+        .args(["serve", "--config"])
+        .arg(&cfg)
+        .env_remove("RUST_LOG")
+        .stdout(Stdio::null())
+        .stderr(Stdio::from(std::fs::File::create(&log).unwrap()))
+        .spawn()
+        .unwrap();
+    let base = format!("http://127.0.0.1:{http}");
+    let client = reqwest::Client::new();
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while !client
+        .get(format!("{base}/readyz"))
+        .send()
+        .await
+        .is_ok_and(|r| r.status() == 200)
+    {
+        assert!(Instant::now() < deadline, "the daemon never got ready");
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    let failures = || async {
+        let m = client
+            .get(format!("{base}/metrics"))
+            .send()
+            .await
+            .unwrap()
+            .text()
+            .await
+            .unwrap();
+        sample(
+            &m,
+            "gatewatch_identification_failures_total{reason=\"window\"}",
+        )
+        .unwrap_or(0.0)
+    };
+    // a constant signal, a second at a time: a window due with each request
+    let start = SystemTime::now()
+        .duration_since(SystemTime::UNIX_EPOCH)
+        .unwrap()
+        .as_secs_f64()
+        - 30.0;
+    let mut sent = 0;
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while failures().await < 8.0 {
+        assert!(Instant::now() < deadline, "the windows never failed");
+        let body = serde_json::json!({
+            "gate": "flat", "start": start + sent as f64, "rate_hz": 100, "values": vec![0.5; 100]
+        });
+        let r = client
+            .post(format!("{base}/api/v1/samples"))
+            .json(&body)
+            .send()
+            .await
+            .unwrap();
+        assert!(r.status().is_success(), "{}", r.status());
+        sent += 1;
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    let _ = Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status();
+    assert!(child.wait().unwrap().success());
+    let shown = std::fs::read_to_string(&log).unwrap();
+    let warned = shown
+        .lines()
+        .filter(|l| l.contains("WARN") && l.contains("identification failed"))
+        .count();
+    assert_eq!(warned, 1, "{shown}");
+    assert!(shown.contains("gate=\"flat\""), "{shown}");
+}
+
+/// A source at another rate than its gate's mismatches every window, and each mismatch logged
+/// a warning; now once per `FAILURE_LOG_INTERVAL` per gate, each sample still counted in
+/// `gatewatch_samples_rejected_total{reason="rate_mismatch"}`. Over raw TCP, where each line is
+/// its own batch (a JSON request of 3 or more samples is refused whole instead).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_source_at_the_wrong_rate_logs_one_warning_per_interval() {
+    gatewatch::service::client::ensure_crypto_provider();
+    let dir = tempfile::tempdir().unwrap();
+    let (http, tcp) = (free_port(), free_port());
+    let cfg = dir.path().join("gatewatch.toml");
+    std::fs::write(
+        &cfg,
+        format!(
+            "[server]\nlisten = \"127.0.0.1:{http}\"\ntcp_listen = \"127.0.0.1:{tcp}\"\n\
+             shutdown_grace_seconds = 2.0\nworker_threads = 1\n\
+             [log]\nformat = \"text\"\nlevel = \"info\"\n\
+             [storage]\npath = \"{}\"\n\
+             [defaults]\nrate_hz = 100.0\nwindow_seconds = 1.0\nidentify_every_seconds = 0.5\n\
+             stagger = false\n",
+            dir.path().join("gw.db").display()
+        ),
+    )
+    .unwrap();
+    let log = dir.path().join("stderr.log");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_gatewatch"))
+        .args(["serve", "--config"])
+        .arg(&cfg)
+        .env_remove("RUST_LOG")
+        .stdout(Stdio::null())
+        .stderr(Stdio::from(std::fs::File::create(&log).unwrap()))
+        .spawn()
+        .unwrap();
+    let deadline = Instant::now() + Duration::from_secs(30);
+    let mut sock = loop {
+        if let Ok(s) = std::net::TcpStream::connect(("127.0.0.1", tcp)) {
+            break s;
+        }
+        assert!(Instant::now() < deadline, "the TCP listener never came up");
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    // 30 s at 125 Hz on a 100 Hz gate: every window of 100 samples mismatches
+    let start = SystemTime::now()
+        .duration_since(SystemTime::UNIX_EPOCH)
+        .unwrap()
+        .as_secs_f64()
+        - 40.0;
+    let lines: String = (0..3750)
+        .map(|i| {
+            let ns = ((start + f64::from(i) / 125.0) * 1e9) as i64;
+            format!("m,gate=fast force={} {ns}\n", f64::from(i % 5) * 0.1)
+        })
+        .collect();
+    sock.write_all(lines.as_bytes()).unwrap();
+    drop(sock);
+    let base = format!("http://127.0.0.1:{http}");
+    let deadline = Instant::now() + Duration::from_secs(30);
+    let mismatched = loop {
+        if let Ok(r) = reqwest::get(format!("{base}/metrics")).await {
+            let m = r.text().await.unwrap();
+            let mismatched = sample(
+                &m,
+                "gatewatch_samples_rejected_total{reason=\"rate_mismatch\"}",
+            );
+            // every line applied (the window takes each sample, mismatched or not)
+            if sample(&m, "gatewatch_samples_ingested_total{gate=\"fast\"}") >= Some(3750.0) {
+                break mismatched.unwrap_or(0.0);
+            }
+        }
+        assert!(
+            Instant::now() < deadline,
+            "the lines were never all applied"
+        );
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    };
+    assert!(mismatched > 1000.0, "{mismatched}");
+    let _ = Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status();
+    assert!(child.wait().unwrap().success());
+    let shown = std::fs::read_to_string(&log).unwrap();
+    let warned = shown
+        .lines()
+        .filter(|l| l.contains("WARN") && l.contains("imply another sample rate"))
+        .count();
+    assert_eq!(warned, 1, "{shown}");
+}

@@ -252,3 +252,117 @@ async fn an_hour_in_one_request_copies_one_window() {
         "peak RSS {hwm} KiB over the documented {DOCUMENTED_BOUND_KIB} KiB"
     );
 }
+
+/// What the history route may hold, documented in docs/design.md ("Memory"): at most
+/// `MAX_CONCURRENT_HISTORY` (4) answers of at most `MAX_HISTORY_LIMIT` (20 000) rows, about
+/// 40 MB each for a day of real rows, held from the read to the last byte sent: 160 MiB, over
+/// the 64 MiB baseline.
+const HISTORY_BOUND_KIB: u64 = (64 + 160) * 1024;
+
+/// Asks for `path` from a client with a small receive buffer and reads only the status line of
+/// the answer; returns the connection (kept open, not read) and the status code.
+async fn ask_and_read_nothing(
+    addr: std::net::SocketAddr,
+    path: &str,
+) -> (tokio::net::TcpStream, u16) {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let socket = tokio::net::TcpSocket::new_v4().unwrap();
+    socket.set_recv_buffer_size(4096).unwrap();
+    let mut s = socket.connect(addr).await.unwrap();
+    s.write_all(format!("GET {path} HTTP/1.1\r\nhost: x\r\n\r\n").as_bytes())
+        .await
+        .unwrap();
+    let mut head = [0u8; 12];
+    tokio::time::timeout(Duration::from_secs(30), s.read_exact(&mut head))
+        .await
+        .expect("an answer within 30 s")
+        .unwrap();
+    let status = std::str::from_utf8(&head[9..12]).unwrap().parse().unwrap();
+    (s, status)
+}
+
+/// Clients that ask for a day of history and read none of it (issue of session h35): the rows
+/// of each answer stayed in memory for as long as the client kept its socket open, since the
+/// history permit ended with the store's read and hyper has no write timeout; sixteen such
+/// clients held 600 MB. Now an answer holds its permit until it is sent (the fifth at once gets
+/// 503), and a client that takes none of it for `server.request_timeout_seconds` is cut, which
+/// frees its place.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn history_answers_not_read_are_bounded_and_cut_after_the_request_timeout() {
+    use gatewatch::service::history::MAX_CONCURRENT_HISTORY;
+    use gatewatch::store::{
+        IdentificationRecord, SqliteStore, Store, WriteBatch, MAX_HISTORY_LIMIT,
+    };
+    let db_dir = tempfile::tempdir().unwrap();
+    let db = db_dir.path().join("history.db");
+    {
+        // a day of one gate at a window every 5 s, rows of a real report's size (1.7 kB)
+        let store = SqliteStore::open(&db, 1024).unwrap();
+        let end = now_unix();
+        let pad = "x".repeat(1500);
+        let records = (0..MAX_HISTORY_LIMIT).map(|i| {
+            let t = end - 5.0 * (MAX_HISTORY_LIMIT - i) as f64;
+            IdentificationRecord {
+                gate: "g1".into(),
+                time: t + 1.0,
+                window_start: t - 10.0,
+                window_end: t,
+                equation: "ydd + 0.19*yd + 88.8*y = 0".into(),
+                coefficients: vec![("c1".into(), 0.19), ("c3".into(), 88.8)],
+                damping: serde_json::json!({"zeta0": 0.01, "zeta0_interval": [0.006, 0.014],
+                    "trusted": true, "frequency_hz": 1.5, "curve": pad}),
+                verdict: "damped".into(),
+                fit_nmae: 0.03,
+                path: "full".into(),
+            }
+        });
+        store
+            .write(&WriteBatch {
+                identifications: records.collect(),
+                ..Default::default()
+            })
+            .unwrap();
+        store.checkpoint().unwrap();
+    }
+    let Some((daemon, base, _dir)) = start(&format!(
+        "[server]\nworker_threads = 1\nrequest_timeout_seconds = 2.0\n\
+         [storage]\npath = \"{}\"\n",
+        db.display()
+    ))
+    .await
+    else {
+        return;
+    };
+    let pid = daemon.0.id();
+    let addr: std::net::SocketAddr = base.trim_start_matches("http://").parse().unwrap();
+    let path = "/api/v1/gates/g1/history";
+    let mut held = Vec::new();
+    let mut statuses = Vec::new();
+    for _ in 0..CLIENTS {
+        let (s, status) = ask_and_read_nothing(addr, path).await;
+        held.push(s);
+        statuses.push(status);
+    }
+    let ok = statuses.iter().filter(|s| **s == 200).count();
+    assert_eq!(ok, MAX_CONCURRENT_HISTORY, "{statuses:?}");
+    assert!(
+        statuses.iter().all(|s| *s == 200 || *s == 503),
+        "{statuses:?}"
+    );
+    let hwm = vm_hwm_kib(pid);
+    eprintln!(
+        "VmHWM with {CLIENTS} history answers not read: {} MiB",
+        hwm / 1024
+    );
+    assert!(
+        hwm < HISTORY_BOUND_KIB,
+        "peak RSS {hwm} KiB over the documented {HISTORY_BOUND_KIB} KiB"
+    );
+    // the answers not taken are cut after the request timeout (2 s): a reader gets its day
+    tokio::time::sleep(Duration::from_secs(4)).await;
+    let answer = reqwest::get(format!("{base}{path}")).await.unwrap();
+    assert_eq!(answer.status().as_u16(), 200);
+    let body: serde_json::Value = answer.json().await.unwrap();
+    assert_eq!(body["count"], MAX_HISTORY_LIMIT);
+    drop(held);
+}

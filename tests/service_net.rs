@@ -1,6 +1,6 @@
 //! Network hardening on a real server on port 0 (issue 12): refusals before the body is read
 //! (`Connection: close`, `Expect: 100-continue`), the HTTP connection cap and header timeout,
-//! the TCP idle timeout and client allow-list, unknown-gate expiry (and the hold of a gate whose
+//! the request head's size, the TCP idle timeout and client allow-list, unknown-gate expiry (and the hold of a gate whose
 //! damping alert fires, and `DELETE /api/v1/gates/{id}`), the paginated gate list.
 //! Every wait is bounded by a timeout (a guard against hanging, not a timing assertion).
 
@@ -129,6 +129,34 @@ async fn a_silent_http_connection_is_closed_after_the_header_timeout() {
         .unwrap();
     assert!(closed_by_server(&mut slow).await);
     assert_eq!(get(r.http, "/healthz").await.0, 200);
+    stop(r).await;
+}
+
+/// A request head is buffered up to `MAX_REQUEST_HEAD_BYTES` (64 KiB), then refused with 431:
+/// hyper's default let each connection buffer about 400 KiB of head, 204 MiB over the 512
+/// connections allowed, outside the documented memory bound.
+#[tokio::test]
+async fn a_request_head_over_64_kib_is_refused_with_431() {
+    use gatewatch::service::listen::MAX_REQUEST_HEAD_BYTES;
+    let r = start("", Arc::new(Fake::default())).await;
+    let head = |header_bytes: usize| {
+        format!(
+            "GET /healthz HTTP/1.1\r\nhost: x\r\nx-filler: {}\r\nconnection: close\r\n\r\n",
+            "a".repeat(header_bytes)
+        )
+    };
+    // just under the bound: served
+    let mut s = TcpStream::connect(r.http).await.unwrap();
+    s.write_all(head(MAX_REQUEST_HEAD_BYTES - 200).as_bytes())
+        .await
+        .unwrap();
+    let answer = read_to_close(&mut s).await;
+    assert!(answer.starts_with("HTTP/1.1 200"), "{answer}");
+    // 100 KiB of one header (hyper's default took it): 431, and the connection ends
+    let mut s = TcpStream::connect(r.http).await.unwrap();
+    let _ = s.write_all(head(100 * 1024).as_bytes()).await;
+    let answer = read_to_close(&mut s).await;
+    assert!(answer.starts_with("HTTP/1.1 431"), "{answer}");
     stop(r).await;
 }
 

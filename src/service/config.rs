@@ -110,7 +110,7 @@ pub struct ServerConfig {
     pub max_concurrent_requests: usize,
     /// Ingestion requests handled at once (bounds their memory).
     pub max_concurrent_ingest: usize,
-    /// Per-request timeout, seconds.
+    /// Per-request timeout, seconds; also how long a client may take no byte of an answer.
     pub request_timeout_seconds: f64,
     /// Identification worker threads; 0: cores - 1, at least 1.
     pub worker_threads: usize,

@@ -9,6 +9,8 @@
 //!   counted from the moment the connection waits for them. hyper starts this timer whenever the
 //!   connection waits for a request head, so it is also the keep-alive idle timeout: a slowloris
 //!   or an idle keep-alive connection is closed after it.
+//! - a request head of at most [`MAX_REQUEST_HEAD_BYTES`] (hyper's read buffer): a longer one
+//!   gets 431, so a connection holds at most that while its client sends a head.
 //! - graceful shutdown: on the stop signal, accepting ends and each connection finishes its
 //!   request in progress, then closes; `serve` returns when every connection has ended (the
 //!   caller bounds that wait with the shutdown deadline).
@@ -25,8 +27,16 @@
 //!   client had not read yet: a client still writing a 4 MB body saw "broken pipe" or
 //!   "connection reset" instead of its 503 and `Retry-After` (issue 12, point 7).
 //!
+//! - `server.request_timeout_seconds` is also the send timeout (`SendTimeout`): a connection
+//!   whose client takes none of its answer for that long is closed. hyper has no write timeout,
+//!   and the request timeout (tower's `TimeoutLayer`) ends when the answer's head is ready, not
+//!   its body: a client that asked for a day of history and read nothing kept the answer (tens
+//!   of megabytes) and its connection for as long as it kept the socket open.
+//!
 //! HTTP/1 only, as before (axum was built without HTTP/2).
 
+use std::future::Future;
+use std::io;
 use std::pin::Pin;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -37,7 +47,7 @@ use axum::http::{header, HeaderValue};
 use axum::Router;
 use hyper::body::{Body, Bytes, Frame, Incoming, SizeHint};
 use hyper_util::rt::{TokioIo, TokioTimer};
-use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt, ReadBuf};
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::{watch, Semaphore};
 use tower::ServiceExt;
@@ -52,6 +62,9 @@ pub struct HttpLimits {
     /// Time to send a request's headers; also the keep-alive idle timeout
     /// (`server.http_header_read_timeout_seconds`).
     pub header_read_timeout: Duration,
+    /// Longest time a write of an answer may wait for the client to take bytes before the
+    /// connection is closed (`server.request_timeout_seconds`, [`SendTimeout`]).
+    pub send_timeout: Duration,
 }
 
 /// Longest time a closing connection keeps reading (and discarding) what its client still
@@ -61,6 +74,17 @@ pub struct HttpLimits {
 /// `max_http_connections`, so the bound also caps what a flood of refused bodies can hold. nginx
 /// lingers up to 30 s (`lingering_time`); 5 s is its idle `lingering_timeout`.
 pub const LINGER_TIME: Duration = Duration::from_secs(5);
+
+/// Largest request head (request line and headers), and hyper's read buffer: a longer head
+/// gets 431 and the connection ends. hyper stops reading a head once the buffer holds this
+/// much, and one read adds at most as much again, so a connection holds under 2 x 64 KiB while
+/// its client sends a head: 64 MiB over the 512 connections of `server.max_http_connections`.
+/// hyper's own default is about 400 KiB (8 KiB + 100 x 4 KiB), which a head of 100 KiB in
+/// one header got through, with up to twice that buffered per connection: 400 MiB over 512
+/// connections, which the memory bound of docs/design.md did not count. 64 KiB takes a
+/// 60 000-character path (the longest the tests send) and every real client's headers; nginx
+/// reads at most 4 x 8 KiB, Node.js 16 KiB.
+pub const MAX_REQUEST_HEAD_BYTES: usize = 64 * 1024;
 
 /// Buffer of the lingering read: the discarded bytes go through it, on the connection task.
 const LINGER_BUF_BYTES: usize = 16 * 1024;
@@ -82,7 +106,9 @@ pub async fn serve(
     let mut builder = hyper::server::conn::http1::Builder::new();
     builder
         .timer(TokioTimer::new())
-        .header_read_timeout(limits.header_read_timeout);
+        .header_read_timeout(limits.header_read_timeout)
+        .max_header_size(MAX_REQUEST_HEAD_BYTES)
+        .max_buf_size(MAX_REQUEST_HEAD_BYTES);
     // every connection task holds a receiver: `closed()` resolves when the last one ends
     let (open_tx, open_rx) = watch::channel(());
     let mut refusals = LogLimiter::new(ACCEPT_WARNING_INTERVAL);
@@ -126,7 +152,8 @@ pub async fn serve(
                 Ok::<_, std::convert::Infallible>(resp)
             })
         });
-        let mut conn = builder.serve_connection(TokioIo::new(stream), service);
+        let io = SendTimeout::new(stream, limits.send_timeout);
+        let mut conn = builder.serve_connection(TokioIo::new(io), service);
         let mut stop = stop.clone();
         let open = open_rx.clone();
         tokio::spawn(async move {
@@ -139,7 +166,7 @@ pub async fn serve(
                 }
             };
             match ended {
-                Ok(()) => linger(conn.into_parts().io.into_inner(), stop).await,
+                Ok(()) => linger(conn.into_parts().io.into_inner().stream, stop).await,
                 // a malformed request, a header timeout, a reset: nothing worth lingering for
                 Err(e) => tracing::debug!(%peer, error = %e, "http connection ended with an error"),
             }
@@ -169,6 +196,100 @@ async fn linger(mut stream: TcpStream, mut stop: watch::Receiver<bool>) {
     tokio::select! {
         _ = tokio::time::timeout(LINGER_TIME, drain) => {}
         _ = async { let _ = stop.wait_for(|s| *s).await; } => {}
+    }
+}
+
+/// A connection's socket whose writes fail with [`io::ErrorKind::TimedOut`] once one has
+/// waited `limit` for the client to take bytes (its receive window stays full): hyper then ends
+/// the connection and drops the answer it was sending. The timer starts when a write finds the
+/// socket full and stops at the next write that goes through, so a client that reads, however
+/// slowly, is not cut; one that stopped reading is, after `limit`. Reads are untouched (their
+/// bound is the header read timeout).
+pub struct SendTimeout {
+    stream: TcpStream,
+    limit: Duration,
+    /// Set while a write waits for room in the socket.
+    stalled: Option<Pin<Box<tokio::time::Sleep>>>,
+}
+
+impl SendTimeout {
+    /// `stream`, its writes given `limit` each to find room.
+    pub fn new(stream: TcpStream, limit: Duration) -> SendTimeout {
+        SendTimeout {
+            stream,
+            limit,
+            stalled: None,
+        }
+    }
+
+    /// What a write that returned `polled` means: its result, or, when it waits for room, an
+    /// error once the wait has lasted `limit` (the timer's wake-up brings hyper back here).
+    fn timed<T>(
+        &mut self,
+        cx: &mut Context<'_>,
+        polled: Poll<io::Result<T>>,
+    ) -> Poll<io::Result<T>> {
+        if polled.is_ready() {
+            self.stalled = None;
+            return polled;
+        }
+        let limit = self.limit;
+        let timer = self
+            .stalled
+            .get_or_insert_with(|| Box::pin(tokio::time::sleep(limit)));
+        if timer.as_mut().poll(cx).is_ready() {
+            self.stalled = None;
+            return Poll::Ready(Err(io::Error::new(
+                io::ErrorKind::TimedOut,
+                format!(
+                    "the client took none of the answer for {:?} (server.request_timeout_seconds)",
+                    limit
+                ),
+            )));
+        }
+        Poll::Pending
+    }
+}
+
+impl AsyncRead for SendTimeout {
+    fn poll_read(
+        mut self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        buf: &mut ReadBuf<'_>,
+    ) -> Poll<io::Result<()>> {
+        Pin::new(&mut self.stream).poll_read(cx, buf)
+    }
+}
+
+impl AsyncWrite for SendTimeout {
+    fn poll_write(
+        mut self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        buf: &[u8],
+    ) -> Poll<io::Result<usize>> {
+        let polled = Pin::new(&mut self.stream).poll_write(cx, buf);
+        self.timed(cx, polled)
+    }
+
+    fn poll_write_vectored(
+        mut self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+        bufs: &[io::IoSlice<'_>],
+    ) -> Poll<io::Result<usize>> {
+        let polled = Pin::new(&mut self.stream).poll_write_vectored(cx, bufs);
+        self.timed(cx, polled)
+    }
+
+    fn is_write_vectored(&self) -> bool {
+        self.stream.is_write_vectored()
+    }
+
+    fn poll_flush(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<io::Result<()>> {
+        Pin::new(&mut self.stream).poll_flush(cx)
+    }
+
+    fn poll_shutdown(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<io::Result<()>> {
+        Pin::new(&mut self.stream).poll_shutdown(cx)
     }
 }
 

@@ -193,6 +193,7 @@ pub async fn run_with_persistence(
         header_read_timeout: Duration::from_secs_f64(
             state.config.server.http_header_read_timeout_seconds,
         ),
+        send_timeout: Duration::from_secs_f64(state.config.server.request_timeout_seconds),
     };
     let refused = {
         let state = state.clone();

@@ -18,7 +18,7 @@ use serde::Serialize;
 use super::clock::unix_seconds;
 use super::config::{Config, GateConfig};
 use super::ingest::{BadRequest, Batch};
-use super::log_limit::BatchLog;
+use super::log_limit::{BatchLog, LogLimiter};
 use super::metrics::{Metrics, NotificationCounts, RejectReason};
 use super::storage::{identification_record, Persistence};
 use super::sync::lock;
@@ -75,6 +75,15 @@ pub struct IngestSummary {
     pub jobs: u64,
 }
 
+/// A gate's failed identifications are logged at most once per this interval, with the number
+/// held back: a window that cannot be analysed (a constant signal) fails every
+/// `identify_every_seconds`, and logged a warning each time (17 280 lines a day per gate at 5 s,
+/// 1.1 million at 64 gates). Every failure is still counted
+/// (`gatewatch_identification_failures_total`) and the gate's view shows the last error. The
+/// same interval bounds a gate's sample-rate warnings (a source at the wrong rate mismatches
+/// every window; each is counted in `gatewatch_samples_rejected_total{reason="rate_mismatch"}`).
+pub const FAILURE_LOG_INTERVAL: Duration = Duration::from_secs(60);
+
 struct GateEntry {
     config: GateConfig,
     window: Window,
@@ -85,6 +94,10 @@ struct GateEntry {
     /// Sample time of the end of the last window whose job finished (succeeded or failed).
     analysed_until: Option<f64>,
     last_error: Option<String>,
+    /// Its failed identifications' warnings, at most one per [`FAILURE_LOG_INTERVAL`].
+    failure_log: LogLimiter,
+    /// Its sample-rate mismatches' warnings, at most one per [`FAILURE_LOG_INTERVAL`].
+    rate_log: LogLimiter,
     /// Trend of `zeta0` over the last `alert.trend_horizon_seconds` (GateDampingDeclining).
     trend: DampingTrend,
     /// Its latest estimate, for the API.
@@ -434,6 +447,8 @@ impl AppState {
                     latest_window: None,
                     analysed_until: None,
                     last_error: None,
+                    failure_log: LogLimiter::new(FAILURE_LOG_INTERVAL),
+                    rate_log: LogLimiter::new(FAILURE_LOG_INTERVAL),
                     trend_estimate,
                     last_data: now,
                     unknown,
@@ -620,13 +635,17 @@ impl AppState {
                 if let Some(implied) = stats.implied_rate_hz {
                     self.metrics
                         .reject(RejectReason::RateMismatch, stats.rate_mismatch);
-                    tracing::warn!(
-                        gate = g,
-                        implied_rate_hz = implied,
-                        rate_hz = rate,
-                        samples = stats.rate_mismatch,
-                        "samples imply another sample rate than the gate's (more than 1 % off): their window was not identified and the window restarted; fix the source's rate or the gate's rate_hz"
-                    );
+                    // a source at the wrong rate mismatches every window: one line a minute
+                    if let Some(held_back) = entry.rate_log.allow(std::time::Instant::now()) {
+                        tracing::warn!(
+                            gate = g,
+                            implied_rate_hz = implied,
+                            rate_hz = rate,
+                            samples = stats.rate_mismatch,
+                            held_back,
+                            "samples imply another sample rate than the gate's (more than 1 % off): their window was not identified and the window restarted; fix the source's rate or the gate's rate_hz"
+                        );
+                    }
                 }
                 // only the newest due window matters: older ones are replaced before queueing
                 if let Some(w) = due {
@@ -879,13 +898,25 @@ impl AppState {
                     AnalysisError::Settings(_) => "settings",
                     AnalysisError::Window(_) => "window",
                 };
-                tracing::warn!(gate = g, error = %err, "identification failed");
                 self.metrics
                     .identification_failures
                     .with_label_values(&[reason])
                     .inc();
-                if let Some(e) = inner.gates.get_mut(g) {
+                // a window that cannot be analysed (a constant signal: a sensor stuck, a gate at
+                // rest) fails again every `identify_every_seconds`: one line a minute per gate
+                let held_back = inner.gates.get_mut(g).and_then(|e| {
                     e.last_error = Some(err.to_string());
+                    e.failure_log.allow(std::time::Instant::now())
+                });
+                match held_back {
+                    Some(held_back) => tracing::warn!(
+                        gate = g,
+                        error = %err,
+                        held_back,
+                        "identification failed (held_back: failures of the gate since its last \
+                         such line, each counted in gatewatch_identification_failures_total)"
+                    ),
+                    None => tracing::debug!(gate = g, error = %err, "identification failed"),
                 }
             }
             JobOutcome::Panicked(msg) => {
