@@ -6,7 +6,8 @@
 //!
 //! Each line is parsed and applied on its own; a bad line is counted
 //! (`gatewatch_samples_rejected_total{reason="bad_line"}` and the validation reasons), logged at
-//! most once per [`BAD_LINE_LOG_INTERVAL`] per connection, and the connection is kept. Lines
+//! most once per [`BAD_LINE_LOG_INTERVAL`] by the listener (not per connection: a client that
+//! reconnects for every line would log every line), and the connection is kept. Lines
 //! longer than `ingest.tcp_max_line_bytes` are skipped up to their newline, and so are lines
 //! that are not UTF-8. At most `server.max_tcp_connections` connections are served; further ones
 //! are closed at once, and so are clients outside `server.tcp_allowed_networks` (loopback by
@@ -23,7 +24,7 @@
 //! so a busy connection costs one blocking task per read, not per line. Each connection has at
 //! most one such task at a time, so there are at most `server.max_tcp_connections` of them.
 
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use std::io;
@@ -41,7 +42,8 @@ use super::log_limit::{LogLimiter, ACCEPT_WARNING_INTERVAL};
 use super::metrics::{RejectReason, TCP_CONNECTION_LIMIT, TCP_NOT_ALLOWED};
 use super::state::{AppState, IngestError};
 
-/// Bad lines of one connection are logged at most once per this interval (with a count).
+/// Bad lines are logged at most once per this interval by the whole listener, each line saying
+/// how many were held back since the last and how many its connection sent.
 pub const BAD_LINE_LOG_INTERVAL: Duration = Duration::from_secs(10);
 
 /// Most bytes of complete lines handed to one blocking task: bounds the memory a connection
@@ -57,6 +59,7 @@ pub async fn serve(
     let limit = Arc::new(Semaphore::new(state.config.server.max_tcp_connections));
     // validated with the configuration; an empty list (impossible after validation) allows none
     let allowed = state.config.server.tcp_networks().unwrap_or_default();
+    let bad_line_log = Arc::new(Mutex::new(LogLimiter::new(BAD_LINE_LOG_INTERVAL)));
     let (mut refusals, mut outsiders, mut failures) = (
         LogLimiter::new(ACCEPT_WARNING_INTERVAL),
         LogLimiter::new(ACCEPT_WARNING_INTERVAL),
@@ -106,31 +109,39 @@ pub async fn serve(
         };
         let state = state.clone();
         let shutdown = shutdown.clone();
+        let bad = BadLines {
+            peer,
+            count: 0,
+            log: bad_line_log.clone(),
+        };
         tokio::spawn(async move {
-            handle(stream, peer, state, shutdown).await;
+            handle(stream, bad, state, shutdown).await;
             drop(permit);
         });
     }
 }
 
-/// Counts and logs (rate-limited) the bad lines of one connection.
+/// Counts the bad lines of one connection and logs them through the listener's limiter.
 struct BadLines {
     peer: std::net::SocketAddr,
+    /// Bad lines of this connection so far.
     count: u64,
-    last_log: Option<Instant>,
+    /// The listener's limiter, shared by its connections ([`BAD_LINE_LOG_INTERVAL`]).
+    log: Arc<Mutex<LogLimiter>>,
 }
 
 impl BadLines {
     fn record(&mut self, line: usize, msg: &str) {
         self.count += 1;
-        if self
-            .last_log
-            .is_none_or(|t| t.elapsed() >= BAD_LINE_LOG_INTERVAL)
-        {
+        let allowed = self
+            .log
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .allow(Instant::now());
+        if let Some(held_back) = allowed {
             // the message may quote the client's line: escaped and cut (`limits::for_log`)
             let error = for_log(msg);
-            tracing::warn!(peer = %self.peer, line, bad_lines = self.count, error = %error, "bad line on tcp listener");
-            self.last_log = Some(Instant::now());
+            tracing::warn!(peer = %self.peer, line, bad_lines = self.count, held_back, error = %error, "bad line on tcp listener");
         }
     }
 }
@@ -186,17 +197,12 @@ struct Pending {
 
 async fn handle(
     stream: TcpStream,
-    peer: std::net::SocketAddr,
+    mut bad: BadLines,
     state: Arc<AppState>,
     mut shutdown: watch::Receiver<bool>,
 ) {
     let max = state.config.ingest.tcp_max_line_bytes;
     let idle = Duration::from_secs_f64(state.config.server.tcp_idle_timeout_seconds);
-    let mut bad = BadLines {
-        peer,
-        count: 0,
-        last_log: None,
-    };
     let mut frames = FramedRead::new(stream, Lines(LinesCodec::new_with_max_length(max)));
     let mut pending = Pending {
         text: String::with_capacity(1024),
@@ -360,6 +366,44 @@ mod tests {
         }
     }
 
+    fn listener_log() -> Arc<Mutex<LogLimiter>> {
+        Arc::new(Mutex::new(LogLimiter::new(BAD_LINE_LOG_INTERVAL)))
+    }
+
+    fn connection(log: &Arc<Mutex<LogLimiter>>, port: u16) -> BadLines {
+        BadLines {
+            peer: std::net::SocketAddr::from(([127, 0, 0, 1], port)),
+            count: 0,
+            log: log.clone(),
+        }
+    }
+
+    #[test]
+    fn a_client_that_reconnects_for_every_bad_line_logs_once_per_interval() {
+        let sink = Sink::default();
+        let w = sink.clone();
+        let subscriber = tracing_subscriber::fmt()
+            .with_writer(move || w.clone())
+            .with_ansi(false)
+            .finish();
+        let log = listener_log();
+        tracing::subscriber::with_default(subscriber, || {
+            // 100 connections of one bad line each, within one interval
+            for port in 0..100 {
+                connection(&log, 1000 + port).record(1, "invalid line `x`");
+            }
+        });
+        let out = String::from_utf8(sink.0.lock().unwrap().clone()).unwrap();
+        assert_eq!(out.trim_end().lines().count(), 1, "{out}");
+        // the next line logged says how many were held back
+        assert_eq!(
+            log.lock()
+                .unwrap()
+                .allow(Instant::now() + BAD_LINE_LOG_INTERVAL),
+            Some(99)
+        );
+    }
+
     #[test]
     fn a_bad_line_reaches_the_log_escaped_and_cut() {
         let sink = Sink::default();
@@ -370,12 +414,7 @@ mod tests {
             .finish();
         let raw = format!("m,gate=g1 force=1\r\x1b[2KFAKE{}", "y".repeat(1000));
         tracing::subscriber::with_default(subscriber, || {
-            let mut bad = BadLines {
-                peer: "127.0.0.1:9".parse().unwrap(),
-                count: 0,
-                last_log: None,
-            };
-            bad.record(1, &format!("invalid line `{raw}`"));
+            connection(&listener_log(), 9).record(1, &format!("invalid line `{raw}`"));
         });
         let out = String::from_utf8(sink.0.lock().unwrap().clone()).unwrap();
         assert!(out.contains("bad line on tcp listener"), "{out}");
