@@ -463,79 +463,118 @@ fn json_logs_keep_the_fatal_line_and_the_warnings_json() {
     drop(taken);
 }
 
+/// A `gatewatch serve` child on free ports with text logs at info to a file, a store in a
+/// temporary directory, 100 Hz gates with a 1 s window identified every 0.5 s, and `extra`
+/// appended to its `[server]` table; returned once `/readyz` answers 200.
+struct LoggingDaemon {
+    child: std::process::Child,
+    base: String,
+    tcp: u16,
+    log: std::path::PathBuf,
+    _dir: tempfile::TempDir,
+}
+
+impl LoggingDaemon {
+    async fn start(extra: &str) -> LoggingDaemon {
+        gatewatch::service::client::ensure_crypto_provider();
+        let dir = tempfile::tempdir().unwrap();
+        let (http, tcp) = (free_port(), free_port());
+        let cfg = dir.path().join("gatewatch.toml");
+        std::fs::write(
+            &cfg,
+            format!(
+                "[server]\nlisten = \"127.0.0.1:{http}\"\ntcp_listen = \"127.0.0.1:{tcp}\"\n\
+                 shutdown_grace_seconds = 2.0\nworker_threads = 1\n{extra}\n\
+                 [log]\nformat = \"text\"\nlevel = \"info\"\n\
+                 [storage]\npath = \"{}\"\n\
+                 [defaults]\nrate_hz = 100.0\nwindow_seconds = 1.0\nidentify_every_seconds = 0.5\n\
+                 stagger = false\n",
+                dir.path().join("gw.db").display()
+            ),
+        )
+        .unwrap();
+        let log = dir.path().join("stderr.log");
+        let child = Command::new(env!("CARGO_BIN_EXE_gatewatch"))
+            .args(["serve", "--config"])
+            .arg(&cfg)
+            .env_remove("RUST_LOG")
+            .stdout(Stdio::null())
+            .stderr(Stdio::from(std::fs::File::create(&log).unwrap()))
+            .spawn()
+            .unwrap();
+        let base = format!("http://127.0.0.1:{http}");
+        let deadline = Instant::now() + Duration::from_secs(30);
+        while !reqwest::get(format!("{base}/readyz"))
+            .await
+            .is_ok_and(|r| r.status() == 200)
+        {
+            assert!(Instant::now() < deadline, "the daemon never got ready");
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+        LoggingDaemon {
+            child,
+            base,
+            tcp,
+            log,
+            _dir: dir,
+        }
+    }
+
+    /// The value of `series` on `/metrics` now (0 when absent).
+    async fn metric(&self, series: &str) -> f64 {
+        let m = reqwest::get(format!("{}/metrics", self.base))
+            .await
+            .unwrap()
+            .text()
+            .await
+            .unwrap();
+        sample(&m, series).unwrap_or(0.0)
+    }
+
+    /// Stops the daemon (SIGTERM, a clean exit) and returns its log's WARN lines holding `what`.
+    fn stop_and_count_warnings(mut self, what: &str) -> (usize, String) {
+        let _ = Command::new("kill")
+            .args(["-TERM", &self.child.id().to_string()])
+            .status();
+        assert!(self.child.wait().unwrap().success());
+        let shown = std::fs::read_to_string(&self.log).unwrap();
+        let warned = shown
+            .lines()
+            .filter(|l| l.contains("WARN") && l.contains(what))
+            .count();
+        (warned, shown)
+    }
+}
+
+/// Unix seconds `ago` seconds before now.
+fn seconds_ago(ago: f64) -> f64 {
+    SystemTime::now()
+        .duration_since(SystemTime::UNIX_EPOCH)
+        .unwrap()
+        .as_secs_f64()
+        - ago
+}
+
 /// A gate whose windows cannot be analysed (a constant signal: a sensor stuck, a gate at rest)
 /// fails every `identify_every_seconds`; each failure logged a warning (17 280 lines a day per
 /// gate at 5 s). Now a gate's failures are logged once per `FAILURE_LOG_INTERVAL` (60 s), each
 /// still counted in `gatewatch_identification_failures_total`.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_gate_whose_windows_fail_logs_one_warning_per_interval() {
-    gatewatch::service::client::ensure_crypto_provider();
-    let dir = tempfile::tempdir().unwrap();
-    let http = free_port();
-    let cfg = dir.path().join("gatewatch.toml");
-    std::fs::write(
-        &cfg,
-        format!(
-            "[server]\nlisten = \"127.0.0.1:{http}\"\nshutdown_grace_seconds = 2.0\n\
-             worker_threads = 1\n[log]\nformat = \"text\"\nlevel = \"info\"\n\
-             [storage]\npath = \"{}\"\n\
-             [defaults]\nrate_hz = 100.0\nwindow_seconds = 1.0\nidentify_every_seconds = 0.5\n\
-             stagger = false\n",
-            dir.path().join("gw.db").display()
-        ),
-    )
-    .unwrap();
-    let log = dir.path().join("stderr.log");
-    let mut child = Command::new(env!("CARGO_BIN_EXE_gatewatch"))
-        .args(["serve", "--config"])
-        .arg(&cfg)
-        .env_remove("RUST_LOG")
-        .stdout(Stdio::null())
-        .stderr(Stdio::from(std::fs::File::create(&log).unwrap()))
-        .spawn()
-        .unwrap();
-    let base = format!("http://127.0.0.1:{http}");
+    let d = LoggingDaemon::start("").await;
     let client = reqwest::Client::new();
-    let deadline = Instant::now() + Duration::from_secs(30);
-    while !client
-        .get(format!("{base}/readyz"))
-        .send()
-        .await
-        .is_ok_and(|r| r.status() == 200)
-    {
-        assert!(Instant::now() < deadline, "the daemon never got ready");
-        tokio::time::sleep(Duration::from_millis(50)).await;
-    }
-    let failures = || async {
-        let m = client
-            .get(format!("{base}/metrics"))
-            .send()
-            .await
-            .unwrap()
-            .text()
-            .await
-            .unwrap();
-        sample(
-            &m,
-            "gatewatch_identification_failures_total{reason=\"window\"}",
-        )
-        .unwrap_or(0.0)
-    };
+    let failed = "gatewatch_identification_failures_total{reason=\"window\"}";
     // a constant signal, a second at a time: a window due with each request
-    let start = SystemTime::now()
-        .duration_since(SystemTime::UNIX_EPOCH)
-        .unwrap()
-        .as_secs_f64()
-        - 30.0;
+    let start = seconds_ago(30.0);
     let mut sent = 0;
     let deadline = Instant::now() + Duration::from_secs(60);
-    while failures().await < 8.0 {
+    while d.metric(failed).await < 8.0 {
         assert!(Instant::now() < deadline, "the windows never failed");
         let body = serde_json::json!({
             "gate": "flat", "start": start + sent as f64, "rate_hz": 100, "values": vec![0.5; 100]
         });
         let r = client
-            .post(format!("{base}/api/v1/samples"))
+            .post(format!("{}/api/v1/samples", d.base))
             .json(&body)
             .send()
             .await
@@ -544,65 +583,20 @@ async fn a_gate_whose_windows_fail_logs_one_warning_per_interval() {
         sent += 1;
         tokio::time::sleep(Duration::from_millis(100)).await;
     }
-    let _ = Command::new("kill")
-        .args(["-TERM", &child.id().to_string()])
-        .status();
-    assert!(child.wait().unwrap().success());
-    let shown = std::fs::read_to_string(&log).unwrap();
-    let warned = shown
-        .lines()
-        .filter(|l| l.contains("WARN") && l.contains("identification failed"))
-        .count();
+    let (warned, shown) = d.stop_and_count_warnings("identification failed");
     assert_eq!(warned, 1, "{shown}");
     assert!(shown.contains("gate=\"flat\""), "{shown}");
 }
 
 /// A source at another rate than its gate's mismatches every window, and each mismatch logged
 /// a warning; now once per `FAILURE_LOG_INTERVAL` per gate, each sample still counted in
-/// `gatewatch_samples_rejected_total{reason="rate_mismatch"}`. Over raw TCP, where each line is
-/// its own batch (a JSON request of 3 or more samples is refused whole instead).
+/// `gatewatch_samples_rejected_total{reason="rate_mismatch"}`.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_source_at_the_wrong_rate_logs_one_warning_per_interval() {
-    gatewatch::service::client::ensure_crypto_provider();
-    let dir = tempfile::tempdir().unwrap();
-    let (http, tcp) = (free_port(), free_port());
-    let cfg = dir.path().join("gatewatch.toml");
-    std::fs::write(
-        &cfg,
-        format!(
-            "[server]\nlisten = \"127.0.0.1:{http}\"\ntcp_listen = \"127.0.0.1:{tcp}\"\n\
-             shutdown_grace_seconds = 2.0\nworker_threads = 1\n\
-             [log]\nformat = \"text\"\nlevel = \"info\"\n\
-             [storage]\npath = \"{}\"\n\
-             [defaults]\nrate_hz = 100.0\nwindow_seconds = 1.0\nidentify_every_seconds = 0.5\n\
-             stagger = false\n",
-            dir.path().join("gw.db").display()
-        ),
-    )
-    .unwrap();
-    let log = dir.path().join("stderr.log");
-    let mut child = Command::new(env!("CARGO_BIN_EXE_gatewatch"))
-        .args(["serve", "--config"])
-        .arg(&cfg)
-        .env_remove("RUST_LOG")
-        .stdout(Stdio::null())
-        .stderr(Stdio::from(std::fs::File::create(&log).unwrap()))
-        .spawn()
-        .unwrap();
-    let deadline = Instant::now() + Duration::from_secs(30);
-    let mut sock = loop {
-        if let Ok(s) = std::net::TcpStream::connect(("127.0.0.1", tcp)) {
-            break s;
-        }
-        assert!(Instant::now() < deadline, "the TCP listener never came up");
-        std::thread::sleep(Duration::from_millis(50));
-    };
+    let d = LoggingDaemon::start("").await;
+    let mut sock = std::net::TcpStream::connect(("127.0.0.1", d.tcp)).unwrap();
     // 30 s at 125 Hz on a 100 Hz gate: every window of 100 samples mismatches
-    let start = SystemTime::now()
-        .duration_since(SystemTime::UNIX_EPOCH)
-        .unwrap()
-        .as_secs_f64()
-        - 40.0;
+    let start = seconds_ago(40.0);
     let lines: String = (0..3750)
         .map(|i| {
             let ns = ((start + f64::from(i) / 125.0) * 1e9) as i64;
@@ -611,35 +605,61 @@ async fn a_source_at_the_wrong_rate_logs_one_warning_per_interval() {
         .collect();
     sock.write_all(lines.as_bytes()).unwrap();
     drop(sock);
-    let base = format!("http://127.0.0.1:{http}");
     let deadline = Instant::now() + Duration::from_secs(30);
-    let mismatched = loop {
-        if let Ok(r) = reqwest::get(format!("{base}/metrics")).await {
-            let m = r.text().await.unwrap();
-            let mismatched = sample(
-                &m,
-                "gatewatch_samples_rejected_total{reason=\"rate_mismatch\"}",
-            );
-            // every line applied (the window takes each sample, mismatched or not)
-            if sample(&m, "gatewatch_samples_ingested_total{gate=\"fast\"}") >= Some(3750.0) {
-                break mismatched.unwrap_or(0.0);
-            }
-        }
+    // every line applied (the window takes each sample, mismatched or not)
+    while d
+        .metric("gatewatch_samples_ingested_total{gate=\"fast\"}")
+        .await
+        < 3750.0
+    {
         assert!(
             Instant::now() < deadline,
             "the lines were never all applied"
         );
         tokio::time::sleep(Duration::from_millis(50)).await;
-    };
+    }
+    let mismatched = d
+        .metric("gatewatch_samples_rejected_total{reason=\"rate_mismatch\"}")
+        .await;
     assert!(mismatched > 1000.0, "{mismatched}");
-    let _ = Command::new("kill")
-        .args(["-TERM", &child.id().to_string()])
-        .status();
-    assert!(child.wait().unwrap().success());
-    let shown = std::fs::read_to_string(&log).unwrap();
-    let warned = shown
-        .lines()
-        .filter(|l| l.contains("WARN") && l.contains("imply another sample rate"))
-        .count();
+    let (warned, shown) = d.stop_and_count_warnings("imply another sample rate");
+    assert_eq!(warned, 1, "{shown}");
+}
+
+/// With `server.job_queue` under the gates that have a window due, windows are dropped; each
+/// drop logged a warning. Now at most one per `FAILURE_LOG_INTERVAL` for the daemon, each drop
+/// still counted in `gatewatch_identification_failures_total{reason="queue_full"}`.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn windows_dropped_on_a_full_queue_log_one_warning_per_interval() {
+    let d = LoggingDaemon::start("job_queue = 1").await;
+    let client = reqwest::Client::new();
+    let dropped = "gatewatch_identification_failures_total{reason=\"queue_full\"}";
+    let start = seconds_ago(60.0);
+    let mut sent = 0;
+    let deadline = Instant::now() + Duration::from_secs(60);
+    // eight gates, a noisy second each at once: one identifies, one waits, the rest are dropped
+    while d.metric(dropped).await < 8.0 {
+        assert!(Instant::now() < deadline, "no window was dropped");
+        let batches: Vec<serde_json::Value> = (0..8)
+            .map(|g| {
+                let values: Vec<f64> = (0..100)
+                    .map(|i| ((sent * 100 + i) as f64 * 0.65).sin() + 0.1 * f64::from(g))
+                    .collect();
+                serde_json::json!({
+                    "gate": format!("q{g}"), "start": start + sent as f64, "rate_hz": 100,
+                    "values": values
+                })
+            })
+            .collect();
+        let r = client
+            .post(format!("{}/api/v1/samples", d.base))
+            .json(&batches)
+            .send()
+            .await
+            .unwrap();
+        assert!(r.status().is_success(), "{}", r.status());
+        sent += 1;
+    }
+    let (warned, shown) = d.stop_and_count_warnings("identification queue full");
     assert_eq!(warned, 1, "{shown}");
 }

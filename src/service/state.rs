@@ -163,6 +163,9 @@ pub struct AppState {
     /// The store (`[storage]`), when the daemon has one (`serve`, `demo`); `None` keeps
     /// everything in memory (library use, in-process tests).
     pub persistence: Option<Arc<Persistence>>,
+    /// Warnings of windows dropped on a full job queue, at most one per
+    /// [`FAILURE_LOG_INTERVAL`] for the daemon (each is counted in the failures metric).
+    queue_full_log: Mutex<LogLimiter>,
 }
 
 impl std::fmt::Debug for AppState {
@@ -238,6 +241,7 @@ impl AppState {
                     config.server.max_concurrent_ingest,
                 )),
                 persistence: persistence.clone(),
+                queue_full_log: Mutex::new(LogLimiter::new(FAILURE_LOG_INTERVAL)),
             }
         });
         let weak = Arc::downgrade(&state);
@@ -691,7 +695,10 @@ impl AppState {
             Submitted::Queued => {}
             Submitted::Replaced => self.metrics.jobs_replaced.inc(),
             Submitted::QueueFull => {
-                tracing::warn!(%gate, "identification queue full, window dropped");
+                if let Some(held_back) = lock(&self.queue_full_log).allow(std::time::Instant::now())
+                {
+                    tracing::warn!(%gate, held_back, "identification queue full, window dropped");
+                }
                 self.metrics
                     .identification_failures
                     .with_label_values(&["queue_full"])
