@@ -520,6 +520,17 @@ impl LoggingDaemon {
         }
     }
 
+    /// POSTs `body` to `/api/v1/samples`, asserting it is accepted.
+    async fn post(&self, client: &reqwest::Client, body: &serde_json::Value) {
+        let r = client
+            .post(format!("{}/api/v1/samples", self.base))
+            .json(body)
+            .send()
+            .await
+            .unwrap();
+        assert!(r.status().is_success(), "{}", r.status());
+    }
+
     /// The value of `series` on `/metrics` now (0 when absent).
     async fn metric(&self, series: &str) -> f64 {
         let m = reqwest::get(format!("{}/metrics", self.base))
@@ -573,13 +584,7 @@ async fn a_gate_whose_windows_fail_logs_one_warning_per_interval() {
         let body = serde_json::json!({
             "gate": "flat", "start": start + sent as f64, "rate_hz": 100, "values": vec![0.5; 100]
         });
-        let r = client
-            .post(format!("{}/api/v1/samples", d.base))
-            .json(&body)
-            .send()
-            .await
-            .unwrap();
-        assert!(r.status().is_success(), "{}", r.status());
+        d.post(&client, &body).await;
         sent += 1;
         tokio::time::sleep(Duration::from_millis(100)).await;
     }
@@ -651,13 +656,7 @@ async fn windows_dropped_on_a_full_queue_log_one_warning_per_interval() {
                 })
             })
             .collect();
-        let r = client
-            .post(format!("{}/api/v1/samples", d.base))
-            .json(&batches)
-            .send()
-            .await
-            .unwrap();
-        assert!(r.status().is_success(), "{}", r.status());
+        d.post(&client, &serde_json::Value::from(batches)).await;
         sent += 1;
     }
     let (warned, shown) = d.stop_and_count_warnings("identification queue full");

@@ -378,22 +378,28 @@ mod tests {
         }
     }
 
-    #[test]
-    fn a_client_that_reconnects_for_every_bad_line_logs_once_per_interval() {
+    /// What `f` logs, as text without colours.
+    fn logged(f: impl FnOnce()) -> String {
         let sink = Sink::default();
         let w = sink.clone();
         let subscriber = tracing_subscriber::fmt()
             .with_writer(move || w.clone())
             .with_ansi(false)
             .finish();
+        tracing::subscriber::with_default(subscriber, f);
+        let out = sink.0.lock().unwrap().clone();
+        String::from_utf8(out).unwrap()
+    }
+
+    #[test]
+    fn a_client_that_reconnects_for_every_bad_line_logs_once_per_interval() {
         let log = listener_log();
-        tracing::subscriber::with_default(subscriber, || {
+        let out = logged(|| {
             // 100 connections of one bad line each, within one interval
             for port in 0..100 {
                 connection(&log, 1000 + port).record(1, "invalid line `x`");
             }
         });
-        let out = String::from_utf8(sink.0.lock().unwrap().clone()).unwrap();
         assert_eq!(out.trim_end().lines().count(), 1, "{out}");
         // the next line logged says how many were held back
         assert_eq!(
@@ -406,17 +412,10 @@ mod tests {
 
     #[test]
     fn a_bad_line_reaches_the_log_escaped_and_cut() {
-        let sink = Sink::default();
-        let w = sink.clone();
-        let subscriber = tracing_subscriber::fmt()
-            .with_writer(move || w.clone())
-            .with_ansi(false)
-            .finish();
         let raw = format!("m,gate=g1 force=1\r\x1b[2KFAKE{}", "y".repeat(1000));
-        tracing::subscriber::with_default(subscriber, || {
+        let out = logged(|| {
             connection(&listener_log(), 9).record(1, &format!("invalid line `{raw}`"));
         });
-        let out = String::from_utf8(sink.0.lock().unwrap().clone()).unwrap();
         assert!(out.contains("bad line on tcp listener"), "{out}");
         assert!(!out.contains('\r') && !out.contains('\x1b'), "{out:?}");
         assert!(out.contains("\\r\\u{1b}[2KFAKE"), "{out}");
