@@ -1140,6 +1140,16 @@ async fn an_expired_gate_is_not_restored_at_the_next_start() {
         let (app, state) = with_store_config(&db, extra);
         let (s, _) = post_json(&app, uniform("junk", 1000.0, 100)).await;
         assert_eq!(s, StatusCode::NO_CONTENT);
+        // the window's identification applied and its write queued before the gate expires:
+        // a result computed before the forget and queued after it restored an `ok` state in
+        // one CI rehearsal (the daemon's race is noted on issue 8, not fixed)
+        wait_until(|| {
+            state
+                .gate_view("junk")
+                .is_some_and(|v| v.identification.is_some())
+        })
+        .await;
+        tokio::time::sleep(Duration::from_millis(100)).await;
         let now = SystemTime::now();
         state.tick(now + Duration::from_secs(120));
         assert_eq!(firing_alerts(&state, "junk"), ["GateDataStale"]);
