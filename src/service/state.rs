@@ -425,7 +425,7 @@ impl AppState {
             };
             let state = inner.alerts.state(id).unwrap_or(GateState::Unknown);
             self.metrics.set_alert_state(id, state_name(state));
-            self.notify(events);
+            self.notify(inner, events);
             let generation = inner.next_generation;
             inner.next_generation += 1;
             inner.gates.insert(
@@ -525,13 +525,27 @@ impl AppState {
         }
     }
 
-    fn notify(&self, events: Vec<AlertEvent>) {
-        self.notify_and_write(events, crate::store::WriteBatch::default());
+    fn notify(&self, held: &Inner, events: Vec<AlertEvent>) {
+        self.notify_and_write(held, events, crate::store::WriteBatch::default());
     }
 
     /// [`AppState::notify`], and with a store: `extra` and the transitions written in one
     /// transaction before they are handed to the notifier.
-    fn notify_and_write(&self, events: Vec<AlertEvent>, extra: crate::store::WriteBatch) {
+    ///
+    /// `_held` is the state under its lock, which the caller keeps until this returns: the
+    /// writes and notifications are queued in the order the state changed. Why: `on_result`
+    /// released the lock before it queued a window's write; a gate forgotten in between (its
+    /// expiry, or `DELETE`) had its forget write queued first, and the late window write brought
+    /// the gate's alert state back at the next start (a CI rehearsal at stop 59). Both queues
+    /// are non-blocking (`Writer::submit` and `NotifierHandle::notify` are `try_send`s, a full
+    /// queue counts a drop), and neither the store writer nor the notifier takes this lock
+    /// while it holds one of its own, so holding it here cannot deadlock.
+    fn notify_and_write(
+        &self,
+        _held: &Inner,
+        events: Vec<AlertEvent>,
+        extra: crate::store::WriteBatch,
+    ) {
         if events.is_empty() {
             if let Some(p) = &self.persistence {
                 p.writer.submit(extra, None);
@@ -678,7 +692,7 @@ impl AppState {
                     let state = inner.alerts.state(g).unwrap_or(GateState::Unknown);
                     self.metrics.set_alert_state(g, state_name(state));
                 }
-                self.notify(events);
+                self.notify(&inner, events);
             }
         }
         for job in jobs {
@@ -897,8 +911,7 @@ impl AppState {
                     e.latest_window = Some(window);
                     e.last_error = None;
                 }
-                drop(inner);
-                self.notify_and_write(events, write);
+                self.notify_and_write(&inner, events, write);
             }
             JobOutcome::Failed(err) => {
                 let reason = match err {

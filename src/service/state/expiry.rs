@@ -83,13 +83,17 @@ impl AppState {
             self.persistence.as_deref(),
             &inner.alerts,
         ));
-        drop(inner);
-        self.notify_and_write(events, write);
+        // under the lock, as everywhere (`AppState::notify_and_write`): a window's write
+        // queued after this forget would restore the gate, and samples of an expired gate's
+        // name arriving meanwhile make a new gate, whose series the removal below would take
+        // away
+        self.notify_and_write(&inner, events, write);
         // The resolved alerts' delivery sets their series once more: an expired gate leaves
         // none behind (label cardinality stays bounded by the live gates).
         for id in &expired {
             self.metrics.remove_gate(id);
         }
+        drop(inner);
     }
 
     /// Logs, once per job, each identification that has run past
@@ -341,9 +345,9 @@ impl AppState {
             resolved = %resolved.join(","),
             "gate forgotten by DELETE /api/v1/gates/{{id}}, its firing alerts resolved"
         );
-        // under the lock, unlike the tick: samples of the same name arriving meanwhile make a
-        // new gate, whose series the removal below would take away
-        self.notify_and_write(events, write);
+        // under the lock (`AppState::notify_and_write`): samples of the same name arriving
+        // meanwhile make a new gate, whose series the removal below would take away
+        self.notify_and_write(&inner, events, write);
         self.metrics.remove_gate(id);
         drop(inner);
         Ok(Forgotten {
