@@ -11,7 +11,10 @@ use axum::body::Bytes;
 use axum::extract::State;
 use axum::http::{HeaderMap, StatusCode, Uri};
 use axum::Router;
-use gatewatch::alert::notify::{spawn_notifier, NotifyConfig, WebhookTarget};
+use gatewatch::alert::notify::outbox::OutboxEntry;
+use gatewatch::alert::notify::{
+    spawn_notifier, spawn_notifier_with_ack, NotifyConfig, WebhookTarget,
+};
 use gatewatch::alert::{Alert, AlertEngine, AlertEvent, AlertRules, Observation};
 use serde_json::Value;
 
@@ -663,4 +666,72 @@ async fn stats_split_by_target_kind() {
     let s = handle.stats().snapshot();
     assert_eq!((s.webhook.dropped, s.alertmanager.dropped), (2, 1));
     assert_eq!((s.delivered, s.failed, s.dropped), (1, 2, 3));
+}
+
+/// Outbox entry `n` (row id `n`, batch `n`) of a firing alert with fingerprint `fp<n>`.
+fn outbox_entry(n: i64) -> OutboxEntry {
+    let (fired, _) = events("g1");
+    let mut alert = fired[0].alert().clone();
+    alert.fingerprint = format!("fp{n}");
+    OutboxEntry {
+        id: Some(n),
+        batch: n as u64,
+        event: AlertEvent::Firing(alert),
+        created: SystemTime::now(),
+    }
+}
+
+/// A receiver that fails for as long as an outage lasts, while new alerts keep coming: the
+/// entries a target keeps in memory stop at `outbox_max_pending`. The oldest are given up
+/// (counted in `failed`, their rows acknowledged for the store to delete); the newest are
+/// delivered in order once the receiver is back. Before stop 60 the queue grew with every new
+/// alert for `notification_max_age_seconds` (a day).
+#[tokio::test]
+async fn an_outbox_queue_kept_during_an_outage_stops_at_its_bound_and_gives_up_the_oldest() {
+    let rec = Receiver::default();
+    rec.fail_first.store(usize::MAX, Ordering::SeqCst);
+    let base = receiver(rec.clone()).await;
+    let config = NotifyConfig {
+        webhooks: vec![webhook(format!("{base}/hook"), None)],
+        outbox_max_age: Some(Duration::from_secs(3600)),
+        outbox_max_pending: 5,
+        ..fast_config()
+    };
+    let acked = Arc::new(Mutex::new(Vec::<i64>::new()));
+    let sink = acked.clone();
+    let ack: gatewatch::alert::notify::outbox::Ack =
+        Arc::new(move |ids: Vec<i64>| sink.lock().expect("lock").extend(ids));
+    let (handle, _task) = spawn_notifier_with_ack(config, Vec::new, ack);
+    // the head is retried...
+    assert!(handle.notify_entries(vec![(0, outbox_entry(1))]));
+    wait_until("the head's first attempts", WAIT, || rec.count() >= 2).await;
+    // ...while eleven more alerts come
+    assert!(handle.notify_entries((2..=12).map(|n| (0, outbox_entry(n))).collect()));
+    wait_until("the oldest given up", WAIT, || {
+        acked.lock().expect("lock").len() == 7
+    })
+    .await;
+    assert_eq!(*acked.lock().expect("lock"), (1..=7).collect::<Vec<_>>());
+    let s = handle.stats().snapshot();
+    assert_eq!((s.webhook.failed, s.webhook.delivered), (7, 0));
+    // the receiver is back: the five kept are delivered, in order
+    rec.fail_first.store(0, Ordering::SeqCst);
+    wait_until("the rest delivered", WAIT, || {
+        handle.stats().snapshot().webhook.delivered == 5
+    })
+    .await;
+    assert_eq!(*acked.lock().expect("lock"), (1..=12).collect::<Vec<_>>());
+    let mut sent: Vec<String> = Vec::new();
+    for r in rec.requests() {
+        let fp = r.body["alerts"][0]["fingerprint"]
+            .as_str()
+            .expect("fingerprint")
+            .to_string();
+        if sent.last() != Some(&fp) {
+            sent.push(fp);
+        }
+    }
+    assert_eq!(sent, ["fp1", "fp8", "fp9", "fp10", "fp11", "fp12"]);
+    assert_eq!(handle.stats().snapshot().webhook.failed, 7);
+    assert!(handle.shutdown(WAIT).await);
 }

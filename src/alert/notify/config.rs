@@ -9,6 +9,18 @@ use serde::Deserialize;
 /// Default capacity of the notifier's queues (the handle's and each target's).
 pub const DEFAULT_QUEUE_CAPACITY: usize = 1024;
 
+/// Most outbox entries a target keeps in memory while its head is retried (the daemon with a
+/// store: [`NotifyConfig::outbox_max_pending`]). Why a count: an entry is retried for
+/// `notification_max_age_seconds` (a day), and supersession bounds the entries by the alerts
+/// (two per alert for a webhook, one for Alertmanager), not by a number: gates that come, fire
+/// `GateDataStale` and expire, each a new alert, made the queue of a dead receiver grow with
+/// every gate for a day (`max_gates` new gates every `unknown_gate_expiry_seconds`, up to
+/// millions of entries of about 1.5 KB). 10 000 is two entries for each of `max_gates`' largest
+/// value, about 15 MB per target; real outages with real gates stay far below it. At the bound
+/// the oldest entries are given up, as at their maximum age: counted in `failed`, logged, and
+/// deleted from the store (the newest transitions are the ones that say what is true now).
+pub const DEFAULT_OUTBOX_MAX_PENDING: usize = 10_000;
+
 /// One webhook receiver (anything that understands Alertmanager's webhook format).
 #[derive(Clone, PartialEq, Deserialize)]
 #[serde(
@@ -78,6 +90,10 @@ pub struct NotifyConfig {
     /// `max_attempts` says (not a `[notify]` key).
     #[serde(skip)]
     pub outbox_max_age: Option<Duration>,
+    /// Most outbox entries per target in memory ([`DEFAULT_OUTBOX_MAX_PENDING`]; not a
+    /// `[notify]` key, a field for the tests; 0 acts as 1).
+    #[serde(skip)]
+    pub outbox_max_pending: usize,
 }
 
 impl Default for NotifyConfig {
@@ -93,6 +109,7 @@ impl Default for NotifyConfig {
             queue_capacity: DEFAULT_QUEUE_CAPACITY,
             external_url: String::new(),
             outbox_max_age: None,
+            outbox_max_pending: DEFAULT_OUTBOX_MAX_PENDING,
         }
     }
 }

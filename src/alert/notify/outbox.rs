@@ -60,13 +60,24 @@ pub fn supersedes(is_alertmanager: bool, newer_is_firing: bool) -> bool {
     is_alertmanager || newer_is_firing
 }
 
-/// Appends `entry` to a target's pending entries, removing those it supersedes.
-pub(super) fn push(pending: &mut VecDeque<OutboxEntry>, entry: OutboxEntry, am: bool) {
+/// Appends `entry` to a target's pending entries, removing those it supersedes; past `max`
+/// entries the oldest leave too and are appended to `evicted`, for the caller to give up
+/// (`NotifyConfig::outbox_max_pending`).
+pub(super) fn push(
+    pending: &mut VecDeque<OutboxEntry>,
+    entry: OutboxEntry,
+    am: bool,
+    max: usize,
+    evicted: &mut Vec<OutboxEntry>,
+) {
     if supersedes(am, entry.event.is_firing()) {
         let fp = &entry.event.alert().fingerprint;
         pending.retain(|e| &e.event.alert().fingerprint != fp);
     }
     pending.push_back(entry);
+    while pending.len() > max.max(1) {
+        evicted.extend(pending.pop_front());
+    }
 }
 
 /// The JSON kept in the store for a transition.
@@ -128,9 +139,14 @@ pub(super) async fn drain(
     deferred: &mut VecDeque<Job>,
 ) -> bool {
     let am = d.target.is_alertmanager();
+    let cap = d.config.outbox_max_pending;
     let mut pending = VecDeque::new();
+    let mut evicted = Vec::new();
     for e in first {
-        push(&mut pending, e, am);
+        push(&mut pending, e, am, cap, &mut evicted);
+    }
+    if let Some(why) = give_up_evicted(d.stats, d.kind, d.ack, cap, &mut evicted) {
+        d.limiter.failure_message(&d.target.url, &why);
     }
     let max = d.config.max_backoff();
     let mut closed = false;
@@ -214,7 +230,10 @@ pub(super) async fn drain(
                     job = jobs.recv(), if !closed => match job {
                         Some(Job::Outbox(entries)) => {
                             for e in entries {
-                                push(&mut pending, e, am);
+                                push(&mut pending, e, am, cap, &mut evicted);
+                            }
+                            if let Some(why) = give_up_evicted(d.stats, d.kind, d.ack, cap, &mut evicted) {
+                                d.limiter.failure_message(&d.target.url, &why);
                             }
                             // the entries in flight were superseded: start over with the head
                             if !pending.iter().take(n).eq(group.iter()) {
@@ -239,6 +258,36 @@ pub(super) async fn drain(
         }
     }
     true
+}
+
+/// Gives up the entries `push` evicted at the target's bound (`cap`), as an entry at its
+/// maximum age: each counted in `failed`, their store rows acknowledged (deleted). The warning
+/// to log, when there were some (the caller logs it through the target's limiter).
+fn give_up_evicted(
+    stats: &NotifierStats,
+    kind: TargetType,
+    ack: &Ack,
+    cap: usize,
+    evicted: &mut Vec<OutboxEntry>,
+) -> Option<String> {
+    if evicted.is_empty() {
+        return None;
+    }
+    for _ in evicted.iter() {
+        stats.failed_one(kind);
+    }
+    let ids: Vec<i64> = evicted.iter().filter_map(|e| e.id).collect();
+    if !ids.is_empty() {
+        ack(ids);
+    }
+    let why = format!(
+        "{} undelivered notifications queued for this target (the bound, while its oldest is \
+         retried): the {} oldest given up",
+        cap.max(1),
+        evicted.len()
+    );
+    evicted.clear();
+    Some(why)
 }
 
 #[cfg(test)]
@@ -272,6 +321,34 @@ mod tests {
         }
     }
 
+    /// [`push`] with no bound.
+    fn push_all(p: &mut VecDeque<OutboxEntry>, e: OutboxEntry, am: bool) {
+        let mut evicted = Vec::new();
+        push(p, e, am, usize::MAX, &mut evicted);
+        assert!(evicted.is_empty());
+    }
+
+    #[test]
+    fn past_the_bound_the_oldest_entries_leave_after_supersession() {
+        let mut p = VecDeque::new();
+        let mut evicted = Vec::new();
+        for (n, fp) in [(1, "a"), (2, "b"), (3, "c")] {
+            push(&mut p, entry(n, fp, true), false, 3, &mut evicted);
+        }
+        assert!(evicted.is_empty(), "at the bound, not past it");
+        // a re-fire of `a` supersedes its old episode first: nothing to evict
+        push(&mut p, entry(4, "a", true), false, 3, &mut evicted);
+        assert_eq!(ids(&p), [2, 3, 4]);
+        assert!(evicted.is_empty());
+        push(&mut p, entry(5, "d", true), false, 3, &mut evicted);
+        assert_eq!(ids(&p), [3, 4, 5]);
+        assert_eq!(evicted.iter().filter_map(|e| e.id).collect::<Vec<_>>(), [2]);
+        // a bound of 0 acts as 1
+        push(&mut p, entry(6, "e", true), false, 0, &mut evicted);
+        assert_eq!(ids(&p), [6]);
+        assert_eq!(evicted.len(), 4);
+    }
+
     fn ids(p: &VecDeque<OutboxEntry>) -> Vec<i64> {
         p.iter().filter_map(|e| e.id).collect()
     }
@@ -279,20 +356,20 @@ mod tests {
     #[test]
     fn webhooks_keep_firing_then_resolved_and_a_new_episode_replaces_the_old() {
         let mut p = VecDeque::new();
-        push(&mut p, entry(1, "a", true), false);
-        push(&mut p, entry(2, "b", true), false);
-        push(&mut p, entry(3, "a", false), false);
+        push_all(&mut p, entry(1, "a", true), false);
+        push_all(&mut p, entry(2, "b", true), false);
+        push_all(&mut p, entry(3, "a", false), false);
         assert_eq!(ids(&p), [1, 2, 3], "resolved does not supersede firing");
-        push(&mut p, entry(4, "a", true), false);
+        push_all(&mut p, entry(4, "a", true), false);
         assert_eq!(ids(&p), [2, 4], "a re-fire replaces the old episode");
     }
 
     #[test]
     fn alertmanager_keeps_only_the_latest_state_of_an_alert() {
         let mut p = VecDeque::new();
-        push(&mut p, entry(1, "a", true), true);
-        push(&mut p, entry(2, "b", true), true);
-        push(&mut p, entry(3, "a", false), true);
+        push_all(&mut p, entry(1, "a", true), true);
+        push_all(&mut p, entry(2, "b", true), true);
+        push_all(&mut p, entry(3, "a", false), true);
         assert_eq!(ids(&p), [2, 3]);
     }
 
