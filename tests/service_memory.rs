@@ -259,15 +259,94 @@ async fn an_hour_in_one_request_copies_one_window() {
 /// the 64 MiB baseline.
 const HISTORY_BOUND_KIB: u64 = (64 + 160) * 1024;
 
+/// A store in `dir` holding a day of one gate, `g1`, at a window every 5 s
+/// (`MAX_HISTORY_LIMIT` rows of a real report's size, 1.7 kB: about 37 MB of JSON); its path.
+fn a_day_of_history(dir: &std::path::Path) -> std::path::PathBuf {
+    use gatewatch::store::{
+        IdentificationRecord, SqliteStore, Store, WriteBatch, MAX_HISTORY_LIMIT,
+    };
+    let db = dir.join("history.db");
+    let store = SqliteStore::open(&db, 1024).unwrap();
+    let end = now_unix();
+    let pad = "x".repeat(1500);
+    let records = (0..MAX_HISTORY_LIMIT).map(|i| {
+        let t = end - 5.0 * (MAX_HISTORY_LIMIT - i) as f64;
+        IdentificationRecord {
+            gate: "g1".into(),
+            time: t + 1.0,
+            window_start: t - 10.0,
+            window_end: t,
+            equation: "ydd + 0.19*yd + 88.8*y = 0".into(),
+            coefficients: vec![("c1".into(), 0.19), ("c3".into(), 88.8)],
+            damping: serde_json::json!({"zeta0": 0.01, "zeta0_interval": [0.006, 0.014],
+                "trusted": true, "frequency_hz": 1.5, "curve": pad}),
+            verdict: "damped".into(),
+            fit_nmae: 0.03,
+            path: "full".into(),
+        }
+    });
+    store
+        .write(&WriteBatch {
+            identifications: records.collect(),
+            ..Default::default()
+        })
+        .unwrap();
+    store.checkpoint().unwrap();
+    db
+}
+
 /// Asks for `path` from a client with a small receive buffer and reads only the status line of
-/// the answer; returns the connection (kept open, not read) and the status code.
+/// the answer; returns the connection and the status code.
 async fn ask_and_read_nothing(
     addr: std::net::SocketAddr,
     path: &str,
 ) -> (tokio::net::TcpStream, u16) {
-    use tokio::io::{AsyncReadExt, AsyncWriteExt};
     let socket = tokio::net::TcpSocket::new_v4().unwrap();
     socket.set_recv_buffer_size(4096).unwrap();
+    ask_on(socket, addr, path).await
+}
+
+/// Ethernet's maximum segment size.
+const ETHERNET_MSS: libc::c_int = 1460;
+
+/// As [`ask_and_read_nothing`], from a client whose segments are Ethernet's
+/// ([`ETHERNET_MSS`]), as a client on a network has, and a receive buffer of 4 x
+/// [`STEADY_STEP`]. Why the segment size: on loopback it is 64 KiB, Linux sizes the daemon's
+/// send buffer from it (up to `tcp_wmem`'s 4 MiB), and a write blocked on a full buffer is
+/// woken only once a third of it is free: a client there had to take 1.3 MB per request
+/// timeout not to be cut by `SendTimeout` (the first version of this test was, at 740 KB/s).
+/// With Ethernet's segments the send buffer stays near 100 KB.
+async fn ask_as_a_network_client(
+    addr: std::net::SocketAddr,
+    path: &str,
+) -> (tokio::net::TcpStream, u16) {
+    use std::os::fd::AsRawFd;
+    let socket = tokio::net::TcpSocket::new_v4().unwrap();
+    socket.set_recv_buffer_size(4 * STEADY_STEP as u32).unwrap();
+    let mss = ETHERNET_MSS;
+    // SAFETY: the descriptor is the open socket's, the option value a live c_int of the size
+    // given.
+    let set = unsafe {
+        libc::setsockopt(
+            socket.as_raw_fd(),
+            libc::IPPROTO_TCP,
+            libc::TCP_MAXSEG,
+            (&mss as *const libc::c_int).cast(),
+            std::mem::size_of::<libc::c_int>() as libc::socklen_t,
+        )
+    };
+    assert_eq!(set, 0, "TCP_MAXSEG: {}", std::io::Error::last_os_error());
+    ask_on(socket, addr, path).await
+}
+
+/// Connects `socket` to `addr`, asks for `path` and reads only the status line of the answer;
+/// returns the connection (the rest of the answer not read) and the status code.
+async fn ask_on(
+    socket: tokio::net::TcpSocket,
+    addr: std::net::SocketAddr,
+    path: &str,
+) -> (tokio::net::TcpStream, u16) {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
     let mut s = socket.connect(addr).await.unwrap();
     s.write_all(format!("GET {path} HTTP/1.1\r\nhost: x\r\n\r\n").as_bytes())
         .await
@@ -290,40 +369,9 @@ async fn ask_and_read_nothing(
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn history_answers_not_read_are_bounded_and_cut_after_the_request_timeout() {
     use gatewatch::service::history::MAX_CONCURRENT_HISTORY;
-    use gatewatch::store::{
-        IdentificationRecord, SqliteStore, Store, WriteBatch, MAX_HISTORY_LIMIT,
-    };
+    use gatewatch::store::MAX_HISTORY_LIMIT;
     let db_dir = tempfile::tempdir().unwrap();
-    let db = db_dir.path().join("history.db");
-    {
-        // a day of one gate at a window every 5 s, rows of a real report's size (1.7 kB)
-        let store = SqliteStore::open(&db, 1024).unwrap();
-        let end = now_unix();
-        let pad = "x".repeat(1500);
-        let records = (0..MAX_HISTORY_LIMIT).map(|i| {
-            let t = end - 5.0 * (MAX_HISTORY_LIMIT - i) as f64;
-            IdentificationRecord {
-                gate: "g1".into(),
-                time: t + 1.0,
-                window_start: t - 10.0,
-                window_end: t,
-                equation: "ydd + 0.19*yd + 88.8*y = 0".into(),
-                coefficients: vec![("c1".into(), 0.19), ("c3".into(), 88.8)],
-                damping: serde_json::json!({"zeta0": 0.01, "zeta0_interval": [0.006, 0.014],
-                    "trusted": true, "frequency_hz": 1.5, "curve": pad}),
-                verdict: "damped".into(),
-                fit_nmae: 0.03,
-                path: "full".into(),
-            }
-        });
-        store
-            .write(&WriteBatch {
-                identifications: records.collect(),
-                ..Default::default()
-            })
-            .unwrap();
-        store.checkpoint().unwrap();
-    }
+    let db = a_day_of_history(db_dir.path());
     let Some((daemon, base, _dir)) = start(&format!(
         "[server]\nworker_threads = 1\nrequest_timeout_seconds = 2.0\n\
          [storage]\npath = \"{}\"\n",
@@ -365,4 +413,125 @@ async fn history_answers_not_read_are_bounded_and_cut_after_the_request_timeout(
     let body: serde_json::Value = answer.json().await.unwrap();
     assert_eq!(body["count"], MAX_HISTORY_LIMIT);
     drop(held);
+}
+
+/// Bytes a steady reader takes at a time, and its pause between two reads: 16 KiB every 20 ms,
+/// at most 800 KiB/s, so a write of the daemon never waits a whole request timeout (1 s here)
+/// for room (`SendTimeout` does not cut it; see [`ask_as_a_network_client`]), and at most
+/// 8 MiB of the 37 MB answer is read by the transfer limit (10 s here).
+const STEADY_STEP: usize = 16 * 1024;
+const STEADY_PAUSE: Duration = Duration::from_millis(20);
+
+/// How a steady reader's answer ended: the bytes it read, and how long after the request its
+/// connection ended (`None`: still open after the wait).
+struct SteadyRead {
+    bytes: usize,
+    ended_after: Option<Duration>,
+}
+
+/// Reads what is left of the answer on `s` ([`STEADY_STEP`] every [`STEADY_PAUSE`]) until the
+/// connection ends (end of file or an error, such as a reset) or `wait` has passed since
+/// `asked`.
+async fn read_steadily(
+    mut s: tokio::net::TcpStream,
+    asked: std::time::Instant,
+    wait: Duration,
+) -> SteadyRead {
+    use tokio::io::AsyncReadExt;
+    let mut buf = vec![0u8; STEADY_STEP];
+    let mut bytes = 0;
+    let read = async {
+        loop {
+            match s.read(&mut buf).await {
+                Ok(n) if n > 0 => bytes += n,
+                _ => return asked.elapsed(),
+            }
+            tokio::time::sleep(STEADY_PAUSE).await;
+        }
+    };
+    let left = wait.saturating_sub(asked.elapsed());
+    let ended_after = tokio::time::timeout(left, read).await.ok();
+    SteadyRead { bytes, ended_after }
+}
+
+/// Clients that ask for a day of history and read it slowly but steadily (issue of session
+/// h36): the send timeout restarts at every write that goes through, so such a client kept
+/// its history place (`MAX_CONCURRENT_HISTORY`) for as long as its transfer lasted (hours at
+/// a few KB/s), and four of them made the route answer 503 to everyone. Now the whole
+/// transfer is bounded by `HISTORY_TRANSFER_TIMEOUTS` request timeouts (10 s here): the four
+/// are read steadily past the send timeout (a fifth request meanwhile gets 503), then cut at
+/// the limit before their answer's end, and a fifth request then gets its day. On the old code
+/// the four were still reading when the wait ended.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn history_answers_read_slowly_are_cut_at_the_transfer_limit() {
+    use gatewatch::service::history::{history_transfer_limit, MAX_CONCURRENT_HISTORY};
+    use gatewatch::store::MAX_HISTORY_LIMIT;
+    let db_dir = tempfile::tempdir().unwrap();
+    let db = a_day_of_history(db_dir.path());
+    let request_timeout = 1.0;
+    let limit = history_transfer_limit(request_timeout);
+    let Some((_daemon, base, _dir)) = start(&format!(
+        "[server]\nworker_threads = 1\nrequest_timeout_seconds = {request_timeout:?}\n\
+         [storage]\npath = \"{}\"\n",
+        db.display()
+    ))
+    .await
+    else {
+        return;
+    };
+    let addr: std::net::SocketAddr = base.trim_start_matches("http://").parse().unwrap();
+    let path = "/api/v1/gates/g1/history";
+    // a bound on the wait, not a timing: the cut comes at the limit, plus the time to notice it
+    let wait = limit + Duration::from_secs(20);
+    let mut readers = Vec::new();
+    for _ in 0..MAX_CONCURRENT_HISTORY {
+        let asked = std::time::Instant::now();
+        let (s, status) = ask_as_a_network_client(addr, path).await;
+        assert_eq!(status, 200);
+        readers.push(tokio::spawn(read_steadily(s, asked, wait)));
+    }
+    // three send timeouts later the four still read, and hold every place
+    tokio::time::sleep(Duration::from_secs_f64(3.0 * request_timeout)).await;
+    let during = reqwest::get(format!("{base}{path}")).await.unwrap();
+    assert_eq!(
+        during.status().as_u16(),
+        503,
+        "a history place was free while the four steady readers were before their limit \
+         (cut by the send timeout: read faster, or the route's bound changed)"
+    );
+    drop(during);
+    let mut reads = Vec::new();
+    for r in readers {
+        let read = r.await.unwrap();
+        let ended = read.ended_after.unwrap_or_else(|| {
+            panic!(
+                "a steady reader's answer was still being sent {wait:?} after its request \
+                 ({} bytes read): no transfer limit",
+                read.bytes
+            )
+        });
+        eprintln!(
+            "a steady reader was cut after {ended:?}, {} bytes read",
+            read.bytes
+        );
+        assert!(
+            ended >= limit,
+            "cut after {ended:?}, before the transfer limit {limit:?}: the send timeout cut it"
+        );
+        reads.push(read.bytes);
+    }
+    // the places are free again: a reader gets its day
+    let answer = reqwest::get(format!("{base}{path}")).await.unwrap();
+    assert_eq!(answer.status().as_u16(), 200);
+    let body = answer.bytes().await.unwrap();
+    // cut, not done: each steady reader took part of the answer, not all of it
+    for bytes in reads {
+        assert!(
+            bytes > 0 && bytes < body.len(),
+            "{bytes} bytes read of a {} byte answer",
+            body.len()
+        );
+    }
+    let body: serde_json::Value = serde_json::from_slice(&body).unwrap();
+    assert_eq!(body["count"], MAX_HISTORY_LIMIT);
 }

@@ -2,10 +2,11 @@
 //! JSON, or CSV with `format=csv` or `Accept: text/csv` (`docs/api.md`).
 
 use std::sync::Arc;
+use std::time::Duration;
 
 use axum::body::{Body, Bytes};
 use axum::extract::rejection::{PathRejection, QueryRejection};
-use axum::extract::{Path, Query, State};
+use axum::extract::{Extension, Path, Query, State};
 use axum::http::{header, HeaderMap};
 use axum::response::{IntoResponse, Response};
 use serde::Deserialize;
@@ -13,6 +14,7 @@ use tokio::sync::{Semaphore, SemaphorePermit};
 
 use super::api::{path_param, HttpError};
 use super::ingest::{excerpt, BadRequest};
+use super::listen::{TransferDeadline, TransferGuard};
 use super::state::AppState;
 use crate::store::{
     history_csv_rows, history_json_rows, parse_time, HistoryQuery, HistoryRow, MAX_HISTORY_LIMIT,
@@ -31,6 +33,26 @@ pub const HISTORY_CHUNK_ROWS: usize = 512;
 pub const MAX_CONCURRENT_HISTORY: usize = 4;
 
 static PERMITS: Semaphore = Semaphore::const_new(MAX_CONCURRENT_HISTORY);
+
+/// The whole transfer of a history answer, from its head to its last byte, may last at most
+/// this many `server.request_timeout_seconds` (300 s at the default 30 s); then the connection
+/// is closed (`listen::TransferDeadline`), which frees the answer's place of
+/// [`MAX_CONCURRENT_HISTORY`] and its rows. Why a bound on the whole: the send timeout
+/// (`listen::SendTimeout`) restarts at every write that goes through, so four clients reading
+/// slowly but steadily held the four places for as long as their transfers lasted (an hour at
+/// 10 KB/s for a day) and the route answered 503 to everyone else meanwhile. Why 10 timeouts:
+/// the largest answer (a day, about 37 MB) then needs about 125 KB/s (1 Mbit/s) at the
+/// default, far below what a client on a LAN or a notebook's `pandas.read_csv` takes, and a
+/// slower client can page with `from`/`to`/`limit`. Derived from the request timeout rather
+/// than a key of its own: an operator who lengthens that timeout for slow clients wants this
+/// bound to follow.
+pub const HISTORY_TRANSFER_TIMEOUTS: u32 = 10;
+
+/// The transfer limit of a history answer for a request timeout of `request_timeout_seconds`
+/// ([`HISTORY_TRANSFER_TIMEOUTS`] of it).
+pub fn history_transfer_limit(request_timeout_seconds: f64) -> Duration {
+    Duration::from_secs_f64(request_timeout_seconds) * HISTORY_TRANSFER_TIMEOUTS
+}
 
 /// The query string.
 #[derive(Debug, Default, Deserialize)]
@@ -188,6 +210,7 @@ pub async fn get_history(
     State(state): State<Arc<AppState>>,
     id: Result<Path<String>, PathRejection>,
     pairs: Result<Query<Vec<(String, String)>>, QueryRejection>,
+    deadline: Option<Extension<TransferDeadline>>,
     headers: HeaderMap,
 ) -> Result<Response, HttpError> {
     let id = path_param(id)?;
@@ -227,12 +250,19 @@ pub async fn get_history(
             excerpt(&id)
         )));
     }
-    // the permit goes with the body: the rows stay in memory until the client has them
+    // the permit goes with the body: the rows stay in memory until the client has them, or
+    // until the transfer limit cuts the connection (no deadline without the listener: a request
+    // sent to the router alone, as in the tests, has no connection to cut)
     let limit = params.limit.unwrap_or(MAX_HISTORY_LIMIT);
+    let transfer_limit = history_transfer_limit(state.config.server.request_timeout_seconds);
+    let held = Held {
+        _permit: permit,
+        _transfer: deadline.map(|Extension(d)| d.arm(transfer_limit)),
+    };
     if csv {
         return Ok((
             [(header::CONTENT_TYPE, "text/csv; charset=utf-8")],
-            stream(rows, csv_chunk, Vec::new(), permit),
+            stream(rows, csv_chunk, Vec::new(), held),
         )
             .into_response());
     }
@@ -245,7 +275,7 @@ pub async fn get_history(
     let tail = format!("],\"limit\":{limit}}}");
     Ok((
         [(header::CONTENT_TYPE, "application/json")],
-        stream(rows, json_chunk, head.into_bytes(), permit).with_tail(tail),
+        stream(rows, json_chunk, head.into_bytes(), held).with_tail(tail),
     )
         .into_response())
 }
@@ -262,31 +292,34 @@ fn csv_chunk(rows: &[HistoryRow], first: bool, out: &mut Vec<u8>) -> Result<(), 
 /// Writes a chunk of rows (`true`: the first chunk) into the buffer.
 type Render = fn(&[HistoryRow], bool, &mut Vec<u8>) -> Result<(), String>;
 
+/// What a history answer holds until its body is sent or dropped: its place of
+/// [`MAX_CONCURRENT_HISTORY`], and its connection's transfer deadline (cleared when dropped).
+struct Held {
+    _permit: SemaphorePermit<'static>,
+    _transfer: Option<TransferGuard>,
+}
+
 /// A body streamed in chunks of [`HISTORY_CHUNK_ROWS`] rows, each written when the client
 /// takes it (the rows are read and the read connection released before: a slow client holds
 /// no lock), after `head` and before the tail. It holds its permit of
-/// [`MAX_CONCURRENT_HISTORY`] until the body is sent or dropped (the client went away, or took
-/// nothing for `server.request_timeout_seconds`): the rows it holds count against the bound.
+/// [`MAX_CONCURRENT_HISTORY`] until the body is sent or dropped (the client went away, took
+/// nothing for `server.request_timeout_seconds`, or was still reading at the transfer limit,
+/// [`HISTORY_TRANSFER_TIMEOUTS`]): the rows it holds count against the bound.
 struct Streamed {
     rows: Arc<Vec<HistoryRow>>,
     render: Render,
     head: Vec<u8>,
     tail: Vec<u8>,
-    permit: SemaphorePermit<'static>,
+    held: Held,
 }
 
-fn stream(
-    rows: Vec<HistoryRow>,
-    render: Render,
-    head: Vec<u8>,
-    permit: SemaphorePermit<'static>,
-) -> Streamed {
+fn stream(rows: Vec<HistoryRow>, render: Render, head: Vec<u8>, held: Held) -> Streamed {
     Streamed {
         rows: Arc::new(rows),
         render,
         head,
         tail: Vec::new(),
-        permit,
+        held,
     }
 }
 
@@ -304,13 +337,13 @@ impl IntoResponse for Streamed {
             render,
             head,
             tail,
-            permit,
+            held,
         } = self;
         let n = rows.len().div_ceil(HISTORY_CHUNK_ROWS);
         let chunks = (0..n.max(1)).map(move |i| {
             // moved in: released when the stream is dropped, after its last chunk or with the
             // connection
-            let _held = &permit;
+            let _held = &held;
             let mut out = if i == 0 { head.clone() } else { Vec::new() };
             let from = (i * HISTORY_CHUNK_ROWS).min(rows.len());
             let to = (from + HISTORY_CHUNK_ROWS).min(rows.len());

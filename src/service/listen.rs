@@ -33,13 +33,24 @@
 //!   its body: a client that asked for a day of history and read nothing kept the answer (tens
 //!   of megabytes) and its connection for as long as it kept the socket open.
 //!
+//! - a deadline on the whole transfer of an answer whose handler asks for one
+//!   ([`TransferDeadline`], in every request's extensions): when it passes, the connection is
+//!   closed and the answer dropped. The send timeout restarts at every write that goes
+//!   through, so a client that reads slowly but steadily is not cut by it: four such clients
+//!   held the four history places (`history::MAX_CONCURRENT_HISTORY`) for as long as their
+//!   transfers lasted (an hour for a day's history at 10 KB/s), and every other history
+//!   request got 503 meanwhile. The history route arms it
+//!   (`history::HISTORY_TRANSFER_TIMEOUTS`); other routes do not. The connection task, not the
+//!   body, watches it: hyper does not poll a body while the socket is full, so a timer in the
+//!   body would not fire while the client reads slowly.
+//!
 //! HTTP/1 only, as before (axum was built without HTTP/2).
 
 use std::future::Future;
 use std::io;
 use std::pin::Pin;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 use std::task::{Context, Poll};
 use std::time::Duration;
 
@@ -113,6 +124,8 @@ pub async fn serve(
     let (open_tx, open_rx) = watch::channel(());
     let mut refusals = LogLimiter::new(ACCEPT_WARNING_INTERVAL);
     let mut failures = LogLimiter::new(ACCEPT_WARNING_INTERVAL);
+    // shared by the connection tasks: a cut is logged once per interval for the listener
+    let cuts = Arc::new(Mutex::new(LogLimiter::new(ACCEPT_WARNING_INTERVAL)));
     loop {
         let accepted = tokio::select! {
             r = listener.accept() => r,
@@ -139,11 +152,14 @@ pub async fn serve(
         };
         let _ = stream.set_nodelay(true);
         let router = router.clone();
+        let (deadline, mut overdue) = TransferDeadline::new();
         let service = hyper::service::service_fn(move |req: hyper::Request<Incoming>| {
             let router = router.clone();
+            let deadline = deadline.clone();
             // boxed: `poll_without_shutdown` (below) wants an `Unpin` future
             Box::pin(async move {
-                let (req, read) = TrackedBody::wrap(req);
+                let (mut req, read) = TrackedBody::wrap(req);
+                req.extensions_mut().insert(deadline);
                 let mut resp = router.oneshot(req).await?;
                 if !read.load(Ordering::Acquire) {
                     resp.headers_mut()
@@ -156,19 +172,31 @@ pub async fn serve(
         let mut conn = builder.serve_connection(TokioIo::new(io), service);
         let mut stop = stop.clone();
         let open = open_rx.clone();
+        let cuts = cuts.clone();
         tokio::spawn(async move {
             // without shutdown: the socket comes back to be closed by `linger`
-            let ended = tokio::select! {
-                r = std::future::poll_fn(|cx| conn.poll_without_shutdown(cx)) => r,
-                _ = async { let _ = stop.wait_for(|s| *s).await; } => {
-                    Pin::new(&mut conn).graceful_shutdown();
-                    std::future::poll_fn(|cx| conn.poll_without_shutdown(cx)).await
+            let served = async {
+                tokio::select! {
+                    r = std::future::poll_fn(|cx| conn.poll_without_shutdown(cx)) => r,
+                    _ = async { let _ = stop.wait_for(|s| *s).await; } => {
+                        Pin::new(&mut conn).graceful_shutdown();
+                        std::future::poll_fn(|cx| conn.poll_without_shutdown(cx)).await
+                    }
                 }
             };
+            let ended = tokio::select! {
+                r = served => Ok(r),
+                limit = overdue.passed() => Err(limit),
+            };
             match ended {
-                Ok(()) => linger(conn.into_parts().io.into_inner().stream, stop).await,
+                Ok(Ok(())) => linger(conn.into_parts().io.into_inner().stream, stop).await,
                 // a malformed request, a header timeout, a reset: nothing worth lingering for
-                Err(e) => tracing::debug!(%peer, error = %e, "http connection ended with an error"),
+                Ok(Err(e)) => {
+                    tracing::debug!(%peer, error = %e, "http connection ended with an error")
+                }
+                // dropping the connection drops the answer (and what it holds); no linger: the
+                // client is still reading, not sending
+                Err(limit) => log_cut(&cuts, peer, limit),
             }
             drop((slot, open));
         });
@@ -177,6 +205,106 @@ pub async fn serve(
     drop(listener);
     open_tx.closed().await;
     Ok(())
+}
+
+/// Logs a connection cut at its answer's transfer deadline, at most once per
+/// [`ACCEPT_WARNING_INTERVAL`] for the listener (a slow client per answer would otherwise log at
+/// its own pace), with the number of cuts held back.
+fn log_cut(cuts: &Mutex<LogLimiter>, peer: std::net::SocketAddr, limit: Duration) {
+    let allowed = cuts
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .allow(std::time::Instant::now());
+    if let Some(held_back) = allowed {
+        tracing::warn!(%peer, ?limit, held_back, "an answer was still being sent at its transfer limit (the client reads too slowly), closing the connection");
+    }
+}
+
+/// A connection's deadline on the transfer of the answer it is sending, in every request's
+/// extensions (put there by [`serve`]; a request built without the listener has none, and its
+/// answer no deadline). A handler whose answer must not hold its resources for long, however
+/// steadily the client reads, arms it for its answer ([`TransferDeadline::arm`]) and puts the
+/// guard into the answer's body, which clears it when dropped (sent to the end, or dropped with
+/// the connection). When the deadline passes first, the connection task closes the
+/// connection, which drops the answer.
+#[derive(Clone)]
+pub struct TransferDeadline {
+    slot: Arc<watch::Sender<Option<Armed>>>,
+}
+
+/// A deadline set, and the limit it was set with (for the log).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Armed {
+    at: tokio::time::Instant,
+    limit: Duration,
+}
+
+impl TransferDeadline {
+    /// A connection's deadline, not armed, and the receiver its connection task watches.
+    fn new() -> (TransferDeadline, Overdue) {
+        let (tx, rx) = watch::channel(None);
+        (TransferDeadline { slot: Arc::new(tx) }, Overdue(rx))
+    }
+
+    /// Bounds the transfer of the answer about to be sent to `limit` from now, until the guard
+    /// is dropped. A limit too far to be represented sets no deadline.
+    pub fn arm(&self, limit: Duration) -> TransferGuard {
+        let armed = tokio::time::Instant::now()
+            .checked_add(limit)
+            .map(|at| Armed { at, limit });
+        self.slot.send_replace(armed);
+        TransferGuard {
+            slot: self.slot.clone(),
+            armed,
+        }
+    }
+}
+
+/// Clears the deadline it set when dropped; put into the answer's body.
+pub struct TransferGuard {
+    slot: Arc<watch::Sender<Option<Armed>>>,
+    armed: Option<Armed>,
+}
+
+impl Drop for TransferGuard {
+    fn drop(&mut self) {
+        // only its own: an HTTP/1 connection sends one answer at a time, but a guard dropped
+        // late must not clear the next answer's deadline
+        let armed = self.armed;
+        self.slot.send_if_modified(|d| {
+            let own = *d == armed && armed.is_some();
+            if own {
+                *d = None;
+            }
+            own
+        });
+    }
+}
+
+/// The connection task's side of a [`TransferDeadline`].
+struct Overdue(watch::Receiver<Option<Armed>>);
+
+impl Overdue {
+    /// Resolves with the limit when an armed deadline passes before it is cleared; never while
+    /// none is armed.
+    async fn passed(&mut self) -> Duration {
+        loop {
+            let armed = *self.0.borrow_and_update();
+            let changed = async {
+                if self.0.changed().await.is_err() {
+                    // every sender is gone with the connection's service: nothing will arm it
+                    std::future::pending::<()>().await;
+                }
+            };
+            match armed {
+                Some(a) => tokio::select! {
+                    _ = tokio::time::sleep_until(a.at) => return a.limit,
+                    _ = changed => {}
+                },
+                None => changed.await,
+            }
+        }
+    }
 }
 
 /// Closes `stream` after its HTTP exchange ended: shuts the write side (the client reads the
@@ -204,7 +332,12 @@ async fn linger(mut stream: TcpStream, mut stop: watch::Receiver<bool>) {
 /// the connection and drops the answer it was sending. The timer starts when a write finds the
 /// socket full and stops at the next write that goes through, so a client that reads, however
 /// slowly, is not cut; one that stopped reading is, after `limit`. Reads are untouched (their
-/// bound is the header read timeout).
+/// bound is the header read timeout). "Reads" is as the kernel sees it: Linux wakes a write
+/// blocked on a full send buffer once a third of that buffer is free, so a client must take
+/// that much within `limit` (a client on loopback, whose 64 KiB segments grow the buffer to
+/// 4 MiB, was cut by a 1 s limit while taking 740 KB/s; tests/service_memory.rs,
+/// `ask_as_a_network_client`). A slow reader's whole transfer is bounded by
+/// [`TransferDeadline`] where a route asks for it.
 pub struct SendTimeout {
     stream: TcpStream,
     limit: Duration,
@@ -330,5 +463,44 @@ impl Body for TrackedBody {
 
     fn size_hint(&self) -> SizeHint {
         self.inner.size_hint()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A deadline armed and not cleared passes, with its limit.
+    #[tokio::test(start_paused = true)]
+    async fn an_armed_deadline_passes_with_its_limit() {
+        let (deadline, mut overdue) = TransferDeadline::new();
+        let _guard = deadline.arm(Duration::from_secs(300));
+        let passed = tokio::time::timeout(Duration::from_secs(301), overdue.passed()).await;
+        assert_eq!(passed.ok(), Some(Duration::from_secs(300)));
+    }
+
+    /// An answer sent (its guard dropped) before the deadline leaves the connection alone, and
+    /// so does a connection that never armed one.
+    #[tokio::test(start_paused = true)]
+    async fn a_cleared_or_unarmed_deadline_never_passes() {
+        let (deadline, mut overdue) = TransferDeadline::new();
+        drop(deadline.arm(Duration::from_secs(1)));
+        let waited = tokio::time::timeout(Duration::from_secs(3600), overdue.passed()).await;
+        assert!(waited.is_err(), "a cleared deadline passed");
+        let (_deadline, mut overdue) = TransferDeadline::new();
+        let waited = tokio::time::timeout(Duration::from_secs(3600), overdue.passed()).await;
+        assert!(waited.is_err(), "a deadline never armed passed");
+    }
+
+    /// A guard dropped after the next answer armed the deadline does not clear that answer's.
+    #[tokio::test(start_paused = true)]
+    async fn a_late_guard_does_not_clear_the_next_answers_deadline() {
+        let (deadline, mut overdue) = TransferDeadline::new();
+        let first = deadline.arm(Duration::from_secs(10));
+        tokio::time::advance(Duration::from_secs(1)).await;
+        let _second = deadline.arm(Duration::from_secs(20));
+        drop(first);
+        let passed = tokio::time::timeout(Duration::from_secs(30), overdue.passed()).await;
+        assert_eq!(passed.ok(), Some(Duration::from_secs(20)));
     }
 }
