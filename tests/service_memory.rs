@@ -307,7 +307,7 @@ async fn ask_and_read_nothing(
 }
 
 /// Ethernet's maximum segment size.
-const ETHERNET_MSS: libc::c_int = 1460;
+const ETHERNET_MSS: u32 = 1460;
 
 /// As [`ask_and_read_nothing`], from a client whose segments are Ethernet's
 /// ([`ETHERNET_MSS`]), as a client on a network has, and a receive buffer of 4 x
@@ -320,22 +320,12 @@ async fn ask_as_a_network_client(
     addr: std::net::SocketAddr,
     path: &str,
 ) -> (tokio::net::TcpStream, u16) {
-    use std::os::fd::AsRawFd;
-    let socket = tokio::net::TcpSocket::new_v4().unwrap();
-    socket.set_recv_buffer_size(4 * STEADY_STEP as u32).unwrap();
-    let mss = ETHERNET_MSS;
-    // SAFETY: the descriptor is the open socket's, the option value a live c_int of the size
-    // given.
-    let set = unsafe {
-        libc::setsockopt(
-            socket.as_raw_fd(),
-            libc::IPPROTO_TCP,
-            libc::TCP_MAXSEG,
-            (&mss as *const libc::c_int).cast(),
-            std::mem::size_of::<libc::c_int>() as libc::socklen_t,
-        )
-    };
-    assert_eq!(set, 0, "TCP_MAXSEG: {}", std::io::Error::last_os_error());
+    use socket2::{Domain, Protocol, Socket, Type};
+    let socket = Socket::new(Domain::IPV4, Type::STREAM, Some(Protocol::TCP)).unwrap();
+    socket.set_recv_buffer_size(4 * STEADY_STEP).unwrap();
+    socket.set_tcp_mss(ETHERNET_MSS).unwrap();
+    socket.set_nonblocking(true).unwrap();
+    let socket = tokio::net::TcpSocket::from_std_stream(socket.into());
     ask_on(socket, addr, path).await
 }
 

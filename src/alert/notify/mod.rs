@@ -38,7 +38,10 @@ mod stats;
 mod target;
 
 pub use client::ensure_crypto_provider;
-pub use config::{NotifyConfig, NotifyConfigError, WebhookTarget, DEFAULT_QUEUE_CAPACITY};
+pub use config::{
+    NotifyConfig, NotifyConfigError, WebhookTarget, DEFAULT_OUTBOX_MAX_PENDING,
+    DEFAULT_QUEUE_CAPACITY,
+};
 pub use handle::{spawn_notifier, spawn_notifier_with_ack, NotifierHandle};
 pub use payload::{
     alertmanager_payload, webhook_payload, LabelSet, PostableAlert, WebhookAlert, WebhookPayload,
