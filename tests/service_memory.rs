@@ -402,7 +402,33 @@ async fn history_answers_not_read_are_bounded_and_cut_after_the_request_timeout(
     assert_eq!(answer.status().as_u16(), 200);
     let body: serde_json::Value = answer.json().await.unwrap();
     assert_eq!(body["count"], MAX_HISTORY_LIMIT);
+    // each of the four answers not taken was cut by the send timeout, and counted so (a bounded
+    // wait: one place was free for the answer above, the other three are cut at about the
+    // same time)
+    let series = "gatewatch_http_connections_cut_total{reason=\"send_timeout\"}";
+    let deadline = std::time::Instant::now() + Duration::from_secs(20);
+    while counter(&base, series).await < MAX_CONCURRENT_HISTORY as f64
+        && std::time::Instant::now() < deadline
+    {
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    assert_eq!(counter(&base, series).await, MAX_CONCURRENT_HISTORY as f64);
     drop(held);
+}
+
+/// The value of the series `series` (name and labels, as exposed) on the daemon's `/metrics`.
+async fn counter(base: &str, series: &str) -> f64 {
+    let metrics = reqwest::get(format!("{base}/metrics"))
+        .await
+        .unwrap()
+        .text()
+        .await
+        .unwrap();
+    metrics
+        .lines()
+        .find_map(|l| l.strip_prefix(series)?.strip_prefix(' '))
+        .and_then(|v| v.trim().parse().ok())
+        .unwrap_or_else(|| panic!("no series {series} in /metrics"))
 }
 
 /// Bytes a steady reader takes at a time, and its pause between two reads: 16 KiB every 20 ms,
@@ -524,4 +550,11 @@ async fn history_answers_read_slowly_are_cut_at_the_transfer_limit() {
     }
     let body: serde_json::Value = serde_json::from_slice(&body).unwrap();
     assert_eq!(body["count"], MAX_HISTORY_LIMIT);
+    // counted as cuts at the transfer limit, none by the send timeout
+    let cut = |reason: &str| format!("gatewatch_http_connections_cut_total{{reason=\"{reason}\"}}");
+    assert_eq!(
+        counter(&base, &cut("transfer_limit")).await,
+        MAX_CONCURRENT_HISTORY as f64
+    );
+    assert_eq!(counter(&base, &cut("send_timeout")).await, 0.0);
 }

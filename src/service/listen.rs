@@ -104,15 +104,41 @@ const LINGER_BUF_BYTES: usize = 16 * 1024;
 /// not spin while connections close.
 const ACCEPT_ERROR_PAUSE: Duration = Duration::from_millis(50);
 
+/// Why the listener closed a connection while it was sending an answer (the `reason` label of
+/// `gatewatch_http_connections_cut_total`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Cut {
+    /// The client took none of the answer for `server.request_timeout_seconds` ([`SendTimeout`]).
+    SendTimeout,
+    /// The answer was still being sent at its transfer limit ([`TransferDeadline`]).
+    TransferLimit,
+}
+
+impl Cut {
+    /// Every reason, in label order.
+    pub const ALL: [Cut; 2] = [Cut::SendTimeout, Cut::TransferLimit];
+
+    /// The label value.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Cut::SendTimeout => "send_timeout",
+            Cut::TransferLimit => "transfer_limit",
+        }
+    }
+}
+
 /// Serves `router` on `listener` until `stop` turns true, then waits for the open connections
-/// to finish. `refused` is called for each connection closed at accept because of the cap.
+/// to finish. `refused` is called for each connection closed at accept because of the cap,
+/// `cut` for each closed while its answer was being sent ([`Cut`]).
 pub async fn serve(
     listener: TcpListener,
     router: Router,
     limits: HttpLimits,
     refused: impl Fn() + Send + 'static,
+    cut: impl Fn(Cut) + Send + Sync + 'static,
     mut stop: watch::Receiver<bool>,
 ) -> std::io::Result<()> {
+    let cut = Arc::new(cut);
     let slots = Arc::new(Semaphore::new(limits.max_connections));
     let mut builder = hyper::server::conn::http1::Builder::new();
     builder
@@ -169,10 +195,12 @@ pub async fn serve(
             })
         });
         let io = SendTimeout::new(stream, limits.send_timeout);
+        let timed_out = io.timed_out.clone();
         let mut conn = builder.serve_connection(TokioIo::new(io), service);
         let mut stop = stop.clone();
         let open = open_rx.clone();
         let cuts = cuts.clone();
+        let cut = cut.clone();
         tokio::spawn(async move {
             // without shutdown: the socket comes back to be closed by `linger`
             let served = async {
@@ -191,12 +219,19 @@ pub async fn serve(
             match ended {
                 Ok(Ok(())) => linger(conn.into_parts().io.into_inner().stream, stop).await,
                 // a malformed request, a header timeout, a reset: nothing worth lingering for
+                Ok(Err(e)) if timed_out.load(Ordering::Acquire) => {
+                    cut(Cut::SendTimeout);
+                    log_cut(&cuts, peer, Cut::SendTimeout, limits.send_timeout, &e);
+                }
                 Ok(Err(e)) => {
                     tracing::debug!(%peer, error = %e, "http connection ended with an error")
                 }
                 // dropping the connection drops the answer (and what it holds); no linger: the
                 // client is still reading, not sending
-                Err(limit) => log_cut(&cuts, peer, limit),
+                Err(limit) => {
+                    cut(Cut::TransferLimit);
+                    log_cut(&cuts, peer, Cut::TransferLimit, limit, &"");
+                }
             }
             drop((slot, open));
         });
@@ -210,13 +245,27 @@ pub async fn serve(
 /// Logs a connection cut at its answer's transfer deadline, at most once per
 /// [`ACCEPT_WARNING_INTERVAL`] for the listener (a slow client per answer would otherwise log at
 /// its own pace), with the number of cuts held back.
-fn log_cut(cuts: &Mutex<LogLimiter>, peer: std::net::SocketAddr, limit: Duration) {
+fn log_cut(
+    cuts: &Mutex<LogLimiter>,
+    peer: std::net::SocketAddr,
+    why: Cut,
+    limit: Duration,
+    error: &dyn std::fmt::Display,
+) {
     let allowed = cuts
         .lock()
         .unwrap_or_else(|e| e.into_inner())
         .allow(std::time::Instant::now());
-    if let Some(held_back) = allowed {
-        tracing::warn!(%peer, ?limit, held_back, "an answer was still being sent at its transfer limit (the client reads too slowly), closing the connection");
+    let Some(held_back) = allowed else {
+        return;
+    };
+    match why {
+        Cut::TransferLimit => {
+            tracing::warn!(%peer, ?limit, held_back, "an answer was still being sent at its transfer limit (the client reads too slowly), connection closed")
+        }
+        Cut::SendTimeout => {
+            tracing::warn!(%peer, ?limit, held_back, %error, "the client took none of its answer for server.request_timeout_seconds, connection closed")
+        }
     }
 }
 
@@ -343,6 +392,9 @@ pub struct SendTimeout {
     limit: Duration,
     /// Set while a write waits for room in the socket.
     stalled: Option<Pin<Box<tokio::time::Sleep>>>,
+    /// Set once a write has failed for want of room: the connection task tells this cut from
+    /// the other ends of a connection (a reset, a malformed request) by it.
+    pub timed_out: Arc<AtomicBool>,
 }
 
 impl SendTimeout {
@@ -352,6 +404,7 @@ impl SendTimeout {
             stream,
             limit,
             stalled: None,
+            timed_out: Arc::new(AtomicBool::new(false)),
         }
     }
 
@@ -372,6 +425,7 @@ impl SendTimeout {
             .get_or_insert_with(|| Box::pin(tokio::time::sleep(limit)));
         if timer.as_mut().poll(cx).is_ready() {
             self.stalled = None;
+            self.timed_out.store(true, Ordering::Release);
             return Poll::Ready(Err(io::Error::new(
                 io::ErrorKind::TimedOut,
                 format!(

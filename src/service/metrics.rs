@@ -104,6 +104,9 @@ pub struct Metrics {
     /// `gatewatch_http_connections_rejected_total`: closed at accept, over
     /// `server.max_http_connections`.
     pub http_connections_rejected: IntCounter,
+    /// `gatewatch_http_connections_cut_total{reason}`: HTTP connections closed while their
+    /// answer was being sent ([`Cut`](super::listen::Cut)).
+    pub http_connections_cut: IntCounterVec,
     /// `gatewatch_gates_expired_total`: gates created by `accept_unknown_gates` forgotten after
     /// `server.unknown_gate_expiry_seconds` of silence.
     pub gates_expired: IntCounter,
@@ -487,6 +490,11 @@ impl Metrics {
                 &["reason"],
             ),
             http_connections_rejected,
+            http_connections_cut: counter(
+                "gatewatch_http_connections_cut_total",
+                "HTTP connections closed while their answer was being sent, by reason: send_timeout (the client took none of it for server.request_timeout_seconds) or transfer_limit (a history answer still being sent at 10 x server.request_timeout_seconds).",
+                &["reason"],
+            ),
             gates_expired,
             gates_deleted,
             store_write_errors: counter(
@@ -528,6 +536,9 @@ impl Metrics {
         }
         for r in TCP_CONNECTION_REJECT_REASONS {
             m.tcp_connections_rejected.with_label_values(&[r]);
+        }
+        for c in super::listen::Cut::ALL {
+            m.http_connections_cut.with_label_values(&[c.as_str()]);
         }
         for r in STORE_WRITE_ERRORS {
             m.store_write_errors.with_label_values(&[r]);

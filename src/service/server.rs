@@ -199,11 +199,22 @@ pub async fn run_with_persistence(
         let state = state.clone();
         move || state.metrics.http_connections_rejected.inc()
     };
+    let cut = {
+        let state = state.clone();
+        move |why: listen::Cut| {
+            state
+                .metrics
+                .http_connections_cut
+                .with_label_values(&[why.as_str()])
+                .inc()
+        }
+    };
     let mut serve_task = tokio::spawn(listen::serve(
         listeners.http,
         router,
         limits,
         refused,
+        cut,
         stop_rx.clone(),
     ));
     // In-flight requests get until the deadline; a client that never finishes its request must
