@@ -232,17 +232,7 @@ async fn an_hour_in_one_request_copies_one_window() {
         .await
         .expect("an answer");
     assert_eq!(answer.status().as_u16(), 204, "{:?}", answer.text().await);
-    let metrics = reqwest::get(format!("{base}/metrics"))
-        .await
-        .unwrap()
-        .text()
-        .await
-        .unwrap();
-    let replaced: f64 = metrics
-        .lines()
-        .find_map(|l| l.strip_prefix("gatewatch_identification_jobs_replaced_total "))
-        .and_then(|v| v.trim().parse().ok())
-        .expect("the replaced-jobs counter");
+    let replaced = counter(&base, "gatewatch_identification_jobs_replaced_total").await;
     // every due window but the newest was counted as replaced
     assert!(replaced >= 500.0, "{replaced} windows replaced");
     let hwm = vm_hwm_kib(pid);
