@@ -347,7 +347,9 @@ pub trait Store: Send + Sync + 'static {
     /// A write that changes nothing (`None`: the store has none), which the writer runs every
     /// `CHECK_INTERVAL` while writes fail: `/readyz` fails meanwhile, so the ingestion whose
     /// writes would show the store is back may stop arriving (a load balancer takes the
-    /// instance out); the probe brings it back without them.
+    /// instance out); the probe brings it back without them. It must fail wherever a real write
+    /// would: the SQLite store's probe rewrites its header in place, which fits at the size
+    /// bound too, so it also fails as full when no page is left under `max_page_count`.
     fn probe(&self) -> Option<Result<(), StoreError>> {
         None
     }

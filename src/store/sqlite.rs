@@ -681,9 +681,27 @@ impl Store for SqliteStore {
         // the schema version written back unchanged: one page (the header) through the WAL
         let probe = || -> rusqlite::Result<()> {
             let v: i64 = c.query_row("PRAGMA user_version", [], |r| r.get(0))?;
-            c.execute_batch(&format!("PRAGMA user_version = {v}"))
+            c.execute_batch(&format!("PRAGMA user_version = {v}"))?;
+            // The header is rewritten in place, so that succeeds at the size bound too, where
+            // every real write (a new page) fails: the probe cleared the failure and /readyz
+            // said 200 while no identification could be written (a CI rehearsal at stop 60).
+            // So no page left under `max_page_count` is a full store, as a real write finds.
+            let pragma =
+                |name: &str| c.query_row(&format!("PRAGMA {name}"), [], |r| r.get::<_, i64>(0));
+            if pragma("freelist_count")? == 0 && pragma("page_count")? >= pragma("max_page_count")?
+            {
+                return Err(rusqlite::Error::SqliteFailure(
+                    rusqlite::ffi::Error::new(rusqlite::ffi::SQLITE_FULL),
+                    Some("no free page under max_page_count".into()),
+                ));
+            }
+            Ok(())
         };
-        Some(probe().map_err(sq("write probe")))
+        Some(
+            probe()
+                .map_err(sq("write probe"))
+                .map_err(|e| self.explain_full(&c, e)),
+        )
     }
 
     fn space_left(&self) -> Option<u64> {

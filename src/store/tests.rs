@@ -583,6 +583,43 @@ fn a_full_bound_is_named_as_the_bound_not_the_disk() {
     assert!(!msg.contains("disk holding"), "{msg}");
 }
 
+/// The write probe (run while writes fail and none comes) finds a store full at its size bound
+/// full, as a real write does: it rewrote the header page in place, which fits at the bound,
+/// so it cleared the failure and `/readyz` said 200 while every identification's write failed
+/// (`store_restart`'s full-database test, in a CI rehearsal). Once a page is free again it
+/// succeeds.
+#[test]
+fn the_write_probe_of_a_store_full_at_its_bound_fails_as_full() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let store = SqliteStore::open(&dir.path().join("gw.db"), 1).expect("open");
+    assert!(matches!(store.probe(), Some(Ok(()))), "an empty store");
+    let mut n = 0;
+    for size in [100_000, 10_000, 1000, 100] {
+        loop {
+            n += 1;
+            let batch = WriteBatch {
+                alert_states: vec![(format!("g{n}"), "x".repeat(size))],
+                ..Default::default()
+            };
+            if let Err(e) = store.write(&batch) {
+                assert!(e.is_full(), "{e}");
+                break;
+            }
+            assert!(n < 100_000, "never full");
+        }
+    }
+    let e = store.probe().expect("a probe").expect_err("a full store");
+    assert!(e.is_full(), "{e}");
+    assert!(e.to_string().contains("storage.max_size_mb"), "{e}");
+    // a gate forgotten frees its pages: the probe passes again
+    let forget = WriteBatch {
+        forget_gates: vec!["g1".into()],
+        ..Default::default()
+    };
+    store.write(&forget).expect("a forget deletes");
+    assert!(matches!(store.probe(), Some(Ok(()))), "{:?}", store.probe());
+}
+
 /// Four gates' rows at time `i`, about 1.3 kB each (a 1000-character equation): a few thousand
 /// fill a small size bound.
 fn fat_batch(i: u32) -> WriteBatch {
