@@ -13,7 +13,8 @@ use axum::http::{HeaderMap, StatusCode, Uri};
 use axum::Router;
 use gatewatch::alert::notify::outbox::OutboxEntry;
 use gatewatch::alert::notify::{
-    spawn_notifier, spawn_notifier_with_ack, NotifyConfig, WebhookTarget,
+    spawn_notifier, spawn_notifier_with_ack, NotifierHandle, NotifyConfig, StatsSnapshot,
+    WebhookTarget,
 };
 use gatewatch::alert::{Alert, AlertEngine, AlertEvent, AlertRules, Observation};
 use serde_json::Value;
@@ -89,15 +90,22 @@ async fn record(
     resp
 }
 
-/// Start a recording receiver; returns its base URL.
-async fn receiver(rx: Receiver) -> String {
-    let app = Router::new().fallback(record).with_state(rx);
+/// Serves `app` on a port chosen by the system; returns its base URL.
+async fn serve(app: Router) -> String {
     let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
         .await
         .expect("bind");
     let addr = listener.local_addr().expect("addr");
     tokio::spawn(axum::serve(listener, app).into_future());
     format!("http://{addr}")
+}
+
+/// A started recording receiver that fails its first `fail_first` requests; with its base URL.
+async fn recording_receiver(fail_first: usize) -> (Receiver, String) {
+    let rec = Receiver::default();
+    rec.fail_first.store(fail_first, Ordering::SeqCst);
+    let base = serve(Router::new().fallback(record).with_state(rec.clone())).await;
+    (rec, base)
 }
 
 /// A receiver that accepts connections and never answers.
@@ -129,6 +137,19 @@ async fn wait_until(what: &str, timeout: Duration, mut cond: impl FnMut() -> boo
         assert!(start.elapsed() < timeout, "timed out waiting for {what}");
         tokio::time::sleep(Duration::from_millis(5)).await;
     }
+}
+
+/// Waits (up to `WAIT`) until the notifier's counters satisfy `cond`.
+async fn wait_stats(what: &str, handle: &NotifierHandle, cond: impl Fn(&StatsSnapshot) -> bool) {
+    wait_until(what, WAIT, || cond(&handle.stats().snapshot())).await;
+}
+
+/// Asserts that the notifier's task ends (within `WAIT`) without a panic.
+async fn assert_ends(task: tokio::task::JoinHandle<()>) {
+    tokio::time::timeout(WAIT, task)
+        .await
+        .expect("task ends")
+        .expect("no panic");
 }
 
 fn t(secs: u64) -> SystemTime {
@@ -183,12 +204,19 @@ fn webhook(url: String, token: Option<&str>) -> WebhookTarget {
     }
 }
 
+/// `fast_config()` with one webhook, at `{base}/hook`.
+fn hook_config(base: &str) -> NotifyConfig {
+    NotifyConfig {
+        webhooks: vec![webhook(format!("{base}/hook"), None)],
+        ..fast_config()
+    }
+}
+
 const WAIT: Duration = Duration::from_secs(10);
 
 #[tokio::test]
 async fn webhook_gets_v4_payload_with_bearer_token_and_resolved_ends_at() {
-    let rec = Receiver::default();
-    let base = receiver(rec.clone()).await;
+    let (rec, base) = recording_receiver(0).await;
     let config = NotifyConfig {
         webhooks: vec![
             webhook(format!("{base}/with-token"), Some("s3cret")),
@@ -249,29 +277,20 @@ async fn webhook_gets_v4_payload_with_bearer_token_and_resolved_ends_at() {
     let s = handle.stats().snapshot();
     assert_eq!((s.delivered, s.failed, s.dropped), (4, 0, 0));
     assert!(handle.shutdown(WAIT).await);
-    tokio::time::timeout(WAIT, task)
-        .await
-        .expect("task ends")
-        .expect("no panic");
+    assert_ends(task).await;
 }
 
 #[tokio::test]
 async fn retries_with_exponential_backoff_until_success() {
-    let rec = Receiver::default();
-    rec.fail_first.store(3, Ordering::SeqCst);
-    let base = receiver(rec.clone()).await;
+    let (rec, base) = recording_receiver(3).await;
     let config = NotifyConfig {
-        webhooks: vec![webhook(format!("{base}/hook"), None)],
         initial_backoff_ms: 40,
         max_backoff_ms: 1000,
-        ..fast_config()
+        ..hook_config(&base)
     };
     let (handle, _task) = spawn_notifier(config, Vec::new);
     handle.notify(events("g1").0);
-    wait_until("success after 3 failures", WAIT, || {
-        handle.stats().snapshot().delivered == 1
-    })
-    .await;
+    wait_stats("success after 3 failures", &handle, |s| s.delivered == 1).await;
     let reqs = rec.requests();
     assert_eq!(reqs.len(), 4, "3 failures + 1 success");
     assert!(
@@ -291,24 +310,18 @@ async fn retries_with_exponential_backoff_until_success() {
 /// A 503 with `Retry-After: 1` is waited out (not the 10 ms backoff), and the attempt counts.
 #[tokio::test]
 async fn retry_after_seconds_is_honoured() {
-    let rec = Receiver::default();
-    rec.fail_first.store(1, Ordering::SeqCst);
+    let (rec, base) = recording_receiver(1).await;
     rec.fail_status.store(503, Ordering::SeqCst);
     *rec.retry_after.lock().expect("lock") = Some("1".into());
-    let base = receiver(rec.clone()).await;
     let config = NotifyConfig {
-        webhooks: vec![webhook(format!("{base}/hook"), None)],
         max_attempts: 2,
         initial_backoff_ms: 10,
         max_backoff_ms: 5000,
-        ..fast_config()
+        ..hook_config(&base)
     };
     let (handle, _task) = spawn_notifier(config, Vec::new);
     handle.notify(events("g1").0);
-    wait_until("delivered after the 503", WAIT, || {
-        handle.stats().snapshot().delivered == 1
-    })
-    .await;
+    wait_stats("delivered after the 503", &handle, |s| s.delivered == 1).await;
     let reqs = rec.requests();
     assert_eq!(
         reqs.len(),
@@ -326,26 +339,20 @@ async fn retry_after_seconds_is_honoured() {
 /// every such wait counts as an attempt, and the delivery gives up after `max_attempts`.
 #[tokio::test]
 async fn retry_after_beyond_the_cap_is_capped_and_counted() {
-    let rec = Receiver::default();
-    rec.fail_first.store(usize::MAX, Ordering::SeqCst);
+    let (rec, base) = recording_receiver(usize::MAX).await;
     rec.fail_status.store(429, Ordering::SeqCst);
     let in_an_hour = SystemTime::now() + Duration::from_secs(3600);
     *rec.retry_after.lock().expect("lock") = Some(httpdate::fmt_http_date(in_an_hour));
-    let base = receiver(rec.clone()).await;
     let config = NotifyConfig {
-        webhooks: vec![webhook(format!("{base}/hook"), None)],
         max_attempts: 3,
         initial_backoff_ms: 10,
         max_backoff_ms: 200,
-        ..fast_config()
+        ..hook_config(&base)
     };
     let (handle, _task) = spawn_notifier(config, Vec::new);
     handle.notify(events("g1").0);
     // Within WAIT, not an hour.
-    wait_until("failure counted", WAIT, || {
-        handle.stats().snapshot().failed == 1
-    })
-    .await;
+    wait_stats("failure counted", &handle, |s| s.failed == 1).await;
     let reqs = rec.requests();
     assert_eq!(reqs.len(), 3, "max_attempts, Retry-After waits included");
     for w in reqs.windows(2) {
@@ -359,20 +366,14 @@ async fn retry_after_beyond_the_cap_is_capped_and_counted() {
 
 #[tokio::test]
 async fn gives_up_after_max_attempts_and_counts_failed() {
-    let rec = Receiver::default();
-    rec.fail_first.store(usize::MAX, Ordering::SeqCst);
-    let base = receiver(rec.clone()).await;
+    let (rec, base) = recording_receiver(usize::MAX).await;
     let config = NotifyConfig {
-        webhooks: vec![webhook(format!("{base}/hook"), None)],
         max_attempts: 3,
-        ..fast_config()
+        ..hook_config(&base)
     };
     let (handle, _task) = spawn_notifier(config, Vec::new);
     handle.notify(events("g1").0);
-    wait_until("failure counted", WAIT, || {
-        handle.stats().snapshot().failed == 1
-    })
-    .await;
+    wait_stats("failure counted", &handle, |s| s.failed == 1).await;
     assert_eq!(rec.count(), 3);
     assert_eq!(handle.stats().snapshot().delivered, 0);
     assert!(handle.shutdown(WAIT).await);
@@ -381,23 +382,15 @@ async fn gives_up_after_max_attempts_and_counts_failed() {
 #[tokio::test]
 async fn client_errors_are_not_retried() {
     // A 404 (wrong path) will not get better by retrying.
-    let app = Router::new().route("/ok", axum::routing::post(|| async { "" }));
-    let listener = tokio::net::TcpListener::bind("127.0.0.1:0")
-        .await
-        .expect("bind");
-    let addr = listener.local_addr().expect("addr");
-    tokio::spawn(axum::serve(listener, app).into_future());
+    let base = serve(Router::new().route("/ok", axum::routing::post(|| async { "" }))).await;
     let config = NotifyConfig {
-        webhooks: vec![webhook(format!("http://{addr}/missing"), None)],
+        webhooks: vec![webhook(format!("{base}/missing"), None)],
         ..fast_config()
     };
     let (handle, _task) = spawn_notifier(config, Vec::new);
     let start = Instant::now();
     handle.notify(events("g1").0);
-    wait_until("failure counted", WAIT, || {
-        handle.stats().snapshot().failed == 1
-    })
-    .await;
+    wait_stats("failure counted", &handle, |s| s.failed == 1).await;
     assert!(start.elapsed() < Duration::from_secs(2));
     assert!(handle.shutdown(WAIT).await);
 }
@@ -414,22 +407,15 @@ async fn invalid_url_fails_without_panic_or_retries() {
     let (handle, task) = spawn_notifier(config, Vec::new);
     let start = Instant::now();
     handle.notify(events("g1").0);
-    wait_until("both failures counted", WAIT, || {
-        handle.stats().snapshot().failed == 2
-    })
-    .await;
+    wait_stats("both failures counted", &handle, |s| s.failed == 2).await;
     assert!(start.elapsed() < Duration::from_millis(900), "not retried");
     assert!(handle.shutdown(WAIT).await);
-    tokio::time::timeout(WAIT, task)
-        .await
-        .expect("ends")
-        .expect("no panic");
+    assert_ends(task).await;
 }
 
 #[tokio::test]
 async fn dead_or_hanging_receiver_does_not_block_others() {
-    let rec = Receiver::default();
-    let base = receiver(rec.clone()).await;
+    let (rec, base) = recording_receiver(0).await;
     let (hang, _hang_task) = hanging_receiver().await;
     let config = NotifyConfig {
         webhooks: vec![
@@ -463,10 +449,7 @@ async fn dead_or_hanging_receiver_does_not_block_others() {
         took >= Duration::from_millis(300) && took < Duration::from_secs(3),
         "{took:?}"
     );
-    tokio::time::timeout(WAIT, task)
-        .await
-        .expect("task ends after abort")
-        .expect("no panic");
+    assert_ends(task).await;
     let s = handle.stats().snapshot();
     // 2 batches for each of the 2 stuck targets were abandoned.
     assert_eq!(s.dropped, 4, "{s:?}");
@@ -475,8 +458,7 @@ async fn dead_or_hanging_receiver_does_not_block_others() {
 
 #[tokio::test]
 async fn alertmanager_receives_array_at_api_v2_alerts() {
-    let rec = Receiver::default();
-    let base = receiver(rec.clone()).await;
+    let (rec, base) = recording_receiver(0).await;
     let config = NotifyConfig {
         // Trailing slash tolerated.
         alertmanager_urls: vec![format!("{base}/")],
@@ -505,10 +487,8 @@ async fn alertmanager_receives_array_at_api_v2_alerts() {
 
 #[tokio::test]
 async fn firing_alerts_are_resent_to_alertmanager_only() {
-    let am = Receiver::default();
-    let hook = Receiver::default();
-    let am_base = receiver(am.clone()).await;
-    let hook_base = receiver(hook.clone()).await;
+    let (am, am_base) = recording_receiver(0).await;
+    let (hook, hook_base) = recording_receiver(0).await;
     let snapshot: Arc<Mutex<Vec<Alert>>> = Arc::new(Mutex::new(Vec::new()));
     let snap = snapshot.clone();
     let config = NotifyConfig {
@@ -537,14 +517,9 @@ async fn firing_alerts_are_resent_to_alertmanager_only() {
 
 #[tokio::test]
 async fn shutdown_flushes_queued_batches() {
-    let rec = Receiver::default();
+    let (rec, base) = recording_receiver(1).await;
     rec.delay_ms.store(30, Ordering::SeqCst);
-    rec.fail_first.store(1, Ordering::SeqCst);
-    let base = receiver(rec.clone()).await;
-    let config = NotifyConfig {
-        webhooks: vec![webhook(format!("{base}/hook"), None)],
-        ..fast_config()
-    };
+    let config = hook_config(&base);
     let (handle, task) = spawn_notifier(config, Vec::new);
     for g in ["g1", "g2", "g3", "g4", "g5"] {
         assert!(handle.notify(events(g).0));
@@ -564,10 +539,7 @@ async fn shutdown_flushes_queued_batches() {
     assert_eq!(gates, vec!["g1", "g1", "g2", "g3", "g4", "g5"]);
     let s = handle.stats().snapshot();
     assert_eq!((s.delivered, s.failed, s.dropped), (5, 0, 0));
-    tokio::time::timeout(WAIT, task)
-        .await
-        .expect("task ended")
-        .expect("no panic");
+    assert_ends(task).await;
     // After shutdown: refused, counted, no blocking.
     assert!(!handle.notify(events("g6").0));
     assert_eq!(handle.stats().snapshot().dropped, 1);
@@ -581,10 +553,9 @@ async fn shutdown_flushes_queued_batches() {
 async fn full_queue_drops_without_blocking() {
     let (hang, _hang_task) = hanging_receiver().await;
     let config = NotifyConfig {
-        webhooks: vec![webhook(format!("{hang}/hook"), None)],
         queue_capacity: 2,
         timeout_seconds: 30.0,
-        ..fast_config()
+        ..hook_config(&hang)
     };
     let (handle, _task) = spawn_notifier(config, Vec::new);
     let (fired, _) = events("g1");
@@ -613,10 +584,8 @@ async fn full_queue_drops_without_blocking() {
 /// from the shutdown while the restarted daemon re-asserts them.
 #[tokio::test]
 async fn shutdown_resends_firing_alerts_to_alertmanager_and_resolves_nothing() {
-    let am = Receiver::default();
-    let hook = Receiver::default();
-    let am_base = receiver(am.clone()).await;
-    let hook_base = receiver(hook.clone()).await;
+    let (am, am_base) = recording_receiver(0).await;
+    let (hook, hook_base) = recording_receiver(0).await;
     let (fired, _) = events("g1");
     let firing = vec![fired[0].alert().clone()];
     let config = NotifyConfig {
@@ -641,8 +610,7 @@ async fn shutdown_resends_firing_alerts_to_alertmanager_and_resolves_nothing() {
 /// targets' queues counts once for every target.
 #[tokio::test]
 async fn stats_split_by_target_kind() {
-    let am = Receiver::default();
-    let am_base = receiver(am.clone()).await;
+    let (_, am_base) = recording_receiver(0).await;
     let config = NotifyConfig {
         alertmanager_urls: vec![am_base],
         webhooks: vec![
@@ -655,8 +623,7 @@ async fn stats_split_by_target_kind() {
     let (handle, _task) = spawn_notifier(config, Vec::new);
     let (fired, _) = events("g1");
     assert!(handle.notify(fired.clone()));
-    wait_until("delivered and failed", WAIT, || {
-        let s = handle.stats().snapshot();
+    wait_stats("delivered and failed", &handle, |s| {
         s.alertmanager.delivered == 1 && s.webhook.failed == 2
     })
     .await;
@@ -688,14 +655,11 @@ fn outbox_entry(n: i64) -> OutboxEntry {
 /// alert for `notification_max_age_seconds` (a day).
 #[tokio::test]
 async fn an_outbox_queue_kept_during_an_outage_stops_at_its_bound_and_gives_up_the_oldest() {
-    let rec = Receiver::default();
-    rec.fail_first.store(usize::MAX, Ordering::SeqCst);
-    let base = receiver(rec.clone()).await;
+    let (rec, base) = recording_receiver(usize::MAX).await;
     let config = NotifyConfig {
-        webhooks: vec![webhook(format!("{base}/hook"), None)],
         outbox_max_age: Some(Duration::from_secs(3600)),
         outbox_max_pending: 5,
-        ..fast_config()
+        ..hook_config(&base)
     };
     let acked = Arc::new(Mutex::new(Vec::<i64>::new()));
     let sink = acked.clone();
@@ -716,10 +680,7 @@ async fn an_outbox_queue_kept_during_an_outage_stops_at_its_bound_and_gives_up_t
     assert_eq!((s.webhook.failed, s.webhook.delivered), (7, 0));
     // the receiver is back: the five kept are delivered, in order
     rec.fail_first.store(0, Ordering::SeqCst);
-    wait_until("the rest delivered", WAIT, || {
-        handle.stats().snapshot().webhook.delivered == 5
-    })
-    .await;
+    wait_stats("the rest delivered", &handle, |s| s.webhook.delivered == 5).await;
     assert_eq!(*acked.lock().expect("lock"), (1..=12).collect::<Vec<_>>());
     let mut sent: Vec<String> = Vec::new();
     for r in rec.requests() {
