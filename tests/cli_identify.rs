@@ -141,10 +141,15 @@ fn coefficients(v: &Value) -> Vec<u64> {
         .collect()
 }
 
+/// `identify --input INPUT --model MODEL` followed by `extra`.
+fn identify_args<'a>(input: &'a str, model: &'a str, extra: &[&'a str]) -> Vec<&'a str> {
+    let mut a = vec!["identify", "--input", input, "--model", model];
+    a.extend_from_slice(extra);
+    a
+}
+
 fn vdp_args<'a>(input: &'a str, extra: &[&'a str]) -> Vec<&'a str> {
-    let mut a = vec![
-        "identify", "--input", input, "--model", VDP, "--y0", "0.5", "--v0", "0",
-    ];
+    let mut a = identify_args(input, VDP, &["--y0", "0.5", "--v0", "0"]);
     a.extend_from_slice(extra);
     a
 }
@@ -158,34 +163,22 @@ fn file_problems_are_named() {
     let missing = d.path("missing.csv");
     let missing = missing.to_str().unwrap();
     bad(
-        &["identify", "--input", missing, "--model", VDP],
+        &identify_args(missing, VDP, &[]),
         &["missing.csv", "cannot read"],
     );
     let empty = d.write("empty.csv", "");
-    bad(
-        &["identify", "--input", &empty, "--model", VDP],
-        &["empty.csv", "empty"],
-    );
+    bad(&identify_args(&empty, VDP, &[]), &["empty.csv", "empty"]);
     let blank = d.write("blank.csv", "  \n\n");
-    bad(
-        &["identify", "--input", &blank, "--model", VDP],
-        &["blank.csv", "empty"],
-    );
+    bad(&identify_args(&blank, VDP, &[]), &["blank.csv", "empty"]);
     let nohdr = d.write("nohdr.csv", "0,1\n0.1,2\n0.2,3\n");
     bad(
-        &["identify", "--input", &nohdr, "--model", VDP],
+        &identify_args(&nohdr, VDP, &[]),
         &["nohdr.csv", "line 1", "header"],
     );
     let header_only = d.write("header_only.csv", "t,y\n");
-    bad(
-        &["identify", "--input", &header_only, "--model", VDP],
-        &["no data rows"],
-    );
+    bad(&identify_args(&header_only, VDP, &[]), &["no data rows"]);
     let ragged = d.write("ragged.csv", "t,y\n0,1\n0.1,2,3\n");
-    bad(
-        &["identify", "--input", &ragged, "--model", VDP],
-        &["line 3", "3 fields"],
-    );
+    bad(&identify_args(&ragged, VDP, &[]), &["line 3", "3 fields"]);
 }
 
 #[test]
@@ -194,33 +187,15 @@ fn unknown_columns_list_the_available_ones() {
     let f = d.write("c.csv", "time,signal,other\n0,1,2\n0.1,2,3\n");
     // Default columns t, y are absent.
     bad(
-        &["identify", "--input", &f, "--model", VDP],
+        &identify_args(&f, VDP, &[]),
         &["'t'", "time, signal, other"],
     );
     bad(
-        &[
-            "identify",
-            "--input",
-            &f,
-            "--model",
-            VDP,
-            "--time-column",
-            "time",
-        ],
+        &identify_args(&f, VDP, &["--time-column", "time"]),
         &["'y'", "time, signal, other"],
     );
     bad(
-        &[
-            "identify",
-            "--input",
-            &f,
-            "--model",
-            VDP,
-            "--time-column",
-            "time",
-            "--value-column",
-            "sig",
-        ],
+        &identify_args(&f, VDP, &["--time-column", "time", "--value-column", "sig"]),
         &["'sig'", "time, signal, other"],
     );
 }
@@ -230,14 +205,11 @@ fn bad_cells_name_line_and_column() {
     let d = Dir::new();
     let f = d.write("nan.csv", "t,y\n0,1\n0.1,2\n0.2,abc\n0.3,1\n");
     bad(
-        &["identify", "--input", &f, "--model", VDP],
+        &identify_args(&f, VDP, &[]),
         &["line 4", "'y'", "'abc'", "not a number"],
     );
     let f = d.write("t.csv", "t,y\n0,1\nx0.1,2\n");
-    bad(
-        &["identify", "--input", &f, "--model", VDP],
-        &["line 3", "'t'", "'x0.1'"],
-    );
+    bad(&identify_args(&f, VDP, &[]), &["line 3", "'t'", "'x0.1'"]);
     for (name, cell) in [
         ("NaN", "NaN"),
         ("inf", "inf"),
@@ -249,16 +221,13 @@ fn bad_cells_name_line_and_column() {
             &format!("t,y\n0,1\n0.1,2\n0.2,3\n0.3,{cell}\n0.4,1\n"),
         );
         bad(
-            &["identify", "--input", &f, "--model", VDP],
+            &identify_args(&f, VDP, &[]),
             &["line 5", "'y'", "not finite"],
         );
     }
     // A comment line counts: the error still names the physical line.
     let f = d.write("comment.csv", "t,y\n# note\n0,1\n0.1,NaN\n");
-    bad(
-        &["identify", "--input", &f, "--model", VDP],
-        &["line 4", "not finite"],
-    );
+    bad(&identify_args(&f, VDP, &[]), &["line 4", "not finite"]);
 }
 
 #[test]
@@ -266,12 +235,12 @@ fn time_must_increase_strictly() {
     let d = Dir::new();
     let f = d.write("eq.csv", "t,y\n0,1\n0.1,2\n0.2,3\n0.2,4\n0.3,1\n");
     bad(
-        &["identify", "--input", &f, "--model", VDP],
+        &identify_args(&f, VDP, &[]),
         &["line 5", "'t'", "does not increase"],
     );
     let f = d.write("dec.csv", "t,y\n0,1\n0.1,2\n0.05,3\n");
     bad(
-        &["identify", "--input", &f, "--model", VDP],
+        &identify_args(&f, VDP, &[]),
         &["line 4", "does not increase"],
     );
 }
@@ -281,22 +250,14 @@ fn too_few_samples_for_the_split() {
     let d = Dir::new();
     let f = d.write("few.csv", "t,y\n0,1\n0.1,2\n0.2,3\n0.3,1\n0.4,1\n");
     bad(
-        &["identify", "--input", &f, "--model", VDP],
+        &identify_args(&f, VDP, &[]),
         &["5 data rows", "too few", "at least"],
     );
     // 10 samples are enough at 0.5 but not at 0.9 (9 train, 1 test).
     let rows: String = (0..10).map(|i| format!("{},{}\n", i, i % 3)).collect();
     let f = d.write("ten.csv", &format!("t,y\n{rows}"));
     bad(
-        &[
-            "identify",
-            "--input",
-            &f,
-            "--model",
-            VDP,
-            "--train-fraction",
-            "0.9",
-        ],
+        &identify_args(&f, VDP, &["--train-fraction", "0.9"]),
         &[
             "10 data rows are too few",
             "at least 16",
@@ -310,7 +271,7 @@ fn malformed_models_are_named_with_their_column() {
     let d = Dir::new();
     let f = d.case("van_der_pol_2");
     let m = |model: &str, keys: &[&str]| {
-        let line = bad(&["identify", "--input", &f, "--model", model], keys);
+        let line = bad(&identify_args(&f, model, &[]), keys);
         assert!(line.contains("model"), "{line}");
     };
     m("ydd + z*yd + y = 0", &["unknown symbol", "'z'", "column 7"]);
@@ -324,27 +285,14 @@ fn malformed_models_are_named_with_their_column() {
     m("ydd + c1*yd + c3*y = 0", &["c2", "missing"]);
     m("ydd + y = 0", &["no unknown coefficients"]);
     // The model is checked before the file: a bad model on a missing file names the model.
-    bad(
-        &[
-            "identify",
-            "--input",
-            "/nonexistent.csv",
-            "--model",
-            "ydd +",
-        ],
-        &["model"],
-    );
+    bad(&identify_args("/nonexistent.csv", "ydd +", &[]), &["model"]);
 }
 
 #[test]
 fn bad_options() {
     let d = Dir::new();
     let f = d.case("van_der_pol_2");
-    let b = |extra: &[&str], keys: &[&str]| {
-        let mut a = vec!["identify", "--input", &f, "--model", VDP];
-        a.extend_from_slice(extra);
-        bad(&a, keys)
-    };
+    let b = |extra: &[&str], keys: &[&str]| bad(&identify_args(&f, VDP, extra), keys);
     b(&["--population", "2"], &["--population", "at least 4"]);
     b(&["--population", "-3"], &["'-3'"]);
     b(&["--train-fraction", "0"], &["--train-fraction"]);
@@ -389,7 +337,7 @@ fn rk4_needs_uniform_times() {
         .collect();
     let f = d.write("nonuniform.csv", &format!("t,y\n{rows}"));
     bad(
-        &["identify", "--input", &f, "--model", VDP, "--solver", "rk4"],
+        &identify_args(&f, VDP, &["--solver", "rk4"]),
         &["rk4", "uniformly spaced"],
     );
 }
@@ -407,17 +355,11 @@ fn force_needs_uniform_times_and_names_the_sample_off_the_grid() {
         .collect();
     let f = d.write("force_nonuniform.csv", &format!("t,y\n{rows}"));
     bad(
-        &[
-            "identify",
-            "--input",
+        &identify_args(
             &f,
-            "--model",
             "c1*ydd + c2*yd + k*y = 0",
-            "--signal",
-            "force",
-            "--stiffness",
-            "1000",
-        ],
+            &["--signal", "force", "--stiffness", "1000"],
+        ),
         &[
             "--signal force needs uniformly sampled times",
             "line 219 (t = 2.171)",
@@ -478,13 +420,7 @@ fn a_stray_quote_in_a_comment_column_is_refused_where_it_opens() {
         .collect();
     let f = d.write("quoted.csv", &format!("t,y,comment\n{rows}"));
     bad(
-        &[
-            "identify",
-            "--input",
-            &f,
-            "--model",
-            "ydd + c1*yd + c2*y = 0",
-        ],
+        &identify_args(&f, "ydd + c1*yd + c2*y = 0", &[]),
         &[
             &f,
             "line 102: column 'comment': a quote (\") opens a cell on this line",
@@ -560,15 +496,11 @@ fn epoch_times_fit_as_well_as_times_from_zero() {
             })
             .collect();
         let f = d.write(name, &format!("t,y\n{rows}"));
-        json(&ok(&[
-            "identify",
-            "--input",
+        json(&ok(&identify_args(
             &f,
-            "--model",
             "ydd + c1*yd + c2*y = 0",
-            "--fit-initial",
-            "--json",
-        ]))
+            &["--fit-initial", "--json"],
+        )))
     };
     let zero = fit("zero.csv", 0.0);
     let epoch = fit("epoch.csv", 1.7e9);
@@ -595,41 +527,25 @@ fn unusable_records_and_columns_are_refused() {
             .collect();
         let f = d.write(name, &format!("t,y\n{rows}"));
         bad(
-            &["identify", "--input", &f, "--model", VDP],
+            &identify_args(&f, VDP, &[]),
             &[name, "column 'y'", "no oscillation"],
         );
         bad(
-            &[
-                "identify",
-                "--input",
+            &identify_args(
                 &f,
-                "--model",
                 "c1*ydd + c2*yd + k*y = 0",
-                "--signal",
-                "force",
-                "--stiffness",
-                "1000",
-            ],
+                &["--signal", "force", "--stiffness", "1000"],
+            ),
             &[name, "no oscillation"],
         );
     }
     let f = d.case("van_der_pol_2");
     bad(
-        &[
-            "identify",
-            "--input",
-            &f,
-            "--model",
-            VDP,
-            "--time-column",
-            "y",
-            "--value-column",
-            "y",
-        ],
+        &identify_args(&f, VDP, &["--time-column", "y", "--value-column", "y"]),
         &["--time-column", "--value-column", "'y'"],
     );
     bad(
-        &["identify", "--input", &f, "--model", VDP, "--solver", "foo"],
+        &identify_args(&f, VDP, &["--solver", "foo"]),
         &["--solver", "'foo'", "auto", "dopri5", "rk4", "stiff"],
     );
 }
@@ -660,10 +576,7 @@ fn bad_bench_arguments_and_unknown_commands() {
     bad(&["bench", "generate"], &["--case"]);
     bad(&["frobnicate"], &["'frobnicate'"]);
     bad(&["bench", "frobnicate"], &["'frobnicate'"]);
-    bad(
-        &["identify", "--input", "x.csv", "--model", VDP, "--frob"],
-        &["'--frob'"],
-    );
+    bad(&identify_args("x.csv", VDP, &["--frob"]), &["'--frob'"]);
     bad(&["identify", "--model", VDP], &["--input"]);
 }
 
@@ -832,22 +745,21 @@ fn other_columns_can_be_chosen() {
         .map(|(t, y)| format!("{},{:.17e},{:.17e}\n", -y, y, t))
         .collect();
     let f = d.write("cols.csv", &format!("neg,signal,time\n{body}"));
-    let out = ok(&[
-        "identify",
-        "--input",
+    let out = ok(&identify_args(
         &f,
-        "--model",
         VDP,
-        "--y0",
-        "0.5",
-        "--v0",
-        "0",
-        "--time-column",
-        "time",
-        "--value-column",
-        "signal",
-        "--json",
-    ]);
+        &[
+            "--y0",
+            "0.5",
+            "--v0",
+            "0",
+            "--time-column",
+            "time",
+            "--value-column",
+            "signal",
+            "--json",
+        ],
+    ));
     let v = json(&out);
     assert!(
         (num(&v, "/coefficients/c1") - VDP_TRUTH[0]).abs() < 1e-3,
@@ -864,28 +776,21 @@ fn other_columns_can_be_chosen() {
 fn fit_initial_recovers_the_initial_conditions() {
     let d = Dir::new();
     let f = d.case("negative_damping_1");
-    let out = ok(&[
-        "identify",
-        "--input",
+    let out = ok(&identify_args(
         &f,
-        "--model",
         "ydd + c1*yd + y = 0",
-        "--fit-initial",
-        "--json",
-    ]);
+        &["--fit-initial", "--json"],
+    ));
     let v = json(&out);
     assert!((num(&v, "/coefficients/c1") + 0.1434).abs() < 1e-3, "{v}");
     assert!((num(&v, "/initial/y0") - 0.1).abs() < 1e-4, "{v}");
     assert!(num(&v, "/initial/v0").abs() < 1e-4, "{v}");
     assert!(num(&v, "/test_nmae") < 1e-3, "{v}");
-    let out = ok(&[
-        "identify",
-        "--input",
+    let out = ok(&identify_args(
         &f,
-        "--model",
         "ydd + c1*yd + y = 0",
-        "--fit-initial",
-    ]);
+        &["--fit-initial"],
+    ));
     assert!(text(&out.stdout).contains("(identified)"));
 }
 
@@ -893,7 +798,7 @@ fn fit_initial_recovers_the_initial_conditions() {
 fn initial_conditions_from_the_data_by_default() {
     let d = Dir::new();
     let f = d.case("van_der_pol_2");
-    let v = json(&ok(&["identify", "--input", &f, "--model", VDP, "--json"]));
+    let v = json(&ok(&identify_args(&f, VDP, &["--json"])));
     assert_eq!(num(&v, "/initial/y0"), 0.5);
     // v0 is the slope of a quadratic through the first 7 samples; the cubic term of the Van der
     // Pol solution biases it to about 5e-3 (true 0), which costs about 5e-3 in c1 and c2 and a
@@ -929,35 +834,18 @@ fn known_constants_via_param() {
     let d = Dir::new();
     let f = d.case("van_der_pol_2");
     // k = 1 is the stiffness of the case.
-    let v = json(&ok(&[
-        "identify",
-        "--input",
+    let v = json(&ok(&identify_args(
         &f,
-        "--model",
         "ydd + (c1 + c2*y^2)*yd + k*y = 0",
-        "--param",
-        "k=1",
-        "--y0",
-        "0.5",
-        "--v0",
-        "0",
-        "--json",
-    ]));
+        &["--param", "k=1", "--y0", "0.5", "--v0", "0", "--json"],
+    )));
     assert!(
         (num(&v, "/coefficients/c1") - VDP_TRUTH[0]).abs() < 1e-3,
         "{v}"
     );
     // An unused or unknown name in the model is still an unknown symbol.
     bad(
-        &[
-            "identify",
-            "--input",
-            &f,
-            "--model",
-            "ydd + (c1 + c2*y^2)*yd + m*y = 0",
-            "--param",
-            "k=1",
-        ],
+        &identify_args(&f, "ydd + (c1 + c2*y^2)*yd + m*y = 0", &["--param", "k=1"]),
         &["'m'"],
     );
 }
@@ -1005,15 +893,11 @@ fn seven_samples_are_enough_for_a_half_split() {
         .map(|(t, y)| format!("{t},{y}\n"))
         .collect();
     let f = d.write("seven.csv", &format!("t,y\n{body}"));
-    ok(&[
-        "identify",
-        "--input",
+    ok(&identify_args(
         &f,
-        "--model",
         "ydd + c1*yd + y = 0",
-        "--generations",
-        "5",
-    ]);
+        &["--generations", "5"],
+    ));
 }
 
 /// Engine bug (src/identify/split.rs, `split`, the `needed` computation): the "needs at least N"
@@ -1030,21 +914,13 @@ fn too_few_samples_message_gives_the_true_minimum() {
     let f = d.write("six.csv", &format!("t,y\n{body}"));
     // 7 samples suffice at 0.5 (see seven_samples_are_enough_for_a_half_split); it says 8.
     bad(
-        &["identify", "--input", &f, "--model", "ydd + c1*yd + y = 0"],
+        &identify_args(&f, "ydd + c1*yd + y = 0", &[]),
         &["6 data rows", "at least 7"],
     );
     // A tiny fraction: the minimum is astronomically large, not usize::MAX from a saturating
     // cast (the message says "at least 18446744073709551615").
     let line = bad(
-        &[
-            "identify",
-            "--input",
-            &f,
-            "--model",
-            "ydd + c1*yd + y = 0",
-            "--train-fraction",
-            "1e-300",
-        ],
+        &identify_args(&f, "ydd + c1*yd + y = 0", &["--train-fraction", "1e-300"]),
         &["too few"],
     );
     assert!(!line.contains(&usize::MAX.to_string()), "{line}");
@@ -1109,9 +985,7 @@ fn force_signal_options_are_checked() {
         &["--solver", "euler"],
     );
     bad(
-        &[
-            "identify", "--input", &f, "--model", model, "--signal", "velocity",
-        ],
+        &identify_args(&f, model, &["--signal", "velocity"]),
         &["velocity"],
     );
 }
@@ -1495,7 +1369,7 @@ fn a_european_csv_is_explained() {
     ] {
         let f = d.write(name, content);
         bad(
-            &["identify", "--input", &f, "--model", VDP],
+            &identify_args(&f, VDP, &[]),
             &[
                 &f,
                 "line 1",
@@ -1510,7 +1384,7 @@ fn a_european_csv_is_explained() {
     std::fs::write(&p, b"t,y \xb5m\n0,1\n").unwrap();
     let f = p.to_str().unwrap();
     bad(
-        &["identify", "--input", f, "--model", VDP],
+        &identify_args(f, VDP, &[]),
         &[f, "line 1", "not valid UTF-8", "CSV UTF-8"],
     );
 }
@@ -1521,14 +1395,14 @@ fn too_few_rows_name_the_file() {
     let d = Dir::new();
     let one = d.write("one.csv", "t,y\n0,1\n");
     bad(
-        &["identify", "--input", &one, "--model", VDP],
+        &identify_args(&one, VDP, &[]),
         &[&format!(
             "{one}: 1 data row is too few: identify needs at least 7"
         )],
     );
     let three = d.write("three.csv", "t,y\n0,1\n0.1,2\n0.2,3\n");
     bad(
-        &["identify", "--input", &three, "--model", VDP],
+        &identify_args(&three, VDP, &[]),
         &[&format!(
             "{three}: 3 data rows are too few: identify needs at least 7"
         )],
@@ -1542,15 +1416,13 @@ fn plot_takes_a_directory() {
     let data = d.case("van_der_pol_2");
     let afile = d.write("afile", "x");
     bad(
-        &[
-            "identify", "--input", &data, "--model", VDP, "--plot", &afile,
-        ],
+        &identify_args(&data, VDP, &["--plot", &afile]),
         &["--plot", &afile, "not a directory", "takes a directory"],
     );
     let svg = d.path("out.svg");
     let svg = svg.to_str().unwrap();
     bad(
-        &["identify", "--input", &data, "--model", VDP, "--plot", svg],
+        &identify_args(&data, VDP, &["--plot", svg]),
         &["--plot", svg, ".svg", "takes a directory"],
     );
     assert!(!Path::new(svg).exists(), "no directory named out.svg");
@@ -1567,17 +1439,11 @@ fn a_hole_in_a_force_record_is_named_where_it_is() {
     }
     let f = d.write("hole.csv", &csv);
     let line = bad(
-        &[
-            "identify",
-            "--input",
+        &identify_args(
             &f,
-            "--model",
             "c1*ydd + c2*yd + k*y = 0",
-            "--signal",
-            "force",
-            "--stiffness",
-            "81360",
-        ],
+            &["--signal", "force", "--stiffness", "81360"],
+        ),
         &[
             &f,
             "line 802 (t = 6)",
@@ -1605,9 +1471,11 @@ fn a_record_in_another_unit_identifies_the_same_gate() {
             .collect();
         let f = d.write(&format!("vdp_{factor}.csv"), &format!("t,y\n{body}"));
         let y0 = format!("{:e}", 0.5 * factor);
-        json(&ok(&[
-            "identify", "--input", &f, "--model", VDP, "--y0", &y0, "--v0", "0", "--json",
-        ]))
+        json(&ok(&identify_args(
+            &f,
+            VDP,
+            &["--y0", &y0, "--v0", "0", "--json"],
+        )))
     };
     let unit = fit(1.0);
     for factor in [1e4, 5e4, 1e-4] {
@@ -1644,13 +1512,7 @@ fn an_equation_of_fixed_size_on_a_large_record_names_the_magnitude() {
         .collect();
     let f = d.write("big.csv", &format!("t,y\n{body}"));
     let line = bad(
-        &[
-            "identify",
-            "--input",
-            &f,
-            "--model",
-            "ydd + c1*yd + y + y^3 = 0",
-        ],
+        &identify_args(&f, "ydd + c1*yd + y + y^3 = 0", &[]),
         &[
             "big.csv",
             "largest |y| of 1e4",
