@@ -31,36 +31,27 @@ fn identify_writes_the_pictures_into_the_plot_dir() {
     let data = dir.path().join("d.csv");
     write_series(&data);
     let out_dir = dir.path().join("pictures/new");
-    let o = gatewatch(&[
-        "identify",
-        "--input",
-        data.to_str().unwrap(),
-        "--model",
-        "ydd + c1*yd + c2*y = 0",
-        "--generations",
-        "30",
-        "--plot",
-        out_dir.to_str().unwrap(),
-        "--plot-format",
-        "png",
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
+    let identify = |extra: &[&str]| {
+        let model = "ydd + c1*yd + c2*y = 0";
+        let (data, out_dir) = (data.to_str().unwrap(), out_dir.to_str().unwrap());
+        let args = [
+            "identify",
+            "--input",
+            data,
+            "--model",
+            model,
+            "--generations",
+            "30",
+        ];
+        let o = gatewatch(&[&args[..], &["--plot", out_dir], extra].concat());
+        assert!(o.status.success(), "{}", stderr(&o));
+    };
+    identify(&["--plot-format", "png"]);
     for name in ["fit.png", "phase.png", "convergence.png"] {
         let bytes = std::fs::read(out_dir.join(name)).unwrap();
         assert_eq!(&bytes[1..4], b"PNG", "{name}");
     }
-    let o = gatewatch(&[
-        "identify",
-        "--input",
-        data.to_str().unwrap(),
-        "--model",
-        "ydd + c1*yd + c2*y = 0",
-        "--generations",
-        "30",
-        "--plot",
-        out_dir.to_str().unwrap(),
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
+    identify(&[]);
     let svg = std::fs::read_to_string(out_dir.join("fit.svg")).unwrap();
     assert!(svg.contains("identified model"));
 }

@@ -16,6 +16,15 @@ fn text(bytes: &[u8]) -> String {
     String::from_utf8_lossy(bytes).into_owned()
 }
 
+/// Runs `gatewatch ARGS`, asserts exit 2 and returns its stderr.
+#[track_caller]
+fn exit_2(args: &[&str]) -> String {
+    let o = gw(args);
+    let err = text(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{args:?}: {err}");
+    err
+}
+
 /// `gatewatch ARGS` is refused as input: exit 2, one stderr line holding `needle`, nothing on
 /// stdout (nothing ran).
 fn refused_as_input(args: &[&str], needle: &str) {
@@ -29,9 +38,7 @@ fn refused_as_input(args: &[&str], needle: &str) {
 
 #[test]
 fn a_mistyped_command_gets_the_did_you_mean_hint_and_the_usage() {
-    let o = gw(&["identfy", "--input", "x.csv"]);
-    let err = text(&o.stderr);
-    assert_eq!(o.status.code(), Some(2), "{err}");
+    let err = exit_2(&["identfy", "--input", "x.csv"]);
     let first = err.lines().next().unwrap();
     assert!(
         first.starts_with("gatewatch: ") && first.contains("'identfy'"),
@@ -43,9 +50,7 @@ fn a_mistyped_command_gets_the_did_you_mean_hint_and_the_usage() {
     );
     assert!(err.contains("Usage: gatewatch"), "{err}");
 
-    let o = gw(&["identify", "--inptu", "x.csv"]);
-    let err = text(&o.stderr);
-    assert_eq!(o.status.code(), Some(2), "{err}");
+    let err = exit_2(&["identify", "--inptu", "x.csv"]);
     assert!(err.lines().next().unwrap().contains("'--inptu'"), "{err}");
     assert!(err.contains("--input"), "{err}");
     assert!(err.contains("Usage: gatewatch identify"), "{err}");
@@ -53,9 +58,7 @@ fn a_mistyped_command_gets_the_did_you_mean_hint_and_the_usage() {
 
 #[test]
 fn missing_arguments_stay_named_on_the_first_line() {
-    let o = gw(&["identify", "--model", "ydd + c1*y = 0"]);
-    let err = text(&o.stderr);
-    assert_eq!(o.status.code(), Some(2), "{err}");
+    let err = exit_2(&["identify", "--model", "ydd + c1*y = 0"]);
     let first = err.lines().next().unwrap();
     assert!(first.contains("--input <FILE>"), "{err}");
     assert!(err.contains("Usage: gatewatch identify"), "{err}");
@@ -743,7 +746,7 @@ fn a_closed_stderr_does_not_crash_the_service_commands() {
 /// `bench generate --output` names an unwritable path and exits 2, like stability-map's.
 #[test]
 fn generate_names_an_unwritable_output() {
-    let o = gw(&[
+    let err = exit_2(&[
         "bench",
         "generate",
         "--case",
@@ -751,8 +754,6 @@ fn generate_names_an_unwritable_output() {
         "--output",
         "/proc/nope/x.csv",
     ]);
-    let err = text(&o.stderr);
-    assert_eq!(o.status.code(), Some(2), "{err}");
     assert!(
         err.starts_with("gatewatch: --output: /proc/nope/x.csv: "),
         "{err}"
@@ -801,9 +802,7 @@ fn a_missing_config_is_named_once() {
     let nope = dir.path().join("nope.toml");
     let nope = nope.to_str().unwrap();
     for args in [vec!["check-config", nope], vec!["serve", "--config", nope]] {
-        let o = gw(&args);
-        let err = text(&o.stderr);
-        assert_eq!(o.status.code(), Some(2), "{args:?}: {err}");
+        let err = exit_2(&args);
         assert_eq!(
             err.trim_end(),
             format!("gatewatch: {nope}: No such file or directory"),
@@ -817,9 +816,7 @@ fn a_missing_config_is_named_once() {
 #[test]
 fn numeric_options_take_negative_numbers_to_their_range_checks() {
     let map = [&SMALL_MAP[..], &["--samples", "10"]].concat();
-    let o = gw(&[&map[..], &["--periods", "3", "--t-end", "5"]].concat());
-    let err = text(&o.stderr);
-    assert_eq!(o.status.code(), Some(2), "{err}");
+    let err = exit_2(&[&map[..], &["--periods", "3", "--t-end", "5"]].concat());
     assert!(
         err.contains("--t-end") && err.contains("--periods"),
         "{err}"
@@ -828,15 +825,11 @@ fn numeric_options_take_negative_numbers_to_their_range_checks() {
         (vec!["--t-end", "-1"], "t-end"),
         (vec!["--periods", "-1"], "periods"),
     ] {
-        let o = gw(&[&map[..], &args[..]].concat());
-        let err = text(&o.stderr);
-        assert_eq!(o.status.code(), Some(2), "{args:?}: {err}");
+        let err = exit_2(&[&map[..], &args[..]].concat());
         assert!(!err.contains("unexpected argument"), "{args:?}: {err}");
         assert!(err.contains(flag), "{args:?}: {err}");
     }
-    let o = gw(&["simulate", "--rate", "-5"]);
-    let err = text(&o.stderr);
-    assert_eq!(o.status.code(), Some(2), "{err}");
+    let err = exit_2(&["simulate", "--rate", "-5"]);
     assert!(
         !err.contains("unexpected argument") && err.contains("--rate"),
         "{err}"
@@ -1068,9 +1061,7 @@ fn huge_and_tiny_numbers_are_quoted_in_scientific_form() {
         ),
     ] {
         std::fs::write(&file, toml).unwrap();
-        let o = gw(&["check-config", file.to_str().unwrap()]);
-        let err = text(&o.stderr);
-        assert_eq!(o.status.code(), Some(2), "{toml}: {err}");
+        let err = exit_2(&["check-config", file.to_str().unwrap()]);
         assert!(err.contains(needle), "{toml}: {err}");
         assert!(!err.contains("0000000000"), "{toml}: {err}");
     }
