@@ -147,11 +147,46 @@ async fn body_too_large_counts_requests_and_http_metrics_label_code() {
 }
 
 fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
+    port_in_use().1
+}
+
+/// A listener on a port chosen by the system (held while it lives), and that port.
+fn port_in_use() -> (std::net::TcpListener, u16) {
+    let taken = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = taken.local_addr().unwrap().port();
+    (taken, port)
+}
+
+/// Starts `gatewatch serve --config CFG` without `RUST_LOG`, its stderr written to `log`.
+fn serve_logging_to(cfg: &std::path::Path, log: &std::path::Path) -> std::process::Child {
+    Command::new(env!("CARGO_BIN_EXE_gatewatch"))
+        .args(["serve", "--config"])
+        .arg(cfg)
+        .env_remove("RUST_LOG")
+        .stdout(Stdio::null())
+        .stderr(Stdio::from(std::fs::File::create(log).unwrap()))
+        .spawn()
         .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
+}
+
+/// Waits (up to `timeout`, else fails with `never`) until the file `log` holds `what`.
+fn wait_for_log(log: &std::path::Path, what: &str, timeout: Duration, never: &str) {
+    let deadline = Instant::now() + timeout;
+    while !std::fs::read_to_string(log)
+        .unwrap_or_default()
+        .contains(what)
+    {
+        assert!(Instant::now() < deadline, "{never}");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+/// Stops `child` with SIGTERM and returns its exit status.
+fn terminate(child: &mut std::process::Child) -> std::process::ExitStatus {
+    let _ = Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status();
+    child.wait().unwrap()
 }
 
 /// `gatewatch ARGS CFG` with `RUST_LOG` set to `rust_log` (removed when `None`): its exit
@@ -191,14 +226,7 @@ fn text_logs_to_a_file_have_no_colour_codes_and_plain_peers() {
     )
     .unwrap();
     let log = dir.path().join("stderr.log");
-    let mut child = Command::new(env!("CARGO_BIN_EXE_gatewatch"))
-        .args(["serve", "--config"])
-        .arg(&cfg)
-        .env_remove("RUST_LOG")
-        .stdout(Stdio::null())
-        .stderr(Stdio::from(std::fs::File::create(&log).unwrap()))
-        .spawn()
-        .unwrap();
+    let mut child = serve_logging_to(&cfg, &log);
     let deadline = Instant::now() + Duration::from_secs(30);
     let mut sock = loop {
         if let Ok(s) = std::net::TcpStream::connect(("127.0.0.1", tcp)) {
@@ -209,19 +237,14 @@ fn text_logs_to_a_file_have_no_colour_codes_and_plain_peers() {
     };
     // a bad line: logged with the peer
     sock.write_all(b"this is not line protocol\n").unwrap();
-    let deadline = Instant::now() + Duration::from_secs(10);
-    while !std::fs::read_to_string(&log)
-        .unwrap_or_default()
-        .contains("bad line")
-    {
-        assert!(Instant::now() < deadline, "the bad line was never logged");
-        std::thread::sleep(Duration::from_millis(50));
-    }
+    wait_for_log(
+        &log,
+        "bad line",
+        Duration::from_secs(10),
+        "the bad line was never logged",
+    );
     drop(sock);
-    let _ = Command::new("kill")
-        .args(["-TERM", &child.id().to_string()])
-        .status();
-    let status = child.wait().unwrap();
+    let status = terminate(&mut child);
     let text = std::fs::read(&log).unwrap();
     let shown = String::from_utf8_lossy(&text);
     assert!(status.success(), "{shown}");
@@ -250,26 +273,14 @@ fn plain_http_on_a_non_loopback_address_is_a_logged_warning() {
     )
     .unwrap();
     let log = dir.path().join("stderr.log");
-    let mut child = Command::new(env!("CARGO_BIN_EXE_gatewatch"))
-        .args(["serve", "--config"])
-        .arg(&cfg)
-        .env_remove("RUST_LOG")
-        .stdout(Stdio::null())
-        .stderr(Stdio::from(std::fs::File::create(&log).unwrap()))
-        .spawn()
-        .unwrap();
-    let deadline = Instant::now() + Duration::from_secs(30);
-    while !std::fs::read_to_string(&log)
-        .unwrap_or_default()
-        .contains("HTTP listener up")
-    {
-        assert!(Instant::now() < deadline, "the HTTP listener never came up");
-        std::thread::sleep(Duration::from_millis(50));
-    }
-    let _ = Command::new("kill")
-        .args(["-TERM", &child.id().to_string()])
-        .status();
-    assert!(child.wait().unwrap().success());
+    let mut child = serve_logging_to(&cfg, &log);
+    wait_for_log(
+        &log,
+        "HTTP listener up",
+        Duration::from_secs(30),
+        "the HTTP listener never came up",
+    );
+    assert!(terminate(&mut child).success());
     let shown = std::fs::read_to_string(&log).unwrap();
     let warning = shown
         .lines()
@@ -300,8 +311,7 @@ fn plain_http_on_a_non_loopback_address_is_a_logged_warning() {
 /// which of the two ports clashed, nor with what.
 #[test]
 fn a_port_in_use_is_named_by_its_key_and_address() {
-    let taken = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
-    let port = taken.local_addr().unwrap().port();
+    let (taken, port) = port_in_use();
     let dir = tempfile::tempdir().unwrap();
     let cfg = dir.path().join("gatewatch.toml");
     for (key, server) in [
@@ -340,8 +350,7 @@ fn a_port_in_use_is_named_by_its_key_and_address() {
 /// `check-config` and `demo` say it too.
 #[test]
 fn an_invalid_rust_log_is_a_warning_naming_it_and_log_level_is_used() {
-    let taken = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
-    let port = taken.local_addr().unwrap().port();
+    let (taken, port) = port_in_use();
     let dir = tempfile::tempdir().unwrap();
     let cfg = dir.path().join("gatewatch.toml");
     std::fs::write(
@@ -412,8 +421,7 @@ fn an_invalid_rust_log_is_a_warning_naming_it_and_log_level_is_used() {
 /// also when `log.level` mutes errors.
 #[test]
 fn json_logs_keep_the_fatal_line_and_the_warnings_json() {
-    let taken = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
-    let port = taken.local_addr().unwrap().port();
+    let (taken, port) = port_in_use();
     let dir = tempfile::tempdir().unwrap();
     let cfg = dir.path().join("gatewatch.toml");
     let missing = dir.path().join("no-such-dir").join("gw.db");
@@ -494,14 +502,7 @@ impl LoggingDaemon {
         )
         .unwrap();
         let log = dir.path().join("stderr.log");
-        let child = Command::new(env!("CARGO_BIN_EXE_gatewatch"))
-            .args(["serve", "--config"])
-            .arg(&cfg)
-            .env_remove("RUST_LOG")
-            .stdout(Stdio::null())
-            .stderr(Stdio::from(std::fs::File::create(&log).unwrap()))
-            .spawn()
-            .unwrap();
+        let child = serve_logging_to(&cfg, &log);
         let base = format!("http://127.0.0.1:{http}");
         let deadline = Instant::now() + Duration::from_secs(30);
         while !reqwest::get(format!("{base}/readyz"))
@@ -544,10 +545,7 @@ impl LoggingDaemon {
 
     /// Stops the daemon (SIGTERM, a clean exit) and returns its log's WARN lines holding `what`.
     fn stop_and_count_warnings(mut self, what: &str) -> (usize, String) {
-        let _ = Command::new("kill")
-            .args(["-TERM", &self.child.id().to_string()])
-            .status();
-        assert!(self.child.wait().unwrap().success());
+        assert!(terminate(&mut self.child).success());
         let shown = std::fs::read_to_string(&self.log).unwrap();
         let warned = shown
             .lines()
