@@ -15,7 +15,6 @@ mod service_common;
 
 use std::io::Write;
 use std::net::SocketAddr;
-use std::sync::Arc;
 use std::time::Duration;
 
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
@@ -74,7 +73,7 @@ fn answer_of(o: Outcome) -> String {
 
 #[tokio::test]
 async fn a_413_reaches_a_client_still_writing_its_body() {
-    let r = start("body_limit_bytes = 65536", Arc::new(Fake::default())).await;
+    let r = start_default("body_limit_bytes = 65536").await;
     let a = answer_of(slow_post(r.http, "/api/v1/samples", "").await);
     assert!(a.starts_with("http/1.1 413"), "{a}");
     assert!(a.contains("larger than 65536 bytes"), "{a}");
@@ -85,11 +84,7 @@ async fn a_413_reaches_a_client_still_writing_its_body() {
 
 #[tokio::test]
 async fn a_401_reaches_a_client_still_writing_its_body() {
-    let r = start(
-        "auth_tokens = [\"s3cret-token-0123456789\"]",
-        Arc::new(Fake::default()),
-    )
-    .await;
+    let r = start_default("auth_tokens = [\"s3cret-token-0123456789\"]").await;
     for path in ["/api/v1/samples", "/api/v2/write"] {
         let a = answer_of(slow_post(r.http, path, "authorization: Bearer wrong\r\n").await);
         assert!(a.starts_with("http/1.1 401"), "{path}: {a}");
@@ -138,7 +133,7 @@ const BUDGET_8_MIB: &str = "body_limit_bytes = 8388608\nmax_body_bytes_in_flight
 
 #[tokio::test]
 async fn a_503_and_its_retry_after_reach_a_client_still_writing_its_body() {
-    let r = start(BUDGET_8_MIB, Arc::new(Fake::default())).await;
+    let r = start_default(BUDGET_8_MIB).await;
     let holder = hold_the_budget(r.http).await;
     for path in ["/api/v1/samples", "/api/v2/write"] {
         let a = answer_of(slow_post(r.http, path, "").await);
@@ -156,7 +151,7 @@ async fn a_503_and_its_retry_after_reach_a_client_still_writing_its_body() {
 #[ignore]
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn reqwest_sending_4_mb_reads_the_503_and_its_retry_after() {
-    let r = start(BUDGET_8_MIB, Arc::new(Fake::default())).await;
+    let r = start_default(BUDGET_8_MIB).await;
     let holder = hold_the_budget(r.http).await;
     // 4 MB: far more than the socket buffers take, so the client is still writing when the
     // answer comes
@@ -209,11 +204,7 @@ async fn overloaded(addr: SocketAddr) -> f64 {
 async fn small_gzip_and_chunked_bodies_in_flight_together_cost_their_size_not_the_body_limit() {
     // an 8 MiB budget and a 4 MiB body limit: before the meter, each gzip or chunked body
     // reserved 4 MiB when admitted, so the third of these six (each under 1 KiB) got a 503
-    let r = start(
-        "body_limit_bytes = 4194304\nmax_body_bytes_in_flight = 8388608",
-        Arc::new(Fake::default()),
-    )
-    .await;
+    let r = start_default("body_limit_bytes = 4194304\nmax_body_bytes_in_flight = 8388608").await;
     let mut open = Vec::new();
     for i in 0..6 {
         let json = uniform(&format!("z{i}"), 1.0e9, 10).to_string();
@@ -252,11 +243,7 @@ async fn small_gzip_and_chunked_bodies_in_flight_together_cost_their_size_not_th
 #[tokio::test]
 async fn a_gzip_body_that_outgrows_the_budget_part_way_is_answered_503_then_accepted() {
     // a 1 MiB budget, 600 KiB of it held by a request that declares its size and sends little
-    let r = start(
-        "body_limit_bytes = 1048576\nmax_body_bytes_in_flight = 1048576",
-        Arc::new(Fake::default()),
-    )
-    .await;
+    let r = start_default("body_limit_bytes = 1048576\nmax_body_bytes_in_flight = 1048576").await;
     let holder = holder(r.http, 600 * 1024).await;
     // 700 KiB of JSON once decompressed (a few KiB on the wire): under the body limit, over
     // what the budget has left

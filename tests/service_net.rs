@@ -41,19 +41,13 @@ async fn closed_by_server(s: &mut TcpStream) -> bool {
 async fn a_refusal_before_the_body_says_connection_close_to_a_keep_alive_client() {
     // the budget holds one 1 MiB body: a request that declares 1 MiB and sends a few bytes
     // holds all of it
-    let r = start(
-        "body_limit_bytes = 1048576\nmax_body_bytes_in_flight = 1048576",
-        Arc::new(Fake::default()),
+    let r = start_default("body_limit_bytes = 1048576\nmax_body_bytes_in_flight = 1048576").await;
+    let holder = connect_and_write(
+        r.http,
+        b"POST /api/v1/samples HTTP/1.1\r\nhost: x\r\ncontent-type: application/json\r\n\
+              content-length: 1048576\r\n\r\n{\"gate\"",
     )
     .await;
-    let mut holder = TcpStream::connect(r.http).await.unwrap();
-    holder
-        .write_all(
-            b"POST /api/v1/samples HTTP/1.1\r\nhost: x\r\ncontent-type: application/json\r\n\
-              content-length: 1048576\r\n\r\n{\"gate\"",
-        )
-        .await
-        .unwrap();
     // wait until the holder's reservation is made (its request is in the handler)
     let addr = r.http;
     tokio::time::timeout(Duration::from_secs(10), async {
@@ -97,14 +91,13 @@ async fn a_refusal_before_the_body_says_connection_close_to_a_keep_alive_client(
 
 #[tokio::test]
 async fn expect_continue_over_the_limit_gets_413_without_sending_the_body() {
-    let r = start("", Arc::new(Fake::default())).await;
-    let mut c = TcpStream::connect(r.http).await.unwrap();
-    c.write_all(
+    let r = start_default("").await;
+    let mut c = connect_and_write(
+        r.http,
         b"POST /api/v1/samples HTTP/1.1\r\nhost: x\r\ncontent-type: application/json\r\n\
           expect: 100-continue\r\ncontent-length: 1000000000\r\n\r\n",
     )
-    .await
-    .unwrap();
+    .await;
     // no body is ever sent: the answer can only come from the headers
     let answer = read_to_close(&mut c).await.to_ascii_lowercase();
     assert!(answer.starts_with("http/1.1 413"), "{answer}");
@@ -115,18 +108,11 @@ async fn expect_continue_over_the_limit_gets_413_without_sending_the_body() {
 
 #[tokio::test]
 async fn a_silent_http_connection_is_closed_after_the_header_timeout() {
-    let r = start(
-        "http_header_read_timeout_seconds = 0.3",
-        Arc::new(Fake::default()),
-    )
-    .await;
+    let r = start_default("http_header_read_timeout_seconds = 0.3").await;
     let mut silent = TcpStream::connect(r.http).await.unwrap();
     assert!(closed_by_server(&mut silent).await);
     // a slowloris that never finishes its headers, too
-    let mut slow = TcpStream::connect(r.http).await.unwrap();
-    slow.write_all(b"GET /healthz HTTP/1.1\r\nhost: x\r\n")
-        .await
-        .unwrap();
+    let mut slow = connect_and_write(r.http, b"GET /healthz HTTP/1.1\r\nhost: x\r\n").await;
     assert!(closed_by_server(&mut slow).await);
     assert_eq!(get(r.http, "/healthz").await.0, 200);
     stop(r).await;
@@ -138,7 +124,7 @@ async fn a_silent_http_connection_is_closed_after_the_header_timeout() {
 #[tokio::test]
 async fn a_request_head_over_64_kib_is_refused_with_431() {
     use gatewatch::service::listen::MAX_REQUEST_HEAD_BYTES;
-    let r = start("", Arc::new(Fake::default())).await;
+    let r = start_default("").await;
     let head = |header_bytes: usize| {
         format!(
             "GET /healthz HTTP/1.1\r\nhost: x\r\nx-filler: {}\r\nconnection: close\r\n\r\n",
@@ -146,10 +132,7 @@ async fn a_request_head_over_64_kib_is_refused_with_431() {
         )
     };
     // just under the bound: served
-    let mut s = TcpStream::connect(r.http).await.unwrap();
-    s.write_all(head(MAX_REQUEST_HEAD_BYTES - 200).as_bytes())
-        .await
-        .unwrap();
+    let mut s = connect_and_write(r.http, head(MAX_REQUEST_HEAD_BYTES - 200).as_bytes()).await;
     let answer = read_to_close(&mut s).await;
     assert!(answer.starts_with("HTTP/1.1 200"), "{answer}");
     // 100 KiB of one header (hyper's default took it): 431, and the connection ends
@@ -162,7 +145,7 @@ async fn a_request_head_over_64_kib_is_refused_with_431() {
 
 #[tokio::test]
 async fn connections_over_the_cap_are_closed_and_a_client_gets_in_after_they_go() {
-    let r = start("max_http_connections = 4", Arc::new(Fake::default())).await;
+    let r = start_default("max_http_connections = 4").await;
     let mut held = Vec::new();
     for _ in 0..4 {
         let mut s = TcpStream::connect(r.http).await.unwrap();
@@ -209,32 +192,26 @@ async fn connections_over_the_cap_are_closed_and_a_client_gets_in_after_they_go(
 
 #[tokio::test]
 async fn a_silent_tcp_connection_is_closed_after_the_idle_timeout() {
-    let r = start("tcp_idle_timeout_seconds = 0.3", Arc::new(Fake::default())).await;
+    let r = start_default("tcp_idle_timeout_seconds = 0.3").await;
     let mut silent = TcpStream::connect(r.tcp).await.unwrap();
     assert!(closed_by_server(&mut silent).await);
     // a client that sends keeps its connection and its line is applied
-    let mut c = TcpStream::connect(r.tcp).await.unwrap();
-    c.write_all(b"m,gate=idle1 force=1 1000000000000\n")
-        .await
-        .unwrap();
+    let _c = connect_and_write(r.tcp, b"m,gate=idle1 force=1 1000000000000\n").await;
     let addr = r.http;
-    tokio::time::timeout(Duration::from_secs(10), async {
-        while get(addr, "/api/v1/gates/idle1").await.0 != 200 {
-            tokio::time::sleep(Duration::from_millis(20)).await;
-        }
-    })
-    .await
-    .unwrap();
+    wait_for_get(
+        addr,
+        "/api/v1/gates/idle1",
+        10,
+        "/api/v1/gates/idle1 answers 200",
+        |status, _| status == 200,
+    )
+    .await;
     stop(r).await;
 }
 
 #[tokio::test]
 async fn tcp_clients_outside_the_allowed_networks_are_closed_at_accept() {
-    let r = start(
-        "tcp_allowed_networks = [\"10.0.0.0/8\", \"192.0.2.7\"]",
-        Arc::new(Fake::default()),
-    )
-    .await;
+    let r = start_default("tcp_allowed_networks = [\"10.0.0.0/8\", \"192.0.2.7\"]").await;
     let mut c = TcpStream::connect(r.tcp).await.unwrap();
     let _ = c
         .write_all(b"m,gate=outsider force=1 1000000000000\n")

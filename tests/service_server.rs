@@ -15,9 +15,12 @@ use service_common::*;
 #[tokio::test]
 async fn tcp_listener_keeps_the_connection_after_bad_lines() {
     use tokio::io::AsyncWriteExt;
-    let r = start("", Arc::new(Fake::default())).await;
-    let mut s = tokio::net::TcpStream::connect(r.tcp).await.unwrap();
-    s.write_all(b"m,gate=t1 force=1 1000000000000\nthis is not line protocol\nm,gate=t1 force=NaN 1000010000000\n").await.unwrap();
+    let r = start_default("").await;
+    let mut s = connect_and_write(
+        r.tcp,
+        b"m,gate=t1 force=1 1000000000000\nthis is not line protocol\nm,gate=t1 force=NaN 1000010000000\n",
+    )
+    .await;
     // beyond the analysis' bound (+-1e100): refused like NaN, not put in the window
     s.write_all(b"m,gate=t1 force=-1e308 1000015000000\n")
         .await
@@ -31,17 +34,7 @@ async fn tcp_listener_keeps_the_connection_after_bad_lines() {
         .unwrap();
     s.flush().await.unwrap();
     let addr = r.http;
-    tokio::time::timeout(Duration::from_secs(10), async {
-        loop {
-            let (_, text) = get(addr, "/api/v1/gates/t1").await;
-            if text.contains("\"samples_total\":3") {
-                break;
-            }
-            tokio::time::sleep(Duration::from_millis(20)).await;
-        }
-    })
-    .await
-    .expect("three good lines ingested");
+    wait_for_samples(addr, "t1", 3).await;
     let (_, m) = get(addr, "/metrics").await;
     assert!(
         m.contains("gatewatch_samples_rejected_total{reason=\"bad_line\"} 2"),
@@ -56,30 +49,10 @@ async fn tcp_listener_keeps_the_connection_after_bad_lines() {
     stop(r).await;
 }
 
-/// Waits until gate `gate` has `n` samples.
-async fn wait_for_samples(addr: std::net::SocketAddr, gate: &str, n: usize) {
-    let want = format!("\"samples_total\":{n}");
-    tokio::time::timeout(Duration::from_secs(10), async {
-        while !get(addr, &format!("/api/v1/gates/{gate}"))
-            .await
-            .1
-            .contains(&want)
-        {
-            tokio::time::sleep(Duration::from_millis(20)).await;
-        }
-    })
-    .await
-    .unwrap_or_else(|_| panic!("{n} samples of `{gate}`"));
-}
-
 #[tokio::test]
 async fn tcp_an_over_long_line_is_skipped_and_the_next_line_arrives() {
     use tokio::io::AsyncWriteExt;
-    let r = start(
-        "[ingest]\ntcp_max_line_bytes = 64",
-        Arc::new(Fake::default()),
-    )
-    .await;
+    let r = start_default("[ingest]\ntcp_max_line_bytes = 64").await;
     let mut s = tokio::net::TcpStream::connect(r.tcp).await.unwrap();
     // exactly 64 bytes before its newline: kept
     let head = "m,gate=long force=1.";
@@ -116,15 +89,14 @@ async fn tcp_an_over_long_line_is_skipped_and_the_next_line_arrives() {
 #[tokio::test]
 async fn tcp_invalid_utf8_mid_stream_is_counted_and_skipped() {
     use tokio::io::AsyncWriteExt;
-    let r = start("", Arc::new(Fake::default())).await;
-    let mut s = tokio::net::TcpStream::connect(r.tcp).await.unwrap();
-    s.write_all(
+    let r = start_default("").await;
+    let mut s = connect_and_write(
+        r.tcp,
         b"m,gate=u8 force=1 1000000000000\n\
           m,gate=u8 force=\xff\xfe 1000010000000\n\
           m,gate=u8 force=2 1000020000000\n",
     )
-    .await
-    .unwrap();
+    .await;
     s.flush().await.unwrap();
     wait_for_samples(r.http, "u8", 2).await;
     // the connection is kept
@@ -147,7 +119,7 @@ async fn a_tcp_burst_is_applied_whole_and_in_order() {
     // 10 000 lines (about 400 KB, over MAX_BATCH_BYTES) in one write: they reach the blocking pool in
     // one or more batches, each line applied on its own and in order (none out of order).
     use tokio::io::AsyncWriteExt;
-    let r = start("", Arc::new(Fake::default())).await;
+    let r = start_default("").await;
     let mut s = tokio::net::TcpStream::connect(r.tcp).await.unwrap();
     let mut burst = String::new();
     for i in 0..10_000u64 {
@@ -159,17 +131,14 @@ async fn a_tcp_burst_is_applied_whole_and_in_order() {
     s.write_all(burst.as_bytes()).await.unwrap();
     s.flush().await.unwrap();
     let addr = r.http;
-    tokio::time::timeout(Duration::from_secs(20), async {
-        while !get(addr, "/api/v1/gates/burst")
-            .await
-            .1
-            .contains("\"samples_total\":10000")
-        {
-            tokio::time::sleep(Duration::from_millis(20)).await;
-        }
-    })
-    .await
-    .expect("every line ingested");
+    wait_for_get(
+        addr,
+        "/api/v1/gates/burst",
+        20,
+        "every line ingested",
+        |_, body| body.contains("\"samples_total\":10000"),
+    )
+    .await;
     let (_, m) = get(addr, "/metrics").await;
     // exported from the start, all still 0
     assert!(m.contains("gatewatch_samples_rejected_total{"), "{m}");
@@ -185,25 +154,11 @@ async fn a_tcp_burst_is_applied_whole_and_in_order() {
 
 #[tokio::test]
 async fn tcp_connection_limit() {
-    use tokio::io::{AsyncReadExt, AsyncWriteExt};
-    let r = start("max_tcp_connections = 1", Arc::new(Fake::default())).await;
-    let mut first = tokio::net::TcpStream::connect(r.tcp).await.unwrap();
-    first
-        .write_all(b"m,gate=t2 force=1 1000000000000\n")
-        .await
-        .unwrap();
+    use tokio::io::AsyncReadExt;
+    let r = start_default("max_tcp_connections = 1").await;
+    let first = connect_and_write(r.tcp, b"m,gate=t2 force=1 1000000000000\n").await;
     let addr = r.http;
-    tokio::time::timeout(Duration::from_secs(10), async {
-        while !get(addr, "/api/v1/gates/t2")
-            .await
-            .1
-            .contains("samples_total\":1")
-        {
-            tokio::time::sleep(Duration::from_millis(20)).await;
-        }
-    })
-    .await
-    .unwrap();
+    wait_for_samples(addr, "t2", 1).await;
     let mut second = tokio::net::TcpStream::connect(r.tcp).await.unwrap();
     let mut buf = [0u8; 1];
     let n = tokio::time::timeout(Duration::from_secs(10), second.read(&mut buf))
@@ -226,11 +181,13 @@ async fn tcp_connection_limit() {
 
 #[tokio::test]
 async fn overload_is_503_with_retry_after() {
-    use tokio::io::AsyncWriteExt;
-    let r = start("max_concurrent_requests = 1", Arc::new(Fake::default())).await;
+    let r = start_default("max_concurrent_requests = 1").await;
     // hold the only slot: a request whose body never completes
-    let mut hold = tokio::net::TcpStream::connect(r.http).await.unwrap();
-    hold.write_all(b"POST /api/v1/samples HTTP/1.1\r\nhost: x\r\ncontent-type: application/json\r\ncontent-length: 1000\r\n\r\n{\"gate\"").await.unwrap();
+    let hold = connect_and_write(
+        r.http,
+        b"POST /api/v1/samples HTTP/1.1\r\nhost: x\r\ncontent-type: application/json\r\ncontent-length: 1000\r\n\r\n{\"gate\"",
+    )
+    .await;
     let addr = r.http;
     let resp = tokio::time::timeout(Duration::from_secs(10), async {
         loop {
@@ -247,18 +204,16 @@ async fn overload_is_503_with_retry_after() {
     .expect("503 while the slot is held");
     assert_eq!(resp.headers()["retry-after"], "1");
     drop(hold);
-    tokio::time::timeout(Duration::from_secs(10), async {
-        while get(addr, "/healthz").await.0 != 200 {
-            tokio::time::sleep(Duration::from_millis(20)).await;
-        }
+    wait_for_get(addr, "/healthz", 10, "serving again", |status, _| {
+        status == 200
     })
-    .await
-    .expect("serving again");
+    .await;
     // a request that never completes does not hold the shutdown beyond the grace period
-    let mut hold = tokio::net::TcpStream::connect(r.http).await.unwrap();
-    hold.write_all(b"POST /api/v1/samples HTTP/1.1\r\nhost: x\r\ncontent-length: 1000\r\n\r\n{")
-        .await
-        .unwrap();
+    let hold = connect_and_write(
+        r.http,
+        b"POST /api/v1/samples HTTP/1.1\r\nhost: x\r\ncontent-length: 1000\r\n\r\n{",
+    )
+    .await;
     tokio::time::sleep(Duration::from_millis(50)).await;
     stop(r).await;
     drop(hold);
@@ -266,14 +221,12 @@ async fn overload_is_503_with_retry_after() {
 
 #[tokio::test]
 async fn full_ingest_slots_are_503_while_the_api_still_answers() {
-    use tokio::io::AsyncWriteExt;
-    let r = start("max_concurrent_ingest = 1", Arc::new(Fake::default())).await;
-    let mut hold = tokio::net::TcpStream::connect(r.http).await.unwrap();
-    hold.write_all(
+    let r = start_default("max_concurrent_ingest = 1").await;
+    let hold = connect_and_write(
+        r.http,
         b"POST /api/v2/write HTTP/1.1\r\nhost: x\r\ncontent-length: 1000\r\n\r\nm,gate=",
     )
-    .await
-    .unwrap();
+    .await;
     let addr = r.http;
     let c = reqwest::Client::new();
     let resp = tokio::time::timeout(Duration::from_secs(10), async {
@@ -300,12 +253,13 @@ async fn full_ingest_slots_are_503_while_the_api_still_answers() {
 
 #[tokio::test]
 async fn slow_request_times_out_with_408() {
-    use tokio::io::{AsyncReadExt, AsyncWriteExt};
-    let r = start("request_timeout_seconds = 0.2", Arc::new(Fake::default())).await;
-    let mut s = tokio::net::TcpStream::connect(r.http).await.unwrap();
-    s.write_all(b"POST /api/v1/samples HTTP/1.1\r\nhost: x\r\ncontent-length: 1000\r\n\r\n{")
-        .await
-        .unwrap();
+    use tokio::io::AsyncReadExt;
+    let r = start_default("request_timeout_seconds = 0.2").await;
+    let mut s = connect_and_write(
+        r.http,
+        b"POST /api/v1/samples HTTP/1.1\r\nhost: x\r\ncontent-length: 1000\r\n\r\n{",
+    )
+    .await;
     let mut buf = vec![0u8; 256];
     let n = tokio::time::timeout(Duration::from_secs(10), s.read(&mut buf))
         .await
@@ -325,13 +279,7 @@ async fn readiness_and_graceful_shutdown_with_a_job_in_flight() {
     });
     let r = start("", fake.clone()).await;
     let addr = r.http;
-    tokio::time::timeout(Duration::from_secs(10), async {
-        while get(addr, "/readyz").await.0 != 200 {
-            tokio::time::sleep(Duration::from_millis(20)).await;
-        }
-    })
-    .await
-    .expect("ready");
+    wait_for_get(addr, "/readyz", 10, "ready", |status, _| status == 200).await;
     let c = reqwest::Client::new();
     let resp = c
         .post(format!("http://{addr}/api/v1/samples"))
@@ -353,7 +301,6 @@ async fn shutdown_with_everything_stuck_takes_one_grace_period() {
     // A worker stuck in the numerics and an HTTP request that never completes: every drain
     // shares one deadline, so the shutdown takes one grace period (2 s), not one per drain
     // (which took 4 s and more). The bound is generous: one grace period plus 1 s of slack.
-    use tokio::io::AsyncWriteExt;
     let fake = Arc::new(Fake {
         sleep: Duration::from_secs(30),
         ..Default::default()
@@ -368,10 +315,11 @@ async fn shutdown_with_everything_stuck_takes_one_grace_period() {
         .unwrap();
     assert_eq!(resp.status(), 204);
     wait_until(|| !fake.calls.lock().unwrap().is_empty()).await;
-    let mut hold = tokio::net::TcpStream::connect(r.http).await.unwrap();
-    hold.write_all(b"POST /api/v1/samples HTTP/1.1\r\nhost: x\r\ncontent-length: 1000\r\n\r\n{")
-        .await
-        .unwrap();
+    let hold = connect_and_write(
+        r.http,
+        b"POST /api/v1/samples HTTP/1.1\r\nhost: x\r\ncontent-length: 1000\r\n\r\n{",
+    )
+    .await;
     tokio::time::sleep(Duration::from_millis(50)).await;
     let began = std::time::Instant::now();
     stop(r).await;

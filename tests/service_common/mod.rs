@@ -224,6 +224,55 @@ pub async fn get(addr: std::net::SocketAddr, path: &str) -> (u16, String) {
     (r.status().as_u16(), r.text().await.unwrap())
 }
 
+/// A real server on port 0 (as `start`) with a default scripted analyzer.
+pub async fn start_default(extra: &str) -> Running {
+    start(extra, Arc::new(Fake::default())).await
+}
+
+/// Connects to `addr` and writes `bytes` on the new connection.
+pub async fn connect_and_write(addr: std::net::SocketAddr, bytes: &[u8]) -> tokio::net::TcpStream {
+    use tokio::io::AsyncWriteExt;
+    let mut s = tokio::net::TcpStream::connect(addr).await.unwrap();
+    s.write_all(bytes).await.unwrap();
+    s
+}
+
+/// Polls `GET path` every 20 ms until `done(status, body)`, for at most `secs` s (else fails
+/// naming `what`).
+pub async fn wait_for_get(
+    addr: std::net::SocketAddr,
+    path: &str,
+    secs: u64,
+    what: &str,
+    done: impl Fn(u16, &str) -> bool,
+) {
+    tokio::time::timeout(Duration::from_secs(secs), async {
+        loop {
+            let (status, body) = get(addr, path).await;
+            if done(status, &body) {
+                break;
+            }
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    })
+    .await
+    .unwrap_or_else(|_| panic!("{what}: not within {secs} s"));
+}
+
+/// Waits (up to 10 s) until gate `gate` has `n` samples.
+pub async fn wait_for_samples(addr: std::net::SocketAddr, gate: &str, n: usize) {
+    let want = format!("\"samples_total\":{n}");
+    let what = format!("{n} samples of `{gate}`");
+    wait_for_get(
+        addr,
+        &format!("/api/v1/gates/{gate}"),
+        10,
+        &what,
+        |_, body| body.contains(&want),
+    )
+    .await;
+}
+
 pub async fn stop(r: Running) {
     let _ = r.stop.send(());
     tokio::time::timeout(Duration::from_secs(15), r.task)
