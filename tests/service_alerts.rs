@@ -133,14 +133,21 @@ async fn metrics_exposition_is_valid() {
 
 /// `promtool check metrics` on an exposition, when promtool is installed (CI installs it).
 fn promtool_check_metrics(text: &str) {
+    let dir = tempfile::tempdir().unwrap();
+    let f = dir.path().join("metrics.txt");
+    std::fs::write(&f, text).unwrap();
+    promtool_passes(
+        &["check", "metrics"],
+        std::fs::File::open(&f).unwrap().into(),
+    );
+}
+
+/// Runs `promtool ARGS` with `stdin` when promtool is installed, asserting that it succeeds.
+fn promtool_passes(args: &[&str], stdin: std::process::Stdio) {
     if let Some(p) = promtool() {
-        let dir = tempfile::tempdir().unwrap();
-        let f = dir.path().join("metrics.txt");
-        std::fs::write(&f, text).unwrap();
         let out = std::process::Command::new(p)
-            .arg("check")
-            .arg("metrics")
-            .stdin(std::fs::File::open(&f).unwrap())
+            .args(args)
+            .stdin(stdin)
             .output()
             .unwrap();
         assert!(
@@ -349,18 +356,7 @@ fn prometheus_rules_are_valid() {
         "/deploy/prometheus/gatewatch-rules.yml"
     );
     assert!(std::path::Path::new(rules).is_file());
-    if let Some(p) = promtool() {
-        let out = std::process::Command::new(p)
-            .args(["check", "rules", rules])
-            .output()
-            .unwrap();
-        assert!(
-            out.status.success(),
-            "promtool: {}{}",
-            String::from_utf8_lossy(&out.stdout),
-            String::from_utf8_lossy(&out.stderr)
-        );
-    }
+    promtool_passes(&["check", "rules", rules], std::process::Stdio::null());
 }
 
 /// The rules' unit tests (deploy/prometheus/gatewatch-rules.test.yml): each rule fires after its
@@ -374,18 +370,7 @@ fn prometheus_rules_pass_their_unit_tests() {
         "/deploy/prometheus/gatewatch-rules.test.yml"
     );
     assert!(std::path::Path::new(tests).is_file());
-    if let Some(p) = promtool() {
-        let out = std::process::Command::new(p)
-            .args(["test", "rules", tests])
-            .output()
-            .unwrap();
-        assert!(
-            out.status.success(),
-            "promtool: {}{}",
-            String::from_utf8_lossy(&out.stdout),
-            String::from_utf8_lossy(&out.stderr)
-        );
-    }
+    promtool_passes(&["test", "rules", tests], std::process::Stdio::null());
 }
 
 #[test]
