@@ -11,9 +11,32 @@ use axum::body::Body;
 use axum::http::StatusCode;
 use gatewatch::service::config::Config;
 use gatewatch::service::ingest::Batch;
-use gatewatch::service::worker::{Job, Submitted, WorkerPool};
+use gatewatch::service::worker::{Job, ResultSink, Submitted, WorkerPool};
 
 use service_common::*;
+
+/// A pool of one worker (8 jobs queued at most) running `fake`, and the count of jobs done.
+fn counting_pool(fake: Arc<Fake>) -> (WorkerPool, Arc<AtomicUsize>) {
+    let done = Arc::new(AtomicUsize::new(0));
+    let d = done.clone();
+    let on_done: ResultSink = Arc::new(move |_: &Job, _, _| {
+        d.fetch_add(1, Ordering::SeqCst);
+    });
+    (WorkerPool::start(1, 8, fake, on_done).unwrap(), done)
+}
+
+/// A job of `gate` ending at sample `i`: 10 zeros at 100 Hz from `t0 = i` s, no history.
+fn small_job(gate: &str, i: u64) -> Job {
+    Job {
+        gate: gate.into(),
+        t0: i as f64,
+        rate_hz: 100.0,
+        values: vec![0.0; 10],
+        history: vec![],
+        end_index: i,
+        generation: 0,
+    }
+}
 
 #[tokio::test]
 async fn slow_workers_replace_pending_jobs_instead_of_queueing() {
@@ -21,30 +44,11 @@ async fn slow_workers_replace_pending_jobs_instead_of_queueing() {
         sleep: Duration::from_millis(200),
         ..Default::default()
     });
-    let done = Arc::new(AtomicUsize::new(0));
-    let d = done.clone();
-    let pool = WorkerPool::start(
-        1,
-        8,
-        fake.clone(),
-        Arc::new(move |_: &Job, _, _| {
-            d.fetch_add(1, Ordering::SeqCst);
-        }),
-    )
-    .unwrap();
-    let job = |i: u64| Job {
-        gate: "g1".into(),
-        t0: i as f64,
-        rate_hz: 100.0,
-        values: vec![0.0; 10],
-        history: vec![],
-        end_index: i,
-        generation: 0,
-    };
+    let (pool, done) = counting_pool(fake.clone());
     let mut replaced = 0;
     let mut queued = 0;
     for i in 0..20 {
-        match pool.submit(job(i)) {
+        match pool.submit(small_job("g1", i)) {
             Submitted::Replaced => replaced += 1,
             Submitted::Queued => queued += 1,
             other => panic!("{other:?}"),
@@ -66,7 +70,7 @@ async fn slow_workers_replace_pending_jobs_instead_of_queueing() {
     assert_eq!(calls.last().unwrap().t0, 19.0);
     let (abandoned, clean) = pool.shutdown(Duration::from_secs(5)).await;
     assert_eq!((abandoned, clean), (0, true));
-    assert_eq!(pool.submit(job(99)), Submitted::Closed);
+    assert_eq!(pool.submit(small_job("g1", 99)), Submitted::Closed);
 }
 
 #[tokio::test]
@@ -304,34 +308,15 @@ async fn a_forgotten_gate_leaves_no_memory_even_with_a_job_in_flight() {
         sleep: Duration::from_millis(300),
         ..Default::default()
     });
-    let done = Arc::new(AtomicUsize::new(0));
-    let d = done.clone();
-    let pool = WorkerPool::start(
-        1,
-        8,
-        fake.clone(),
-        Arc::new(move |_: &Job, _, _| {
-            d.fetch_add(1, Ordering::SeqCst);
-        }),
-    )
-    .unwrap();
-    let job = |gate: &str, i: u64| Job {
-        gate: gate.into(),
-        t0: i as f64,
-        rate_hz: 100.0,
-        values: vec![0.0; 10],
-        history: vec![],
-        end_index: i,
-        generation: 0,
-    };
-    assert_eq!(pool.submit(job("kept", 0)), Submitted::Queued);
+    let (pool, done) = counting_pool(fake.clone());
+    assert_eq!(pool.submit(small_job("kept", 0)), Submitted::Queued);
     wait_until(|| done.load(Ordering::SeqCst) == 1).await;
     assert_eq!(pool.remembered_gates(), 1);
     // "gone" in flight, and a pending job of it behind "kept"'s
-    assert_eq!(pool.submit(job("gone", 1)), Submitted::Queued);
+    assert_eq!(pool.submit(small_job("gone", 1)), Submitted::Queued);
     wait_until(|| pool.in_flight() == 1).await;
-    assert_eq!(pool.submit(job("kept", 2)), Submitted::Queued);
-    assert_eq!(pool.submit(job("gone", 3)), Submitted::Queued);
+    assert_eq!(pool.submit(small_job("kept", 2)), Submitted::Queued);
+    assert_eq!(pool.submit(small_job("gone", 3)), Submitted::Queued);
     assert_eq!(pool.pending(), 2);
     pool.forget("gone");
     assert_eq!(pool.pending(), 1, "its pending job is dropped");
@@ -349,7 +334,7 @@ async fn a_forgotten_gate_leaves_no_memory_even_with_a_job_in_flight() {
     // forgetting it again, or a gate never seen, is harmless; a new job of it starts afresh
     pool.forget("gone");
     pool.forget("never");
-    assert_eq!(pool.submit(job("gone", 4)), Submitted::Queued);
+    assert_eq!(pool.submit(small_job("gone", 4)), Submitted::Queued);
     wait_until(|| done.load(Ordering::SeqCst) == 4).await;
     assert_eq!(fake.calls.lock().unwrap().last().unwrap().warm, None);
     assert_eq!(pool.remembered_gates(), 2);
