@@ -101,19 +101,7 @@ async fn daemon(hook_port: u16) -> Daemon {
 
 impl Daemon {
     async fn metric(&self, line_start: &str) -> Option<f64> {
-        let text = self
-            .client
-            .get(format!("{}/metrics", self.url))
-            .send()
-            .await
-            .ok()?
-            .text()
-            .await
-            .ok()?;
-        text.lines()
-            .find(|l| l.starts_with(line_start))
-            .and_then(|l| l.split_whitespace().last())
-            .and_then(|v| v.parse().ok())
+        store_common::metric(&self.client, &self.url, line_start).await
     }
 
     /// Sends `n` samples of `sim` from sample `first` on (one request).

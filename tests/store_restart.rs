@@ -14,7 +14,8 @@ use std::time::{Duration, Instant, SystemTime};
 use serde_json::Value;
 
 mod store_common;
-use store_common::{free_port, outbox_rows, receiver};
+use store_common::brim::fill_to_the_brim;
+use store_common::{free_port, metric, outbox_rows, receiver};
 
 const BIN: &str = env!("CARGO_BIN_EXE_gatewatch");
 const WAIT: Duration = Duration::from_secs(60);
@@ -207,23 +208,6 @@ fn serve_logging(cfg: &Path, log: &Path) -> Daemon {
     spawn_serve(cfg, std::fs::File::create(log).expect("log file").into())
 }
 
-/// One metric's value (the first line starting with `line_start`), `None` while the daemon
-/// does not answer.
-async fn metric(client: &reqwest::Client, url: &str, line_start: &str) -> Option<f64> {
-    let text = client
-        .get(format!("{url}/metrics"))
-        .send()
-        .await
-        .ok()?
-        .text()
-        .await
-        .ok()?;
-    text.lines()
-        .find(|l| l.starts_with(line_start))
-        .and_then(|l| l.split_whitespace().last())
-        .and_then(|v| v.parse().ok())
-}
-
 const IDENTIFIED: &str = "gatewatch_identifications_total{gate=\"g1\",path=\"full\"}";
 const WRITE_FAILED: &str = "gatewatch_store_write_errors_total{reason=\"failed\"}";
 
@@ -277,37 +261,19 @@ impl Stream {
     }
 }
 
-/// Fills the store at `db` (bounded to 1 MiB, as the daemon will open it) until SQLite says it
-/// is full: first large rows, then small ones into what is left.
-fn fill_to_the_brim(db: &Path) {
-    use gatewatch::store::{SqliteStore, Store, WriteBatch};
-    // alert states: what the size bound never prunes (it prunes the oldest history), so the
-    // file stays full and the daemon's writes meet SQLite's real SQLITE_FULL
-    let store = SqliteStore::open(db, 1).expect("open");
-    let mut n = 0;
-    for size in [100_000, 10_000, 1000, 100] {
-        loop {
-            n += 1;
-            let batch = WriteBatch {
-                alert_states: vec![(format!("old{n}"), "x".repeat(size))],
-                ..Default::default()
-            };
-            if let Err(e) = store.write(&batch) {
-                assert!(e.to_string().contains("full"), "{e}");
-                break;
-            }
-        }
-    }
-    store.checkpoint().expect("checkpoint");
-}
-
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_full_database_is_counted_and_logged_naming_the_file_and_ingestion_goes_on() {
     let dir = tempfile::tempdir().expect("tempdir");
     // max_size_mb = 1 is SQLite's max_page_count on the writer: its real SQLITE_FULL
     let cfg = write_config_with(dir.path(), free_port(), "max_size_mb = 1");
     let db = dir.path().join("gw.db");
-    fill_to_the_brim(&db);
+    {
+        use gatewatch::store::SqliteStore;
+        // bounded to 1 MiB, as the daemon will open it
+        let store = SqliteStore::open(&db, 1).expect("open");
+        fill_to_the_brim(&store, "old");
+        store.checkpoint().expect("checkpoint");
+    }
     let log = dir.path().join("gatewatch.log");
     let mut child = serve_logging(&cfg, &log);
     let url = daemon_url(&cfg);
@@ -471,6 +437,39 @@ async fn wait_ready(client: &reqwest::Client, url: &str) {
     }
 }
 
+/// `/readyz`'s status and body, `None` while the daemon does not answer.
+async fn readyz(client: &reqwest::Client, url: &str) -> Option<(u16, String)> {
+    let r = client.get(format!("{url}/readyz")).send().await.ok()?;
+    Some((r.status().as_u16(), r.text().await.unwrap_or_default()))
+}
+
+/// Streams a second of samples every 300 ms until `/readyz` answers 503 (bounded by [`WAIT`],
+/// else fails with `never`); returns its body.
+async fn stream_until_not_ready(
+    stream: &mut Stream,
+    client: &reqwest::Client,
+    url: &str,
+    never: &str,
+) -> String {
+    let deadline = Instant::now() + WAIT;
+    loop {
+        stream.send(client, url).await;
+        if let Some((503, body)) = readyz(client, url).await {
+            return body;
+        }
+        assert!(Instant::now() < deadline, "{never}");
+        tokio::time::sleep(Duration::from_millis(300)).await;
+    }
+}
+
+/// Stops the daemon with SIGTERM, asserts its exit code is `code` and returns its log.
+async fn terminate_with_log(child: Daemon, log: &Path, code: i32) -> String {
+    let status = terminate(child).await;
+    let text = std::fs::read_to_string(log).expect("log");
+    assert_eq!(status.code(), Some(code), "{text}");
+    text
+}
+
 /// One identification of gate `g1` that ended `ago` seconds before now (inside the retention).
 fn recent_record(ago: f64) -> gatewatch::store::IdentificationRecord {
     let end = SystemTime::now()
@@ -611,9 +610,7 @@ async fn a_deleted_store_file_fails_readiness_is_counted_and_exits_1() {
             "{path} names the file: {body}"
         );
     }
-    let status = terminate(child).await;
-    let text = std::fs::read_to_string(&log).expect("log");
-    assert_eq!(status.code(), Some(1), "{text}");
+    let text = terminate_with_log(child, &log, 1).await;
     assert!(
         text.lines()
             .any(|l| l.contains("ERROR") && l.contains(&name) && l.contains("deleted")),
@@ -660,9 +657,7 @@ async fn sighup_is_logged_and_ignored_and_sigterm_still_exits_0() {
             .expect("the daemon still answers after SIGHUP");
         assert_eq!(r.status().as_u16(), 200);
     }
-    let status = terminate(child).await;
-    let text = std::fs::read_to_string(&log).expect("log");
-    assert_eq!(status.code(), Some(0), "{text}");
+    let text = terminate_with_log(child, &log, 0).await;
     assert!(
         text.lines()
             .any(|l| l.contains("WARN") && l.contains(ignored)),
@@ -831,9 +826,7 @@ async fn an_empty_store_file_is_a_warning_naming_it() {
     std::fs::write(&db, b"").expect("empty file");
     let log = dir.path().join("gatewatch.log");
     let (child, _, _) = serve_ready(&cfg, &log).await;
-    let status = terminate(child).await;
-    let text = std::fs::read_to_string(&log).expect("log");
-    assert_eq!(status.code(), Some(0), "{text}");
+    let text = terminate_with_log(child, &log, 0).await;
     assert!(
         text.lines().any(|l| l.contains("WARN")
             && l.contains(&db.display().to_string())
@@ -890,9 +883,7 @@ async fn a_damaged_wal_is_kept_and_its_dropped_frames_logged_naming_it() {
     )
     .await
     .unwrap_or(0.0);
-    let status = terminate(second).await;
-    let text = std::fs::read_to_string(&log).expect("log");
-    assert_eq!(status.code(), Some(0), "{text}");
+    let text = terminate_with_log(second, &log, 0).await;
     let line = text
         .lines()
         .find(|l| l.contains("WARN") && l.contains("damaged at byte"))
@@ -1077,19 +1068,7 @@ async fn failing_store_writes_fail_readiness_until_a_write_succeeds() {
     foreign
         .execute_batch("BEGIN EXCLUSIVE")
         .expect("take the write lock");
-    let ready = |client: reqwest::Client, url: String| async move {
-        let r = client.get(format!("{url}/readyz")).send().await.ok()?;
-        Some((r.status().as_u16(), r.text().await.unwrap_or_default()))
-    };
-    let deadline = Instant::now() + WAIT;
-    let body = loop {
-        stream.send(&client, &url).await;
-        if let Some((503, body)) = ready(client.clone(), url.clone()).await {
-            break body;
-        }
-        assert!(Instant::now() < deadline, "/readyz never failed");
-        tokio::time::sleep(Duration::from_millis(300)).await;
-    };
+    let body = stream_until_not_ready(&mut stream, &client, &url, "/readyz never failed").await;
     assert!(
         body.starts_with("not ready: ")
             && body.contains(&db.display().to_string())
@@ -1099,17 +1078,8 @@ async fn failing_store_writes_fail_readiness_until_a_write_succeeds() {
     );
     foreign.execute_batch("ROLLBACK").expect("let go");
     drop(foreign);
-    let deadline = Instant::now() + WAIT;
-    loop {
-        if let Some((200, _)) = ready(client.clone(), url.clone()).await {
-            break;
-        }
-        assert!(Instant::now() < deadline, "/readyz never recovered");
-        tokio::time::sleep(Duration::from_millis(300)).await;
-    }
-    let status = terminate(child).await;
-    let text = std::fs::read_to_string(&log).expect("log");
-    assert_eq!(status.code(), Some(0), "{text}");
+    wait_ready(&client, &url).await;
+    let text = terminate_with_log(child, &log, 0).await;
     let line = text
         .lines()
         .find(|l| l.contains("writes resumed"))
@@ -1229,27 +1199,10 @@ async fn a_nearly_full_disk_is_warned_at_start_and_readiness_follows_the_writes(
     let url = daemon_url(&cfg);
     gatewatch::service::client::ensure_crypto_provider();
     let client = reqwest::Client::new();
-    let ready = |client: reqwest::Client, url: String| async move {
-        let r = client.get(format!("{url}/readyz")).send().await.ok()?;
-        Some((r.status().as_u16(), r.text().await.unwrap_or_default()))
-    };
-    let wait_for = |want: u16, what: &'static str| {
-        let (client, url) = (client.clone(), url.clone());
-        async move {
-            let deadline = Instant::now() + WAIT;
-            loop {
-                match ready(client.clone(), url.clone()).await {
-                    Some((s, body)) if s == want => return body,
-                    _ => {}
-                }
-                assert!(Instant::now() < deadline, "/readyz never {what}");
-                tokio::time::sleep(Duration::from_millis(200)).await;
-            }
-        }
-    };
 
     // at start: the warning, before the listener is up, and ready all the same
-    let body = wait_for(200, "answered 200 at start").await;
+    wait_ready(&client, &url).await;
+    let (_, body) = readyz(&client, &url).await.expect("/readyz answers");
     assert_eq!(body.trim(), "ready");
     let text = std::fs::read_to_string(&log).expect("log");
     let lines: Vec<&str> = text.lines().collect();
@@ -1295,18 +1248,8 @@ async fn a_nearly_full_disk_is_warned_at_start_and_readiness_follows_the_writes(
         }
     }
     let mut stream = Stream::new();
-    let deadline = Instant::now() + WAIT;
-    let body = loop {
-        stream.send(&client, &url).await;
-        if let Some((503, body)) = ready(client.clone(), url.clone()).await {
-            break body;
-        }
-        assert!(
-            Instant::now() < deadline,
-            "/readyz never failed on a full disk"
-        );
-        tokio::time::sleep(Duration::from_millis(300)).await;
-    };
+    let never = "/readyz never failed on a full disk";
+    let body = stream_until_not_ready(&mut stream, &client, &url, never).await;
     assert!(
         body.starts_with("not ready: ")
             && body.contains(&db.display().to_string())
@@ -1320,7 +1263,7 @@ async fn a_nearly_full_disk_is_warned_at_start_and_readiness_follows_the_writes(
     for f in ["filler", "filler2"] {
         std::fs::remove_file(inside.join(f)).expect("free the space");
     }
-    wait_for(200, "recovered once the space was freed").await;
+    wait_ready(&client, &url).await;
     // the space check runs every 5 s (store::CHECK_INTERVAL): the next one says it is back
     let deadline = Instant::now() + WAIT;
     while !std::fs::read_to_string(&log)
@@ -1334,9 +1277,7 @@ async fn a_nearly_full_disk_is_warned_at_start_and_readiness_follows_the_writes(
         );
         tokio::time::sleep(Duration::from_millis(200)).await;
     }
-    let status = terminate(child).await;
-    let text = std::fs::read_to_string(&log).expect("log");
-    assert_eq!(status.code(), Some(0), "{text}");
+    let text = terminate_with_log(child, &log, 0).await;
     let again = text
         .lines()
         .find(|l| l.contains("bytes free again"))

@@ -8,33 +8,13 @@ use std::time::Duration;
 
 use super::*;
 
-fn record(gate: &str, end: f64, zeta: f64) -> IdentificationRecord {
-    IdentificationRecord {
-        gate: gate.into(),
-        time: end + 0.5,
-        window_start: end - 10.0,
-        window_end: end,
-        equation: format!("ydd + {zeta}*yd + y = 0"),
-        coefficients: vec![("c1".into(), zeta), ("k".into(), 1.0)],
-        damping: serde_json::json!({"zeta0": zeta, "zeta0_interval": [zeta - 0.01, zeta + 0.01],
-            "trusted": true, "frequency_hz": 1.5}),
-        verdict: "damped".into(),
-        fit_nmae: 0.02,
-        path: "full".into(),
-    }
-}
+#[path = "../../tests/store_conformance/fixtures.rs"]
+mod fixtures;
+use fixtures::{outbox_row, record};
 
-fn outbox_row(target: &str, fp: &str, status: &str, supersedes: bool) -> NewOutboxRow {
-    NewOutboxRow {
-        target: target.into(),
-        fingerprint: fp.into(),
-        status: status.into(),
-        created: 100.0,
-        batch: 1,
-        payload: "{}".into(),
-        supersedes,
-    }
-}
+#[path = "../../tests/store_common/brim.rs"]
+mod brim;
+use brim::fill_to_the_brim;
 
 fn open(dir: &tempfile::TempDir) -> SqliteStore {
     SqliteStore::open(&dir.path().join("gw.db"), 64).expect("open")
@@ -593,21 +573,7 @@ fn the_write_probe_of_a_store_full_at_its_bound_fails_as_full() {
     let dir = tempfile::tempdir().expect("tempdir");
     let store = SqliteStore::open(&dir.path().join("gw.db"), 1).expect("open");
     assert!(matches!(store.probe(), Some(Ok(()))), "an empty store");
-    let mut n = 0;
-    for size in [100_000, 10_000, 1000, 100] {
-        loop {
-            n += 1;
-            let batch = WriteBatch {
-                alert_states: vec![(format!("g{n}"), "x".repeat(size))],
-                ..Default::default()
-            };
-            if let Err(e) = store.write(&batch) {
-                assert!(e.is_full(), "{e}");
-                break;
-            }
-            assert!(n < 100_000, "never full");
-        }
-    }
+    fill_to_the_brim(&store, "g");
     let e = store.probe().expect("a probe").expect_err("a full store");
     assert!(e.is_full(), "{e}");
     assert!(e.to_string().contains("storage.max_size_mb"), "{e}");

@@ -9,6 +9,10 @@ use std::time::Instant;
 use serde_json::Value;
 use tokio::sync::mpsc;
 
+use gatewatch::store::{SqliteStore, Store, WriteBatch};
+
+pub mod brim;
+
 /// A port nobody listens on now (the receiver is bound to it later, or never).
 pub fn free_port() -> u16 {
     StdListener::bind("127.0.0.1:0")
@@ -67,4 +71,21 @@ pub async fn receiver(port: u16) -> mpsc::Receiver<(Instant, Value)> {
         let _ = axum::serve(l, app).await;
     });
     rx
+}
+
+/// One metric's value at the daemon at `url` (the first line starting with `line_start`),
+/// `None` while the daemon does not answer.
+pub async fn metric(client: &reqwest::Client, url: &str, line_start: &str) -> Option<f64> {
+    let text = client
+        .get(format!("{url}/metrics"))
+        .send()
+        .await
+        .ok()?
+        .text()
+        .await
+        .ok()?;
+    text.lines()
+        .find(|l| l.starts_with(line_start))
+        .and_then(|l| l.split_whitespace().last())
+        .and_then(|v| v.parse().ok())
 }

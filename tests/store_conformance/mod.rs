@@ -6,36 +6,12 @@ use gatewatch::store::{
     HistoryQuery, HistoryRow, IdentificationRecord, NewOutboxRow, Store, WriteBatch,
 };
 
+mod fixtures;
+use fixtures::outbox_row;
+pub use fixtures::record;
+
 /// The gate name no subject or key could hold as it is.
 pub const AWKWARD_GATE: &str = "a.b c*>/é";
-
-pub fn record(gate: &str, end: f64, zeta: f64) -> IdentificationRecord {
-    IdentificationRecord {
-        gate: gate.into(),
-        time: end + 0.5,
-        window_start: end - 10.0,
-        window_end: end,
-        equation: format!("ydd + {zeta}*yd + y = 0"),
-        coefficients: vec![("c1".into(), zeta), ("k".into(), 1.0)],
-        damping: serde_json::json!({"zeta0": zeta, "zeta0_interval": [zeta - 0.01, zeta + 0.01],
-            "trusted": true, "frequency_hz": 1.5}),
-        verdict: "damped".into(),
-        fit_nmae: 0.02,
-        path: "full".into(),
-    }
-}
-
-fn outbox_row(target: &str, fp: &str, status: &str, supersedes: bool) -> NewOutboxRow {
-    NewOutboxRow {
-        target: target.into(),
-        fingerprint: fp.into(),
-        status: status.into(),
-        created: 100.0,
-        batch: 1,
-        payload: "{}".into(),
-        supersedes,
-    }
-}
 
 fn query(gate: &str, from: Option<f64>, to: Option<f64>, limit: usize) -> HistoryQuery {
     HistoryQuery {
