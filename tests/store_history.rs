@@ -292,6 +292,20 @@ async fn history_route_refuses_bad_parameters_naming_them_and_unknown_gates() {
 
 // ------------------------------------------------------------------ gatewatch history
 
+/// `gatewatch history --db DB --gate GATE --plot SVG EXTRA`, asserted to exit 0: the picture
+/// it wrote and its stderr.
+fn plot(db: impl AsRef<Path>, gate: &str, svg: &Path, extra: &[&str]) -> (String, String) {
+    let db = db.as_ref().to_str().unwrap();
+    let args = [
+        &["--db", db, "--gate", gate, "--plot", svg.to_str().unwrap()][..],
+        extra,
+    ]
+    .concat();
+    let (code, _, err) = history(&args);
+    assert_eq!(code, 0, "{err}");
+    (std::fs::read_to_string(svg).expect("the picture"), err)
+}
+
 /// A minimal XML well-formedness check (no XML crate in the tree): every element closes in
 /// order, attributes are quoted, nothing follows the root. Enough to catch a truncated or
 /// garbled file.
@@ -384,19 +398,8 @@ fn history_plot_draws_the_damping_over_time_from_a_real_database() {
     )
     .expect("config");
     let svg_path = dir.path().join("g1.svg");
-    let (code, _, err) = history(&[
-        "--db",
-        db.to_str().unwrap(),
-        "--gate",
-        "g1",
-        "--plot",
-        svg_path.to_str().unwrap(),
-        "--config",
-        cfg.to_str().unwrap(),
-    ]);
-    assert_eq!(code, 0, "{err}");
+    let (svg, err) = plot(&db, "g1", &svg_path, &["--config", cfg.to_str().unwrap()]);
     assert!(err.contains("200 windows"), "{err}");
-    let svg = std::fs::read_to_string(&svg_path).expect("the picture");
     well_formed(&svg).expect("well-formed SVG");
     let t = texts(&svg);
     let has = |s: &str| t.iter().any(|x| x.contains(s));
@@ -455,16 +458,7 @@ fn history_plot_draws_the_damping_over_time_from_a_real_database() {
     assert!(!has("no windows for over"), "{t:?}");
 
     // without --config: no thresholds
-    let (code, _, err) = history(&[
-        "--db",
-        db.to_str().unwrap(),
-        "--gate",
-        "g2",
-        "--plot",
-        svg_path.to_str().unwrap(),
-    ]);
-    assert_eq!(code, 0, "{err}");
-    let svg = std::fs::read_to_string(&svg_path).expect("the picture");
+    let (svg, _) = plot(&db, "g2", &svg_path, &[]);
     well_formed(&svg).expect("well-formed SVG");
     assert!(!svg.contains("fire below"));
     assert!(svg.contains("zeta0 (3 windows)"));
@@ -512,17 +506,8 @@ fn history_plot_breaks_the_line_at_gaps_and_untrusted_windows() {
     let db = gappy_database(dir.path());
     let db = db.to_str().unwrap();
     let svg_path = dir.path().join("gap.svg");
-    let (code, _, err) = history(&[
-        "--db",
-        db,
-        "--gate",
-        "gap",
-        "--plot",
-        svg_path.to_str().unwrap(),
-    ]);
-    assert_eq!(code, 0, "{err}");
+    let (svg, err) = plot(db, "gap", &svg_path, &[]);
     assert!(err.contains("109 windows"), "{err}");
-    let svg = std::fs::read_to_string(&svg_path).expect("the picture");
     well_formed(&svg).expect("well-formed SVG");
     let t = texts(&svg);
     let has = |s: &str| t.iter().any(|x| x.contains(s));
@@ -596,16 +581,7 @@ fn history_plot_breaks_the_line_at_gaps_and_untrusted_windows() {
             .expect("write");
         store.checkpoint().expect("checkpoint");
     }
-    let (code, _, err) = history(&[
-        "--db",
-        lone.to_str().unwrap(),
-        "--gate",
-        "gap",
-        "--plot",
-        svg_path.to_str().unwrap(),
-    ]);
-    assert_eq!(code, 0, "{err}");
-    let svg = std::fs::read_to_string(&svg_path).expect("the picture");
+    let (svg, _) = plot(&lone, "gap", &svg_path, &[]);
     assert_eq!(zeta0_lines(&svg), [3], "windows 0-2");
     let dots = elements(&svg, "circle")
         .iter()
