@@ -10,7 +10,6 @@ use std::path::Path;
 use std::time::Duration;
 
 use gatewatch::service::config::Config;
-use gatewatch::service::server::{run, Listeners};
 use gatewatch::simulate::{GatePreset, GateSimulator, NoiseLevel, ScenarioName};
 use serde_json::Value;
 
@@ -50,12 +49,7 @@ async fn daemon(dir: &Path, resume: bool, start: f64) -> Daemon {
         dir.join("gw.db").display()
     ))
     .unwrap();
-    let http = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
-    let addr = http.local_addr().unwrap();
-    let (stop, rx) = tokio::sync::oneshot::channel::<()>();
-    let task = tokio::spawn(run(cfg, Listeners { http, tcp: None }, async move {
-        let _ = rx.await;
-    }));
+    let (addr, stop, task) = stream_common::run_daemon(cfg).await;
     let d = Daemon {
         start,
         addr,
@@ -96,12 +90,7 @@ impl Daemon {
     }
 
     async fn stop(self) {
-        let _ = self.stop.send(());
-        tokio::time::timeout(Duration::from_secs(30), self.task)
-            .await
-            .expect("shutdown within the deadline")
-            .unwrap()
-            .unwrap();
+        stream_common::stop_daemon(self.stop, self.task).await;
     }
 }
 

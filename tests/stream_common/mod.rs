@@ -105,3 +105,37 @@ pub async fn wait_analysed(
 pub fn first_window_samples(gate: &str, window_n: u64, every_n: u64) -> u64 {
     window_n + gatewatch::service::window::stagger_offset(gate, every_n as usize) as u64
 }
+
+/// The daemon's task run in this process.
+type DaemonTask = tokio::task::JoinHandle<anyhow::Result<()>>;
+
+/// Runs the daemon in this process on `cfg`, its HTTP listener on a port the system chose:
+/// its address, the sender that stops it, and its task.
+#[allow(dead_code)]
+pub async fn run_daemon(
+    cfg: gatewatch::service::config::Config,
+) -> (
+    std::net::SocketAddr,
+    tokio::sync::oneshot::Sender<()>,
+    DaemonTask,
+) {
+    use gatewatch::service::server::{run, Listeners};
+    let http = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let addr = http.local_addr().unwrap();
+    let (stop, rx) = tokio::sync::oneshot::channel::<()>();
+    let task = tokio::spawn(run(cfg, Listeners { http, tcp: None }, async move {
+        let _ = rx.await;
+    }));
+    (addr, stop, task)
+}
+
+/// Stops a daemon [`run_daemon`] started and waits (30 s at most) for its clean end.
+#[allow(dead_code)]
+pub async fn stop_daemon(stop: tokio::sync::oneshot::Sender<()>, task: DaemonTask) {
+    let _ = stop.send(());
+    tokio::time::timeout(Duration::from_secs(30), task)
+        .await
+        .expect("shutdown within the deadline")
+        .unwrap()
+        .unwrap();
+}
