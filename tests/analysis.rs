@@ -1,6 +1,8 @@
 //! The early-warning analysis on the chapter's gate example and on a noise-driven stable gate.
 
-use gatewatch::analysis::{AnalysisSettings, Analyzer, Signal, Verdict, WindowInput};
+use gatewatch::analysis::{
+    AnalysisSettings, Analyzer, Signal, Verdict, WindowAnalysis, WindowInput,
+};
 use gatewatch::simulate::{self, GateParams, GateSimulator, Scenario, WorkedExampleOptions};
 
 const MODEL: &str = "c1*ydd + (c2 + c3*yd^2)*yd + k*y = 0";
@@ -24,6 +26,17 @@ fn analyzer() -> Analyzer {
     .unwrap()
 }
 
+/// `a`'s analysis of one window from t = 0 (no history, no warm start) with this `seed`.
+fn analyze_window(a: &Analyzer, rate_hz: f64, values: &[f64], seed: u64) -> WindowAnalysis {
+    let window = WindowInput {
+        t0: 0.0,
+        rate_hz,
+        values,
+        history: &[],
+    };
+    a.analyze(window, None, seed).unwrap()
+}
+
 #[test]
 fn gate_example_recovers_mass_and_negative_damping() {
     let a = analyzer();
@@ -33,18 +46,7 @@ fn gate_example_recovers_mass_and_negative_damping() {
             seed,
             ..WorkedExampleOptions::default()
         });
-        let r = a
-            .analyze(
-                WindowInput {
-                    t0: 0.0,
-                    rate_hz: ex.rate_hz,
-                    values: &ex.force,
-                    history: &[],
-                },
-                None,
-                seed,
-            )
-            .unwrap();
+        let r = analyze_window(&a, ex.rate_hz, &ex.force, seed);
         let c = |name: &str| r.coefficients.iter().find(|(n, _)| n == name).unwrap().1;
         assert!(
             (c("c1") / simulate::EX_MASS - 1.0).abs() < 0.02,
@@ -95,18 +97,7 @@ fn stable_noise_driven_gate_is_never_called_self_excited() {
     let a = analyzer();
     for seed in 1..=12 {
         let x = stable_window(seed, 10);
-        let r = a
-            .analyze(
-                WindowInput {
-                    t0: 0.0,
-                    rate_hz: 200.0,
-                    values: &x,
-                    history: &[],
-                },
-                None,
-                seed,
-            )
-            .unwrap();
+        let r = analyze_window(&a, 200.0, &x, seed);
         let d = &r.damping;
         assert_ne!(d.verdict, Verdict::SelfExcited, "seed {seed}: {d:?}");
         // a trusted window may read below zero only with an interval reaching above it (the
@@ -128,18 +119,7 @@ fn stable_gate_has_positive_damping_with_an_interval_above_zero() {
     let mut damped = 0;
     for seed in 1..=6 {
         let x = stable_window(seed, 30);
-        let r = a
-            .analyze(
-                WindowInput {
-                    t0: 0.0,
-                    rate_hz: 200.0,
-                    values: &x,
-                    history: &[],
-                },
-                None,
-                seed,
-            )
-            .unwrap();
+        let r = analyze_window(&a, 200.0, &x, seed);
         let d = &r.damping;
         assert_ne!(d.verdict, Verdict::SelfExcited, "seed {seed}: {d:?}");
         assert!(d.trusted, "seed {seed}: {d:?}");
@@ -172,18 +152,7 @@ fn saturated_limit_cycle_is_never_called_damped() {
         for window in 0..2 {
             let mut x = vec![0.0; 200 * 30];
             sim.fill(&mut x);
-            let r = a
-                .analyze(
-                    WindowInput {
-                        t0: 0.0,
-                        rate_hz: 200.0,
-                        values: &x,
-                        history: &[],
-                    },
-                    None,
-                    seed,
-                )
-                .unwrap();
+            let r = analyze_window(&a, 200.0, &x, seed);
             let d = &r.damping;
             assert_ne!(d.verdict, Verdict::Damped, "seed {seed}/{window}: {d:?}");
             if d.trusted {
