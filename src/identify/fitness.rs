@@ -209,14 +209,7 @@ impl<'a> Fitness<'a> {
             if !self.is_train[i] {
                 return ControlFlow::Continue(());
             }
-            let value = match self.output {
-                Output::Displacement => s[0],
-                Output::Force | Output::RestoringForce => {
-                    self.model
-                        .residual(times[i], s[0], self.output.force_yd(s[1]), coeffs)
-                }
-            };
-            each(i, value)
+            each(i, self.output.value(self.model, times[i], s, coeffs))
         })
     }
 

@@ -70,12 +70,7 @@ pub fn output_of(
     states
         .iter()
         .zip(times)
-        .map(|(s, &t)| match output {
-            Output::Displacement => s[0],
-            Output::Force | Output::RestoringForce => {
-                model.residual(t, s[0], output.force_yd(s[1]), coefficients)
-            }
-        })
+        .map(|(s, &t)| output.value(model, t, s, coefficients))
         .collect()
 }
 

@@ -230,4 +230,16 @@ impl Output {
             *yd
         }
     }
+
+    /// The observed value at state `s = [y, yd]` and time `t`: `y`, or the model's `R` there
+    /// (coefficients `c`); the one rule the fitness and the prediction share.
+    #[inline(always)]
+    pub fn value(self, model: &Model, t: f64, s: &[f64; 2], c: &[f64]) -> f64 {
+        match self {
+            Output::Displacement => s[0],
+            Output::Force | Output::RestoringForce => {
+                model.residual(t, s[0], self.force_yd(s[1]), c)
+            }
+        }
+    }
 }
