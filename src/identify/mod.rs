@@ -220,7 +220,7 @@ pub fn run(
 ) -> Result<Identification, IdentifyError> {
     protocol.validate()?;
     search.validate()?;
-    let (model, series) = (problem.model, problem.series);
+    let series = problem.series;
     if search.solver == Method::Rk4 && series.uniform_step().is_none() {
         return Err(IdentifyError::NotUniform);
     }
@@ -281,15 +281,7 @@ pub fn run(
             history,
             ..
         } = best.expect("at least one attempt");
-        let test_nmae = predict(
-            model,
-            series,
-            &coefficients,
-            init,
-            protocol.test_rtol,
-            problem.output,
-        )
-        .and_then(|p| nmae(test.iter().map(|&i| (p[i], series.y[i]))));
+        let test_nmae = test_nmae(problem, protocol, &coefficients, init, &test);
         runs.push(RunResult {
             seed,
             coefficients,
@@ -324,6 +316,27 @@ pub(crate) struct Setup<'a> {
     pub(crate) train: Vec<usize>,
     pub(crate) test: Vec<usize>,
     pub(crate) fitness: Fitness<'a>,
+}
+
+/// The NMAE on the `test` samples of the prediction from `coefficients` and `init` (`None` when
+/// it fails): what a search's run and a refinement are judged by.
+pub(crate) fn test_nmae(
+    problem: &Problem<'_>,
+    protocol: &Protocol,
+    coefficients: &[f64],
+    init: InitialValues,
+    test: &[usize],
+) -> Option<f64> {
+    let series = problem.series;
+    predict(
+        problem.model,
+        series,
+        coefficients,
+        init,
+        protocol.test_rtol,
+        problem.output,
+    )
+    .and_then(|p| nmae(test.iter().map(|&i| (p[i], series.y[i]))))
 }
 
 pub(crate) fn setup<'a>(

@@ -13,7 +13,7 @@ use super::config::{Protocol, Search};
 use super::polish::polish_to_budget;
 use super::problem::{Initial, Problem};
 use super::split::initial_from_data;
-use super::{nmae, predict, summarize, Identification, IdentifyError, InitialValues, RunResult};
+use super::{summarize, Identification, IdentifyError, InitialValues, RunResult};
 use crate::de::Objective;
 use std::time::Instant;
 
@@ -113,15 +113,7 @@ pub fn refine(
         }
     }
     let (coefficients, init): (Vec<f64>, InitialValues) = target.unpack(&x);
-    let test_nmae = predict(
-        model,
-        series,
-        &coefficients,
-        init,
-        protocol.test_rtol,
-        problem.output,
-    )
-    .and_then(|p| nmae(test.iter().map(|&i| (p[i], series.y[i]))));
+    let test_nmae = super::test_nmae(problem, protocol, &coefficients, init, &test);
     let run = RunResult {
         seed: protocol.seed,
         coefficients,
