@@ -29,7 +29,7 @@
 
 #![allow(clippy::needless_range_loop)] // indexed loops over N mirror the formulas
 
-use super::util::{begin, hinit, norm_inf, stop, user_initial_step, NONFINITE_SHRINK};
+use super::util::{begin, deliver, hinit, norm_inf, stop, user_initial_step, NONFINITE_SHRINK};
 use super::{Failure, Options, Outcome, Stats, System};
 use std::ops::ControlFlow;
 
@@ -92,7 +92,6 @@ where
     F: FnMut(usize, &[f64; N]) -> ControlFlow<()>,
 {
     let mut stats = Stats::default();
-    let n_out = times.len();
     let (t0, t_end, hmax, hmin) = match begin(times, &y0, opts, &mut observe) {
         Ok(span) => span,
         Err(done) => return done,
@@ -236,30 +235,18 @@ where
                     }
                 }
                 let inv_h = 1.0 / h;
-                while next < n_out && times[next] <= tnew {
-                    let tout = times[next];
-                    let flow = if tout == tnew {
-                        observe(next, &ynew)
-                    } else {
-                        let s = (tout - t) * inv_h;
-                        let s1 = 1.0 - s;
-                        let mut yo = [0.0; N];
-                        for i in 0..N {
-                            yo[i] = y[i] + s * (r1[i] + s1 * (r2[i] + s * (r3[i] + s1 * r4[i])));
-                        }
-                        observe(next, &yo)
-                    };
-                    next += 1;
-                    if flow.is_break() {
-                        return stop(next, stats, Failure::Stopped { t: tout });
+                let dense = |s: f64, s1: f64| {
+                    let mut yo = [0.0; N];
+                    for i in 0..N {
+                        yo[i] = y[i] + s * (r1[i] + s1 * (r2[i] + s * (r3[i] + s1 * r4[i])));
                     }
-                }
-                if next == n_out {
-                    return Outcome {
-                        reached: n_out,
-                        stats,
-                        failure: None,
-                    };
+                    yo
+                };
+                let span = (t, tnew, inv_h);
+                if let Some(done) =
+                    deliver(times, &mut next, span, &ynew, stats, &mut observe, dense)
+                {
+                    return done;
                 }
             }
             hnew = hnew.min(hmax);

@@ -37,7 +37,9 @@
 
 #![allow(clippy::needless_range_loop)] // indexed loops over N mirror the formulas
 
-use super::util::{all_finite, begin, hinit, norm_inf, stop, user_initial_step, NONFINITE_SHRINK};
+use super::util::{
+    all_finite, begin, deliver, hinit, norm_inf, stop, user_initial_step, NONFINITE_SHRINK,
+};
 use super::{Failure, Options, Outcome, Stats, System};
 use nalgebra::SMatrix;
 use std::ops::ControlFlow;
@@ -176,7 +178,6 @@ where
     F: FnMut(usize, &[f64; N]) -> ControlFlow<()>,
 {
     let mut stats = Stats::default();
-    let n_out = times.len();
     let (t0, t_end, hmax, hmin) = match begin(times, &y0, opts, &mut observe) {
         Ok(span) => span,
         Err(done) => return done,
@@ -385,30 +386,18 @@ where
                         r3[i] = D31 * k1[i] + D32 * k2[i] + D33 * k3[i] + D34 * k4[i] + D35 * k5[i];
                     }
                 }
-                while next < n_out && times[next] <= tnew {
-                    let tout = times[next];
-                    let flow = if tout == tnew {
-                        observe(next, &ynew)
-                    } else {
-                        let s = (tout - t) * inv_h;
-                        let s1 = 1.0 - s;
-                        let mut yo = [0.0; N];
-                        for i in 0..N {
-                            yo[i] = y[i] * s1 + s * (ynew[i] + s1 * (r2[i] + s * r3[i]));
-                        }
-                        observe(next, &yo)
-                    };
-                    next += 1;
-                    if flow.is_break() {
-                        return stop(next, stats, Failure::Stopped { t: tout });
+                let dense = |s: f64, s1: f64| {
+                    let mut yo = [0.0; N];
+                    for i in 0..N {
+                        yo[i] = y[i] * s1 + s * (ynew[i] + s1 * (r2[i] + s * r3[i]));
                     }
-                }
-                if next == n_out {
-                    return Outcome {
-                        reached: n_out,
-                        stats,
-                        failure: None,
-                    };
+                    yo
+                };
+                let span = (t, tnew, inv_h);
+                if let Some(done) =
+                    deliver(times, &mut next, span, &ynew, stats, &mut observe, dense)
+                {
+                    return done;
                 }
             }
             hnew = hnew.min(hmax);

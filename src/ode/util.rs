@@ -65,6 +65,45 @@ pub(super) fn stop(reached: usize, stats: Stats, failure: Failure) -> Outcome {
     }
 }
 
+/// Delivers to `observe` every output time in `(t, tnew]` from `*next` on, after an accepted
+/// step of an adaptive integrator: `ynew` at `tnew`, `dense(s, 1 - s)` before it, where
+/// `s = (tout - t) * inv_h`. `Some` is the outcome to return: an observer's `Break` at its time,
+/// or success once the last time is delivered. One loop for every integrator's dense output.
+#[inline(always)]
+pub(super) fn deliver<const N: usize, F, D>(
+    times: &[f64],
+    next: &mut usize,
+    (t, tnew, inv_h): (f64, f64, f64),
+    ynew: &[f64; N],
+    stats: Stats,
+    observe: &mut F,
+    dense: D,
+) -> Option<Outcome>
+where
+    F: FnMut(usize, &[f64; N]) -> ControlFlow<()>,
+    D: Fn(f64, f64) -> [f64; N],
+{
+    let n_out = times.len();
+    while *next < n_out && times[*next] <= tnew {
+        let tout = times[*next];
+        let flow = if tout == tnew {
+            observe(*next, ynew)
+        } else {
+            let s = (tout - t) * inv_h;
+            observe(*next, &dense(s, 1.0 - s))
+        };
+        *next += 1;
+        if flow.is_break() {
+            return Some(stop(*next, stats, Failure::Stopped { t: tout }));
+        }
+    }
+    (*next == n_out).then_some(Outcome {
+        reached: n_out,
+        stats,
+        failure: None,
+    })
+}
+
 /// The user's initial step if it is usable (positive and finite), clipped to `hmax`.
 #[inline(always)]
 pub(super) fn user_initial_step(opts: &Options, hmax: f64) -> Option<f64> {
