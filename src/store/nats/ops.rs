@@ -95,71 +95,51 @@ pub(super) async fn look_up(url: String, timeout: Duration, names: Names) -> Res
 /// Connects and makes sure the four streams exist with the options' limits.
 pub(super) async fn connect(o: NatsOptions, names: Names) -> Result<Conn, Failure> {
     let js = context(&o.url, o.timeout).await?;
-    let history = js
-        .create_or_update_stream(stream::Config {
-            name: names.history.clone(),
-            description: Some("gatewatch: identification history, one subject per gate".into()),
-            subjects: vec![format!("{}.history.*", names.prefix)],
+    let history = file_stream(
+        &names.history,
+        "gatewatch: identification history, one subject per gate",
+        format!("{}.history.*", names.prefix),
+        0,
+    );
+    ensure(
+        &js,
+        stream::Config {
             max_age: o.retention,
             max_messages: i64::try_from(o.max_history_rows).unwrap_or(i64::MAX),
             discard: DiscardPolicy::Old,
-            storage: StorageType::File,
-            ..Default::default()
-        })
-        .await
-        .map_err(|e| format!("stream {}: {e}", names.history))?;
-    let outbox = js
-        .create_or_update_stream(stream::Config {
-            name: names.outbox.clone(),
-            description: Some("gatewatch: undelivered notifications".into()),
-            subjects: vec![format!("{}.outbox.*.*", names.prefix)],
-            storage: StorageType::File,
-            ..Default::default()
-        })
-        .await
-        .map_err(|e| format!("stream {}: {e}", names.outbox))?;
+            ..history
+        },
+    )
+    .await?;
+    let outbox = file_stream(
+        &names.outbox,
+        "gatewatch: undelivered notifications",
+        format!("{}.outbox.*.*", names.prefix),
+        0,
+    );
+    ensure(&js, outbox).await?;
     // A key-value table as JetStream's KV buckets are underneath: one subject per key, the
     // newest message of each kept. Not the client's KV API: its bucket creation (0.46) does not
     // read nats-server 2.9's answer.
-    let alerts = js
-        .create_or_update_stream(stream::Config {
-            name: names.alerts.clone(),
-            description: Some("gatewatch: each gate's alert state, one subject per gate".into()),
-            subjects: vec![format!("{}.alert.*", names.prefix)],
-            max_messages_per_subject: 1,
-            storage: StorageType::File,
-            ..Default::default()
-        })
-        .await
-        .map_err(|e| format!("stream {}: {e}", names.alerts))?;
+    let alerts = file_stream(
+        &names.alerts,
+        "gatewatch: each gate's alert state, one subject per gate",
+        format!("{}.alert.*", names.prefix),
+        1,
+    );
+    ensure(&js, alerts).await?;
     // the owner lease (`lease`): one record, its newest message
-    let owner = js
-        .create_or_update_stream(stream::Config {
-            name: names.owner.clone(),
-            description: Some("gatewatch: the owner lease of the prefix".into()),
-            subjects: vec![names.owner_subject()],
-            max_messages_per_subject: 1,
-            storage: StorageType::File,
-            ..Default::default()
-        })
-        .await
-        .map_err(|e| format!("stream {}: {e}", names.owner))?;
-    let history = js
-        .get_stream(&history.config.name)
-        .await
-        .map_err(|e| format!("stream {}: {e}", names.history))?;
-    let outbox = js
-        .get_stream(&outbox.config.name)
-        .await
-        .map_err(|e| format!("stream {}: {e}", names.outbox))?;
-    let alerts = js
-        .get_stream(&alerts.config.name)
-        .await
-        .map_err(|e| format!("stream {}: {e}", names.alerts))?;
-    let owner = js
-        .get_stream(&owner.config.name)
-        .await
-        .map_err(|e| format!("stream {}: {e}", names.owner))?;
+    let owner = file_stream(
+        &names.owner,
+        "gatewatch: the owner lease of the prefix",
+        names.owner_subject(),
+        1,
+    );
+    ensure(&js, owner).await?;
+    let history = get(&js, &names.history).await?;
+    let outbox = get(&js, &names.outbox).await?;
+    let alerts = get(&js, &names.alerts).await?;
+    let owner = get(&js, &names.owner).await?;
     Ok(Conn {
         js,
         history,
@@ -168,6 +148,40 @@ pub(super) async fn connect(o: NatsOptions, names: Names) -> Result<Conn, Failur
         owner,
         names,
     })
+}
+
+/// The configuration of a stream on file with one subject filter and at most
+/// `max_per_subject` messages a subject (0: no limit): what the four streams share.
+fn file_stream(
+    name: &str,
+    description: &str,
+    subject: String,
+    max_per_subject: i64,
+) -> stream::Config {
+    stream::Config {
+        name: name.to_string(),
+        description: Some(description.into()),
+        subjects: vec![subject],
+        max_messages_per_subject: max_per_subject,
+        storage: StorageType::File,
+        ..Default::default()
+    }
+}
+
+/// Creates the stream `config` describes, or brings the existing one to it; the error names it.
+async fn ensure(js: &jetstream::Context, config: stream::Config) -> Result<(), Failure> {
+    let name = config.name.clone();
+    js.create_or_update_stream(config)
+        .await
+        .map(|_| ())
+        .map_err(|e| format!("stream {name}: {e}"))
+}
+
+/// The stream `name` as a handle for its operations; the error names it.
+async fn get(js: &jetstream::Context, name: &str) -> Result<stream::Stream, Failure> {
+    js.get_stream(name)
+        .await
+        .map_err(|e| format!("stream {name}: {e}"))
 }
 
 /// Deletes outbox row `seq`; a row that is already gone (delivered twice, or an id the stream
