@@ -59,22 +59,7 @@ impl NotifierHandle {
         if events.is_empty() {
             return true;
         }
-        let guard = self.inner.tx();
-        let Some(tx) = guard.as_ref() else {
-            self.inner.stats.drop_one(None, DropReason::ShutDown);
-            return false;
-        };
-        match tx.try_send(Input::Events(events)) {
-            Ok(()) => true,
-            Err(mpsc::error::TrySendError::Full(_)) => {
-                self.inner.stats.drop_one(None, DropReason::QueueFull);
-                false
-            }
-            Err(mpsc::error::TrySendError::Closed(_)) => {
-                self.inner.stats.drop_one(None, DropReason::Stopped);
-                false
-            }
-        }
+        self.send(Input::Events(events))
     }
 
     /// Queue outbox entries, each for the target of that index in [`NotifierHandle::targets`]
@@ -98,6 +83,7 @@ impl NotifierHandle {
         &self.inner.targets
     }
 
+    /// Queues `input` without blocking; a refusal is counted as one drop, with its reason.
     fn send(&self, input: Input) -> bool {
         let guard = self.inner.tx();
         let Some(tx) = guard.as_ref() else {
