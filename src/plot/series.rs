@@ -263,36 +263,39 @@ pub type Loop<'a> = (&'a [f64], &'a [f64]);
 /// force against deflection (`measured`, `model`), where the stiffness force dominates and the
 /// loop is thin, and its velocity-dependent part, the force minus the model's restoring force at
 /// rest (`measured_part`, `model_part`), whose loop area is the work the force does per cycle.
-pub fn hysteresis(
+pub fn hysteresis<'a>(
     path: &Path,
-    measured: Loop,
-    model: Loop,
-    measured_part: Loop,
-    model_part: Loop,
+    measured: Loop<'a>,
+    model: Loop<'a>,
+    measured_part: Loop<'a>,
+    model_part: Loop<'a>,
     units: &Units,
 ) -> Result<(), PlotError> {
     for (x, y) in [measured, model, measured_part, model_part] {
         check_curve(path, x, y)?;
     }
-    let whole = CurveFigure {
-        x: model.0,
-        y: model.1,
+    // one panel: the model's loop as the curve, the measured one as dots
+    let panel = |(x, y): Loop<'a>, (mx, my): Loop<'a>, force: &str, title: &'a str| CurveFigure {
+        x,
+        y,
         curve_label: "identified model",
-        data: Some((measured.0, measured.1, "measured".to_string())),
+        data: Some((mx, my, "measured".to_string())),
         x_desc: label("deflection y (model)", units.signal.as_deref()),
-        y_desc: label("support force F", units.force.as_deref()),
-        title: "Support force against deflection",
+        y_desc: label(force, units.force.as_deref()),
+        title,
         equal_zero_lines: true,
     };
-    let part = CurveFigure {
-        x: model_part.0,
-        y: model_part.1,
-        curve_label: "identified model",
-        data: Some((measured_part.0, measured_part.1, "measured".to_string())),
-        x_desc: label("deflection y (model)", units.signal.as_deref()),
-        y_desc: label("F minus restoring force at rest", units.force.as_deref()),
-        title: "Its velocity-dependent part",
-        equal_zero_lines: true,
-    };
+    let whole = panel(
+        model,
+        measured,
+        "support force F",
+        "Support force against deflection",
+    );
+    let part = panel(
+        model_part,
+        measured_part,
+        "F minus restoring force at rest",
+        "Its velocity-dependent part",
+    );
     render(path, &SideBySide(whole, part))
 }
