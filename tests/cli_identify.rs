@@ -7,25 +7,16 @@
 use serde_json::Value;
 use std::f64::consts::PI;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output, Stdio};
+use std::process::Output;
 
+mod cli_common;
 #[path = "cli_identify/compare.rs"]
 mod compare;
 
+use cli_common::{gw, text};
+
 const VDP: &str = "ydd + (c1 + c2*y^2)*yd + y = 0";
 const VDP_TRUTH: [f64; 2] = [-1.2218, 1.2218];
-
-fn gw(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_gatewatch"))
-        .args(args)
-        .stdin(Stdio::null())
-        .output()
-        .expect("gatewatch runs")
-}
-
-fn text(bytes: &[u8]) -> String {
-    String::from_utf8_lossy(bytes).into_owned()
-}
 
 /// Asserts exit 2, nothing on stdout and exactly one stderr line containing every key (case
 /// sensitive); returns the line.

@@ -1,17 +1,13 @@
 //! `gatewatch identify --plot` and `gatewatch stability-map` through the binary.
 
 use std::path::Path;
-use std::process::{Command, Output};
+use std::process::Output;
 
-fn gatewatch(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_gatewatch"))
-        .args(args)
-        .output()
-        .expect("run gatewatch")
-}
+mod cli_common;
+use cli_common::{gw, text};
 
 fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
+    text(&o.stderr)
 }
 
 /// A decaying oscillation `ydd + 0.2*yd + y = 0`, `y(0) = 1`, `yd(0) = -0.1`, as CSV.
@@ -43,7 +39,7 @@ fn identify_writes_the_pictures_into_the_plot_dir() {
             "--generations",
             "30",
         ];
-        let o = gatewatch(&[&args[..], &["--plot", out_dir], extra].concat());
+        let o = gw(&[&args[..], &["--plot", out_dir], extra].concat());
         assert!(o.status.success(), "{}", stderr(&o));
     };
     identify(&["--plot-format", "png"]);
@@ -65,7 +61,7 @@ fn identify_with_an_unwritable_plot_dir_exits_2() {
     let blocker = dir.path().join("file");
     std::fs::write(&blocker, "x").unwrap();
     let target = blocker.join("plots");
-    let o = gatewatch(&[
+    let o = gw(&[
         "identify",
         "--input",
         data.to_str().unwrap(),
@@ -106,7 +102,7 @@ fn stability_map_writes_csv_and_picture() {
         "--plot",
         svg.to_str().unwrap(),
     ];
-    let o = gatewatch(&args);
+    let o = gw(&args);
     assert!(o.status.success(), "{}", stderr(&o));
     let text = std::fs::read_to_string(&csv).unwrap();
     let mut lines = text.lines();
@@ -123,7 +119,7 @@ fn stability_map_writes_csv_and_picture() {
     }
     assert!(std::fs::read_to_string(&svg).unwrap().contains("stable ("));
     // Same seed, same map; to stdout without --output.
-    let o = gatewatch(&args[..args.len() - 4]);
+    let o = gw(&args[..args.len() - 4]);
     assert!(o.status.success(), "{}", stderr(&o));
     assert_eq!(String::from_utf8(o.stdout).unwrap(), text);
 }
@@ -177,13 +173,13 @@ fn stability_map_bad_inputs_exit_2_naming_the_option() {
     for (extra, needle) in cases {
         let mut args: Vec<&str> = base.to_vec();
         args.extend_from_slice(extra);
-        let o = gatewatch(&args);
+        let o = gw(&args);
         let e = stderr(&o);
         assert_eq!(o.status.code(), Some(2), "{extra:?}: {e}");
         assert_eq!(e.trim_end().lines().count(), 1, "{extra:?}: {e}");
         assert!(e.contains(needle), "{extra:?}: {e}");
     }
-    let o = gatewatch(&["stability-map", "--model", "ydd + = 0", "--range", "c1=0:1"]);
+    let o = gw(&["stability-map", "--model", "ydd + = 0", "--range", "c1=0:1"]);
     assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
     assert!(stderr(&o).contains("--model"));
 }
@@ -276,7 +272,7 @@ fn identify_with_plots(extra: &[&str], out_dir: &Path) -> Output {
     let mut args = vec!["identify"];
     args.extend_from_slice(extra);
     args.extend_from_slice(&["--json", "--plot", out_dir.to_str().unwrap()]);
-    let o = gatewatch(&args);
+    let o = gw(&args);
     assert!(o.status.success(), "{}", stderr(&o));
     o
 }
@@ -345,7 +341,7 @@ fn the_convergence_curve_ends_at_the_reported_training_error() {
 fn force_pictures_show_the_whole_force_a_zoom_with_its_residual_and_the_data() {
     let dir = tempfile::tempdir().unwrap();
     let data = dir.path().join("gate.csv");
-    let o = gatewatch(&[
+    let o = gw(&[
         "bench",
         "generate",
         "--case",

@@ -4,17 +4,8 @@
 use std::path::Path;
 use std::process::{Command, Output, Stdio};
 
-fn gw(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_gatewatch"))
-        .args(args)
-        .stdin(Stdio::null())
-        .output()
-        .expect("gatewatch runs")
-}
-
-fn text(bytes: &[u8]) -> String {
-    String::from_utf8_lossy(bytes).into_owned()
-}
+mod cli_common;
+use cli_common::{gw, text};
 
 /// Runs `gatewatch ARGS`, asserts exit 2 and returns its stderr.
 #[track_caller]

@@ -15,14 +15,20 @@ use gatewatch::service::worker::{Job, ResultSink, Submitted, WorkerPool};
 
 use service_common::*;
 
-/// A pool of one worker (8 jobs queued at most) running `fake`, and the count of jobs done.
-fn counting_pool(fake: Arc<Fake>) -> (WorkerPool, Arc<AtomicUsize>) {
+/// A pool of one worker (8 jobs queued at most) running a [`Fake`] that takes `sleep` per job:
+/// the fake (its record of calls), the pool, and the count of jobs done.
+fn counting_pool(sleep: Duration) -> (Arc<Fake>, WorkerPool, Arc<AtomicUsize>) {
+    let fake = Arc::new(Fake {
+        sleep,
+        ..Default::default()
+    });
     let done = Arc::new(AtomicUsize::new(0));
     let d = done.clone();
     let on_done: ResultSink = Arc::new(move |_: &Job, _, _| {
         d.fetch_add(1, Ordering::SeqCst);
     });
-    (WorkerPool::start(1, 8, fake, on_done).unwrap(), done)
+    let pool = WorkerPool::start(1, 8, fake.clone(), on_done).unwrap();
+    (fake, pool, done)
 }
 
 /// A job of `gate` ending at sample `i`: 10 zeros at 100 Hz from `t0 = i` s, no history.
@@ -40,11 +46,7 @@ fn small_job(gate: &str, i: u64) -> Job {
 
 #[tokio::test]
 async fn slow_workers_replace_pending_jobs_instead_of_queueing() {
-    let fake = Arc::new(Fake {
-        sleep: Duration::from_millis(200),
-        ..Default::default()
-    });
-    let (pool, done) = counting_pool(fake.clone());
+    let (fake, pool, done) = counting_pool(Duration::from_millis(200));
     let mut replaced = 0;
     let mut queued = 0;
     for i in 0..20 {
@@ -304,11 +306,7 @@ async fn a_day_of_samples_keeps_the_reported_times_true() {
 /// that was in flight is not kept when that job ends; other gates keep theirs.
 #[tokio::test]
 async fn a_forgotten_gate_leaves_no_memory_even_with_a_job_in_flight() {
-    let fake = Arc::new(Fake {
-        sleep: Duration::from_millis(300),
-        ..Default::default()
-    });
-    let (pool, done) = counting_pool(fake.clone());
+    let (fake, pool, done) = counting_pool(Duration::from_millis(300));
     assert_eq!(pool.submit(small_job("kept", 0)), Submitted::Queued);
     wait_until(|| done.load(Ordering::SeqCst) == 1).await;
     assert_eq!(pool.remembered_gates(), 1);
