@@ -53,32 +53,6 @@ fn identify_writes_the_pictures_into_the_plot_dir() {
 }
 
 #[test]
-fn identify_with_an_unwritable_plot_dir_exits_2() {
-    let dir = tempfile::tempdir().unwrap();
-    let data = dir.path().join("d.csv");
-    write_series(&data);
-    // A regular file where the directory should be: cannot be created, even as root.
-    let blocker = dir.path().join("file");
-    std::fs::write(&blocker, "x").unwrap();
-    let target = blocker.join("plots");
-    let o = gw(&[
-        "identify",
-        "--input",
-        data.to_str().unwrap(),
-        "--model",
-        "ydd + c1*yd + c2*y = 0",
-        "--generations",
-        "10",
-        "--plot",
-        target.to_str().unwrap(),
-    ]);
-    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
-    let e = stderr(&o);
-    assert_eq!(e.trim_end().lines().count(), 1, "{e}");
-    assert!(e.contains("--plot") && e.contains("plots"), "{e}");
-}
-
-#[test]
 fn stability_map_writes_csv_and_picture() {
     let dir = tempfile::tempdir().unwrap();
     let csv = dir.path().join("map.csv");
