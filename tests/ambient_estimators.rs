@@ -1,7 +1,7 @@
 //! Ambient damping estimators under sensor noise, judged on seeded simulations against the known
 //! truth: SSI-COV ([`ssi_cov_damping`]) beside the AR(4) fit ([`ambient_damping`]).
 //!
-//! Run with `cargo test --release --test ambient_estimators -- --nocapture` to see the table.
+//! Run with `cargo test --release --test integration ambient_estimators:: -- --nocapture` to see the table.
 //!
 //! Cases: the lab gate (19.14 kg, 10.4 Hz, 200 Hz) at `zeta = 2 %` and `1 %` with a load cell's
 //! noise floor of 0.7 N against a response of about 5.6 N RMS at 2 % (the user's report), and a

@@ -10,7 +10,7 @@
 //! that gate: 150 cycles, at most 60 s), estimates every window and pools them with the real
 //! [`DampingPool`] by each location.
 //!
-//! `cargo test --release --test ambient_pooling -- --ignored --nocapture` prints the table for
+//! `cargo test --release --test integration ambient_pooling:: -- --ignored --nocapture` prints the table for
 //! the three presets at +0.5, +1 and +2 %; the tests that CI runs check the slow barrier gate,
 //! where the skew is largest, and the lock gate at +2 %, where the median lost most.
 

@@ -3,7 +3,7 @@
 use std::path::Path;
 use std::process::Output;
 
-mod cli_common;
+use crate::cli_common;
 use cli_common::{gw, text};
 
 fn stderr(o: &Output) -> String {

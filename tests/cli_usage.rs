@@ -4,7 +4,7 @@
 use std::path::Path;
 use std::process::{Command, Output, Stdio};
 
-mod cli_common;
+use crate::cli_common;
 use cli_common::{gw, text};
 
 /// Runs `gatewatch ARGS`, asserts exit 2 and returns its stderr.

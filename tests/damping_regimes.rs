@@ -187,7 +187,7 @@ fn a_steady_sine_with_sensor_noise_has_no_relaxation_to_read() {
 /// noise floor (session 49: sines 0.6 to 1.5, cycles 12.1 or more at the issue's noise, 4.8 or
 /// more at four times it).
 #[test]
-#[ignore = "exploration: cargo test --release --test damping_regimes explore_relaxation_floor -- --ignored --nocapture"]
+#[ignore = "exploration: cargo test --release --test integration damping_regimes::explore_relaxation_floor -- --ignored --nocapture"]
 fn explore_relaxation_floor() {
     let off = RelaxationOptions {
         floor_factor: 0.0,
@@ -548,7 +548,7 @@ fn analyzer_reads_a_slow_gates_limit_cycle_over_its_history() {
 /// estimator). Figures in docs/benchmarks.md ("The limit cycle across
 /// zeta0").
 ///
-/// `cargo test --release --test damping_regimes explore_relaxation_across_zeta -- --ignored --nocapture`
+/// `cargo test --release --test integration damping_regimes::explore_relaxation_across_zeta -- --ignored --nocapture`
 #[test]
 #[ignore]
 fn explore_relaxation_across_zeta() {
@@ -801,7 +801,7 @@ fn ramping_limit_cycle_is_read_about_its_line() {
 }
 
 #[test]
-#[ignore = "exploration: cargo test --release --test damping_regimes explore_ramping -- --ignored --nocapture"]
+#[ignore = "exploration: cargo test --release --test integration damping_regimes::explore_ramping -- --ignored --nocapture"]
 fn explore_ramping_limit_cycle() {
     for (name, p) in [("lab", lab_gate()), ("lock", lock_gate())] {
         for sig in [f64::INFINITY, 3.0, 2.5, 2.0] {
@@ -934,7 +934,7 @@ fn switched_at_60_s(p: &GateParams, noise: f64, zeta: f64, seed: u64, seconds: f
 /// ends at -1 % the gate is near its moving limit cycle, and a fit of constant coefficients reads
 /// the cycle's slow growth as a slow relaxation, the linear and the cubic damping both too small.
 #[test]
-#[ignore = "exploration: cargo test --release --test damping_regimes explore_onset_model -- --ignored --nocapture"]
+#[ignore = "exploration: cargo test --release --test integration damping_regimes::explore_onset_model -- --ignored --nocapture"]
 fn explore_onset_model_trade() {
     let median = |mut v: Vec<f64>| {
         v.sort_by(f64::total_cmp);
@@ -981,7 +981,7 @@ fn explore_onset_model_trade() {
 /// and the window a constant negative damping grows from the ambient state into its cycle
 /// (a burst's first window). Coverage and median half width per gate, method and case, 20 seeds.
 #[test]
-#[ignore = "exploration: cargo test --release --test damping_regimes explore_model_interval -- --ignored --nocapture"]
+#[ignore = "exploration: cargo test --release --test integration damping_regimes::explore_model_interval -- --ignored --nocapture"]
 fn explore_model_interval_calibration() {
     use gatewatch::analysis::ModelInterval;
     for (gate, method) in [GatePreset::Lab, GatePreset::Lock]
@@ -1027,7 +1027,7 @@ fn explore_model_interval_calibration() {
 /// limit-cycle amplitude), and the held cycle's amplitude `A` fixes `zeta_eq(A) = 0`, so
 /// `zeta0 = -b A^2`. Per seed: the growth window's model, then the held windows' reading.
 #[test]
-#[ignore = "exploration: cargo test --release --test damping_regimes explore_cycle_amplitude -- --ignored --nocapture"]
+#[ignore = "exploration: cargo test --release --test integration damping_regimes::explore_cycle_amplitude -- --ignored --nocapture"]
 fn explore_cycle_amplitude() {
     use gatewatch::analysis::ModelInterval;
     let median = |mut v: Vec<f64>| {

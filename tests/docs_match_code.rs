@@ -144,3 +144,30 @@ fn the_metric_table_names_every_reason_of_the_code() {
         }
     }
 }
+
+/// Cargo.toml turns `autotests` off (tests/integration.rs says why), so a new file in `tests/`
+/// would compile into nothing and its tests would never run. Every one must be a module of the
+/// integration binary or a `[[test]]` target of its own.
+#[test]
+fn every_test_file_is_compiled_into_a_test_binary() {
+    let integration = read("tests/integration.rs");
+    let manifest = read("Cargo.toml");
+    let mut files = 0;
+    let mut left_out = Vec::new();
+    for entry in std::fs::read_dir(Path::new(ROOT).join("tests")).unwrap() {
+        let name = entry.unwrap().file_name().into_string().unwrap();
+        let Some(stem) = name.strip_suffix(".rs") else {
+            continue;
+        };
+        files += 1;
+        let module = integration
+            .lines()
+            .any(|l| l.trim() == format!("mod {stem};"));
+        let target = manifest.contains(&format!("path = \"tests/{name}\""));
+        if !module && !target {
+            left_out.push(name);
+        }
+    }
+    assert!(files >= 40, "found only {files} files in tests/");
+    assert!(left_out.is_empty(), "not in any test binary: {left_out:?}");
+}

@@ -8,7 +8,7 @@
 //! skipped, whatever the machine's speed, and the results are in stream time. Every wait is
 //! bounded by a timeout; nothing asserts on wall-clock durations.
 
-mod stream_common;
+use crate::stream_common;
 
 use std::net::SocketAddr;
 use std::time::Duration;

@@ -11,7 +11,7 @@
 //! bodies in flight together cost their size, not the body limit each, and one that outgrows
 //! the budget part-way is answered 503 + Retry-After like a refusal before the body.
 
-mod service_common;
+use crate::service_common;
 
 use std::io::Write;
 use std::net::SocketAddr;

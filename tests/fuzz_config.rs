@@ -4,7 +4,7 @@
 //! every duration in range (so `serve` cannot panic on it, the 1e300 bug); and the server, log
 //! and ingest sections round-trip through TOML.
 
-mod fuzz_common;
+use crate::fuzz_common;
 
 use gatewatch::service::config::{Config, EMBEDDED_CONFIG, MAX_SECONDS};
 use proptest::prelude::*;

@@ -4,7 +4,7 @@
 //! JSON); and round trips: lines formatted from their parts parse back to the same parts, and
 //! a JSON batch gives back its samples.
 
-mod fuzz_common;
+use crate::fuzz_common;
 
 use gatewatch::service::ingest::json;
 use gatewatch::service::ingest::line_protocol::{self, FieldValue, Line};

@@ -340,8 +340,8 @@ fn parallel_is_bit_identical_to_serial_for_any_thread_count() {
 // The switches.
 
 // What each switch buys on nonlinear_damping (chapter population 50, generations 120, seeds 1-10,
-// split seed 1, measured once with 10 runs instead of 2 via `cargo test --test identification
-// switches -- --nocapture`, dev profile; not asserted):
+// split seed 1, measured once with 10 runs instead of 2 via `cargo test --test integration
+// identification::switches -- --nocapture`, dev profile; not asserted):
 //
 //   variant            runs with test NMAE < 1e-3   typical test NMAE   evaluations/run
 //   all on                      10/10                2.4e-5               ~6070

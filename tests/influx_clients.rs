@@ -13,7 +13,7 @@ use std::time::Duration;
 
 use serde_json::Value;
 
-mod python_common;
+use crate::python_common;
 use python_common::{free_port, http_get, missing, venv_python, Daemon};
 
 const BIN: &str = env!("CARGO_BIN_EXE_gatewatch");

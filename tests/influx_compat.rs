@@ -2,7 +2,7 @@
 //! encodings, precisions `m` and `h`, `/ping`, `/health`, `/query` and InfluxDB 2.x's error
 //! shape. The real clients drive a real daemon in `tests/influx_clients.rs`.
 
-mod service_common;
+use crate::service_common;
 
 use std::io::Write;
 use std::time::Duration;

@@ -2,7 +2,7 @@
 //! crate agree on the (gate, value, time) of generated lines, escapes and integer fields
 //! included, so that `benches/line_protocol.rs` compares the same work.
 
-mod lp_common;
+use crate::lp_common;
 
 use gatewatch::service::config::Precision;
 use gatewatch::service::ingest::line_protocol::{

@@ -3,7 +3,7 @@
 //! ASCII strings, and random sequences of the language's own tokens, which reach far deeper
 //! into the parser than random characters do.
 
-mod fuzz_common;
+use crate::fuzz_common;
 
 use gatewatch::model::{Model, ModelError};
 use proptest::prelude::*;

@@ -2,7 +2,7 @@
 //! gauges, the amplitude, build and process information, counters that exist from the start,
 //! one unit per counter, HTTP `code`) and the logs (no colour codes in a file, plain peers).
 
-mod service_common;
+use crate::service_common;
 
 use std::io::Write;
 use std::process::{Command, Stdio};

@@ -1,6 +1,6 @@
 //! Accuracy of the integrators against analytic solutions.
 
-mod ode_common;
+use crate::ode_common;
 
 use approx::{assert_abs_diff_eq, assert_relative_eq};
 use gatewatch::ode::{integrate, Method, Options, Outcome, System};

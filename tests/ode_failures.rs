@@ -1,6 +1,6 @@
 //! Failure reports: where, why, and how many times were delivered.
 
-mod ode_common;
+use crate::ode_common;
 
 use approx::assert_abs_diff_eq;
 use gatewatch::ode::{integrate, Failure, Method, Options, System};

@@ -7,8 +7,8 @@
 //! simulator's (`ydd + (c1 + c2 yd^2) yd + w^2 y = F/m`, `w` known as the daemon knows `k`),
 //! observed in displacement with the bench's sensor noise.
 //!
-//! cargo test --release --test pem_exploration -- --ignored --nocapture
-//! PEM_C2_KNOWN=1 [PEM_C2_FACTOR=1.3] cargo test --release --test pem_exploration -- --ignored --nocapture
+//! cargo test --release --test integration pem_exploration:: -- --ignored --nocapture
+//! PEM_C2_KNOWN=1 [PEM_C2_FACTOR=1.3] cargo test --release --test integration pem_exploration:: -- --ignored --nocapture
 
 use gatewatch::simulate::{GateParams, GatePreset, NoiseLevel, Output, ScenarioName};
 use nalgebra::{Matrix3, Vector3};
@@ -219,7 +219,7 @@ fn noise_variance(z: &[f64]) -> f64 {
 }
 
 #[test]
-#[ignore = "exploration: cargo test --release --test pem_exploration -- --ignored --nocapture"]
+#[ignore = "exploration: cargo test --release --test integration pem_exploration:: -- --ignored --nocapture"]
 fn explore_prediction_error_method() {
     // PEM_C2_KNOWN=1: the cubic coefficient held at the gate's (as if carried from a window
     // that identified it).

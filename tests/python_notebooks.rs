@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 
 use serde_json::Value;
 
-mod python_common;
+use crate::python_common;
 use python_common::{free_port, venv_python, Daemon};
 
 const BIN: &str = env!("CARGO_BIN_EXE_gatewatch");

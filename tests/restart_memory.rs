@@ -13,7 +13,7 @@ use gatewatch::service::config::Config;
 use gatewatch::simulate::{GatePreset, GateSimulator, NoiseLevel, ScenarioName};
 use serde_json::Value;
 
-mod stream_common;
+use crate::stream_common;
 
 /// Longest wait for one window's identification.
 const WINDOW_TIMEOUT: Duration = Duration::from_secs(180);

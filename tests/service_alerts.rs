@@ -1,7 +1,7 @@
 //! Alerts, metrics and the read API: alert states from identifications and staleness, the
 //! Prometheus exposition and rules (checked with promtool when present), configuration files.
 
-mod service_common;
+use crate::service_common;
 
 use std::sync::Arc;
 use std::time::Duration;

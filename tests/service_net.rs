@@ -4,8 +4,8 @@
 //! damping alert fires, and `DELETE /api/v1/gates/{id}`), the paginated gate list.
 //! Every wait is bounded by a timeout (a guard against hanging, not a timing assertion).
 
-mod service_common;
-mod store_common;
+use crate::service_common;
+use crate::store_common;
 
 use std::sync::Arc;
 use std::time::{Duration, SystemTime};

@@ -1,7 +1,7 @@
 //! Daemon ingestion over `Router::oneshot`: the malformed requests of the docs/api.md table,
 //! bounds (body, gates, tokens), duplicates, out-of-order samples and gaps.
 
-mod service_common;
+use crate::service_common;
 
 use std::sync::{Arc, Barrier};
 

@@ -1,7 +1,7 @@
 //! A real server on port 0: the raw TCP listener, overload and timeouts, readiness and the
 //! graceful shutdown, the simulate client, and the real analyzers.
 
-mod service_common;
+use crate::service_common;
 
 use std::sync::Arc;
 use std::time::Duration;

@@ -1,7 +1,7 @@
 //! The identification worker pool: replace-don't-queue, the queue bound, one job in flight per
 //! gate, warm starts, seeds, panics, and the cadence in sample time.
 
-mod service_common;
+use crate::service_common;
 
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Arc;

@@ -14,7 +14,7 @@ use gatewatch::service::server::{run, Listeners};
 use gatewatch::store::{IdentificationRecord, SqliteStore, Store, WriteBatch, HISTORY_CSV_HEADER};
 use serde_json::Value;
 
-mod history_common;
+use crate::history_common;
 use history_common::history;
 
 const BIN: &str = env!("CARGO_BIN_EXE_gatewatch");

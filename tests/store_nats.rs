@@ -10,8 +10,8 @@ use gatewatch::store::{
     HistoryQuery, NatsOptions, NatsStore, SqliteStore, Store, StoreError, WriteBatch,
 };
 
-mod nats_common;
-mod store_conformance;
+use crate::nats_common;
+use crate::store_conformance;
 use nats_common::{nats_installed, NatsServer};
 use store_conformance::{record, CHECKS};
 

@@ -12,8 +12,8 @@ use gatewatch::store::{
     IdentificationRecord, NatsOptions, NatsStore, SqliteStore, Store, WriteBatch,
 };
 
-mod history_common;
-mod nats_common;
+use crate::history_common;
+use crate::nats_common;
 use history_common::history;
 use nats_common::{free_port, nats_installed, NatsServer};
 

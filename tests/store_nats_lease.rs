@@ -15,7 +15,7 @@ use gatewatch::store::{
     Store, StoreError, WriteBatch, NATS_RECONNECT_DELAY_MAX,
 };
 
-mod nats_common;
+use crate::nats_common;
 use nats_common::{nats_installed, NatsServer};
 
 /// The call timeout of the tests' stores.

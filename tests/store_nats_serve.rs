@@ -15,7 +15,7 @@ use std::time::{Duration, Instant, SystemTime};
 use gatewatch::store::{HistoryQuery, NatsStore, Store, NATS_OPERATION_TIMEOUT};
 use serde_json::Value;
 
-mod nats_common;
+use crate::nats_common;
 use nats_common::{free_port, nats_installed, NatsServer};
 
 const BIN: &str = env!("CARGO_BIN_EXE_gatewatch");

@@ -13,9 +13,9 @@
 //!
 //! The CI test keeps the outage at 20 s after the resolve (about a minute after the firing);
 //! `ten_minute_webhook_outage_...` (ignored; `GATEWATCH_OUTAGE_MINUTES`, default 10) is the
-//! issue's 10 minutes: `cargo test --release --test store_outage -- --ignored --nocapture`.
+//! issue's 10 minutes: `cargo test --release --test integration store_outage:: -- --ignored --nocapture`.
 
-mod stream_common;
+use crate::stream_common;
 
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -24,7 +24,7 @@ use std::time::{Duration, Instant};
 use gatewatch::simulate::{GateParams, GateSimulator, ZetaSchedule};
 use serde_json::Value;
 
-mod store_common;
+use crate::store_common;
 use store_common::{free_port, outbox_rows, receiver};
 
 const BIN: &str = env!("CARGO_BIN_EXE_gatewatch");

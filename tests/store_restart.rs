@@ -13,7 +13,7 @@ use std::time::{Duration, Instant, SystemTime};
 
 use serde_json::Value;
 
-mod store_common;
+use crate::store_common;
 use store_common::brim::fill_to_the_brim;
 use store_common::{free_port, metric, outbox_rows, receiver};
 

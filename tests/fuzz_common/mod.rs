@@ -6,7 +6,7 @@
 //! `FUZZ_SECONDS` (default 600) from a seeded generator, so a failure is reproducible:
 //!
 //! ```text
-//! FUZZ_SECONDS=600 cargo test --release --test fuzz_ingest -- --ignored fuzz_long --nocapture
+//! FUZZ_SECONDS=600 cargo test --release --test integration fuzz_ingest::fuzz_long -- --ignored --nocapture
 //! ```
 
 #![allow(dead_code)]
