@@ -1349,6 +1349,13 @@ fn tcp_samples_at_another_rate_are_not_identified() {
         std::thread::sleep(Duration::from_millis(20));
     }
     assert!(d.stderr().contains("another sample rate"), "{}", d.stderr());
+    // the refusal is logged as soon as a window of them is read, while the connection's later
+    // lines may still be on their way in (CI's integration binary runs other tests beside it)
+    let deadline = Instant::now() + Duration::from_secs(20);
+    let taken = || d.get_json("/api/v1/gates/r1")["window"]["samples_total"].as_u64();
+    while taken() != Some(400) && Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(20));
+    }
     let view = d.get_json("/api/v1/gates/r1");
     assert_eq!(
         view["window"]["samples_total"], 400,
