@@ -860,7 +860,20 @@ async fn a_damaged_wal_is_kept_and_its_dropped_frames_logged_naming_it() {
         assert!(Instant::now() < deadline, "identified {n}");
         tokio::time::sleep(Duration::from_millis(200)).await;
     }
-    // the writes committed (the history route reads them), then kill -9: they are in the WAL
+    // the writes committed (the store's writer thread commits them after the metric counts
+    // them), then kill -9: they are in the WAL
+    let wal_frames = || {
+        let bytes = std::fs::read(&wal).unwrap_or_default();
+        if bytes.len() < 32 {
+            return 0;
+        }
+        let page = u32::from_be_bytes(bytes[8..12].try_into().expect("4 bytes")) as usize;
+        (bytes.len() - 32) / (24 + page)
+    };
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while wal_frames() < 4 && Instant::now() < deadline {
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
     tokio::time::sleep(Duration::from_millis(500)).await;
     first.kill().expect("kill -9");
     let _ = first.wait();
