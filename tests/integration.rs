@@ -2,11 +2,11 @@
 //! `service_ordering.rs`, which installs a process-global tracing subscriber and so keeps a
 //! process of its own (both are listed in Cargo.toml, which turns `autotests` off).
 //!
-//! Why one binary: each test crate linked the library, tokio, axum and the HTTP clients again
-//! and compiled the shared helpers (`service_common`, ...) again. With 49 binaries that was the
-//! largest part of CI's test build on a 2-core machine (docs/benchmarks.md, "CI time on a fresh
-//! machine"); in one crate the helpers compile once, the binary links once, and the tests that
-//! mostly wait (a Prometheus scrape, a NATS reconnect) overlap with the others. A test runs as
+//! Why one binary: cargo runs test binaries one after another, so with 49 of them a test that
+//! mostly waits (a Prometheus evaluation, a NATS reconnect) left CI's cores idle. In one
+//! binary libtest's two threads overlap it with the others: the tests' run fell from 423 to
+//! about 270 s, and the shared helpers (`service_common`, ...) compile once instead of once per
+//! file (docs/benchmarks.md, "CI time with one integration-test binary"). A test runs as
 //! `cargo test --release --test integration MODULE::NAME`. `docs_match_code` checks that every
 //! file in `tests/` is either a module here or its own target, so none is silently left out.
 
