@@ -5,7 +5,7 @@
 //! Why one binary: cargo runs test binaries one after another, so with 49 of them a test that
 //! mostly waits (a Prometheus evaluation, a NATS reconnect) left CI's cores idle. In one
 //! binary libtest's two threads overlap it with the others: the tests' run fell from 423 to
-//! about 270 s, and the shared helpers (`service_common`, ...) compile once instead of once per
+//! 269-309 s, and the shared helpers (`service_common`, ...) compile once instead of once per
 //! file (docs/benchmarks.md, "CI time with one integration-test binary"). A test runs as
 //! `cargo test --release --test integration MODULE::NAME`. `docs_match_code` checks that every
 //! file in `tests/` is either a module here or its own target, so none is silently left out.
