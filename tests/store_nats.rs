@@ -198,6 +198,54 @@ fn the_history_stream_keeps_at_most_max_history_rows() {
     assert_eq!(ends, [3.0, 4.0, 5.0, 6.0, 7.0], "the oldest went first");
 }
 
+/// The streams' limits follow the options at every open: a daemon restarted with fewer
+/// history rows (or another retention) changes the stream it finds, and one restarted with
+/// the same options finds it as it was (`ops::ensure` changes a stream only when its limits
+/// differ: an update racing another client's create kills Debian's nats-server 2.9).
+#[test]
+fn a_reopen_with_other_limits_changes_the_streams_and_one_with_the_same_keeps_them() {
+    if !nats_installed() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let server = NatsServer::start(dir.path());
+    let open = |rows: u64, retention_seconds: u64| {
+        NatsStore::open(&NatsOptions {
+            max_history_rows: rows,
+            retention: Duration::from_secs(retention_seconds),
+            ..options(&server.url())
+        })
+        .expect("open")
+    };
+    let ends = |s: &NatsStore| -> Vec<f64> {
+        s.latest_history_rows("g", 100)
+            .expect("rows")
+            .iter()
+            .map(|r| r.window_end)
+            .collect()
+    };
+    let s = open(5, 3600);
+    s.write(&WriteBatch {
+        identifications: (0..8).map(|i| record("g", f64::from(i), 0.0)).collect(),
+        ..Default::default()
+    })
+    .expect("write");
+    drop(s);
+    // the same options: the five rows are still there
+    let s = open(5, 3600);
+    assert_eq!(ends(&s), [3.0, 4.0, 5.0, 6.0, 7.0]);
+    drop(s);
+    // fewer rows: the stream is changed at the open and keeps the newest three
+    let s = open(3, 7200);
+    assert_eq!(ends(&s), [5.0, 6.0, 7.0]);
+    s.write(&WriteBatch {
+        identifications: vec![record("g", 8.0, 0.0)],
+        ..Default::default()
+    })
+    .expect("write");
+    assert_eq!(ends(&s), [6.0, 7.0, 8.0]);
+}
+
 /// A history message that is not a row (written by something else on the subject) is a decode
 /// error naming the message and the gate, for a range and for the newest rows alike; not a
 /// server's failure, and not a row silently dropped.

@@ -76,6 +76,19 @@ impl NatsServer {
         format!("nats://127.0.0.1:{}", self.port)
     }
 
+    /// Whether the server still runs, and its log: for the message of a test that lost its
+    /// server.
+    pub fn report(&mut self) -> String {
+        let state = match self.child.as_mut().map(|c| c.try_wait()) {
+            None => "stopped by the test".to_string(),
+            Some(Ok(None)) => "running".to_string(),
+            Some(Ok(Some(status))) => format!("exited: {status}"),
+            Some(Err(e)) => format!("state unknown: {e}"),
+        };
+        let log = std::fs::read_to_string(&self.log).unwrap_or_default();
+        format!("nats-server on port {} {state}; its log:\n{log}", self.port)
+    }
+
     /// Kills the server (its data stays in the store directory).
     pub fn stop(&mut self) {
         if let Some(mut c) = self.child.take() {

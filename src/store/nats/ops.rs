@@ -6,7 +6,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use async_nats::jetstream;
-use async_nats::jetstream::context::GetStreamErrorKind;
+use async_nats::jetstream::context::{CreateStreamErrorKind, GetStreamErrorKind};
 use async_nats::jetstream::message::PublishMessage as Publish;
 use async_nats::jetstream::stream::{
     self, DeleteMessageErrorKind, DiscardPolicy, LastRawMessageErrorKind, StorageType,
@@ -168,13 +168,71 @@ fn file_stream(
     }
 }
 
+/// How many times [`ensure`] looks again after another client created the stream first.
+const ENSURE_ATTEMPTS: usize = 3;
+
 /// Creates the stream `config` describes, or brings the existing one to it; the error names it.
+///
+/// Why not the client's `create_or_update_stream`: it sends an update first, and Debian's
+/// nats-server 2.9.10 dies (a nil pointer in `stream.updateWithAdvisory`, exit status 2) when
+/// an update reaches a stream that another client's create has registered but not yet given
+/// its store. Four daemons opening a fresh prefix at once killed the server in 2 of about 25
+/// runs of `store_nats_lease::of_two_claims_with_the_same_expected_sequence_exactly_one_wins`
+/// on a loaded machine. So the stream is looked up first and changed only when its limits
+/// differ from ours; a missing one is created, and concurrent creates are safe on the server
+/// (the same configuration is accepted again, or refused as existing or overlapping, and then
+/// looked up). An update still races a create only when two clients want different limits
+/// for a stream that does not exist yet.
 async fn ensure(js: &jetstream::Context, config: stream::Config) -> Result<(), Failure> {
     let name = config.name.clone();
-    js.create_or_update_stream(config)
-        .await
-        .map(|_| ())
-        .map_err(|e| format!("stream {name}: {e}"))
+    let named = |e: &dyn std::fmt::Display| format!("stream {name}: {e}");
+    for _ in 0..ENSURE_ATTEMPTS {
+        match js.get_stream(&name).await {
+            Ok(existing) => {
+                if same_limits(&existing.cached_info().config, &config) {
+                    return Ok(());
+                }
+                return js
+                    .update_stream(config)
+                    .await
+                    .map(|_| ())
+                    .map_err(|e| named(&e));
+            }
+            Err(e) => match e.kind() {
+                GetStreamErrorKind::JetStream(j)
+                    if j.error_code() == ErrorCode::STREAM_NOT_FOUND => {}
+                _ => return Err(named(&e)),
+            },
+        }
+        match js.create_stream(config.clone()).await {
+            Ok(_) => return Ok(()),
+            Err(e) => match e.kind() {
+                // another client created it between the lookup and the create: look again
+                CreateStreamErrorKind::JetStream(j)
+                    if j.error_code() == ErrorCode::STREAM_NAME_EXIST
+                        || j.error_code() == ErrorCode::STREAM_SUBJECT_OVERLAP => {}
+                _ => return Err(named(&e)),
+            },
+        }
+    }
+    Err(named(&format!(
+        "created by another client and not found, {ENSURE_ATTEMPTS} times"
+    )))
+}
+
+/// Whether the stream as the server describes it has the settings [`connect`] gives it. The
+/// server fills in what a configuration leaves unset, and says "no limit" as -1 where the
+/// configuration says 0, so only the settings `connect` sets are compared, each limit with 0
+/// and below read as none.
+fn same_limits(current: &stream::Config, wanted: &stream::Config) -> bool {
+    let limit = |n: i64| n.max(0);
+    current.subjects == wanted.subjects
+        && current.description == wanted.description
+        && current.storage == wanted.storage
+        && current.discard == wanted.discard
+        && current.max_age == wanted.max_age
+        && limit(current.max_messages) == limit(wanted.max_messages)
+        && limit(current.max_messages_per_subject) == limit(wanted.max_messages_per_subject)
 }
 
 /// The stream `name` as a handle for its operations; the error names it.
