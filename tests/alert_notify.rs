@@ -437,9 +437,14 @@ async fn dead_or_hanging_receiver_does_not_block_others() {
     let start = Instant::now();
     handle.notify(fired);
     handle.notify(resolved);
-    wait_until("live receiver got both batches", WAIT, || rec.count() == 2).await;
+    wait_until("live receiver got both batches", 2 * WAIT, || {
+        rec.count() == 2
+    })
+    .await;
+    // a blocked queue would wait for the hanging target's 30 s timeout; 10 s leaves a loaded
+    // machine room without hiding that
     assert!(
-        start.elapsed() < Duration::from_secs(3),
+        start.elapsed() < Duration::from_secs(10),
         "live receiver delayed: {:?}",
         start.elapsed()
     );
@@ -448,8 +453,9 @@ async fn dead_or_hanging_receiver_does_not_block_others() {
     let start = Instant::now();
     assert!(!handle.shutdown(Duration::from_millis(300)).await);
     let took = start.elapsed();
+    // at its deadline, not after the stuck targets' 30 s timeout
     assert!(
-        took >= Duration::from_millis(300) && took < Duration::from_secs(3),
+        took >= Duration::from_millis(300) && took < Duration::from_secs(10),
         "{took:?}"
     );
     assert_ends(task).await;

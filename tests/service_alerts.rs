@@ -174,7 +174,7 @@ async fn declining_gate(
 /// [`declining_gate`] whose call `slow.0` sleeps `slow.1` more.
 async fn declining_gate_with(
     dampings: usize,
-    slow_call: Option<(usize, Duration)>,
+    hold_call: Option<usize>,
 ) -> (
     axum::Router,
     Arc<gatewatch::service::state::AppState>,
@@ -182,7 +182,7 @@ async fn declining_gate_with(
 ) {
     let fake = Arc::new(Fake {
         zeta: (0..dampings).map(|i| 0.02 - 0.001 * i as f64).collect(),
-        slow_call,
+        hold_call,
         ..Fake::default()
     });
     let (app, state) = app_with(config(""), fake.clone());
@@ -225,8 +225,8 @@ async fn metrics_exposition_with_a_declining_trend_is_valid() {
 /// without data, frozen until the gate sends again).
 #[tokio::test]
 async fn a_window_finishing_after_the_gate_went_stale_predicts_nothing() {
-    // the 13th identification takes 1 s: the gate goes stale while it runs
-    let (app, state, fake) = declining_gate_with(13, Some((12, Duration::from_secs(1)))).await;
+    // the 13th identification is held until released: the gate goes stale while it runs
+    let (app, state, fake) = declining_gate_with(13, Some(12)).await;
     let crossing = "gatewatch_damping_zero_crossing_seconds{gate=\"g1\"} ";
     let exposition = || async {
         let (_, v, _) = send(&app, "GET", "/metrics", Body::empty(), None).await;
@@ -243,6 +243,7 @@ async fn a_window_finishing_after_the_gate_went_stale_predicts_nothing() {
         "{stale}"
     );
     assert!(!stale.contains(crossing), "{stale}");
+    fake.release();
     wait_until(|| state.pool().in_flight() == 0).await;
     // the window was identified (its damping is on the gauge) and predicts nothing
     let after = exposition().await;

@@ -786,19 +786,22 @@ async fn a_restored_alert_of_an_unknown_gate_that_stays_silent_expires_after_a_r
     let dir = tempfile::tempdir().expect("tempdir");
     let db = dir.path().join("gw.db");
     let cfg = || config("unknown_gate_expiry_seconds = 600\n[gates.kept]\n");
-    let with_store = |c: gatewatch::service::config::Config| {
+    let with_store = |c: gatewatch::service::config::Config, fake: Arc<Fake>| {
         let p =
             gatewatch::service::storage::Persistence::open(&db, &c.storage, c.sample_lead_bound())
                 .expect("store");
-        gatewatch::service::state::AppState::with_persistence(c, Arc::new(Fake::default()), Some(p))
-            .expect("state")
+        gatewatch::service::state::AppState::with_persistence(c, fake, Some(p)).expect("state")
     };
     // the first run: the junk gate sends a window's worth once, goes stale, and the daemon stops
     {
-        let state = with_store(cfg());
+        let fake = Arc::new(Fake::default());
+        let state = with_store(cfg(), fake.clone());
         let app = gatewatch::service::api::router(state.clone());
         let (s, _) = post_json(&app, uniform("junk", 1000.0, 100)).await;
         assert_eq!(s, StatusCode::NO_CONTENT);
+        // its window identified and its result stored before the daemon stops: the second
+        // run must not open the store while this run's worker may still write to it
+        wait_until(|| fake.calls.lock().unwrap().len() == 1 && state.pool().in_flight() == 0).await;
         state.tick(SystemTime::now() + Duration::from_secs(120));
         assert!(state
             .gate_view("junk")
@@ -810,7 +813,7 @@ async fn a_restored_alert_of_an_unknown_gate_that_stays_silent_expires_after_a_r
         assert!(p.writer.close(Duration::from_secs(10)), "flushed");
     }
     // the second run: the junk gate never sends again
-    let state = with_store(cfg());
+    let state = with_store(cfg(), Arc::new(Fake::default()));
     let start = SystemTime::now();
     const STALE: &str = "gatewatch_alert_firing{alertname=\"GateDataStale\",gate=\"junk\"} 1";
     let firing = || state.render_metrics().lines().any(|l| l == STALE);

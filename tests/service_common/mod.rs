@@ -3,7 +3,7 @@
 //! Every wait is bounded by a timeout.
 #![allow(dead_code)]
 
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
@@ -35,13 +35,26 @@ pub struct Call {
 pub struct Fake {
     pub zeta: Vec<f64>,
     pub sleep: Duration,
-    /// Call number `n` (from 0) sleeps this long on top of `sleep`: one job held in flight.
-    pub slow_call: Option<(usize, Duration)>,
+    /// Call number `n` (from 0) waits until [`Fake::release`] (at most `HOLD_LIMIT`): one job
+    /// held in flight for as long as the test needs it, however slow the machine.
+    pub hold_call: Option<usize>,
+    pub released: AtomicBool,
     pub panic_on: Option<usize>,
     /// Every window reported untrusted (`damping.trusted = false`).
     pub untrusted: bool,
     pub calls: Mutex<Vec<Call>>,
     pub n: AtomicUsize,
+}
+
+/// How long a held call waits for [`Fake::release`] before going on by itself: a test that
+/// forgets to release (or fails first) does not hang its worker.
+pub const HOLD_LIMIT: Duration = Duration::from_secs(30);
+
+impl Fake {
+    /// Lets the held call (`hold_call`) finish.
+    pub fn release(&self) {
+        self.released.store(true, Ordering::SeqCst);
+    }
 }
 
 impl WindowAnalyzer for Fake {
@@ -61,9 +74,10 @@ impl WindowAnalyzer for Fake {
             seed,
         });
         std::thread::sleep(self.sleep);
-        if let Some((k, extra)) = self.slow_call {
-            if k == n {
-                std::thread::sleep(extra);
+        if self.hold_call == Some(n) {
+            let start = std::time::Instant::now();
+            while !self.released.load(Ordering::SeqCst) && start.elapsed() < HOLD_LIMIT {
+                std::thread::sleep(Duration::from_millis(5));
             }
         }
         if self.panic_on == Some(n) {
