@@ -224,6 +224,42 @@ fn a_reopen_with_other_limits_changes_the_streams_and_one_with_the_same_keeps_th
             .map(|r| r.window_end)
             .collect()
     };
+    use futures_util::StreamExt;
+    // the server's advisories of changed streams, read by a client of our own
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .expect("runtime");
+    // the client's tasks live on this runtime, and so does its drop at the end
+    let _context = rt.enter();
+    let mut updated = rt.block_on(async {
+        let client = async_nats::connect(server.url()).await.expect("connect");
+        let sub = client
+            .subscribe("$JS.EVENT.ADVISORY.STREAM.UPDATED.>")
+            .await
+            .expect("subscribe");
+        client.flush().await.expect("flush");
+        (client, sub)
+    });
+    // the streams changed since the last call, by name (waiting 500 ms for stragglers)
+    let mut changed = || -> Vec<String> {
+        rt.block_on(async {
+            let mut names = Vec::new();
+            while let Ok(Some(m)) =
+                tokio::time::timeout(Duration::from_millis(500), updated.1.next()).await
+            {
+                names.push(
+                    m.subject
+                        .as_str()
+                        .rsplit('.')
+                        .next()
+                        .unwrap_or("")
+                        .to_string(),
+                );
+            }
+            names
+        })
+    };
     let s = open(5, 3600);
     s.write(&WriteBatch {
         identifications: (0..8).map(|i| record("g", f64::from(i), 0.0)).collect(),
@@ -231,12 +267,15 @@ fn a_reopen_with_other_limits_changes_the_streams_and_one_with_the_same_keeps_th
     })
     .expect("write");
     drop(s);
-    // the same options: the five rows are still there
+    assert_eq!(changed(), Vec::<String>::new(), "created, not changed");
+    // the same options: nothing is changed, and the five rows are still there
     let s = open(5, 3600);
+    assert_eq!(changed(), Vec::<String>::new(), "the same limits");
     assert_eq!(ends(&s), [3.0, 4.0, 5.0, 6.0, 7.0]);
     drop(s);
-    // fewer rows: the stream is changed at the open and keeps the newest three
+    // fewer rows: the history stream is changed at the open and keeps the newest three
     let s = open(3, 7200);
+    assert_eq!(changed(), ["GATEWATCH_HISTORY"]);
     assert_eq!(ends(&s), [5.0, 6.0, 7.0]);
     s.write(&WriteBatch {
         identifications: vec![record("g", 8.0, 0.0)],
