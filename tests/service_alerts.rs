@@ -171,7 +171,7 @@ async fn declining_gate(
     declining_gate_with(dampings, None).await
 }
 
-/// [`declining_gate`] whose call `slow.0` sleeps `slow.1` more.
+/// [`declining_gate`] whose call number `hold_call` (from 0) is held until `Fake::release`.
 async fn declining_gate_with(
     dampings: usize,
     hold_call: Option<usize>,

@@ -204,6 +204,7 @@ fn the_history_stream_keeps_at_most_max_history_rows() {
 /// differ: an update racing another client's create kills Debian's nats-server 2.9).
 #[test]
 fn a_reopen_with_other_limits_changes_the_streams_and_one_with_the_same_keeps_them() {
+    use futures_util::StreamExt;
     if !nats_installed() {
         return;
     }
@@ -224,7 +225,6 @@ fn a_reopen_with_other_limits_changes_the_streams_and_one_with_the_same_keeps_th
             .map(|r| r.window_end)
             .collect()
     };
-    use futures_util::StreamExt;
     // the server's advisories of changed streams, read by a client of our own
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()

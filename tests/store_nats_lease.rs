@@ -223,8 +223,8 @@ fn an_owner_renews_its_lease_and_one_whose_lease_is_taken_writes_nothing_more() 
     let dir = tempfile::tempdir().expect("tempdir");
     let server = NatsServer::start(dir.path());
     let url = server.url();
-    // 2 s, renewed several times within it: a renewal held up by a loaded machine for a few hundred
-    // milliseconds must not read as a lost lease here
+    // 2 s, renewed three times within it: a renewal held up for a few hundred milliseconds
+    // by a loaded machine must not read as a lost lease here
     let ttl = Duration::from_secs(2);
     let owner = NatsStore::open(&options(&url, "KEEP", Some(ttl))).expect("owner");
     let (seq0, first) = owner.owner_lease().expect("read").expect("a lease");

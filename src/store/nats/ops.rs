@@ -176,9 +176,10 @@ const ENSURE_ATTEMPTS: usize = 3;
 /// Why not the client's `create_or_update_stream`: it sends an update first, and Debian's
 /// nats-server 2.9.10 dies (a nil pointer in `stream.updateWithAdvisory`, exit status 2) when
 /// an update reaches a stream that another client's create has registered but not yet given
-/// its store. Four daemons opening a fresh prefix at once killed the server in 2 of about 25
-/// runs of `store_nats_lease::of_two_claims_with_the_same_expected_sequence_exactly_one_wins`
-/// on a loaded machine. So the stream is looked up first and changed only when its limits
+/// its store. Four daemons opening a fresh prefix at once killed the server in 3 of 60 runs
+/// of `store_nats_lease::of_two_claims_with_the_same_expected_sequence_exactly_one_wins` (four
+/// rounds each) on a loaded machine, and in none of 120 with this order (docs/benchmarks.md,
+/// stop 65). So the stream is looked up first and changed only when its limits
 /// differ from ours; a missing one is created, and concurrent creates are safe on the server
 /// (the same configuration is accepted again, or refused as existing or overlapping, and then
 /// looked up). An update still races a create only when two clients want different limits
