@@ -1,0 +1,173 @@
+"""Replays `GateDampingDeclining` over the windows of `gatewatch bench warning --trace`, with the
+shipped trend fit or a variant of its confident crossing, to try a rule on recorded streams
+without re-streaming them.
+
+The fit is a transcription of `analysis::trend::fit` (IRLS with Huber weights on the windows'
+interval-derived sds, the scale `max(0.5, chi2 / (n - 2))`, the AR(1) overlap factor, Student's
+t on `n / overlap - 2`), the alert's readings and streaks those of
+`alert::engine::trend_alert` with the defaults (horizon 600 s, minimum span 240 s, lead 600 s,
+two windows to fire and to resolve). The trace prints zeta0 to 0.01 points, so the replay's
+slope matches the traced one to about 1e-4 points a minute; `base` must reproduce the traced
+first firings (it prints both).
+
+Variants of the confident crossing (`--variants`, comma-separated):
+- `base`: the shipped one, the line's level at the slope's one-sided 95 % bound;
+- `band`: the first time the line's one-sided 95 % upper confidence band (the level's error,
+  the slope's and their covariance) falls below `fire_below`.
+
+    python3 -m venv /tmp/venv && /tmp/venv/bin/pip install numpy scipy
+    target/release/gatewatch bench warning --seeds 20 --gates lab,lock --scenarios slow-drift --trace 2> sd.trace
+    /tmp/venv/bin/python benches/python/trend_replay.py sd.trace --variants base,band
+
+docs/benchmarks.md, "The confident crossing from the line's band (stop 66)".
+"""
+import argparse
+import math
+import re
+
+import numpy as np
+from scipy.stats import t as student
+
+Z95_TWO_SIDED = 1.959963984540054
+HUBER_K = 1.345
+
+HEADER = re.compile(r"\[\d+/\d+\] (\S+) on (\w+) gate, seed (\d+)")
+WINDOW = re.compile(
+    r"^t\s+([\d.]+)\s+true ([+-][\d.]+) %\s+zeta0 "
+    r"(?:Some\(([-\d.]+)\) Some\(\(([-\d.]+), ([-\d.]+)\)\) Some\(\"(\w+)\"\)|None \S+ \S+) "
+    r"trusted (\w+).*?firing \[([^\]]*)\]"
+)
+
+
+def read_trace(path):
+    """The runs of a `--trace` output: scenario, gate, seed and their windows."""
+    runs, run = [], None
+    with open(path, encoding="utf-8") as f:
+        for number, line in enumerate(f, 1):
+            h = HEADER.search(line)
+            if h:
+                run = {"scenario": h.group(1), "gate": h.group(2), "seed": int(h.group(3)), "windows": []}
+                runs.append(run)
+                continue
+            if not line.startswith("t "):
+                continue
+            m = WINDOW.search(line)
+            if m is None or run is None:
+                raise SystemExit(f"{path}:{number}: not a window line of `bench warning --trace`")
+            num = lambda g: float(m.group(g)) if m.group(g) is not None else None
+            run["windows"].append({
+                "t": num(1), "true": num(2), "zeta0": num(3), "low": num(4), "high": num(5),
+                "trusted": m.group(7) == "true", "firing": m.group(8),
+            })
+    return runs
+
+
+def huber(r):
+    a = np.abs(r)
+    return np.where(a <= HUBER_K, 1.0, HUBER_K / np.maximum(a, 1e-300))
+
+
+def fit(t, z, low, high, threshold=0.0, variant="base"):
+    """The trend at the newest point, in the trace's unit (percent); None as in the daemon."""
+    n = len(t)
+    if n < 6 or t[-1] <= t[0]:
+        return None
+    raw = np.maximum((high - low) / (2 * Z95_TWO_SIDED), 0.01)  # MIN_SD, 0.01 points
+    sd = np.maximum(raw, 0.5 * np.sort(raw)[(n - 1) // 2])
+    x = t - t[-1]
+    level = slope = 0.0
+    for it in range(10):
+        w = (np.ones(n) if it == 0 else huber((z - level - slope * x) / sd)) / sd**2
+        s0, s1, s2 = w.sum(), (w * x).sum(), (w * x * x).sum()
+        sy, sxy = (w * z).sum(), (w * x * z).sum()
+        det = s0 * s2 - s1 * s1
+        if not det > 0:
+            return None
+        slope = (s0 * sxy - s1 * sy) / det
+        level = (sy - s1 * slope) / s0
+    r = (z - level - slope * x) / sd
+    scale = max((huber(r) * r * r).sum() / (n - 2), 0.5)
+    c0, c1 = (r * r).sum(), (r[1:] * r[:-1]).sum()
+    rho = min(max(c1 / c0, 0.0), 0.9) if c0 > 1e-6 * n else 0.0
+    overlap = (1 + rho) / (1 - rho)
+    k = scale * overlap / det
+    var_slope, var_level, cov = s0 * k, s2 * k, -s1 * k
+    q = student.ppf(0.95, max(round(max(n / overlap - 2.0, 1.0)), 1))
+    upper = slope + q * math.sqrt(var_slope)
+
+    def crossing(s):
+        if s >= 0:
+            return None
+        return 0.0 if level <= threshold else (level - threshold) / -s
+
+    if upper >= 0:
+        confident = None
+    elif variant == "band":
+        # The band's upper edge, level + slope T + q sqrt(var_level + 2 T cov + T^2 var_slope),
+        # is convex in T and falls without bound when `upper` < 0: one crossing, the larger
+        # root of the squared equation.
+        d = level - threshold
+        if d + q * math.sqrt(var_level) <= 0:
+            confident = 0.0
+        else:
+            a = slope * slope - q * q * var_slope
+            b = slope * d - q * q * cov
+            c = d * d - q * q * var_level
+            confident = max((-b + math.sqrt(max(b * b - a * c, 0.0))) / a, 0.0)
+    else:
+        confident = crossing(upper)
+    return {"span": t[-1] - t[0], "expected": crossing(slope), "confident": confident}
+
+
+def replay(windows, variant, horizon=600.0, min_span=240.0, lead=600.0, for_windows=2, resolve_windows=2):
+    """The first firing times of `GateDampingDeclining` over one run's windows."""
+    points, fired = [], []
+    streak = calm = 0
+    firing = False
+    for w in windows:
+        if w["trusted"] and w["zeta0"] is not None and w["low"] is not None:
+            points.append((w["t"], w["zeta0"], w["low"], w["high"]))
+            while w["t"] - points[0][0] > horizon:
+                points.pop(0)
+        reading = "unknown"
+        if w["trusted"] and len(points) >= 6:
+            a = np.array(points)
+            e = fit(a[:, 0], a[:, 1], a[:, 2], a[:, 3], variant=variant)
+            if e is not None and e["span"] >= min_span:
+                if e["confident"] is not None and e["confident"] <= lead:
+                    reading = "predicts"
+                elif e["expected"] is not None and e["expected"] <= lead:
+                    reading = "holds"
+                else:
+                    reading = "calm"
+        if firing:
+            calm = calm + 1 if reading == "calm" else 0
+            if calm >= resolve_windows:
+                firing = False
+        elif reading == "predicts":
+            streak += 1
+            if streak >= for_windows:
+                firing, calm, streak = True, 0, 0
+                fired.append(w["t"])
+        else:
+            streak = 0
+    return fired
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("trace", help="stderr of `gatewatch bench warning --trace`")
+    p.add_argument("--variants", default="base,band")
+    args = p.parse_args()
+    for run in read_trace(args.trace):
+        ws = run["windows"]
+        traced = [w["t"] for i, w in enumerate(ws)
+                  if "GateDampingDeclining" in w["firing"]
+                  and (i == 0 or "GateDampingDeclining" not in ws[i - 1]["firing"])]
+        zero = next((w["t"] for w in ws if w["true"] <= 0), None)
+        cols = "  ".join(f"{v} {replay(ws, v)}" for v in args.variants.split(","))
+        print(f"{run['scenario']} {run['gate']} seed {run['seed']}: true zero at {zero}, traced {traced}  {cols}")
+
+
+if __name__ == "__main__":
+    main()
