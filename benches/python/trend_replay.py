@@ -42,7 +42,11 @@ WINDOW = re.compile(
 def read_trace(path):
     """The runs of a `--trace` output: scenario, gate, seed and their windows."""
     runs, run = [], None
-    with open(path, encoding="utf-8") as f:
+    try:
+        f = open(path, encoding="utf-8")
+    except OSError as e:
+        raise SystemExit(f"{path}: cannot read the trace: {e.strerror}") from None
+    with f:
         for number, line in enumerate(f, 1):
             h = HEADER.search(line)
             if h:
