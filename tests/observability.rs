@@ -406,7 +406,7 @@ fn an_invalid_rust_log_is_a_warning_naming_it_and_log_level_is_used() {
         .output()
         .unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
-    assert!(status.success(), "{err}");
+    assert!(out.status.success(), "{err}");
     assert!(
         err.lines()
             .any(|l| l.contains("RUST_LOG is invalid") && l.contains("rust_log=inof")),

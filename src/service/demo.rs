@@ -12,6 +12,7 @@ use std::net::{Ipv4Addr, SocketAddr};
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
+use anyhow::Context;
 use axum::extract::State;
 use axum::http::StatusCode;
 use axum::Json;
@@ -254,12 +255,15 @@ pub async fn run_demo(
     });
     config.notify.external_url = format!("http://{daemon_addr}");
     config.notify.initial_backoff_ms = 100;
-    // a fresh temporary store: the demo must not resume an earlier demo's alerts
-    let db = std::env::temp_dir().join(format!("gatewatch-demo-{}.db", std::process::id()));
-    for suffix in ["", "-wal", "-shm"] {
-        let _ = std::fs::remove_file(format!("{}{suffix}", db.display()));
-    }
-    config.storage.path = db.display().to_string();
+    // A fresh temporary store: the demo must not resume an earlier demo's alerts. It lives in
+    // a directory of its own, removed with everything in it (the database, its `-wal`, `-shm`
+    // and `.lock` files) when `store_dir` drops: at the end, on Ctrl-C, or on an error. Until
+    // stop 67 the files were left in the temporary directory, four more with every run.
+    let store_dir = tempfile::Builder::new()
+        .prefix("gatewatch-demo-")
+        .tempdir()
+        .context("creating the demo's temporary store directory")?;
+    config.storage.path = store_dir.path().join("demo.db").display().to_string();
     // The demo streams `--speed` times faster than real time: its sample times run ahead of the
     // daemon's clock by design, so the bounds on sample times (issue 12) do not apply to it.
     config.defaults.max_future_seconds = 0.0;
@@ -438,6 +442,11 @@ pub async fn run_demo(
         }
     }
     hook_task.abort();
+    // the daemon has stopped (or was given up on): its store goes
+    let store_path = store_dir.path().display().to_string();
+    if let Err(e) = store_dir.close() {
+        errln!("gatewatch demo: cannot remove its temporary store {store_path}: {e}");
+    }
 
     out.line(format_args!(""));
     out.line(format_args!(
