@@ -1858,8 +1858,8 @@ fn malformed_configs_fail_check_config_and_serve_alike_naming_key_and_line() {
 }
 
 #[test]
-fn a_config_check_config_passes_starts_serve() {
-    // the counterpart: the shipped example passes both
+fn the_shipped_config_passes_check_config() {
+    // the counterpart of the refusals above (tests/deploy.rs serves with it)
     let file = Path::new(env!("CARGO_MANIFEST_DIR")).join("config/gatewatch.toml");
     let (code, err) = run(&["check-config"], &file);
     assert_eq!(code, Some(0), "{err}");

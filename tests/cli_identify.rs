@@ -892,7 +892,6 @@ fn seven_samples_are_enough_for_a_half_split() {
 
 /// Engine bug (src/identify/split.rs, `split`, the `needed` computation): the "needs at least N"
 /// figure ignores that the training count is rounded, and overflows for tiny fractions.
-/// Run with `cargo test --test integration cli_identify:: -- --ignored`.
 #[test]
 fn too_few_samples_message_gives_the_true_minimum() {
     let d = Dir::new();

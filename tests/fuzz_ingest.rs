@@ -248,6 +248,7 @@ proptest! {
         let body = serde_json::json!({"gate": "g1", "start": start, "rate_hz": rate, "values": values});
         let b = json::parse(body.to_string().as_bytes()).unwrap();
         prop_assert_eq!(b.len(), 1);
+        prop_assert_eq!(b[0].samples.len(), values.len());
         // serde_json without its `float_roundtrip` feature may be one ULP off (a known
         // trade-off of its fast float parser); anything more is a bug
         for (got, want) in b[0].samples.iter().map(|s| s.1).zip(&values) {
@@ -260,7 +261,12 @@ proptest! {
         let pairs: Vec<(f64, f64)> = b[0].samples.clone();
         let body = serde_json::json!({"gate": "g1", "samples": pairs});
         let b2 = json::parse(body.to_string().as_bytes()).unwrap();
+        prop_assert_eq!(b2.len(), 1);
         prop_assert_eq!(b2[0].samples.len(), pairs.len());
+        for (got, want) in b2[0].samples.iter().zip(&pairs) {
+            prop_assert!(ulps_apart(got.0, want.0) <= 2, "t {} vs {}", got.0, want.0);
+            prop_assert!(ulps_apart(got.1, want.1) <= 2, "value {} vs {}", got.1, want.1);
+        }
     }
 }
 

@@ -76,7 +76,7 @@ async fn slow_workers_replace_pending_jobs_instead_of_queueing() {
 }
 
 #[tokio::test]
-async fn queue_bound_and_one_in_flight_per_gate() {
+async fn the_queue_is_bounded() {
     let fake = Arc::new(Fake {
         sleep: Duration::from_millis(100),
         ..Default::default()
@@ -100,6 +100,42 @@ async fn queue_bound_and_one_in_flight_per_gate() {
     }
     assert!(full >= 1);
     pool.shutdown(Duration::from_secs(5)).await;
+}
+
+/// A gate's next window waits for its window in flight, even with a worker free: two windows of
+/// one gate analysed at once would race for its tracking memory and could report out of order.
+/// (Until stop 67 the test above claimed this in its name, but it submits one job per gate.)
+#[tokio::test]
+async fn a_gates_next_window_waits_for_the_one_in_flight() {
+    let fake = Arc::new(Fake {
+        hold_call: Some(0),
+        ..Default::default()
+    });
+    let pool = WorkerPool::start(2, 8, fake.clone(), Arc::new(|_: &Job, _, _| {})).unwrap();
+    let calls = || fake.calls.lock().unwrap().clone();
+    assert_eq!(pool.submit(small_job("a", 0)), Submitted::Queued);
+    wait_until(|| calls().len() == 1 && pool.in_flight() == 1).await;
+    // a's next window is queued; the free worker takes b's window instead
+    assert_eq!(pool.submit(small_job("a", 1)), Submitted::Queued);
+    assert_eq!(pool.submit(small_job("b", 2)), Submitted::Queued);
+    wait_until(|| calls().len() == 2).await;
+    assert_eq!(calls()[1].gate, "b", "{:?}", calls()[1].t0);
+    wait_until(|| pool.in_flight() == 1).await; // b's done, a's first still held
+                                                // a worker is free and a's second window is queued: give it time to start, wrongly
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    assert_eq!(
+        calls().len(),
+        2,
+        "a's second window started beside its first"
+    );
+    assert_eq!(pool.in_flight(), 1);
+    assert_eq!(pool.pending(), 1);
+    fake.release();
+    wait_until(|| calls().len() == 3 && pool.in_flight() == 0).await;
+    let third = &calls()[2];
+    assert_eq!((third.gate.as_str(), third.t0), ("a", 1.0));
+    let (abandoned, clean) = pool.shutdown(Duration::from_secs(5)).await;
+    assert_eq!((abandoned, clean), (0, true));
 }
 
 #[tokio::test]

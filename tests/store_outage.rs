@@ -261,7 +261,16 @@ async fn outage_during_onset_and_recovery(after_resolve: Duration) {
         "the same alert"
     );
     assert_eq!(firing["startsAt"], resolved["startsAt"], "the same episode");
-    assert!(resolved["endsAt"].is_string(), "{resolved}");
+    // a firing alert's `endsAt` is a string too (Go's zero time): the resolved one ends after
+    // it started (RFC 3339 in UTC, which orders as text)
+    let (starts, ends) = (
+        resolved["startsAt"].as_str().unwrap(),
+        resolved["endsAt"].as_str().unwrap(),
+    );
+    assert!(
+        ends != "0001-01-01T00:00:00Z" && ends > starts,
+        "{resolved}"
+    );
     // acknowledged: the outbox empties
     let empty = tokio::time::timeout(WINDOW_TIMEOUT, async {
         while !outbox(&d.db).is_empty() {
