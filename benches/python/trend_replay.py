@@ -6,20 +6,30 @@ The fit is a transcription of `analysis::trend::fit` (IRLS with Huber weights on
 interval-derived sds, the scale `max(0.5, chi2 / (n - 2))`, the AR(1) overlap factor, Student's
 t on `n / overlap - 2`), the alert's readings and streaks those of
 `alert::engine::trend_alert` with the defaults (horizon 600 s, minimum span 240 s, lead 600 s,
-two windows to fire and to resolve). The trace prints zeta0 to 0.01 points, so the replay's
-slope matches the traced one to about 1e-4 points a minute; `base` must reproduce the traced
-first firings (it prints both).
+two windows to fire and to resolve; the confident crossing within the lead and the trend's
+span). The trace prints zeta0 to 0.01 points, so the replay's slope matches the traced one to
+about 1e-4 points a minute; `base` must reproduce the traced first firings (it prints both; on
+a trace recorded before stop 67, `lead` must).
 
-Variants of the confident crossing (`--variants`, comma-separated):
-- `base`: the shipped one, the line's level at the slope's one-sided 95 % bound;
-- `band`: the first time the line's one-sided 95 % upper confidence band (the level's error,
-  the slope's and their covariance) falls below `fire_below`.
+Variants (`--variants`, comma-separated; each a `+`-joined set of changes to the shipped rule,
+`base` for none):
+- `lead`: the rule before stop 67, a confident crossing within the lead whatever the trend's
+  span (shipped: within the lead and within the span, no further ahead than the trend reaches
+  back; stop 66's figures are `lead` and `lead+band`);
+- `band`: the confident crossing is the first time the line's one-sided 95 % upper confidence
+  band (the level's error, the slope's and their covariance) falls below `fire_below`, not the
+  level extrapolated at the slope's bound;
+- `young`, `taper`: session 45's small-sample correction of the residuals' lag-1
+  autocorrelation, `r + (1 + 7.5 r) / n`, applied while the trend spans under 0.9 of its horizon
+  (`young`), or in full up to half the horizon and less and less until it is full (`taper`).
+`--min-span` sets `trend_min_span_seconds` (240).
 
     python3 -m venv /tmp/venv && /tmp/venv/bin/pip install numpy scipy
     target/release/gatewatch bench warning --seeds 20 --gates lab,lock --scenarios slow-drift --trace 2> sd.trace
-    /tmp/venv/bin/python benches/python/trend_replay.py sd.trace --variants base,band
+    /tmp/venv/bin/python benches/python/trend_replay.py sd.trace --variants base,lead,lead+band
 
-docs/benchmarks.md, "The confident crossing from the line's band (stop 66)".
+docs/benchmarks.md, "The confident crossing from the line's band (stop 66)" and "No further
+ahead than the trend reaches back (stop 67)".
 """
 import argparse
 import math
@@ -71,7 +81,7 @@ def huber(r):
     return np.where(a <= HUBER_K, 1.0, HUBER_K / np.maximum(a, 1e-300))
 
 
-def fit(t, z, low, high, threshold=0.0, variant="base"):
+def fit(t, z, low, high, flags, span_share, threshold=0.0):
     """The trend at the newest point, in the trace's unit (percent); None as in the daemon."""
     n = len(t)
     if n < 6 or t[-1] <= t[0]:
@@ -93,6 +103,14 @@ def fit(t, z, low, high, threshold=0.0, variant="base"):
     scale = max((huber(r) * r * r).sum() / (n - 2), 0.5)
     c0, c1 = (r * r).sum(), (r[1:] * r[:-1]).sum()
     rho = min(max(c1 / c0, 0.0), 0.9) if c0 > 1e-6 * n else 0.0
+    if "young" in flags or "taper" in flags:
+        # session 45's small-sample correction of the lag-1 estimate while the horizon fills
+        # (`span_share`: the points' span over the horizon)
+        if "young" in flags:
+            share = 1.0 if span_share < 0.9 else 0.0
+        else:
+            share = min(max(2.0 * (1.0 - span_share), 0.0), 1.0)
+        rho = min(rho + share * (1 + 7.5 * rho) / n, 0.9)
     overlap = (1 + rho) / (1 - rho)
     k = scale * overlap / det
     var_slope, var_level, cov = s0 * k, s2 * k, -s1 * k
@@ -106,7 +124,7 @@ def fit(t, z, low, high, threshold=0.0, variant="base"):
 
     if upper >= 0:
         confident = None
-    elif variant == "band":
+    elif "band" in flags:
         # The band's upper edge, level + slope T + q sqrt(var_level + 2 T cov + T^2 var_slope),
         # is convex in T and falls without bound when `upper` < 0: one crossing, the larger
         # root of the squared equation.
@@ -123,8 +141,12 @@ def fit(t, z, low, high, threshold=0.0, variant="base"):
     return {"span": t[-1] - t[0], "expected": crossing(slope), "confident": confident}
 
 
-def replay(windows, variant, horizon=600.0, min_span=240.0, lead=600.0, for_windows=2, resolve_windows=2):
+def replay(windows, variant, min_span=240.0, horizon=600.0, lead=600.0, for_windows=2, resolve_windows=2):
     """The first firing times of `GateDampingDeclining` over one run's windows."""
+    flags = set(variant.split("+")) - {"base"}
+    unknown = flags - {"lead", "band", "young", "taper"}
+    if unknown:
+        raise SystemExit(f"unknown variant {', '.join(sorted(unknown))} in {variant!r}")
     points, fired = [], []
     streak = calm = 0
     firing = False
@@ -136,9 +158,10 @@ def replay(windows, variant, horizon=600.0, min_span=240.0, lead=600.0, for_wind
         reading = "unknown"
         if w["trusted"] and len(points) >= 6:
             a = np.array(points)
-            e = fit(a[:, 0], a[:, 1], a[:, 2], a[:, 3], variant=variant)
+            e = fit(a[:, 0], a[:, 1], a[:, 2], a[:, 3], flags, (a[-1, 0] - a[0, 0]) / horizon)
             if e is not None and e["span"] >= min_span:
-                if e["confident"] is not None and e["confident"] <= lead:
+                reach = lead if "lead" in flags else min(lead, e["span"])
+                if e["confident"] is not None and e["confident"] <= reach:
                     reading = "predicts"
                 elif e["expected"] is not None and e["expected"] <= lead:
                     reading = "holds"
@@ -161,7 +184,8 @@ def replay(windows, variant, horizon=600.0, min_span=240.0, lead=600.0, for_wind
 def main():
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("trace", help="stderr of `gatewatch bench warning --trace`")
-    p.add_argument("--variants", default="base,band")
+    p.add_argument("--variants", default="base,lead")
+    p.add_argument("--min-span", type=float, default=240.0, help="trend_min_span_seconds")
     args = p.parse_args()
     for run in read_trace(args.trace):
         ws = run["windows"]
@@ -169,7 +193,7 @@ def main():
                   if "GateDampingDeclining" in w["firing"]
                   and (i == 0 or "GateDampingDeclining" not in ws[i - 1]["firing"])]
         zero = next((w["t"] for w in ws if w["true"] <= 0), None)
-        cols = "  ".join(f"{v} {replay(ws, v)}" for v in args.variants.split(","))
+        cols = "  ".join(f"{v} {replay(ws, v, args.min_span)}" for v in args.variants.split(","))
         print(f"{run['scenario']} {run['gate']} seed {run['seed']}: true zero at {zero}, traced {traced}  {cols}")
 
 

@@ -501,7 +501,8 @@ fn rule_lines(rules: &crate::alert::AlertRules) -> [String; 2] {
         ),
         format!(
             "warning:    GateDampingDeclining fires when the trend of zeta0 predicts the crossing \
-             of {below} within {:.0} min (95 % confidence), once its windows span {:.0} s",
+             of {below} within {:.0} min and within the span of its windows (95 % confidence), \
+             once they span {:.0} s",
             rules.warn_lead_seconds / 60.0,
             rules.trend_min_span_seconds
         ),
@@ -525,7 +526,8 @@ mod rule_tests {
         assert_eq!(
             declining,
             "warning:    GateDampingDeclining fires when the trend of zeta0 predicts the \
-             crossing of 0.0 % within 10 min (95 % confidence), once its windows span 240 s"
+             crossing of 0.0 % within 10 min and within the span of its windows (95 % \
+             confidence), once they span 240 s"
         );
         let other = AlertRules {
             fire_probability: Some(0.9),

@@ -72,7 +72,9 @@ pub struct AlertRules {
     /// start waits four minutes").
     pub trend_min_span_seconds: f64,
     /// `GateDampingDeclining` fires when the trend predicts, with 95 % confidence (one-sided,
-    /// on the slope), that `zeta0` crosses `fire_below` within this many seconds (default 600).
+    /// on the slope), that `zeta0` crosses `fire_below` within this many seconds (default 600),
+    /// and no further ahead than the trend's span (a trend of four minutes predicts at most four
+    /// minutes ahead; docs/alerts.md, "No further ahead than the trend reaches back").
     pub warn_lead_seconds: f64,
     /// Consecutive trusted windows predicting the crossing before `GateDampingDeclining` fires
     /// (default 2; 0 acts as 1).

@@ -2,7 +2,8 @@
 //!
 //! A window "predicts the crossing" when it is trusted, its gate's trend spans at least
 //! `trend_min_span_seconds`, and the trend's confident crossing time (at the slope's one-sided
-//! 95 % upper bound) is within `warn_lead_seconds`. `warn_for_windows` such windows in a row fire
+//! 95 % upper bound) is within `warn_lead_seconds` and within the trend's own span (a line is
+//! not extrapolated further than its record reaches back). `warn_for_windows` such windows in a row fire
 //! the warning; `warn_resolve_windows` trusted windows in a row whose trend no longer predicts it
 //! (the slope flattened or turned, or the gate recovered far enough that the crossing is beyond
 //! the lead) resolve it. An untrusted window, or one without a trend, is no evidence either way:
@@ -19,7 +20,8 @@ use crate::analysis::TrendEstimate;
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum Reading {
     Unknown,
-    /// The confident crossing (at the slope's 95 % bound) lies within the lead.
+    /// The confident crossing (at the slope's 95 % bound) lies within the lead and within the
+    /// trend's span.
     Predicts,
     /// Not confidently, but the fitted slope still crosses within the lead: holds a firing
     /// warning (calm for one that is not firing).
@@ -35,7 +37,10 @@ fn classify(obs: &Observation, rules: &AlertRules) -> Reading {
     if trend.span_seconds < rules.trend_min_span_seconds {
         return Reading::Unknown;
     }
-    if trend.crosses_within(rules.warn_lead_seconds) {
+    // A line is not extrapolated further ahead than the record it was fitted on reaches back:
+    // a trend spanning four minutes predicts at most four minutes ahead, whatever the lead
+    // (docs/alerts.md, "No further ahead than the trend reaches back").
+    if trend.crosses_within(rules.warn_lead_seconds.min(trend.span_seconds)) {
         Reading::Predicts
     } else if trend
         .crossing_seconds
