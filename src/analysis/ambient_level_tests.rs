@@ -64,9 +64,13 @@ fn the_level_is_the_median_of_the_last_noise_driven_windows() {
     model.zeta0_source = Some(Zeta0Source::Model);
     let mut growing = ambient_window(50.0);
     growing.regime = Some(Regime::SelfExcited);
+    // (the buffer itself is compared: three windows at 50 among twelve at 2 would leave the
+    // median at 2 even if they had entered)
+    let before = level.recent.clone();
     for mut d in [untrusted, model, growing, limit_cycle_window(50.0)] {
         level.observe(&mut d);
         assert_eq!(d.ambient_ratio, Some(25.0));
+        assert_eq!(level.recent, before);
     }
     assert_eq!(level.level(), Some(2.0));
 }

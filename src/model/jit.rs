@@ -611,6 +611,11 @@ mod tests {
 
     #[test]
     fn jit_matches_the_interpreter_bit_for_bit() {
+        if !super::super::jit_enabled() {
+            // both sides would be the interpreter: say so rather than pass on nothing
+            eprintln!("skipped: machine code is off here (GATEWATCH_JIT or the platform)");
+            return;
+        }
         let mut rng = ChaCha8Rng::seed_from_u64(7);
         for (m, plain) in models() {
             let eq = m.equation();

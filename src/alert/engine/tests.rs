@@ -524,7 +524,6 @@ fn fingerprints_stable_and_distinct() {
         .all(|c| c.is_ascii_hexdigit() && !c.is_ascii_uppercase()));
     // Pinned value: FNV-1a 64 as Alertmanager computes it; must never change between releases
     // or Alertmanager would see a different alert.
-    assert_eq!(fp, fingerprint(&labels.clone()));
     let pinned = {
         let mut h: u64 = 0xcbf29ce484222325;
         for b in b"alertname\xffGateNegativeDamping\xffgate\xffg1\xffseverity\xffcritical\xff" {
