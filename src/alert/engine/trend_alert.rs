@@ -3,11 +3,12 @@
 //! A window "predicts the crossing" when it is trusted, its gate's trend spans at least
 //! `trend_min_span_seconds`, and the trend's confident crossing time (at the slope's one-sided
 //! 95 % upper bound) is within `warn_lead_seconds` and within the trend's own span (a line is
-//! not extrapolated further than its record reaches back). `warn_for_windows` such windows in a row fire
-//! the warning; `warn_resolve_windows` trusted windows in a row whose trend no longer predicts it
-//! (the slope flattened or turned, or the gate recovered far enough that the crossing is beyond
-//! the lead) resolve it. An untrusted window, or one without a trend, is no evidence either way:
-//! it breaks both streaks and leaves a firing warning firing. See `docs/alerts.md`.
+//! not extrapolated further than its record reaches back). `warn_for_windows` such windows in a
+//! row fire the warning; `warn_resolve_windows` trusted windows in a row whose trend no longer
+//! predicts it (the slope flattened or turned, or the gate recovered far enough that the
+//! crossing is beyond the lead) resolve it. An untrusted window, or one without a trend, is no
+//! evidence either way: it breaks both streaks and leaves a firing warning firing. See
+//! `docs/alerts.md`.
 
 use std::collections::BTreeMap;
 use std::time::SystemTime;
