@@ -477,25 +477,29 @@ async fn a_silent_unknown_gate_with_a_firing_damping_alert_is_held_not_expired()
     assert_eq!(list["gates"][0]["firing"], true, "{list}");
 }
 
-/// An auto-accepted gate whose damping falls by 0.1 points a window (twelve windows, the
+/// An auto-accepted gate whose damping falls by 0.1 points a window (sixteen windows, the
 /// trend acting from the first: `trend_min_span_seconds = 0`), so that `GateDampingDeclining`
-/// fires and `GateNegativeDamping` does not. Silent past the expiry it is held too: the data
-/// stopping takes away the evidence, not the decline.
+/// fires and `GateNegativeDamping` does not. (A trend predicts no further ahead than its windows
+/// reach back: from the eleventh window on here; twelve windows were enough before stop 67.)
+/// Silent past the expiry it is held too: the data stopping takes away the evidence, not the
+/// decline.
 #[tokio::test]
 async fn a_silent_unknown_gate_with_a_firing_declining_warning_is_held() {
+    const WINDOWS: usize = 16;
     let fake = Arc::new(Fake {
-        zeta: (0..12).map(|i| 0.02 - 0.001 * i as f64).collect(),
+        zeta: (0..WINDOWS).map(|i| 0.02 - 0.001 * i as f64).collect(),
         ..Fake::default()
     });
     let cfg =
         config("unknown_gate_expiry_seconds = 600\n[defaults.alert]\ntrend_min_span_seconds = 0.0");
     let (app, state) = app_with(cfg, fake.clone());
     post_json(&app, uniform("g1", 0.0, 100)).await;
-    for i in 1..12 {
+    for i in 1..WINDOWS {
         wait_until(|| fake.calls.lock().unwrap().len() >= i && state.pool().in_flight() == 0).await;
         post_json(&app, uniform("g1", 0.5 + 0.5 * i as f64, 50)).await;
     }
-    wait_until(|| fake.calls.lock().unwrap().len() >= 12 && state.pool().in_flight() == 0).await;
+    wait_until(|| fake.calls.lock().unwrap().len() >= WINDOWS && state.pool().in_flight() == 0)
+        .await;
     assert_eq!(firing_alerts(&state, "g1"), ["GateDampingDeclining"]);
     let now = SystemTime::now();
     state.tick(now + Duration::from_secs(601));
