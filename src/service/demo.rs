@@ -178,7 +178,8 @@ pub fn demo(args: DemoArgs) -> ExitCode {
             return ExitCode::FAILURE;
         }
     };
-    match rt.block_on(run_demo(args, super::shutdown::signal())) {
+    // the signals are taken over inside the runtime (`shutdown::signal` needs its reactor)
+    match rt.block_on(async { run_demo(args, super::shutdown::signal()).await }) {
         Ok(_) => ExitCode::SUCCESS,
         // `gatewatch demo | head -1`: the daemon is stopped as after Ctrl-C, then a quiet exit
         Err(e) => super::stdout::exit_code("gatewatch demo", &e),
