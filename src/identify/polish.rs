@@ -363,7 +363,16 @@ mod tests {
         let is_train: Vec<bool> = (0..series.len()).map(|i| i % 2 == 0).collect();
         let fit = Fitness::new(&problem, is_train, &Search::default())
             .with_tolerance(crate::ode::Method::Dopri5, 1e-8);
-        for (x0, budget) in [(vec![0.2, 0.1, 8.0], 60), (vec![0.0, 0.0, 10.0], 300)] {
+        // Budgets of 20 and 40 end on the patience right after an accepted step, whose
+        // residuals are then the last integrated (`end` known); 60 and 300 end on a refused
+        // trial step (`end` unknown). Both are checked below.
+        let mut ends = (0, 0);
+        for (x0, budget) in [
+            (vec![0.2, 0.1, 8.0], 20),
+            (vec![0.2, 0.1, 8.0], 60),
+            (vec![0.0, 0.0, 10.0], 40),
+            (vec![0.0, 0.0, 10.0], 300),
+        ] {
             let (want, want_spent) = plain(&fit, &x0, budget);
             let got = polish(&fit, &x0, budget);
             let bits = |x: &Option<Vec<f64>>| {
@@ -386,11 +395,19 @@ mod tests {
                 // and give the training cost bit for bit
                 let cost = fit.cost(x, f64::INFINITY, &mut fit.workspace());
                 assert_eq!(fit.cost_of_residuals(end).to_bits(), cost.to_bits());
+                ends.0 += 1;
+            } else {
+                ends.1 += 1;
             }
             let start = got.start.clone().unwrap();
             let cost0 = fit.cost(&x0, f64::INFINITY, &mut fit.workspace());
             assert_eq!(fit.cost_of_residuals(&start).to_bits(), cost0.to_bits());
         }
+        assert_eq!(
+            ends,
+            (2, 2),
+            "cases with the end's residuals known, and not"
+        );
     }
 
     #[test]

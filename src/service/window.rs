@@ -686,18 +686,135 @@ mod tests {
         }
     }
 
-    proptest::proptest! {
-        #[test]
-        fn never_exceeds_capacity_and_windows_are_full(
-            ts in proptest::collection::vec(-5.0f64..5.0, 0..400),
-        ) {
-            let mut w = Window::new(10.0, 20, 5);
-            let (_, due) = w.push(ts.iter().map(|t| (*t, 1.0)));
-            proptest::prop_assert!(w.len() <= 20);
-            for d in due {
-                proptest::prop_assert_eq!(d.values.len(), 20);
-            }
+    /// One step of a generated stream, on a grid of periods with each time jittered by up to
+    /// 0.2 of a period: the next grid point, a repeat of the last time, a straggler from up to
+    /// three periods back, or a gap of 3 to 30 periods.
+    #[derive(Debug, Clone, Copy)]
+    enum Step {
+        Next(f64),
+        Repeat,
+        Straggler(u8),
+        Gap(u8, f64),
+    }
+
+    fn step() -> impl proptest::strategy::Strategy<Value = Step> {
+        use proptest::prelude::*;
+        prop_oneof![
+            40 => (-0.2f64..0.2).prop_map(Step::Next),
+            2 => Just(Step::Repeat),
+            2 => (1u8..=3).prop_map(Step::Straggler),
+            1 => ((3u8..=30), -0.2f64..0.2).prop_map(|(k, e)| Step::Gap(k, e)),
+        ]
+    }
+
+    /// The times of `steps` at `rate` Hz; a sample's value is its index.
+    fn times(steps: &[Step], rate: f64) -> Vec<(f64, f64)> {
+        let p = 1.0 / rate;
+        let (mut grid, mut last) = (0i64, 1000.0);
+        let mut out = Vec::with_capacity(steps.len());
+        for (i, s) in steps.iter().enumerate() {
+            let t = match *s {
+                Step::Next(e) => {
+                    grid += 1;
+                    1000.0 + (grid as f64 + e) * p
+                }
+                Step::Repeat => last,
+                Step::Straggler(k) => last - k as f64 * p,
+                Step::Gap(k, e) => {
+                    grid += k as i64;
+                    1000.0 + (grid as f64 + e) * p
+                }
+            };
+            last = t;
+            out.push((t, i as f64));
         }
+        out
+    }
+
+    /// The module doc's rules, sample by sample: the accepted samples' indices, cut into the
+    /// contiguous stretches a gap or a clock jump starts.
+    fn stretches(data: &[(f64, f64)], rate: f64, capacity: usize) -> Vec<Vec<usize>> {
+        let p = 1.0 / rate;
+        let mut out: Vec<Vec<usize>> = Vec::new();
+        let (mut last, mut old) = (None::<f64>, 0usize);
+        for (i, &(t, _)) in data.iter().enumerate() {
+            match last.map(|l| t - l) {
+                Some(dt) if dt.abs() < 0.5 * p => continue,
+                Some(dt) if dt <= -0.5 * p && old + 1 < capacity => {
+                    old += 1;
+                    continue;
+                }
+                Some(dt) if dt <= 1.5 * p && dt > -0.5 * p => out.last_mut().unwrap().push(i),
+                _ => out.push(vec![i]),
+            }
+            old = 0;
+            last = Some(t);
+        }
+        out
+    }
+
+    /// Streams with duplicates, stragglers, gaps and jittered times (seeded, 400 cases): the
+    /// window never holds more than its capacity; the windows handed out are exactly those the
+    /// module doc's rules give (each stretch of `L` contiguous samples, `L >= capacity`, gives
+    /// `1 + (L - capacity) / every`, each the last `capacity` samples of its stretch at that
+    /// point, with the start time derived from its newest sample's); the counts add up; and
+    /// pushing the stream in two chunks gives the same windows.
+    #[test]
+    fn windows_are_the_ones_the_rules_give_through_gaps_duplicates_and_stragglers() {
+        use proptest::test_runner::{Config, RngAlgorithm, TestRng, TestRunner};
+        let (rate, capacity, every) = (10.0, 20, 5);
+        let strategy = (proptest::collection::vec(step(), 0..400), 0.0f64..1.0);
+        let mut runner = TestRunner::new_with_rng(
+            Config {
+                cases: 400,
+                failure_persistence: None,
+                ..Config::default()
+            },
+            TestRng::from_seed(RngAlgorithm::ChaCha, &[7; 32]),
+        );
+        let handed_out = std::cell::Cell::new(0usize);
+        runner
+            .run(&strategy, |(steps, cut)| {
+                use proptest::{prop_assert, prop_assert_eq};
+                let data = times(&steps, rate);
+                let mut w = Window::new(rate, capacity, every);
+                let (stats, due) = w.push(data.iter().copied());
+                prop_assert!(w.len() <= capacity);
+                prop_assert_eq!(
+                    stats.accepted + stats.duplicate + stats.out_of_order,
+                    data.len() as u64
+                );
+                // every time stays within 0.2 of a period of its grid point: never refused
+                prop_assert_eq!(stats.rate_mismatch, 0);
+                let mut want: Vec<Vec<usize>> = Vec::new();
+                for s in stretches(&data, rate, capacity) {
+                    let mut end = capacity;
+                    while end <= s.len() {
+                        want.push(s[end - capacity..end].to_vec());
+                        end += every;
+                    }
+                }
+                let got: Vec<Vec<usize>> = due
+                    .iter()
+                    .map(|d| d.values.iter().map(|v| *v as usize).collect())
+                    .collect();
+                prop_assert_eq!(&got, &want);
+                for d in &due {
+                    let newest = data[*d.values.last().unwrap() as usize].0;
+                    prop_assert!((d.t0 - (newest - (capacity - 1) as f64 / rate)).abs() < 1e-9);
+                }
+                handed_out.set(handed_out.get() + due.len());
+                // any chunking, the same windows
+                let split = (cut * data.len() as f64) as usize;
+                let mut w2 = Window::new(rate, capacity, every);
+                let mut chunked = w2.push(data[..split].iter().copied()).1;
+                chunked.extend(w2.push(data[split..].iter().copied()).1);
+                prop_assert_eq!(chunked, due);
+                Ok(())
+            })
+            .unwrap();
+        // the streams are long enough between gaps that the property is about real windows
+        assert!(handed_out.get() > 400 * 10, "{} windows", handed_out.get());
     }
 
     #[test]
