@@ -300,7 +300,9 @@ async fn readiness_and_graceful_shutdown_with_a_job_in_flight() {
 async fn shutdown_with_everything_stuck_takes_one_grace_period() {
     // A worker stuck in the numerics and an HTTP request that never completes: every drain
     // shares one deadline, so the shutdown takes one grace period (2 s), not one per drain
-    // (which took 4 s and more). The bound is generous: one grace period plus 1 s of slack.
+    // (which took 4 s and more). The bound is what tells the two apart: under two grace
+    // periods, which leaves a loaded machine 1.8 s of slack; and the stuck worker is given
+    // its grace period, not abandoned early.
     let fake = Arc::new(Fake {
         sleep: Duration::from_secs(30),
         ..Default::default()
@@ -325,8 +327,8 @@ async fn shutdown_with_everything_stuck_takes_one_grace_period() {
     stop(r).await;
     let took = began.elapsed();
     assert!(
-        took < Duration::from_secs(3),
-        "shutdown took {took:?}, more than one grace period (2 s) plus slack"
+        took >= Duration::from_millis(1_950) && took < Duration::from_millis(3_800),
+        "shutdown took {took:?}: one grace period (2 s) with everything stuck, not two"
     );
     drop(hold);
 }
