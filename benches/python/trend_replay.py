@@ -22,7 +22,7 @@ Variants (`--variants`, comma-separated; each a `+`-joined set of changes to the
 - `young`, `taper`: session 45's small-sample correction of the residuals' lag-1
   autocorrelation, `r + (1 + 7.5 r) / n`, applied while the trend spans under 0.9 of its horizon
   (`young`), or in full up to half the horizon and less and less until it is full (`taper`).
-`--min-span` sets `trend_min_span_seconds` (240).
+`--min-span` sets `trend_min_span_seconds` (300, the default since stop 68).
 
     python3 -m venv /tmp/venv && /tmp/venv/bin/pip install numpy scipy
     target/release/gatewatch bench warning --seeds 20 --gates lab,lock --scenarios slow-drift --trace 2> sd.trace
@@ -141,7 +141,7 @@ def fit(t, z, low, high, flags, span_share, threshold=0.0):
     return {"span": t[-1] - t[0], "expected": crossing(slope), "confident": confident}
 
 
-def replay(windows, variant, min_span=240.0, horizon=600.0, lead=600.0, for_windows=2, resolve_windows=2):
+def replay(windows, variant, min_span=300.0, horizon=600.0, lead=600.0, for_windows=2, resolve_windows=2):
     """The first firing times of `GateDampingDeclining` over one run's windows."""
     flags = set(variant.split("+")) - {"base"}
     unknown = flags - {"lead", "band", "young", "taper"}
@@ -185,7 +185,7 @@ def main():
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("trace", help="stderr of `gatewatch bench warning --trace`")
     p.add_argument("--variants", default="base,lead")
-    p.add_argument("--min-span", type=float, default=240.0, help="trend_min_span_seconds")
+    p.add_argument("--min-span", type=float, default=300.0, help="trend_min_span_seconds")
     args = p.parse_args()
     for run in read_trace(args.trace):
         ws = run["windows"]

@@ -106,7 +106,7 @@ pub struct BenchWarningArgs {
     #[arg(long)]
     pub resolve_probability: Option<f64>,
     /// `GateDampingDeclining`'s `trend_min_span_seconds`: the sample time the trend's windows
-    /// must span before it may warn (default: the configuration's, 240).
+    /// must span before it may warn (default: the configuration's, 300).
     #[arg(long)]
     pub trend_min_span_seconds: Option<f64>,
     /// Window length in seconds of sample time (`window_seconds`; default: the

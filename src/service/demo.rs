@@ -44,9 +44,9 @@ pub struct DemoArgs {
     /// Replay speed of the simulated gate (15: fifteen seconds of samples per second).
     #[arg(long, default_value_t = 15.0, allow_negative_numbers = true)]
     pub speed: f64,
-    /// Seconds of sample time at +2 % damping before the ramp to -2 % (240: the trend warning
-    /// acts once its windows span `trend_min_span_seconds`, 240 s by default, so a drift that
-    /// starts later is one it can warn of before zero).
+    /// Seconds of sample time at +2 % damping before the ramp to -2 % (240: a steady record
+    /// before the drift; the trend warning acts once its windows span
+    /// `trend_min_span_seconds`, 300 s by default; the ramp reaches zero at 540 s).
     #[arg(long, default_value_t = 240.0, allow_negative_numbers = true)]
     pub onset_hold: f64,
     /// Seconds of sample time of the ramp from +2 % to -2 % (600: 0.4 points a minute, a drift
@@ -528,7 +528,7 @@ mod rule_tests {
             declining,
             "warning:    GateDampingDeclining fires when the trend of zeta0 predicts the \
              crossing of 0.0 % within 10 min and within the span of its windows (95 % \
-             confidence), once they span 240 s"
+             confidence), once they span 300 s"
         );
         let other = AlertRules {
             fire_probability: Some(0.9),

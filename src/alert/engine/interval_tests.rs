@@ -629,9 +629,9 @@ fn steady_stable_gates_give_no_alert_in_a_day() {
 
 /// A new gate's first minutes: a trend over a couple of minutes of overlapping windows reads
 /// their correlation too low (the lag-1 autocorrelation of two dozen residuals is biased low)
-/// and claims more confidence than it has, so a steady gate warned by chance on 30 of these 200
-/// cold starts at the old `trend_min_span_seconds` of 120 s. The default (240 s) waits for
-/// a longer record: 9 warnings, none before it.
+/// and claims more confidence than it has, so a steady gate warns by chance on 12 of these 200
+/// cold starts at the old `trend_min_span_seconds` of 120 s (30 with the rules of session 45).
+/// A longer record warns less: 4 at 240 s, 3 at the default (300 s), none before it.
 #[test]
 fn a_cold_start_of_a_steady_gate_rarely_warns() {
     let cold_starts = |min_span: f64| {

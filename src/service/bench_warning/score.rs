@@ -314,7 +314,7 @@ pub struct EwsRule {
     /// Trailing horizon of the indicator's Kendall tau, s of sample time (the trend's, 600 s).
     pub horizon_s: f64,
     /// The rule acts once its windows span this much, s (the trend's
-    /// `trend_min_span_seconds`, 240 s, so both wait as long).
+    /// `trend_min_span_seconds`, 300 s, so both wait as long).
     pub min_span_s: f64,
     /// It "fires" while Kendall's tau of the indicator against time exceeds this (0.7, a
     /// common choice in the early-warning literature).

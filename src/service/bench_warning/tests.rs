@@ -59,7 +59,8 @@ async fn a_known_alert_time_gives_the_computed_delay() {
         gate: GatePreset::Lab,
         seed: 1,
         noise_rms: 0.0,
-        duration_s: 300.0,
+        // long enough for the trend to span `trend_min_span_seconds` (300 s) after the drop
+        duration_s: 360.0,
         trace: false,
     };
     let config = run_config(GatePreset::Lab, 1);
@@ -73,11 +74,11 @@ async fn a_known_alert_time_gives_the_computed_delay() {
     )
     .await
     .unwrap();
-    // 10 s windows every 5 s over 300 s: the first ends at 10 s, the last at 300 s
-    assert_eq!(rec.windows.len(), 59);
+    // 10 s windows every 5 s over 360 s: the first ends at 10 s, the last at 360 s
+    assert_eq!(rec.windows.len(), 71);
     let last = rec.windows.last().unwrap();
     assert!(
-        (last.end - (300.0 - 1.0 / 200.0)).abs() < 1e-6,
+        (last.end - (360.0 - 1.0 / 200.0)).abs() < 1e-6,
         "{}",
         last.end
     );
@@ -105,7 +106,8 @@ async fn a_known_alert_time_gives_the_computed_delay() {
     // the warning is read from the gate's view too (it was missing there until the view listed
     // it): the scripted drop to a negative zeta0 makes the trend cross, late in the stream (a
     // step leaves residuals a line cannot follow, which read as strongly correlated: the t
-    // quantile on the few effective windows holds the warning back until about 215 s)
+    // quantile on the few effective windows held the warning back until about 215 s; it now
+    // waits for the trend to span 300 s)
     let dec = rows.iter().find(|r| r.alert == ALERT_DECLINING).unwrap();
     let warned = dec.first_fired[0].unwrap_or_else(|| {
         for w in &rec.windows {
@@ -113,7 +115,11 @@ async fn a_known_alert_time_gives_the_computed_delay() {
         }
         panic!("GateDampingDeclining not seen in the gate's view")
     });
-    assert!(warned >= first_negative, "warned at {warned}");
+    let min_span = rules.trend_min_span_seconds;
+    assert!(
+        warned >= first_negative && warned >= min_span,
+        "warned at {warned}"
+    );
     // windows centred before 120 s are ambient at +2 %; the scripted +1 % is 1 point off
     let regimes = regime_rows(std::slice::from_ref(&rec));
     let amb = regimes
