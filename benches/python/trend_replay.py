@@ -5,7 +5,7 @@ without re-streaming them.
 The fit is a transcription of `analysis::trend::fit` (IRLS with Huber weights on the windows'
 interval-derived sds, the scale `max(0.5, chi2 / (n - 2))`, the AR(1) overlap factor, Student's
 t on `n / overlap - 2`), the alert's readings and streaks those of
-`alert::engine::trend_alert` with the defaults (horizon 600 s, minimum span 240 s, lead 600 s,
+`alert::engine::trend_alert` with the defaults (horizon 600 s, minimum span 300 s, lead 600 s,
 two windows to fire and to resolve; the confident crossing within the lead and the trend's
 span). The trace prints zeta0 to 0.01 points, so the replay's slope matches the traced one to
 about 1e-4 points a minute; `base` must reproduce the traced first firings (it prints both; on
