@@ -10,8 +10,8 @@ windows).
 
     /tmp/venv/bin/python benches/python/trace_by_age.py cold_lab.trace cold_lock.trace
 
-docs/benchmarks.md, "A cold start waits five minutes (stop 68)". Needs numpy (the trace reader
-is `trend_replay.read_trace`).
+docs/benchmarks.md, "A cold start waits five minutes (stop 68)". Needs numpy and scipy (the
+trace reader is `trend_replay.read_trace`; `trend_replay.py`'s docstring sets up the venv).
 """
 import argparse
 import os

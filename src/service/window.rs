@@ -686,15 +686,24 @@ mod tests {
         }
     }
 
-    /// One step of a generated stream, on a grid of periods with each time jittered by up to
-    /// 0.2 of a period: the next grid point, a repeat of the last time, a straggler from up to
-    /// three periods back, or a gap of 3 to 30 periods.
+    /// One step of a generated stream on a grid of periods (`on` below is the newest time
+    /// generated on the grid): the next grid point jittered by up to 0.2 of a period; a repeat
+    /// of `on`; a straggler 1 to 3 periods before it; a time just inside the duplicate line
+    /// (0.40 to 0.49 of a period either side of `on`) or just beyond the out-of-order line
+    /// (0.51 to 0.6 before it); a gap of 3 to 30 periods; a lurch (the next grid point 0.3 to
+    /// 0.45 of a period late, from 1.1 to 1.65 periods after the last: either side of the gap
+    /// line, then the one after on time); or a burst of 18 to 21 samples from 3 periods back
+    /// and older, with a repeat of `on` among them (a clock jump from the 20th on).
     #[derive(Debug, Clone, Copy)]
     enum Step {
         Next(f64),
         Repeat,
         Straggler(u8),
+        Near(f64),
+        Old(f64),
         Gap(u8, f64),
+        Lurch(f64),
+        Burst(u8, u8),
     }
 
     fn step() -> impl proptest::strategy::Strategy<Value = Step> {
@@ -703,49 +712,82 @@ mod tests {
             40 => (-0.2f64..0.2).prop_map(Step::Next),
             2 => Just(Step::Repeat),
             2 => (1u8..=3).prop_map(Step::Straggler),
+            1 => prop_oneof![-0.49f64..-0.40, 0.40f64..0.49].prop_map(Step::Near),
+            1 => (0.51f64..0.6).prop_map(Step::Old),
             1 => ((3u8..=30), -0.2f64..0.2).prop_map(|(k, e)| Step::Gap(k, e)),
+            1 => (0.3f64..0.45).prop_map(Step::Lurch),
+            1 => ((18u8..=21), (0u8..18)).prop_map(|(k, at)| Step::Burst(k, at)),
         ]
     }
 
     /// The times of `steps` at `rate` Hz; a sample's value is its index.
     fn times(steps: &[Step], rate: f64) -> Vec<(f64, f64)> {
         let p = 1.0 / rate;
-        let (mut grid, mut last) = (0i64, 1000.0);
-        let mut out = Vec::with_capacity(steps.len());
-        for (i, s) in steps.iter().enumerate() {
-            let t = match *s {
+        let at = |grid: i64, e: f64| 1000.0 + (grid as f64 + e) * p;
+        let (mut grid, mut on) = (0i64, 1000.0);
+        let mut ts = Vec::with_capacity(steps.len());
+        for s in steps {
+            match *s {
                 Step::Next(e) => {
                     grid += 1;
-                    1000.0 + (grid as f64 + e) * p
+                    on = at(grid, e);
+                    ts.push(on);
                 }
-                Step::Repeat => last,
-                Step::Straggler(k) => last - k as f64 * p,
+                Step::Repeat => ts.push(on),
+                Step::Straggler(k) => ts.push(on - f64::from(k) * p),
+                Step::Near(f) => ts.push(on + f * p),
+                Step::Old(f) => ts.push(on - f * p),
                 Step::Gap(k, e) => {
-                    grid += k as i64;
-                    1000.0 + (grid as f64 + e) * p
+                    grid += i64::from(k);
+                    on = at(grid, e);
+                    ts.push(on);
                 }
-            };
-            last = t;
-            out.push((t, i as f64));
+                Step::Lurch(late) => {
+                    ts.push(at(grid + 1, late));
+                    grid += 2;
+                    on = at(grid, 0.0);
+                    ts.push(on);
+                }
+                Step::Burst(k, repeat_at) => {
+                    for j in 0..k {
+                        if j == repeat_at {
+                            ts.push(on);
+                        }
+                        ts.push(on - f64::from(3 + j) * p);
+                    }
+                }
+            }
         }
-        out
+        ts.into_iter()
+            .enumerate()
+            .map(|(i, t)| (t, i as f64))
+            .collect()
     }
 
     /// The module doc's rules, sample by sample: the accepted samples' indices, cut into the
-    /// contiguous stretches a gap or a clock jump starts.
-    fn stretches(data: &[(f64, f64)], rate: f64, capacity: usize) -> Vec<Vec<usize>> {
+    /// contiguous stretches a gap or a clock jump starts, each with its count of accepted
+    /// samples since the start (`DueWindow::end_index`).
+    fn stretches(data: &[(f64, f64)], rate: f64, capacity: usize) -> Vec<Vec<(usize, u64)>> {
         let p = 1.0 / rate;
-        let mut out: Vec<Vec<usize>> = Vec::new();
-        let (mut last, mut old) = (None::<f64>, 0usize);
+        let mut out: Vec<Vec<(usize, u64)>> = Vec::new();
+        let (mut last, mut old, mut accepted) = (None::<f64>, 0usize, 0u64);
         for (i, &(t, _)) in data.iter().enumerate() {
             match last.map(|l| t - l) {
+                // a duplicate neither counts as old nor ends a run of old samples
                 Some(dt) if dt.abs() < 0.5 * p => continue,
                 Some(dt) if dt <= -0.5 * p && old + 1 < capacity => {
                     old += 1;
                     continue;
                 }
-                Some(dt) if dt <= 1.5 * p && dt > -0.5 * p => out.last_mut().unwrap().push(i),
-                _ => out.push(vec![i]),
+                Some(dt) if dt <= 1.5 * p && dt > -0.5 * p => {
+                    accepted += 1;
+                    out.last_mut().unwrap().push((i, accepted));
+                }
+                // the first sample, a gap, or the `capacity`-th old sample in a row
+                _ => {
+                    accepted += 1;
+                    out.push(vec![(i, accepted)]);
+                }
             }
             old = 0;
             last = Some(t);
@@ -753,16 +795,18 @@ mod tests {
         out
     }
 
-    /// Streams with duplicates, stragglers, gaps and jittered times (seeded, 400 cases): the
-    /// window never holds more than its capacity; the windows handed out are exactly those the
+    /// Streams with duplicates, stragglers, gaps, clock jumps and jittered times, many of them
+    /// at the rules' lines (seeded, 400 cases): the windows handed out are exactly those the
     /// module doc's rules give (each stretch of `L` contiguous samples, `L >= capacity`, gives
     /// `1 + (L - capacity) / every`, each the last `capacity` samples of its stretch at that
-    /// point, with the start time derived from its newest sample's); the counts add up; and
-    /// pushing the stream in two chunks gives the same windows.
+    /// point, with the history behind them and the count of samples accepted); the buffer
+    /// never holds more than the history; the counts add up; two chunks give the same windows;
+    /// and `push_latest` gives the last of them.
     #[test]
     fn windows_are_the_ones_the_rules_give_through_gaps_duplicates_and_stragglers() {
         use proptest::test_runner::{Config, RngAlgorithm, TestRng, TestRunner};
-        let (rate, capacity, every) = (10.0, 20, 5);
+        let (rate, capacity, every, history) = (10.0, 20, 5, 50);
+        let new = || Window::with_history(rate, capacity, every, history);
         let strategy = (proptest::collection::vec(step(), 0..400), 0.0f64..1.0);
         let mut runner = TestRunner::new_with_rng(
             Config {
@@ -772,49 +816,71 @@ mod tests {
             },
             TestRng::from_seed(RngAlgorithm::ChaCha, &[7; 32]),
         );
-        let handed_out = std::cell::Cell::new(0usize);
+        let handed_out = std::cell::Cell::new((0usize, 0usize));
         runner
             .run(&strategy, |(steps, cut)| {
                 use proptest::{prop_assert, prop_assert_eq};
                 let data = times(&steps, rate);
-                let mut w = Window::new(rate, capacity, every);
+                let mut w = new();
                 let (stats, due) = w.push(data.iter().copied());
-                prop_assert!(w.len() <= capacity);
+                prop_assert!(w.values.len() <= history);
                 prop_assert_eq!(
                     stats.accepted + stats.duplicate + stats.out_of_order,
                     data.len() as u64
                 );
-                // every time stays within 0.2 of a period of its grid point: never refused
+                // Within a stretch the samples accepted lie on consecutive grid points, each
+                // within 0.45 of a period of its point, apart from a stretch's first (a time
+                // off the grid after a gap or a clock jump; then within 1.5 periods of its
+                // successor). So n spacings read a rate off by under 1 / n: never refused.
                 prop_assert_eq!(stats.rate_mismatch, 0);
-                let mut want: Vec<Vec<usize>> = Vec::new();
-                for s in stretches(&data, rate, capacity) {
+                let mut want = Vec::new();
+                let stretches = stretches(&data, rate, capacity);
+                for s in &stretches {
                     let mut end = capacity;
                     while end <= s.len() {
-                        want.push(s[end - capacity..end].to_vec());
+                        let index = |x: &[(usize, u64)]| x.iter().map(|a| a.0).collect::<Vec<_>>();
+                        want.push((
+                            index(&s[end - capacity..end]),
+                            index(&s[end.saturating_sub(history)..end]),
+                            s[end - 1].1,
+                        ));
                         end += every;
                     }
                 }
-                let got: Vec<Vec<usize>> = due
+                let index = |v: &[f64]| v.iter().map(|x| *x as usize).collect::<Vec<_>>();
+                let got: Vec<_> = due
                     .iter()
-                    .map(|d| d.values.iter().map(|v| *v as usize).collect())
+                    .map(|d| (index(&d.values), index(&d.history), d.end_index))
                     .collect();
                 prop_assert_eq!(&got, &want);
-                for d in &due {
-                    let newest = data[*d.values.last().unwrap() as usize].0;
-                    prop_assert!((d.t0 - (newest - (capacity - 1) as f64 / rate)).abs() < 1e-9);
-                }
-                handed_out.set(handed_out.get() + due.len());
-                // any chunking, the same windows
+                let restarts = stretches.len().saturating_sub(1) as u64;
+                prop_assert_eq!(stats.gaps, restarts);
+                let mut n = handed_out.get();
+                n.0 += due.len();
+                n.1 += usize::from(
+                    steps
+                        .iter()
+                        .any(|s| matches!(s, Step::Burst(k, _) if *k >= 20)),
+                );
+                handed_out.set(n);
+                // any chunking, the same windows; `push_latest`, the last of them
                 let split = (cut * data.len() as f64) as usize;
-                let mut w2 = Window::new(rate, capacity, every);
+                let mut w2 = new();
                 let mut chunked = w2.push(data[..split].iter().copied()).1;
                 chunked.extend(w2.push(data[split..].iter().copied()).1);
-                prop_assert_eq!(chunked, due);
+                prop_assert_eq!(&chunked, &due);
+                let (_, latest, count) = new().push_latest(data.iter().copied());
+                prop_assert_eq!((latest.as_ref(), count), (due.last(), due.len() as u64));
                 Ok(())
             })
             .unwrap();
-        // the streams are long enough between gaps that the property is about real windows
-        assert!(handed_out.get() > 400 * 10, "{} windows", handed_out.get());
+        // the streams are long enough between gaps that the property is about real windows,
+        // and clock jumps happen
+        let (windows, with_jumps) = handed_out.get();
+        assert!(
+            windows > 400 * 5 && with_jumps > 40,
+            "{windows} windows, {with_jumps} cases with a clock jump"
+        );
     }
 
     #[test]

@@ -69,8 +69,9 @@ pub struct AlertRules {
     /// of 40 moved (195 to 310 s of stream, still 410 s before zero); correcting the
     /// autocorrelation's bias instead would also widen the full horizon's trend, and moved 5 of 20
     /// lock gates' slow-drift warnings to or past the zero crossing. Why 300 (stop 68): in
-    /// 2,000 cold starts of 6 and 10 minutes the two warnings left at 240 s both fired at the
-    /// first window 240 s allowed, and 300 s removes them without moving a slow drift's warning
+    /// stop 67's 1,200 cold starts the two warnings left at 240 s both fired at the first
+    /// window 240 s allowed, and 300 s removes them without moving a slow drift's warning; 800
+    /// held-out cold starts gave one warning, at 540 s, at every span from 240 to 420 s
     /// (docs/alerts.md, "A cold start waits five minutes").
     pub trend_min_span_seconds: f64,
     /// `GateDampingDeclining` fires when the trend predicts, with 95 % confidence (one-sided,
