@@ -99,6 +99,8 @@ fn an_abandoned_lease_refuses_until_it_expires_then_is_taken() {
     let server = NatsServer::start(dir.path());
     let url = server.url();
     let ttl = Duration::from_secs(3);
+    // the lease is stamped inside this open: it expires no earlier than `ttl` from here
+    let claimed = Instant::now();
     let first = NatsStore::open(&options(&url, "GONE", Some(ttl))).expect("first owner");
     // the owner vanishes without releasing: its runtime (and renewal) stops, as on kill -9
     drop(first);
@@ -125,6 +127,13 @@ fn an_abandoned_lease_refuses_until_it_expires_then_is_taken() {
         }
     };
     assert!(refusals >= 2, "refused {refusals} times");
+    // and not taken early: the record's expiry is the owner's wall clock (`unix_now`), this is
+    // the monotonic one, so 100 ms are left for the two clocks' difference over 3 s
+    let taken = claimed.elapsed();
+    assert!(
+        taken + Duration::from_millis(100) >= ttl,
+        "taken {taken:?} after it was claimed, before its TTL of {ttl:?}"
+    );
     second.write(&one_state()).expect("the new owner writes");
 }
 
