@@ -12,6 +12,13 @@ use std::path::{Path, PathBuf};
 /// unit error, refused by name.
 pub const MAX_ABS_VALUE: f64 = 1e100;
 
+/// Largest input file read, bytes (1 GiB). Why: the file is read whole, then parsed into two
+/// columns of `f64` (16 bytes a row against about 30 of text), so memory is about 1.5 times the
+/// file; a day of a gate sampled at 200 Hz is about 17 million rows, 0.5 GB of text. Without a
+/// bound `--input /dev/zero` (or a named pipe left open) read until the kernel killed the
+/// process at 24 GB.
+pub const MAX_INPUT_BYTES: u64 = 1 << 30;
+
 /// How far, as a fraction of a step, a sample time may lie off the uniform grid (and a spacing
 /// off the median step) for the series still to count as uniformly sampled.
 ///
@@ -64,18 +71,30 @@ pub enum GridDeparture {
     },
 }
 
+fn no_header(comment: bool) -> &'static str {
+    if comment {
+        "line 1 starts with '#', which marks a comment line (skipped), and the first line after the comments holds numbers; the header must not start with '#': name the columns on the first line, e.g. 't,y' (numpy.savetxt: pass comments='')"
+    } else {
+        "line 1 has no header (it holds numbers); the first line must name the columns, e.g. 't,y'"
+    }
+}
+
 /// A problem with input data.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum DataError {
     /// The file cannot be read.
     #[error("{path}: cannot read the file: {reason}")]
     Io { path: PathBuf, reason: String },
+    /// The file is larger than [`MAX_INPUT_BYTES`].
+    #[error("{path}: the file holds more than {bound} bytes, the most gatewatch reads (1 GiB); split the record (a day of a gate at 200 Hz is about 0.5 GB)")]
+    TooBig { path: PathBuf, bound: u64 },
     /// The file is empty.
     #[error("{path}: the file is empty")]
     Empty { path: PathBuf },
-    /// The first line holds numbers, not column names.
-    #[error("{path}: line 1 has no header (it holds numbers); the first line must name the columns, e.g. 't,y'")]
-    NoHeader { path: PathBuf },
+    /// The first line holds numbers, not column names (`comment`: the first line was skipped
+    /// as a comment, `#` first, and the line the reader took for the header holds numbers).
+    #[error("{path}: {}", no_header(*.comment))]
+    NoHeader { path: PathBuf, comment: bool },
     /// A requested column is not in the header.
     #[error("{path}: no column named '{column}' (the header has: {available})")]
     UnknownColumn {
@@ -286,10 +305,16 @@ impl TimeSeries {
         value_column: &str,
     ) -> Result<(TimeSeries, Vec<u64>), DataError> {
         let p = || path.to_path_buf();
-        let bytes = std::fs::read(path).map_err(|e| DataError::Io {
-            path: p(),
-            reason: e.to_string(),
-        })?;
+        let mut bytes = read_bounded(path, MAX_INPUT_BYTES)?;
+        // Lines ending in a lone "\r" (old Mac files, some loggers): the reader splits rows at
+        // it, but a comment runs to the next "\n", so a `#` line swallowed the rest of such a
+        // file without a word, and every error was named line 1. Made "\n", one byte for one,
+        // so lines and offsets stay the file's.
+        for i in 0..bytes.len() {
+            if bytes[i] == b'\r' && bytes.get(i + 1) != Some(&b'\n') {
+                bytes[i] = b'\n';
+            }
+        }
         if bytes.iter().all(|b| b.is_ascii_whitespace()) {
             return Err(DataError::Empty { path: p() });
         }
@@ -319,7 +344,11 @@ impl TimeSeries {
             .map_err(|e| malformed(path, &bytes, &e))?
             .clone();
         if headers.iter().all(|h| h.parse::<f64>().is_ok()) {
-            return Err(DataError::NoHeader { path: p() });
+            let first = bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(&bytes);
+            return Err(DataError::NoHeader {
+                path: p(),
+                comment: first.trim_ascii_start().starts_with(b"#"),
+            });
         }
         let find = |name: &str| {
             let count = headers.iter().filter(|h| *h == name).count();
@@ -402,7 +431,7 @@ impl TimeSeries {
                         cell: shown(text),
                     });
                 }
-                if column == value_column && v.abs() > MAX_ABS_VALUE {
+                if v.abs() > MAX_ABS_VALUE {
                     return Err(DataError::TooLarge {
                         path: p(),
                         line,
@@ -571,6 +600,29 @@ impl<'a> LineCounter<'a> {
     }
 }
 
+/// The whole file, refused past `limit` bytes ([`MAX_INPUT_BYTES`]; read through the bound,
+/// not by its metadata: a pipe or a device has no size to ask).
+fn read_bounded(path: &Path, limit: u64) -> Result<Vec<u8>, DataError> {
+    use std::io::Read;
+    let io = |e: std::io::Error| DataError::Io {
+        path: path.to_path_buf(),
+        reason: e.to_string(),
+    };
+    let mut bytes = Vec::new();
+    std::fs::File::open(path)
+        .map_err(io)?
+        .take(limit + 1)
+        .read_to_end(&mut bytes)
+        .map_err(io)?;
+    if bytes.len() as u64 > limit {
+        return Err(DataError::TooBig {
+            path: path.to_path_buf(),
+            bound: limit,
+        });
+    }
+    Ok(bytes)
+}
+
 fn malformed(path: &Path, bytes: &[u8], e: &csv::Error) -> DataError {
     let line = e
         .position()
@@ -644,8 +696,13 @@ mod tests {
             "{e}"
         );
         assert!(e.to_string().contains("beyond +-1e100"), "{e}");
-        // at the bound and in the time column (Unix nanoseconds reach 1.7e18) it loads
-        assert!(load("t,y\n0,1e100\n1e101,-1e100\n").is_ok());
+        // at the bound it loads (Unix nanoseconds reach 1.7e18); past it, times are refused
+        // too (1e300 s gave a rate printed with 300 digits)
+        assert!(load("t,y\n0,1e100\n1e100,-1e100\n").is_ok());
+        assert!(matches!(
+            load("t,y\n0,1\n1e101,-1\n"),
+            Err(DataError::TooLarge { line: 3, .. })
+        ));
         assert!(TimeSeries::new(vec![0.0, 1.0], vec![1.0, -1e101]).is_err());
     }
 
@@ -954,6 +1011,55 @@ mod tests {
             matches!(e, DataError::TimeNotIncreasing { line: 4, .. }),
             "{e}"
         );
+        // lone "\r" line ends (old Mac files), which the reader splits lines at: every line
+        // was named line 1
+        let f = file("t,y\r0,1\r# note\r\r0.1,2\r0.2,3\r");
+        let (_, lines) = TimeSeries::from_csv_with_lines(f.path(), "t", "y").unwrap();
+        assert_eq!(lines, vec![2, 5, 6]);
+        let e = load("t,y\r0,1\r0.05,2\r0.1,abc\r").unwrap_err();
+        assert!(matches!(e, DataError::NotANumber { line: 4, .. }), "{e}");
+    }
+
+    /// numpy.savetxt(..., header='t,y') writes the header as a comment ("# t,y"), which the
+    /// reader skips: the error says so instead of calling line 1 numbers.
+    #[test]
+    fn a_header_written_as_a_comment_is_named() {
+        let e = load("# t,y\n0,1\n0.05,2\n").unwrap_err();
+        assert!(
+            matches!(e, DataError::NoHeader { comment: true, .. }),
+            "{e}"
+        );
+        assert!(e.to_string().contains("line 1 starts with '#'"), "{e}");
+        let e = load("0,1\n0.05,2\n").unwrap_err();
+        assert!(
+            matches!(e, DataError::NoHeader { comment: false, .. }),
+            "{e}"
+        );
+        assert!(e.to_string().contains("line 1 has no header"), "{e}");
+    }
+
+    /// Times past +-1e100 are refused as values are (`1e300` gave a sample rate printed with
+    /// 300 digits when no trial integrated).
+    #[test]
+    fn times_beyond_the_bound_are_refused_by_line_and_column() {
+        let e = load("t,y\n0,1\n1e300,2\n").unwrap_err();
+        assert!(
+            matches!(e, DataError::TooLarge { line: 3, ref column, .. } if column == "t"),
+            "{e}"
+        );
+    }
+
+    /// A file is read through a bound: past it, refused by name, however the source goes on
+    /// (`/dev/zero` was read until the process was killed at 24 GB).
+    #[test]
+    fn input_past_the_size_bound_is_refused() {
+        let f = file("t,y\n0,1\n0.05,2\n");
+        let e = read_bounded(f.path(), 8).unwrap_err();
+        assert!(matches!(e, DataError::TooBig { bound: 8, .. }), "{e}");
+        assert!(e.to_string().contains("more than 8 bytes"), "{e}");
+        assert_eq!(read_bounded(f.path(), 15).unwrap().len(), 15);
+        let e = read_bounded(Path::new("/dev/zero"), 1 << 20).unwrap_err();
+        assert!(matches!(e, DataError::TooBig { .. }), "{e}");
     }
 
     #[test]

@@ -1118,7 +1118,7 @@ fn gate_example_bench_rejects_bad_options() {
     // refused up front, once: it was exit 1 with the reason printed twice
     let line = bad(
         &["bench", "seed-cases", "--rtol", "0"],
-        &["--rtol", "(0, 1)"],
+        &["--rtol", "[1e-14, 1)"],
     );
     assert_eq!(line.matches("must be in").count(), 1, "{line}");
     bad(&["bench", "seed-cases", "--noise", "-0.1"], &["--noise"]);

@@ -448,7 +448,7 @@ fn simulate_refuses_impossible_streams_before_connecting() {
     for (args, needle) in [
         (vec!["--rate", "1e12"], "--rate must be at most"),
         (vec!["--speed", "NaN"], "--speed must be a number"),
-        (vec!["--start", "NaN"], "--start must be finite"),
+        (vec!["--start", "NaN"], "--start must be Unix seconds"),
         (
             vec!["--chunk-seconds", "inf"],
             "--chunk-seconds must be > 0",
@@ -485,7 +485,8 @@ fn a_chunk_longer_than_the_stream_does_not_abort() {
 
 /// Bad stream flags are input (exit 2, one line naming the flag), refused before connecting:
 /// `--duration 0`, `--speed nan` exited 1, and `--url notaurl` failed at the first request as
-/// "builder error: relative URL without a base", naming no flag.
+/// "builder error: relative URL without a base", naming no flag. `--duration 1e300`, a start of
+/// 1e300, noise of 1e300 and gate ids the daemon refuses were streamed.
 #[test]
 fn simulate_refuses_bad_stream_flags_as_input_naming_them() {
     for (args, needle) in [
@@ -495,6 +496,37 @@ fn simulate_refuses_bad_stream_flags_as_input_naming_them() {
         (&["--speed", "nan"][..], "--speed must be a number"),
         (&["--url", "notaurl"][..], "--url: 'notaurl' is not a URL"),
         (&["--url", "ftp://host/"][..], "--url: 'ftp://host/'"),
+        // streams without end, or of values the daemon refuses (the stream ran until killed,
+        // from a start of -1e300)
+        (
+            &["--duration", "1e300"][..],
+            "--duration must be > 0 and at most",
+        ),
+        (
+            &["--rate", "1e6", "--duration", "1e9"][..],
+            "--duration must be > 0 and at most",
+        ),
+        (
+            &["--rate", "1e6", "--duration", "1e6"][..],
+            "--duration times --rate must be at most 1e10 samples, got 1e12",
+        ),
+        (
+            &["--start", "1e300"][..],
+            "--start must be Unix seconds from 0",
+        ),
+        (&["--start=-5"][..], "--start must be Unix seconds from 0"),
+        (
+            &["--noise-rel", "1e300"][..],
+            "--noise-rel must be >= 0 and at most 1e6",
+        ),
+        (&["--gate", ""][..], "--gate '': gate id must be"),
+        (&["--gate", "a b"][..], "--gate 'a b': gate id must be"),
+        // a negative number is the flag's value, refused by its own check (clap said
+        // "unexpected argument '-1' found", naming no flag)
+        (
+            &["--noise-abs", "-1"][..],
+            "--noise-abs must be >= 0 and at most 1e12, got -1",
+        ),
     ] {
         let mut all = vec!["simulate"];
         if !args[0].starts_with("--url") {
@@ -503,6 +535,45 @@ fn simulate_refuses_bad_stream_flags_as_input_naming_them() {
         all.extend(args);
         refused_as_input(&all, needle);
     }
+}
+
+/// A daemon that takes the connection and never answers: `simulate` waited 30 s an attempt, six
+/// attempts, three minutes without a word on stderr (its retries went to a log it has not).
+/// Each retry is now said, the wait named (`SIMULATE_REQUEST_TIMEOUT`, 10 s).
+#[test]
+fn simulate_says_so_when_the_daemon_does_not_answer() {
+    use std::io::BufRead;
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let url = format!("http://{}", listener.local_addr().unwrap());
+    // accepts and holds every connection, never answering
+    std::thread::spawn(move || {
+        let held: Vec<_> = listener.incoming().collect();
+        drop(held);
+    });
+    let mut child = Command::new(env!("CARGO_BIN_EXE_gatewatch"))
+        .args(["simulate", "--url", &url, "--speed", "0", "--duration", "2"])
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("gatewatch runs");
+    let stderr = child.stderr.take().unwrap();
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        let mut line = String::new();
+        let _ = std::io::BufReader::new(stderr).read_line(&mut line);
+        let _ = tx.send(line);
+    });
+    // the bound only catches silence: the notice comes after the 10 s timeout
+    let line = rx.recv_timeout(std::time::Duration::from_secs(60));
+    let _ = child.kill();
+    let _ = child.wait();
+    let line = line.expect("a notice on stderr within 60 s");
+    assert!(
+        line.starts_with("gatewatch simulate: ")
+            && line.contains("no answer within 10 s; retry 1 of 5"),
+        "{line}"
+    );
 }
 
 /// `--onset-hold`/`--onset-ramp` shape the onset scenario only: with another scenario they were
@@ -617,6 +688,48 @@ fn stability_map_refuses_a_horizon_where_the_step_underflows() {
         "{err}"
     );
     assert!(o.stdout.is_empty(), "{}", text(&o.stdout));
+}
+
+/// `stability-map --output map.svg --plot ./map.svg`: the picture was written over the table
+/// (exit 0, the CSV lost); one file named twice, however spelled, is refused before the trials.
+#[test]
+fn stability_map_refuses_one_file_for_the_table_and_the_picture() {
+    let dir = tempfile::tempdir().unwrap();
+    let map = dir.path().join("map.svg");
+    let also = dir.path().join("sub").join("..").join("map.svg");
+    std::fs::create_dir(dir.path().join("sub")).unwrap();
+    let args = |output: &std::path::Path, plot: &std::path::Path| {
+        gw(&[
+            "stability-map",
+            "--model",
+            "ydd + c1*yd + c2*y = 0",
+            "--range",
+            "c1=-1:1",
+            "--range",
+            "c2=0.1:2",
+            "--samples",
+            "20",
+            "--output",
+            output.to_str().unwrap(),
+            "--plot",
+            plot.to_str().unwrap(),
+        ])
+    };
+    for plot in [&map, &also] {
+        let o = args(&map, plot);
+        let err = text(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{err}");
+        assert!(
+            err.contains("--output and --plot name the same file"),
+            "{err}"
+        );
+        assert!(!map.exists(), "a file was written: {err}");
+    }
+    let csv = dir.path().join("map.csv");
+    let o = args(&csv, &map);
+    assert_eq!(o.status.code(), Some(0), "{}", text(&o.stderr));
+    assert!(std::fs::read_to_string(&csv).unwrap().starts_with("c1,"));
+    assert!(std::fs::read_to_string(&map).unwrap().starts_with("<svg"));
 }
 
 /// `gatewatch ... | head -1`: a reader that goes away ends the command quietly with exit 0, as
@@ -1032,7 +1145,7 @@ fn huge_and_tiny_numbers_are_quoted_in_scientific_form() {
                 "http://127.0.0.1:9",
                 "--duration=-1e300",
             ]),
-            "--duration must be > 0 seconds, got -1e300",
+            "--duration must be > 0 and at most 31622400 seconds (366 days), got -1e300",
         ),
         (
             owned(&[
@@ -1041,7 +1154,7 @@ fn huge_and_tiny_numbers_are_quoted_in_scientific_form() {
                 "http://127.0.0.1:9",
                 "--noise-abs=-1e-300",
             ]),
-            "--noise-abs must be >= 0, got -1e-300",
+            "--noise-abs must be >= 0 and at most 1e12, got -1e-300",
         ),
         (
             map("--t-end", "-1e300"),
@@ -1053,7 +1166,7 @@ fn huge_and_tiny_numbers_are_quoted_in_scientific_form() {
         ),
         (
             owned(&["bench", "seed-cases", "--rtol", "1e300"]),
-            "--rtol must be in (0, 1), got 1e300",
+            "--rtol must be in [1e-14, 1), got 1e300",
         ),
     ] {
         let args: Vec<&str> = args.iter().map(String::as_str).collect();
@@ -1074,7 +1187,7 @@ fn huge_and_tiny_numbers_are_quoted_in_scientific_form() {
         ),
         (
             "[notify]\ntimeout_seconds = -1e300\n",
-            "timeout_seconds must be a positive finite number, got -1e300",
+            "notify.timeout_seconds: timeout_seconds must be a positive finite number, got -1e300, line 2",
         ),
     ] {
         std::fs::write(&file, toml).unwrap();

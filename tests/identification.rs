@@ -599,7 +599,7 @@ fn bad_settings_are_errors_naming_the_field_not_a_flag() {
             .with_solver(Method::Rk4, -1e-3)
             .unwrap_err(),
     );
-    assert_eq!(m, "rtol must be in (0, 1), got -0.001");
+    assert_eq!(m, "rtol must be in [1e-14, 1), got -0.001");
     let m = message(Search::default().with_substeps(0).unwrap_err());
     assert!(m.starts_with("substeps "), "{m}");
     let bad = Search {

@@ -41,10 +41,10 @@ pub struct HistoryArgs {
     #[arg(long)]
     pub gate: String,
     /// From this window end on: Unix seconds or RFC 3339 (`2024-05-01T12:00:00Z`).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub from: Option<String>,
     /// Up to this window end: Unix seconds or RFC 3339.
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub to: Option<String>,
     /// At most this many rows (1..=20000).
     #[arg(long, default_value_t = MAX_HISTORY_LIMIT)]

@@ -54,7 +54,7 @@ pub struct IdentifyArgs {
     #[arg(long, allow_negative_numbers = true, default_value_t = 0.5)]
     train_fraction: f64,
     /// Seed of the train/test split.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, allow_negative_numbers = true)]
     split_seed: u64,
     /// DE population size (4 to 10000: each member costs an integration per generation).
     #[arg(long, default_value_t = 50)]
@@ -66,7 +66,7 @@ pub struct IdentifyArgs {
     #[arg(long, default_value_t = 1)]
     runs: usize,
     /// Seed of the first run.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, allow_negative_numbers = true)]
     seed: u64,
     /// Relative tolerance of the fitness solver.
     #[arg(long, allow_negative_numbers = true, default_value_t = 1e-3)]
@@ -549,6 +549,16 @@ fn in_flags(e: IdentifyError) -> String {
 /// state far outside the record (`--y0 1e308` was blamed on the times or the equation), and
 /// (`displacement_model`: displacement data) a record far from order one that the equation
 /// does not let the search rescale.
+/// `v` with four decimals, or in scientific notation where those would print hundreds of
+/// digits or none (times of 1e-300 s gave "over 0.000000 s").
+fn readable(v: f64) -> String {
+    if v == 0.0 || (1e-3..1e7).contains(&v.abs()) {
+        format!("{v:.4}")
+    } else {
+        format!("{v:.4e}")
+    }
+}
+
 fn not_integrated_hint(
     displacement_model: Option<&Model>,
     series: &TimeSeries,
@@ -561,8 +571,9 @@ fn not_integrated_hint(
     if let Some(&step) = steps.get(steps.len() / 2) {
         let span = series.t[series.len() - 1] - series.t[0];
         hint.push_str(&format!(
-            "the times imply a sample rate of {:.4} Hz over {span:.6} s; they must be in seconds (times in milliseconds make this 1000 times too low)",
-            1.0 / step
+            "the times imply a sample rate of {} Hz over {} s; they must be in seconds (times in milliseconds make this 1000 times too low)",
+            readable(1.0 / step),
+            readable(span)
         ));
     }
     // Constants whose size no double-precision integration of a gate survives.

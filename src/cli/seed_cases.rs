@@ -67,9 +67,9 @@ pub(super) fn run(a: SeedCasesArgs) -> Result<(), CliError> {
         return Err(input("--noise must be in [0, 1)"));
     }
     // Checked here, as the other flags: the cases refused it one by one, as an error (exit 1).
-    if !(a.rtol > 0.0 && a.rtol < 1.0) {
+    if !(crate::identify::MIN_TOLERANCE..1.0).contains(&a.rtol) {
         return Err(input(format!(
-            "--rtol must be in (0, 1), got {}",
+            "--rtol must be in [1e-14, 1), got {}",
             crate::number::Num(a.rtol)
         )));
     }

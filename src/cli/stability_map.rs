@@ -90,6 +90,14 @@ pub fn run(a: StabilityMapArgs) -> Result<(), CliError> {
             check_writable(path).map_err(|e| input(format!("{flag}: {}: {e}", path.display())))?;
         }
     }
+    if let (Some(output), Some(plot)) = (&a.output, &a.plot) {
+        if same_file(output, plot) {
+            return Err(input(format!(
+                "--output and --plot name the same file ({}): the picture would overwrite the table",
+                plot.display()
+            )));
+        }
+    }
     let map = stability::map(&model, &spec).map_err(input)?;
     let stable = map.stable_count();
     if map.undecided > 0 {
@@ -166,4 +174,20 @@ fn check_writable(path: &std::path::Path) -> std::io::Result<()> {
     // run overwrites.
     let _ = std::fs::remove_file(path);
     Ok(())
+}
+
+/// Whether two output paths name one file: the same name in the same directory, however each
+/// is spelled (`map.svg`, `./map.svg`, `out/../map.svg`).
+fn same_file(a: &std::path::Path, b: &std::path::Path) -> bool {
+    let key = |p: &std::path::Path| {
+        let dir = match p.parent() {
+            Some(d) if !d.as_os_str().is_empty() => d,
+            _ => std::path::Path::new("."),
+        };
+        Some(dir.canonicalize().ok()?.join(p.file_name()?))
+    };
+    match (key(a), key(b)) {
+        (Some(x), Some(y)) => x == y,
+        _ => a == b,
+    }
 }

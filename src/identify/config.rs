@@ -103,12 +103,23 @@ fn invalid(field: &'static str, reason: impl Into<String>) -> IdentifyError {
     }
 }
 
-/// A relative tolerance in (0, 1).
+/// Smallest relative tolerance of an integration. Why: a step is accepted when its error
+/// estimate is below `rtol` times the state, and that estimate cannot fall below the rounding
+/// of double precision (2.2e-16 a step, more over a step's stages), so below about 1e-14 no
+/// step is ever accepted: `--rtol 1e-300` failed every trial and the error blamed the data.
+pub const MIN_TOLERANCE: f64 = 1e-14;
+
+/// A relative tolerance in [`MIN_TOLERANCE`], 1).
 fn tolerance(field: &'static str, v: f64) -> Result<(), IdentifyError> {
-    if v > 0.0 && v < 1.0 {
+    if (MIN_TOLERANCE..1.0).contains(&v) {
         Ok(())
+    } else if v > 0.0 && v < MIN_TOLERANCE {
+        Err(invalid(
+            field,
+            format!("must be at least {MIN_TOLERANCE:e} (below it no step of double precision is accepted), got {v:e}"),
+        ))
     } else {
-        Err(invalid(field, format!("must be in (0, 1), got {v}")))
+        Err(invalid(field, format!("must be in [1e-14, 1), got {v}")))
     }
 }
 
@@ -123,6 +134,9 @@ impl Search {
                 "population",
                 format!("must be at most {MAX_POPULATION}, got {}", self.population),
             ));
+        }
+        if self.generations == 0 {
+            return Err(invalid("generations", "must be at least 1"));
         }
         if self.generations > MAX_GENERATIONS {
             return Err(invalid(

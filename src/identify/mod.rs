@@ -53,7 +53,9 @@ mod search;
 mod split;
 mod stats;
 
-pub use config::{Config, Protocol, Search, MAX_GENERATIONS, MAX_POPULATION, MAX_RUNS};
+pub use config::{
+    Config, Protocol, Search, MAX_GENERATIONS, MAX_POPULATION, MAX_RUNS, MIN_TOLERANCE,
+};
 pub use covariance::{
     bandwidth, covariance, difference_steps, fixed_b_critical_value_95, Covariance, Optimum,
     COVARIANCE_RTOL,

@@ -34,6 +34,21 @@ pub(crate) fn first_non_finite(e: &Expr) -> Option<f64> {
     }
 }
 
+/// The column of the innermost function call whose arguments are constants and whose value
+/// folds to NaN or infinity (`sqrt(-1)`, `ln(0)`), if any, for the error that names it.
+pub(crate) fn first_non_finite_call(e: &Expr) -> Option<usize> {
+    match e {
+        Expr::Num(_) | Expr::Var(..) | Expr::Coef(_) => None,
+        Expr::Neg(a) => first_non_finite_call(a),
+        Expr::Sum(ts) => ts.iter().find_map(first_non_finite_call),
+        Expr::Prod(fs) => fs.iter().find_map(|(f, _)| first_non_finite_call(f)),
+        Expr::Pow(a, b) => first_non_finite_call(a).or_else(|| first_non_finite_call(b)),
+        Expr::Call(_, args, col) => args.iter().find_map(first_non_finite_call).or_else(|| {
+            matches!(simplify(e.clone()), Expr::Num(v) if !v.is_finite()).then_some(*col)
+        }),
+    }
+}
+
 fn nonlinear(what: &str, col: usize) -> ModelError {
     ModelError {
         message: format!("{what} at column {col}: the equation must be linear in ydd"),

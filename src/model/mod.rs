@@ -326,9 +326,16 @@ impl Model {
             .flatten()
             .find_map(linear::first_non_finite)
         {
+            // the function that makes it, where one does (`sqrt(-1)`, `ln(0)`); a division by
+            // a zero constant has no column of its own
+            let col =
+                linear::first_non_finite_call(&lhs).or_else(|| linear::first_non_finite_call(&rhs));
             return error(
-                format!("a constant part of the equation evaluates to {v} (a division by zero, or the root or logarithm of a negative number?): no trial could be simulated"),
-                None,
+                format!(
+                    "a constant part of the equation{} evaluates to {v} (a division by zero, or the root or logarithm of a negative number?): no trial could be simulated",
+                    col.map_or(String::new(), |c| format!(" (the function at column {c})"))
+                ),
+                col,
             );
         }
         let mass = Program::compile(m.as_ref()).ok_or_else(too_deep)?;

@@ -173,13 +173,18 @@ fn a_zero_factor_of_ydd_and_a_non_finite_constant_are_refused() {
         assert!(e.message.contains("factor of ydd"), "{eq}: {e}");
         assert!(e.message.contains("identically zero"), "{eq}: {e}");
     }
-    for eq in [
-        "ydd + c1*yd + sqrt(-1)*y = 0",
-        "ydd + c1*yd + (1/0)*y = 0",
-        "ydd/0 + c1*y = 0",
+    // the function that folds to NaN or infinity is named by its column; a division by a
+    // zero constant has none
+    for (eq, col) in [
+        ("ydd + c1*yd + sqrt(-1)*y = 0", Some(15)),
+        ("ydd + c1*yd + 2*ln(0)*y = 0", Some(17)),
+        ("ydd + c1*yd + sqrt(1 + ln(0))*y = 0", Some(24)),
+        ("ydd + c1*yd + (1/0)*y = 0", None),
+        ("ydd/0 + c1*y = 0", None),
     ] {
         let e = Model::parse(eq, &[]).unwrap_err();
         assert!(e.message.contains("evaluates to"), "{eq}: {e}");
+        assert_eq!(e.column, col, "{eq}: {e}");
     }
     // A factor that vanishes only for some coefficient or state is the search's business.
     assert!(Model::parse("c2*ydd + c1*y = 0", &[]).is_ok());

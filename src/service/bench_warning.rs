@@ -67,11 +67,11 @@ pub struct BenchWarningArgs {
     #[arg(long, value_delimiter = ',', default_value = "lab,lock")]
     pub gates: Vec<String>,
     /// Sensor noise RMS in signal units (N), the same on every gate; overrides --noise-rel.
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub noise_abs: Option<f64>,
     /// Sensor noise RMS as a fraction of each gate's ambient response std at +1 % (0.125: the
     /// lab gate's 0.7 N load-cell floor against its 5.6 N ambient response, as in issue 8).
-    #[arg(long, default_value_t = 0.125)]
+    #[arg(long, default_value_t = 0.125, allow_negative_numbers = true)]
     pub noise_rel: f64,
     /// Identification worker threads of the daemon under test.
     #[arg(long, default_value_t = 1)]

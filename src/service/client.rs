@@ -44,10 +44,10 @@ pub struct GateSensorArgs {
     #[arg(long = "gate-preset", default_value = "lab", value_parser = crate::simulate::GatePreset::parse)]
     pub preset: crate::simulate::GatePreset,
     /// Sensor noise RMS in signal units (N), as a load cell's noise floor is given.
-    #[arg(long, conflicts_with = "noise_rel")]
+    #[arg(long, conflicts_with = "noise_rel", allow_negative_numbers = true)]
     pub noise_abs: Option<f64>,
     /// Sensor noise RMS as a fraction of the gate's ambient response std at +1 %.
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub noise_rel: Option<f64>,
 }
 
@@ -122,6 +122,23 @@ pub struct SimulateArgs {
 /// Highest `--rate` of `gatewatch simulate`, Hz: a thousand times a fast gate's rate; `--rate 1e12`
 /// asked for 6e14 samples and streamed for ever.
 pub const SIMULATE_MAX_RATE_HZ: f64 = 1e6;
+
+/// Longest stream of `gatewatch simulate`, seconds of sample time (a leap year): `--duration
+/// 1e300` streamed for ever, from a start of -1e300.
+pub const SIMULATE_MAX_DURATION: f64 = 366.0 * 86_400.0;
+/// Most samples of one stream (`--rate` times `--duration`): a year of a gate at 300 Hz.
+pub const SIMULATE_MAX_SAMPLES: f64 = 1e10;
+/// Largest `--start`, Unix seconds (the year 2286); a start is never negative.
+pub const SIMULATE_MAX_START: f64 = 1e10;
+/// Largest `--noise-abs` (signal units) and `--noise-rel`: far past any sensor's noise floor,
+/// far below the daemon's bound on a sample's size (1e100).
+pub const SIMULATE_MAX_NOISE_ABS: f64 = 1e12;
+/// See [`SIMULATE_MAX_NOISE_ABS`].
+pub const SIMULATE_MAX_NOISE_REL: f64 = 1e6;
+/// Longest wait for the daemon's answer to one request: it answers an ingest at once (or 503
+/// when full); a daemon that accepts and never answers was waited on 30 s an attempt, three
+/// minutes in all without a word.
+pub const SIMULATE_REQUEST_TIMEOUT: Duration = Duration::from_secs(10);
 
 /// Retries of one request answered 429/503 or failing to connect.
 pub const SIMULATE_MAX_RETRIES: u32 = 5;
@@ -224,14 +241,14 @@ pub fn simulator(args: &SimulateArgs) -> anyhow::Result<crate::simulate::GateSim
         onset_ramp >= 0.0 && onset_ramp.is_finite(),
         "--onset-ramp must be >= 0"
     );
-    for (flag, v) in [
-        ("--noise-abs", args.sensor.noise_abs),
-        ("--noise-rel", args.sensor.noise_rel),
+    for (flag, v, most) in [
+        ("--noise-abs", args.sensor.noise_abs, SIMULATE_MAX_NOISE_ABS),
+        ("--noise-rel", args.sensor.noise_rel, SIMULATE_MAX_NOISE_REL),
     ] {
         if let Some(v) = v {
             anyhow::ensure!(
-                v >= 0.0 && v.is_finite(),
-                "{flag} must be >= 0, got {}",
+                (0.0..=most).contains(&v),
+                "{flag} must be >= 0 and at most {most:e}, got {}",
                 Num(v)
             );
         }
@@ -293,9 +310,25 @@ pub fn check_stream(args: &SimulateArgs) -> anyhow::Result<()> {
     check_onset_flags(args)?;
     let duration = args.effective_duration();
     anyhow::ensure!(
-        duration > 0.0 && duration.is_finite(),
-        "--duration must be > 0 seconds, got {}",
+        duration > 0.0 && duration <= SIMULATE_MAX_DURATION,
+        "--duration must be > 0 and at most {} seconds (366 days), got {}",
+        Num(SIMULATE_MAX_DURATION),
         Num(duration)
+    );
+    let samples = duration * args.effective_rate();
+    anyhow::ensure!(
+        samples <= SIMULATE_MAX_SAMPLES,
+        "--duration times --rate must be at most {:e} samples, got {:e} ({} s at {} Hz)",
+        SIMULATE_MAX_SAMPLES,
+        samples,
+        Num(duration),
+        Num(args.effective_rate())
+    );
+    anyhow::ensure!(
+        crate::service::config::valid_gate_id(&args.gate),
+        "--gate '{}': {}",
+        args.gate.escape_debug(),
+        crate::service::config::GATE_ID_RULE
     );
     anyhow::ensure!(
         args.chunk_seconds > 0.0 && args.chunk_seconds.is_finite(),
@@ -308,8 +341,11 @@ pub fn check_stream(args: &SimulateArgs) -> anyhow::Result<()> {
         Num(args.speed)
     );
     anyhow::ensure!(
-        args.start.is_none_or(f64::is_finite),
-        "--start must be finite Unix seconds"
+        args.start
+            .is_none_or(|s| (0.0..=SIMULATE_MAX_START).contains(&s)),
+        "--start must be Unix seconds from 0 to {:e} (the year 2286), got {}",
+        SIMULATE_MAX_START,
+        Num(args.start.unwrap_or(f64::NAN))
     );
     // The raw TCP protocol does not use the URL.
     if args.protocol != Protocol::Tcp {
@@ -389,6 +425,21 @@ fn check_url(url: &str) -> anyhow::Result<()> {
     }
 }
 
+/// One line on stderr, for a retry the user would otherwise wait through without a word.
+fn notice(line: &str) {
+    use std::io::Write;
+    let _ = writeln!(std::io::stderr(), "gatewatch simulate: {line}");
+}
+
+/// A request's failure in words, the timeout named with its length.
+fn request_error(e: &reqwest::Error) -> String {
+    if e.is_timeout() {
+        format!("no answer within {} s", SIMULATE_REQUEST_TIMEOUT.as_secs())
+    } else {
+        format!("{e:#}")
+    }
+}
+
 async fn send_http(
     client: &reqwest::Client,
     url: &str,
@@ -423,14 +474,31 @@ async fn send_http(
                 anyhow::bail!("{url}: {status}: {text}");
             }
             Err(e) if attempt < SIMULATE_MAX_RETRIES => {
-                tracing::warn!(error = %e, "request failed, retrying");
+                // said where the user sees it: the command has no log (tracing showed nothing)
+                notice(&format!(
+                    "{url}: {}; retry {} of {SIMULATE_MAX_RETRIES} in 0.5 s",
+                    request_error(&e),
+                    attempt + 1
+                ));
                 Duration::from_millis(500)
             }
-            Err(e) => return Err(e.into()),
+            Err(e) => {
+                anyhow::bail!(
+                    "{url}: {} (after {} attempts)",
+                    request_error(&e),
+                    attempt + 1
+                )
+            }
         };
         attempt += 1;
         if attempt > SIMULATE_MAX_RETRIES {
             anyhow::bail!("{url}: still overloaded after {SIMULATE_MAX_RETRIES} retries");
+        }
+        if wait >= Duration::from_secs(1) {
+            notice(&format!(
+                "{url}: the daemon is busy (429/503); retry {attempt} of {SIMULATE_MAX_RETRIES} in {} s",
+                wait.as_secs()
+            ));
         }
         tokio::time::sleep(wait).await;
     }
@@ -454,11 +522,19 @@ pub async fn simulate_with_source(
     let chunk = ((args.chunk_seconds * rate).round() as usize).clamp(1, total.max(1) as usize);
     ensure_crypto_provider();
     let client = reqwest::Client::builder()
-        .timeout(Duration::from_secs(30))
+        .timeout(SIMULATE_REQUEST_TIMEOUT)
         .build()?;
     let base = args.url.trim_end_matches('/');
     let mut tcp = if args.protocol == Protocol::Tcp {
-        Some(tokio::net::TcpStream::connect(&args.tcp_addr).await?)
+        let connect = tokio::net::TcpStream::connect(&args.tcp_addr);
+        match tokio::time::timeout(SIMULATE_REQUEST_TIMEOUT, connect).await {
+            Ok(stream) => Some(stream.map_err(|e| anyhow::anyhow!("{}: {e}", args.tcp_addr))?),
+            Err(_) => anyhow::bail!(
+                "{}: no connection within {} s",
+                args.tcp_addr,
+                SIMULATE_REQUEST_TIMEOUT.as_secs()
+            ),
+        }
     } else {
         None
     };

@@ -119,8 +119,11 @@ impl GateConfig {
         if !(self.max_fit_nmae.is_finite() && self.max_fit_nmae > 0.0) {
             return err("max_fit_nmae", "must be > 0");
         }
-        if !(self.polish_rtol > 0.0 && self.polish_rtol < 1.0) {
-            return err("polish_rtol", "must be in (0, 1)");
+        if !(crate::identify::MIN_TOLERANCE..1.0).contains(&self.polish_rtol) {
+            return err(
+                "polish_rtol",
+                "must be in [1e-14, 1) (identify::MIN_TOLERANCE)",
+            );
         }
         if !(self.window_seconds.is_finite() && self.window_seconds > 0.0) {
             return err("window_seconds", "must be > 0");
