@@ -1032,7 +1032,7 @@ impl Config {
             return Err(ConfigError::new("ingest.tcp_max_line_bytes: must be >= 64"));
         }
         if let Err(e) = self.notify.validate() {
-            return Err(ConfigError::new(format!("notify: {e}")));
+            return Err(ConfigError::new(format!("notify.{}: {e}", e.key())));
         }
         for (key, v) in [
             ("timeout_seconds", self.notify.timeout_seconds),

@@ -120,6 +120,8 @@ pub enum NotifyConfigError {
     /// A target URL does not parse or is not http(s).
     #[error("invalid {what} URL {url:?}: {reason}")]
     BadUrl {
+        /// The key under `[notify]`: `webhooks[2].url`, `alertmanager_urls[0]`.
+        key: String,
         what: &'static str,
         url: String,
         reason: String,
@@ -132,13 +134,26 @@ pub enum NotifyConfigError {
     BadResendInterval(f64),
 }
 
+impl NotifyConfigError {
+    /// The key at fault under `[notify]`, for an error that names its place
+    /// (`notify.webhooks[1].url`).
+    pub fn key(&self) -> String {
+        match self {
+            NotifyConfigError::BadUrl { key, .. } => key.clone(),
+            NotifyConfigError::BadTimeout(_) => "timeout_seconds".into(),
+            NotifyConfigError::BadResendInterval(_) => "resend_interval_seconds".into(),
+        }
+    }
+}
+
 impl NotifyConfig {
     /// Check URLs and durations. [`spawn_notifier`](super::spawn_notifier) never panics on a
     /// bad config (a bad URL makes every delivery to it fail), but a daemon should reject one
     /// at load time.
     pub fn validate(&self) -> Result<(), NotifyConfigError> {
-        let check = |what: &'static str, url: &str| -> Result<(), NotifyConfigError> {
+        let check = |key: String, what: &'static str, url: &str| -> Result<(), NotifyConfigError> {
             let bad = |reason: String| NotifyConfigError::BadUrl {
+                key: key.clone(),
                 what,
                 url: url.to_string(),
                 reason,
@@ -149,11 +164,11 @@ impl NotifyConfig {
                 s => Err(bad(format!("scheme {s:?} is not http or https"))),
             }
         };
-        for w in &self.webhooks {
-            check("webhook", &w.url)?;
+        for (i, w) in self.webhooks.iter().enumerate() {
+            check(format!("webhooks[{i}].url"), "webhook", &w.url)?;
         }
-        for u in &self.alertmanager_urls {
-            check("alertmanager", u)?;
+        for (i, u) in self.alertmanager_urls.iter().enumerate() {
+            check(format!("alertmanager_urls[{i}]"), "alertmanager", u)?;
             // gatewatch appends the API path; given twice, every notification went to
             // `/api/v2/alerts/api/v2/alerts`, a 404, and was lost (a path prefix such as a
             // reverse proxy's `/alertmanager` stays allowed)
@@ -164,6 +179,7 @@ impl NotifyConfig {
                 .any(|api| path.ends_with(api))
             {
                 return Err(NotifyConfigError::BadUrl {
+                    key: format!("alertmanager_urls[{i}]"),
                     what: "alertmanager",
                     url: u.clone(),
                     reason: format!(

@@ -37,7 +37,7 @@ fn notify_targets_parse_and_bad_urls_name_the_section() {
     assert_eq!(c.notify.webhooks.len(), 1);
     assert_eq!(c.notify.webhooks[0].receiver, "gatewatch");
     assert_eq!(c.notify.alertmanager_urls, ["http://am:9093"]);
-    assert!(err("[[notify.webhooks]]\nurl = \"ftp://x\"\n").starts_with("notify: "));
+    assert!(err("[[notify.webhooks]]\nurl = \"ftp://x\"\n").starts_with("notify.webhooks[0].url: "));
     assert!(err("[notify]\nalertmanager_url = \"http://x\"\n").contains("alertmanager_url"));
     // a list of URLs where tables are expected: told what a target looks like
     let e = err("[notify]\nwebhooks = [\"http://127.0.0.1:5001/hook\"]\n");
@@ -65,6 +65,30 @@ fn gates_merge_defaults_key_by_key() {
 
 fn err(text: &str) -> String {
     Config::from_toml(text).unwrap_err().message
+}
+
+/// `[notify]`'s errors name the key and its line, as every other table's do (they read
+/// "notify: timeout_seconds must be ..." with no line, and a bad URL no key at all).
+#[test]
+fn notify_errors_name_the_key_and_its_line() {
+    assert_eq!(
+        err("[notify]\ntimeout_seconds = -1\n"),
+        "notify.timeout_seconds: timeout_seconds must be a positive finite number, got -1, line 2"
+    );
+    let e = err("[notify]\nalertmanager_urls = [\"http://am:9093\", \"nope\"]\n");
+    assert!(
+        e.starts_with("notify.alertmanager_urls[1]: invalid alertmanager URL \"nope\""),
+        "{e}"
+    );
+    assert!(e.ends_with(", line 2"), "{e}");
+    let e = err(
+        "[[notify.webhooks]]\nurl = \"http://a/\"\n\n[[notify.webhooks]]\nurl = \"not a url\"\n",
+    );
+    assert!(
+        e.starts_with("notify.webhooks[1].url: invalid webhook URL \"not a url\""),
+        "{e}"
+    );
+    assert!(e.ends_with(", line 5"), "{e}");
 }
 
 #[test]
