@@ -96,6 +96,100 @@ async fn gzip_bodies_are_accepted_on_every_ingest_route() {
     assert_eq!(state.gate_view("v2").unwrap().window.samples, 3);
 }
 
+/// A gzip body of several members (`cat a.gz b.gz`, RFC 1952 section 2.2) is read whole: the
+/// lines after the first member were dropped with a 204 and no count. Bytes after the last
+/// member that are not gzip are a broken body (400), not ignored.
+#[tokio::test]
+async fn every_member_of_a_gzip_body_is_read() {
+    let (app, state) = make_app("");
+    let lines = |gate: &str, from: usize, to: usize| {
+        (from..to)
+            .map(|i| format!("m,gate={gate} force={i} {}\n", 1_000_000 + 10 * i))
+            .collect::<String>()
+    };
+    for uri in ["/api/v2/write?precision=ms", "/write?precision=ms"] {
+        let gate = if uri.starts_with("/api") {
+            "mm2"
+        } else {
+            "mm1"
+        };
+        let mut body = gzip(lines(gate, 0, 100).as_bytes());
+        body.extend(gzip(lines(gate, 100, 200).as_bytes()));
+        body.extend(gzip(lines(gate, 200, 203).as_bytes()));
+        let (s, v, h) = request(&app, "POST", uri, &[GZ], body).await;
+        assert_eq!(s, StatusCode::NO_CONTENT, "{uri}: {v}");
+        assert!(h.get("x-gatewatch-dropped").is_none(), "{uri}: {h:?}");
+        // all 203 taken (the window itself holds 100: 1 s at 100 Hz)
+        assert_eq!(
+            state.gate_view(gate).unwrap().window.samples_total,
+            203,
+            "{uri}"
+        );
+    }
+    let js = |gate: &str| uniform(gate, 1000.0, 5).to_string();
+    let mut body = gzip(js("js1").as_bytes());
+    body.extend(gzip(b"\n"));
+    let (s, v, _) = request(&app, "POST", "/api/v1/samples", &[GZ], body).await;
+    assert_eq!(s, StatusCode::NO_CONTENT, "{v}");
+    assert_eq!(state.gate_view("js1").unwrap().window.samples, 5);
+    // garbage after the last member
+    let mut body = gzip(lines("mm3", 0, 10).as_bytes());
+    body.extend(b"garbage after the gzip stream");
+    let (s, v, _) = request(&app, "POST", "/api/v2/write?precision=ms", &[GZ], body).await;
+    assert_eq!(s, StatusCode::BAD_REQUEST, "{v}");
+    assert!(state.gate_view("mm3").is_none());
+}
+
+/// Line protocol over HTTP has its rate checked for the whole request, as JSON `samples`
+/// pairs do: 250 Hz lines on a 100 Hz gate were answered 204, taken, and never identified
+/// (counted `rate_mismatch` one by one). Lines whose unit cannot resolve the gate's step
+/// (`precision=s` at 100 Hz) imply no rate and go on as before.
+#[tokio::test]
+async fn line_protocol_at_another_rate_is_refused_naming_the_gate_and_line() {
+    let (app, state) = make_app("");
+    let lines = |gate: &str, step_ms: usize, n: usize| {
+        (0..n)
+            .map(|i| format!("m,gate={gate} force={i} {}\n", 1_000_000 + step_ms * i))
+            .collect::<String>()
+    };
+    let body = format!("# a comment\n{}", lines("fast", 4, 50));
+    let (s, v, _) = request(&app, "POST", "/api/v2/write?precision=ms", &[], body).await;
+    assert_eq!(s, StatusCode::BAD_REQUEST, "{v}");
+    let message = v["message"].as_str().unwrap();
+    assert!(
+        message.contains("sample rate 250 Hz disagrees with the configured 100 Hz of gate `fast`"),
+        "{v}"
+    );
+    assert!(message.contains("line 2"), "{v}");
+    assert!(state.gate_view("fast").is_none());
+    assert_eq!(
+        metric(
+            &state,
+            "gatewatch_samples_rejected_total{reason=\"rate_mismatch\"}"
+        ),
+        50.0
+    );
+    // at the gate's rate, and two lines (no rate to read), taken
+    let (s, v, _) = request(
+        &app,
+        "POST",
+        "/write?precision=ms",
+        &[],
+        lines("right", 10, 50),
+    )
+    .await;
+    assert_eq!(s, StatusCode::NO_CONTENT, "{v}");
+    assert_eq!(state.gate_view("right").unwrap().window.samples_total, 50);
+    let (s, v, _) = request(&app, "POST", "/write?precision=ms", &[], lines("two", 4, 2)).await;
+    assert_eq!(s, StatusCode::NO_CONTENT, "{v}");
+    // whole seconds cannot tell 100 Hz samples apart: no rate, as before
+    let body: String = (0..5)
+        .map(|i| format!("m,gate=coarse force={i} {}\n", 1000 + i))
+        .collect();
+    let (s, v, _) = request(&app, "POST", "/write?precision=s", &[], body).await;
+    assert_eq!(s, StatusCode::NO_CONTENT, "{v}");
+}
+
 #[tokio::test]
 async fn gzip_bomb_is_413_and_counted() {
     // 64 KiB limit; 16 MiB of line protocol compresses to a few KiB, far under the limit
@@ -145,6 +239,29 @@ async fn unknown_encodings_are_415_naming_them_and_bad_gzip_is_400() {
         );
         assert_eq!(v["code"], "unsupported media type");
         assert_eq!(h["accept-encoding"], "gzip");
+    }
+    // the same coding on two header lines is the list `gzip, gzip` (RFC 9110, section 5.3):
+    // it was decoded once and the still compressed body read as bad JSON
+    let twice = gzip(&gzip(uniform("twice", 1000.0, 5).to_string().as_bytes()));
+    for second in ["gzip", "br"] {
+        let req = Request::builder()
+            .method("POST")
+            .uri("/api/v1/samples")
+            .header("content-encoding", "gzip")
+            .header("content-encoding", second)
+            .body(Body::from(twice.clone()))
+            .unwrap();
+        let resp = app.clone().oneshot(req).await.unwrap();
+        assert_eq!(
+            resp.status(),
+            StatusCode::UNSUPPORTED_MEDIA_TYPE,
+            "gzip + {second}"
+        );
+        let bytes = axum::body::to_bytes(resp.into_body(), usize::MAX)
+            .await
+            .unwrap();
+        let text = String::from_utf8_lossy(&bytes);
+        assert!(text.contains(&format!("`gzip, {second}`")), "{text}");
     }
     // gatewatch's own route keeps its own shape
     let (s, v, _) = request(
@@ -293,6 +410,22 @@ async fn ping_health_and_query() {
     )
     .await;
     assert_eq!(s, StatusCode::OK, "{v}");
+    // a body that is not read as a form is said as such (it was "missing required parameter
+    // `q`"), and one over the body limit is a 413, as on the write routes
+    let (s, v, _) = request(
+        &app,
+        "POST",
+        "/query",
+        &[bearer, ("content-type", "text/plain")],
+        "q=CREATE+DATABASE+db3",
+    )
+    .await;
+    assert_eq!(s, StatusCode::BAD_REQUEST, "{v}");
+    let message = v["message"].as_str().unwrap_or_default();
+    assert!(message.contains("this body was not read as one"), "{v}");
+    let big = format!("q=CREATE+DATABASE+{}", "a".repeat(5 << 20));
+    let (s, v, _) = request(&app, "POST", "/query", &[bearer, form], big).await;
+    assert_eq!(s, StatusCode::PAYLOAD_TOO_LARGE, "{v}");
     let (s, v, h) = request(
         &app,
         "GET",

@@ -209,6 +209,38 @@ async fn a_silent_tcp_connection_is_closed_after_the_idle_timeout() {
     stop(r).await;
 }
 
+/// Idle means no byte: a client still sending its line, a byte at a time, was cut after one
+/// timeout (the wait timed whole lines) and its line lost; a line begun and never ended when
+/// the connection goes idle is refused and counted (`bad_line`), not dropped without a word.
+#[tokio::test]
+async fn a_tcp_client_sending_slowly_is_not_idle_and_a_cut_line_is_counted() {
+    let r = start_default("tcp_idle_timeout_seconds = 1.0").await;
+    let mut slow = TcpStream::connect(r.tcp).await.unwrap();
+    let line = b"m,gate=trickle force=1 1000000000000\n";
+    // about 3.7 s for the line, a byte every 0.1 s: more than three timeouts in all
+    for b in line {
+        slow.write_all(&[*b])
+            .await
+            .expect("the slow client is not cut");
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    wait_for_get(
+        r.http,
+        "/api/v1/gates/trickle",
+        10,
+        "the trickled line applied",
+        |s, _| s == 200,
+    )
+    .await;
+    let _cut = connect_and_write(r.tcp, b"m,gate=cut force=1 1000000000000").await;
+    wait_for_get(r.http, "/metrics", 10, "the cut line counted", |_, m| {
+        m.contains("gatewatch_samples_rejected_total{reason=\"bad_line\"} 1")
+    })
+    .await;
+    assert_eq!(get(r.http, "/api/v1/gates/cut").await.0, 404);
+    stop(r).await;
+}
+
 #[tokio::test]
 async fn tcp_clients_outside_the_allowed_networks_are_closed_at_accept() {
     let r = start_default("tcp_allowed_networks = [\"10.0.0.0/8\", \"192.0.2.7\"]").await;

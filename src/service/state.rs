@@ -782,18 +782,24 @@ impl AppState {
             // before the window sees them: a far-future time would restart it (see ingest_checks)
             super::ingest_checks::check_times(b, cfg, now)
                 .map_err(|(reason, e)| (reason, IngestError::BadRequest(e)))?;
-            if let Some((rate, field)) = &b.rate {
+            // line protocol whose unit cannot tell the gate's samples apart (`precision=s` at
+            // 200 Hz) implies no rate: its lines are duplicates, counted as such
+            let resolves = b
+                .precision
+                .is_none_or(|p| p.seconds_per_unit() * cfg.rate_hz <= 0.5);
+            if let Some((rate, field)) = b.rate.as_ref().filter(|_| resolves) {
                 if ((rate - cfg.rate_hz) / cfg.rate_hz).abs() > RATE_TOLERANCE {
-                    return Err((
-                        RejectReason::RateMismatch,
-                        IngestError::BadRequest(BadRequest::new(format!(
-                            "sample rate {} Hz disagrees with the configured {} Hz of gate `{}` by more than 1 %",
-                            crate::number::Num(*rate),
-                            crate::number::Num(cfg.rate_hz),
-                            b.gate
-                        ))
-                        .field(field.clone())),
-                    ));
+                    let mut e = BadRequest::new(format!(
+                        "sample rate {} Hz disagrees with the configured {} Hz of gate `{}` by more than 1 %",
+                        // to a thousandth: times in ms implied 249.9999999988063 Hz
+                        crate::number::Num((rate * 1e3).round() / 1e3),
+                        crate::number::Num(cfg.rate_hz),
+                        b.gate
+                    ))
+                    .field(field.clone());
+                    // line protocol: the gate's first line
+                    e.line = b.lines.as_ref().and_then(|l| l.first().copied());
+                    return Err((RejectReason::RateMismatch, IngestError::BadRequest(e)));
                 }
             }
         }

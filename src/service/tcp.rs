@@ -160,11 +160,22 @@ enum Frame {
 /// [`LinesCodec`] with a maximum length, its two refusals turned into frames: `FramedRead`
 /// ends the stream after a decoder error, but a bad line must not end the connection. The
 /// error type is left for the reads from the socket, which do end it.
-struct Lines(LinesCodec);
+struct Lines(LinesCodec, usize);
 
 impl Lines {
-    fn frame(r: Result<Option<String>, LinesCodecError>) -> Result<Option<Frame>, io::Error> {
+    /// Lines of at most `max` bytes, not counting the line end: the codec's bound counts a
+    /// CRLF line's `\r`, so it is one byte more, and the line it gives (without the `\r`) is
+    /// held to `max` here (a CRLF line of exactly `max` bytes was refused as longer).
+    fn new(max: usize) -> Lines {
+        Lines(LinesCodec::new_with_max_length(max.saturating_add(1)), max)
+    }
+
+    fn frame(
+        &self,
+        r: Result<Option<String>, LinesCodecError>,
+    ) -> Result<Option<Frame>, io::Error> {
         match r {
+            Ok(Some(line)) if line.len() > self.1 => Ok(Some(Frame::TooLong)),
             Ok(line) => Ok(line.map(Frame::Line)),
             Err(LinesCodecError::MaxLineLengthExceeded) => Ok(Some(Frame::TooLong)),
             // the codec does no I/O of its own: its only I/O error is the UTF-8 check, made
@@ -179,11 +190,13 @@ impl Decoder for Lines {
     type Error = io::Error;
 
     fn decode(&mut self, buf: &mut BytesMut) -> Result<Option<Frame>, io::Error> {
-        Self::frame(self.0.decode(buf))
+        let r = self.0.decode(buf);
+        self.frame(r)
     }
 
     fn decode_eof(&mut self, buf: &mut BytesMut) -> Result<Option<Frame>, io::Error> {
-        Self::frame(self.0.decode_eof(buf))
+        let r = self.0.decode_eof(buf);
+        self.frame(r)
     }
 }
 
@@ -203,7 +216,7 @@ async fn handle(
 ) {
     let max = state.config.ingest.tcp_max_line_bytes;
     let idle = Duration::from_secs_f64(state.config.server.tcp_idle_timeout_seconds);
-    let mut frames = FramedRead::new(stream, Lines(LinesCodec::new_with_max_length(max)));
+    let mut frames = FramedRead::new(stream, Lines::new(max));
     let mut pending = Pending {
         text: String::with_capacity(1024),
         first_line: 1,
@@ -211,16 +224,40 @@ async fn handle(
     };
     loop {
         // a connection that sends nothing for `tcp_idle_timeout_seconds` is closed: silent
-        // sockets must not hold connection slots forever
-        let frame = tokio::select! {
-            f = tokio::time::timeout(idle, frames.next()) => match f {
-                Ok(f) => f,
-                Err(_) => {
-                    tracing::debug!(peer = %bad.peer, "tcp connection idle, closing");
-                    break;
-                }
-            },
-            _ = shutdown.wait_for(|s| *s) => break,
+        // sockets must not hold connection slots forever. Nothing means no byte: a client
+        // still sending its line (a byte at a time) is not idle, so the wait starts again
+        // while the codec's buffer changes (it timed whole lines, and cut such a client).
+        // `FramedRead::next` is cancel safe: what it read stays in the buffer.
+        let mut seen = frames.read_buffer().len();
+        let frame = loop {
+            tokio::select! {
+                f = tokio::time::timeout(idle, frames.next()) => match f {
+                    Ok(f) => break Some(f),
+                    Err(_) if frames.read_buffer().len() != seen => {
+                        seen = frames.read_buffer().len();
+                    }
+                    Err(_) => {
+                        tracing::debug!(peer = %bad.peer, "tcp connection idle, closing");
+                        break None;
+                    }
+                },
+                _ = shutdown.wait_for(|s| *s) => break None,
+            }
+        };
+        let Some(frame) = frame else {
+            // a line begun but never ended (idle, or the daemon stopping) is refused and
+            // counted, not dropped without a word; at the end of the stream it is applied
+            if frames
+                .read_buffer()
+                .iter()
+                .any(|b| !b.is_ascii_whitespace())
+            {
+                apply(&state, &mut pending, &mut bad).await;
+                state.metrics.reject(RejectReason::BadLine, 1);
+                let line_no = pending.first_line + pending.lines;
+                bad.record(line_no, "line cut off: the connection went idle (or the daemon stopped) before its newline");
+            }
+            break;
         };
         let frame = match frame {
             None => break,
@@ -340,7 +377,7 @@ mod tests {
 
     /// Every frame of `input` as [`FramedRead`] would decode it, the end of the stream included.
     fn frames(input: &[u8], max: usize) -> Vec<Frame> {
-        let mut codec = Lines(LinesCodec::new_with_max_length(max));
+        let mut codec = Lines::new(max);
         let mut buf = BytesMut::from(input);
         let mut out = Vec::new();
         while let Some(f) = codec.decode(&mut buf).unwrap() {
@@ -441,6 +478,27 @@ mod tests {
                 line("next"),
                 Frame::NotUtf8,
                 line("last"),
+            ]
+        );
+    }
+
+    /// The bound counts the line, not its end: a CRLF line of exactly the maximum is kept (it
+    /// was refused, its `\r` counted), one byte more is refused with or without the `\r`.
+    #[test]
+    fn the_line_bound_does_not_count_a_crlf_line_end() {
+        let mut input = vec![b'x'; 10];
+        input.extend(b"\r\n");
+        input.extend(vec![b'y'; 11]);
+        input.extend(b"\r\n");
+        input.extend(vec![b'z'; 11]);
+        input.extend(b"\nend\r\n");
+        assert_eq!(
+            frames(&input, 10),
+            vec![
+                Frame::Line("xxxxxxxxxx".into()),
+                Frame::TooLong,
+                Frame::TooLong,
+                Frame::Line("end".into()),
             ]
         );
     }

@@ -27,7 +27,10 @@ pub const HISTORY_CSV_HEADER: [&str; 13] = [
 /// fractions allowed, or with an offset: `2024-05-01T14:00:00+02:00` is the same instant), as
 /// Unix seconds. The error says which forms are accepted.
 pub fn parse_time(s: &str) -> Result<f64, String> {
-    let s = s.trim();
+    let given = s.trim();
+    // RFC 3339 (section 5.6) allows a lowercase `t` and `z`, which humantime does not read
+    let upper = given.to_ascii_uppercase();
+    let s = upper.as_str();
     if let Ok(v) = s.parse::<f64>() {
         if v.is_finite() {
             return Ok(v);
@@ -38,6 +41,15 @@ pub fn parse_time(s: &str) -> Result<f64, String> {
         Some((base, offset)) => (format!("{base}Z"), offset),
         None => (s.to_string(), 0.0),
     };
+    // A time without `Z` or an offset is local time somewhere: read as UTC it shifted the
+    // range by hours without a word (ingest refuses it too; RFC 3339 section 4.3)
+    if !utc.ends_with('Z') && s.contains(':') {
+        return Err(format!(
+            "{given:?} has no offset: end an RFC 3339 time with Z (UTC) or +HH:MM/-HH:MM, like \
+             2024-05-01T12:00:00Z or 2024-05-01T14:00:00+02:00 (a time without one is \
+             ambiguous)"
+        ));
+    }
     match humantime::parse_rfc3339_weak(&utc) {
         // the parser refuses years before 1970; should it ever take one, it is negative seconds
         Ok(t) => Ok(match t.duration_since(UNIX_EPOCH) {
@@ -45,7 +57,7 @@ pub fn parse_time(s: &str) -> Result<f64, String> {
             Err(before) => -before.duration().as_secs_f64(),
         } - offset),
         Err(e) => Err(format!(
-            "{s:?} is neither Unix seconds nor an RFC 3339 time like 2024-05-01T12:00:00Z or \
+            "{given:?} is neither Unix seconds nor an RFC 3339 time like 2024-05-01T12:00:00Z or \
              2024-05-01T14:00:00+02:00 ({e})"
         )),
     }

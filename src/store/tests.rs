@@ -517,6 +517,17 @@ fn rfc3339_offsets_are_the_same_instant() {
         let e = parse_time(bad).unwrap_err();
         assert!(e.contains("+02:00"), "says offsets are accepted: {e}");
     }
+    // a time without an offset is local time somewhere: refused, as ingest refuses it (it
+    // was read as UTC, the range shifted by the reader's offset without a word)
+    for bad in [
+        "2024-05-01T12:00:00",
+        "2024-05-01 12:00:00",
+        "2024-05-01T12:00:00.5",
+    ] {
+        let e = parse_time(bad).unwrap_err();
+        assert!(e.contains("has no offset"), "{bad}: {e}");
+    }
+    assert_eq!(parse_time("2024-05-01t12:00:00z"), Ok(1_714_564_800.0));
 }
 
 /// A bound below `MIN_USEFUL_SIZE_MB` is valid but warned about, naming the key.

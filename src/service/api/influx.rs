@@ -17,7 +17,6 @@ use axum::middleware::Next;
 use axum::response::{IntoResponse, Response};
 use axum::Json;
 use serde_json::{json, Map, Value};
-use tower_http::decompression::RequestDecompressionLayer;
 
 use super::HttpError;
 use crate::service::ingest::BadRequest;
@@ -40,12 +39,38 @@ const MAX_ERROR_BODY: usize = 64 * 1024;
 /// clients send). It streams: the body limit (`server.body_limit_bytes`, enforced when the
 /// handler buffers the body) counts DECOMPRESSED bytes, so a gzip bomb stops at the limit with
 /// 413 instead of inflating into memory. [`content_encoding`] runs first and answers unknown
-/// encodings.
-pub fn decompression() -> RequestDecompressionLayer {
-    RequestDecompressionLayer::new().gzip(true)
+/// encodings (and leaves `gzip` as the one spelling).
+///
+/// Every member of the body is decoded: a gzip file may hold several (RFC 1952, section 2.2;
+/// `cat a.gz b.gz`, a logger that appends), and `gzip -d`, Go's reader and InfluxDB read them
+/// all. tower-http's `RequestDecompressionLayer` stopped after the first and answered 204 for
+/// the lot: the lines of the later members were lost without a word. Bytes after the last
+/// member that are not gzip fail the body (400), as a broken stream does.
+pub async fn gunzip(mut req: Request, next: Next) -> Response {
+    use futures_util::StreamExt;
+    let gzip = req
+        .headers()
+        .get(header::CONTENT_ENCODING)
+        .is_some_and(|v| v == "gzip");
+    if !gzip {
+        return next.run(req).await;
+    }
+    req.headers_mut().remove(header::CONTENT_ENCODING);
+    req.headers_mut().remove(header::CONTENT_LENGTH);
+    let req = req.map(|body| {
+        let raw = body
+            .into_data_stream()
+            .map(|chunk| chunk.map_err(std::io::Error::other));
+        let mut decoder = async_compression::tokio::bufread::GzipDecoder::new(
+            tokio_util::io::StreamReader::new(raw),
+        );
+        decoder.multiple_members(true);
+        Body::from_stream(tokio_util::io::ReaderStream::new(decoder))
+    });
+    next.run(req).await
 }
 
-/// Normalises `Content-Encoding` for [`decompression`] (which matches the exact lowercase
+/// Normalises `Content-Encoding` for [`gunzip`] (which matches the exact lowercase
 /// token): `gzip` and `x-gzip` in any case become `gzip`, `identity` is dropped, and anything
 /// else (`br`, `deflate`, a list of codings) is answered 415 naming the encoding, with
 /// `Accept-Encoding: gzip` as RFC 7694 asks, before the body is read.
@@ -54,10 +79,19 @@ pub async fn content_encoding(
     mut req: Request,
     next: Next,
 ) -> Response {
-    if let Some(v) = req.headers().get(header::CONTENT_ENCODING) {
-        let enc = String::from_utf8_lossy(v.as_bytes())
-            .trim()
-            .to_ascii_lowercase();
+    let lines = req.headers().get_all(header::CONTENT_ENCODING);
+    if lines.iter().next().is_some() {
+        // header lines repeated are one list (RFC 9110, section 5.3): `gzip` twice on two
+        // lines is `gzip, gzip`, refused as such (it was decoded once and read as bad JSON)
+        let enc = lines
+            .iter()
+            .map(|v| {
+                String::from_utf8_lossy(v.as_bytes())
+                    .trim()
+                    .to_ascii_lowercase()
+            })
+            .collect::<Vec<_>>()
+            .join(", ");
         match enc.as_str() {
             "gzip" | "x-gzip" => {
                 req.headers_mut()
@@ -197,15 +231,28 @@ pub async fn health(State(state): State<Arc<AppState>>) -> Response {
 /// send their own (`db`, `epoch`, `pretty`, `chunked`, `u`, `p`) and InfluxDB ignores the ones
 /// it does not use.
 pub async fn query(
+    State(state): State<Arc<AppState>>,
     method: Method,
     RawQuery(raw): RawQuery,
     form: Result<Form<Vec<(String, String)>>, FormRejection>,
 ) -> Result<Response, HttpError> {
     let in_url = single_param(raw.as_deref(), "q").map_err(HttpError::BadRequest)?;
-    // a GET's form is its query string again: only a POST has a body to read
+    // a GET's form is its query string again: only a POST has a body to read. A body that
+    // could not be read as a form is said as such, not as a missing `q` (a 5 MB form was
+    // "missing required parameter `q`", a 400 instead of 413)
+    let mut unread = None;
     let in_body = match form {
         Ok(Form(pairs)) if method == Method::POST => {
             single_value(pairs, "q").map_err(HttpError::BadRequest)?
+        }
+        Err(r) if method == Method::POST => {
+            if r.status() == StatusCode::PAYLOAD_TOO_LARGE {
+                return Err(HttpError::PayloadTooLarge(
+                    state.config.server.body_limit_bytes,
+                ));
+            }
+            unread = Some(r.body_text());
+            None
         }
         _ => None,
     };
@@ -220,9 +267,12 @@ pub async fn query(
         }
         (Some(q), None) | (None, Some(q)) => q,
         (None, None) => {
+            let why = unread.map_or(String::new(), |r| {
+                format!(" (in the URL, or in a form body: this body was not read as one: {r})")
+            });
             return Err(HttpError::BadRequest(
-                BadRequest::new("missing required parameter `q`").field("q"),
-            ))
+                BadRequest::new(format!("missing required parameter `q`{why}")).field("q"),
+            ));
         }
     };
     let results = create_database_statements(&q)

@@ -404,7 +404,8 @@ fn start_time(v: Scalar, field: &str) -> Result<f64, BadRequest> {
                 ))
                 .field(field));
             }
-            let t = humantime::parse_rfc3339_weak(&s)
+            // RFC 3339 (section 5.6) allows a lowercase `t` and `z`; humantime reads uppercase
+            let t = humantime::parse_rfc3339_weak(&s.to_ascii_uppercase())
                 .map_err(|e| BadRequest::new(format!("invalid RFC 3339 time: {e}")).field(field))?;
             t.duration_since(std::time::UNIX_EPOCH)
                 .map(|d| d.as_secs_f64())
