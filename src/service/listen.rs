@@ -223,6 +223,12 @@ pub async fn serve(
                     cut(Cut::SendTimeout);
                     log_cut(&cuts, peer, Cut::SendTimeout, limits.send_timeout, &e);
                 }
+                // a head over the bound or with too many header lines: hyper has answered 431,
+                // and the client is still sending its head; closing at once reset the
+                // connection before it read the answer (a 200 KB head, or 1000 header lines)
+                Ok(Err(e)) if e.is_parse_too_large() => {
+                    linger(conn.into_parts().io.into_inner().stream, stop).await
+                }
                 Ok(Err(e)) => {
                     tracing::debug!(%peer, error = %e, "http connection ended with an error")
                 }
