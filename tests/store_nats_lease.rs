@@ -186,8 +186,19 @@ fn of_two_claims_with_the_same_expected_sequence_exactly_one_wins() {
     // reasons are kept for the message. Several rounds, each on a prefix of its own: the
     // streams are created by four clients at once every time, which is what killed Debian's
     // nats-server 2.9 while the open updated a stream before creating it (`ops::ensure`).
-    for round in 0..4 {
-        let prefix = format!("OPEN{round}");
+    //
+    // Debian's nats-server 2.9.10 has a second bug this race can reach: a message get on a
+    // stream another client is creating dereferences its store before it is set
+    // (`jsMsgGetRequest`, a nil pointer, exit status 2): once in stop 69's CI rehearsal (the
+    // integration binary, this test beside the others), not in 40 runs of it alone. No open
+    // of ours can avoid
+    // it, as the other client's creation is not ours to see. Such a round (the server's log
+    // naming `jsMsgGetRequest` in its panic) is run again on a server started anew, twice
+    // at most; any other death of the server, or a second owner, still fails.
+    let mut server_bug = 0;
+    let mut round = 0;
+    while round < 4 {
+        let prefix = format!("OPEN{round}_{server_bug}");
         let barrier = Arc::new(Barrier::new(4));
         let opens: Vec<_> = (0..4)
             .map(|_| {
@@ -211,6 +222,20 @@ fn of_two_claims_with_the_same_expected_sequence_exactly_one_wins() {
         let (results, transient): (Vec<_>, Vec<_>) =
             opens.into_iter().map(|t| t.join().expect("join")).unzip();
         let owners = results.iter().filter(|r| r.is_ok()).count();
+        let report = server.report();
+        // a dead server makes the round unusable, whoever won it; two owners never are
+        if owners <= 1
+            && server_bug < 2
+            && report.contains("exited")
+            && report.contains("nil pointer dereference")
+            && report.contains("jsMsgGetRequest")
+        {
+            server_bug += 1;
+            eprintln!("round {round}: nats-server 2.9's message-get crash, the round again on a new server:\n{report}");
+            drop(results);
+            server.restart();
+            continue;
+        }
         assert_eq!(
             owners,
             1,
@@ -220,6 +245,7 @@ fn of_two_claims_with_the_same_expected_sequence_exactly_one_wins() {
         for e in results.iter().filter_map(|r| r.as_ref().err()) {
             assert!(e.is_owned(), "{e}");
         }
+        round += 1;
     }
     let report = server.report();
     assert!(report.contains(" running;"), "{report}");
