@@ -549,16 +549,6 @@ fn in_flags(e: IdentifyError) -> String {
 /// state far outside the record (`--y0 1e308` was blamed on the times or the equation), and
 /// (`displacement_model`: displacement data) a record far from order one that the equation
 /// does not let the search rescale.
-/// `v` with four decimals, or in scientific notation where those would print hundreds of
-/// digits or none (times of 1e-300 s gave "over 0.000000 s").
-fn readable(v: f64) -> String {
-    if v == 0.0 || (1e-3..1e7).contains(&v.abs()) {
-        format!("{v:.4}")
-    } else {
-        format!("{v:.4e}")
-    }
-}
-
 fn not_integrated_hint(
     displacement_model: Option<&Model>,
     series: &TimeSeries,
@@ -571,9 +561,11 @@ fn not_integrated_hint(
     if let Some(&step) = steps.get(steps.len() / 2) {
         let span = series.t[series.len() - 1] - series.t[0];
         hint.push_str(&format!(
-            "the times imply a sample rate of {} Hz over {} s; they must be in seconds (times in milliseconds make this 1000 times too low)",
-            readable(1.0 / step),
-            readable(span)
+            "the times imply a sample rate of {:.4} Hz over {:.6} s; they must be in seconds (times in milliseconds make this 1000 times too low)",
+            // scientific where four decimals would print 300 digits or none (times of
+            // 1e-300 s read "over 0.000000 s")
+            crate::number::Num(1.0 / step),
+            crate::number::Num(span)
         ));
     }
     // Constants whose size no double-precision integration of a gate survives.
