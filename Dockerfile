@@ -32,8 +32,10 @@ COPY --from=builder /src/target/release/gatewatch /usr/local/bin/gatewatch
 COPY config/gatewatch.toml /etc/gatewatch/gatewatch.toml
 COPY README.md docs/*.md /usr/share/doc/gatewatch/
 USER gatewatch
-# 9464: HTTP API, ingestion and /metrics; 8094: raw TCP line protocol (when tcp_listen is set)
-EXPOSE 9464 8094
+# 9464: HTTP API, ingestion and /metrics; 8094: raw TCP line protocol (when tcp_listen is set);
+# 9465: the probes and /metrics alone (when health_listen is set, e.g.
+# -e GATEWATCH_HEALTH_LISTEN=0.0.0.0:9465: docs/security.md, "Exhaust connections")
+EXPOSE 9464 8094 9465
 ENV GATEWATCH_LOG_FORMAT=json
 # The store (history, alert state, notification outbox): mount a volume here so it outlives
 # the container (docs/operations.md, "The store").

@@ -110,3 +110,35 @@ fn kubernetes_store_bound_fits_its_volume() {
         wal >> 20
     );
 }
+
+/// The probes and the scrape go to the health listener the ConfigMap opens: the probes name
+/// the container port `health`, whose number is `server.health_listen`'s port, and the scrape
+/// annotation and the NetworkPolicy use that number too. A probe on the main port is refused
+/// with everything else when clients hold its connections, and the kubelet restarts the pod.
+#[test]
+fn kubernetes_probes_and_scrape_use_the_health_listener() {
+    let k8s = read("deploy/kubernetes/gatewatch.yaml");
+    let health_listen = k8s
+        .lines()
+        .find_map(|l| l.trim().strip_prefix("health_listen = "))
+        .expect("the ConfigMap sets server.health_listen");
+    let port = health_listen
+        .trim_matches('"')
+        .rsplit_once(':')
+        .map(|x| x.1)
+        .expect("an address with a port");
+    assert!(
+        k8s.contains(&format!("- {{name: health, containerPort: {port}}}")),
+        "a container port `health` = {port}"
+    );
+    for probe in ["livenessProbe", "readinessProbe"] {
+        let get = k8s
+            .lines()
+            .skip_while(|l| l.trim() != format!("{probe}:"))
+            .nth(1)
+            .unwrap_or_else(|| panic!("a {probe}"));
+        assert!(get.contains("port: health"), "{probe}: {get}");
+    }
+    assert!(k8s.contains(&format!("prometheus.io/port: \"{port}\"")));
+    assert!(k8s.contains(&format!("- {{port: {port}, protocol: TCP}}")));
+}

@@ -211,6 +211,80 @@ async fn connections_over_the_cap_are_closed_and_a_client_gets_in_after_they_go(
     stop(r).await;
 }
 
+/// The probes' own port (`server.health_listen`): with every connection of `server.listen`
+/// held by silent clients, the kubelet's probes and a scrape are still answered there (on the
+/// main port they were refused: a liveness probe failing three times restarts the pod). The
+/// port serves nothing else, and has a cap of its own, counted apart.
+#[tokio::test]
+async fn the_health_listener_answers_while_every_http_connection_is_held() {
+    let r = start_default("max_http_connections = 2").await;
+    let hold = |addr, n| async move {
+        let mut held = Vec::new();
+        for _ in 0..n {
+            let mut s = TcpStream::connect(addr).await.unwrap();
+            // a started request: the connection is surely accepted and kept
+            s.write_all(b"GET /healthz HTTP/1.1\r\nhost: x\r\n")
+                .await
+                .unwrap();
+            held.push(s);
+        }
+        held
+    };
+    let refused = |addr| async move {
+        let mut extra = TcpStream::connect(addr).await.unwrap();
+        let _ = extra
+            .write_all(b"GET /healthz HTTP/1.1\r\nhost: x\r\n\r\n")
+            .await;
+        read_to_close(&mut extra).await
+    };
+    let held = hold(r.http, 2).await;
+    let answer = refused(r.http).await;
+    assert!(answer.is_empty(), "the main port is full, got {answer}");
+    assert_eq!(get(r.health, "/healthz").await, (200, "ok\n".to_string()));
+    assert_eq!(get(r.health, "/readyz").await, (200, "ready\n".to_string()));
+    let (status, m) = get(r.health, "/metrics").await;
+    assert_eq!(status, 200);
+    assert!(
+        m.lines().any(
+            |l| l.starts_with("gatewatch_http_connections_rejected_total ") && !l.ends_with(" 0")
+        ),
+        "the main port's refusal is on the health port's /metrics: {m}"
+    );
+    for path in ["/api/v1/gates", "/api/v1/samples", "/write"] {
+        assert_eq!(
+            get(r.health, path).await.0,
+            404,
+            "{path} on the health port"
+        );
+    }
+    drop(held);
+    // its own cap: one connection over it is closed at accept and counted apart
+    let held = hold(r.health, gatewatch::service::config::HEALTH_MAX_CONNECTIONS).await;
+    let answer = refused(r.health).await;
+    assert!(answer.is_empty(), "over the health cap, got {answer}");
+    drop(held);
+    let addr = r.health;
+    let m = tokio::time::timeout(Duration::from_secs(10), async {
+        loop {
+            if let Ok(resp) = reqwest::get(format!("http://{addr}/metrics")).await {
+                if resp.status() == 200 {
+                    break resp.text().await.unwrap();
+                }
+            }
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    })
+    .await
+    .expect("the health port serves again once its held connections closed");
+    assert!(
+        m.lines().any(
+            |l| l.starts_with("gatewatch_health_connections_rejected_total ") && !l.ends_with(" 0")
+        ),
+        "{m}"
+    );
+    stop(r).await;
+}
+
 #[tokio::test]
 async fn a_silent_tcp_connection_is_closed_after_the_idle_timeout() {
     let r = start_default("tcp_idle_timeout_seconds = 0.3").await;

@@ -533,7 +533,11 @@ async fn real_analyzers_never_take_the_daemon_down() {
     let (tx, rx) = tokio::sync::oneshot::channel::<()>();
     let task = tokio::spawn(gatewatch::service::server::run(
         cfg,
-        Listeners { http, tcp: None },
+        Listeners {
+            http,
+            tcp: None,
+            health: None,
+        },
         async move {
             let _ = rx.await;
         },

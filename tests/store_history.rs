@@ -87,9 +87,17 @@ async fn daemon(db: &Path) -> Daemon {
         .expect("bind");
     let url = format!("http://{}", http.local_addr().expect("addr"));
     let (stop, rx) = tokio::sync::oneshot::channel::<()>();
-    let task = tokio::spawn(run(cfg, Listeners { http, tcp: None }, async move {
-        let _ = rx.await;
-    }));
+    let task = tokio::spawn(run(
+        cfg,
+        Listeners {
+            http,
+            tcp: None,
+            health: None,
+        },
+        async move {
+            let _ = rx.await;
+        },
+    ));
     Daemon {
         url,
         stop,

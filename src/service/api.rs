@@ -609,6 +609,37 @@ async fn track(State(state): State<Arc<AppState>>, req: Request, next: Next) -> 
     resp
 }
 
+/// What the probes and the scrapers ask for: `/healthz`, `/readyz` (open) and `/metrics` (with a
+/// token when `server.metrics_auth`), on `server.listen` and on `server.health_listen`.
+fn probes(state: &Arc<AppState>) -> Router<Arc<AppState>> {
+    let metrics_route = Router::new().route("/metrics", get(metrics));
+    let metrics_route = if state.config.server.metrics_auth {
+        metrics_route.route_layer(middleware::from_fn_with_state(state.clone(), auth))
+    } else {
+        metrics_route
+    };
+    metrics_route
+        .route("/healthz", get(healthz))
+        .route("/readyz", get(readyz))
+}
+
+/// The router of the health listener (`server.health_listen`): the probes alone, with the
+/// request timeout and the request metrics of the main router. No concurrency limit of its
+/// own: each of its connections (at most [`HEALTH_MAX_CONNECTIONS`]) has one request at a time.
+///
+/// [`HEALTH_MAX_CONNECTIONS`]: super::config::HEALTH_MAX_CONNECTIONS
+pub fn health_router(state: Arc<AppState>) -> Router {
+    let timeout = Duration::from_secs_f64(state.config.server.request_timeout_seconds);
+    probes(&state)
+        .fallback(fallback)
+        .layer(tower_http::timeout::TimeoutLayer::with_status_code(
+            StatusCode::REQUEST_TIMEOUT,
+            timeout,
+        ))
+        .layer(middleware::from_fn_with_state(state.clone(), track))
+        .with_state(state)
+}
+
 async fn fallback() -> HttpError {
     HttpError::NotFound("no such route".into())
 }
@@ -658,20 +689,11 @@ pub fn router(state: Arc<AppState>) -> Router {
     .route("/ping", get(influx::ping))
     .route("/health", get(influx::health))
     .route_layer(middleware::from_fn(influx::v2_errors));
-    let metrics_route = if s.metrics_auth {
-        Router::new()
-            .route("/metrics", get(metrics))
-            .route_layer(middleware::from_fn_with_state(state.clone(), auth))
-    } else {
-        Router::new().route("/metrics", get(metrics))
-    };
     let timeout = Duration::from_secs_f64(s.request_timeout_seconds);
     Router::new()
         .merge(protected)
         .merge(influx_routes)
-        .merge(metrics_route)
-        .route("/healthz", get(healthz))
-        .route("/readyz", get(readyz))
+        .merge(probes(&state))
         .fallback(fallback)
         .layer(DefaultBodyLimit::max(s.body_limit_bytes))
         .layer(

@@ -148,6 +148,7 @@ async fn start_with(
         Listeners {
             http,
             tcp: Some(tcp),
+            health: None,
         },
         analyzer,
         persistence,

@@ -67,6 +67,13 @@ pub const MAX_SECONDS: f64 = 365.0 * 86_400.0;
 /// Default equation of motion: van der Pol-like damping, known installed stiffness `k`.
 pub const DEFAULT_MODEL: &str = "c1*ydd + (c2 + c3*yd^2)*yd + k*y = 0";
 
+/// Whether listeners on `a` and `b` would take the same port: the same port (not 0, which the
+/// system chooses) on the same address, or with either on every address.
+fn same_port(a: SocketAddr, b: SocketAddr) -> bool {
+    let overlap = a.ip() == b.ip() || a.ip().is_unspecified() || b.ip().is_unspecified();
+    a.port() != 0 && a.port() == b.port() && overlap
+}
+
 /// The whole configuration.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -99,6 +106,11 @@ pub struct ServerConfig {
     pub listen: String,
     /// Raw TCP line-protocol listen address; empty: off.
     pub tcp_listen: String,
+    /// Health listen address: `/healthz`, `/readyz` and `/metrics` on a port of their own, with
+    /// a connection cap of its own ([`HEALTH_MAX_CONNECTIONS`]), so that clients holding every
+    /// connection of `listen` cannot get the probes refused; empty: off (the probes are on
+    /// `listen` only).
+    pub health_listen: String,
     /// Bearer tokens; empty: no authentication (decided in the file only: a
     /// `GATEWATCH_AUTH_TOKENS` holding no token is refused, [`Config::apply_env`]).
     pub auth_tokens: Vec<String>,
@@ -149,6 +161,7 @@ impl Default for ServerConfig {
         ServerConfig {
             listen: DEFAULT_LISTEN.into(),
             tcp_listen: String::new(),
+            health_listen: String::new(),
             auth_tokens: Vec::new(),
             metrics_auth: false,
             body_limit_bytes: DEFAULT_BODY_LIMIT_BYTES,
@@ -460,6 +473,7 @@ pub struct ConfigError {
 pub const ENV_KEYS: &[(&str, &str)] = &[
     ("GATEWATCH_LISTEN", "server.listen"),
     ("GATEWATCH_TCP_LISTEN", "server.tcp_listen"),
+    ("GATEWATCH_HEALTH_LISTEN", "server.health_listen"),
     (
         "GATEWATCH_TCP_ALLOWED_NETWORKS",
         "server.tcp_allowed_networks",
@@ -786,6 +800,9 @@ impl Config {
         if let Some(v) = get("GATEWATCH_TCP_LISTEN") {
             self.server.tcp_listen = v;
         }
+        if let Some(v) = get("GATEWATCH_HEALTH_LISTEN") {
+            self.server.health_listen = v;
+        }
         // a list from the environment: comma-separated, blanks around and empty items dropped
         let list = |v: String| -> Vec<String> {
             v.split(',')
@@ -937,18 +954,28 @@ impl Config {
                 "must be empty or an address like 0.0.0.0:8094",
             );
         }
-        if let (Ok(http), Ok(tcp)) = (
-            s.listen.parse::<SocketAddr>(),
-            s.tcp_listen.parse::<SocketAddr>(),
-        ) {
-            // one port for both listeners: `serve` bound the first and then failed on its own
-            // port ("Address already in use") where check-config had said ok
-            let overlap =
-                http.ip() == tcp.ip() || http.ip().is_unspecified() || tcp.ip().is_unspecified();
-            if http.port() != 0 && http.port() == tcp.port() && overlap {
+        if !s.health_listen.is_empty() && s.health_listen.parse::<SocketAddr>().is_err() {
+            return err(
+                "health_listen",
+                "must be empty or an address like 0.0.0.0:9465",
+            );
+        }
+        // one port for two listeners: `serve` bound the first and then failed on its own
+        // port ("Address already in use") where check-config had said ok
+        let http = s.listen.parse::<SocketAddr>().ok();
+        let tcp = s.tcp_listen.parse::<SocketAddr>().ok();
+        let health = s.health_listen.parse::<SocketAddr>().ok();
+        if let Some((tcp, http)) = tcp.zip(http).filter(|(t, h)| same_port(*t, *h)) {
+            return err(
+                "tcp_listen",
+                &format!("{tcp} takes the port of server.listen ({http}): give the line-protocol listener its own port, such as 8094"),
+            );
+        }
+        for (other_key, other) in [("listen", http), ("tcp_listen", tcp)] {
+            if let Some((health, other)) = health.zip(other).filter(|(h, o)| same_port(*h, *o)) {
                 return err(
-                    "tcp_listen",
-                    &format!("{tcp} takes the port of server.listen ({http}): give the line-protocol listener its own port, such as 8094"),
+                    "health_listen",
+                    &format!("{health} takes the port of server.{other_key} ({other}): give the health listener its own port, such as 9465"),
                 );
             }
         }

@@ -297,7 +297,11 @@ pub async fn run_demo(
     let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
     let daemon = tokio::spawn(super::server::run(
         config,
-        super::server::Listeners { http, tcp: None },
+        super::server::Listeners {
+            http,
+            tcp: None,
+            health: None,
+        },
         async move {
             let _ = stop_rx.await;
         },

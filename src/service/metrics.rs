@@ -104,6 +104,9 @@ pub struct Metrics {
     /// `gatewatch_http_connections_rejected_total`: closed at accept, over
     /// `server.max_http_connections`.
     pub http_connections_rejected: IntCounter,
+    /// `gatewatch_health_connections_rejected_total`: closed at accept by the health listener
+    /// (`server.health_listen`), over its [`HEALTH_MAX_CONNECTIONS`](super::config::HEALTH_MAX_CONNECTIONS).
+    pub health_connections_rejected: IntCounter,
     /// `gatewatch_http_connections_cut_total{reason}`: HTTP connections closed while their
     /// answer was being sent ([`Cut`](super::listen::Cut)).
     pub http_connections_cut: IntCounterVec,
@@ -309,6 +312,17 @@ impl Metrics {
         registry
             .register(Box::new(http_connections_rejected.clone()))
             .expect("unique metric");
+        let health_connections_rejected = IntCounter::new(
+            "gatewatch_health_connections_rejected_total",
+            format!(
+                "Connections closed at accept by the health listener (server.health_listen) because its {} connections were taken.",
+                super::config::HEALTH_MAX_CONNECTIONS
+            ),
+        )
+        .expect("valid metric");
+        registry
+            .register(Box::new(health_connections_rejected.clone()))
+            .expect("unique metric");
         let gates_expired = IntCounter::new(
             "gatewatch_gates_expired_total",
             "Gates created by accept_unknown_gates forgotten after server.unknown_gate_expiry_seconds without data.",
@@ -490,6 +504,7 @@ impl Metrics {
                 &["reason"],
             ),
             http_connections_rejected,
+            health_connections_rejected,
             http_connections_cut: counter(
                 "gatewatch_http_connections_cut_total",
                 "HTTP connections closed while their answer was being sent, by reason: send_timeout (the client took none of it for server.request_timeout_seconds) or transfer_limit (a history answer still being sent at 10 x server.request_timeout_seconds).",

@@ -17,7 +17,7 @@ use tokio::sync::watch;
 use tokio::time::Instant;
 
 use super::api;
-use super::config::Config;
+use super::config::{Config, HEALTH_MAX_CONNECTIONS};
 use super::listen::{self, HttpLimits};
 use super::state::AppState;
 use super::storage::Persistence;
@@ -38,12 +38,14 @@ pub struct Listeners {
     pub http: TcpListener,
     /// Raw TCP line protocol, if enabled.
     pub tcp: Option<TcpListener>,
+    /// The probes' own port (`server.health_listen`), if enabled.
+    pub health: Option<TcpListener>,
 }
 
 impl Listeners {
-    /// Binds `server.listen` and `server.tcp_listen` (when set). An error names the key and the
-    /// address (`server.listen 0.0.0.0:9464: cannot bind: Address already in use`): the OS's
-    /// message alone did not say which of the two ports clashed.
+    /// Binds `server.listen`, and `server.tcp_listen` and `server.health_listen` when set. An
+    /// error names the key and the address (`server.listen 0.0.0.0:9464: cannot bind: Address
+    /// already in use`): the OS's message alone did not say which of the ports clashed.
     pub async fn bind(config: &Config) -> anyhow::Result<Listeners> {
         let http = bind_named("server.listen", &config.server.listen).await?;
         let tcp = if config.server.tcp_listen.is_empty() {
@@ -51,7 +53,12 @@ impl Listeners {
         } else {
             Some(bind_named("server.tcp_listen", &config.server.tcp_listen).await?)
         };
-        Ok(Listeners { http, tcp })
+        let health = if config.server.health_listen.is_empty() {
+            None
+        } else {
+            Some(bind_named("server.health_listen", &config.server.health_listen).await?)
+        };
+        Ok(Listeners { http, tcp, health })
     }
 }
 
@@ -209,6 +216,28 @@ pub async fn run_with_persistence(
                 .inc()
         }
     };
+    let health_task = listeners.health.map(|l| {
+        if let Ok(a) = l.local_addr() {
+            tracing::info!(addr = %a, "health listener up (/healthz, /readyz, /metrics)");
+        }
+        let limits = HttpLimits {
+            max_connections: HEALTH_MAX_CONNECTIONS,
+            ..limits
+        };
+        let refused = {
+            let state = state.clone();
+            move || state.metrics.health_connections_rejected.inc()
+        };
+        let router = api::health_router(state.clone());
+        tokio::spawn(listen::serve(
+            l,
+            router,
+            limits,
+            refused,
+            cut.clone(),
+            stop_rx.clone(),
+        ))
+    });
     let mut serve_task = tokio::spawn(listen::serve(
         listeners.http,
         router,
@@ -243,6 +272,12 @@ pub async fn run_with_persistence(
     state.listeners_up.store(false, Ordering::SeqCst);
     if let Some(t) = tcp_task {
         let _ = tokio::time::timeout_at(deadline, t).await;
+    }
+    if let Some(mut t) = health_task {
+        // a probe or a scrape is one short request: what is still open at the deadline goes
+        if tokio::time::timeout_at(deadline, &mut t).await.is_err() {
+            t.abort();
+        }
     }
     let _ = ticker.await;
     let workers_until = deadline - NOTIFY_RESERVE.min(grace / 4);

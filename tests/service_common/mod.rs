@@ -201,6 +201,8 @@ pub fn metric(state: &AppState, prefix: &str) -> f64 {
 pub struct Running {
     pub http: std::net::SocketAddr,
     pub tcp: std::net::SocketAddr,
+    /// The health listener (`server.health_listen`: the probes and `/metrics`).
+    pub health: std::net::SocketAddr,
     pub stop: tokio::sync::oneshot::Sender<()>,
     pub task: tokio::task::JoinHandle<anyhow::Result<()>>,
 }
@@ -212,13 +214,16 @@ pub async fn start(extra: &str, fake: Arc<Fake>) -> Running {
     ));
     let http = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
     let tcp = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let health = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
     let (ha, ta) = (http.local_addr().unwrap(), tcp.local_addr().unwrap());
+    let health_addr = health.local_addr().unwrap();
     let (stop, rx) = tokio::sync::oneshot::channel::<()>();
     let task = tokio::spawn(run_with_analyzer(
         cfg,
         Listeners {
             http,
             tcp: Some(tcp),
+            health: Some(health),
         },
         fake,
         async move {
@@ -228,6 +233,7 @@ pub async fn start(extra: &str, fake: Arc<Fake>) -> Running {
     Running {
         http: ha,
         tcp: ta,
+        health: health_addr,
         stop,
         task,
     }

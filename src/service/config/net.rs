@@ -12,6 +12,14 @@ use super::{ConfigError, ServerConfig};
 pub const DEFAULT_MAX_BODY_BYTES_IN_FLIGHT: usize = 16 * 1024 * 1024;
 /// Default bound on simultaneous HTTP connections; further ones are closed at once.
 pub const DEFAULT_MAX_HTTP_CONNECTIONS: usize = 512;
+/// Most simultaneous connections of the health listener (`server.health_listen`); one more is
+/// closed at accept and counted (`gatewatch_health_connections_rejected_total`). Who connects
+/// there: the kubelet's two probes, a Prometheus or two, an operator's curl; each probe and
+/// scrape is one short request on its own connection, or one kept alive. 16 holds them with
+/// room to spare, and the header timeout (`http_header_read_timeout_seconds`, shared with
+/// `listen`) frees a slot that a silent client holds. A cap, not a guard: admit only those
+/// clients to the port (docs/security.md, "Exhaust connections or file descriptors").
+pub const HEALTH_MAX_CONNECTIONS: usize = 16;
 /// Default seconds a client has to send a request's headers, counted from the moment the
 /// connection waits for them: also the idle timeout of a keep-alive connection.
 pub const DEFAULT_HTTP_HEADER_READ_TIMEOUT_SECONDS: f64 = 10.0;

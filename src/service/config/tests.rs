@@ -188,6 +188,31 @@ fn errors_name_the_key() {
     }
     Config::from_toml("[server]\nlisten = \"127.0.0.1:0\"\ntcp_listen = \"127.0.0.1:0\"\n")
         .unwrap();
+    // the health listener: an address or nothing, on a port of its own
+    let e = err("[server]\nhealth_listen = \"9465\"\n");
+    assert!(
+        e.starts_with("server.health_listen: must be empty or an address"),
+        "{e}"
+    );
+    for (other_key, other, health) in [
+        ("listen", "0.0.0.0:9464", "127.0.0.1:9464"),
+        ("tcp_listen", "127.0.0.1:8094", "0.0.0.0:8094"),
+    ] {
+        let e = err(&format!(
+            "[server]\n{other_key} = \"{other}\"\nhealth_listen = \"{health}\"\n"
+        ));
+        assert!(
+            e.starts_with("server.health_listen:")
+                && e.contains(&format!("takes the port of server.{other_key} ({other})")),
+            "{e}"
+        );
+    }
+    let c = Config::from_toml(
+        "[server]\nlisten = \"0.0.0.0:9464\"\ntcp_listen = \"0.0.0.0:8094\"\nhealth_listen = \"0.0.0.0:9465\"\n",
+    )
+    .unwrap();
+    assert_eq!(c.server.health_listen, "0.0.0.0:9465");
+    assert_eq!(Config::default().server.health_listen, "", "off by default");
     Config::from_toml("[server]\nlisten = \"127.0.0.1:9464\"\ntcp_listen = \"127.0.0.2:9464\"\n")
         .unwrap();
     let e = err("[server]\nworker_threads = 100000\n");
@@ -216,6 +241,7 @@ fn environment_overrides() {
     let env = |k: &str| match k {
         "GATEWATCH_LISTEN" => Some("127.0.0.1:1234".to_string()),
         "GATEWATCH_TCP_LISTEN" => Some("127.0.0.1:8094".to_string()),
+        "GATEWATCH_HEALTH_LISTEN" => Some("0.0.0.0:9465".to_string()),
         "GATEWATCH_AUTH_TOKENS" => Some("aaaaaaaaaaaaaaaa, bbbbbbbbbbbbbbbb".to_string()),
         "GATEWATCH_LOG_FORMAT" => Some("json".to_string()),
         "GATEWATCH_WORKER_THREADS" => Some("3".to_string()),
@@ -225,6 +251,7 @@ fn environment_overrides() {
     c.apply_env(env).unwrap();
     assert_eq!(c.server.listen, "127.0.0.1:1234");
     assert_eq!(c.server.tcp_listen, "127.0.0.1:8094");
+    assert_eq!(c.server.health_listen, "0.0.0.0:9465");
     assert_eq!(c.server.auth_tokens.len(), 2);
     assert_eq!(c.log.format, LogFormat::Json);
     assert_eq!(c.server.effective_worker_threads(), 3);
