@@ -567,8 +567,7 @@ pub async fn simulate_with_source(
                     body.push_str(&format!("gate,gate={} force={v} {ns}\n", args.gate));
                 }
                 if let Some(s) = tcp.as_mut() {
-                    use tokio::io::AsyncWriteExt;
-                    s.write_all(body.as_bytes()).await?;
+                    tcp_write(s, &args.tcp_addr, body.as_bytes(), SIMULATE_REQUEST_TIMEOUT).await?;
                 } else {
                     send_http(
                         &client,
@@ -589,9 +588,41 @@ pub async fn simulate_with_source(
     }
     if let Some(mut s) = tcp {
         use tokio::io::AsyncWriteExt;
-        s.shutdown().await?;
+        match tokio::time::timeout(SIMULATE_REQUEST_TIMEOUT, s.shutdown()).await {
+            Ok(r) => r.map_err(|e| anyhow::anyhow!("{}: {e}", args.tcp_addr))?,
+            Err(_) => anyhow::bail!(
+                "{}: the connection did not close within {} s",
+                args.tcp_addr,
+                SIMULATE_REQUEST_TIMEOUT.as_secs()
+            ),
+        }
     }
     Ok(sent)
+}
+
+/// Writes `bytes` to the raw TCP listener at `addr`, failing when the listener takes none of
+/// them for `stall` (a daemon that stopped reading: stuck, or a port that accepts and never
+/// reads): an error naming the address, where `simulate` used to wait for ever. A slow reader
+/// that takes some bytes in every `stall` is not cut.
+async fn tcp_write(
+    s: &mut tokio::net::TcpStream,
+    addr: &str,
+    mut bytes: &[u8],
+    stall: Duration,
+) -> anyhow::Result<()> {
+    use tokio::io::AsyncWriteExt;
+    while !bytes.is_empty() {
+        match tokio::time::timeout(stall, s.write(bytes)).await {
+            Ok(Ok(0)) => anyhow::bail!("{addr}: the connection was closed"),
+            Ok(Ok(n)) => bytes = &bytes[n..],
+            Ok(Err(e)) => anyhow::bail!("{addr}: {e}"),
+            Err(_) => anyhow::bail!(
+                "{addr}: the listener took no byte for {} s (the daemon is not reading)",
+                stall.as_secs_f64()
+            ),
+        }
+    }
+    Ok(())
 }
 
 #[cfg(test)]
@@ -608,6 +639,41 @@ mod tests {
     fn parse(flags: &[&str]) -> Result<SimulateArgs, clap::Error> {
         let argv = std::iter::once("simulate").chain(flags.iter().copied());
         Cli::try_parse_from(argv).map(|c| c.args)
+    }
+
+    /// A listener that accepts and never reads: the write fails after the stall, naming the
+    /// address, instead of waiting for ever; a reader gets every byte.
+    #[tokio::test]
+    async fn a_tcp_write_to_a_listener_that_never_reads_fails_naming_it() {
+        let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let addr = listener.local_addr().unwrap().to_string();
+        let mut s = tokio::net::TcpStream::connect(&addr).await.unwrap();
+        let (_held, _) = listener.accept().await.unwrap();
+        // far more than the socket buffers of both ends hold
+        let bytes = vec![b'x'; 64 << 20];
+        let e = tcp_write(&mut s, &addr, &bytes, Duration::from_millis(300))
+            .await
+            .unwrap_err()
+            .to_string();
+        assert_eq!(
+            e,
+            format!("{addr}: the listener took no byte for 0.3 s (the daemon is not reading)")
+        );
+        // a listener that reads gets it all
+        let mut s = tokio::net::TcpStream::connect(&addr).await.unwrap();
+        let (mut peer, _) = listener.accept().await.unwrap();
+        let read = tokio::spawn(async move {
+            let mut all = Vec::new();
+            tokio::io::AsyncReadExt::read_to_end(&mut peer, &mut all)
+                .await
+                .unwrap();
+            all.len()
+        });
+        tcp_write(&mut s, &addr, &bytes[..8 << 20], Duration::from_secs(10))
+            .await
+            .unwrap();
+        drop(s);
+        assert_eq!(read.await.unwrap(), 8 << 20);
     }
 
     #[test]
