@@ -70,6 +70,8 @@ use super::log_limit::{LogLimiter, ACCEPT_WARNING_INTERVAL};
 pub struct HttpLimits {
     /// Most simultaneous connections (`server.max_http_connections`).
     pub max_connections: usize,
+    /// What sets `max_connections`, for the log line of a refusal: the operator raises that.
+    pub cap_name: &'static str,
     /// Time to send a request's headers; also the keep-alive idle timeout
     /// (`server.http_header_read_timeout_seconds`).
     pub header_read_timeout: Duration,
@@ -171,7 +173,7 @@ pub async fn serve(
             refused();
             // counted each (gatewatch_http_connections_rejected_total), logged once per interval
             if let Some(held_back) = refusals.allow(std::time::Instant::now()) {
-                tracing::warn!(%peer, held_back, "http connection limit (server.max_http_connections) reached, closing");
+                tracing::warn!(%peer, held_back, cap = limits.cap_name, "http connection limit reached, closing");
             }
             drop(stream);
             continue;

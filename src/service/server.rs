@@ -197,6 +197,7 @@ pub async fn run_with_persistence(
     state.listeners_up.store(true, Ordering::SeqCst);
     let limits = HttpLimits {
         max_connections: state.config.server.max_http_connections,
+        cap_name: "server.max_http_connections",
         header_read_timeout: Duration::from_secs_f64(
             state.config.server.http_header_read_timeout_seconds,
         ),
@@ -222,6 +223,7 @@ pub async fn run_with_persistence(
         }
         let limits = HttpLimits {
             max_connections: HEALTH_MAX_CONNECTIONS,
+            cap_name: "HEALTH_MAX_CONNECTIONS of server.health_listen",
             ..limits
         };
         let refused = {
@@ -229,14 +231,13 @@ pub async fn run_with_persistence(
             move || state.metrics.health_connections_rejected.inc()
         };
         let router = api::health_router(state.clone());
-        tokio::spawn(listen::serve(
-            l,
-            router,
-            limits,
-            refused,
-            cut.clone(),
-            stop_rx.clone(),
-        ))
+        let serve = listen::serve(l, router, limits, refused, cut.clone(), stop_rx.clone());
+        tokio::spawn(async move {
+            // nothing else watches it: a health port gone dead says so (the probes then fail)
+            if let Err(e) = serve.await {
+                tracing::error!(error = %e, "health listener (server.health_listen) failed");
+            }
+        })
     });
     let mut serve_task = tokio::spawn(listen::serve(
         listeners.http,
