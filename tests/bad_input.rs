@@ -1546,7 +1546,7 @@ fn bad_configs() -> Vec<(&'static str, String, &'static str, Option<usize>)> {
         c(
             "TOML duplicate key",
             "[server]\nmax_gates = 3\nmax_gates = 4\n",
-            "max_gates",
+            "server.max_gates",
             Some(3),
         ),
         c(

@@ -68,9 +68,25 @@ pub const MAX_SECONDS: f64 = 365.0 * 86_400.0;
 pub const DEFAULT_MODEL: &str = "c1*ydd + (c2 + c3*yd^2)*yd + k*y = 0";
 
 /// Whether listeners on `a` and `b` would take the same port: the same port (not 0, which the
-/// system chooses) on the same address, or with either on every address.
+/// system chooses) on the same address, or with either on every address of its family. As
+/// Linux binds them by default (`net.ipv6.bindv6only = 0`; the standard library does not set
+/// `IPV6_V6ONLY`): an IPv4-mapped address (`[::ffff:127.0.0.1]`) is its IPv4 address, `[::]`
+/// takes the port on every IPv4 address as well, and `0.0.0.0` takes none of IPv6's
+/// (`0.0.0.0:8080` and `[::1]:8080` both bind).
 fn same_port(a: SocketAddr, b: SocketAddr) -> bool {
-    let overlap = a.ip() == b.ip() || a.ip().is_unspecified() || b.ip().is_unspecified();
+    use std::net::IpAddr;
+    let canonical = |ip: IpAddr| match ip {
+        IpAddr::V6(v6) => v6.to_ipv4_mapped().map_or(ip, IpAddr::V4),
+        v4 => v4,
+    };
+    let (x, y) = (canonical(a.ip()), canonical(b.ip()));
+    let overlap = match (x, y) {
+        (IpAddr::V4(_), IpAddr::V4(_)) | (IpAddr::V6(_), IpAddr::V6(_)) => {
+            x == y || x.is_unspecified() || y.is_unspecified()
+        }
+        // across families only IPv6's wildcard, which is dual-stack, takes IPv4's port
+        (IpAddr::V6(v6), IpAddr::V4(_)) | (IpAddr::V4(_), IpAddr::V6(v6)) => v6.is_unspecified(),
+    };
     a.port() != 0 && a.port() == b.port() && overlap
 }
 
@@ -564,7 +580,7 @@ fn not_utf8(bytes: &[u8], valid_up_to: usize) -> String {
 }
 
 /// A TOML syntax error (or duplicate key) with what toml's span points at and its line:
-/// `duplicate key `max_gates`, line 3` or `line 1: unclosed table, expected `]`: `[server``.
+/// `server.max_gates: duplicate key, line 3` or `line 1: unclosed table, expected `]`: `[server``.
 fn toml_error(text: &str, e: toml::de::Error) -> ConfigError {
     let msg = e.message().trim().to_string();
     let Some(span) = e.span() else {
@@ -581,11 +597,49 @@ fn toml_error(text: &str, e: toml::de::Error) -> ConfigError {
     // the key a duplicate-key error points at, or the text of the line at fault
     let at = text.get(span.clone()).map(str::trim).unwrap_or("");
     if msg.starts_with("duplicate key") && !at.is_empty() && !at.contains('\n') {
-        return ConfigError::new(format!("{at}: duplicate key, line {line}"));
+        // name the key by its full path (`defaults.alert.for_windows`), as every other error
+        // does: the leaf alone is ambiguous in a file where each gate's table has the same keys
+        let key = match table_header_before(text, start) {
+            Some(header) if !at.starts_with('[') => format!("{header}.{at}"),
+            _ => at.trim_matches(|c| c == '[' || c == ']').trim().to_string(),
+        };
+        return ConfigError::new(format!("{key}: duplicate key, line {line}"));
     }
     let line_text = text.lines().nth(line - 1).unwrap_or("").trim();
     let line_text: String = line_text.chars().take(80).collect();
     ConfigError::new(format!("line {line}: {msg}: `{line_text}`"))
+}
+
+/// The header of the table (`defaults.alert` of `[defaults.alert]`, or of `[[notify.webhooks]]`)
+/// that the byte `at` of `text` lies in, `None` at the top level. A line-by-line reading, which
+/// is enough for the position of a key that toml has already parsed: a header is a line that
+/// starts with `[`, and no key line does (a multi-line array's continuation lines hold values,
+/// not keys, so a duplicate key is never inside one).
+fn table_header_before(text: &str, at: usize) -> Option<String> {
+    let before = text.get(..at)?;
+    let upto = before.rfind('\n').map_or(0, |i| i);
+    // a duplicate table (`[server]` twice) is named by its header alone
+    let own = text[upto..].trim_start_matches('\n').trim_start();
+    if own.starts_with('[') {
+        return None;
+    }
+    text[..upto].lines().rev().find_map(|l| {
+        let l = l.trim();
+        let (inner, rest) = match l.strip_prefix("[[") {
+            Some(r) => r.split_once("]]")?,
+            None => l.strip_prefix('[')?.split_once(']')?,
+        };
+        // `[1, 2],` in a multi-line array is a value, not a header
+        let rest = rest.trim();
+        if inner.contains(',') || !(rest.is_empty() || rest.starts_with('#')) {
+            return None;
+        }
+        let parts: Vec<String> = inner
+            .split('.')
+            .map(|p| p.trim().trim_matches('"').to_string())
+            .collect();
+        Some(parts.join("."))
+    })
 }
 
 /// `err` with the line of the key it names (`server.max_gates: must be ...`), when the text
@@ -663,6 +717,15 @@ pub const TOP_LEVEL_TABLES: [&str; 7] = [
     "server", "log", "ingest", "notify", "storage", "defaults", "gates",
 ];
 
+/// `KEY: must be a table` for a top-level key given a value (`gates = 5`), with its line.
+fn not_a_table(text: &str, key: &str) -> ConfigError {
+    let mut message = format!("{key}: must be a table");
+    if let Some(line) = locate::line_of(text, &[key.to_string()]) {
+        message.push_str(&format!(", line {line}"));
+    }
+    ConfigError::new(message)
+}
+
 /// The error for a top-level key that is no table of [`TOP_LEVEL_TABLES`], with its line.
 fn unknown_top_level(text: &str, key: &str) -> ConfigError {
     let expected: Vec<String> = TOP_LEVEL_TABLES.iter().map(|t| format!("`{t}`")).collect();
@@ -689,12 +752,12 @@ impl Config {
         let defaults = match doc.remove("defaults") {
             None => toml::Table::new(),
             Some(toml::Value::Table(t)) => t,
-            Some(_) => return Err(ConfigError::new("defaults: must be a table")),
+            Some(_) => return Err(not_a_table(text, "defaults")),
         };
         let gates = match doc.remove("gates") {
             None => toml::Table::new(),
             Some(toml::Value::Table(t)) => t,
-            Some(_) => return Err(ConfigError::new("gates: must be a table")),
+            Some(_) => return Err(not_a_table(text, "gates")),
         };
         if let Some(key) = doc.keys().find(|k| !TOP_LEVEL_TABLES.contains(&k.as_str())) {
             return Err(unknown_top_level(text, key));

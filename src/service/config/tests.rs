@@ -430,7 +430,27 @@ fn the_four_toml_errors_name_key_and_line() {
     // duplicate key
     assert_eq!(
         err("[server]\nmax_gates = 3\nmax_gates = 4\n"),
-        "max_gates: duplicate key, line 3"
+        "server.max_gates: duplicate key, line 3"
+    );
+    // ... by its full path, in a nested table, after a multi-line array whose lines start with
+    // `[`, and at the top level
+    assert_eq!(
+        err("[defaults.alert]\nfor_windows = 2\n[gates.g1.alert]\nfor_windows = 2\nfor_windows = 3\n"),
+        "gates.g1.alert.for_windows: duplicate key, line 5"
+    );
+    assert_eq!(
+        err("[server]\ntcp_allowed_networks = [\n\"10.0.0.0/8\",\n]\nlisten = \"a\"\nlisten = \"b\"\n"),
+        "server.listen: duplicate key, line 6"
+    );
+    assert_eq!(
+        err("[[notify.webhooks]]\nurl = \"http://a\"\nurl = \"http://b\"\n"),
+        "notify.webhooks.url: duplicate key, line 3"
+    );
+    // a top-level table given a value
+    assert_eq!(err("\ngates = 5\n"), "gates: must be a table, line 2");
+    assert_eq!(
+        err("defaults = \"x\"\n"),
+        "defaults: must be a table, line 1"
     );
     // wrong type under [defaults], directly and in a nested table
     let e = err("[defaults]\nsignal = \"force\"\nrate_hz = \"fast\"\n");
@@ -1068,4 +1088,57 @@ fn the_top_level_tables_are_the_config_fields() {
         assert!(TOP_LEVEL_TABLES.contains(&name), "{name} in {serde_err}");
     }
     assert_eq!(listed.split(", ").count() + 2, TOP_LEVEL_TABLES.len());
+}
+
+#[test]
+fn same_port_says_what_the_kernel_does() {
+    // Each pair bound for real: the first on a port the system chooses, the second on that
+    // port; `same_port` must say "clash" exactly when the second bind fails with "address in
+    // use". A pair whose address this machine lacks (no IPv6 in a container) is skipped, but
+    // the IPv4 pairs always run.
+    use std::net::{SocketAddr, TcpListener};
+    let pairs = [
+        ("127.0.0.1", "127.0.0.1", true),
+        ("127.0.0.1", "0.0.0.0", true),
+        ("0.0.0.0", "127.0.0.2", true),
+        ("127.0.0.1", "127.0.0.2", false),
+        ("[::]", "127.0.0.1", true),
+        ("127.0.0.1", "[::]", true),
+        ("0.0.0.0", "[::1]", false),
+        ("[::1]", "0.0.0.0", false),
+        ("[::ffff:127.0.0.1]", "127.0.0.1", true),
+        ("0.0.0.0", "[::ffff:127.0.0.1]", true),
+        ("[::1]", "[::]", true),
+        ("[::1]", "127.0.0.1", false),
+    ];
+    // a machine set to bind IPv6 only (`bindv6only = 1`) keeps the families apart; the
+    // rule states the default
+    let v6only =
+        std::fs::read_to_string("/proc/sys/net/ipv6/bindv6only").is_ok_and(|s| s.trim() == "1");
+    let mut checked_v4 = 0;
+    for (a, b, clash) in pairs {
+        if v6only && a.starts_with('[') != b.starts_with('[') {
+            continue;
+        }
+        let Ok(first) = TcpListener::bind(format!("{a}:0")) else {
+            continue;
+        };
+        let port = first.local_addr().unwrap().port();
+        let a: SocketAddr = format!("{a}:{port}").parse().unwrap();
+        let b: SocketAddr = format!("{b}:{port}").parse().unwrap();
+        let in_use = match TcpListener::bind(b) {
+            Ok(_) => false,
+            Err(e) if e.kind() == std::io::ErrorKind::AddrInUse => true,
+            Err(_) => continue, // the address is not on this machine
+        };
+        // the table states the Linux default (bindv6only = 0) and the kernel agrees
+        assert_eq!(in_use, clash, "{a} then {b}: the kernel");
+        assert_eq!(super::same_port(a, b), clash, "{a} and {b}");
+        assert_eq!(super::same_port(b, a), clash, "{b} and {a}");
+        checked_v4 += usize::from(a.is_ipv4() && b.is_ipv4());
+    }
+    assert_eq!(checked_v4, 4, "every IPv4 pair was bound");
+    // port 0 is the system's choice: never a clash
+    let z: SocketAddr = "127.0.0.1:0".parse().unwrap();
+    assert!(!super::same_port(z, z));
 }
