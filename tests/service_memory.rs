@@ -401,7 +401,7 @@ async fn history_answers_not_read_are_bounded_and_cut_after_the_request_timeout(
     // each of the four answers not taken was cut by the send timeout, and counted so (a bounded
     // wait: one place was free for the answer above, the other three are cut at about the
     // same time)
-    let series = "gatewatch_http_connections_cut_total{reason=\"send_timeout\"}";
+    let series = "gatewatch_http_connections_cut_total{listener=\"http\",reason=\"send_timeout\"}";
     let deadline = Instant::now() + Duration::from_secs(20);
     while counter(&base, series).await < MAX_CONCURRENT_HISTORY as f64 && Instant::now() < deadline
     {
@@ -542,7 +542,9 @@ async fn history_answers_read_slowly_are_cut_at_the_transfer_limit() {
     let body: serde_json::Value = serde_json::from_slice(&body).unwrap();
     assert_eq!(body["count"], MAX_HISTORY_LIMIT);
     // counted as cuts at the transfer limit, none by the send timeout
-    let cut = |reason: &str| format!("gatewatch_http_connections_cut_total{{reason=\"{reason}\"}}");
+    let cut = |reason: &str| {
+        format!("gatewatch_http_connections_cut_total{{listener=\"http\",reason=\"{reason}\"}}")
+    };
     assert_eq!(
         counter(&base, &cut("transfer_limit")).await,
         MAX_CONCURRENT_HISTORY as f64

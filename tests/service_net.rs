@@ -282,6 +282,13 @@ async fn the_health_listener_answers_while_every_http_connection_is_held() {
         ),
         "{m}"
     );
+    // the health port's answers cut in sending are counted apart from the main port's
+    for listener in ["http", "health"] {
+        let series = format!(
+            "gatewatch_http_connections_cut_total{{listener=\"{listener}\",reason=\"send_timeout\"}} 0"
+        );
+        assert!(m.lines().any(|l| l == series), "{series} in {m}");
+    }
     stop(r).await;
 }
 

@@ -107,8 +107,9 @@ pub struct Metrics {
     /// `gatewatch_health_connections_rejected_total`: closed at accept by the health listener
     /// (`server.health_listen`), over its [`HEALTH_MAX_CONNECTIONS`](super::config::HEALTH_MAX_CONNECTIONS).
     pub health_connections_rejected: IntCounter,
-    /// `gatewatch_http_connections_cut_total{reason}`: HTTP connections closed while their
-    /// answer was being sent ([`Cut`](super::listen::Cut)).
+    /// `gatewatch_http_connections_cut_total{listener,reason}`: HTTP connections closed while
+    /// their answer was being sent ([`Cut`](super::listen::Cut)), per listener
+    /// ([`HTTP_LISTENERS`]).
     pub http_connections_cut: IntCounterVec,
     /// `gatewatch_gates_expired_total`: gates created by `accept_unknown_gates` forgotten after
     /// `server.unknown_gate_expiry_seconds` of silence.
@@ -240,6 +241,11 @@ pub const STORE_PRUNE_REASONS: &[&str] = &["age", "rows", "size"];
 /// rebuilt from; or a frame of the store's `-wal` file SQLite dropped because an earlier frame
 /// was damaged, counted in frames, the WAL kept beside the store as `FILE-wal.damaged-SECS`).
 pub const STORE_RESTORE_SKIPPED: &[&str] = &["alert_state", "history", "wal_frame"];
+/// The `listener` label of `gatewatch_http_connections_cut_total`: `http` is `server.listen`,
+/// `health` is `server.health_listen` (its series stay 0 while that listener is off). Apart so
+/// that a probe or a scrape cut on the health port is not read as an API client's.
+pub const HTTP_LISTENERS: [&str; 2] = ["http", "health"];
+
 /// Reasons of `gatewatch_tcp_connections_rejected_total`, in connections closed at accept
 /// before a byte is read: `connection_limit` when `server.max_tcp_connections` are already
 /// served (an overloaded or leaking client: raise the limit or fix the client), `not_allowed`
@@ -507,8 +513,8 @@ impl Metrics {
             health_connections_rejected,
             http_connections_cut: counter(
                 "gatewatch_http_connections_cut_total",
-                "HTTP connections closed while their answer was being sent, by reason: send_timeout (the client took none of it for server.request_timeout_seconds) or transfer_limit (a history answer still being sent at 10 x server.request_timeout_seconds).",
-                &["reason"],
+                "HTTP connections closed while their answer was being sent, by listener (http: server.listen; health: server.health_listen) and reason: send_timeout (the client took none of it for server.request_timeout_seconds) or transfer_limit (a history answer still being sent at 10 x server.request_timeout_seconds).",
+                &["listener", "reason"],
             ),
             gates_expired,
             gates_deleted,
@@ -552,8 +558,11 @@ impl Metrics {
         for r in TCP_CONNECTION_REJECT_REASONS {
             m.tcp_connections_rejected.with_label_values(&[r]);
         }
-        for c in super::listen::Cut::ALL {
-            m.http_connections_cut.with_label_values(&[c.as_str()]);
+        for listener in HTTP_LISTENERS {
+            for c in super::listen::Cut::ALL {
+                m.http_connections_cut
+                    .with_label_values(&[listener, c.as_str()]);
+            }
         }
         for r in STORE_WRITE_ERRORS {
             m.store_write_errors.with_label_values(&[r]);

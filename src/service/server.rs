@@ -207,13 +207,13 @@ pub async fn run_with_persistence(
         let state = state.clone();
         move || state.metrics.http_connections_rejected.inc()
     };
-    let cut = {
+    let cut = |listener: &'static str| {
         let state = state.clone();
         move |why: listen::Cut| {
             state
                 .metrics
                 .http_connections_cut
-                .with_label_values(&[why.as_str()])
+                .with_label_values(&[listener, why.as_str()])
                 .inc()
         }
     };
@@ -231,7 +231,7 @@ pub async fn run_with_persistence(
             move || state.metrics.health_connections_rejected.inc()
         };
         let router = api::health_router(state.clone());
-        let serve = listen::serve(l, router, limits, refused, cut.clone(), stop_rx.clone());
+        let serve = listen::serve(l, router, limits, refused, cut("health"), stop_rx.clone());
         tokio::spawn(async move {
             // nothing else watches it: a health port gone dead says so (the probes then fail)
             if let Err(e) = serve.await {
@@ -244,7 +244,7 @@ pub async fn run_with_persistence(
         router,
         limits,
         refused,
-        cut,
+        cut("http"),
         stop_rx.clone(),
     ));
     // In-flight requests get until the deadline; a client that never finishes its request must
