@@ -71,7 +71,8 @@ pub struct NotifyConfig {
     pub resend_interval_seconds: f64,
     /// Timeout of one HTTP request (default 10).
     pub timeout_seconds: f64,
-    /// Attempts per delivery, the first included (default 6; 0 acts as 1).
+    /// Attempts per delivery, the first included (default 6; at least 1: 1 is no retry;
+    /// [`validate`](Self::validate) refuses 0, which the notifier reads as 1).
     pub max_attempts: u32,
     /// Wait before the first retry (default 500 ms), doubling at each retry...
     pub initial_backoff_ms: u64,
@@ -81,7 +82,7 @@ pub struct NotifyConfig {
     /// queue.
     pub max_backoff_ms: u64,
     /// Capacity of the handle's queue and of each target's queue, in batches (default 1024;
-    /// 0 acts as 1).
+    /// at least 1: [`validate`](Self::validate) refuses 0, which the notifier reads as 1).
     pub queue_capacity: usize,
     /// This daemon's URL: `externalURL` of webhook payloads and `generatorURL` of every alert.
     pub external_url: String,
@@ -132,6 +133,9 @@ pub enum NotifyConfigError {
     /// `resend_interval_seconds` is negative or NaN.
     #[error("resend_interval_seconds must be >= 0, got {}", crate::number::Num(*.0))]
     BadResendInterval(f64),
+    /// `max_attempts` or `queue_capacity` is 0: no delivery could be made, or no batch queued.
+    #[error("must be at least 1, got 0")]
+    Zero(&'static str),
 }
 
 impl NotifyConfigError {
@@ -142,6 +146,7 @@ impl NotifyConfigError {
             NotifyConfigError::BadUrl { key, .. } => key.clone(),
             NotifyConfigError::BadTimeout(_) => "timeout_seconds".into(),
             NotifyConfigError::BadResendInterval(_) => "resend_interval_seconds".into(),
+            NotifyConfigError::Zero(key) => (*key).into(),
         }
     }
 }
@@ -195,6 +200,14 @@ impl NotifyConfig {
             return Err(NotifyConfigError::BadResendInterval(
                 self.resend_interval_seconds,
             ));
+        }
+        // refused, not read as 1 (which the notifier still does for a caller that skips this
+        // check): a 0 in a file is a mistake, and "no retry" is 1
+        if self.max_attempts == 0 {
+            return Err(NotifyConfigError::Zero("max_attempts"));
+        }
+        if self.queue_capacity == 0 {
+            return Err(NotifyConfigError::Zero("queue_capacity"));
         }
         Ok(())
     }
@@ -317,6 +330,33 @@ mod tests {
             ..NotifyConfig::default()
         };
         assert!(bad.validate().is_err());
+        // 0 attempts or a queue of 0 batches is refused, naming the key
+        for (key, bad) in [
+            (
+                "max_attempts",
+                NotifyConfig {
+                    max_attempts: 0,
+                    ..NotifyConfig::default()
+                },
+            ),
+            (
+                "queue_capacity",
+                NotifyConfig {
+                    queue_capacity: 0,
+                    ..NotifyConfig::default()
+                },
+            ),
+        ] {
+            let e = bad.validate().unwrap_err();
+            assert_eq!(e.key(), key);
+            assert_eq!(e.to_string(), "must be at least 1, got 0");
+        }
+        let one = NotifyConfig {
+            max_attempts: 1,
+            queue_capacity: 1,
+            ..NotifyConfig::default()
+        };
+        assert!(one.validate().is_ok());
     }
 
     /// Waits in whole milliseconds (backon computes in `f32` seconds).
