@@ -533,11 +533,7 @@ async fn real_analyzers_never_take_the_daemon_down() {
     let (tx, rx) = tokio::sync::oneshot::channel::<()>();
     let task = tokio::spawn(gatewatch::service::server::run(
         cfg,
-        Listeners {
-            http,
-            tcp: None,
-            health: None,
-        },
+        Listeners::http_only(http),
         async move {
             let _ = rx.await;
         },

@@ -10,7 +10,6 @@ use std::process::Command;
 use std::time::Duration;
 
 use gatewatch::service::config::Config;
-use gatewatch::service::server::{run, Listeners};
 use gatewatch::store::{IdentificationRecord, SqliteStore, Store, WriteBatch, HISTORY_CSV_HEADER};
 use serde_json::Value;
 
@@ -82,24 +81,9 @@ async fn daemon(db: &Path) -> Daemon {
         db.display()
     ))
     .expect("config");
-    let http = tokio::net::TcpListener::bind("127.0.0.1:0")
-        .await
-        .expect("bind");
-    let url = format!("http://{}", http.local_addr().expect("addr"));
-    let (stop, rx) = tokio::sync::oneshot::channel::<()>();
-    let task = tokio::spawn(run(
-        cfg,
-        Listeners {
-            http,
-            tcp: None,
-            health: None,
-        },
-        async move {
-            let _ = rx.await;
-        },
-    ));
+    let (addr, stop, task) = crate::stream_common::run_daemon(cfg).await;
     Daemon {
-        url,
+        url: format!("http://{addr}"),
         stop,
         task,
         client: reqwest::Client::new(),

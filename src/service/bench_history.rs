@@ -398,17 +398,9 @@ async fn route(
         now + 1.0
     );
     let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
-    let daemon = tokio::spawn(run(
-        config,
-        Listeners {
-            http,
-            tcp: None,
-            health: None,
-        },
-        async move {
-            let _ = stopped.await;
-        },
-    ));
+    let daemon = tokio::spawn(run(config, Listeners::http_only(http), async move {
+        let _ = stopped.await;
+    }));
     let client = reqwest::Client::new();
     // the daemon opens the store off the executor: wait until it answers
     let deadline = Instant::now() + Duration::from_secs(60);

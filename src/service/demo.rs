@@ -297,11 +297,7 @@ pub async fn run_demo(
     let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
     let daemon = tokio::spawn(super::server::run(
         config,
-        super::server::Listeners {
-            http,
-            tcp: None,
-            health: None,
-        },
+        super::server::Listeners::http_only(http),
         async move {
             let _ = stop_rx.await;
         },

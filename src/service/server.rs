@@ -60,6 +60,16 @@ impl Listeners {
         };
         Ok(Listeners { http, tcp, health })
     }
+
+    /// The HTTP listener alone (no raw TCP, no health port): the demo's, the benches' and most
+    /// tests'.
+    pub fn http_only(http: TcpListener) -> Listeners {
+        Listeners {
+            http,
+            tcp: None,
+            health: None,
+        }
+    }
 }
 
 /// Binds `addr`, the value of the configuration key `key`; an error names both, with the OS's

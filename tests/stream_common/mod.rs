@@ -123,17 +123,9 @@ pub async fn run_daemon(
     let http = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
     let addr = http.local_addr().unwrap();
     let (stop, rx) = tokio::sync::oneshot::channel::<()>();
-    let task = tokio::spawn(run(
-        cfg,
-        Listeners {
-            http,
-            tcp: None,
-            health: None,
-        },
-        async move {
-            let _ = rx.await;
-        },
-    ));
+    let task = tokio::spawn(run(cfg, Listeners::http_only(http), async move {
+        let _ = rx.await;
+    }));
     (addr, stop, task)
 }
 
