@@ -84,6 +84,12 @@ pub struct Observation<'a> {
     /// more on a slower one); `None`: [`AT_ONCE_MIN_AMBIENT_RATIO`] (an at-once bar of
     /// [`AT_ONCE_FLOOR`]).
     pub departure_ratio: Option<f64>,
+    /// Whether the spectrum classified the window as a limit cycle (`DampingReport::regime`
+    /// is [`crate::spectral::Regime::LimitCycle`]): a steady oscillation, an envelope far
+    /// steadier than a noise-driven response's. Standing at least [`at_once_ratio`] above the
+    /// gate's ambient level it reads negative whatever its interval, with the rules'
+    /// `fire_on_limit_cycle` (docs/alerts.md, "A steady cycle far above the ambient level").
+    pub limit_cycle: bool,
     /// Frequency of the (self-excited) oscillation, Hz.
     pub frequency_hz: Option<f64>,
     /// Where `zeta0` comes from (`DampingReport::zeta0_source`): the annotations credit the
@@ -328,6 +334,48 @@ enum Reading {
 }
 
 fn classify(obs: &Observation, rules: &AlertRules) -> Reading {
+    match classify_interval(obs, rules) {
+        Reading::Negative { at_once } => Reading::Negative { at_once },
+        // not negative by its interval, but a steady cycle far above the ambient level: the
+        // sign is the regime's (never at once: two such windows, or one and a confident one)
+        _ if cycle_reads_negative(obs, rules) => Reading::Negative { at_once: false },
+        other => other,
+    }
+}
+
+/// How far above its ambient level a window of this gate must stand to fire at once, and for
+/// a limit-cycle window to read negative by its regime.
+fn at_once_bar(obs: &Observation, rules: &AlertRules) -> f64 {
+    rules
+        .fire_at_once_min_ratio
+        .unwrap_or_else(|| at_once_ratio(obs.departure_ratio))
+}
+
+/// Whether the window reads negative by its regime alone: the spectrum classified it a limit
+/// cycle and it stands at least the at-once bar above the gate's ambient level, with the rules'
+/// `fire_on_limit_cycle`. Whatever its interval and the fit's trust: a gate that holds a steady
+/// oscillation several times above its own ambient level is self-excited whatever the size of
+/// its damping, and the first cycle windows' envelope readings are wide or untrusted (a lone
+/// first one always is). Why not on a stable gate: its windows stand 3.5 times above its level
+/// a few times a week at most, and then as a noise-driven excursion, whose envelope is
+/// Rayleigh's, not a cycle's (docs/alerts.md, "A steady cycle far above the ambient level").
+pub(super) fn cycle_reads_negative(obs: &Observation, rules: &AlertRules) -> bool {
+    rules.fire_on_limit_cycle
+        && obs.limit_cycle
+        && obs
+            .ambient_ratio
+            .is_some_and(|r| r >= at_once_bar(obs, rules))
+}
+
+/// Whether the window reads negative by its regime and not by its interval: what the alert's
+/// annotations then say (`evidence = "limit_cycle"`).
+pub(super) fn negative_by_regime_only(obs: &Observation, rules: &AlertRules) -> bool {
+    cycle_reads_negative(obs, rules)
+        && !matches!(classify_interval(obs, rules), Reading::Negative { .. })
+}
+
+/// The reading of the window's interval alone.
+fn classify_interval(obs: &Observation, rules: &AlertRules) -> Reading {
     let (Some(z), Some((low, high))) = (obs.zeta0, obs.zeta0_interval) else {
         return Reading::Unknown;
     };
@@ -339,10 +387,9 @@ fn classify(obs: &Observation, rules: &AlertRules) -> Reading {
         None => high < rules.fire_below,
     };
     if negative {
-        let at = rules
-            .fire_at_once_min_ratio
-            .unwrap_or_else(|| at_once_ratio(obs.departure_ratio));
-        let departed = obs.ambient_ratio.is_some_and(|r| r >= at);
+        let departed = obs
+            .ambient_ratio
+            .is_some_and(|r| r >= at_once_bar(obs, rules));
         Reading::Negative {
             at_once: departed && rules.fires_at_once(low, high),
         }

@@ -109,6 +109,27 @@ pub(super) fn damping_annotations(
              oscillations grow by themselves."
         ),
     };
+    // read negative by its regime: say what the evidence is, and what the figure is not
+    let by_regime = super::negative_by_regime_only(obs, rules);
+    if by_regime {
+        let ratio = obs.ambient_ratio.map_or("?".to_string(), fmt_sig);
+        let interval = match obs.zeta0_interval {
+            Some((lo, hi)) if lo.is_finite() && hi.is_finite() => {
+                format!(
+                    " (95 % interval {} to {} %)",
+                    fmt_percent(lo),
+                    fmt_percent(hi)
+                )
+            }
+            _ => " (no interval)".to_string(),
+        };
+        description = format!(
+            "Gate {gate} holds a steady self-sustained oscillation (a limit cycle) {ratio} times \
+             above its ambient level: only a negative damping at rest sustains one, whatever \
+             its size. This window's damping ratio, {pct} %{interval}, does not yet tell the \
+             size."
+        );
+    }
     let unit = if obs.amplitude_unit.is_empty() {
         String::new()
     } else {
@@ -139,6 +160,9 @@ pub(super) fn damping_annotations(
     }
     a.insert("summary".to_string(), summary);
     a.insert("description".to_string(), description);
+    // what made the window negative: its interval below fire_below, or its regime
+    let evidence = if by_regime { "limit_cycle" } else { "interval" };
+    a.insert("evidence".to_string(), evidence.to_string());
     if let Some(z) = zeta {
         a.insert("damping_ratio".to_string(), fmt_sig(z));
     }

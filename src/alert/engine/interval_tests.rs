@@ -298,6 +298,116 @@ fn a_window_far_below_fires_at_once() {
 }
 
 #[test]
+fn a_steady_cycle_far_above_the_ambient_level_reads_negative() {
+    // the first cycle windows of an onset (lock gate seed 47 of `bench warning --seeds 100
+    // --scenarios onset`): the envelope's readings, wide and untrusted, far above the level
+    let cycle = |ratio: f64| Observation {
+        limit_cycle: true,
+        ambient_ratio: Some(ratio),
+        trusted: false,
+        zeta0_source: Some(Zeta0Source::Envelope),
+        ..obs(-0.0106, -0.0296, 0.0085)
+    };
+    let rules = AlertRules::default();
+    assert!(rules.fire_on_limit_cycle, "on by default");
+    // two in a row fire; one alone waits (never at once)
+    let mut e = AlertEngine::new(rules.clone());
+    assert!(e.observe("g", &cycle(7.24), t(0)).is_empty());
+    assert_eq!(e.state("g"), Some(GateState::Pending));
+    let ev = e.observe("g", &cycle(9.19), t(5));
+    let [AlertEvent::Firing(a)] = &ev[..] else {
+        panic!("{ev:?}")
+    };
+    assert_eq!(a.starts_at, t(0));
+    assert_eq!(a.annotations["evidence"], "limit_cycle");
+    let d = &a.annotations["description"];
+    assert!(
+        d.contains("limit cycle) 9.19 times above its ambient level")
+            && d.contains("95 % interval -3.0 to 0.9 %"),
+        "{d}"
+    );
+    // one cycle window completes a streak begun by a window negative by its interval
+    let mut e = AlertEngine::new(rules.clone());
+    assert!(e
+        .observe("g", &obs(-0.004, -0.0075, -0.0005), t(0))
+        .is_empty());
+    assert_eq!(e.observe("g", &cycle(5.0), t(5)).len(), 1);
+    // below the at-once bar (3.5 here; the gate's departure ratio or the site's own bar move
+    // it), not a cycle, off, or a gate without a level yet: the interval decides, and this
+    // one is no evidence
+    let below = Observation {
+        departure_ratio: Some(3.84),
+        ..cycle(4.6)
+    };
+    let no_level = Observation {
+        ambient_ratio: None,
+        ..cycle(9.0)
+    };
+    let not_cycle = Observation {
+        limit_cycle: false,
+        ..cycle(9.0)
+    };
+    for (what, o, r) in [
+        ("3.49", cycle(3.49), rules.clone()),
+        (
+            "below the bar of a 20-cycle gate (4.68)",
+            below,
+            rules.clone(),
+        ),
+        ("no level", no_level, rules.clone()),
+        ("not a cycle", not_cycle, rules.clone()),
+        (
+            "off",
+            cycle(9.0),
+            AlertRules {
+                fire_on_limit_cycle: false,
+                ..rules.clone()
+            },
+        ),
+        (
+            "above a site's bar",
+            cycle(9.0),
+            AlertRules {
+                fire_at_once_min_ratio: Some(9.5),
+                ..rules.clone()
+            },
+        ),
+    ] {
+        let mut e = AlertEngine::new(r);
+        for i in 0..4 {
+            assert!(e.observe("g", &o, t(5 * i)).is_empty(), "{what}");
+        }
+        assert_eq!(e.state("g"), Some(GateState::Unknown), "{what}");
+    }
+    // a trusted cycle window whose interval reads good (a recovering gate's) still reads
+    // negative while it holds its cycle: the spectrum's cycle vetoes the all-clear
+    let mut e = AlertEngine::new(rules.clone());
+    let good_cycle = Observation {
+        trusted: true,
+        ..cycle(6.0)
+    };
+    let good_cycle = Observation {
+        zeta0: Some(0.02),
+        zeta0_interval: Some((0.015, 0.025)),
+        ..good_cycle
+    };
+    e.observe("g", &good_cycle, t(0));
+    assert_eq!(e.observe("g", &good_cycle, t(5)).len(), 1);
+    // and a window negative by its interval says so
+    let mut e = AlertEngine::new(rules);
+    let far = Observation {
+        ambient_ratio: Some(5.0),
+        limit_cycle: true,
+        ..obs(-0.01, -0.015, -0.005)
+    };
+    let ev = e.observe("g", &far, t(0));
+    let [AlertEvent::Firing(a)] = &ev[..] else {
+        panic!("{ev:?}")
+    };
+    assert_eq!(a.annotations["evidence"], "interval");
+}
+
+#[test]
 fn validate_rejects_bad_trend_rules() {
     let bad = |f: fn(&mut AlertRules)| {
         let mut r = AlertRules::default();

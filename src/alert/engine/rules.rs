@@ -39,6 +39,15 @@ pub struct AlertRules {
     /// where it prefers another balance between a chance excursion's page and a few seconds on
     /// a fast onset (docs/alerts.md, "On a gate whose windows hold few cycles").
     pub fire_at_once_min_ratio: Option<f64>,
+    /// A window the spectrum classifies as a limit cycle, standing at least the at-once bar
+    /// above the gate's ambient level ([`super::at_once_ratio`] or `fire_at_once_min_ratio`),
+    /// reads negative whatever its interval and its trust (default true; docs/alerts.md, "A
+    /// steady cycle far above the ambient level"). Never at once: two such windows in a row,
+    /// or one and a window negative by its interval, fire. Why: a gate's first cycle windows
+    /// are read by the envelope's relaxation, whose first readings are untrusted or wide, and
+    /// on 2 of 100 lock-gate onsets the alert waited 35 and 45 s past -1 % for them while the
+    /// gate stood 5 to 14 times above its ambient level.
+    pub fire_on_limit_cycle: bool,
     /// A window reads good, the evidence for resolving a firing alert, when `P(zeta0 >=
     /// clear_above) >= resolve_probability` under the normal approximation of its 95 % interval
     /// (as `fire_probability`), and it is not negative. In (0.5, 1); default 0.9. 0.975 is the
@@ -103,6 +112,7 @@ impl Default for AlertRules {
             for_windows: 2,
             fire_at_once_probability: 0.975,
             fire_at_once_min_ratio: None,
+            fire_on_limit_cycle: true,
             resolve_probability: 0.9,
             resolve_windows: 2,
             trend_horizon_seconds: 600.0,

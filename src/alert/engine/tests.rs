@@ -19,6 +19,7 @@ fn win(z: f64) -> Observation<'static> {
         trend: None,
         ambient_ratio: None,
         departure_ratio: None,
+        limit_cycle: false,
     }
 }
 
@@ -414,6 +415,7 @@ fn firing_annotations_and_refresh() {
         trend: None,
         ambient_ratio: None,
         departure_ratio: None,
+        limit_cycle: false,
     };
     e.observe("g1", &obs, t(2));
     let f = &e.firing()[0];
