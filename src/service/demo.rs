@@ -482,14 +482,22 @@ fn rule_lines(rules: &crate::alert::AlertRules) -> [String; 2] {
         Some(p) => format!("P(zeta0 < {below}) >= {p}"),
         None => format!("zeta0's whole 95 % interval lies below {below}"),
     };
+    let bar = rules
+        .fire_at_once_min_ratio
+        .unwrap_or(crate::alert::at_once_ratio(None));
     let at_once = if rules.fire_at_once_probability < 1.0 {
         format!(
-            ", or at once on one window {}x above the gate's ambient level with P(zeta0 < {below}) \
-             >= {}",
-            rules
-                .fire_at_once_min_ratio
-                .unwrap_or(crate::alert::at_once_ratio(None)),
+            ", or at once on one window {bar}x above the gate's ambient level with P(zeta0 < \
+             {below}) >= {}",
             rules.fire_at_once_probability
+        )
+    } else {
+        String::new()
+    };
+    let cycle = if rules.fire_on_limit_cycle {
+        format!(
+            " (a limit-cycle window {bar}x above the gate's ambient level counts, whatever its \
+             interval and trust)"
         )
     } else {
         String::new()
@@ -497,7 +505,7 @@ fn rule_lines(rules: &crate::alert::AlertRules) -> [String; 2] {
     [
         format!(
             "alert rule: GateNegativeDamping fires when {evidence} in {} consecutive trusted \
-             windows{at_once}",
+             windows{cycle}{at_once}",
             rules.for_windows.max(1)
         ),
         format!(
@@ -521,8 +529,9 @@ mod rule_tests {
         assert_eq!(
             negative,
             "alert rule: GateNegativeDamping fires when zeta0's whole 95 % interval lies below \
-             0.0 % in 2 consecutive trusted windows, or at once on one window 3.5x above the \
-             gate's ambient level with P(zeta0 < 0.0 %) >= 0.975"
+             0.0 % in 2 consecutive trusted windows (a limit-cycle window 3.5x above the gate's \
+             ambient level counts, whatever its interval and trust), or at once on one window 3.5x above \
+             the gate's ambient level with P(zeta0 < 0.0 %) >= 0.975"
         );
         assert_eq!(
             declining,
@@ -533,6 +542,7 @@ mod rule_tests {
         let other = AlertRules {
             fire_probability: Some(0.9),
             fire_at_once_probability: 1.0,
+            fire_on_limit_cycle: false,
             for_windows: 3,
             ..AlertRules::default()
         };
