@@ -1058,7 +1058,7 @@ fn explore_cycle_amplitude() {
                 for end in [62.0, 64.0, 66.0, 68.0, 70.0, 72.0, 75.0, 80.0] {
                     let a = analyze_window_ending(&analyzer, &xs, p.rate_hz, end, seed);
                     let d = &a.damping;
-                    if let (Some(m), Some(lc)) = (d.growth_zeta, d.limit_cycle_amplitude) {
+                    if let (Some(m), Some(lc)) = (d.growth_law_zeta, d.limit_cycle_amplitude) {
                         carried = Some((end, m, lc));
                         growth_err.push((m.zeta - zeta).abs() * 100.0);
                         break;

@@ -18,10 +18,13 @@
 //! - `b` is the gate's own: it is carried from the last growth, in sample time at most
 //!   [`LAW_MAX_AGE_SECONDS`], and a reading that disagrees with the envelope's (their difference
 //!   beyond 1.96 standard errors of it) is not used: the envelope decides alone, as before;
-//! - the growth window's model decided it and reached its cycle (`DampingReport::growth_zeta`,
-//!   set by the window's analysis: `analysis::GROWTH_MIN_REACH`), so its fit saw the non-linear
-//!   damping it carries, and its interval is the one under the forcing, honest on such windows
-//!   (the Newey-West one covered 3 of 8 growths at -3 %, `docs/benchmarks.md`);
+//! - the growth window's model decided it and reached its cycle
+//!   (`DampingReport::growth_law_zeta`, set by the window's analysis:
+//!   `analysis::GROWTH_MIN_REACH`), so its fit saw the non-linear damping it carries. Its interval
+//!   is that of `b` itself (`linearisation::cycle_zeta0` at the model's cycle, under the forcing:
+//!   the Newey-West one covered 3 of 8 growths at -3 %, `docs/benchmarks.md`), not zeta0's: a
+//!   law carried with zeta0's interval covered 62 of 192 windows of the lock gate's onset (stop
+//!   72), its non-linear term as uncertain as the rest;
 //! - the cycle is where that model said it would settle (within [`LAW_AMPLITUDE_TOLERANCE`]):
 //!   the damping has not moved since;
 //! - the exponent `p` is the envelope estimators' (2: cubic velocity damping, Van der Pol).
@@ -150,14 +153,15 @@ impl CycleAmplitude {
     }
 }
 
-/// The law a report carries: its `growth_zeta` (set by the window's analysis on a window that
-/// may have grown into its cycle) with its model's limit-cycle amplitude, where the model decided
-/// the window in the end (trusted).
+/// The law a report carries: its `growth_law_zeta` (set by the window's analysis on a window
+/// that may have grown into its cycle: the model's zeta0 with the interval of its non-linear
+/// damping at its limit cycle) with its model's limit-cycle amplitude, where the model decided
+/// the window in the end (trusted). A report stored before that field existed carries no law.
 fn growth_law(t_end: f64, d: &DampingReport) -> Option<GrowthLaw> {
     if !(d.trusted && d.zeta0_source == Some(Zeta0Source::Model)) {
         return None;
     }
-    let zeta0 = d.growth_zeta?;
+    let zeta0 = d.growth_law_zeta?;
     let limit_cycle = d
         .limit_cycle_amplitude
         .filter(|a| a.is_finite() && *a > 0.0)?;
@@ -202,6 +206,11 @@ mod tests {
             zeta0_interval: Some((zeta - half / 2.0, zeta + half / 2.0)),
             zeta0_source: Some(Zeta0Source::Model),
             growth_zeta: Some(AmbientZeta {
+                zeta,
+                low: zeta - half / 2.0,
+                high: zeta + half / 2.0,
+            }),
+            growth_law_zeta: Some(AmbientZeta {
                 zeta,
                 low: zeta - half,
                 high: zeta + half,
@@ -294,11 +303,12 @@ mod tests {
 
     #[test]
     fn only_a_window_with_a_growth_reading_is_carried() {
-        // the window's analysis sets `growth_zeta` (`series::grew_into_cycle`); a model window
-        // without it (a held cycle, a growth far below its cycle) carries nothing
+        // the window's analysis sets `growth_law_zeta` (`series::grew_into_cycle`); a model
+        // window without it (a growth far below its cycle, a law whose interval reaches zero, a
+        // report stored before the field) carries nothing
         for g in [
             DampingReport {
-                growth_zeta: None,
+                growth_law_zeta: None,
                 ..growth(-0.03, 0.004)
             },
             DampingReport {

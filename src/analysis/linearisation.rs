@@ -73,6 +73,18 @@ pub fn equivalent_damping(
     (zeta_eq.is_finite() && dissipated.is_finite()).then_some((zeta_eq, -dissipated))
 }
 
+/// The damping ratio at rest that makes displacement amplitude `a` a limit cycle of the model's
+/// non-linear damping: `zeta0 - zeta_eq(a)`, the opposite of the non-linear part at `a`
+/// (`zeta_eq(a) = zeta0 + b a^p`, so this is `-b a^p`). At the model's own limit cycle it is the
+/// model's `zeta0`; as a function of the coefficients it is the damping law a growth window
+/// carries to the cycle after it (`analysis::CycleAmplitude`), whose interval is this
+/// function's, not zeta0's (`docs/damping.md`, "The cycle's amplitude").
+pub fn cycle_zeta0(model: &Model, c: &[f64], lin: &Linearization, a: f64, t0: f64) -> Option<f64> {
+    let (zeta_eq, _) = equivalent_damping(model, c, lin, a, t0)?;
+    let z = lin.zeta0()? - zeta_eq;
+    z.is_finite().then_some(z)
+}
+
 /// The smallest displacement amplitude above `from / 1000` where `zeta_eq` turns from negative to
 /// non-negative (a stable limit cycle), searched up to `1000 * from`.
 pub fn limit_cycle(

@@ -56,9 +56,11 @@ pub use cycle_amplitude::{
 };
 pub use early_warning::{kendall_tau, lag1_autocorrelation, rolling, variance, EwsIndicators};
 pub use growing::{read_growing_window, GROWING_MIN_RATIO, GROWING_MIN_SHIFT};
-pub use linearisation::{equivalent_damping, limit_cycle, time_to_amplitude, Linearization};
+pub use linearisation::{
+    cycle_zeta0, equivalent_damping, limit_cycle, time_to_amplitude, Linearization,
+};
 pub use model_free::{relaxation_detrend_degree, rms_swing, BEND_DEGREE, BEND_LEVEL_CHANGE};
-pub use model_interval::{zeta0_interval, FittedModel};
+pub use model_interval::{intervals, zeta0_interval, FittedModel};
 pub use pooling::{PoolingSettings, ZetaPools};
 pub use population::{biased_population, SpectralTarget};
 pub use report::{AmbientZeta, DampingReport, Verdict, Zeta0Source};

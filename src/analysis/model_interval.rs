@@ -47,24 +47,53 @@ pub fn zeta0_interval(
     method: ModelInterval,
 ) -> Option<(f64, f64)> {
     let zeta0 = |c: &[f64]| Linearization::of(fit.model, c, t0, y_scale, v_scale).zeta0();
-    let z = zeta0(fit.coefficients)?;
+    let [interval] = intervals(fit, data, (y_scale, v_scale), method, [&zeta0]);
+    interval
+}
+
+/// A figure computed from the coefficients (`None` where it is undefined), whose interval
+/// [`intervals`] gives.
+pub type CoefficientFunction<'a> = dyn Fn(&[f64]) -> Option<f64> + 'a;
+
+/// `g(c) +- 1.96 sd` for each function `g` of the coefficients, from one covariance at the
+/// optimum through the delta method (each gradient by central differences with the
+/// covariance's own steps). An entry is `None` (never NaN) where its function fails at or near
+/// the optimum or the covariance says nothing about it; every entry is `None` when the
+/// covariance cannot be computed. Used for zeta0 ([`zeta0_interval`]) and, on a window that
+/// grew into its cycle, for the damping law it carries (`series`, `growth_law_zeta`): one
+/// covariance (a Jacobian's integrations) for both.
+pub fn intervals<const N: usize>(
+    fit: &FittedModel<'_>,
+    data: &TimeSeries,
+    (y_scale, v_scale): (f64, f64),
+    method: ModelInterval,
+    functions: [&CoefficientFunction<'_>; N],
+) -> [Option<(f64, f64)>; N] {
     let steps = identify::difference_steps(fit.coefficients, fit.scales);
-    // Gradient first: it costs no integration, and a model without zeta0 nearby needs none.
+    // Gradients first: they cost no integration, and functions undefined nearby need none.
     let mut c = fit.coefficients.to_vec();
-    let mut gradient = Vec::with_capacity(c.len());
-    for (j, h) in steps.iter().enumerate() {
-        c[j] = fit.coefficients[j] + h;
-        let plus = zeta0(&c)?;
-        c[j] = fit.coefficients[j] - h;
-        let minus = zeta0(&c)?;
-        c[j] = fit.coefficients[j];
-        gradient.push((plus - minus) / (2.0 * h));
+    let mut gradient = |g: &CoefficientFunction<'_>| -> Option<(f64, Vec<f64>)> {
+        let value = g(fit.coefficients)?;
+        let mut gradient = Vec::with_capacity(c.len());
+        for (j, h) in steps.iter().enumerate() {
+            c[j] = fit.coefficients[j] + h;
+            let plus = g(&c);
+            c[j] = fit.coefficients[j] - h;
+            let minus = g(&c);
+            c[j] = fit.coefficients[j];
+            gradient.push((plus? - minus?) / (2.0 * h));
+        }
+        Some((value, gradient))
+    };
+    let gradients = functions.map(|g| gradient(g));
+    if gradients.iter().all(Option::is_none) {
+        return [None; N];
     }
     let covariance = match method {
         ModelInterval::NeweyWest => identify::covariance,
         ModelInterval::Forcing => identify::covariance_under_forcing,
     };
-    let cov = covariance(&identify::Optimum {
+    let Some(cov) = covariance(&identify::Optimum {
         model: fit.model,
         series: data,
         coefficients: fit.coefficients,
@@ -74,17 +103,22 @@ pub fn zeta0_interval(
         initial_steps: fit
             .initial_estimated
             .then_some((DIFFERENCE_STEP_IC * y_scale, DIFFERENCE_STEP_IC * v_scale)),
-    })?;
-    if cov.matrix.nrows() > gradient.len() {
-        gradient.resize(cov.matrix.nrows(), 0.0);
-    }
-    let sd = cov.std_dev_of(&gradient)?;
-    // Newey-West: the fixed-b value, not 1.96 (the residuals of a forced window stay coherent
-    // over much of it, and the sum is then too small and too random for a normal quantile);
-    // under the forcing model, 1.96.
-    let half = cov.critical_value_95() * sd;
-    let (lo, hi) = (z - half, z + half);
-    (lo.is_finite() && hi.is_finite()).then_some((lo, hi))
+    }) else {
+        return [None; N];
+    };
+    gradients.map(|g| {
+        let (value, mut gradient) = g?;
+        if cov.matrix.nrows() > gradient.len() {
+            gradient.resize(cov.matrix.nrows(), 0.0);
+        }
+        let sd = cov.std_dev_of(&gradient)?;
+        // Newey-West: the fixed-b value, not 1.96 (the residuals of a forced window stay
+        // coherent over much of it, and the sum is then too small and too random for a normal
+        // quantile); under the forcing model, 1.96.
+        let half = cov.critical_value_95() * sd;
+        let (lo, hi) = (value - half, value + half);
+        (lo.is_finite() && hi.is_finite()).then_some((lo, hi))
+    })
 }
 
 #[cfg(test)]

@@ -150,6 +150,14 @@ pub struct DampingReport {
     /// cycle's amplitude"); `None` elsewhere, and when that interval reaches zero.
     #[serde(default)]
     pub growth_zeta: Option<AmbientZeta>,
+    /// On the same window: the damping law the gate carries to the cycle after it, as the zeta0
+    /// that makes the model's limit-cycle amplitude a cycle of its non-linear damping
+    /// (`linearisation::cycle_zeta0`; at the optimum the model's `zeta0`), with that function's
+    /// 95 % interval under the forcing: the non-linear term's uncertainty is in it, which
+    /// `growth_zeta`'s leaves out. `None` where `growth_zeta` is, and when this interval reaches
+    /// zero (`docs/damping.md`, "The cycle's amplitude").
+    #[serde(default)]
+    pub growth_law_zeta: Option<AmbientZeta>,
     /// The model's equivalent damping ratio over the amplitudes the window visited: points
     /// `(amplitude in the signal's unit, zeta_eq)`, amplitude increasing; empty without a model
     /// oscillator at rest.
@@ -267,6 +275,7 @@ impl DampingReport {
             model_zeta: None,
             amplitude_zeta: None,
             growth_zeta: None,
+            growth_law_zeta: None,
             zeta_eq_curve: Vec::new(),
             model_frequency_hz: None,
             ambient_frequency_hz: None,

@@ -2,9 +2,11 @@
 //! force-mode scaling (pre-run for the initial conditions, coefficient scales), the initial
 //! population, the identification, the damping figures and the verdict.
 
-use super::linearisation::{equivalent_damping, limit_cycle, time_to_amplitude, Linearization};
+use super::linearisation::{
+    cycle_zeta0, equivalent_damping, limit_cycle, time_to_amplitude, Linearization,
+};
 use super::model_free::{model_free, moving_average_window, preprocess, rms_swing, ModelFree};
-use super::model_interval::{zeta0_interval, FittedModel};
+use super::model_interval::{intervals, zeta0_interval, FittedModel};
 use super::population::{initial_population, PopulationInputs, SpectralTarget};
 use super::report::{AmbientZeta, DampingReport, Verdict, Zeta0Source};
 use super::verdict::{agrees, decide, VerdictFacts, WindowGrowth};
@@ -418,28 +420,61 @@ fn analyze(
         .iter()
         .filter_map(|r| Linearization::of(model, &r.coefficients, t0, scale.y, scale.v).zeta0())
         .collect();
-    // Computed only when the model's zeta0 is reported (2p + 1 integrations), and under the
-    // forcing on a window that grew into its cycle (`growth_zeta`).
+    let fit = FittedModel {
+        model,
+        coefficients: &c,
+        scales: &scales,
+        initial: best.initial,
+        output: config.output,
+        initial_estimated: config.polish_initial.is_some()
+            || !matches!(config.initial, identify::Initial::Known { .. }),
+    };
+    // Computed only when the model's zeta0 is reported (2p + 1 integrations).
     let model_interval = |method: ModelInterval| {
-        let fit = FittedModel {
-            model,
-            coefficients: &c,
-            scales: &scales,
-            initial: best.initial,
-            output: config.output,
-            initial_estimated: config.polish_initial.is_some()
-                || !matches!(config.initial, identify::Initial::Known { .. }),
-        };
         hull(
             zeta0_interval(&fit, &data, t0, scale.y, scale.v, method),
             run_spread(runs_zeta.iter().copied()),
         )
+    };
+    // On a window that grew into its cycle: zeta0 and the damping law it carries, both under the
+    // forcing, from one covariance. The law is zeta0 as the cycle's amplitude (in the signal's
+    // unit, as the gate's memory will measure it) says it through these coefficients'
+    // non-linear damping (`cycle_zeta0`): at the optimum the model's zeta0, but with the
+    // non-linear term's uncertainty, which zeta0's interval leaves out (docs/damping.md, "The
+    // cycle's amplitude").
+    let cycle = damping.limit_cycle_amplitude;
+    let law_at = |c: &[f64]| {
+        let lin = Linearization::of(model, c, t0, scale.y, scale.v);
+        let a = match opts.signal {
+            Signal::Force => cycle? / lin.k0.abs(),
+            Signal::Displacement => cycle?,
+        };
+        cycle_zeta0(model, c, &lin, a, t0)
+    };
+    let growth_intervals = || {
+        let zeta0 = |c: &[f64]| Linearization::of(model, c, t0, scale.y, scale.v).zeta0();
+        let [z, law] = intervals(
+            &fit,
+            &data,
+            (scale.y, scale.v),
+            ModelInterval::Forcing,
+            [&zeta0, &law_at],
+        );
+        let runs_law = identification
+            .runs
+            .iter()
+            .filter_map(|r| law_at(&r.coefficients));
+        GrowthIntervals {
+            zeta0: hull(z, run_spread(runs_zeta.iter().copied())),
+            law: law_at(&c).zip(hull(law, run_spread(runs_law))),
+        }
     };
     conclude(
         &mut damping,
         free.drift,
         lin.zeta0(),
         (model_interval, opts.model_interval),
+        growth_intervals,
         free.spec.map(|s| s.regime),
         opts.max_fit_nmae,
     );
@@ -663,6 +698,7 @@ fn conclude(
     drift: Option<AmbientZeta>,
     zeta0_model: Option<f64>,
     (model_interval, method): (impl Fn(ModelInterval) -> Option<(f64, f64)>, ModelInterval),
+    growth_intervals: impl Fn() -> GrowthIntervals,
     regime: Option<crate::spectral::Regime>,
     max_fit_nmae: f64,
 ) {
@@ -707,20 +743,17 @@ fn conclude(
     damping.trusted = decision.trusted;
     damping.verdict = decision.verdict;
     damping.regime = regime;
-    damping.growth_zeta = grew_into_cycle(damping)
-        .then(|| match (method, damping.model_zeta) {
-            (ModelInterval::Forcing, Some(m)) => Some(m),
-            _ => {
-                let (low, high) = model_interval(ModelInterval::Forcing)?;
-                Some(AmbientZeta {
-                    zeta: zeta0_model?,
-                    low,
-                    high,
-                })
-            }
-        })
-        .flatten()
-        .filter(|g| g.high < 0.0);
+    let growth = grew_into_cycle(damping).then(&growth_intervals);
+    let below_zero = |(zeta, (low, high)): (f64, (f64, f64))| {
+        (high < 0.0).then_some(AmbientZeta { zeta, low, high })
+    };
+    damping.growth_zeta = growth
+        .as_ref()
+        .and_then(|g| below_zero((zeta0_model?, g.zeta0?)));
+    // the law only with the growth itself: a law whose interval reaches zero carries nothing
+    damping.growth_law_zeta = growth
+        .and_then(|g| below_zero(g.law?))
+        .filter(|_| damping.growth_zeta.is_some());
     // Where the window grew into its cycle, the model's interval is the one under the forcing as
     // well: there it is honest, the Newey-West one too narrow (`docs/damping.md`, "The cycle's
     // amplitude").
@@ -751,6 +784,14 @@ pub(super) fn read_the_models_sign_from_its_interval(d: &mut DampingReport) {
             d.verdict = Verdict::Unknown;
         }
     }
+}
+
+/// What a window that grew into its cycle carries, both under the forcing (`conclude`):
+/// zeta0's interval, and the damping law `(value, interval)` of `cycle_zeta0` at the model's
+/// limit-cycle amplitude.
+struct GrowthIntervals {
+    zeta0: Option<(f64, f64)>,
+    law: Option<(f64, (f64, f64))>,
 }
 
 /// The growth window's amplitude at its end over the model's limit-cycle amplitude below which

@@ -65,6 +65,43 @@ fn equivalent_damping_of_cubic_damping_matches_harmonic_balance() {
 }
 
 #[test]
+fn cycle_zeta0_is_the_law_a_growth_carries_to_any_amplitude() {
+    // zeta_eq(a) = zeta0 + b a^2 for cubic damping, so the zeta0 that makes `a` a limit cycle is
+    // -b a^2: the model's own zeta0 at its limit cycle, four times it at twice that amplitude,
+    // and, as a function of the coefficients, it moves with the cubic term where zeta0 does not.
+    let m = gate_model();
+    let c = [19.14, -12.18, 447.3];
+    let lin = Linearization::of(&m, &c, 0.0, 1e-3, 0.065);
+    let zeta0 = lin.zeta0().unwrap();
+    let a_lc = limit_cycle(&m, &c, &lin, 1e-3, 0.0).unwrap();
+    assert_relative_eq!(
+        cycle_zeta0(&m, &c, &lin, a_lc, 0.0).unwrap(),
+        zeta0,
+        max_relative = 1e-6
+    );
+    assert_relative_eq!(
+        cycle_zeta0(&m, &c, &lin, 2.0 * a_lc, 0.0).unwrap(),
+        4.0 * zeta0,
+        max_relative = 1e-6
+    );
+    let stronger_cubic = [19.14, -12.18, 2.0 * 447.3];
+    let lin2 = Linearization::of(&m, &stronger_cubic, 0.0, 1e-3, 0.065);
+    assert_relative_eq!(lin2.zeta0().unwrap(), zeta0, max_relative = 1e-9);
+    assert_relative_eq!(
+        cycle_zeta0(&m, &stronger_cubic, &lin2, a_lc, 0.0).unwrap(),
+        2.0 * zeta0,
+        max_relative = 1e-6
+    );
+    // no restoring force at rest: no damping ratio, no law
+    let flat = Linearization {
+        m0: 1.0,
+        c0: 0.1,
+        k0: -1.0,
+    };
+    assert_eq!(cycle_zeta0(&m, &c, &flat, a_lc, 0.0), None);
+}
+
+#[test]
 fn biased_population_satisfies_the_spectral_constraints() {
     let m = gate_model();
     let scales = [19.0, 40.0, 1000.0];

@@ -365,6 +365,7 @@ mod tests {
                 // a window that grew into its cycle, which the model decided (no SSI estimate to read it as
                 // noise-driven)
                 a.damping.growth_zeta = Some((-0.02, -0.025, -0.015).into());
+                a.damping.growth_law_zeta = Some((-0.02, -0.03, -0.01).into());
                 a.damping.limit_cycle_amplitude = Some(50.0);
                 a.damping.zeta0_source = Some(crate::analysis::Zeta0Source::Model);
                 a.damping.trusted = true;
