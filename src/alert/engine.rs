@@ -90,6 +90,12 @@ pub struct Observation<'a> {
     /// gate's ambient level it reads negative whatever its interval, with the rules'
     /// `fire_on_limit_cycle` (docs/alerts.md, "A steady cycle far above the ambient level").
     pub limit_cycle: bool,
+    /// Whether the spectrum classified the window as self-excited (`DampingReport::regime` is
+    /// [`crate::spectral::Regime::SelfExcited`]): its envelope grows significantly (or its
+    /// ambient interval lies below zero). Standing at least [`at_once_ratio`] above the gate's
+    /// ambient level it reads negative whatever its interval, with the rules' `fire_on_growth`
+    /// (docs/alerts.md, "A growing oscillation far above the ambient level").
+    pub growing: bool,
     /// Frequency of the (self-excited) oscillation, Hz.
     pub frequency_hz: Option<f64>,
     /// Where `zeta0` comes from (`DampingReport::zeta0_source`): the annotations credit the
@@ -336,15 +342,16 @@ enum Reading {
 fn classify(obs: &Observation, rules: &AlertRules) -> Reading {
     match classify_interval(obs, rules) {
         Reading::Negative { at_once } => Reading::Negative { at_once },
-        // not negative by its interval, but a steady cycle far above the ambient level: the
-        // sign is the regime's (never at once: two such windows, or one and a confident one)
-        _ if cycle_reads_negative(obs, rules) => Reading::Negative { at_once: false },
+        // not negative by its interval, but a steady cycle or a growing oscillation far above
+        // the ambient level: the sign is the regime's (never at once: two such windows, or one
+        // and a confident one)
+        _ if regime_reads_negative(obs, rules) => Reading::Negative { at_once: false },
         other => other,
     }
 }
 
 /// How far above its ambient level a window of this gate must stand to fire at once, and for
-/// a limit-cycle window to read negative by its regime.
+/// a limit-cycle or growing window to read negative by its regime.
 fn at_once_bar(obs: &Observation, rules: &AlertRules) -> f64 {
     rules
         .fire_at_once_min_ratio
@@ -352,25 +359,41 @@ fn at_once_bar(obs: &Observation, rules: &AlertRules) -> f64 {
 }
 
 /// Whether the window reads negative by its regime alone: the spectrum classified it a limit
-/// cycle and it stands at least the at-once bar above the gate's ambient level, with the rules'
-/// `fire_on_limit_cycle`. Whatever its interval and the fit's trust: a gate that holds a steady
-/// oscillation several times above its own ambient level is self-excited whatever the size of
-/// its damping, and the first cycle windows' envelope readings are wide or untrusted (a lone
-/// first one always is). Why not on a stable gate: its windows stand 3.5 times above its level
-/// a few times a week at most, and then as a noise-driven excursion, whose envelope is
-/// Rayleigh's, not a cycle's (docs/alerts.md, "A steady cycle far above the ambient level").
-pub(super) fn cycle_reads_negative(obs: &Observation, rules: &AlertRules) -> bool {
-    rules.fire_on_limit_cycle
-        && obs.limit_cycle
-        && obs
-            .ambient_ratio
-            .is_some_and(|r| r >= at_once_bar(obs, rules))
+/// cycle (with the rules' `fire_on_limit_cycle`) or self-excited (with `fire_on_growth`), and
+/// it stands at least the at-once bar above the gate's ambient level. Whatever its interval
+/// and the fit's trust: a gate that holds a steady oscillation, or whose oscillation grows,
+/// several times above its own ambient level is self-excited whatever the size of its
+/// damping, and the first such windows' readings are wide or untrusted (a lone first cycle
+/// window always is). Why not on a stable gate: its windows stand 3.5 times above its level a
+/// few times a week at most, and then as a noise-driven excursion, whose envelope is
+/// Rayleigh's, neither a cycle's nor one that grows by three standard errors (docs/alerts.md,
+/// "A steady cycle far above the ambient level", "A growing oscillation far above the ambient
+/// level").
+pub(super) fn regime_reads_negative(obs: &Observation, rules: &AlertRules) -> bool {
+    regime_evidence(obs, rules).is_some()
+}
+
+/// What makes the window negative by its regime: `"limit_cycle"` or `"growth"` (the alert's
+/// `evidence` annotation); `None` when its regime does not.
+pub(super) fn regime_evidence(obs: &Observation, rules: &AlertRules) -> Option<&'static str> {
+    let far = obs
+        .ambient_ratio
+        .is_some_and(|r| r >= at_once_bar(obs, rules));
+    if !far {
+        None
+    } else if rules.fire_on_limit_cycle && obs.limit_cycle {
+        Some("limit_cycle")
+    } else if rules.fire_on_growth && obs.growing {
+        Some("growth")
+    } else {
+        None
+    }
 }
 
 /// Whether the window reads negative by its regime and not by its interval: what the alert's
-/// annotations then say (`evidence = "limit_cycle"`).
+/// annotations then say (`evidence = "limit_cycle"` or `"growth"`).
 pub(super) fn negative_by_regime_only(obs: &Observation, rules: &AlertRules) -> bool {
-    cycle_reads_negative(obs, rules)
+    regime_reads_negative(obs, rules)
         && !matches!(classify_interval(obs, rules), Reading::Negative { .. })
 }
 

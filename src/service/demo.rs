@@ -494,13 +494,19 @@ fn rule_lines(rules: &crate::alert::AlertRules) -> [String; 2] {
     } else {
         String::new()
     };
-    let cycle = if rules.fire_on_limit_cycle {
-        format!(
-            " (a limit-cycle window {bar}x above the gate's ambient level counts, whatever its \
-             interval and trust)"
-        )
-    } else {
+    let regimes = match (rules.fire_on_limit_cycle, rules.fire_on_growth) {
+        (true, true) => "a limit-cycle or growing window",
+        (true, false) => "a limit-cycle window",
+        (false, true) => "a growing window",
+        (false, false) => "",
+    };
+    let cycle = if regimes.is_empty() {
         String::new()
+    } else {
+        format!(
+            " ({regimes} {bar}x above the gate's ambient level counts, whatever its interval \
+             and trust)"
+        )
     };
     [
         format!(
@@ -529,8 +535,8 @@ mod rule_tests {
         assert_eq!(
             negative,
             "alert rule: GateNegativeDamping fires when zeta0's whole 95 % interval lies below \
-             0.0 % in 2 consecutive trusted windows (a limit-cycle window 3.5x above the gate's \
-             ambient level counts, whatever its interval and trust), or at once on one window 3.5x above \
+             0.0 % in 2 consecutive trusted windows (a limit-cycle or growing window 3.5x above \
+             the gate's ambient level counts, whatever its interval and trust), or at once on one window 3.5x above \
              the gate's ambient level with P(zeta0 < 0.0 %) >= 0.975"
         );
         assert_eq!(
@@ -543,6 +549,7 @@ mod rule_tests {
             fire_probability: Some(0.9),
             fire_at_once_probability: 1.0,
             fire_on_limit_cycle: false,
+            fire_on_growth: false,
             for_windows: 3,
             ..AlertRules::default()
         };

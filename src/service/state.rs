@@ -895,6 +895,7 @@ impl AppState {
                         ambient_ratio: d.ambient_ratio,
                         departure_ratio: d.departure_ratio,
                         limit_cycle: d.regime == Some(crate::spectral::Regime::LimitCycle),
+                        growing: d.regime == Some(crate::spectral::Regime::SelfExcited),
                         frequency_hz: d.frequency_hz,
                         zeta0_source: d.zeta0_source,
                         limit_cycle_amplitude: d.limit_cycle_amplitude,

@@ -110,8 +110,10 @@ pub(super) fn damping_annotations(
         ),
     };
     // read negative by its regime: say what the evidence is, and what the figure is not
-    let by_regime = super::negative_by_regime_only(obs, rules);
-    if by_regime {
+    let by_regime = super::negative_by_regime_only(obs, rules)
+        .then(|| super::regime_evidence(obs, rules))
+        .flatten();
+    if let Some(evidence) = by_regime {
         let ratio = obs.ambient_ratio.map_or("?".to_string(), fmt_sig);
         let interval = match obs.zeta0_interval {
             Some((lo, hi)) if lo.is_finite() && hi.is_finite() => {
@@ -123,11 +125,21 @@ pub(super) fn damping_annotations(
             }
             _ => " (no interval)".to_string(),
         };
+        let what = if evidence == "growth" {
+            format!(
+                "Gate {gate}'s oscillation grows by itself {ratio} times above its ambient \
+                 level (its envelope grows significantly): only a negative damping at rest makes \
+                 it grow, whatever its size."
+            )
+        } else {
+            format!(
+                "Gate {gate} holds a steady self-sustained oscillation (a limit cycle) {ratio} \
+                 times above its ambient level: only a negative damping at rest sustains one, \
+                 whatever its size."
+            )
+        };
         description = format!(
-            "Gate {gate} holds a steady self-sustained oscillation (a limit cycle) {ratio} times \
-             above its ambient level: only a negative damping at rest sustains one, whatever \
-             its size. This window's damping ratio, {pct} %{interval}, does not yet tell the \
-             size."
+            "{what} This window's damping ratio, {pct} %{interval}, does not yet tell the size."
         );
     }
     let unit = if obs.amplitude_unit.is_empty() {
@@ -161,7 +173,7 @@ pub(super) fn damping_annotations(
     a.insert("summary".to_string(), summary);
     a.insert("description".to_string(), description);
     // what made the window negative: its interval below fire_below, or its regime
-    let evidence = if by_regime { "limit_cycle" } else { "interval" };
+    let evidence = by_regime.unwrap_or("interval");
     a.insert("evidence".to_string(), evidence.to_string());
     if let Some(z) = zeta {
         a.insert("damping_ratio".to_string(), fmt_sig(z));

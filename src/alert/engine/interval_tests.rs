@@ -408,6 +408,100 @@ fn a_steady_cycle_far_above_the_ambient_level_reads_negative() {
 }
 
 #[test]
+fn a_growing_oscillation_far_above_the_ambient_level_reads_negative() {
+    // the window that ends at -1 % on the lab gate's onset (seed 22 of `bench warning --seeds
+    // 100 --scenarios onset`): its envelope grows by more than three standard errors, 5 times
+    // above the gate's level, while its interval still reaches zero
+    let growing = |ratio: f64| Observation {
+        growing: true,
+        ambient_ratio: Some(ratio),
+        trusted: true,
+        zeta0_source: Some(Zeta0Source::Model),
+        ..obs(-0.002, -0.005, 0.001)
+    };
+    let rules = AlertRules::default();
+    assert!(rules.fire_on_growth, "on by default");
+    // two in a row fire; one alone waits (never at once: an impact late in one window grows
+    // that window's envelope, and the next one sees it decay)
+    let mut e = AlertEngine::new(rules.clone());
+    assert!(e.observe("g", &growing(5.1), t(0)).is_empty());
+    assert_eq!(e.state("g"), Some(GateState::Pending));
+    let ev = e.observe("g", &growing(8.3), t(5));
+    let [AlertEvent::Firing(a)] = &ev[..] else {
+        panic!("{ev:?}")
+    };
+    assert_eq!(a.starts_at, t(0));
+    assert_eq!(a.annotations["evidence"], "growth");
+    let d = &a.annotations["description"];
+    assert!(
+        d.contains("grows by itself 8.3 times above its ambient level")
+            && d.contains("95 % interval -0.5 to 0.1 %"),
+        "{d}"
+    );
+    // a growing window completes a streak begun by a limit-cycle window far above the level
+    // (or by one negative by its interval), and the reverse
+    let cycle = Observation {
+        growing: false,
+        limit_cycle: true,
+        ..growing(4.6)
+    };
+    let mut e = AlertEngine::new(rules.clone());
+    assert!(e.observe("g", &cycle, t(0)).is_empty());
+    assert_eq!(e.observe("g", &growing(6.0), t(5)).len(), 1);
+    let mut e = AlertEngine::new(rules.clone());
+    assert!(e.observe("g", &growing(4.0), t(0)).is_empty());
+    let ev = e.observe("g", &cycle, t(5));
+    let [AlertEvent::Firing(a)] = &ev[..] else {
+        panic!("{ev:?}")
+    };
+    assert_eq!(a.annotations["evidence"], "limit_cycle");
+    // below the bar, off, no level, or neither regime: the interval decides (here: band)
+    for (what, o, r) in [
+        ("3.49", growing(3.49), rules.clone()),
+        (
+            "off",
+            growing(9.0),
+            AlertRules {
+                fire_on_growth: false,
+                ..rules.clone()
+            },
+        ),
+        (
+            "no level",
+            Observation {
+                ambient_ratio: None,
+                ..growing(9.0)
+            },
+            rules.clone(),
+        ),
+        (
+            "not growing",
+            Observation {
+                growing: false,
+                ..growing(9.0)
+            },
+            rules.clone(),
+        ),
+    ] {
+        let mut e = AlertEngine::new(r);
+        for i in 0..4 {
+            assert!(e.observe("g", &o, t(5 * i)).is_empty(), "{what}");
+        }
+        assert_eq!(e.state("g"), Some(GateState::Ok), "{what}");
+    }
+    // fire_on_limit_cycle = false leaves the growth rule on, and the reverse
+    let only_growth = AlertRules {
+        fire_on_limit_cycle: false,
+        ..rules.clone()
+    };
+    let mut e = AlertEngine::new(only_growth);
+    e.observe("g", &cycle, t(0));
+    assert!(e.observe("g", &cycle, t(5)).is_empty());
+    e.observe("g", &growing(5.0), t(10));
+    assert_eq!(e.observe("g", &growing(5.0), t(15)).len(), 1);
+}
+
+#[test]
 fn validate_rejects_bad_trend_rules() {
     let bad = |f: fn(&mut AlertRules)| {
         let mut r = AlertRules::default();

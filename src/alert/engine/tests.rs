@@ -20,6 +20,7 @@ fn win(z: f64) -> Observation<'static> {
         ambient_ratio: None,
         departure_ratio: None,
         limit_cycle: false,
+        growing: false,
     }
 }
 
@@ -416,6 +417,7 @@ fn firing_annotations_and_refresh() {
         ambient_ratio: None,
         departure_ratio: None,
         limit_cycle: false,
+        growing: false,
     };
     e.observe("g1", &obs, t(2));
     let f = &e.firing()[0];
