@@ -345,7 +345,7 @@ fn classify(obs: &Observation, rules: &AlertRules) -> Reading {
         // not negative by its interval, but a steady cycle or a growing oscillation far above
         // the ambient level: the sign is the regime's (never at once: two such windows, or one
         // and a confident one)
-        _ if regime_reads_negative(obs, rules) => Reading::Negative { at_once: false },
+        _ if regime_evidence(obs, rules).is_some() => Reading::Negative { at_once: false },
         other => other,
     }
 }
@@ -358,43 +358,59 @@ fn at_once_bar(obs: &Observation, rules: &AlertRules) -> f64 {
         .unwrap_or_else(|| at_once_ratio(obs.departure_ratio))
 }
 
-/// Whether the window reads negative by its regime alone: the spectrum classified it a limit
-/// cycle (with the rules' `fire_on_limit_cycle`) or self-excited (with `fire_on_growth`), and
-/// it stands at least the at-once bar above the gate's ambient level. Whatever its interval
-/// and the fit's trust: a gate that holds a steady oscillation, or whose oscillation grows,
-/// several times above its own ambient level is self-excited whatever the size of its
-/// damping, and the first such windows' readings are wide or untrusted (a lone first cycle
-/// window always is). Why not on a stable gate: its windows stand 3.5 times above its level a
-/// few times a week at most, and then as a noise-driven excursion, whose envelope is
-/// Rayleigh's, neither a cycle's nor one that grows by three standard errors (docs/alerts.md,
-/// "A steady cycle far above the ambient level", "A growing oscillation far above the ambient
-/// level").
-pub(super) fn regime_reads_negative(obs: &Observation, rules: &AlertRules) -> bool {
-    regime_evidence(obs, rules).is_some()
+/// What a window read negative by its regime alone shows (the alert's `evidence` annotation).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum RegimeEvidence {
+    /// A steady cycle far above the ambient level (`fire_on_limit_cycle`).
+    LimitCycle,
+    /// A growing oscillation far above the ambient level (`fire_on_growth`).
+    Growth,
 }
 
-/// What makes the window negative by its regime: `"limit_cycle"` or `"growth"` (the alert's
-/// `evidence` annotation); `None` when its regime does not.
-pub(super) fn regime_evidence(obs: &Observation, rules: &AlertRules) -> Option<&'static str> {
+impl RegimeEvidence {
+    /// The `evidence` annotation's value.
+    pub(super) fn as_str(self) -> &'static str {
+        match self {
+            RegimeEvidence::LimitCycle => "limit_cycle",
+            RegimeEvidence::Growth => "growth",
+        }
+    }
+}
+
+/// Whether the window reads negative by its regime alone, and as what: the spectrum
+/// classified it a limit cycle (with the rules' `fire_on_limit_cycle`) or self-excited (with
+/// `fire_on_growth`), and it stands at least the at-once bar above the gate's ambient level.
+/// Whatever its interval and the fit's trust: a gate that holds a steady oscillation, or whose
+/// oscillation grows, several times above its own ambient level is self-excited whatever the
+/// size of its damping, and the first such windows' readings are wide or untrusted (a lone
+/// first cycle window always is). Why not on a stable gate: its windows stand 3.5 times above
+/// its level a few times a week at most, and then as a noise-driven excursion, whose envelope
+/// is Rayleigh's, neither a cycle's nor one that grows by three standard errors
+/// (docs/alerts.md, "A steady cycle far above the ambient level", "A growing oscillation far
+/// above the ambient level").
+fn regime_evidence(obs: &Observation, rules: &AlertRules) -> Option<RegimeEvidence> {
     let far = obs
         .ambient_ratio
         .is_some_and(|r| r >= at_once_bar(obs, rules));
     if !far {
         None
     } else if rules.fire_on_limit_cycle && obs.limit_cycle {
-        Some("limit_cycle")
+        Some(RegimeEvidence::LimitCycle)
     } else if rules.fire_on_growth && obs.growing {
-        Some("growth")
+        Some(RegimeEvidence::Growth)
     } else {
         None
     }
 }
 
-/// Whether the window reads negative by its regime and not by its interval: what the alert's
-/// annotations then say (`evidence = "limit_cycle"` or `"growth"`).
-pub(super) fn negative_by_regime_only(obs: &Observation, rules: &AlertRules) -> bool {
-    regime_reads_negative(obs, rules)
-        && !matches!(classify_interval(obs, rules), Reading::Negative { .. })
+/// What the window shows when it reads negative by its regime and not by its interval: what
+/// the alert's annotations then say (`evidence = "limit_cycle"` or `"growth"`).
+pub(super) fn negative_by_regime_only(
+    obs: &Observation,
+    rules: &AlertRules,
+) -> Option<RegimeEvidence> {
+    regime_evidence(obs, rules)
+        .filter(|_| !matches!(classify_interval(obs, rules), Reading::Negative { .. }))
 }
 
 /// The reading of the window's interval alone.

@@ -110,9 +110,7 @@ pub(super) fn damping_annotations(
         ),
     };
     // read negative by its regime: say what the evidence is, and what the figure is not
-    let by_regime = super::negative_by_regime_only(obs, rules)
-        .then(|| super::regime_evidence(obs, rules))
-        .flatten();
+    let by_regime = super::negative_by_regime_only(obs, rules);
     if let Some(evidence) = by_regime {
         let ratio = obs.ambient_ratio.map_or("?".to_string(), fmt_sig);
         let interval = match obs.zeta0_interval {
@@ -125,7 +123,7 @@ pub(super) fn damping_annotations(
             }
             _ => " (no interval)".to_string(),
         };
-        let what = if evidence == "growth" {
+        let what = if evidence == super::RegimeEvidence::Growth {
             format!(
                 "Gate {gate}'s oscillation grows by itself {ratio} times above its ambient \
                  level (its envelope grows significantly): only a negative damping at rest makes \
@@ -173,7 +171,7 @@ pub(super) fn damping_annotations(
     a.insert("summary".to_string(), summary);
     a.insert("description".to_string(), description);
     // what made the window negative: its interval below fire_below, or its regime
-    let evidence = by_regime.unwrap_or("interval");
+    let evidence = by_regime.map_or("interval", super::RegimeEvidence::as_str);
     a.insert("evidence".to_string(), evidence.to_string());
     if let Some(z) = zeta {
         a.insert("damping_ratio".to_string(), fmt_sig(z));

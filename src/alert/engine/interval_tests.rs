@@ -438,8 +438,8 @@ fn a_growing_oscillation_far_above_the_ambient_level_reads_negative() {
             && d.contains("95 % interval -0.5 to 0.1 %"),
         "{d}"
     );
-    // a growing window completes a streak begun by a limit-cycle window far above the level
-    // (or by one negative by its interval), and the reverse
+    // a growing window completes a streak begun by a limit-cycle window far above the level,
+    // and the reverse
     let cycle = Observation {
         growing: false,
         limit_cycle: true,
@@ -489,7 +489,7 @@ fn a_growing_oscillation_far_above_the_ambient_level_reads_negative() {
         }
         assert_eq!(e.state("g"), Some(GateState::Ok), "{what}");
     }
-    // fire_on_limit_cycle = false leaves the growth rule on, and the reverse
+    // fire_on_limit_cycle = false leaves the growth rule on
     let only_growth = AlertRules {
         fire_on_limit_cycle: false,
         ..rules.clone()
