@@ -95,6 +95,7 @@ for end in ends:
     tm = zeta_true(t[sel]).mean()
     cov = np.mean((lo <= tm) & (tm <= hi))
     print(f"[{tag}] window ending {end:.0f} s: true mean {100*tm:+.2f} %  median est {100*np.median(zhat):+.2f}  "
-          f"median half-width {50*np.median(hi-lo):.2f} pts  coverage {100*cov:.0f} %  below zero {(hi<0).sum()} of {len(hi)}  "
+          f"median half-width {50*np.median(hi-lo):.2f} pts  median |error| {100*np.median(abs(zhat-tm)):.2f} pts  "
+          f"coverage {100*cov:.0f} %  below zero {(hi<0).sum()} of {len(hi)}  "
           f"at grid edge {((lo<=zg[0])|(hi>=zg[-1])).sum()}", flush=True)
     np.save(f"o3_{gate}_{tag}_{end:.0f}.npy", np.stack([zhat, lo, hi]))
