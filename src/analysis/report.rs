@@ -232,7 +232,7 @@ pub struct DampingReport {
     /// (`docs/damping.md`, "A window that holds two states").
     #[serde(default)]
     pub spans_change: bool,
-    /// Whether the window is a noise-driven one whose variance grows: above 1.5 times the
+    /// Whether the window is a noise-driven one whose variance grows: at least 2 times the
     /// gate's ambient level, without an abrupt change inside it (`rms_swing` below 4), its
     /// lagged SSI-COV reading lies more than 0.4 of its standard error above the common-instant
     /// one. `zeta0` and its interval are then the common
