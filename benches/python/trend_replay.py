@@ -22,6 +22,9 @@ Variants (`--variants`, comma-separated; each a `+`-joined set of changes to the
 - `young`, `taper`: session 45's small-sample correction of the residuals' lag-1
   autocorrelation, `r + (1 + 7.5 r) / n`, applied while the trend spans under 0.9 of its horizon
   (`young`), or in full up to half the horizon and less and less until it is full (`taper`).
+- `sF` (e.g. `s0.6`): the slope's and the level's standard errors multiplied by `F`, for a
+  calibration study (stop 74: on 20 lock days at +0.5 % the standardized slope had a standard
+  deviation of 0.6, not 1).
 `--min-span` sets `trend_min_span_seconds` (300, the default since stop 68).
 
     python3 -m venv /tmp/venv && /tmp/venv/bin/pip install numpy scipy
@@ -113,6 +116,9 @@ def fit(t, z, low, high, flags, span_share, threshold=0.0):
         rho = min(rho + share * (1 + 7.5 * rho) / n, 0.9)
     overlap = (1 + rho) / (1 - rho)
     k = scale * overlap / det
+    for f in flags:
+        if f.startswith("s"):
+            k *= float(f[1:]) ** 2
     var_slope, var_level, cov = s0 * k, s2 * k, -s1 * k
     q = student.ppf(0.95, max(round(max(n / overlap - 2.0, 1.0)), 1))
     upper = slope + q * math.sqrt(var_slope)
@@ -144,7 +150,7 @@ def fit(t, z, low, high, flags, span_share, threshold=0.0):
 def replay(windows, variant, min_span=300.0, horizon=600.0, lead=600.0, for_windows=2, resolve_windows=2):
     """The first firing times of `GateDampingDeclining` over one run's windows."""
     flags = set(variant.split("+")) - {"base"}
-    unknown = flags - {"lead", "band", "young", "taper"}
+    unknown = {f for f in flags - {"lead", "band", "young", "taper"} if not re.fullmatch(r"s\d+(\.\d+)?", f)}
     if unknown:
         raise SystemExit(f"unknown variant {', '.join(sorted(unknown))} in {variant!r}")
     points, fired = [], []
