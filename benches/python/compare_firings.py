@@ -7,36 +7,23 @@ Usage: python compare_firings.py OLD_TRACE NEW_TRACE
 
 Standard library only. Used in docs/benchmarks.md ("Stop 74") to compare a change's benches
 with the previous stop's traces."""
-import re
+import os
 import sys
 
-HEADER = re.compile(r"\] (\S+) on (\S+) gate, seed (\d+)")
-FIRING = re.compile(r"firing (\[[^\]]*\])")
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from bench_trace import read_trace  # noqa: E402
 
 
 def transitions(path):
     """{(scenario, gate, seed): [(t, firing set as printed), ...]} at each change of the set."""
-    runs, key, prev = {}, None, None
-    try:
-        f = open(path, encoding="utf-8")
-    except OSError as e:
-        raise SystemExit(f"{path}: cannot read the trace: {e.strerror}") from None
-    with f:
-        for number, line in enumerate(f, 1):
-            h = HEADER.search(line)
-            if h and line.startswith("["):
-                key = (h.group(1), h.group(2), int(h.group(3)))
-                runs[key], prev = [], None
-                continue
-            if not line.startswith("t "):
-                continue
-            m = FIRING.search(line)
-            if m is None or key is None:
-                raise SystemExit(f"{path}:{number}: not a window line of `bench warning --trace`")
-            t = float(line.split()[1])
-            if m.group(1) != prev:
-                runs[key].append((t, m.group(1)))
-                prev = m.group(1)
+    runs = {}
+    for run in read_trace(path):
+        changes, prev = [], None
+        for w in run["windows"]:
+            if w["firing"] != prev:
+                changes.append((w["t"], f"[{w['firing']}]"))
+                prev = w["firing"]
+        runs[(run["scenario"], run["gate"], run["seed"])] = changes
     return runs
 
 

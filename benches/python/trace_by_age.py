@@ -19,7 +19,7 @@ import statistics
 import sys
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from trend_replay import read_trace  # noqa: E402
+from bench_trace import read_trace  # noqa: E402
 
 AGES = ((0.0, 60.0), (60.0, 120.0), (120.0, 240.0), (240.0, float("inf")))
 

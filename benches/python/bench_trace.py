@@ -1,0 +1,37 @@
+"""The windows of `gatewatch bench warning --trace` output, parsed once for the trace scripts
+(trend_replay.py, trace_by_age.py, compare_firings.py). Standard library only."""
+import re
+
+HEADER = re.compile(r"\[\d+/\d+\] (\S+) on (\w+) gate, seed (\d+)")
+WINDOW = re.compile(
+    r"^t\s+([\d.]+)\s+true ([+-][\d.]+) %\s+zeta0 "
+    r"(?:Some\(([-\d.]+)\) Some\(\(([-\d.]+), ([-\d.]+)\)\) Some\(\"(\w+)\"\)|None \S+ \S+) "
+    r"trusted (\w+).*?firing \[([^\]]*)\]"
+)
+
+
+def read_trace(path):
+    """The runs of a `--trace` output: scenario, gate, seed and their windows."""
+    runs, run = [], None
+    try:
+        f = open(path, encoding="utf-8")
+    except OSError as e:
+        raise SystemExit(f"{path}: cannot read the trace: {e.strerror}") from None
+    with f:
+        for number, line in enumerate(f, 1):
+            h = HEADER.search(line)
+            if h:
+                run = {"scenario": h.group(1), "gate": h.group(2), "seed": int(h.group(3)), "windows": []}
+                runs.append(run)
+                continue
+            if not line.startswith("t "):
+                continue
+            m = WINDOW.search(line)
+            if m is None or run is None:
+                raise SystemExit(f"{path}:{number}: not a window line of `bench warning --trace`")
+            num = lambda g: float(m.group(g)) if m.group(g) is not None else None
+            run["windows"].append({
+                "t": num(1), "true": num(2), "zeta0": num(3), "low": num(4), "high": num(5),
+                "trusted": m.group(7) == "true", "firing": m.group(8),
+            })
+    return runs
