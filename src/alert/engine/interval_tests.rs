@@ -297,6 +297,18 @@ fn a_window_far_below_fires_at_once() {
     assert!(e.observe("g", &untrusted, t(0)).is_empty());
 }
 
+/// Each case (what, window, rules) streamed four times in a row fires nothing and leaves the
+/// gate in `settles`: the regime rules' off-cases, where the window's interval decides.
+fn never_fires<const N: usize>(cases: [(&str, Observation, AlertRules); N], settles: GateState) {
+    for (what, o, r) in cases {
+        let mut e = AlertEngine::new(r);
+        for i in 0..4 {
+            assert!(e.observe("g", &o, t(5 * i)).is_empty(), "{what}");
+        }
+        assert_eq!(e.state("g"), Some(settles), "{what}");
+    }
+}
+
 #[test]
 fn a_steady_cycle_far_above_the_ambient_level_reads_negative() {
     // the first cycle windows of an onset (lock gate seed 47 of `bench warning --seeds 100
@@ -347,38 +359,35 @@ fn a_steady_cycle_far_above_the_ambient_level_reads_negative() {
         limit_cycle: false,
         ..cycle(9.0)
     };
-    for (what, o, r) in [
-        ("3.49", cycle(3.49), rules.clone()),
-        (
-            "below the bar of a 20-cycle gate (4.68)",
-            below,
-            rules.clone(),
-        ),
-        ("no level", no_level, rules.clone()),
-        ("not a cycle", not_cycle, rules.clone()),
-        (
-            "off",
-            cycle(9.0),
-            AlertRules {
-                fire_on_limit_cycle: false,
-                ..rules.clone()
-            },
-        ),
-        (
-            "above a site's bar",
-            cycle(9.0),
-            AlertRules {
-                fire_at_once_min_ratio: Some(9.5),
-                ..rules.clone()
-            },
-        ),
-    ] {
-        let mut e = AlertEngine::new(r);
-        for i in 0..4 {
-            assert!(e.observe("g", &o, t(5 * i)).is_empty(), "{what}");
-        }
-        assert_eq!(e.state("g"), Some(GateState::Unknown), "{what}");
-    }
+    never_fires(
+        [
+            ("3.49", cycle(3.49), rules.clone()),
+            (
+                "below the bar of a 20-cycle gate (4.68)",
+                below,
+                rules.clone(),
+            ),
+            ("no level", no_level, rules.clone()),
+            ("not a cycle", not_cycle, rules.clone()),
+            (
+                "off",
+                cycle(9.0),
+                AlertRules {
+                    fire_on_limit_cycle: false,
+                    ..rules.clone()
+                },
+            ),
+            (
+                "above a site's bar",
+                cycle(9.0),
+                AlertRules {
+                    fire_at_once_min_ratio: Some(9.5),
+                    ..rules.clone()
+                },
+            ),
+        ],
+        GateState::Unknown,
+    );
     // a trusted cycle window whose interval reads good (a recovering gate's) still reads
     // negative while it holds its cycle: the spectrum's cycle vetoes the all-clear
     let mut e = AlertEngine::new(rules.clone());
@@ -456,39 +465,36 @@ fn a_growing_oscillation_far_above_the_ambient_level_reads_negative() {
     };
     assert_eq!(a.annotations["evidence"], "limit_cycle");
     // below the bar, off, no level, or neither regime: the interval decides (here: band)
-    for (what, o, r) in [
-        ("3.49", growing(3.49), rules.clone()),
-        (
-            "off",
-            growing(9.0),
-            AlertRules {
-                fire_on_growth: false,
-                ..rules.clone()
-            },
-        ),
-        (
-            "no level",
-            Observation {
-                ambient_ratio: None,
-                ..growing(9.0)
-            },
-            rules.clone(),
-        ),
-        (
-            "not growing",
-            Observation {
-                growing: false,
-                ..growing(9.0)
-            },
-            rules.clone(),
-        ),
-    ] {
-        let mut e = AlertEngine::new(r);
-        for i in 0..4 {
-            assert!(e.observe("g", &o, t(5 * i)).is_empty(), "{what}");
-        }
-        assert_eq!(e.state("g"), Some(GateState::Ok), "{what}");
-    }
+    never_fires(
+        [
+            ("3.49", growing(3.49), rules.clone()),
+            (
+                "off",
+                growing(9.0),
+                AlertRules {
+                    fire_on_growth: false,
+                    ..rules.clone()
+                },
+            ),
+            (
+                "no level",
+                Observation {
+                    ambient_ratio: None,
+                    ..growing(9.0)
+                },
+                rules.clone(),
+            ),
+            (
+                "not growing",
+                Observation {
+                    growing: false,
+                    ..growing(9.0)
+                },
+                rules.clone(),
+            ),
+        ],
+        GateState::Ok,
+    );
     // fire_on_limit_cycle = false leaves the growth rule on
     let only_growth = AlertRules {
         fire_on_limit_cycle: false,
