@@ -309,6 +309,26 @@ fn never_fires<const N: usize>(cases: [(&str, Observation, AlertRules); N], sett
     }
 }
 
+/// `first` alone waits (pending, never at once) and `second` right after it fires, from the
+/// first window's time, with `evidence`; returns the alert's description.
+fn fires_on_the_second(
+    rules: &AlertRules,
+    first: &Observation,
+    second: &Observation,
+    evidence: &str,
+) -> String {
+    let mut e = AlertEngine::new(rules.clone());
+    assert!(e.observe("g", first, t(0)).is_empty());
+    assert_eq!(e.state("g"), Some(GateState::Pending));
+    let ev = e.observe("g", second, t(5));
+    let [AlertEvent::Firing(a)] = &ev[..] else {
+        panic!("{ev:?}")
+    };
+    assert_eq!(a.starts_at, t(0));
+    assert_eq!(a.annotations["evidence"], evidence);
+    a.annotations["description"].clone()
+}
+
 #[test]
 fn a_steady_cycle_far_above_the_ambient_level_reads_negative() {
     // the first cycle windows of an onset (lock gate seed 47 of `bench warning --seeds 100
@@ -323,16 +343,7 @@ fn a_steady_cycle_far_above_the_ambient_level_reads_negative() {
     let rules = AlertRules::default();
     assert!(rules.fire_on_limit_cycle, "on by default");
     // two in a row fire; one alone waits (never at once)
-    let mut e = AlertEngine::new(rules.clone());
-    assert!(e.observe("g", &cycle(7.24), t(0)).is_empty());
-    assert_eq!(e.state("g"), Some(GateState::Pending));
-    let ev = e.observe("g", &cycle(9.19), t(5));
-    let [AlertEvent::Firing(a)] = &ev[..] else {
-        panic!("{ev:?}")
-    };
-    assert_eq!(a.starts_at, t(0));
-    assert_eq!(a.annotations["evidence"], "limit_cycle");
-    let d = &a.annotations["description"];
+    let d = fires_on_the_second(&rules, &cycle(7.24), &cycle(9.19), "limit_cycle");
     assert!(
         d.contains("limit cycle) 9.19 times above its ambient level")
             && d.contains("95 % interval -3.0 to 0.9 %"),
@@ -432,16 +443,7 @@ fn a_growing_oscillation_far_above_the_ambient_level_reads_negative() {
     assert!(rules.fire_on_growth, "on by default");
     // two in a row fire; one alone waits (never at once: an impact late in one window grows
     // that window's envelope, and the next one sees it decay)
-    let mut e = AlertEngine::new(rules.clone());
-    assert!(e.observe("g", &growing(5.1), t(0)).is_empty());
-    assert_eq!(e.state("g"), Some(GateState::Pending));
-    let ev = e.observe("g", &growing(8.3), t(5));
-    let [AlertEvent::Firing(a)] = &ev[..] else {
-        panic!("{ev:?}")
-    };
-    assert_eq!(a.starts_at, t(0));
-    assert_eq!(a.annotations["evidence"], "growth");
-    let d = &a.annotations["description"];
+    let d = fires_on_the_second(&rules, &growing(5.1), &growing(8.3), "growth");
     assert!(
         d.contains("grows by itself 8.3 times above its ambient level")
             && d.contains("95 % interval -0.5 to 0.1 %"),
