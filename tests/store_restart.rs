@@ -1110,6 +1110,78 @@ async fn failing_store_writes_fail_readiness_until_a_write_succeeds() {
     assert!(!text.contains("panicked"), "{text}");
 }
 
+/// An alert state whose write failed is written once the store takes writes again. The gate
+/// goes stale (`GateDataStale` fires) while a foreign connection holds the write lock, so that
+/// state's write fails; nothing changes afterwards. Before, the daemon took the state as
+/// written when it queued it and never wrote it again: the file kept the gate's older state
+/// (not stale) and a restart restored that one.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_alert_state_whose_write_failed_is_written_when_writes_resume() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let cfg = write_config(dir.path(), free_port());
+    let db = dir.path().join("gw.db");
+    let log = dir.path().join("gatewatch.log");
+    let (child, url, client) = serve_ready(&cfg, &log).await;
+    let mut stream = Stream::new();
+    let deadline = Instant::now() + WAIT;
+    while metric(&client, &url, IDENTIFIED).await.unwrap_or(0.0) < 1.0 {
+        stream.send(&client, &url).await;
+        assert!(Instant::now() < deadline, "g1 was never identified");
+        tokio::time::sleep(Duration::from_millis(300)).await;
+    }
+    // the stored state is not stale (the gate's first state, or none yet)
+    let stale_stored = || {
+        let c =
+            rusqlite::Connection::open_with_flags(&db, rusqlite::OpenFlags::SQLITE_OPEN_READ_ONLY)
+                .ok()?;
+        let state: String = c
+            .query_row("SELECT state FROM alert_state WHERE gate = 'g1'", [], |r| {
+                r.get(0)
+            })
+            .ok()?;
+        let v: Value = serde_json::from_str(&state).expect("stored state is JSON");
+        Some(v["stale"].is_object())
+    };
+    assert_ne!(
+        stale_stored(),
+        Some(true),
+        "stale before it stopped sending"
+    );
+    let foreign = rusqlite::Connection::open(&db).expect("open the store");
+    foreign
+        .execute_batch("BEGIN EXCLUSIVE")
+        .expect("take the write lock");
+    // g1 stops sending: stale after 1 s, and its state's write waits out the lock and fails
+    const FIRING: &str = "gatewatch_alert_firing{alertname=\"GateDataStale\",gate=\"g1\"}";
+    let deadline = Instant::now() + WAIT;
+    while metric(&client, &url, FIRING).await != Some(1.0) {
+        assert!(Instant::now() < deadline, "GateDataStale never fired");
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    // held for two of the store's 5-s busy timeouts: the write in flight when it fired, then
+    // the one with the stale state; both fail
+    tokio::time::sleep(Duration::from_secs(12)).await;
+    let (status, body) = readyz(&client, &url).await.expect("/readyz answers");
+    assert_eq!(
+        status, 503,
+        "the writes under the lock did not fail: {body}"
+    );
+    assert_ne!(stale_stored(), Some(true), "written through the lock?");
+    foreign.execute_batch("ROLLBACK").expect("let go");
+    drop(foreign);
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while stale_stored() != Some(true) {
+        assert!(
+            Instant::now() < deadline,
+            "the stale state was never written after the lock was released ({:?})",
+            stale_stored()
+        );
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    }
+    let text = terminate_with_log(child, &log, 0).await;
+    assert!(!text.contains("panicked"), "{text}");
+}
+
 /// Size of the small file system the low-space test puts the store on, and what a file made
 /// before the daemon starts takes of it: about 4 MiB left, under `store::LOW_SPACE_BYTES`
 /// (16 MiB), and over it again once that file is deleted.

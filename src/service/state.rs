@@ -548,7 +548,7 @@ impl AppState {
     ) {
         if events.is_empty() {
             if let Some(p) = &self.persistence {
-                p.writer.submit(extra, None);
+                p.submit(extra, None);
             }
             return;
         }

@@ -21,7 +21,7 @@ use crate::alert::{AlertEngine, AlertEvent, GateSnapshot};
 use crate::analysis::WindowAnalysis;
 use crate::store::{
     IdentificationRecord, NatsOptions, NatsStore, NewOutboxRow, SqliteStore, StorageBackend,
-    StorageConfig, Store, StoreError, StoreWriter, WriteBatch,
+    StorageConfig, Store, StoreError, StoreWriter, Then, WriteBatch, WriteResult,
 };
 
 /// The store as the daemon holds it.
@@ -32,8 +32,12 @@ pub struct Persistence {
     pub writer: StoreWriter,
     /// The number of the next batch of transitions.
     batch: AtomicU64,
-    /// The last alert state written per gate, so an unchanged state is not rewritten.
-    written: Mutex<HashMap<String, String>>,
+    /// The last alert state per gate the store confirmed written, so an unchanged state is not
+    /// rewritten. Updated by the writer thread after the commit ([`Persistence::submit`]), not
+    /// when the write is queued: a state whose write failed (a full store, a foreign lock, a
+    /// full queue) was taken as written and never written again until it changed, so the file
+    /// kept the older state for good, and the next start restored that one.
+    written: Arc<Mutex<HashMap<String, String>>>,
     /// The SQLite store behind `store`, for its checkpoint.
     sqlite: Option<Arc<SqliteStore>>,
     /// The NATS store behind `store`, for the release of its owner lease.
@@ -108,7 +112,7 @@ impl Persistence {
             store,
             writer,
             batch: AtomicU64::new(1),
-            written: Mutex::new(HashMap::new()),
+            written: Arc::new(Mutex::new(HashMap::new())),
             sqlite: None,
             nats: None,
             counts: StoreCounts::default(),
@@ -259,12 +263,44 @@ impl Persistence {
             snap.last_seen = None;
         }
         let json = serde_json::to_string(&snap).ok()?;
-        let mut written = lock(&self.written);
-        if written.get(gate) == Some(&json) {
+        if lock(&self.written).get(gate) == Some(&json) {
             return None;
         }
-        written.insert(gate.to_string(), json.clone());
         Some((gate.to_string(), json))
+    }
+
+    /// Queues `batch` on the writer, then runs `then` with the result (on the writer thread).
+    /// The alert states of a batch the store took are recorded as written, and its forgotten
+    /// gates as not; a failed batch records nothing, so its states are written again with the
+    /// next batch (each window's, and each tick's). Until then a state may be queued twice,
+    /// which writes the same row twice: harmless, and only while a write is in flight or failing.
+    pub fn submit(&self, batch: WriteBatch, then: Option<Then>) {
+        if batch.alert_states.is_empty() && batch.forget_gates.is_empty() {
+            self.writer.submit(batch, then);
+            return;
+        }
+        let states = batch.alert_states.clone();
+        let forgotten = batch.forget_gates.clone();
+        let written = Arc::clone(&self.written);
+        self.writer.submit(
+            batch,
+            Some(Box::new(move |result: WriteResult| {
+                if result.is_ok() {
+                    let mut w = lock(&written);
+                    // in the batch's order: a state and the deletion of its gate in one batch
+                    // are applied as the store applied them (states, then deletions)
+                    for (gate, json) in states {
+                        w.insert(gate, json);
+                    }
+                    for gate in &forgotten {
+                        w.remove(gate);
+                    }
+                }
+                if let Some(then) = then {
+                    then(result);
+                }
+            })),
+        );
     }
 
     /// Writes `extra` and the outbox rows of `events`, then (on the writer thread) hands the
@@ -303,7 +339,7 @@ impl Persistence {
             }
         }
         let notifier = notifier.clone();
-        self.writer.submit(
+        self.submit(
             extra,
             Some(Box::new(move |result| {
                 if let Ok(ids) = result {
@@ -437,7 +473,8 @@ pub fn window_write(
 /// stored alert state. Without it the store kept the gate's last state, firing alerts and all,
 /// and the next start restored them and sent them to Alertmanager again as firing, for a gate
 /// the daemon had forgotten (and with a firing `GateNegativeDamping`, which holds a silent gate,
-/// held it for ever). Its last written state is forgotten too, so a gate of the same name that
+/// held it for ever). Its last written state is forgotten too (now, and again when the deletion
+/// is committed, after any state of the gate queued before it), so a gate of the same name that
 /// comes back has its first state written whatever it is.
 pub fn forget_write(p: Option<&Persistence>, gate: &str) -> WriteBatch {
     let Some(p) = p else {

@@ -61,7 +61,7 @@ pub use sqlite::{
     check_location, prune_batch_rows, wal_budget, SqliteStore, PRUNE_BATCH_ROWS,
     SIZE_HIGH_WATERMARK, SIZE_LOW_WATERMARK,
 };
-pub use writer::{StoreStats, StoreWriter, LOW_SPACE_BYTES};
+pub use writer::{StoreStats, StoreWriter, Then, WriteResult, LOW_SPACE_BYTES};
 
 use serde::{Deserialize, Serialize};
 
