@@ -417,6 +417,25 @@ async fn serve_ready(cfg: &Path, log: &Path) -> (Daemon, String, reqwest::Client
     (child, url, client)
 }
 
+/// `serve` on [`write_config`] in a new directory, once it is ready: the directory (deleted
+/// when dropped, so kept until the test ends), the store file, the log, the child, its URL and a
+/// client.
+async fn serve_default() -> (
+    tempfile::TempDir,
+    PathBuf,
+    PathBuf,
+    Daemon,
+    String,
+    reqwest::Client,
+) {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let cfg = write_config(dir.path(), free_port());
+    let db = dir.path().join("gw.db");
+    let log = dir.path().join("gatewatch.log");
+    let (child, url, client) = serve_ready(&cfg, &log).await;
+    (dir, db, log, child, url, client)
+}
+
 /// Polls `/readyz` until 200 (bounded by [`WAIT`]).
 async fn wait_ready(client: &reqwest::Client, url: &str) {
     let deadline = Instant::now() + WAIT;
@@ -564,11 +583,7 @@ async fn a_second_daemon_on_the_same_store_is_refused_naming_the_holder() {
 /// identified) with a line naming it.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_deleted_store_file_fails_readiness_is_counted_and_exits_1() {
-    let dir = tempfile::tempdir().expect("tempdir");
-    let cfg = write_config(dir.path(), free_port());
-    let db = dir.path().join("gw.db");
-    let log = dir.path().join("gatewatch.log");
-    let (child, url, client) = serve_ready(&cfg, &log).await;
+    let (_dir, db, log, child, url, client) = serve_default().await;
     let mut stream = Stream::new();
     for _ in 0..3 {
         stream.send(&client, &url).await;
@@ -1073,11 +1088,7 @@ fn a_store_file_it_cannot_read_stops_the_start_saying_permission_denied() {
 /// `/readyz` answers 200 again. Before, `/readyz` stayed 200 throughout.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn failing_store_writes_fail_readiness_until_a_write_succeeds() {
-    let dir = tempfile::tempdir().expect("tempdir");
-    let cfg = write_config(dir.path(), free_port());
-    let db = dir.path().join("gw.db");
-    let log = dir.path().join("gatewatch.log");
-    let (child, url, client) = serve_ready(&cfg, &log).await;
+    let (_dir, db, log, child, url, client) = serve_default().await;
     let mut stream = Stream::new();
     let foreign = rusqlite::Connection::open(&db).expect("open the store");
     foreign
@@ -1117,11 +1128,7 @@ async fn failing_store_writes_fail_readiness_until_a_write_succeeds() {
 /// (not stale) and a restart restored that one.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn an_alert_state_whose_write_failed_is_written_when_writes_resume() {
-    let dir = tempfile::tempdir().expect("tempdir");
-    let cfg = write_config(dir.path(), free_port());
-    let db = dir.path().join("gw.db");
-    let log = dir.path().join("gatewatch.log");
-    let (child, url, client) = serve_ready(&cfg, &log).await;
+    let (_dir, db, log, child, url, client) = serve_default().await;
     let mut stream = Stream::new();
     let deadline = Instant::now() + WAIT;
     while metric(&client, &url, IDENTIFIED).await.unwrap_or(0.0) < 1.0 {
