@@ -3,9 +3,12 @@
 import re
 
 HEADER = re.compile(r"\[\d+/\d+\] (\S+) on (\w+) gate, seed (\d+)")
+# zeta0, its interval and its source each print as `Some(..)` or `None`: an untrusted model
+# window has a zeta0 without an interval (`Some(1.93) None Some("model")`), which the pattern
+# refused until stop 75.
 WINDOW = re.compile(
     r"^t\s+([\d.]+)\s+true ([+-][\d.]+) %\s+zeta0 "
-    r"(?:Some\(([-\d.]+)\) Some\(\(([-\d.]+), ([-\d.]+)\)\) Some\(\"(\w+)\"\)|None \S+ \S+) "
+    r"(?:Some\(([-\d.]+)\)|None) (?:Some\(\(([-\d.]+), ([-\d.]+)\)\)|None) (?:Some\(\"(\w+)\"\)|None) "
     r"trusted (\w+).*?firing \[([^\]]*)\]"
 )
 
