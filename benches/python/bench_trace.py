@@ -1,5 +1,6 @@
 """The windows of `gatewatch bench warning --trace` output, parsed once for the trace scripts
-(trend_replay.py, trace_by_age.py, compare_firings.py). Standard library only."""
+(trend_replay.py, trace_by_age.py, compare_firings.py, slope_calibration.py). Standard library
+only."""
 import re
 
 HEADER = re.compile(r"\[\d+/\d+\] (\S+) on (\w+) gate, seed (\d+)")
@@ -11,6 +12,14 @@ WINDOW = re.compile(
     r"(?:Some\(([-\d.]+)\)|None) (?:Some\(\(([-\d.]+), ([-\d.]+)\)\)|None) (?:Some\(\"(\w+)\"\)|None) "
     r"trusted (\w+).*?firing \[([^\]]*)\]"
 )
+# the trend's slope and its one-sided upper bound, %/min, where the window has a trend
+TREND = re.compile(r"trend \(%/min, upper %/min, confident crossing s\) Some\(\((-?[\d.e+-]+), (-?[\d.e+-]+), ")
+
+
+def trend(line):
+    """(slope, upper bound) of the window's trend in %/min, None where it has none."""
+    m = TREND.search(line)
+    return (float(m.group(1)), float(m.group(2))) if m else None
 
 
 def read_trace(path):
@@ -36,5 +45,6 @@ def read_trace(path):
             run["windows"].append({
                 "t": num(1), "true": num(2), "zeta0": num(3), "low": num(4), "high": num(5),
                 "trusted": m.group(7) == "true", "firing": m.group(8),
+                "trend": trend(line),
             })
     return runs

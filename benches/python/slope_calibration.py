@@ -11,12 +11,12 @@ Usage: python slope_calibration.py TRUE_SLOPE T_MIN T_MAX TRACE...
   only windows ending in [T_MIN, T_MAX] s of sample time count.
 
 Standard library only. docs/benchmarks.md, "Stop 74"."""
-import re
+import os
 import statistics
 import sys
 
-TREND = re.compile(r"trend \(%/min, upper %/min, confident crossing s\) Some\(\((-?[\d.e+-]+), (-?[\d.e+-]+), ")
-HEADER = re.compile(r"\] (\S+) on (\S+) gate, seed (\d+)")
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from bench_trace import read_trace  # noqa: E402
 
 
 def main():
@@ -28,28 +28,14 @@ def main():
         raise SystemExit("TRUE_SLOPE, T_MIN and T_MAX must be numbers") from None
     ratios = {}
     for path in sys.argv[4:]:
-        gate = None
-        try:
-            f = open(path, encoding="utf-8")
-        except OSError as e:
-            raise SystemExit(f"{path}: cannot read the trace: {e.strerror}") from None
-        with f:
-            for line in f:
-                h = HEADER.search(line)
-                if h and line.startswith("["):
-                    gate = h.group(2)
+        for run in read_trace(path):
+            for w in run["windows"]:
+                if w["trend"] is None or not t_min <= w["t"] <= t_max:
                     continue
-                if not line.startswith("t ") or gate is None:
-                    continue
-                if not t_min <= float(line.split()[1]) <= t_max:
-                    continue
-                m = TREND.search(line)
-                if m is None:
-                    continue
-                slope, upper = float(m.group(1)), float(m.group(2))
+                slope, upper = w["trend"]
                 se = (upper - slope) / 1.66
                 if se > 0:
-                    ratios.setdefault(gate, []).append((slope - true_slope) / se)
+                    ratios.setdefault(run["gate"], []).append((slope - true_slope) / se)
     for gate, z in sorted(ratios.items()):
         z.sort()
         q = lambda p: z[int(p * (len(z) - 1))]
