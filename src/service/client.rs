@@ -34,6 +34,8 @@ pub enum Scenario {
     WaterLevel,
     /// +1 % with spikes, dropouts, clipping and a DC offset on the sensor.
     SensorFaults,
+    /// +1 %, struck about once a minute (debris, ice, a vessel).
+    Impacts,
 }
 
 /// The simulated gate and its sensor (`gatewatch simulate`).
@@ -178,6 +180,7 @@ impl Scenario {
             Scenario::Bursting => N::Bursting,
             Scenario::WaterLevel => N::WaterLevel,
             Scenario::SensorFaults => N::SensorFaults,
+            Scenario::Impacts => N::Impacts,
         })
     }
 }

@@ -1,6 +1,6 @@
 //! The noise-driven gate: its parameters and the streaming RK4 simulator.
 
-use super::{Output, Scenario, SensorFaults, ZetaSchedule};
+use super::{Impacts, Output, Scenario, SensorFaults, ZetaSchedule};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
@@ -117,6 +117,12 @@ pub struct GateSimulator {
     dropout_left: u64,
     /// The clean output of the last sample returned.
     last_clean: f64,
+    /// Blows on the gate.
+    impacts: Impacts,
+    /// Their own random stream, so adding blows leaves forcing, noise and faults unchanged.
+    impact_rng: ChaCha8Rng,
+    /// Time of the next blow, s (infinite: none).
+    next_impact: f64,
 }
 
 impl GateSimulator {
@@ -133,6 +139,8 @@ impl GateSimulator {
         noise_rng.set_stream(1);
         let mut fault_rng = ChaCha8Rng::seed_from_u64(seed);
         fault_rng.set_stream(2);
+        let mut impact_rng = ChaCha8Rng::seed_from_u64(seed);
+        impact_rng.set_stream(3);
         let mut s = GateSimulator {
             crit: params.critical_damping(),
             y: params.y0,
@@ -150,6 +158,9 @@ impl GateSimulator {
             fault_rng,
             dropout_left: 0,
             last_clean: 0.0,
+            impacts: Impacts::default(),
+            impact_rng,
+            next_impact: f64::INFINITY,
         };
         s.f_now = s.draw_force();
         s.f_next = s.draw_force();
@@ -179,6 +190,19 @@ impl GateSimulator {
     /// Applies `faults` to the measured output (spikes, dropouts, clipping, a DC offset).
     pub fn with_faults(mut self, faults: SensorFaults) -> GateSimulator {
         self.faults = faults;
+        self
+    }
+
+    /// Strikes the gate with `impacts`: blows at seeded times and sizes, the first one
+    /// `[0.5, 1.5] * every_s` after `t = 0` (or after the current time, if later), so a warm-up
+    /// before a scenario's clock starts is never struck. Call it after [`Self::with_start_time`].
+    pub fn with_impacts(mut self, impacts: Impacts) -> GateSimulator {
+        self.next_impact = if impacts.is_active() {
+            impacts.next_after(self.time().max(0.0), &mut self.impact_rng)
+        } else {
+            f64::INFINITY
+        };
+        self.impacts = impacts;
         self
     }
 
@@ -313,6 +337,13 @@ impl GateSimulator {
                 &mut self.fault_rng,
                 &mut self.dropout_left,
             );
+        }
+        if t >= self.next_impact {
+            // the blow acts between this sample and the next: the state changes, the sample
+            // already taken does not
+            let omega = (self.stiffness_at(t) / self.p.mass).sqrt();
+            self.v += self.impacts.kick(omega, &mut self.impact_rng);
+            self.next_impact = self.impacts.next_after(t, &mut self.impact_rng);
         }
         self.advance();
         out

@@ -34,10 +34,12 @@
 //! - `scenarios`: the named scenarios an operator meets ([`ScenarioName`], with the true
 //!   `zeta0(t)` beside the signal), the gate presets ([`GatePreset`]) and [`NoiseLevel`].
 //! - `faults`: [`SensorFaults`] (spikes, dropouts, clipping, a DC offset).
+//! - `impacts`: [`Impacts`] (blows on the gate: debris, ice, a vessel).
 //! - `worked_example`: the chapter's worked example, [`worked_example`].
 
 mod faults;
 mod gate;
+mod impacts;
 mod scenarios;
 mod schedule;
 #[cfg(test)]
@@ -46,6 +48,7 @@ mod worked_example;
 
 pub use faults::SensorFaults;
 pub use gate::{GateParams, GateSimulator};
+pub use impacts::Impacts;
 pub use scenarios::{GatePreset, NoiseLevel, ScenarioDef, ScenarioName};
 pub use schedule::{Scenario, ZetaSchedule};
 pub use worked_example::{

@@ -7,7 +7,7 @@
 //! schedule's initial value ([`ScenarioDef::warmup_s`]), so the first window is already
 //! representative. Definitions and reasons: `docs/damping.md`, "Scenarios".
 
-use super::{GateParams, GateSimulator, SensorFaults, ZetaSchedule};
+use super::{GateParams, GateSimulator, Impacts, SensorFaults, ZetaSchedule};
 
 /// Gate presets: the chapter's lab gate, a lock gate and a barrier gate.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
@@ -119,11 +119,14 @@ pub enum ScenarioName {
     WaterLevel,
     /// +1 % for 10 min with spikes, dropouts, clipping and a DC offset on the sensor.
     SensorFaults,
+    /// +1 % for 10 min, struck about once a minute (debris, ice, a vessel): free vibrations
+    /// 5 to 20 times the ambient response that decay at the gate's damping.
+    Impacts,
 }
 
 impl ScenarioName {
     /// Every scenario, in table order.
-    pub const ALL: [ScenarioName; 10] = [
+    pub const ALL: [ScenarioName; 11] = [
         ScenarioName::Stable,
         ScenarioName::StableLow,
         ScenarioName::SlowDrift,
@@ -134,6 +137,7 @@ impl ScenarioName {
         ScenarioName::Bursting,
         ScenarioName::WaterLevel,
         ScenarioName::SensorFaults,
+        ScenarioName::Impacts,
     ];
 
     /// Name on the command line and in tables.
@@ -149,6 +153,7 @@ impl ScenarioName {
             ScenarioName::Bursting => "bursting",
             ScenarioName::WaterLevel => "water-level",
             ScenarioName::SensorFaults => "sensor-faults",
+            ScenarioName::Impacts => "impacts",
         }
     }
 
@@ -174,6 +179,7 @@ impl ScenarioName {
                 | ScenarioName::StableLow
                 | ScenarioName::WaterLevel
                 | ScenarioName::SensorFaults
+                | ScenarioName::Impacts
         )
     }
 
@@ -191,12 +197,25 @@ impl ScenarioName {
             zeta: ZetaSchedule::Constant(0.01),
             stiffness_factor: None,
             faults: SensorFaults::default(),
+            impacts: Impacts::default(),
             start_on_limit_cycle: false,
             duration_s: 600.0,
             warmup_s: 30.0,
         };
         match self {
             ScenarioName::Stable | ScenarioName::WaterLevel | ScenarioName::SensorFaults => {}
+            ScenarioName::Impacts => {
+                // sizes against the ambient displacement std at +1 %: a blow of 20 of them
+                // lifts a 10 s window of the lock gate to about 5 times its ambient level, of
+                // the lab gate (whose blows die out twice as fast) to about 4 times; the
+                // smallest hardly show
+                let s = p.stationary_force_std(0.01) / p.stiffness;
+                d.impacts = Impacts {
+                    every_s: 60.0,
+                    amplitude_min: 5.0 * s,
+                    amplitude_max: 20.0 * s,
+                };
+            }
             ScenarioName::StableLow => {
                 d.zeta = ZetaSchedule::Constant(0.005);
                 // the correlation time 1/(zeta omega) doubles: so does the warm-up
@@ -268,6 +287,8 @@ pub struct ScenarioDef {
     pub stiffness_factor: Option<ZetaSchedule>,
     /// Sensor faults.
     pub faults: SensorFaults,
+    /// Blows on the gate.
+    pub impacts: Impacts,
     /// Start on the harmonic-balance limit cycle of the initial (negative) damping, so the
     /// scenario is "held" there from its first window, not growing into it.
     pub start_on_limit_cycle: bool,
@@ -316,7 +337,8 @@ impl ScenarioDef {
         let sched = self.zeta.try_clone().ok_or_else(uncloneable)?;
         let mut sim = GateSimulator::new(params, sched, seed)
             .with_start_time(-self.warmup_s)
-            .with_faults(self.faults.clone());
+            .with_faults(self.faults.clone())
+            .with_impacts(self.impacts.clone());
         if let Some(k) = &self.stiffness_factor {
             sim = sim.with_stiffness_factor(k.try_clone().ok_or_else(uncloneable)?);
         }

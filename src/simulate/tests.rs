@@ -428,3 +428,75 @@ fn sensor_faults_spike_drop_clip_and_offset() {
         .count();
     assert!((10..=45).contains(&spikes), "{spikes} spikes");
 }
+
+/// The impacts scenario strikes the gate about once a minute with free vibrations 5 to 20 times
+/// its ambient response, which decay at its positive damping; the forcing and the noise of a
+/// seed are those of the same seed unstruck (their own streams), so the difference of the two
+/// runs is the blows alone.
+#[test]
+fn impacts_strike_the_gate_and_decay() {
+    for g in [GatePreset::Lab, GatePreset::Lock] {
+        let p = g.params();
+        let d = ScenarioName::Impacts.def(&p);
+        assert!(d.impacts.is_active() && ScenarioName::Impacts.is_stable());
+        let n = (600.0 * p.rate_hz) as usize;
+        let mut struck = d.simulator(&p, NoiseLevel::Absolute(0.0), 4).unwrap();
+        let mut calm = ScenarioDef {
+            impacts: Impacts::default(),
+            ..ScenarioName::Impacts.def(&p)
+        }
+        .simulator(&p, NoiseLevel::Absolute(0.0), 4)
+        .unwrap();
+        let (x, _) = run_scenario(&mut struck, n);
+        let (y, _) = run_scenario(&mut calm, n);
+        let s = p.stationary_force_std(0.01);
+        // the blows' response in blocks of half a second, in ambient stds
+        let block = (0.5 * p.rate_hz) as usize;
+        let peaks: Vec<f64> = x
+            .chunks(block)
+            .zip(y.chunks(block))
+            .map(|(a, b)| {
+                a.iter()
+                    .zip(b)
+                    .map(|(u, v)| (u - v).abs())
+                    .fold(0.0, f64::max)
+                    / s
+            })
+            .collect();
+        // a blow: a block at least 4 stds whose predecessor held under half of it
+        let blows: Vec<usize> = (1..peaks.len())
+            .filter(|&i| peaks[i] >= 4.0 && peaks[i - 1] < 0.5 * peaks[i])
+            .collect();
+        // intervals of 30 to 90 s in 600 s: 6 to 20 blows
+        assert!(
+            (6..=20).contains(&blows.len()),
+            "{g:?}: {} blows",
+            blows.len()
+        );
+        let largest = blows.iter().map(|&i| peaks[i]).fold(0.0, f64::max);
+        assert!(
+            (8.0..=24.0).contains(&largest),
+            "{g:?}: largest blow {largest:.1} stds"
+        );
+        for &i in &blows {
+            // nothing before the first blow, and each one decays: 3 correlation times
+            // 1/(zeta omega) later it is at most a fifth of its peak (e^-3 linear, faster with
+            // the cubic damping at these amplitudes)
+            let tau = 1.0 / (0.01 * 2.0 * std::f64::consts::PI * p.natural_frequency_hz());
+            let later = i + (6.0 * tau).ceil() as usize;
+            if later < peaks.len() {
+                assert!(
+                    peaks[later] < 0.2 * peaks[i] + 1.0,
+                    "{g:?}: the blow at block {i} ({:.1} stds) still {:.1} stds {:.1} s later",
+                    peaks[i],
+                    peaks[later],
+                    3.0 * tau
+                );
+            }
+        }
+        assert!(
+            peaks[..blows[0]].iter().all(|v| *v == 0.0),
+            "{g:?}: struck before the first blow"
+        );
+    }
+}
