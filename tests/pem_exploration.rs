@@ -229,6 +229,15 @@ fn explore_prediction_error_method() {
         .ok()
         .and_then(|v| v.parse().ok())
         .unwrap_or(1.0);
+    // PEM_SEEDS=n: seeds 1 to n (default 10); PEM_ONSET_ENDS=160,165: the onset's windows only,
+    // ending at these times, each printed as a `PEMROW` line.
+    let seeds: u64 = std::env::var("PEM_SEEDS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(10);
+    let onset_ends: Option<Vec<f64>> = std::env::var("PEM_ONSET_ENDS")
+        .ok()
+        .map(|v| v.split(',').filter_map(|x| x.parse().ok()).collect());
     for gate in [GatePreset::Lab, GatePreset::Lock] {
         let base = gate.params();
         let p = GateParams {
@@ -241,14 +250,19 @@ fn explore_prediction_error_method() {
         let dt = 1.0 / p.rate_hz;
         let q = (p.forcing_std / p.mass).powi(2) * dt;
         let nw = (10.0 * p.rate_hz).round() as usize;
-        for (scenario, ends) in [
+        let all = vec![
             (ScenarioName::Onset, vec![155.0, 160.0, 165.0, 170.0, 180.0]),
             (ScenarioName::Bursting, vec![65.0, 70.0, 75.0]),
             (ScenarioName::LimitCycle, vec![100.0, 150.0]),
-        ] {
+        ];
+        let cases = match &onset_ends {
+            Some(ends) => vec![(ScenarioName::Onset, ends.clone())],
+            None => all,
+        };
+        for (scenario, ends) in cases {
             let def = scenario.def(&p);
             let mut rows = vec![(0, 0, Vec::new(), Vec::new(), 0.0); ends.len()];
-            for seed in 1..=10u64 {
+            for seed in 1..=seeds {
                 let mut sim = def
                     .simulator(&p, NoiseLevel::Absolute(noise), seed)
                     .expect("simulator");
@@ -269,7 +283,15 @@ fn explore_prediction_error_method() {
                     };
                     let truth = 100.0 * def.mean_zeta(e - 10.0, *e);
                     rows[k].4 = truth;
-                    if let Some((zeta, half)) = pem(&w, c2, q, c2_known) {
+                    let reading = pem(&w, c2, q, c2_known);
+                    if onset_ends.is_some() {
+                        println!(
+                            "PEMROW {} {seed} {e} {truth:.4} {:?}",
+                            gate.as_str(),
+                            reading
+                        );
+                    }
+                    if let Some((zeta, half)) = reading {
                         rows[k].0 += 1;
                         rows[k].1 += usize::from((zeta - truth).abs() <= half);
                         rows[k].2.push(zeta);
