@@ -210,6 +210,56 @@ fn pem(w: &Window<'_>, c2_guess: f64, q_guess: f64, c2_known: bool) -> Option<(f
     (sd > 0.0).then(|| (100.0 * x[0], 100.0 * 1.96 * sd.sqrt()))
 }
 
+/// PEM on the impacts scenario's windows far above the ambient level (`PEM_IMPACTS`).
+fn explore_impacts(gate: GatePreset, seeds: u64, c2_factor: f64) {
+    let base = gate.params();
+    let p = GateParams {
+        output: Output::Displacement,
+        ..base.clone()
+    };
+    let noise = NoiseLevel::Relative(0.125).rms(&base) / base.stiffness;
+    let sigma = base.stationary_force_std(0.01) / base.stiffness;
+    let w2 = p.stiffness / p.mass;
+    let c2 = c2_factor * p.c3 / p.mass;
+    let dt = 1.0 / p.rate_hz;
+    let q = (p.forcing_std / p.mass).powi(2) * dt;
+    let nw = (10.0 * p.rate_hz).round() as usize;
+    let hop = nw / 2;
+    let def = ScenarioName::Impacts.def(&p);
+    for seed in 1..=seeds {
+        let mut sim = def
+            .simulator(&p, NoiseLevel::Absolute(noise), seed)
+            .expect("simulator");
+        while sim.time() < -1e-9 {
+            sim.next_sample();
+        }
+        let n = (def.duration_s * p.rate_hz).round() as usize;
+        let xs: Vec<f64> = (0..n).map(|_| sim.next_sample()).collect();
+        let mut end = nw;
+        while end <= n {
+            let z = &xs[end - nw..end];
+            let mean = z.iter().sum::<f64>() / nw as f64;
+            let rms = (z.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / nw as f64).sqrt();
+            if rms / sigma >= 3.5 {
+                let w = Window {
+                    z,
+                    dt,
+                    w2,
+                    r: noise_variance(z),
+                };
+                println!(
+                    "PEMIMPACT {} {seed} {} {:.2} {:?}",
+                    gate.as_str(),
+                    end as f64 * dt,
+                    rms / sigma,
+                    pem(&w, c2, q, false)
+                );
+            }
+            end += hop;
+        }
+    }
+}
+
 /// The second differences' estimate of the sensor's variance.
 fn noise_variance(z: &[f64]) -> f64 {
     z.windows(3)
@@ -238,8 +288,17 @@ fn explore_prediction_error_method() {
     let onset_ends: Option<Vec<f64>> = std::env::var("PEM_ONSET_ENDS")
         .ok()
         .map(|v| v.split(',').filter_map(|x| x.parse().ok()).collect());
+    // PEM_IMPACTS=n: instead, the impacts scenario's windows (10 s every 5 s) that stand 3.5
+    // times above the gate's ambient std, seeds 1 to n, each printed as a `PEMIMPACT` line.
+    let impacts: Option<u64> = std::env::var("PEM_IMPACTS")
+        .ok()
+        .and_then(|v| v.parse().ok());
     for gate in [GatePreset::Lab, GatePreset::Lock] {
         let base = gate.params();
+        if let Some(n) = impacts {
+            explore_impacts(gate, n, c2_factor);
+            continue;
+        }
         let p = GateParams {
             output: Output::Displacement,
             ..base.clone()
@@ -283,7 +342,14 @@ fn explore_prediction_error_method() {
                     };
                     let truth = 100.0 * def.mean_zeta(e - 10.0, *e);
                     rows[k].4 = truth;
-                    let reading = pem(&w, c2, q, c2_known);
+                    // PEM_LIBRARY=1: the daemon's function, which starts from the window's own
+                    // scales instead of the simulator's
+                    let reading = if std::env::var("PEM_LIBRARY").is_ok_and(|v| v == "1") {
+                        gatewatch::analysis::prediction_error_zeta(z, p.rate_hz, w2.sqrt())
+                            .map(|a| (100.0 * a.zeta, 100.0 * (a.high - a.zeta)))
+                    } else {
+                        pem(&w, c2, q, c2_known)
+                    };
                     if onset_ends.is_some() {
                         println!(
                             "PEMROW {} {seed} {e} {truth:.4} {:?}",

@@ -41,6 +41,7 @@ fn small_job(gate: &str, i: u64) -> Job {
         history: vec![],
         end_index: i,
         generation: 0,
+        ambient_level: None,
     }
 }
 
@@ -90,6 +91,7 @@ async fn the_queue_is_bounded() {
         history: vec![],
         end_index: 1,
         generation: 0,
+        ambient_level: None,
     };
     let mut full = 0;
     for g in ["a", "b", "c", "d", "e", "f"] {
@@ -542,6 +544,7 @@ async fn an_overdue_job_is_new_once() {
         history: Vec::new(),
         end_index: 100,
         generation: 0,
+        ambient_level: None,
     };
     assert_eq!(pool.submit(job), Submitted::Queued);
     wait_until(|| stuck.entered.load(Ordering::SeqCst)).await;

@@ -198,6 +198,7 @@ impl AmbientLevel {
             Some(r) if r < bar => read_model_window_as_noise_driven(d, first_cycle),
             Some(_) => {
                 read_departed_window_by_the_model(d, previous, first_cycle);
+                read_departed_window_by_prediction_errors(d);
                 self.previous_interval = d.zeta0_interval;
                 span_the_change(d, previous_interval);
                 self.previous_source = d.zeta0_source;
@@ -320,6 +321,39 @@ fn read_departed_window_by_the_model(
     d.verdict = Verdict::SelfExcited;
     d.trusted = true;
     super::series::read_the_models_sign_from_its_interval(d);
+}
+
+/// A window that left the gate's ambient level, which the ambient estimate or the model decided
+/// and the spectrum did not call a held cycle, takes its `zeta0` from the prediction-error
+/// method when the window has its reading (`DampingReport::prediction_error_zeta`, read on the
+/// worker where the window stood the departure ratio above the level when it was dispatched);
+/// trusted, the verdict from its interval by the ambient rows. Why: on such a window, growing
+/// from the ambient level towards a cycle, SSI-COV is wide and lags and the free-vibration fit
+/// reads a growth that saturates as a slow approach to a fixed cycle, confidently wrong, while
+/// the prediction-error method re-anchors the state at every sample and reads the window's own
+/// dynamics: on 100 onsets of each bench gate the window that ends at -1 % read -0.55 % (lock,
+/// true mean -0.67 %, 92 % covered) and -0.37 % (lab, 51 % covered, nearer the cycle), where
+/// the daemon's readings reached zero on most seeds (docs/damping.md, "A departed window read by
+/// its prediction errors"; docs/benchmarks.md, "Stop 76").
+fn read_departed_window_by_prediction_errors(d: &mut DampingReport) {
+    let Some(p) = d.prediction_error_zeta else {
+        return;
+    };
+    // the model's confident reading of a growth stands (the rule above): the free-vibration
+    // fit is at its best where the window grew cleanly; the prediction-error method replaces
+    // what would otherwise be SSI-COV's reading, or a model whose interval reaches zero
+    let decided = match d.zeta0_source {
+        Some(Zeta0Source::Ambient) => true,
+        Some(Zeta0Source::Model) => d.zeta0_interval.is_none_or(|(_, high)| high >= 0.0),
+        _ => false,
+    };
+    if !decided || d.regime == Some(Regime::LimitCycle) {
+        return;
+    }
+    d.zeta0 = Some(p.zeta);
+    d.zeta0_interval = Some((p.low, p.high));
+    d.zeta0_source = Some(Zeta0Source::PredictionError);
+    (d.verdict, d.trusted) = super::pooling::ambient_rows((p.low, p.high), d.regime);
 }
 
 /// Whether [`read_departed_window_by_the_model`] could give this window to its model, whatever

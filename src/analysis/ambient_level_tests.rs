@@ -223,6 +223,71 @@ fn a_window_that_left_the_ambient_level_is_read_by_a_trusted_negative_model() {
     });
 }
 
+/// A window that left the level with a prediction-error reading reports it, in place of
+/// SSI-COV's reading or of a model whose interval reaches zero; a confident negative model, a
+/// limit cycle, a window below the departure ratio or one without the reading keep theirs.
+#[test]
+fn a_departed_window_is_read_by_its_prediction_errors() {
+    let pem = AmbientZeta {
+        zeta: -0.006,
+        low: -0.009,
+        high: -0.003,
+    };
+    let window = |rms: f64, model: Option<AmbientZeta>| DampingReport {
+        model_zeta: model,
+        prediction_error_zeta: Some(pem),
+        ..ambient_window(rms)
+    };
+    let read = |mut d: DampingReport| {
+        primed_at_5().observe(&mut d);
+        d
+    };
+    // SSI-COV decided, 3 times above: the filter's reading, negative and trusted
+    let d = read(window(3.0 * 5.0, None));
+    assert_eq!(d.zeta0, Some(pem.zeta));
+    assert_eq!(d.zeta0_interval, Some((pem.low, pem.high)));
+    assert_eq!(d.zeta0_source, Some(Zeta0Source::PredictionError));
+    assert_eq!((d.verdict, d.trusted), (Verdict::SelfExcited, true));
+    // a model whose interval reaches zero gives way to it ...
+    let vague = AmbientZeta {
+        zeta: -0.002,
+        low: -0.005,
+        high: 0.001,
+    };
+    let d = read(window(4.0 * 5.0, Some(vague)));
+    assert_eq!(d.zeta0_source, Some(Zeta0Source::PredictionError));
+    // ... a confident one keeps the window
+    let sure = AmbientZeta {
+        zeta: -0.0187,
+        low: -0.0351,
+        high: -0.0022,
+    };
+    let d = read(window(4.0 * 5.0, Some(sure)));
+    assert_eq!(d.zeta0_source, Some(Zeta0Source::Model));
+    assert_eq!(d.zeta0, Some(sure.zeta));
+    // an interval of the filter across zero: read, undecided
+    let d = read(DampingReport {
+        prediction_error_zeta: Some(vague),
+        ..window(3.5 * 5.0, None)
+    });
+    assert_eq!(d.zeta0_source, Some(Zeta0Source::PredictionError));
+    assert_eq!((d.verdict, d.trusted), (Verdict::Unknown, true));
+    // below the departure ratio, a held cycle, or without the reading: as before
+    for d in [
+        window(2.9 * 5.0, None),
+        DampingReport {
+            regime: Some(Regime::LimitCycle),
+            ..window(4.0 * 5.0, None)
+        },
+        DampingReport {
+            prediction_error_zeta: None,
+            ..window(4.0 * 5.0, None)
+        },
+    ] {
+        assert_ne!(read(d).zeta0_source, Some(Zeta0Source::PredictionError));
+    }
+}
+
 /// The first limit-cycle window after an ambient-decided one, 3 or more times above the
 /// level, takes a trusted negative model's zeta0 when the growth is inside it (its thirds'
 /// RMS differ); a later one, one after a model window, or a saturated one keeps its

@@ -16,6 +16,8 @@
 //! - `ambient_level`: the gate's ambient level and how far a window stands above it.
 //! - `growing`: a noise-driven window whose variance grows, read over common reference
 //!   instants instead of the lagged ones.
+//! - `prediction_error`: a window far above the ambient level read by the likelihood of an
+//!   extended Kalman filter that carries the forcing as process noise.
 //! - `cycle_amplitude`: a limit cycle's zeta0 from its amplitude and the damping law of the
 //!   gate's last growth.
 //! - `tracking`: when a window may refine the previous window's model instead of searching.
@@ -37,6 +39,7 @@ mod model_free;
 mod model_interval;
 mod pooling;
 mod population;
+mod prediction_error;
 mod report;
 mod selection;
 mod series;
@@ -63,6 +66,7 @@ pub use model_free::{relaxation_detrend_degree, rms_swing, BEND_DEGREE, BEND_LEV
 pub use model_interval::{intervals, zeta0_interval, FittedModel};
 pub use pooling::{PoolingSettings, ZetaPools};
 pub use population::{biased_population, SpectralTarget};
+pub use prediction_error::{prediction_error_zeta, read_by_prediction_errors};
 pub use report::{AmbientZeta, DampingReport, Verdict, Zeta0Source};
 pub use selection::{
     correlation_factor, information_criteria, rank, CandidateFit, RankedCandidate, FRONT_TIE,

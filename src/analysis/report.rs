@@ -2,10 +2,10 @@
 
 use serde::{Deserialize, Serialize};
 
-/// Where a report's `zeta0` comes from. Serialised as `"model"`, `"ambient"`, `"envelope"` or
-/// `"amplitude"`, the strings of the API and the CLI's JSON.
+/// Where a report's `zeta0` comes from. Serialised as `"model"`, `"ambient"`, `"envelope"`,
+/// `"amplitude"` or `"prediction_error"`, the strings of the API and the CLI's JSON.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
+#[serde(rename_all = "snake_case")]
 pub enum Zeta0Source {
     /// The linearised identified model (for information only when the report is untrusted).
     Model,
@@ -18,6 +18,10 @@ pub enum Zeta0Source {
     /// with the envelope's reading (`analysis::CycleAmplitude`, `docs/damping.md`, "The cycle's
     /// amplitude").
     Amplitude,
+    /// The prediction-error method on a window that left the gate's ambient level and is no held
+    /// cycle (`analysis::prediction_error_zeta`, `docs/damping.md`, "A departed window read by
+    /// its prediction errors").
+    PredictionError,
 }
 
 impl Zeta0Source {
@@ -28,6 +32,7 @@ impl Zeta0Source {
             Zeta0Source::Ambient => "ambient",
             Zeta0Source::Envelope => "envelope",
             Zeta0Source::Amplitude => "amplitude",
+            Zeta0Source::PredictionError => "prediction_error",
         }
     }
 }
@@ -150,6 +155,13 @@ pub struct DampingReport {
     /// cycle's amplitude"); `None` elsewhere, and when that interval reaches zero.
     #[serde(default)]
     pub growth_zeta: Option<AmbientZeta>,
+    /// The prediction-error method's `zeta0` with its 95 % interval, read where the window stood
+    /// at least the departure ratio above the gate's ambient level when it was dispatched and
+    /// is no held cycle (`analysis::read_by_prediction_errors`); `None` elsewhere. The gate's
+    /// memory reports it for a window that left the level (`docs/damping.md`, "A departed
+    /// window read by its prediction errors").
+    #[serde(default)]
+    pub prediction_error_zeta: Option<AmbientZeta>,
     /// On the same window: the damping law the gate carries to the cycle after it, as the zeta0
     /// that makes the model's limit-cycle amplitude a cycle of its non-linear damping
     /// (`linearisation::cycle_zeta0`; at the optimum the model's `zeta0`), with that function's
@@ -275,6 +287,7 @@ impl DampingReport {
             model_zeta: None,
             amplitude_zeta: None,
             growth_zeta: None,
+            prediction_error_zeta: None,
             growth_law_zeta: None,
             zeta_eq_curve: Vec::new(),
             model_frequency_hz: None,

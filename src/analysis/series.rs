@@ -731,7 +731,7 @@ fn conclude(
         Zeta0Source::Ambient => damping.ambient_zeta,
         Zeta0Source::Envelope => damping.envelope_zeta,
         // never decided per window: the gate's memory combines it afterwards
-        Zeta0Source::Amplitude | Zeta0Source::Model => None,
+        Zeta0Source::Amplitude | Zeta0Source::Model | Zeta0Source::PredictionError => None,
     };
     let (zeta0, interval) = match model_free {
         Some(a) => (Some(a.zeta), Some((a.low, a.high))),

@@ -678,6 +678,10 @@ impl AppState {
                         history: w.history,
                         end_index: w.end_index,
                         generation: entry.generation,
+                        ambient_level: entry
+                            .level
+                            .level()
+                            .map(|l| (l, entry.level.departure_ratio())),
                     });
                 }
                 // a gate created by accept_unknown_gates counts as a sensor once its window

@@ -204,6 +204,10 @@ pub struct Job {
     /// makes): a result is reported only to the entry that asked for it, not to a gate of the
     /// same name made after the first expired. 0 where there is only one life.
     pub generation: u64,
+    /// The gate's ambient level and departure ratio when the window was dispatched (`None`:
+    /// no level yet): a window that stands the ratio above the level is read by the
+    /// prediction-error method as well (`analysis::read_by_prediction_errors`).
+    pub ambient_level: Option<(f64, f64)>,
 }
 
 /// How a job ended.
@@ -522,7 +526,16 @@ fn worker_loop(shared: Arc<Shared>) {
         }));
         let elapsed = started.elapsed();
         let outcome = match result {
-            Ok(Ok(a)) => {
+            Ok(Ok(mut a)) => {
+                if let Some((level, ratio)) = job.ambient_level {
+                    crate::analysis::read_by_prediction_errors(
+                        &mut a.damping,
+                        &job.values,
+                        job.rate_hz,
+                        level,
+                        ratio,
+                    );
+                }
                 let t_end = job.t0 + job.values.len().saturating_sub(1) as f64 / job.rate_hz;
                 let next =
                     shared

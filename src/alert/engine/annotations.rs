@@ -68,6 +68,9 @@ fn source_phrase(source: Zeta0Source) -> &'static str {
             "read from the limit cycle's amplitude through the damping law of the gate's last \
              growth"
         }
+        Zeta0Source::PredictionError => {
+            "read by the prediction errors of the equation of motion under the turbulent forcing"
+        }
     }
 }
 

@@ -478,6 +478,10 @@ fn model_free_annotations_name_their_source_and_not_the_equation() {
             Zeta0Source::Amplitude,
             "damping law of the gate's last growth",
         ),
+        (
+            Zeta0Source::PredictionError,
+            "prediction errors of the equation of motion",
+        ),
     ] {
         let obs = Observation {
             zeta0_source: Some(source),
