@@ -210,6 +210,47 @@ fn pem(w: &Window<'_>, c2_guess: f64, q_guess: f64, c2_known: bool) -> Option<(f
     (sd > 0.0).then(|| (100.0 * x[0], 100.0 * 1.96 * sd.sqrt()))
 }
 
+/// The daemon's prediction-error reading of chosen windows of the lock gate's steady +0.5 %
+/// days (`PEM_DAY_WINDOWS=seed:t_end,...`, the bench's streams: `bench warning --gates lock
+/// --scenarios stable-low`, force output, noise 0.125 of the ambient std), each printed as a
+/// `PEMDAY` line with the windows 5 s before and after it.
+#[test]
+#[ignore = "exploration: PEM_DAY_WINDOWS=2:82855 cargo test --release --test integration pem_exploration:: -- --ignored --nocapture"]
+fn explore_departed_windows_of_steady_days() {
+    let Ok(list) = std::env::var("PEM_DAY_WINDOWS") else {
+        return;
+    };
+    let p = GatePreset::Lock.params();
+    let def = ScenarioName::StableLow.def(&p);
+    let omega = (p.stiffness / p.mass).sqrt();
+    let n = (10.0 * p.rate_hz) as usize;
+    for item in list.split(',') {
+        let (seed, end) = item.split_once(':').expect("seed:t_end");
+        let (seed, end): (u64, f64) = (seed.parse().unwrap(), end.parse().unwrap());
+        let mut sim = def
+            .simulator(&p, NoiseLevel::Relative(0.125), seed)
+            .expect("simulator");
+        while sim.time() < -1e-9 {
+            sim.next_sample();
+        }
+        let last = ((end + 5.0) * p.rate_hz).round() as usize;
+        let mut xs = vec![0.0; n + (10.0 * p.rate_hz) as usize];
+        let skip = last - xs.len();
+        for _ in 0..skip {
+            sim.next_sample();
+        }
+        sim.fill(&mut xs);
+        for (k, e) in [end - 5.0, end, end + 5.0].into_iter().enumerate() {
+            let stop = xs.len() - (2 - k) * (5.0 * p.rate_hz) as usize;
+            let z = &xs[stop - n..stop];
+            println!(
+                "PEMDAY lock {seed} {e} {:?}",
+                gatewatch::analysis::prediction_error_zeta(z, p.rate_hz, omega)
+            );
+        }
+    }
+}
+
 /// PEM on the impacts scenario's windows far above the ambient level (`PEM_IMPACTS`).
 fn explore_impacts(gate: GatePreset, seeds: u64, c2_factor: f64) {
     let base = gate.params();
