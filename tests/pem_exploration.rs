@@ -227,12 +227,7 @@ fn explore_departed_windows_of_steady_days() {
     for item in list.split(',') {
         let (seed, end) = item.split_once(':').expect("seed:t_end");
         let (seed, end): (u64, f64) = (seed.parse().unwrap(), end.parse().unwrap());
-        let mut sim = def
-            .simulator(&p, NoiseLevel::Relative(0.125), seed)
-            .expect("simulator");
-        while sim.time() < -1e-9 {
-            sim.next_sample();
-        }
+        let mut sim = started(&def, &p, NoiseLevel::Relative(0.125), seed);
         let last = ((end + 5.0) * p.rate_hz).round() as usize;
         let mut xs = vec![0.0; n + (10.0 * p.rate_hz) as usize];
         let skip = last - xs.len();
@@ -268,12 +263,7 @@ fn explore_impacts(gate: GatePreset, seeds: u64, c2_factor: f64) {
     let hop = nw / 2;
     let def = ScenarioName::Impacts.def(&p);
     for seed in 1..=seeds {
-        let mut sim = def
-            .simulator(&p, NoiseLevel::Absolute(noise), seed)
-            .expect("simulator");
-        while sim.time() < -1e-9 {
-            sim.next_sample();
-        }
+        let mut sim = started(&def, &p, NoiseLevel::Absolute(noise), seed);
         let n = (def.duration_s * p.rate_hz).round() as usize;
         let xs: Vec<f64> = (0..n).map(|_| sim.next_sample()).collect();
         let mut end = nw;
@@ -299,6 +289,21 @@ fn explore_impacts(gate: GatePreset, seeds: u64, c2_factor: f64) {
             end += hop;
         }
     }
+}
+
+/// A seeded simulator of `def` on `p` with sensor noise `noise`, its warm-up streamed, so the next
+/// sample is the scenario's `t = 0`.
+fn started(
+    def: &gatewatch::simulate::ScenarioDef,
+    p: &GateParams,
+    noise: NoiseLevel,
+    seed: u64,
+) -> gatewatch::simulate::GateSimulator {
+    let mut sim = def.simulator(p, noise, seed).expect("simulator");
+    while sim.time() < -1e-9 {
+        sim.next_sample();
+    }
+    sim
 }
 
 /// The second differences' estimate of the sensor's variance.
@@ -363,12 +368,7 @@ fn explore_prediction_error_method() {
             let def = scenario.def(&p);
             let mut rows = vec![(0, 0, Vec::new(), Vec::new(), 0.0); ends.len()];
             for seed in 1..=seeds {
-                let mut sim = def
-                    .simulator(&p, NoiseLevel::Absolute(noise), seed)
-                    .expect("simulator");
-                while sim.time() < -1e-9 {
-                    sim.next_sample();
-                }
+                let mut sim = started(&def, &p, NoiseLevel::Absolute(noise), seed);
                 let last = ends.iter().cloned().fold(0.0, f64::max);
                 let n = (last * p.rate_hz).round() as usize;
                 let xs: Vec<f64> = (0..n).map(|_| sim.next_sample()).collect();
