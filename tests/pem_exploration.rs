@@ -283,7 +283,12 @@ fn explore_impacts(gate: GatePreset, seeds: u64, c2_factor: f64) {
                     gate.as_str(),
                     end as f64 * dt,
                     rms / sigma,
-                    pem(&w, c2, q, false)
+                    if std::env::var("PEM_LIBRARY").is_ok_and(|v| v == "1") {
+                        gatewatch::analysis::prediction_error_zeta(z, p.rate_hz, w2.sqrt())
+                            .map(|a| (100.0 * a.zeta, 100.0 * (a.high - a.zeta)))
+                    } else {
+                        pem(&w, c2, q, false)
+                    }
                 );
             }
             end += hop;

@@ -9,19 +9,25 @@
 //! state at every sample, so it reads the window's local dynamics: on 100 seeds of the onset
 //! ramp it read the window that ends at -1 % (true mean -0.67 %) with a median error of +0.12
 //! points (lock gate) and 92 % coverage, where the daemon's own reading was confidently wrong or
-//! wide (`tests/pem_exploration.rs`, docs/benchmarks.md, "Stop 76"). It is no ambient estimator:
-//! on noise-driven windows it read 0.65 to 0.9 points low with intervals two to three times
-//! SSI-COV's, so the daemon asks it only of a window that left the gate's ambient level
-//! (`analysis::ambient_level`, "A departed window read by its prediction errors").
+//! wide (`tests/pem_exploration.rs`, docs/benchmarks.md, "Stop 76"). The daemon asks it only of
+//! a window that left the gate's ambient level (`analysis::ambient_level`, "A departed window
+//! read by its prediction errors"): SSI-COV and its pool read the ambient state.
 //!
 //! # The model
 //! `ydd + (c1 + c2 yd^2) yd + w^2 y = u(t)` in the signal's own unit (a support force is the
 //! displacement times the stiffness, which only rescales `c2` and the intensities), with `w` the
 //! window's frequency, `u` white with intensity `q` (the forcing per unit mass), observed as `y`
-//! plus white sensor noise of variance `r` (from the second differences). The unknowns are
-//! `zeta0 = c1 / (2 w)`, `ln c2` and `ln q`, found by Nelder-Mead from three starts; the
-//! interval is the curvature's (the inverse Hessian of the negative log-likelihood), which on
-//! the onset's growing windows covered 92 to 96 % (docs/benchmarks.md). An innovation beyond
+//! plus white sensor noise of variance `r` (from the second differences). Two models are
+//! fitted, each by Nelder-Mead from three starts: the linear gate (`c2 = 0`; unknowns
+//! `zeta0 = c1 / (2 w)` and `ln q`) and the gate with its cubic damping (`ln c2` as well). The
+//! cubic one is kept where it gains the likelihood-ratio test's 5 % point (`CUBIC_LR`);
+//! elsewhere the linear one is read, with an interval that spans the cubic's as well. Why: the
+//! cubic coefficient, never negative, trades with `zeta0` one way only where the window cannot
+//! tell it, and fitted on every window it read noise-driven windows at +2 % 0.7 to 1 point low
+//! (lab +1.34 %, lock +1.01 % over 100 seeds; with the test +1.90 % and +2.04 %,
+//! docs/benchmarks.md, "Stop 77"). Each interval is the curvature's (the inverse Hessian of the
+//! negative log-likelihood), which on the onset's growing windows covered 92 to 96 %
+//! (docs/benchmarks.md, "Stop 76"). An innovation beyond
 //! `JUMP_Z` standard deviations is a blow on the gate, not forcing: the filter restarts there
 //! at a bounded cost.
 //!
@@ -49,6 +55,14 @@ const START_FACTORS: [f64; 3] = [0.25, 1.0, 4.0];
 /// half a point low (the lock gate's decay windows: median error -0.44 points, 100 struck runs;
 /// with it -0.00 over 40, docs/benchmarks.md, "Stop 76").
 const JUMP_Z: f64 = 6.0;
+/// Twice the log-likelihood the cubic term must gain over the linear gate to be kept: the 5 %
+/// point of the 50:50 mixture of chi-square with 0 and 1 degrees of freedom, the likelihood
+/// ratio's law when the coefficient's true value, zero, sits on the boundary (`c2 >= 0`). Why
+/// a test: fitted where the window cannot tell it, the cubic coefficient (never negative) trades
+/// with `zeta0` one way only, and read noise-driven windows at +2 % 0.7 to 1 point low. The
+/// interval of a window read by the linear model spans the cubic's too: not rejecting the
+/// linear gate does not exclude a cubic one.
+const CUBIC_LR: f64 = 2.705_543_454_095_404;
 /// z of a two-sided 95 % interval.
 const Z95: f64 = 1.959_963_984_540_054;
 
@@ -62,7 +76,8 @@ struct Window<'a> {
 }
 
 /// `zeta0` with its 95 % interval from the window `z` (the signal's samples at `rate_hz`; its
-/// mean, a sensor's offset, is removed first), at the gate's angular
+/// mean, a sensor's offset, is removed first), read by the linear or the cubic model (module
+/// docs), at the gate's angular
 /// frequency `omega` (rad/s). `None` where the window is too short (under two periods), flat,
 /// or the likelihood's curvature is not that of a minimum.
 pub fn prediction_error_zeta(z: &[f64], rate_hz: f64, omega: f64) -> Option<AmbientZeta> {
@@ -94,22 +109,51 @@ pub fn prediction_error_zeta(z: &[f64], rate_hz: f64, omega: f64) -> Option<Ambi
     let q0 = 4.0 * 0.01 * omega.powi(3) * var;
     let v2 = 2.0 * var * omega * omega;
     let c20 = 0.01 * 2.0 * omega / (0.75 * v2);
-    let f = |x: &[f64; 3]| nll(&w, 2.0 * omega * x[0], x[1].exp(), x[2].exp());
-    let mut best: Option<([f64; 3], f64)> = None;
+    // Two models: the linear gate (zeta0 and the forcing) and the gate with its cubic damping.
+    let linear = |x: &[f64; 2]| nll(&w, 2.0 * omega * x[0], 0.0, x[1].exp());
+    let cubic = |x: &[f64; 3]| nll(&w, 2.0 * omega * x[0], x[1].exp(), x[2].exp());
+    let lin = best_of(&linear, |factor| [0.0, (q0 * factor).ln()], [0.005, 0.5]);
+    let line = lin.and_then(|(x, _)| {
+        curvature_sd(&linear, x, [2e-4, 0.02]).map(|sd| (x[0], x[0] - Z95 * sd, x[0] + Z95 * sd))
+    });
+    let cubic_fit = best_of(
+        &cubic,
+        |factor| [0.0, (c20 * factor).ln(), (q0 * factor).ln()],
+        [0.005, 0.5, 0.5],
+    );
+    let curve = cubic_fit.and_then(|(x, v)| {
+        // twice the log-likelihood the cubic term gains (all of it where the linear fit failed)
+        let gain = lin.map_or(f64::INFINITY, |(_, vl)| 2.0 * (vl - v));
+        curvature_sd(&cubic, x, [2e-4, 0.02, 0.02])
+            .map(|sd| (x[0], x[0] - Z95 * sd, x[0] + Z95 * sd, gain))
+    });
+    // The cubic term where the window asks for it; elsewhere the linear gate's reading, and an
+    // interval that spans the cubic's too, which the window cannot exclude (see CUBIC_LR).
+    let (zeta, low, high) = match (line, curve) {
+        (_, Some((z, lo, hi, lr))) if lr >= CUBIC_LR => (z, lo, hi),
+        (Some((z, lo, hi)), Some((_, lo_c, hi_c, _))) => (z, lo.min(lo_c), hi.max(hi_c)),
+        (Some(l), None) => l,
+        (None, Some((z, lo, hi, _))) => (z, lo, hi),
+        (None, None) => return None,
+    };
+    Some(AmbientZeta { zeta, low, high })
+}
+
+/// The best of Nelder-Mead's runs from the starts `start(factor)`, one per `START_FACTORS`;
+/// `None` where none ends finite.
+fn best_of<const N: usize>(
+    f: &dyn Fn(&[f64; N]) -> f64,
+    start: impl Fn(f64) -> [f64; N],
+    steps: [f64; N],
+) -> Option<([f64; N], f64)> {
+    let mut best: Option<([f64; N], f64)> = None;
     for factor in START_FACTORS {
-        let x0 = [0.0, (c20 * factor).ln(), (q0 * factor).ln()];
-        let (x, v) = nelder_mead(&f, x0, [0.005, 0.5, 0.5]);
+        let (x, v) = nelder_mead(f, start(factor), steps);
         if v.is_finite() && best.is_none_or(|b| v < b.1) {
             best = Some((x, v));
         }
     }
-    let (x, _) = best?;
-    let sd = curvature_sd(&f, x)?;
-    Some(AmbientZeta {
-        zeta: x[0],
-        low: x[0] - Z95 * sd,
-        high: x[0] + Z95 * sd,
-    })
+    best
 }
 
 /// Reads window `d` (its samples `values` at `rate_hz`) by the prediction-error method into
@@ -139,12 +183,15 @@ pub fn read_by_prediction_errors(
 }
 
 /// The standard deviation of the first unknown from the inverse Hessian at `x` (central
-/// differences), `None` where the Hessian is not positive definite.
-fn curvature_sd(f: &dyn Fn(&[f64; 3]) -> f64, x: [f64; 3]) -> Option<f64> {
-    let h = [2e-4, 0.02, 0.02];
-    let mut hess = nalgebra::Matrix3::<f64>::zeros();
-    for i in 0..3 {
-        for j in i..3 {
+/// differences of steps `h`), `None` where the Hessian is not positive definite.
+fn curvature_sd<const N: usize>(
+    f: &dyn Fn(&[f64; N]) -> f64,
+    x: [f64; N],
+    h: [f64; N],
+) -> Option<f64> {
+    let mut hess = nalgebra::SMatrix::<f64, N, N>::zeros();
+    for i in 0..N {
+        for j in i..N {
             let at = |si: f64, sj: f64| {
                 let mut v = x;
                 v[i] += si * h[i];
@@ -258,57 +305,64 @@ fn transpose(a: &[[f64; 2]; 2]) -> [[f64; 2]; 2] {
 
 /// Nelder-Mead on `f` from `x0` with initial steps `steps`: the textbook simplex (reflection 1,
 /// expansion 2, contraction 1/2, shrink 1/2), at most `MAX_ITERATIONS` iterations. Returns
-/// the best vertex and its value.
-fn nelder_mead(f: &dyn Fn(&[f64; 3]) -> f64, x0: [f64; 3], steps: [f64; 3]) -> ([f64; 3], f64) {
+/// the best vertex and its value. `M` is `N + 1`, the simplex's vertices (a const generic
+/// expression is not stable Rust).
+fn nelder_mead<const N: usize>(
+    f: &dyn Fn(&[f64; N]) -> f64,
+    x0: [f64; N],
+    steps: [f64; N],
+) -> ([f64; N], f64) {
+    const { assert!(N >= 1 && N <= 3, "the simplex holds at most 4 vertices") };
     let mut simplex = [(x0, 0.0); 4];
-    for (i, vertex) in simplex.iter_mut().enumerate() {
+    let m = N + 1;
+    for (i, vertex) in simplex[..m].iter_mut().enumerate() {
         if i > 0 {
             vertex.0[i - 1] += steps[i - 1];
         }
         vertex.1 = f(&vertex.0);
     }
-    let along = |a: &[f64; 3], b: &[f64; 3], t: f64| {
-        [
-            a[0] + t * (b[0] - a[0]),
-            a[1] + t * (b[1] - a[1]),
-            a[2] + t * (b[2] - a[2]),
-        ]
+    let along = |a: &[f64; N], b: &[f64; N], t: f64| {
+        let mut v = *a;
+        for (k, x) in v.iter_mut().enumerate() {
+            *x += t * (b[k] - a[k]);
+        }
+        v
     };
     for _ in 0..MAX_ITERATIONS {
-        simplex.sort_by(|a, b| a.1.total_cmp(&b.1));
-        if (simplex[3].1 - simplex[0].1).abs() < 1e-9 * (1.0 + simplex[0].1.abs()) {
+        simplex[..m].sort_by(|a, b| a.1.total_cmp(&b.1));
+        if (simplex[N].1 - simplex[0].1).abs() < 1e-9 * (1.0 + simplex[0].1.abs()) {
             break;
         }
-        let mut centroid = [0.0; 3];
-        for v in &simplex[..3] {
+        let mut centroid = [0.0; N];
+        for v in &simplex[..N] {
             for (c, x) in centroid.iter_mut().zip(v.0) {
-                *c += x / 3.0;
+                *c += x / N as f64;
             }
         }
-        let worst = simplex[3];
+        let worst = simplex[N];
         let reflect = along(&centroid, &worst.0, -1.0);
         let fr = f(&reflect);
         if fr < simplex[0].1 {
             let expand = along(&centroid, &worst.0, -2.0);
             let fe = f(&expand);
-            simplex[3] = if fe < fr { (expand, fe) } else { (reflect, fr) };
-        } else if fr < simplex[2].1 {
-            simplex[3] = (reflect, fr);
+            simplex[N] = if fe < fr { (expand, fe) } else { (reflect, fr) };
+        } else if fr < simplex[N - 1].1 {
+            simplex[N] = (reflect, fr);
         } else {
             let contract = along(&centroid, &worst.0, 0.5);
             let fc = f(&contract);
             if fc < worst.1 {
-                simplex[3] = (contract, fc);
+                simplex[N] = (contract, fc);
             } else {
                 let best = simplex[0].0;
-                for v in simplex.iter_mut().skip(1) {
+                for v in simplex[1..m].iter_mut() {
                     v.0 = along(&best, &v.0, 0.5);
                     v.1 = f(&v.0);
                 }
             }
         }
     }
-    simplex.sort_by(|a, b| a.1.total_cmp(&b.1));
+    simplex[..m].sort_by(|a, b| a.1.total_cmp(&b.1));
     simplex[0]
 }
 
@@ -370,6 +424,41 @@ mod tests {
             ambient_negative, 0,
             "an ambient +2 % window read below zero"
         );
+    }
+
+    /// A noise-driven window at +2 % on both bench gates reads +2 % (median of 16 within 0.4
+    /// points, 13 or more intervals covering it): with the cubic coefficient fitted on every
+    /// window it read 0.7 to 1 point low, as the coefficient (never negative) traded with zeta0.
+    #[test]
+    fn an_ambient_window_is_read_without_the_cubic_terms_bias() {
+        let (mut readings, mut covered) = (Vec::new(), 0);
+        for gate in [GatePreset::Lab, GatePreset::Lock] {
+            let p = gate.params();
+            let def = ScenarioName::Onset.def(&p);
+            let omega = (p.stiffness / p.mass).sqrt();
+            for seed in 1..=8 {
+                let mut sim = def
+                    .simulator(&p, NoiseLevel::Relative(0.125), seed)
+                    .unwrap();
+                while sim.time() < 90.0 - 1e-9 {
+                    sim.next_sample();
+                }
+                // the window that ends at 100 s, at +2 % since the warm-up
+                let xs: Vec<f64> = (0..(10.0 * p.rate_hz) as usize)
+                    .map(|_| sim.next_sample())
+                    .collect();
+                let r = prediction_error_zeta(&xs, p.rate_hz, omega).expect("a reading");
+                covered += usize::from(r.low <= 0.02 && 0.02 <= r.high);
+                readings.push(r.zeta);
+            }
+        }
+        readings.sort_by(f64::total_cmp);
+        let median = 0.5 * (readings[7] + readings[8]);
+        assert!(
+            (median - 0.02).abs() < 0.004,
+            "median {median} over {readings:?}"
+        );
+        assert!(covered >= 13, "{covered} of 16 intervals cover +2 %");
     }
 
     /// A window a blow lands in (the `impacts` scenario, lock gate at +1 %) reads its free
