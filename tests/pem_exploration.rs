@@ -285,9 +285,9 @@ fn explore_impacts(gate: GatePreset, seeds: u64, c2_factor: f64) {
                     rms / sigma,
                     if std::env::var("PEM_LIBRARY").is_ok_and(|v| v == "1") {
                         gatewatch::analysis::prediction_error_zeta(z, p.rate_hz, w2.sqrt())
-                            .map(|a| (100.0 * a.zeta, 100.0 * (a.high - a.zeta)))
+                            .map(|a| (100.0 * a.zeta, 100.0 * a.low, 100.0 * a.high))
                     } else {
-                        pem(&w, c2, q, false)
+                        pem(&w, c2, q, false).map(|(z, h)| (z, z - h, z + h))
                     }
                 );
             }
@@ -390,11 +390,12 @@ fn explore_prediction_error_method() {
                     rows[k].4 = truth;
                     // PEM_LIBRARY=1: the daemon's function, which starts from the window's own
                     // scales instead of the simulator's
+                    // (zeta0, low, high) in %: the library's interval need not be symmetric
                     let reading = if std::env::var("PEM_LIBRARY").is_ok_and(|v| v == "1") {
                         gatewatch::analysis::prediction_error_zeta(z, p.rate_hz, w2.sqrt())
-                            .map(|a| (100.0 * a.zeta, 100.0 * (a.high - a.zeta)))
+                            .map(|a| (100.0 * a.zeta, 100.0 * a.low, 100.0 * a.high))
                     } else {
-                        pem(&w, c2, q, c2_known)
+                        pem(&w, c2, q, c2_known).map(|(z, h)| (z, z - h, z + h))
                     };
                     if onset_ends.is_some() {
                         println!(
@@ -403,11 +404,11 @@ fn explore_prediction_error_method() {
                             reading
                         );
                     }
-                    if let Some((zeta, half)) = reading {
+                    if let Some((zeta, low, high)) = reading {
                         rows[k].0 += 1;
-                        rows[k].1 += usize::from((zeta - truth).abs() <= half);
+                        rows[k].1 += usize::from(low <= truth && truth <= high);
                         rows[k].2.push(zeta);
-                        rows[k].3.push(half);
+                        rows[k].3.push(0.5 * (high - low));
                     }
                 }
             }
