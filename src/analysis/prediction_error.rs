@@ -9,7 +9,9 @@
 //! state at every sample, so it reads the window's local dynamics: on 100 seeds of the onset
 //! ramp it read the window that ends at -1 % (true mean -0.67 %) with a median error of +0.12
 //! points (lock gate) and 92 % coverage, where the daemon's own reading was confidently wrong or
-//! wide (`tests/pem_exploration.rs`, docs/benchmarks.md, "Stop 76"). The daemon asks it only of
+//! wide (`tests/pem_exploration.rs`, docs/benchmarks.md, "Stop 76"; since stop 77 the test below
+//! often keeps the linear gate there, which reads it +0.32 points off, inside the same
+//! interval). The daemon asks it only of
 //! a window that left the gate's ambient level (`analysis::ambient_level`, "A departed window
 //! read by its prediction errors"): SSI-COV and its pool read the ambient state.
 //!
@@ -31,7 +33,7 @@
 //! `JUMP_Z` standard deviations is a blow on the gate, not forcing: the filter restarts there
 //! at a bounded cost.
 //!
-//! Why by hand: three unknowns, a smooth objective and a fixed budget of evaluations; an
+//! Why by hand: two or three unknowns, a smooth objective and a fixed budget of evaluations; an
 //! optimisation crate (argmin) would add a dependency tree for forty lines, and the filter
 //! itself is specific to this model. Pure and deterministic: no randomness, no allocation in
 //! the filter or the simplex.
@@ -61,7 +63,9 @@ const JUMP_Z: f64 = 6.0;
 /// a test: fitted where the window cannot tell it, the cubic coefficient (never negative) trades
 /// with `zeta0` one way only, and read noise-driven windows at +2 % 0.7 to 1 point low. The
 /// interval of a window read by the linear model spans the cubic's too: not rejecting the
-/// linear gate does not exclude a cubic one.
+/// linear gate does not exclude a cubic one. (On noise-driven windows at +2 % the test kept the
+/// cubic term on 10 of 59, more than its nominal 5 %, and those read as before, low: the
+/// ratio's law is only approximately this; docs/benchmarks.md, "Stop 77".)
 const CUBIC_LR: f64 = 2.705_543_454_095_404;
 /// z of a two-sided 95 % interval.
 const Z95: f64 = 1.959_963_984_540_054;
