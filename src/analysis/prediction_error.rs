@@ -11,9 +11,9 @@
 //! points (lock gate) and 92 % coverage, where the daemon's own reading was confidently wrong or
 //! wide (`tests/pem_exploration.rs`, docs/benchmarks.md, "Stop 76"; since stop 77 the test below
 //! often keeps the linear gate there, which reads it +0.32 points off, inside the same
-//! interval). The daemon asks it only of
-//! a window that left the gate's ambient level (`analysis::ambient_level`, "A departed window
-//! read by its prediction errors"): SSI-COV and its pool read the ambient state.
+//! interval). The daemon asks it only of a window that left the gate's ambient level
+//! (`analysis::ambient_level`, "A departed window read by its prediction errors"): SSI-COV and
+//! its pool read the ambient state.
 //!
 //! # The model
 //! `ydd + (c1 + c2 yd^2) yd + w^2 y = u(t)` in the signal's own unit (a support force is the
@@ -29,9 +29,8 @@
 //! (lab +1.34 %, lock +1.01 % over 100 seeds; with the test +1.90 % and +2.04 %,
 //! docs/benchmarks.md, "Stop 77"). Each interval is the curvature's (the inverse Hessian of the
 //! negative log-likelihood), which on the onset's growing windows covered 92 to 96 %
-//! (docs/benchmarks.md, "Stop 76"). An innovation beyond
-//! `JUMP_Z` standard deviations is a blow on the gate, not forcing: the filter restarts there
-//! at a bounded cost.
+//! (docs/benchmarks.md, "Stop 76"). An innovation beyond `JUMP_Z` standard deviations is a
+//! blow on the gate, not forcing: the filter restarts there at a bounded cost.
 //!
 //! Why by hand: two or three unknowns, a smooth objective and a fixed budget of evaluations; an
 //! optimisation crate (argmin) would add a dependency tree for forty lines, and the filter
@@ -309,8 +308,8 @@ fn transpose(a: &[[f64; 2]; 2]) -> [[f64; 2]; 2] {
 
 /// Nelder-Mead on `f` from `x0` with initial steps `steps`: the textbook simplex (reflection 1,
 /// expansion 2, contraction 1/2, shrink 1/2), at most `MAX_ITERATIONS` iterations. Returns
-/// the best vertex and its value. `M` is `N + 1`, the simplex's vertices (a const generic
-/// expression is not stable Rust).
+/// the best vertex and its value. The `N + 1` vertices live in an array of four on the stack
+/// (`N` is at most 3): an array sized `N + 1` is not stable Rust.
 fn nelder_mead<const N: usize>(
     f: &dyn Fn(&[f64; N]) -> f64,
     x0: [f64; N],
