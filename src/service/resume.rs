@@ -46,10 +46,10 @@ use crate::store::HistoryRow;
 use super::worker::{replay, WindowAnalyzer};
 
 /// Fewest latest stored windows read, and most the tracking memory is replayed over (the trend
-/// reads its horizon, the level every window read). The level is the median of the last 12
-/// noise-driven windows, and the tracking memory counts the windows since the last full search
-/// (at most `tracking.full_every`, 12 by default): 48 windows hold both with room for departed
-/// ones, which feed neither.
+/// reads its horizon, the level every window read). The level is the median of the last 24
+/// noise-driven windows (`analysis::AMBIENT_LEVEL_WINDOWS`), and the tracking memory counts the
+/// windows since the last full search (at most `tracking.full_every`, 12 by default): 48
+/// windows hold both with room for departed ones, which feed neither.
 pub const RESUME_MODEL_WINDOWS: usize = 48;
 
 /// What a gate remembers after a restart, for its entry in the daemon's state.
