@@ -50,12 +50,12 @@ use crate::spectral::Regime;
 /// hold the gate's state from before the fastest change it is to catch, and follow a slow one.
 /// Its median lags about half its memory. Over one minute it followed the onset ramp's own growth
 /// (+2 % to 0 in 30 s; the ambient RMS grows as `1 / sqrt(zeta)` and the windows below the bar
-/// fed the level): the lock gate's windows at -0.33 and -0.67 % stood only 1.7 to 2.6 times
-/// above it and, pooled with the windows before them, read 1.35 points high. Over five minutes
-/// it lagged the 20-minute slow drift so far that a noise-driven window at +0.23 % stood 3.4
-/// times above it, the model read it -1.03 % (-1.51, -0.55), and `GateNegativeDamping` fired
-/// 60 s before zero. Two minutes keeps the first and not the second (docs/damping.md, "Two
-/// minutes of level"; docs/benchmarks.md, "Stop 78").
+/// fed the level): the lock gate's windows at -0.33 and -0.67 % stood only 0.8 to 2.9 times
+/// above it (median 1.7) and, pooled with the windows before them, read 1.35 points high. Over
+/// five minutes it lagged the 20-minute slow drift so far that a noise-driven window at +0.23 %
+/// stood 3.4 times above it, the model read it -1.03 % (-1.51, -0.55), and
+/// `GateNegativeDamping` fired 60 s before zero. Two minutes keeps the first and not the second
+/// (docs/damping.md, "Two minutes of level"; docs/benchmarks.md, "Stop 78").
 pub const AMBIENT_LEVEL_WINDOWS: usize = 24;
 
 /// Fewest noise-driven windows before the level is used.
@@ -93,11 +93,11 @@ pub const DEPARTED_FROM_AMBIENT: f64 = 3.0;
 /// over 10 s windows every 5 s, each over the median of the 12 windows before it (the level of
 /// the time), 1,500 two-hour chains per row. The ignored test `departure_ratio_table` reruns it
 /// with this crate's generator and the level as it is now, the median of the
-/// [`AMBIENT_LEVEL_WINDOWS`] windows before (stop 78): 4.79, 4.24, 3.95, 3.66, 3.37, 3.14 and 2.97 at 5, 10, 15, 20,
-/// 30, 40 and 50 cycles, the lock gate exceeding 3 in 1.3e-4 of its windows (over 12 windows
-/// every row was 0.02 to 0.11 lower than the table and the rate 2.5e-4). So the table errs on
-/// the side of fewer alarms from 10 cycles up, and at 5 cycles (a gate below 0.5 Hz) it stands
-/// 0.16 below its simulation;
+/// [`AMBIENT_LEVEL_WINDOWS`] windows before (stop 78): 4.79, 4.24, 3.95, 3.66, 3.37, 3.14 and
+/// 2.97 at 5, 10, 15, 20, 30, 40 and 50 cycles, the lock gate exceeding 3 in 1.3e-4 of its
+/// windows (over 12 windows every row was 0.02 to 0.11 lower than the table and the rate
+/// 2.5e-4). So the table errs on the side of fewer alarms from 10 cycles up, and at 5 cycles (a
+/// gate below 0.5 Hz) it stands 0.16 below its simulation;
 /// `departure_ratio_table_matches_a_simulation` checks three rows on fewer chains. The
 /// simulation reproduces the bench's ratios, 99th percentile barrier 2.51 (bench 2.54), lock
 /// 2.12 (2.08), lab 1.81 (1.73). From 50 cycles up the ratio stays at 3 (the lab gate would

@@ -608,9 +608,10 @@ fn a_slow_gates_level_carries_its_departure_ratio() {
 }
 
 /// Ratios of windows of a stable gate at `zeta = 0.5 %` whose windows hold `cycles` cycles,
-/// each over the median of the [`AMBIENT_LEVEL_WINDOWS`] before it: the squared envelope of a lightly damped response
-/// to white forcing is an exponential variable decorrelating at `2 zeta omega` (`|z|^2`, `z` a
-/// complex Ornstein-Uhlenbeck process), averaged over 10 s windows every 5 s.
+/// each over the median of the `AMBIENT_LEVEL_WINDOWS` before it: the squared envelope of a
+/// lightly damped response to white forcing is an exponential variable decorrelating at
+/// `2 zeta omega` (`|z|^2`, `z` a complex Ornstein-Uhlenbeck process), averaged over 10 s
+/// windows every 5 s.
 fn simulated_ratios(cycles: f64, chains: usize, hours: f64, seed: u64) -> Vec<f64> {
     use rand::SeedableRng;
     use rand_distr::{Distribution, StandardNormal};
