@@ -1,6 +1,5 @@
 use super::*;
 use crate::analysis::{AmbientZeta, Verdict};
-use std::collections::VecDeque;
 
 /// A noise-driven window the ambient estimate decided (trusted, cannot tell the sign).
 fn ambient_window(rms: f64) -> DampingReport {
@@ -65,7 +64,7 @@ fn the_level_is_the_median_of_the_last_noise_driven_windows() {
     model.zeta0_source = Some(Zeta0Source::Model);
     let mut growing = ambient_window(50.0);
     growing.regime = Some(Regime::SelfExcited);
-    // (the buffer itself is compared: three windows at 50 among twelve at 2 would leave the
+    // (the buffer itself is compared: three windows at 50 among the windows at 2 would leave the
     // median at 2 even if they had entered)
     let before = level.recent.clone();
     for mut d in [untrusted, model, growing, limit_cycle_window(50.0)] {
@@ -79,8 +78,9 @@ fn the_level_is_the_median_of_the_last_noise_driven_windows() {
 /// A gate whose response grows by 15 % a window (5 s), as the lock gate's did on the onset ramp
 /// from +1 % towards zero, leaves the level it grew from: two minutes of level still hold the
 /// ambient state when the growth has tripled the RMS. A one-minute level (12 windows) chased it:
-/// each growing window stood below the bar and fed the level, and the ratio settled at about 2.5,
-/// so the gate never departed (`AMBIENT_LEVEL_WINDOWS`, stop 78).
+/// each growing window stood below the bar and fed the level, and the ratio settled at 2.47, so
+/// the gate never departed (this test with `AMBIENT_LEVEL_WINDOWS` set back to 12 fails so;
+/// stop 78).
 #[test]
 fn a_level_of_two_minutes_is_left_by_a_growth_of_a_minute() {
     let hold = |k: usize| if k % 2 == 0 { 0.9 } else { 1.1 };
@@ -101,22 +101,6 @@ fn a_level_of_two_minutes_is_left_by_a_growth_of_a_minute() {
     // the level rises from 1.0 to 1.1 (the median of the hold once the growth pushes its lowest
     // window out) and the ninth window, 1.15^9 = 3.52, stands 3.2 times above it: 45 s in
     assert_eq!(first, Some(8), "ratios over the level: {now:?}");
-    // the same rule over the last 12 windows, the level until stop 78: it chases the growth
-    let mut recent: VecDeque<f64> = (0..12).map(hold).collect();
-    let mut before = Vec::new();
-    for rms in &growth {
-        let ratio =
-            rms / crate::identify::median(&mut recent.iter().copied().collect::<Vec<_>>()).unwrap();
-        before.push(ratio);
-        if ratio < DEPARTED_FROM_AMBIENT {
-            recent.pop_front();
-            recent.push_back(*rms);
-        }
-    }
-    assert!(
-        before.iter().all(|r| *r < 2.6),
-        "a one-minute level's ratios: {before:?}"
-    );
 }
 
 /// The ratio is the window's RMS over the level before it, and a window without an ambient
