@@ -210,6 +210,14 @@ pub struct DampingReport {
     /// decides whether it was a change (`docs/damping.md`, "One far window is held").
     #[serde(default)]
     pub zeta0_held: bool,
+    /// On an ambient window that rose towards the departure ratio (`ambient_ratio` at least
+    /// half of `departure_ratio`, `analysis::rising`) and is therefore reported alone
+    /// (`zeta0_windows` 1, its own `zeta0` and interval): the figure and 95 % interval of the
+    /// pool it still joined. The trend reads this one, as it reads every pooled window
+    /// (`analysis::trend_reading`; `docs/damping.md`, "A rising window stands alone"). `None`
+    /// elsewhere.
+    #[serde(default)]
+    pub pooled_zeta: Option<AmbientZeta>,
     /// Standard deviation of the window's signal about its mean, in the signal's unit (`None`
     /// without a model-free analysis): what the gate's memory compares with its ambient level
     /// (`docs/damping.md`, "The gate's ambient level").
@@ -300,6 +308,7 @@ impl DampingReport {
             regime: None,
             zeta0_windows: None,
             zeta0_held: false,
+            pooled_zeta: None,
             signal_rms: None,
             ambient_ratio: None,
             departure_ratio: None,

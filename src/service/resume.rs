@@ -11,7 +11,8 @@
 //!   (`docs/benchmarks.md`, "Daemon").
 //!
 //! The history holds each window's report, model and span, so the memory is rebuilt with the
-//! same code that built it live: [`DampingTrend::observe`] over the stored `zeta0` and interval,
+//! same code that built it live: [`DampingTrend::observe`] over what it read of each stored report
+//! (`analysis::trend_reading`: the stored `zeta0` and interval, or a rising window's pool),
 //! [`AmbientLevel::resume`] over the stored reports, [`WindowAnalyzer::remember`] over the stored
 //! windows (only those of the model the gate has now: [`WindowAnalyzer::same_model`]). The
 //! tracking rules then treat the first window after the restart like any other: one that comes
@@ -38,8 +39,8 @@
 
 use crate::alert::AlertRules;
 use crate::analysis::{
-    AmbientLevel, CycleAmplitude, DampingReport, DampingTrend, Path, Previous, TrendEstimate,
-    WindowAnalysis, MAX_TREND_POINTS,
+    trend_reading, AmbientLevel, CycleAmplitude, DampingReport, DampingTrend, Path, Previous,
+    TrendEstimate, WindowAnalysis, MAX_TREND_POINTS,
 };
 use crate::store::HistoryRow;
 
@@ -107,16 +108,18 @@ pub fn rebuild(
     }
     let mut trend = DampingTrend::new(rules.trend_horizon_seconds);
     let mut trend_estimate = None;
-    for r in rows {
-        trend_estimate = trend.observe(
-            r.window_end,
-            r.zeta0,
-            r.zeta0_interval,
-            r.trusted,
-            rules.fire_below,
-        );
+    let windows: Vec<Option<(WindowAnalysis, f64, f64)>> = rows.iter().map(window_of).collect();
+    for (r, w) in rows.iter().zip(&windows) {
+        // what the trend read live (`analysis::trend_reading`: a rising window's pool), from the
+        // stored report; the stored columns where it does not decode
+        let (zeta0, interval, trusted) = w
+            .as_ref()
+            .map_or((r.zeta0, r.zeta0_interval, r.trusted), |(a, _, _)| {
+                trend_reading(&a.damping)
+            });
+        trend_estimate = trend.observe(r.window_end, zeta0, interval, trusted, rules.fire_below);
     }
-    let decoded: Vec<(WindowAnalysis, f64, f64)> = rows.iter().filter_map(window_of).collect();
+    let decoded: Vec<(WindowAnalysis, f64, f64)> = windows.into_iter().flatten().collect();
     // every window read: a gate held on its limit cycle for minutes still finds the
     // noise-driven windows before it
     let level = AmbientLevel::resume(decoded.iter().map(|(a, _, end)| (&a.damping, *end)));
@@ -338,12 +341,13 @@ mod tests {
     }
 
     /// The rebuilt memory is what the live code built from the same windows: the trend fed
-    /// each window's figures, the level `observe_span` built, and the tracking memory the pool
+    /// what it reads of each window (a rising window's pool), the level `observe_span` built, and the tracking memory the pool
     /// built with `remember` over the windows since the model last changed.
     #[test]
     fn the_memory_is_what_the_windows_built_live() {
         let analyzer = Remembers { known: "new" };
         let (mut trend, mut estimate) = (DampingTrend::new(600.0), None);
+        let (mut by_columns, mut from_columns) = (DampingTrend::new(600.0), None);
         let mut level = AmbientLevel::default();
         let mut cycle = CycleAmplitude::default();
         let mut previous: Option<Previous> = None;
@@ -374,12 +378,22 @@ mod tests {
             }
             level.observe_span(&mut a.damping, end - 10.0, end);
             cycle.observe(end, &mut a.damping);
+            if i == 8 {
+                // a rising window, reported alone: the trend read the pool it joined
+                a.damping.pooled_zeta = Some((0.03, 0.026, 0.034).into());
+            }
             let d = &a.damping;
-            estimate = trend.observe(end, d.zeta0, d.zeta0_interval, d.trusted, 0.0);
+            let (z, iv, trusted) = trend_reading(d);
+            estimate = trend.observe(end, z, iv, trusted, 0.0);
+            from_columns = by_columns.observe(end, d.zeta0, d.zeta0_interval, d.trusted, 0.0);
             rows.push(stored(&a, end));
         }
         let m = rebuild("g", &rows, &rules(), &analyzer, 1100.0).unwrap();
         assert_eq!(m.trend_estimate, estimate);
+        assert_ne!(
+            estimate, from_columns,
+            "the rising window's pool changes the trend"
+        );
         assert!(estimate.is_some_and(|e| e.slope_per_second < 0.0));
         assert_eq!(m.level, level);
         assert!(m.level.level().is_some());
