@@ -341,8 +341,9 @@ mod tests {
     }
 
     /// The rebuilt memory is what the live code built from the same windows: the trend fed
-    /// what it reads of each window (a rising window's pool), the level `observe_span` built, and the tracking memory the pool
-    /// built with `remember` over the windows since the model last changed.
+    /// what it reads of each window (a rising window's pool), the level `observe_span` built,
+    /// and the tracking memory the pool built with `remember` over the windows since the model
+    /// last changed.
     #[test]
     fn the_memory_is_what_the_windows_built_live() {
         let analyzer = Remembers { known: "new" };
