@@ -371,11 +371,11 @@ pub async fn run_stream(
                 .identification
                 .as_ref()
                 .is_some_and(|i| i.damping.trusted);
+            let pct = |a: &crate::analysis::AmbientZeta| {
+                let r = |v: f64| (v * 1e4).round() / 100.0;
+                (r(a.zeta), r(a.low), r(a.high))
+            };
             let facts = view.identification.as_ref().map(|i| {
-                let pct = |a: &crate::analysis::AmbientZeta| {
-                    let r = |v: f64| (v * 1e4).round() / 100.0;
-                    (r(a.zeta), r(a.low), r(a.high))
-                };
                 (
                     i.damping.regime,
                     i.damping.zeta0_windows,
@@ -399,7 +399,7 @@ pub async fn run_stream(
             });
             errln!(
                 "t {end:7.1}  true {:+.2} %  zeta0 {:?} {:?} {:?} trusted {trusted}  trend \
-                 (%/min, upper %/min, confident crossing s) {trend:?}  firing {firing:?}  (regime, pooled, ssi, ambient ratio, model, fit nmae, agrees, rms swing, path, growing, ssi common) {facts:?}  scored {} (true mean {:+.2} %)  f {:?} Hz  growth (1/s, se) {:?}{}",
+                 (%/min, upper %/min, confident crossing s) {trend:?}  firing {firing:?}  (regime, pooled, ssi, ambient ratio, model, fit nmae, agrees, rms swing, path, growing, ssi common) {facts:?}  scored {} (true mean {:+.2} %)  f {:?} Hz  growth (1/s, se) {:?}{}{}",
                 100.0 * truth_centre,
                 zeta0.map(|z| (z * 1e4).round() / 100.0),
                 interval.map(|(a, b)| ((a * 1e4).round() / 100.0, (b * 1e4).round() / 100.0)),
@@ -424,6 +424,18 @@ pub async fn run_stream(
                 } else {
                     ""
                 },
+                // the readings the report did not show: the prediction-error method's (where the
+                // window departed) and a rising window's pool (which the trend read)
+                view.identification.as_ref().map_or(String::new(), |i| {
+                    let mut more = String::new();
+                    if let Some(p) = &i.damping.prediction_error_zeta {
+                        more += &format!("  prediction errors {:?}", pct(p));
+                    }
+                    if let Some(p) = &i.damping.pooled_zeta {
+                        more += &format!("  pool {:?}", pct(p));
+                    }
+                    more
+                }),
             );
         }
         windows.push(WindowRecord {
