@@ -284,15 +284,24 @@ fn a_departed_window_is_read_by_its_prediction_errors() {
     };
     let d = read(window(4.0 * 5.0, Some(vague)));
     assert_eq!(d.zeta0_source, Some(Zeta0Source::PredictionError));
-    // ... a confident one keeps the window
+    // ... a confident one keeps the window where the filter cannot tell the sign ...
     let sure = AmbientZeta {
         zeta: -0.0187,
         low: -0.0351,
         high: -0.0022,
     };
-    let d = read(window(4.0 * 5.0, Some(sure)));
+    let d = read(DampingReport {
+        prediction_error_zeta: Some(vague),
+        ..window(4.0 * 5.0, Some(sure))
+    });
     assert_eq!(d.zeta0_source, Some(Zeta0Source::Model));
     assert_eq!(d.zeta0, Some(sure.zeta));
+    // ... and gives way where the filter reads the sign as well: the same verdict, the filter's
+    // figure and interval
+    let d = read(window(4.0 * 5.0, Some(sure)));
+    assert_eq!(d.zeta0_source, Some(Zeta0Source::PredictionError));
+    assert_eq!(d.zeta0_interval, Some((pem.low, pem.high)));
+    assert_eq!((d.verdict, d.trusted), (Verdict::SelfExcited, true));
     // an interval of the filter across zero: read, undecided
     let d = read(DampingReport {
         prediction_error_zeta: Some(vague),

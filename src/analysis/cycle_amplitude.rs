@@ -156,9 +156,15 @@ impl CycleAmplitude {
 /// The law a report carries: its `growth_law_zeta` (set by the window's analysis on a window
 /// that may have grown into its cycle: the model's zeta0 with the interval of its non-linear
 /// damping at its limit cycle) with its model's limit-cycle amplitude, where the model decided
-/// the window in the end (trusted). A report stored before that field existed carries no law.
+/// the window in the end (trusted), or read it below zero and gave way to the prediction-error
+/// reading, below zero too. A report stored before that field existed carries no law.
 fn growth_law(t_end: f64, d: &DampingReport) -> Option<GrowthLaw> {
-    if !(d.trusted && d.zeta0_source == Some(Zeta0Source::Model)) {
+    // a window whose confident model gave way to the prediction-error reading, both below zero
+    // (`read_departed_window_by_prediction_errors`), was the model's growth all the same
+    let model_read_it = d.zeta0_source == Some(Zeta0Source::Model)
+        || (d.zeta0_source == Some(Zeta0Source::PredictionError)
+            && d.model_zeta.is_some_and(|m| m.high < 0.0));
+    if !(d.trusted && model_read_it) {
         return None;
     }
     let zeta0 = d.growth_law_zeta?;
@@ -322,6 +328,42 @@ mod tests {
             memory.observe(90.0, &mut d);
             assert_eq!(d.amplitude_zeta, None, "{g:?}");
             assert_eq!(d.zeta0_source, Some(Zeta0Source::Envelope));
+        }
+    }
+
+    /// A growth window whose confident model gave way to the prediction-error reading (both
+    /// below zero) carries the model's law all the same; one whose model did not read it below
+    /// zero carries nothing.
+    #[test]
+    fn a_growth_shown_by_its_prediction_errors_carries_the_models_law() {
+        let shown = |model_high: f64| {
+            let g = growth(-0.03, 0.004);
+            DampingReport {
+                zeta0: Some(-0.01),
+                zeta0_interval: Some((-0.02, -0.002)),
+                zeta0_source: Some(Zeta0Source::PredictionError),
+                model_zeta: Some(AmbientZeta {
+                    zeta: -0.03,
+                    low: -0.032,
+                    high: model_high,
+                }),
+                ..g
+            }
+        };
+        for (model_high, carried) in [(-0.028, true), (0.001, false)] {
+            let mut memory = CycleAmplitude::default();
+            memory.observe(70.0, &mut shown(model_high));
+            let mut d = cycle(A_STAR, -0.023, 0.008, 3);
+            memory.observe(90.0, &mut d);
+            assert_eq!(
+                d.amplitude_zeta.is_some(),
+                carried,
+                "model high {model_high}"
+            );
+            if carried {
+                assert!((d.amplitude_zeta.unwrap().zeta + 0.03).abs() < 1e-12);
+                assert_eq!(d.zeta0_source, Some(Zeta0Source::Amplitude));
+            }
         }
     }
 
