@@ -340,11 +340,11 @@ fn read_departed_window_by_the_model(
 /// method when the window has its reading (`DampingReport::prediction_error_zeta`, read on the
 /// worker where the window stood the departure ratio above the level when it was dispatched);
 /// trusted, the verdict from its interval by the ambient rows (a model that read the window
-/// below zero keeps it unless the filter's interval lies below zero too). Why: on such a window, growing
-/// from the ambient level towards a cycle, SSI-COV is wide and lags and the free-vibration fit
-/// reads a growth that saturates as a slow approach to a fixed cycle, confidently wrong, while
-/// the prediction-error method re-anchors the state at every sample and reads the window's own
-/// dynamics: on 100 onsets of each bench gate the window that ends at -1 % read -0.55 % (lock,
+/// below zero keeps it unless the filter's interval lies below zero too). Why: on such a
+/// window, growing from the ambient level towards a cycle, SSI-COV is wide and lags and the
+/// free-vibration fit reads a growth that saturates as a slow approach to a fixed cycle,
+/// confidently wrong, while the prediction-error method re-anchors the state at every sample
+/// and reads the window's own dynamics: on 100 onsets of each bench gate the window that ends at -1 % read -0.55 % (lock,
 /// true mean -0.67 %, 92 % covered) and -0.37 % (lab, 51 % covered, nearer the cycle), where
 /// the daemon's readings reached zero on most seeds (docs/damping.md, "A departed window read by
 /// its prediction errors"; docs/benchmarks.md, "Stop 76").
@@ -353,8 +353,8 @@ fn read_departed_window_by_prediction_errors(d: &mut DampingReport) {
         return;
     };
     // the prediction-error method replaces what would otherwise be SSI-COV's reading, a model
-    // whose interval reaches zero, or a model whose interval lies below zero where its own does
-    // too. A confident model stands only where the filter cannot tell the sign: there it is what
+    // whose interval reaches zero, or a model whose interval lies below zero where the filter's
+    // does too. A confident model stands only where the filter cannot tell the sign: there it is what
     // fires on time (the rule above; `docs/damping.md`, "Why a confident model keeps its
     // window"). Where both read the sign, the verdict is the same and the filter's figure the
     // more honest: on 100 lock onsets the model covered 56 of 83 such windows, the filter 64
