@@ -1,6 +1,6 @@
 """The windows of `gatewatch bench warning --trace` output, parsed once for the trace scripts
-(trend_replay.py, trace_by_age.py, compare_firings.py, slope_calibration.py). Standard library
-only."""
+(trend_replay.py, trace_by_age.py, compare_firings.py, slope_calibration.py,
+rising_replay.py). Standard library only."""
 import re
 
 HEADER = re.compile(r"\[\d+/\d+\] (\S+) on (\w+) gate, seed (\d+)")
