@@ -44,7 +44,7 @@ def read_trace(path):
             num = lambda g: float(m.group(g)) if m.group(g) is not None else None
             run["windows"].append({
                 "t": num(1), "true": num(2), "zeta0": num(3), "low": num(4), "high": num(5),
-                "trusted": m.group(7) == "true", "firing": m.group(8),
-                "trend": trend(line),
+                "source": m.group(6), "trusted": m.group(7) == "true", "firing": m.group(8),
+                "trend": trend(line), "line": line,
             })
     return runs

@@ -20,7 +20,7 @@ import argparse
 import re
 import statistics
 
-from bench_trace import HEADER, WINDOW, trend
+from bench_trace import read_trace
 
 num = r"(-?[\d.]+)"
 # (regime, pooled windows, own SSI-COV reading, ambient ratio, ...) as the trace prints them
@@ -32,25 +32,16 @@ SCORED = re.compile(r"scored ([\w-]+) \(true mean ([+-][\d.]+) %\)")
 
 
 def read(path):
-    """The runs of the trace, each window with what the rule needs."""
-    runs, run = [], None
-    with open(path, encoding="utf-8") as f:
-        for number, line in enumerate(f, 1):
-            h = HEADER.search(line)
-            if h:
-                run = {"scenario": h.group(1), "gate": h.group(2), "seed": int(h.group(3)), "windows": []}
-                runs.append(run)
-                continue
-            if not line.startswith("t "):
-                continue
-            m, facts, s = WINDOW.search(line), FACTS.search(line), SCORED.search(line)
-            if not (m and facts and s and run is not None):
-                raise SystemExit(f"{path}:{number}: not a window line of `bench warning --trace`")
-            f_ = lambda g: float(m.group(g)) if m.group(g) is not None else None
-            run["windows"].append({
-                "t": f_(1), "true": f_(2), "zeta0": f_(3), "low": f_(4), "high": f_(5),
-                "source": m.group(6), "trusted": m.group(7) == "true", "firing": m.group(8),
-                "trend": trend(line),
+    """The runs of the trace (`bench_trace.read_trace`), each window with what the rule needs
+    read off its line as well."""
+    runs = read_trace(path)
+    for run in runs:
+        for w in run["windows"]:
+            facts, s = FACTS.search(w["line"]), SCORED.search(w["line"])
+            if not (facts and s):
+                raise SystemExit(f"{path}: the window at t = {w['t']} of {run['scenario']} "
+                                 f"{run['gate']} seed {run['seed']} has no pooling facts or score")
+            w.update({
                 "pooled": int(facts.group(1)) if facts.group(1) else None,
                 "own": tuple(float(facts.group(i)) for i in (2, 3, 4)) if facts.group(2) else None,
                 "ratio": float(facts.group(5)) if facts.group(5) else None,
