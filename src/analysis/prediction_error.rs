@@ -19,7 +19,7 @@
 //! `ydd + (c1 + c2 yd^2) yd + w^2 y = u(t)` in the signal's own unit (a support force is the
 //! displacement times the stiffness, which only rescales `c2` and the intensities), with `w` the
 //! window's frequency, `u` white with intensity `q` (the forcing per unit mass), observed as `y`
-//! plus white sensor noise of variance `r` (from the second differences). Two models are
+//! plus white sensor noise of variance `r` (from the fourth differences). Two models are
 //! fitted, each by Nelder-Mead from three starts: the linear gate (`c2 = 0`; unknowns
 //! `zeta0 = c1 / (2 w)` and `ln q`) and the gate with its cubic damping (`ln c2` as well). The
 //! cubic one is kept where it gains the likelihood-ratio test's 5 % point (`CUBIC_LR`);
@@ -369,17 +369,22 @@ fn nelder_mead<const N: usize>(
     simplex[0]
 }
 
-/// The second differences' estimate of the sensor's variance (white noise `e` makes
-/// `e[k+1] - 2 e[k] + e[k-1]` of variance `6 r`; the gate's own motion adds `(w dt)^4` of its
-/// variance, a few percent at 20 samples a cycle).
+/// The fourth differences' estimate of the sensor's variance: white noise `e` makes
+/// `e[k+2] - 4 e[k+1] + 6 e[k] - 4 e[k-1] + e[k-2]` of variance `70 r`, while the gate's own
+/// motion at `w` passes with the gain `(2 - 2 cos(w dt))^4 ~ (w dt)^8`, at 20 samples a cycle a
+/// ten-thousandth of its variance. Why not the second differences (until stop 80): they pass
+/// `(w dt)^4`, a hundredth, and a window far above its level is just the window this method
+/// reads. At 20 samples a cycle and the bench's sensor (an eighth of the ambient std), a window
+/// 8 times above the level read the sensor's variance 7.5 times too high (the filter then
+/// weighs its samples too little); with the fourth differences 1.005 times (the test below).
 fn noise_variance(z: &[f64]) -> f64 {
-    if z.len() < 3 {
+    if z.len() < 5 {
         return f64::NAN;
     }
-    z.windows(3)
-        .map(|w| (w[2] - 2.0 * w[1] + w[0]).powi(2))
+    z.windows(5)
+        .map(|w| (w[4] - 4.0 * w[3] + 6.0 * w[2] - 4.0 * w[1] + w[0]).powi(2))
         .sum::<f64>()
-        / (6.0 * (z.len() - 2) as f64)
+        / (70.0 * (z.len() - 4) as f64)
 }
 
 #[cfg(test)]
@@ -387,9 +392,46 @@ mod tests {
     use super::*;
     use crate::simulate::{GatePreset, NoiseLevel, ScenarioName};
 
-    /// The onset's window that ends at -1 % (true mean -0.67 %) on the lock gate: read below
-    /// zero, within a point of the truth, on most seeds; a noise-driven +2 % window is not read
-    /// below zero.
+    /// The sensor's variance under a swing far above it: a sinusoid at 20 samples a cycle whose
+    /// variance is 4096 times the noise's (a window 8 times above the level of a gate whose
+    /// sensor shows an eighth of its ambient std) reads the noise within 5 %; the second
+    /// differences, the estimator before stop 80, read it 7.5 times too high.
+    #[test]
+    fn the_sensors_variance_is_read_without_the_gates_swing() {
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, StandardNormal};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(80);
+        let amplitude = (2.0 * 4096.0f64).sqrt();
+        let z: Vec<f64> = (0..2000)
+            .map(|k| {
+                let e: f64 = StandardNormal.sample(&mut rng);
+                amplitude * (2.0 * std::f64::consts::PI * k as f64 / 20.0).sin() + e
+            })
+            .collect();
+        let r = noise_variance(&z);
+        assert!(
+            (r - 1.0).abs() < 0.05,
+            "read {r}, the noise's variance is 1"
+        );
+        let second = z
+            .windows(3)
+            .map(|w| (w[2] - 2.0 * w[1] + w[0]).powi(2))
+            .sum::<f64>()
+            / (6.0 * (z.len() - 2) as f64);
+        assert!(
+            (second - 7.54).abs() < 0.3,
+            "second differences read {second}"
+        );
+        assert!(
+            noise_variance(&z[..4]).is_nan(),
+            "under five samples: no estimate"
+        );
+    }
+
+    /// The onset's window that ends at -1 % (true mean -0.67 %) on the lock gate: read within a
+    /// point of the truth on nearly every seed and below zero on some (52 of 100 seeds, 60 with
+    /// the second differences' sensor variance before stop 80: docs/benchmarks.md, "Stop 80");
+    /// a noise-driven +2 % window is not read below zero.
     #[test]
     fn reads_the_onsets_growing_window_and_not_an_ambient_one_as_negative() {
         let p = GatePreset::Lock.params();
@@ -419,10 +461,10 @@ mod tests {
             near += usize::from((g.zeta + 0.0067).abs() < 0.01);
         }
         assert!(
-            negative >= 4,
+            negative >= 2,
             "{negative} of 8 growing windows read below zero"
         );
-        assert!(near >= 6, "{near} of 8 within a point of -0.67 %");
+        assert!(near >= 7, "{near} of 8 within a point of -0.67 %");
         assert_eq!(
             ambient_negative, 0,
             "an ambient +2 % window read below zero"
