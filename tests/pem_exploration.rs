@@ -262,6 +262,12 @@ fn explore_impacts(gate: GatePreset, seeds: u64, c2_factor: f64) {
     let nw = (10.0 * p.rate_hz).round() as usize;
     let hop = nw / 2;
     let def = ScenarioName::Impacts.def(&p);
+    // PEM_IMPACT_RATIO: the bar, in ambient stds (default 3.5; the lab gate's struck windows
+    // stand 3 to 3.5 above it, docs/benchmarks.md, "Stop 80")
+    let bar: f64 = std::env::var("PEM_IMPACT_RATIO")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(3.5);
     for seed in 1..=seeds {
         let mut sim = started(&def, &p, NoiseLevel::Absolute(noise), seed);
         let n = (def.duration_s * p.rate_hz).round() as usize;
@@ -271,12 +277,6 @@ fn explore_impacts(gate: GatePreset, seeds: u64, c2_factor: f64) {
             let z = &xs[end - nw..end];
             let mean = z.iter().sum::<f64>() / nw as f64;
             let rms = (z.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / nw as f64).sqrt();
-            // PEM_IMPACT_RATIO: the bar, in ambient stds (default 3.5; the lab gate's struck
-            // windows stand 3 to 3.5 above it, docs/benchmarks.md, "Stop 80")
-            let bar: f64 = std::env::var("PEM_IMPACT_RATIO")
-                .ok()
-                .and_then(|v| v.parse().ok())
-                .unwrap_or(3.5);
             if rms / sigma >= bar {
                 let w = Window {
                     z,
