@@ -13,6 +13,8 @@ WINDOW = re.compile(
     r"trusted (\w+).*?firing \[([^\]]*)\]"
 )
 # the trend's slope and its one-sided upper bound, %/min, where the window has a trend
+# the window's RMS in the signal's unit, where the trace has it (since stop 81)
+RMS = re.compile(r"  rms ([\d.]+e[+-]?\d+)")
 TREND = re.compile(r"trend \(%/min, upper %/min, confident crossing s\) Some\(\((-?[\d.e+-]+), (-?[\d.e+-]+), ")
 
 
@@ -20,6 +22,12 @@ def trend(line):
     """(slope, upper bound) of the window's trend in %/min, None where it has none."""
     m = TREND.search(line)
     return (float(m.group(1)), float(m.group(2))) if m else None
+
+
+def rms(line):
+    """The window's RMS (signal units), None where the trace does not print it."""
+    m = RMS.search(line)
+    return float(m.group(1)) if m else None
 
 
 def read_trace(path):
@@ -45,6 +53,6 @@ def read_trace(path):
             run["windows"].append({
                 "t": num(1), "true": num(2), "zeta0": num(3), "low": num(4), "high": num(5),
                 "source": m.group(6), "trusted": m.group(7) == "true", "firing": m.group(8),
-                "trend": trend(line), "line": line,
+                "trend": trend(line), "rms": rms(line), "line": line,
             })
     return runs

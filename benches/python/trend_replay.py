@@ -114,7 +114,8 @@ def fit(t, z, low, high, flags, span_share, threshold=0.0):
             confident = max((-b + math.sqrt(max(b * b - a * c, 0.0))) / a, 0.0)
     else:
         confident = crossing(upper)
-    return {"span": t[-1] - t[0], "expected": crossing(slope), "confident": confident}
+    return {"span": t[-1] - t[0], "expected": crossing(slope), "confident": confident,
+            "level": level, "slope": slope}
 
 
 def replay(windows, variant, min_span=300.0, horizon=600.0, lead=600.0, for_windows=2, resolve_windows=2):

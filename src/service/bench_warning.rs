@@ -434,6 +434,11 @@ pub async fn run_stream(
                     if let Some(p) = &i.damping.pooled_zeta {
                         more += &format!("  pool {:?}", pct(p));
                     }
+                    // the window's RMS, in the signal's unit (the scale the trend's replays
+                    // compare with the damping: a stable gate's variance goes as 1 / zeta)
+                    if let Some(rms) = i.damping.signal_rms {
+                        more += &format!("  rms {rms:.5e}");
+                    }
                     more
                 }),
             );
