@@ -25,6 +25,11 @@ Variants (`--variants`, comma-separated; each a `+`-joined set of changes to the
 - `sF` (e.g. `s0.6`): the slope's and the level's standard errors multiplied by `F`, for a
   calibration study (stop 74: on 20 lock days at +0.5 % the standardized slope had a standard
   deviation of 0.6, not 1).
+- `csdF` (e.g. `csd0.5`, stop 81; traces that print each window's RMS): a predicting window
+  is vetoed when the windows' RMS did not rise with the decline as a gate under steady forcing
+  would (its variance goes as `1 / zeta`): the 95 % upper bound of the rise of `ln RMS` over the
+  trend's span (least squares, the same AR(1) overlap factor) below `F` times the rise the line
+  implies, `0.5 ln(zeta_old / zeta_now)` (the line's ends, the newer one at least 0.05 %).
 `--min-span` sets `trend_min_span_seconds` (300, the default since stop 68).
 
     python3 -m venv /tmp/venv && /tmp/venv/bin/pip install numpy scipy
@@ -118,10 +123,33 @@ def fit(t, z, low, high, flags, span_share, threshold=0.0):
             "level": level, "slope": slope}
 
 
+def rms_supports(a, e, fraction):
+    """Whether the windows' RMS rose with the trend's decline (the `csdF` variant)."""
+    t, lr = a[:, 0], np.log(a[:, 4])
+    if not np.all(np.isfinite(lr)):
+        raise SystemExit("the csd variant needs a trace that prints each window's RMS (stop 81 on)")
+    x = t - t[-1]
+    n = len(t)
+    design = np.vstack([np.ones(n), x]).T
+    coef, *_ = np.linalg.lstsq(design, lr, rcond=None)
+    res = lr - design @ coef
+    c0, c1 = (res * res).sum(), (res[1:] * res[:-1]).sum()
+    rho = min(max(c1 / c0, 0.0), 0.9) if c0 > 0 else 0.0
+    overlap = (1 + rho) / (1 - rho)
+    se = math.sqrt((res * res).sum() / (n - 2) * overlap / ((x - x.mean()) ** 2).sum())
+    q = student.ppf(0.95, max(round(max(n / overlap - 2.0, 1.0)), 1))
+    old = e["level"] - e["slope"] * e["span"]
+    new = max(e["level"], 0.05)
+    implied = 0.5 * math.log(max(old, new) / new)
+    return (coef[1] + q * se) * e["span"] >= fraction * implied
+
+
 def replay(windows, variant, min_span=300.0, horizon=600.0, lead=600.0, for_windows=2, resolve_windows=2):
     """The first firing times of `GateDampingDeclining` over one run's windows."""
     flags = set(variant.split("+")) - {"base"}
-    unknown = {f for f in flags - {"lead", "band", "young", "taper"} if not re.fullmatch(r"s\d+(\.\d+)?", f)}
+    unknown = {f for f in flags - {"lead", "band", "young", "taper"}
+               if not re.fullmatch(r"(s|csd)\d+(\.\d+)?", f)}
+    csd = next((float(f[3:]) for f in flags if f.startswith("csd")), None)
     if unknown:
         raise SystemExit(f"unknown variant {', '.join(sorted(unknown))} in {variant!r}")
     points, fired = [], []
@@ -129,7 +157,7 @@ def replay(windows, variant, min_span=300.0, horizon=600.0, lead=600.0, for_wind
     firing = False
     for w in windows:
         if w["trusted"] and w["zeta0"] is not None and w["low"] is not None:
-            points.append((w["t"], w["zeta0"], w["low"], w["high"]))
+            points.append((w["t"], w["zeta0"], w["low"], w["high"], w.get("rms") or math.nan))
             while w["t"] - points[0][0] > horizon:
                 points.pop(0)
         reading = "unknown"
@@ -140,6 +168,8 @@ def replay(windows, variant, min_span=300.0, horizon=600.0, lead=600.0, for_wind
                 reach = lead if "lead" in flags else min(lead, e["span"])
                 if e["confident"] is not None and e["confident"] <= reach:
                     reading = "predicts"
+                    if csd is not None and not rms_supports(a, e, csd):
+                        reading = "vetoed"
                 elif e["expected"] is not None and e["expected"] <= lead:
                     reading = "holds"
                 else:
