@@ -13,6 +13,11 @@ WINDOW = re.compile(
     r"trusted (\w+).*?firing \[([^\]]*)\]"
 )
 # the trend's slope and its one-sided upper bound, %/min, where the window has a trend
+# a rising window's pool (`pooled_zeta`), which the daemon's trend reads instead of the window's
+# own figure (stop 79, `analysis::trend_reading`)
+POOL = re.compile(r"  pool \(([-\d.]+), ([-\d.]+), ([-\d.]+)\)")
+# the spectrum's regime of the window (the first field of the facts' tuple)
+REGIME = re.compile(r"ssi common\) Some\(\(Some\((\w+)\)")
 # the window's RMS in the signal's unit, where the trace has it (since stop 81)
 RMS = re.compile(r"  rms ([\d.]+e[+-]?\d+)")
 TREND = re.compile(r"trend \(%/min, upper %/min, confident crossing s\) Some\(\((-?[\d.e+-]+), (-?[\d.e+-]+), ")
@@ -22,6 +27,12 @@ def trend(line):
     """(slope, upper bound) of the window's trend in %/min, None where it has none."""
     m = TREND.search(line)
     return (float(m.group(1)), float(m.group(2))) if m else None
+
+
+def pool(line):
+    """(zeta0, low, high) of a rising window's pool, None where the trace shows none."""
+    m = POOL.search(line)
+    return tuple(float(g) for g in m.groups()) if m else None
 
 
 def rms(line):
@@ -53,6 +64,7 @@ def read_trace(path):
             run["windows"].append({
                 "t": num(1), "true": num(2), "zeta0": num(3), "low": num(4), "high": num(5),
                 "source": m.group(6), "trusted": m.group(7) == "true", "firing": m.group(8),
-                "trend": trend(line), "rms": rms(line), "line": line,
+                "trend": trend(line), "rms": rms(line), "pool": pool(line),
+                "regime": (lambda r: r.group(1) if r else None)(REGIME.search(line)), "line": line,
             })
     return runs

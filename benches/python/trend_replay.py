@@ -7,9 +7,11 @@ interval-derived sds, the scale `max(0.5, chi2 / (n - 2))`, the AR(1) overlap fa
 t on `n / overlap - 2`), the alert's readings and streaks those of
 `alert::engine::trend_alert` with the defaults (horizon 600 s, minimum span 300 s, lead 600 s,
 two windows to fire and to resolve; the confident crossing within the lead and the trend's
-span). The trace prints zeta0 to 0.01 points, so the replay's slope matches the traced one to
-about 1e-4 points a minute; `base` must reproduce the traced first firings (it prints both; on
-a trace recorded before stop 67, `lead` must).
+span). Each window is read as the daemon's trend reads it (`analysis::trend_reading`): a rising
+window's pool where the trace prints one (`pool (...)`, since stop 79), else its own figure.
+The trace prints zeta0 to 0.01 points, so the replay's slope matches the traced one to about
+1e-4 points a minute; `base` must reproduce the traced first firings to a window (it prints
+both; on a trace recorded before stop 67, `lead` must).
 
 Variants (`--variants`, comma-separated; each a `+`-joined set of changes to the shipped rule,
 `base` for none):
@@ -123,6 +125,18 @@ def fit(t, z, low, high, flags, span_share, threshold=0.0):
             "level": level, "slope": slope}
 
 
+def trend_reading(w):
+    """What the daemon's trend reads of a window (`analysis::trend_reading`): a rising window's
+    pool where the trace shows one (stop 79; its `trusted` by the ambient rows: an interval above
+    zero on a window the spectrum calls growing or a limit cycle cannot tell), else the window's
+    own figure."""
+    if w.get("pool") is not None:
+        z, low, high = w["pool"]
+        trusted = not (low > 0 and w.get("regime") in ("SelfExcited", "LimitCycle"))
+        return z, low, high, trusted
+    return w["zeta0"], w["low"], w["high"], w["trusted"]
+
+
 def rms_supports(a, e, fraction):
     """Whether the windows' RMS rose with the trend's decline (the `csdF` variant)."""
     t, lr = a[:, 0], np.log(a[:, 4])
@@ -156,12 +170,13 @@ def replay(windows, variant, min_span=300.0, horizon=600.0, lead=600.0, for_wind
     streak = calm = 0
     firing = False
     for w in windows:
-        if w["trusted"] and w["zeta0"] is not None and w["low"] is not None:
-            points.append((w["t"], w["zeta0"], w["low"], w["high"], w.get("rms") or math.nan))
+        zeta0, low, high, trusted = trend_reading(w)
+        if trusted and zeta0 is not None and low is not None:
+            points.append((w["t"], zeta0, low, high, w.get("rms") or math.nan))
             while w["t"] - points[0][0] > horizon:
                 points.pop(0)
         reading = "unknown"
-        if w["trusted"] and len(points) >= 6:
+        if trusted and len(points) >= 6:
             a = np.array(points)
             e = fit(a[:, 0], a[:, 1], a[:, 2], a[:, 3], flags, (a[-1, 0] - a[0, 0]) / horizon)
             if e is not None and e["span"] >= min_span:
