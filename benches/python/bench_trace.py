@@ -12,7 +12,6 @@ WINDOW = re.compile(
     r"(?:Some\(([-\d.]+)\)|None) (?:Some\(\(([-\d.]+), ([-\d.]+)\)\)|None) (?:Some\(\"(\w+)\"\)|None) "
     r"trusted (\w+).*?firing \[([^\]]*)\]"
 )
-# the trend's slope and its one-sided upper bound, %/min, where the window has a trend
 # a rising window's pool (`pooled_zeta`), which the daemon's trend reads instead of the window's
 # own figure (stop 79, `analysis::trend_reading`)
 POOL = re.compile(r"  pool \(([-\d.]+), ([-\d.]+), ([-\d.]+)\)")
@@ -20,6 +19,7 @@ POOL = re.compile(r"  pool \(([-\d.]+), ([-\d.]+), ([-\d.]+)\)")
 REGIME = re.compile(r"ssi common\) Some\(\(Some\((\w+)\)")
 # the window's RMS in the signal's unit, where the trace has it (since stop 81)
 RMS = re.compile(r"  rms ([\d.]+e[+-]?\d+)")
+# the trend's slope and its one-sided upper bound, %/min, where the window has a trend
 TREND = re.compile(r"trend \(%/min, upper %/min, confident crossing s\) Some\(\((-?[\d.e+-]+), (-?[\d.e+-]+), ")
 
 

@@ -61,6 +61,12 @@ def huber(r):
     return np.where(a <= HUBER_K, 1.0, HUBER_K / np.maximum(a, 1e-300))
 
 
+def lag1(r):
+    """The residuals' lag-1 autocorrelation as the daemon clamps it (0 to 0.9)."""
+    c0, c1 = (r * r).sum(), (r[1:] * r[:-1]).sum()
+    return min(max(c1 / c0, 0.0), 0.9) if c0 > 1e-6 * len(r) else 0.0
+
+
 def fit(t, z, low, high, flags, span_share, threshold=0.0):
     """The trend at the newest point, in the trace's unit (percent); None as in the daemon."""
     n = len(t)
@@ -81,8 +87,7 @@ def fit(t, z, low, high, flags, span_share, threshold=0.0):
         level = (sy - s1 * slope) / s0
     r = (z - level - slope * x) / sd
     scale = max((huber(r) * r * r).sum() / (n - 2), 0.5)
-    c0, c1 = (r * r).sum(), (r[1:] * r[:-1]).sum()
-    rho = min(max(c1 / c0, 0.0), 0.9) if c0 > 1e-6 * n else 0.0
+    rho = lag1(r)
     if "young" in flags or "taper" in flags:
         # session 45's small-sample correction of the lag-1 estimate while the horizon fills
         # (`span_share`: the points' span over the horizon)
@@ -147,8 +152,7 @@ def rms_supports(a, e, fraction):
     design = np.vstack([np.ones(n), x]).T
     coef, *_ = np.linalg.lstsq(design, lr, rcond=None)
     res = lr - design @ coef
-    c0, c1 = (res * res).sum(), (res[1:] * res[:-1]).sum()
-    rho = min(max(c1 / c0, 0.0), 0.9) if c0 > 0 else 0.0
+    rho = lag1(res)
     overlap = (1 + rho) / (1 - rho)
     se = math.sqrt((res * res).sum() / (n - 2) * overlap / ((x - x.mean()) ** 2).sum())
     q = student.ppf(0.95, max(round(max(n / overlap - 2.0, 1.0)), 1))
