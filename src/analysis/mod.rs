@@ -8,7 +8,7 @@
 //!   (zeta_eq, limit cycle, time to a limit).
 //! - `population`: the DE's initial population biased towards the measured spectrum.
 //! - `model_free`: the window without an equation: pre-processing, the spectrum's peak and
-//!   growth, a limit cycle's envelope relaxation over the gate's history.
+//!   growth, a limit cycle's steadiness and envelope relaxation over the gate's history.
 //! - `series`: the analysis of one series, phase by phase: the model-free part, force-mode
 //!   scaling, initial population, identification, damping figures.
 //! - `verdict`: agreement with the spectrum and the verdict table of `docs/damping.md`.
@@ -62,7 +62,9 @@ pub use growing::{read_growing_window, GROWING_MIN_RATIO, GROWING_MIN_SHIFT};
 pub use linearisation::{
     cycle_zeta0, equivalent_damping, limit_cycle, time_to_amplitude, Linearization,
 };
-pub use model_free::{relaxation_detrend_degree, rms_swing, BEND_DEGREE, BEND_LEVEL_CHANGE};
+pub use model_free::{
+    relaxation_detrend_degree, rms_swing, BEND_DEGREE, BEND_LEVEL_CHANGE, LIMIT_CYCLE_CYCLES,
+};
 pub use model_interval::{intervals, zeta0_interval, FittedModel};
 pub use pooling::{rising, trend_reading, PoolingSettings, ZetaPools, RISING_SHARE};
 pub use population::{biased_population, SpectralTarget};

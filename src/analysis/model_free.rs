@@ -1,6 +1,6 @@
 //! The model-free analysis of a window (no equation): the pre-processing, the spectrum's peak
-//! and growth, and on a limit-cycle window the envelope's relaxation (or its drift) read from a
-//! record of `RELAXATION_CYCLES` cycles of the gate's history. [`super::series`] runs it before
+//! and growth, and on a limit-cycle window its steadiness and the envelope's relaxation (or its
+//! drift), both read from a record of `RELAXATION_CYCLES` cycles of the gate's history. [`super::series`] runs it before
 //! the identification, whose initial population and verdict use what it found.
 
 use super::report::AmbientZeta;
@@ -8,7 +8,9 @@ use super::series::SeriesOptions;
 use super::Signal;
 use crate::data::TimeSeries;
 use crate::identify;
-use crate::spectral::{AmbientMethod, SpectralAnalyzer, SsiOptions, WindowOptions, WindowSpectral};
+use crate::spectral::{
+    AmbientMethod, Regime, SpectralAnalyzer, SsiOptions, WindowOptions, WindowSpectral,
+};
 use std::f64::consts::PI;
 
 /// The dominant frequency must have at least this many periods in the window (the spectral
@@ -90,7 +92,11 @@ pub(super) fn model_free(
     }
     let spec = spectral
         .as_mut()
-        .and_then(|sa| sa.analyze_window(&data.y, &window_options).ok());
+        .and_then(|sa| sa.analyze_window(&data.y, &window_options).ok())
+        .map(|s| match fs {
+            Some(fs) => steady_over_cycles(s, history, fs, n, &window_options, opts),
+            None => s,
+        });
     // A short record (a few periods) cannot give an envelope growth, but its dominant frequency
     // still constrains the search.
     let peak_hz = spec.as_ref().map(|s| s.peak.frequency_hz).or_else(|| {
@@ -146,6 +152,62 @@ pub(super) fn model_free(
         relaxation,
         drift,
     }
+}
+
+/// Cycles over which a limit cycle's envelope must be steady (the classifier's
+/// `max_limit_cycle_cv`) for a window to keep the class: [`RELAXATION_CYCLES`], the record its
+/// `zeta0` is then read from.
+///
+/// Why in cycles: the test tells a cycle's steady envelope from a noise-driven response's, whose
+/// envelope has Rayleigh's CV of 0.52 only over a record much longer than its correlation time
+/// `1 / (zeta w)`, which is `1 / (2 pi zeta)` cycles: 32 cycles at +0.5 %. A 10 s window holds
+/// 100 of the lab gate's cycles (3 correlation times) but 50 of a 5 Hz lock gate's (1.6), and
+/// over so few the envelope of a stable gate often looks steady. On one 2.3 h stream of each at
+/// +0.5 % (seed 24), 0.7 % of the lab gate's windows and 4.8 % of the lock gate's were classed
+/// limit cycles, each read negative by the envelope's relaxation (it cannot read anything else);
+/// two of the lock gate's in a row paged (docs/alerts.md, "A steady stretch of a stable gate
+/// read as a cycle").
+pub const LIMIT_CYCLE_CYCLES: f64 = RELAXATION_CYCLES;
+
+/// `spec` with a limit-cycle window of fewer than [`LIMIT_CYCLE_CYCLES`] cycles demoted to
+/// `Undecided` when the envelope over the last `LIMIT_CYCLE_CYCLES` cycles of `history`
+/// (pre-processed and detrended as the window is) is not steady. The window's own growth and
+/// SSI reading stand; only the envelope's CV is read over the longer record (about its fitted
+/// exponential, as the window's is, so a steady growth into the cycle still passes). Without
+/// that much history the window's class stands.
+fn steady_over_cycles(
+    mut spec: WindowSpectral,
+    history: &[f64],
+    fs: f64,
+    n: usize,
+    window: &WindowOptions,
+    opts: &SeriesOptions,
+) -> WindowSpectral {
+    let f = spec.peak.frequency_hz;
+    if spec.regime != Regime::LimitCycle || !(f > 0.0) {
+        return spec;
+    }
+    let want = (LIMIT_CYCLE_CYCLES * fs / f).ceil() as usize;
+    if want <= n || history.len() < want || !history.iter().all(|v| v.is_finite()) {
+        return spec;
+    }
+    let raw = &history[history.len() - want..];
+    let Ok(series) = TimeSeries::new((0..want).map(|i| i as f64 / fs).collect(), raw.to_vec())
+    else {
+        return spec;
+    };
+    let mut work = preprocess(&series, opts).y;
+    crate::spectral::detrend_linear(&mut work);
+    let cv = SpectralAnalyzer::new(want, fs)
+        .and_then(|mut long| long.growth_rate(&work, f, &window.growth))
+        .map(|g| g.envelope_cv);
+    if cv.is_ok_and(|cv| !(cv < window.classify.max_limit_cycle_cv)) {
+        // what `spectral::classify` says without the limit-cycle row: a window classed a cycle
+        // has an SSI point below `max_limit_cycle_zeta`, so its interval never lies above
+        // `min_damped_zeta`
+        spec.regime = Regime::Undecided;
+    }
+    spec
 }
 
 /// Largest over smallest standard deviation of the three thirds of `y` (`None` with fewer than

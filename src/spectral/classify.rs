@@ -61,7 +61,10 @@ impl Default for ClassifyOptions {
 /// Limits: growth is only seen while it happens (seconds at `zeta = -1 %`); a window that saw
 /// nothing but a steady limit cycle relies on the CV test, which needs several envelope
 /// correlation times `1/(|zeta| omega)` in the window and fails near the bifurcation where the
-/// limit cycle is small against the noise.
+/// limit cycle is small against the noise. The daemon's analysis asks the CV test of a window
+/// holding fewer than 100 cycles again over the last 100 cycles of the gate's history
+/// (`analysis::LIMIT_CYCLE_CYCLES`): a noise-driven envelope decorrelates over `1 / (2 pi zeta)`
+/// cycles, so a window's length in seconds made the test gate-dependent.
 pub fn classify(
     growth: &GrowthRate,
     ambient: Option<&AmbientDamping>,
