@@ -66,7 +66,9 @@ pub use model_free::{
     relaxation_detrend_degree, rms_swing, BEND_DEGREE, BEND_LEVEL_CHANGE, LIMIT_CYCLE_CYCLES,
 };
 pub use model_interval::{intervals, zeta0_interval, FittedModel};
-pub use pooling::{rising, trend_reading, PoolingSettings, ZetaPools, RISING_SHARE};
+pub use pooling::{
+    rising, trend_reading, PoolingSettings, ZetaPools, MIN_CYCLE_POOL_CYCLES, RISING_SHARE,
+};
 pub use population::{biased_population, SpectralTarget};
 pub use prediction_error::{prediction_error_zeta, read_by_prediction_errors};
 pub use report::{AmbientZeta, DampingReport, Verdict, Zeta0Source};

@@ -170,11 +170,13 @@ pub(super) fn model_free(
 pub const LIMIT_CYCLE_CYCLES: f64 = RELAXATION_CYCLES;
 
 /// `spec` with a limit-cycle window of fewer than [`LIMIT_CYCLE_CYCLES`] cycles demoted to
-/// `Undecided` when the envelope over the last `LIMIT_CYCLE_CYCLES` cycles of `history`
-/// (pre-processed and detrended as the window is) is not steady. The window's own growth and
-/// SSI reading stand; only the envelope's CV is read over the longer record (about its fitted
-/// exponential, as the window's is, so a steady growth into the cycle still passes). Without
-/// that much history the window's class stands.
+/// `Undecided` when the envelope over the last `LIMIT_CYCLE_CYCLES` cycles of `history` (as many
+/// of them as it holds; pre-processed and detrended as the window is) is not steady. The
+/// window's own growth and SSI reading stand; only the envelope's CV is read over the longer
+/// record (about its fitted exponential, as the window's is, so a steady growth into the cycle
+/// still passes). Without history beyond the window the window's class stands. The daemon keeps
+/// three windows (`service::window::HISTORY_WINDOWS`): 30 s, so 100 cycles of a 5 Hz gate but
+/// only 60 of a 2 Hz one, whose 10 s window holds 20.
 fn steady_over_cycles(
     mut spec: WindowSpectral,
     history: &[f64],
@@ -187,18 +189,18 @@ fn steady_over_cycles(
     if spec.regime != Regime::LimitCycle || !(f > 0.0) {
         return spec;
     }
-    let want = (LIMIT_CYCLE_CYCLES * fs / f).ceil() as usize;
-    if want <= n || history.len() < want || !history.iter().all(|v| v.is_finite()) {
+    let len = ((LIMIT_CYCLE_CYCLES * fs / f).ceil() as usize).min(history.len());
+    if len <= n || !history.iter().all(|v| v.is_finite()) {
         return spec;
     }
-    let raw = &history[history.len() - want..];
-    let Ok(series) = TimeSeries::new((0..want).map(|i| i as f64 / fs).collect(), raw.to_vec())
+    let raw = &history[history.len() - len..];
+    let Ok(series) = TimeSeries::new((0..len).map(|i| i as f64 / fs).collect(), raw.to_vec())
     else {
         return spec;
     };
     let mut work = preprocess(&series, opts).y;
     crate::spectral::detrend_linear(&mut work);
-    let cv = SpectralAnalyzer::new(want, fs)
+    let cv = SpectralAnalyzer::new(len, fs)
         .and_then(|mut long| long.growth_rate(&work, f, &window.growth))
         .map(|g| g.envelope_cv);
     if cv.is_ok_and(|cv| !(cv < window.classify.max_limit_cycle_cv)) {

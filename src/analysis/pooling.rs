@@ -161,13 +161,38 @@ impl ZetaPools {
         d.zeta0_windows = Some(p.windows);
         d.zeta0_held = p.held;
         (d.verdict, d.trusted) = match source {
-            // the rows of `decide` for the envelope: negative, or cannot tell (untrusted)
-            Some(Zeta0Source::Envelope) if p.interval.1 < 0.0 => (Verdict::SelfExcited, true),
+            // the rows of `decide` for the envelope: negative, or cannot tell (untrusted); on a
+            // gate still at its ambient level a pool is evidence only from
+            // `MIN_CYCLE_POOL_CYCLES` on
+            Some(Zeta0Source::Envelope)
+                if p.interval.1 < 0.0
+                    && (departed(d) || p.record_cycles >= MIN_CYCLE_POOL_CYCLES) =>
+            {
+                (Verdict::SelfExcited, true)
+            }
             Some(Zeta0Source::Envelope) => (Verdict::Unknown, false),
             _ => ambient_rows(p.interval, d.regime),
         };
     }
 }
+
+/// Distinct cycles of record (`PooledEstimate::record_cycles`) a pool of limit-cycle readings
+/// needs before it is evidence
+/// (`trusted`, a verdict) on a gate that has not left its ambient level (`analysis::departed`;
+/// or has no level yet). Above the departure ratio the lone-window rule alone holds (the alert
+/// then reads such a window by its regime too).
+///
+/// Why: the envelope's relaxation reads every window it is given as a cycle, so negative, and a
+/// lightly damped stable gate's envelope is now and then steady for a few windows. A stretch of
+/// a noise-driven envelope lasts a number of cycles (its correlation time is `1 / (2 pi zeta)`
+/// cycles), not of windows; two windows are 156 cycles of the lab gate (10.4 Hz, the window its
+/// record) but 125 of a 5 Hz lock gate (20 s records 5 s apart). In 180 h of the lock gate at
+/// +0.5 % (stop 82) three such stretches gave a pool of two windows a confident negative reading,
+/// and in stop 81 two in a row paged (seed 24); the lab gate's pairs never did. At 140 cycles a
+/// lock pool needs three windows (150 cycles), the lab gate's two as before, each with a margin
+/// of a tenth for the frequency's scatter; on the lock gate's slow drift 3 of 40 first
+/// `GateNegativeDamping` came 5 s later (docs/benchmarks.md, "Stop 82").
+pub const MIN_CYCLE_POOL_CYCLES: f64 = 140.0;
 
 /// Share of the departure ratio from which a noise-driven window counts as rising
 /// ([`rising`]).
@@ -568,5 +593,45 @@ mod tests {
         let mut d = envelope();
         pools.apply(20.0, 30.0, &mut d);
         assert_eq!((d.verdict, d.trusted), (Verdict::Unknown, false));
+    }
+
+    /// On a gate at its ambient level a pool of limit-cycle readings decides once it holds
+    /// `MIN_CYCLE_POOL_CYCLES` distinct cycles: two windows of a 10 Hz gate (150 cycles), three
+    /// of a 5 Hz gate whose readings each read 20 s of history (125 cycles with two, 150 with
+    /// three). A gate that left its level decides from the second window as before.
+    #[test]
+    fn a_cycle_pool_at_the_ambient_level_decides_after_enough_cycles() {
+        let envelope = |f: f64, ratio: f64| DampingReport {
+            zeta0: Some(-0.018),
+            zeta0_interval: Some((-0.034, -0.002)),
+            zeta0_source: Some(Zeta0Source::Envelope),
+            frequency_hz: Some(f),
+            ambient_ratio: Some(ratio),
+            departure_ratio: Some(3.0),
+            trusted: true,
+            verdict: Verdict::SelfExcited,
+            regime: Some(Regime::LimitCycle),
+            ..DampingReport::unknown()
+        };
+        // (frequency, ambient ratio, window at which the pool first decides)
+        for (f, ratio, decides) in [(10.0, 2.0, 2), (5.0, 2.0, 3), (5.0, 4.0, 2)] {
+            let mut pools = ZetaPools::new(PoolOptions::default()).unwrap();
+            for k in 1..=4 {
+                let t0 = 5.0 * k as f64;
+                let mut d = envelope(f, ratio);
+                pools.apply(t0, t0 + 10.0, &mut d);
+                let want = if k >= decides {
+                    (Verdict::SelfExcited, true)
+                } else {
+                    (Verdict::Unknown, false)
+                };
+                assert_eq!(
+                    (d.verdict, d.trusted),
+                    want,
+                    "{f} Hz, ratio {ratio}, window {k}"
+                );
+                assert_eq!(d.zeta0_windows, Some(k));
+            }
+        }
     }
 }

@@ -146,8 +146,12 @@ pub struct PooledEstimate {
     pub stderr: f64,
     /// Windows pooled.
     pub windows: usize,
-    /// Distinct cycles of record behind it.
+    /// Distinct cycles of the windows behind it.
     pub cycles: f64,
+    /// Distinct cycles of the records the estimates read (each [`WindowEstimate::record_seconds`]
+    /// ending at its window's end, the window where that is longer): more than
+    /// [`PooledEstimate::cycles`] where an estimate read the gate's history.
+    pub record_cycles: f64,
     /// Whether this window flushed the pool (a regime change).
     pub flushed: bool,
     /// Whether this window signalled a change alone and was held back: the estimate is the
@@ -328,6 +332,7 @@ impl DampingPool {
             stderr,
             windows: self.entries.len(),
             cycles: span_cycles(self.entries.iter()),
+            record_cycles: record_span_cycles(self.entries.iter()),
             flushed: false,
             held: false,
         })
@@ -384,10 +389,21 @@ fn sqrt_hodges_lehmann(pairs: impl Iterator<Item = (f64, f64)>) -> f64 {
 
 /// Distinct cycles covered by windows in time order (overlaps counted once).
 fn span_cycles<'a>(entries: impl Iterator<Item = &'a WindowEstimate>) -> f64 {
+    covered_cycles(entries.map(|e| (e.t_start, e)))
+}
+
+/// Distinct cycles covered by the records the estimates read, in time order.
+fn record_span_cycles<'a>(entries: impl Iterator<Item = &'a WindowEstimate>) -> f64 {
+    covered_cycles(entries.map(|e| (e.record_start(), e)))
+}
+
+/// Distinct cycles of the spans `(start, e.t_end)` in order of their ends (overlaps counted
+/// once), each at its estimate's frequency.
+fn covered_cycles<'a>(spans: impl Iterator<Item = (f64, &'a WindowEstimate)>) -> f64 {
     let mut cycles = 0.0;
     let mut covered_to = f64::NEG_INFINITY;
-    for e in entries {
-        let from = e.t_start.max(covered_to);
+    for (start, e) in spans {
+        let from = start.max(covered_to);
         if e.t_end > from {
             cycles += (e.t_end - from) * e.frequency_hz;
         }
