@@ -170,7 +170,19 @@ impl ZetaPools {
             {
                 (Verdict::SelfExcited, true)
             }
-            Some(Zeta0Source::Envelope) => (Verdict::Unknown, false),
+            Some(Zeta0Source::Envelope) => {
+                if p.interval.1 < 0.0 {
+                    // short of the cycles: no evidence for the alert, but the trend reads the
+                    // pool's figure as before (`trend_reading`): without it the lock gate's
+                    // slow drift warned 50 s later on one of 40 seeds (stop 82)
+                    d.pooled_zeta = Some(AmbientZeta {
+                        zeta: p.zeta,
+                        low: p.interval.0,
+                        high: p.interval.1,
+                    });
+                }
+                (Verdict::Unknown, false)
+            }
             _ => ambient_rows(p.interval, d.regime),
         };
     }
@@ -598,7 +610,8 @@ mod tests {
     /// On a gate at its ambient level a pool of limit-cycle readings decides once it holds
     /// `MIN_CYCLE_POOL_CYCLES` distinct cycles: two windows of a 10 Hz gate (150 cycles), three
     /// of a 5 Hz gate whose readings each read 20 s of history (125 cycles with two, 150 with
-    /// three). A gate that left its level decides from the second window as before.
+    /// three). A gate that left its level decides from the second window as before. Short of
+    /// the cycles, the trend still reads the pool's figure.
     #[test]
     fn a_cycle_pool_at_the_ambient_level_decides_after_enough_cycles() {
         let envelope = |f: f64, ratio: f64| DampingReport {
@@ -631,6 +644,13 @@ mod tests {
                     "{f} Hz, ratio {ratio}, window {k}"
                 );
                 assert_eq!(d.zeta0_windows, Some(k));
+                // short of the cycles, the trend still reads the pool's figure as trusted
+                if (2..decides).contains(&k) {
+                    let (z, iv, trusted) = trend_reading(&d);
+                    assert_eq!((z, iv, trusted), (d.zeta0, d.zeta0_interval, true));
+                } else {
+                    assert_eq!(d.pooled_zeta, None);
+                }
             }
         }
     }

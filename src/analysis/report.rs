@@ -214,8 +214,10 @@ pub struct DampingReport {
     /// half of `departure_ratio`, `analysis::rising`) and is therefore reported alone
     /// (`zeta0_windows` 1, its own `zeta0` and interval): the figure and 95 % interval of the
     /// pool it still joined. The trend reads this one, as it reads every pooled window
-    /// (`analysis::trend_reading`; `docs/damping.md`, "A rising window stands alone"). `None`
-    /// elsewhere.
+    /// (`analysis::trend_reading`; `docs/damping.md`, "A rising window stands alone"). Also on
+    /// a limit-cycle window whose pool lies below zero but is short of
+    /// `analysis::MIN_CYCLE_POOL_CYCLES` at the ambient level, reported untrusted: the pool's
+    /// figure, which the trend reads as it did before that rule. `None` elsewhere.
     #[serde(default)]
     pub pooled_zeta: Option<AmbientZeta>,
     /// Standard deviation of the window's signal about its mean, in the signal's unit (`None`
