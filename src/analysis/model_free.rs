@@ -186,7 +186,7 @@ fn steady_over_cycles(
     opts: &SeriesOptions,
 ) -> WindowSpectral {
     let f = spec.peak.frequency_hz;
-    if spec.regime != Regime::LimitCycle || !(f > 0.0) {
+    if spec.regime != Regime::LimitCycle || f.is_nan() || f <= 0.0 {
         return spec;
     }
     let len = ((LIMIT_CYCLE_CYCLES * fs / f).ceil() as usize).min(history.len());
@@ -203,7 +203,7 @@ fn steady_over_cycles(
     let cv = SpectralAnalyzer::new(len, fs)
         .and_then(|mut long| long.growth_rate(&work, f, &window.growth))
         .map(|g| g.envelope_cv);
-    if cv.is_ok_and(|cv| !(cv < window.classify.max_limit_cycle_cv)) {
+    if cv.is_ok_and(|cv| cv.is_nan() || cv >= window.classify.max_limit_cycle_cv) {
         // what `spectral::classify` says without the limit-cycle row: a window classed a cycle
         // has an SSI point below `max_limit_cycle_zeta`, so its interval never lies above
         // `min_damped_zeta`
