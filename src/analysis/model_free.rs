@@ -155,7 +155,7 @@ pub(super) fn model_free(
 }
 
 /// Cycles over which a limit cycle's envelope must be steady (the classifier's
-/// `max_limit_cycle_cv`) for a window to keep the class: [`RELAXATION_CYCLES`], the record its
+/// `max_limit_cycle_cv`) for a window to keep the class: `RELAXATION_CYCLES` (100), the record its
 /// `zeta0` is then read from.
 ///
 /// Why in cycles: the test tells a cycle's steady envelope from a noise-driven response's, whose
