@@ -1,7 +1,8 @@
 //! The model-free analysis of a window (no equation): the pre-processing, the spectrum's peak
 //! and growth, and on a limit-cycle window its steadiness and the envelope's relaxation (or its
-//! drift), both read from a record of `RELAXATION_CYCLES` cycles of the gate's history. [`super::series`] runs it before
-//! the identification, whose initial population and verdict use what it found.
+//! drift), both read from a record of `RELAXATION_CYCLES` cycles of the gate's history.
+//! [`super::series`] runs it before the identification, whose initial population and verdict
+//! use what it found.
 
 use super::report::AmbientZeta;
 use super::series::SeriesOptions;

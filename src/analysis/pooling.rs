@@ -189,10 +189,10 @@ impl ZetaPools {
 }
 
 /// Distinct cycles of record (`PooledEstimate::record_cycles`) a pool of limit-cycle readings
-/// needs before it is evidence
-/// (`trusted`, a verdict) on a gate that has not left its ambient level (`analysis::departed`;
-/// or has no level yet). Above the departure ratio the lone-window rule alone holds (the alert
-/// then reads such a window by its regime too).
+/// needs before it is evidence (`trusted`, a verdict) on a gate that has not left its ambient
+/// level (`analysis::departed`), or has no level yet. Above the departure ratio the lone-window
+/// rule alone holds (the alert then reads such a window by its regime too). Short of the cycles
+/// the pool's figure still goes to the trend (`DampingReport::pooled_zeta`).
 ///
 /// Why: the envelope's relaxation reads every window it is given as a cycle, so negative, and a
 /// lightly damped stable gate's envelope is now and then steady for a few windows. A stretch of
