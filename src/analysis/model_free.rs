@@ -190,18 +190,10 @@ fn steady_over_cycles(
     if spec.regime != Regime::LimitCycle || f.is_nan() || f <= 0.0 {
         return spec;
     }
-    let len = ((LIMIT_CYCLE_CYCLES * fs / f).ceil() as usize).min(history.len());
-    if len <= n || !history.iter().all(|v| v.is_finite()) {
-        return spec;
-    }
-    let raw = &history[history.len() - len..];
-    let Ok(series) = TimeSeries::new((0..len).map(|i| i as f64 / fs).collect(), raw.to_vec())
-    else {
+    let Some(work) = history_record(history, fs, f, LIMIT_CYCLE_CYCLES, n, opts) else {
         return spec;
     };
-    let mut work = preprocess(&series, opts).y;
-    crate::spectral::detrend_linear(&mut work);
-    let cv = SpectralAnalyzer::new(len, fs)
+    let cv = SpectralAnalyzer::new(work.len(), fs)
         .and_then(|mut long| long.growth_rate(&work, f, &window.growth))
         .map(|g| g.envelope_cv);
     if cv.is_ok_and(|cv| cv.is_nan() || cv >= window.classify.max_limit_cycle_cv) {
@@ -286,15 +278,8 @@ pub(super) fn relaxation_record(
     n: usize,
     opts: &SeriesOptions,
 ) -> Option<(Vec<f64>, f64)> {
-    let want = (RELAXATION_CYCLES * fs / frequency_hz).ceil() as usize;
-    let len = want.min(history.len());
-    if len <= n || !history.iter().all(|v| v.is_finite()) {
-        return None;
-    }
-    let raw = &history[history.len() - len..];
-    let series = TimeSeries::new((0..len).map(|i| i as f64 / fs).collect(), raw.to_vec()).ok()?;
-    let mut work = preprocess(&series, opts).y;
-    crate::spectral::detrend_linear(&mut work);
+    let work = history_record(history, fs, frequency_hz, RELAXATION_CYCLES, n, opts)?;
+    let len = work.len();
     // The relaxation assumes a stationary cycle: a history whose level differs from the
     // window's (the end of a growth, a ramp of the damping) is not read.
     let rms = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt();
@@ -302,6 +287,28 @@ pub(super) fn relaxation_record(
     (ratio.is_finite()
         && (1.0 / MAX_HISTORY_LEVEL_CHANGE..=MAX_HISTORY_LEVEL_CHANGE).contains(&ratio))
     .then_some((work, fs))
+}
+
+/// The last `cycles` cycles of `history` (as many as it holds), pre-processed and detrended as
+/// the window is; `None` when that is not longer than the window's `n` samples or the history
+/// holds a non-finite sample. What the steadiness test and the relaxation read.
+fn history_record(
+    history: &[f64],
+    fs: f64,
+    frequency_hz: f64,
+    cycles: f64,
+    n: usize,
+    opts: &SeriesOptions,
+) -> Option<Vec<f64>> {
+    let len = ((cycles * fs / frequency_hz).ceil() as usize).min(history.len());
+    if len <= n || !history.iter().all(|v| v.is_finite()) {
+        return None;
+    }
+    let raw = &history[history.len() - len..];
+    let series = TimeSeries::new((0..len).map(|i| i as f64 / fs).collect(), raw.to_vec()).ok()?;
+    let mut work = preprocess(&series, opts).y;
+    crate::spectral::detrend_linear(&mut work);
+    Some(work)
 }
 
 /// Largest ratio of the RMS level of the history before the window to the window's for the
