@@ -63,6 +63,9 @@ pub(super) struct ModelFree {
     pub(super) relaxation: Option<AmbientZeta>,
     /// `zeta0` from the envelope's drift, on a limit-cycle window the relaxation refused.
     pub(super) drift: Option<AmbientZeta>,
+    /// Seconds of record behind `relaxation` or `drift`: the relaxation's record (the gate's
+    /// history, or the window) or the window's for the drift.
+    pub(super) envelope_record_seconds: Option<f64>,
 }
 
 /// The model-free analysis (uniform sampling only), with the analyzer replaced when it does not
@@ -120,7 +123,10 @@ pub(super) fn model_free(
     // zeta0 (docs/damping.md, "The limit cycle"), and where the window is not on a saturated
     // cycle (the end of a growth, a shrinking cycle: the relaxation refuses it) the envelope's
     // drift across the amplitudes it visits does. The same pre-processing as the window's.
-    let (relaxation, drift) = match (&spec, spectral.as_mut()) {
+    // a record's seconds from its first sample to its last, as a window's span is counted
+    let span = |len: usize, fs: f64| len.saturating_sub(1) as f64 / fs;
+    let window_seconds = fs.map(|fs| span(n, fs));
+    let (relaxation, drift, envelope_record_seconds) = match (&spec, spectral.as_mut()) {
         (Some(s), Some(sa)) if s.regime == crate::spectral::Regime::LimitCycle => {
             let mut work = data.y.clone();
             crate::spectral::detrend_linear(&mut work);
@@ -129,21 +135,26 @@ pub(super) fn model_free(
                 detrend_max_degree: relaxation_detrend_degree(history, n),
                 ..crate::spectral::RelaxationOptions::default()
             };
-            let relaxation = match fs.and_then(|fs| relaxation_record(history, fs, f, n, opts)) {
-                Some((record, fs)) => SpectralAnalyzer::new(record.len(), fs)
-                    .and_then(|mut long| long.envelope_relaxation(&record, f, &relax)),
-                None => sa.envelope_relaxation(&work, f, &relax),
-            };
+            let (relaxation, record_seconds) =
+                match fs.and_then(|fs| relaxation_record(history, fs, f, n, opts)) {
+                    Some((record, fs)) => (
+                        SpectralAnalyzer::new(record.len(), fs)
+                            .and_then(|mut long| long.envelope_relaxation(&record, f, &relax)),
+                        Some(span(record.len(), fs)),
+                    ),
+                    None => (sa.envelope_relaxation(&work, f, &relax), window_seconds),
+                };
             match relaxation {
-                Ok(r) => (Some(AmbientZeta::from(&r)), None),
+                Ok(r) => (Some(AmbientZeta::from(&r)), None, record_seconds),
                 Err(_) => {
                     let opts = crate::spectral::DriftOptions::default();
                     let d = sa.envelope_drift(&work, f, relax.band, &opts).ok();
-                    (None, d.as_ref().map(AmbientZeta::from))
+                    let d = d.as_ref().map(AmbientZeta::from);
+                    (None, d, d.and(window_seconds))
                 }
             }
         }
-        _ => (None, None),
+        _ => (None, None, None),
     };
     ModelFree {
         window_options,
@@ -152,6 +163,7 @@ pub(super) fn model_free(
         sigma_clean,
         relaxation,
         drift,
+        envelope_record_seconds,
     }
 }
 
@@ -176,8 +188,8 @@ pub const LIMIT_CYCLE_CYCLES: f64 = RELAXATION_CYCLES;
 /// window's own growth and SSI reading stand; only the envelope's CV is read over the longer
 /// record (about its fitted exponential, as the window's is, so a steady growth into the cycle
 /// still passes). Without history beyond the window the window's class stands. The daemon keeps
-/// three windows (`service::window::HISTORY_WINDOWS`): 30 s, so 100 cycles of a 5 Hz gate but
-/// only 60 of a 2 Hz one, whose 10 s window holds 20.
+/// six windows (`service::window::HISTORY_WINDOWS`): 60 s, so 100 cycles of any gate from
+/// 1.67 Hz up (a 2 Hz gate's 10 s window holds 20).
 fn steady_over_cycles(
     mut spec: WindowSpectral,
     history: &[f64],
@@ -190,7 +202,8 @@ fn steady_over_cycles(
     if spec.regime != Regime::LimitCycle || f.is_nan() || f <= 0.0 {
         return spec;
     }
-    let Some(work) = history_record(history, fs, f, LIMIT_CYCLE_CYCLES, n, opts) else {
+    let len = record_len(history, fs, f, LIMIT_CYCLE_CYCLES);
+    let Some(work) = history_record(history, fs, len, n, opts) else {
         return spec;
     };
     let cv = SpectralAnalyzer::new(work.len(), fs)
@@ -269,8 +282,20 @@ pub fn relaxation_detrend_degree(history: &[f64], n: usize) -> usize {
 pub const RELAXATION_CYCLES: f64 = 100.0;
 
 /// The record the relaxation reads: the last `RELAXATION_CYCLES` cycles of `history` (as much as
-/// it holds), pre-processed and detrended as the window is; `None` when that is not longer
-/// than the window's `n` samples (then the window itself is read).
+/// it holds), pre-processed and detrended as the window is, or the longest tail of them over
+/// which the cycle's level held (below); `None` when that is no longer than the window's `n`
+/// samples (then the window itself is read).
+///
+/// The relaxation assumes a stationary cycle, so a record whose level differs from the
+/// window's (the end of a growth, a ramp of the damping) is not read whole. Its part before the
+/// window is read in blocks of one window, from the window back (the oldest block takes the
+/// remainder): the record ends at the first block whose RMS differs from the window's by more
+/// than [`MAX_HISTORY_LEVEL_CHANGE`]. Why blocks: where the record is at most one window longer
+/// than the window (a 5 Hz gate's 20 s) this is the one test of the record before the window,
+/// as until stop 83; on a 2 Hz gate (50 s, four windows before the one read) one test of the
+/// mean over 40 s let in the growth into an onset's cycle: its windows read 0.54 points off at
+/// 76 % coverage, and 0.33 at 89 % with the blocks (docs/damping.md, "On a slow gate, 100
+/// cycles of history").
 pub(super) fn relaxation_record(
     history: &[f64],
     fs: f64,
@@ -278,29 +303,51 @@ pub(super) fn relaxation_record(
     n: usize,
     opts: &SeriesOptions,
 ) -> Option<(Vec<f64>, f64)> {
-    let work = history_record(history, fs, frequency_hz, RELAXATION_CYCLES, n, opts)?;
+    let len = record_len(history, fs, frequency_hz, RELAXATION_CYCLES);
+    let work = history_record(history, fs, len, n, opts)?;
     let len = work.len();
-    // The relaxation assumes a stationary cycle: a history whose level differs from the
-    // window's (the end of a growth, a ramp of the damping) is not read.
     let rms = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt();
-    let ratio = rms(&work[..len - n]) / rms(&work[len - n..]);
-    (ratio.is_finite()
-        && (1.0 / MAX_HISTORY_LEVEL_CHANGE..=MAX_HISTORY_LEVEL_CHANGE).contains(&ratio))
-    .then_some((work, fs))
+    let level = rms(&work[len - n..]);
+    let held = |block: &[f64]| {
+        let ratio = rms(block) / level;
+        ratio.is_finite()
+            && (1.0 / MAX_HISTORY_LEVEL_CHANGE..=MAX_HISTORY_LEVEL_CHANGE).contains(&ratio)
+    };
+    // the blocks before the window, newest first: whole windows, the oldest with the remainder
+    let before = len - n;
+    let blocks = (before / n).max(1);
+    let mut kept = 0;
+    for k in 1..=blocks {
+        let start = if k == blocks { 0 } else { before - k * n };
+        if !held(&work[start..before - (k - 1) * n]) {
+            break;
+        }
+        kept = k;
+    }
+    match kept {
+        0 => None,
+        k if k == blocks => Some((work, fs)),
+        k => Some((history_record(history, fs, (k + 1) * n, n, opts)?, fs)),
+    }
 }
 
-/// The last `cycles` cycles of `history` (as many as it holds), pre-processed and detrended as
-/// the window is; `None` when that is not longer than the window's `n` samples or the history
-/// holds a non-finite sample. What the steadiness test and the relaxation read.
+/// Samples in the last `cycles` cycles at `frequency_hz` of `history` sampled at `fs`, at most
+/// the history's length.
+fn record_len(history: &[f64], fs: f64, frequency_hz: f64, cycles: f64) -> usize {
+    ((cycles * fs / frequency_hz).ceil() as usize).min(history.len())
+}
+
+/// The last `len` samples of `history` (at most all of it) sampled at `fs`, pre-processed and
+/// detrended as the window is; `None` when that is not longer than the window's `n` samples or
+/// the history holds a non-finite sample. What the steadiness test and the relaxation read.
 fn history_record(
     history: &[f64],
     fs: f64,
-    frequency_hz: f64,
-    cycles: f64,
+    len: usize,
     n: usize,
     opts: &SeriesOptions,
 ) -> Option<Vec<f64>> {
-    let len = ((cycles * fs / frequency_hz).ceil() as usize).min(history.len());
+    let len = len.min(history.len());
     if len <= n || !history.iter().all(|v| v.is_finite()) {
         return None;
     }

@@ -117,11 +117,14 @@ impl ZetaPools {
             }
             (Some(Zeta0Source::Envelope), Some(z), Some(iv), Some(f)) => {
                 self.ambient.clear();
-                // the relaxation reads RELAXATION_CYCLES of the gate's history when it holds them:
-                // consecutive estimates share that record, not only their windows' overlap (a
-                // drift estimate, which reads the window, is then counted as more correlated
-                // than it is: its pooled interval wider, on the safe side)
-                let record = super::model_free::RELAXATION_CYCLES / f;
+                // the relaxation reads up to RELAXATION_CYCLES of the gate's history:
+                // consecutive estimates share that record, not only their windows' overlap
+                // (`envelope_record_seconds`, the record the estimate read; a report without it,
+                // stored before stop 83, claims the whole 100 cycles)
+                let record = d
+                    .envelope_record_seconds
+                    .filter(|s| s.is_finite() && *s > 0.0)
+                    .unwrap_or(super::model_free::RELAXATION_CYCLES / f);
                 push(&mut self.envelope, (t_start, t_end, record), z, iv, f)
             }
             _ => None,

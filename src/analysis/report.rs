@@ -136,6 +136,12 @@ pub struct DampingReport {
     /// interval (`[zeta, low, high]`; `docs/damping.md`, "The limit cycle").
     #[serde(default)]
     pub envelope_zeta: Option<AmbientZeta>,
+    /// Seconds of record `envelope_zeta` read: the last 100 cycles of the gate's history where
+    /// the cycle's level held over them (`docs/damping.md`, "The record is 100 cycles"), else
+    /// the window's; `None` without an envelope estimate. What the pool counts as the estimates'
+    /// shared record.
+    #[serde(default)]
+    pub envelope_record_seconds: Option<f64>,
     /// The trusted model's `zeta0` with its 95 % interval (`[zeta, low, high]`), whatever the
     /// window's source; `None` when the model is not trusted or its interval is undetermined.
     /// What the gate's memory needs to let the model decide a window that left the ambient
@@ -294,6 +300,7 @@ impl DampingReport {
             ambient_zeta: None,
             ambient_common_zeta: None,
             envelope_zeta: None,
+            envelope_record_seconds: None,
             model_zeta: None,
             amplitude_zeta: None,
             growth_zeta: None,

@@ -415,6 +415,7 @@ fn analyze(
         };
     }
     damping.envelope_zeta = free.relaxation;
+    damping.envelope_record_seconds = free.envelope_record_seconds;
     let runs_zeta: Vec<f64> = identification
         .runs
         .iter()

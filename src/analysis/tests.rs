@@ -200,6 +200,43 @@ fn the_relaxation_reads_the_history_only_over_a_steady_cycle() {
     assert!(model_free::relaxation_record(&bad, fs, f, n, &opts).is_none());
 }
 
+/// Where the 100 cycles hold several windows (a 2 Hz gate: 50 s, five 10 s windows), the record
+/// ends at the first window-long block, going back, whose level differs from the window's: a
+/// cycle that grew from 0.6 of its level 30 s ago is read over its last 30 s, not its last
+/// 50 s, though the mean level of the 40 s before the window is within 25 % of the window's.
+#[test]
+fn the_relaxation_reads_the_history_back_to_where_the_level_moved() {
+    let (fs, f, n) = (50.0, 2.0, 500);
+    let opts = series::SeriesOptions {
+        signal: Signal::Displacement,
+        ..series::SeriesOptions::default()
+    };
+    // 60 s of history (six windows); the cycle at `old` until 30 s ago, at 1 since
+    let wave = |old: f64| -> Vec<f64> {
+        (0..3000)
+            .map(|i| {
+                let amp = if i < 1500 { old } else { 1.0 };
+                amp * (2.0 * std::f64::consts::PI * f * i as f64 / fs).sin()
+            })
+            .collect()
+    };
+    let steady = model_free::relaxation_record(&wave(1.1), fs, f, n, &opts).unwrap();
+    assert_eq!((steady.0.len(), steady.1), (2500, fs), "100 cycles");
+    let grown = wave(0.6);
+    let rms = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt();
+    let before = rms(&grown[500..2500]) / rms(&grown[2500..]);
+    assert!(
+        before > 1.0 / 1.25,
+        "the mean level before the window passes: {before}"
+    );
+    let (record, _) = model_free::relaxation_record(&grown, fs, f, n, &opts).unwrap();
+    assert_eq!(record.len(), 1500, "back to where the level moved");
+    // the block just before the window moved: the window alone
+    let mut late = wave(1.0);
+    late[1900..2500].iter_mut().for_each(|v| *v *= 0.5);
+    assert!(model_free::relaxation_record(&late, fs, f, n, &opts).is_none());
+}
+
 /// `rms_swing`: about 1 on a steady oscillation, the ratio of the amplitudes where the third
 /// with the largest and the one with the smallest differ; none without three usable thirds.
 #[test]
