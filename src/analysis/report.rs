@@ -136,10 +136,10 @@ pub struct DampingReport {
     /// interval (`[zeta, low, high]`; `docs/damping.md`, "The limit cycle").
     #[serde(default)]
     pub envelope_zeta: Option<AmbientZeta>,
-    /// Seconds of record `envelope_zeta` read: the last 100 cycles of the gate's history where
-    /// the cycle's level held over them (`docs/damping.md`, "The record is 100 cycles"), else
-    /// the window's; `None` without an envelope estimate. What the pool counts as the estimates'
-    /// shared record.
+    /// Seconds of record `envelope_zeta` read, first sample to last: up to the last 100 cycles
+    /// of the gate's history, back to where the cycle's level moved (`docs/damping.md`, "On a
+    /// slow gate, 100 cycles of history"), or the window's; `None` without an envelope
+    /// estimate. What the pool counts as the record consecutive estimates share.
     #[serde(default)]
     pub envelope_record_seconds: Option<f64>,
     /// The trusted model's `zeta0` with its 95 % interval (`[zeta, low, high]`), whatever the

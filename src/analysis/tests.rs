@@ -168,23 +168,31 @@ fn zeta0_source_and_ambient_zeta_serialise_as_before() {
     assert!(none["ambient_zeta"].is_null());
 }
 
+/// 3000 samples at `fs` of a sine at `f`: amplitude `before` up to sample `step`, 1 after.
+fn stepped_sine(fs: f64, f: f64, step: usize, before: f64) -> Vec<f64> {
+    (0..3000)
+        .map(|i| {
+            let amp = if i < step { before } else { 1.0 };
+            amp * (2.0 * std::f64::consts::PI * f * i as f64 / fs).sin()
+        })
+        .collect()
+}
+
+/// A displacement signal's options: no moving average before the relaxation.
+fn displacement() -> series::SeriesOptions {
+    series::SeriesOptions {
+        signal: Signal::Displacement,
+        ..series::SeriesOptions::default()
+    }
+}
+
 /// The relaxation's record: the last 100 cycles of the history when they are longer than the
 /// window and the cycle's level held; else the window alone (`None`).
 #[test]
 fn the_relaxation_reads_the_history_only_over_a_steady_cycle() {
     let (fs, f, n) = (100.0, 5.0, 1000);
-    let opts = series::SeriesOptions {
-        signal: Signal::Displacement,
-        ..series::SeriesOptions::default()
-    };
-    let wave = |amp_before: f64| -> Vec<f64> {
-        (0..3000)
-            .map(|i| {
-                let amp = if i < 2000 { amp_before } else { 1.0 };
-                amp * (2.0 * std::f64::consts::PI * f * i as f64 / fs).sin()
-            })
-            .collect()
-    };
+    let opts = displacement();
+    let wave = |amp_before: f64| stepped_sine(fs, f, 2000, amp_before);
     // steady: the last 100 cycles (2000 samples at 20 per cycle) of the 3000 held
     let (record, rate) = model_free::relaxation_record(&wave(1.1), fs, f, n, &opts).unwrap();
     assert_eq!((record.len(), rate), (2000, fs));
@@ -207,19 +215,9 @@ fn the_relaxation_reads_the_history_only_over_a_steady_cycle() {
 #[test]
 fn the_relaxation_reads_the_history_back_to_where_the_level_moved() {
     let (fs, f, n) = (50.0, 2.0, 500);
-    let opts = series::SeriesOptions {
-        signal: Signal::Displacement,
-        ..series::SeriesOptions::default()
-    };
+    let opts = displacement();
     // 60 s of history (six windows); the cycle at `old` until 30 s ago, at 1 since
-    let wave = |old: f64| -> Vec<f64> {
-        (0..3000)
-            .map(|i| {
-                let amp = if i < 1500 { old } else { 1.0 };
-                amp * (2.0 * std::f64::consts::PI * f * i as f64 / fs).sin()
-            })
-            .collect()
-    };
+    let wave = |old: f64| stepped_sine(fs, f, 1500, old);
     let steady = model_free::relaxation_record(&wave(1.1), fs, f, n, &opts).unwrap();
     assert_eq!((steady.0.len(), steady.1), (2500, fs), "100 cycles");
     let grown = wave(0.6);

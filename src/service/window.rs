@@ -93,7 +93,7 @@ pub struct PushStats {
 /// "Stop 83"). The cost is the copy handed to the worker with each window.
 pub const HISTORY_WINDOWS: usize = 6;
 /// ... but never more than this many samples beyond the window (800 KB a gate), so a very long
-/// window does not triple a gate's memory.
+/// window does not multiply a gate's memory by six.
 pub const MAX_HISTORY_EXTRA: usize = 100_000;
 
 /// The samples a gate keeps for a window of `window` samples: [`HISTORY_WINDOWS`] windows, at
