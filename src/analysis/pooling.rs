@@ -152,11 +152,7 @@ impl ZetaPools {
             // the window's own figure, interval and verdict stand; the pool keeps it, and the
             // trend reads the pool's figure (`trend_reading`)
             d.zeta0_windows = Some(1);
-            d.pooled_zeta = Some(AmbientZeta {
-                zeta: p.zeta,
-                low: p.interval.0,
-                high: p.interval.1,
-            });
+            d.pooled_zeta = Some(AmbientZeta::from(&p));
             return;
         }
         d.zeta0 = Some(p.zeta);
@@ -178,11 +174,7 @@ impl ZetaPools {
                     // short of the cycles: no evidence for the alert, but the trend reads the
                     // pool's figure as before (`trend_reading`): without it the lock gate's
                     // slow drift warned 50 s later on one of 40 seeds (stop 82)
-                    d.pooled_zeta = Some(AmbientZeta {
-                        zeta: p.zeta,
-                        low: p.interval.0,
-                        high: p.interval.1,
-                    });
+                    d.pooled_zeta = Some(AmbientZeta::from(&p));
                 }
                 (Verdict::Unknown, false)
             }
@@ -613,11 +605,14 @@ mod tests {
     /// On a gate at its ambient level a pool of limit-cycle readings decides once it holds
     /// `MIN_CYCLE_POOL_CYCLES` distinct cycles: two windows of a 10 Hz gate (150 cycles), three
     /// of a 5 Hz gate whose readings each read 20 s of history (125 cycles with two, 150 with
-    /// three). A gate that left its level decides from the second window as before. Short of
-    /// the cycles, the trend still reads the pool's figure.
+    /// three), five where each read only its 10 s window (`envelope_record_seconds`: 125
+    /// cycles with four, 150 with five); a report without the figure (stored before stop 83)
+    /// counts 100 cycles. A gate that left its level decides from the second window as before.
+    /// Short of the cycles, the trend still reads the pool's figure.
     #[test]
     fn a_cycle_pool_at_the_ambient_level_decides_after_enough_cycles() {
-        let envelope = |f: f64, ratio: f64| DampingReport {
+        let envelope = |f: f64, ratio: f64, record: Option<f64>| DampingReport {
+            envelope_record_seconds: record,
             zeta0: Some(-0.018),
             zeta0_interval: Some((-0.034, -0.002)),
             zeta0_source: Some(Zeta0Source::Envelope),
@@ -629,12 +624,19 @@ mod tests {
             regime: Some(Regime::LimitCycle),
             ..DampingReport::unknown()
         };
-        // (frequency, ambient ratio, window at which the pool first decides)
-        for (f, ratio, decides) in [(10.0, 2.0, 2), (5.0, 2.0, 3), (5.0, 4.0, 2)] {
+        // (frequency, ambient ratio, seconds each reading read, window the pool first decides)
+        for (f, ratio, record, decides) in [
+            (10.0, 2.0, Some(10.0), 2),
+            (5.0, 2.0, Some(20.0), 3),
+            (5.0, 2.0, None, 3),
+            (5.0, 2.0, Some(10.0), 5),
+            (5.0, 4.0, Some(10.0), 2),
+        ] {
             let mut pools = ZetaPools::new(PoolOptions::default()).unwrap();
-            for k in 1..=4 {
+            // (not past four windows of the 10 Hz gate, whose fifth makes the first unneeded)
+            for k in 1..=decides.max(4) {
                 let t0 = 5.0 * k as f64;
-                let mut d = envelope(f, ratio);
+                let mut d = envelope(f, ratio, record);
                 pools.apply(t0, t0 + 10.0, &mut d);
                 let want = if k >= decides {
                     (Verdict::SelfExcited, true)
@@ -644,7 +646,7 @@ mod tests {
                 assert_eq!(
                     (d.verdict, d.trusted),
                     want,
-                    "{f} Hz, ratio {ratio}, window {k}"
+                    "{f} Hz, ratio {ratio}, record {record:?}, window {k}"
                 );
                 assert_eq!(d.zeta0_windows, Some(k));
                 // short of the cycles, the trend still reads the pool's figure as trusted

@@ -88,6 +88,16 @@ impl From<&crate::spectral::EnvelopeDrift> for AmbientZeta {
     }
 }
 
+impl From<&crate::spectral::PooledEstimate> for AmbientZeta {
+    fn from(p: &crate::spectral::PooledEstimate) -> Self {
+        AmbientZeta {
+            zeta: p.zeta,
+            low: p.interval.0,
+            high: p.interval.1,
+        }
+    }
+}
+
 impl From<&crate::spectral::AmbientDamping> for AmbientZeta {
     fn from(a: &crate::spectral::AmbientDamping) -> Self {
         AmbientZeta {
