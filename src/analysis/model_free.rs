@@ -66,6 +66,9 @@ pub(super) struct ModelFree {
     /// Seconds of record behind `relaxation` or `drift`: the relaxation's record (the gate's
     /// history, or the window) or the window's for the drift.
     pub(super) envelope_record_seconds: Option<f64>,
+    /// The ambient SSI-COV reading of the window with its history ([`ambient_record`]) and the
+    /// seconds of record it read, first sample to last.
+    pub(super) ambient_record: Option<(AmbientZeta, f64)>,
 }
 
 /// The model-free analysis (uniform sampling only), with the analyzer replaced when it does not
@@ -156,9 +159,17 @@ pub(super) fn model_free(
         }
         _ => (None, None, None),
     };
+    let ambient_record = match (&spec, fs) {
+        (Some(s), Some(fs)) if s.ambient.is_some() => {
+            ambient_record(history, fs, s.peak.frequency_hz, n, &window_options, opts)
+                .map(|(a, len)| (a, span(len, fs)))
+        }
+        _ => None,
+    };
     ModelFree {
         window_options,
         spec,
+        ambient_record,
         omega: peak_hz.map(|f| 2.0 * PI * f),
         sigma_clean,
         relaxation,
@@ -304,14 +315,28 @@ pub(super) fn relaxation_record(
     opts: &SeriesOptions,
 ) -> Option<(Vec<f64>, f64)> {
     let len = record_len(history, fs, frequency_hz, RELAXATION_CYCLES);
+    held_record(history, fs, len, n, MAX_HISTORY_LEVEL_CHANGE, opts)
+}
+
+/// The last `len` samples of `history` ([`history_record`]), or the longest tail of them whose
+/// blocks before the window (one window each, from the window back; the oldest takes the
+/// remainder) all keep their RMS within a factor `max_change` of the window's; `None` when that
+/// is no longer than the window's `n` samples.
+fn held_record(
+    history: &[f64],
+    fs: f64,
+    len: usize,
+    n: usize,
+    max_change: f64,
+    opts: &SeriesOptions,
+) -> Option<(Vec<f64>, f64)> {
     let work = history_record(history, fs, len, n, opts)?;
     let len = work.len();
     let rms = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt();
     let level = rms(&work[len - n..]);
     let held = |block: &[f64]| {
         let ratio = rms(block) / level;
-        ratio.is_finite()
-            && (1.0 / MAX_HISTORY_LEVEL_CHANGE..=MAX_HISTORY_LEVEL_CHANGE).contains(&ratio)
+        ratio.is_finite() && (1.0 / max_change..=max_change).contains(&ratio)
     };
     // the blocks before the window, newest first: whole windows, the oldest with the remainder
     let before = len - n;
@@ -329,6 +354,59 @@ pub(super) fn relaxation_record(
         k if k == blocks => Some((work, fs)),
         k => Some((history_record(history, fs, (k + 1) * n, n, opts)?, fs)),
     }
+}
+
+/// Cycles of a noise-driven gate's response that its ambient SSI-COV reading reads where the
+/// window holds fewer (`DampingReport::ambient_record_zeta`), the same 100 as the envelope's
+/// relaxation: 20 s of a 5 Hz gate, 50 s of a 2 Hz gate, a 10 Hz gate's window alone.
+///
+/// Why: what limits the reading is its cycles (Au's law), and one 10 s window of a 2 Hz gate
+/// (20 cycles) scatters about 1.5 times as far as Au's limit. The pool of nine to eleven such
+/// windows over 60 s scattered about as little as a pool of two or three 100-cycle readings over
+/// the same 60 s (0.47 and 0.53 points at +1 %), but it could not know it: it builds its
+/// interval from the windows' own, each floored at Au's law and read from four jackknife
+/// blocks, and claimed 2.8 points of width where the readings' pool claims 1.9, covering the
+/// truth in 100 % of the runs against 95 % (`tests/ambient_pooling.rs`; docs/damping.md, "One
+/// ambient reading of 100 cycles"). A reading of the longer record gets its interval from its
+/// own blocks.
+pub const AMBIENT_RECORD_CYCLES: f64 = RELAXATION_CYCLES;
+
+/// Largest ratio of a block's RMS to the window's for the ambient record to read it (blocks of
+/// one window, from the window back, as [`relaxation_record`]). Why 2 and not the cycle's 1.25:
+/// a noise-driven response's 10 s RMS scatters widely by chance (its envelope's correlation
+/// time is `1 / (2 pi zeta)` cycles, 16 at +1 %, near a 2 Hz gate's whole window), and at 1.5
+/// the unit test's steady 2 Hz stream at +1 % already stopped at the first block. Twice the
+/// RMS is four times the variance, which under the same forcing is a quarter of the damping:
+/// another state.
+/// A burst, a limit cycle or its early decay stands 3 to 17 times above the ambient response,
+/// and the pool reads a window that rose towards its gate's departure ratio alone whatever its
+/// record (`analysis::rising`).
+const MAX_AMBIENT_LEVEL_CHANGE: f64 = 2.0;
+
+/// The SSI-COV reading (the window's options: lagged or common instants, the peak `frequency_hz`)
+/// of the last [`AMBIENT_RECORD_CYCLES`] cycles of `history` back to where the level moved by
+/// more than [`MAX_AMBIENT_LEVEL_CHANGE`], pre-processed as the window is, with the record's
+/// samples; `None` where that record is no longer than the window's `n` samples (a gate whose
+/// window holds 100 cycles, the first window of a stream) or SSI-COV found no mode in it.
+fn ambient_record(
+    history: &[f64],
+    fs: f64,
+    frequency_hz: f64,
+    n: usize,
+    window: &WindowOptions,
+    opts: &SeriesOptions,
+) -> Option<(AmbientZeta, usize)> {
+    let AmbientMethod::Ssi(ssi) = window.ambient else {
+        return None;
+    };
+    if !(frequency_hz.is_finite() && frequency_hz > 0.0) {
+        return None;
+    }
+    let len = record_len(history, fs, frequency_hz, AMBIENT_RECORD_CYCLES);
+    let (record, _) = held_record(history, fs, len, n, MAX_AMBIENT_LEVEL_CHANGE, opts)?;
+    let e = crate::spectral::ssi_cov_damping(&record, fs, frequency_hz, &ssi).ok()?;
+    let a = AmbientZeta::from(&crate::spectral::AmbientDamping::from(e));
+    Some((a, record.len()))
 }
 
 /// Samples in the last `cycles` cycles at `frequency_hz` of `history` sampled at `fs`, at most

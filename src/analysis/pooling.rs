@@ -87,6 +87,8 @@ impl ZetaPools {
             // "Combination")
             ambient: DampingPool::new(PoolOptions {
                 location: PoolLocation::SqrtHodgesLehmann,
+                // its estimates read up to 100 cycles of history (`ambient_record_zeta`)
+                count_records: true,
                 ..opts
             })?,
             envelope: DampingPool::new(opts)?,
@@ -101,6 +103,14 @@ impl ZetaPools {
     /// unchanged and empty the pools.
     pub fn apply(&mut self, t_start: f64, t_end: f64, d: &mut DampingReport) {
         let source = d.zeta0_source;
+        // a window that did not rise is read with its history where that holds more cycles
+        // than the window (`ambient_record_zeta`): the pool then counts that record
+        let record = match (d.ambient_record_zeta, d.ambient_record_seconds) {
+            (Some(a), Some(s)) if !rising(d) && a.low <= a.high && s.is_finite() && s > 0.0 => {
+                Some((a, s))
+            }
+            _ => None,
+        };
         let pooled = match (source, d.zeta0, d.zeta0_interval, d.frequency_hz) {
             (Some(Zeta0Source::Ambient), Some(z), Some(iv), Some(f))
                 if d.trusted && !departed(d) && !d.ssi_growing =>
@@ -113,7 +123,16 @@ impl ZetaPools {
                     .ambient_frequency_hz
                     .filter(|g| g.is_finite() && *g > 0.0)
                     .unwrap_or(f);
-                push(&mut self.ambient, (t_start, t_end, 0.0), z, iv, f)
+                match record {
+                    Some((a, s)) => push(
+                        &mut self.ambient,
+                        (t_start, t_end, s),
+                        a.zeta,
+                        (a.low, a.high),
+                        f,
+                    ),
+                    None => push(&mut self.ambient, (t_start, t_end, 0.0), z, iv, f),
+                }
             }
             (Some(Zeta0Source::Envelope), Some(z), Some(iv), Some(f)) => {
                 self.ambient.clear();
@@ -135,8 +154,14 @@ impl ZetaPools {
             return;
         };
         if p.windows < 2 {
-            // alone in its pool: the window's own (possibly asymmetric) interval and verdict ...
+            // alone in its pool: the window's own (possibly asymmetric) interval and verdict, or
+            // its record's ...
             d.zeta0_windows = Some(1);
+            if let (Some(Zeta0Source::Ambient), Some((a, _))) = (source, record) {
+                d.zeta0 = Some(a.zeta);
+                d.zeta0_interval = Some((a.low, a.high));
+                (d.verdict, d.trusted) = ambient_rows((a.low, a.high), d.regime);
+            }
             if source == Some(Zeta0Source::Envelope) {
                 // ... but a lone limit-cycle window is no evidence yet: a limit cycle is a state
                 // a gate stays in, and a noise-driven +0.5 % window whose envelope happens to be
@@ -488,6 +513,62 @@ mod tests {
         next.ambient_ratio = Some(2.9);
         pools.apply(25.0, 35.0, &mut next);
         assert_eq!(next.zeta0_windows, Some(1), "the pools were emptied");
+    }
+
+    /// A window with an ambient record (`ambient_record_zeta`: its history read with it) is
+    /// pooled by the record: alone in its pool it reports the record's figure and interval;
+    /// pooled, the record's 20 s count, so three windows hold the pool's 150 cycles at 5 Hz
+    /// (five 10 s windows without records). A rising window is pooled and reported by its own
+    /// reading whatever its record.
+    #[test]
+    fn the_ambient_pool_reads_each_windows_record() {
+        let opts = PoolOptions {
+            min_cycles: 150.0,
+            max_seconds: 60.0,
+            ..PoolOptions::default()
+        };
+        let window = |zeta: f64, record: Option<f64>| {
+            let mut d = ambient(zeta, 0.02);
+            d.ambient_record_zeta = record.map(|z| AmbientZeta {
+                zeta: z,
+                low: z - 0.008,
+                high: z + 0.008,
+            });
+            d.ambient_record_seconds = record.map(|_| 20.0);
+            d
+        };
+        let mut pools = ZetaPools::new(opts).unwrap();
+        let mut first = window(0.02, Some(0.012));
+        pools.apply(0.0, 10.0, &mut first);
+        assert_eq!(first.zeta0, Some(0.012));
+        assert_eq!(first.zeta0_interval, Some((0.004, 0.02)));
+        assert_eq!(
+            (first.zeta0_windows, first.verdict),
+            (Some(1), Verdict::Damped)
+        );
+        let mut last = first;
+        for k in 1..8 {
+            let t0 = 5.0 * k as f64;
+            last = window(0.02, Some(0.012));
+            pools.apply(t0, t0 + 10.0, &mut last);
+        }
+        assert_eq!(last.zeta0_windows, Some(3));
+        assert!((last.zeta0.unwrap() - 0.012).abs() < 1e-12);
+        let mut plain = ZetaPools::new(opts).unwrap();
+        for k in 0..8 {
+            let t0 = 5.0 * k as f64;
+            last = window(0.02, None);
+            plain.apply(t0, t0 + 10.0, &mut last);
+        }
+        assert_eq!(last.zeta0_windows, Some(5));
+        // rising: its own 0.02 stands; the pool it joins (robust, by records) stays at 0.012
+        let mut up = window(0.02, Some(0.012));
+        up.ambient_ratio = Some(1.6);
+        up.departure_ratio = Some(3.0);
+        pools.apply(40.0, 50.0, &mut up);
+        assert_eq!((up.zeta0, up.zeta0_windows), (Some(0.02), Some(1)));
+        let p = up.pooled_zeta.expect("the pool's figure");
+        assert!((p.zeta - 0.012).abs() < 1e-12, "pooled {p:?}");
     }
 
     /// A window that rose to half the departure ratio is reported alone, with its own figure,

@@ -152,6 +152,15 @@ pub struct DampingReport {
     /// estimate. What the pool counts as the record consecutive estimates share.
     #[serde(default)]
     pub envelope_record_seconds: Option<f64>,
+    /// The SSI-COV reading of the window together with its history, the last 100 cycles back to
+    /// where the response's level moved, with its 95 % interval; `None` where the window itself
+    /// holds 100 cycles or the history adds nothing (`docs/damping.md`, "One ambient reading of
+    /// 100 cycles"). What the ambient pool reads for a window that did not rise.
+    #[serde(default)]
+    pub ambient_record_zeta: Option<AmbientZeta>,
+    /// Seconds of record `ambient_record_zeta` read, first sample to last.
+    #[serde(default)]
+    pub ambient_record_seconds: Option<f64>,
     /// The trusted model's `zeta0` with its 95 % interval (`[zeta, low, high]`), whatever the
     /// window's source; `None` when the model is not trusted or its interval is undetermined.
     /// What the gate's memory needs to let the model decide a window that left the ambient
@@ -311,6 +320,8 @@ impl DampingReport {
             ambient_common_zeta: None,
             envelope_zeta: None,
             envelope_record_seconds: None,
+            ambient_record_zeta: None,
+            ambient_record_seconds: None,
             model_zeta: None,
             amplitude_zeta: None,
             growth_zeta: None,

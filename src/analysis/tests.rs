@@ -455,3 +455,61 @@ fn a_limit_cycle_window_must_be_steady_over_a_hundred_cycles() {
         "-2 % cycle: {alone} of {n} windows classed limit cycles alone, {with} with the history"
     );
 }
+
+/// A noise-driven window of a 2 Hz gate (20 cycles) is read again with its history, 100 cycles
+/// (`model_free::AMBIENT_RECORD_CYCLES`), back to where the response's level moved; a window
+/// that holds 100 cycles, or has no history, is read alone.
+#[test]
+fn a_slow_gates_ambient_reading_reads_100_cycles_of_its_history() {
+    use crate::simulate::{GatePreset, NoiseLevel, ScenarioName};
+    let read = |preset: GatePreset, before: f64| {
+        let p = preset.params();
+        let fs = p.rate_hz;
+        let opts = series::SeriesOptions {
+            signal: Signal::Force,
+            stiffness: Some(p.stiffness),
+            ..series::SeriesOptions::default()
+        };
+        let mut sim = ScenarioName::Stable
+            .def(&p)
+            .simulator(&p, NoiseLevel::Relative(0.125), 3)
+            .unwrap();
+        let mut y = vec![0.0; (300.0 * fs) as usize];
+        sim.fill(&mut y);
+        // the history keeps the last 70 s, the window the last 10 s; `before` scales what came
+        // more than 20 s before the end (a burst: the response at another level)
+        let (w, hist) = ((10.0 * fs) as usize, (70.0 * fs) as usize);
+        let start = y.len() - hist;
+        let y = &mut y[start..];
+        let cut = y.len() - 2 * w;
+        y[..cut].iter_mut().for_each(|v| *v *= before);
+        let t: Vec<f64> = (0..w).map(|i| i as f64 / fs).collect();
+        let series = crate::data::TimeSeries::new(t, y[hist - w..].to_vec()).unwrap();
+        let data = model_free::preprocess(&series, &opts);
+        let mut spectral = None;
+        let with = model_free::model_free(&data, y, &opts, &mut spectral);
+        let alone = model_free::model_free(&data, &y[hist - w..], &opts, &mut spectral);
+        assert!(alone.ambient_record.is_none());
+        let own = with
+            .spec
+            .and_then(|s| s.ambient)
+            .expect("an SSI-COV reading");
+        (with.ambient_record, own.zeta_high - own.zeta_low)
+    };
+    let (record, own_width) = read(GatePreset::Barrier, 1.0);
+    let (a, seconds) = record.expect("the 2 Hz gate's window is read with its history");
+    assert!((48.0..=51.0).contains(&seconds), "{seconds} s: 100 cycles");
+    assert!(
+        a.high - a.low < 0.6 * own_width,
+        "the record's interval {a:?} against the window's width {own_width}"
+    );
+    // five times the level more than 20 s back: the record stops at the window before
+    let (record, _) = read(GatePreset::Barrier, 5.0);
+    let seconds = record.expect("one window of history still holds").1;
+    assert!((19.0..=20.0).contains(&seconds), "{seconds} s");
+    // a 5 Hz gate's 100 cycles are 20 s; the 10.4 Hz lab gate's window holds them
+    assert!(read(GatePreset::Lock, 1.0)
+        .0
+        .is_some_and(|r| (19.0..=20.5).contains(&r.1)));
+    assert!(read(GatePreset::Lab, 1.0).0.is_none());
+}

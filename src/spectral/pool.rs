@@ -72,6 +72,14 @@ pub struct PoolOptions {
     pub confidence: f64,
     /// How the windows' estimates are combined (default [`PoolLocation::Mean`]).
     pub location: PoolLocation,
+    /// Count each estimate by the record it read ([`WindowEstimate::record_seconds`]), not its
+    /// window: its weight, the distinct cycles [`Self::min_cycles`] asks for, and the span
+    /// [`Self::max_seconds`] bounds. Default `false` (the windows). Why: an estimate that read
+    /// 100 cycles of history where its window holds 50 already holds two windows' worth, and a
+    /// pool counted by windows would keep as many windows as before on top of it, reaching
+    /// further back and lagging a drift more (the daemon's ambient pool,
+    /// `analysis::ZetaPools`; docs/damping.md, "One ambient reading of 100 cycles").
+    pub count_records: bool,
 }
 
 /// The pooled figure's location: the windows' cycle-weighted mean, or their cycle-weighted
@@ -104,6 +112,7 @@ impl Default for PoolOptions {
             max_frequency_shift: 0.05,
             confidence: 0.95,
             location: PoolLocation::Mean,
+            count_records: false,
         }
     }
 }
@@ -278,8 +287,14 @@ impl DampingPool {
         while self.entries.len() > 1 {
             let oldest = self.entries[0];
             let too_many = self.entries.len() > self.opts.max_windows;
-            let too_long = newest.t_end - oldest.t_start > self.opts.max_seconds;
-            let not_needed = span_cycles(self.entries.iter().skip(1)) >= self.opts.min_cycles;
+            let (start, held) = if self.opts.count_records {
+                let rest = record_span_cycles(self.entries.iter().skip(1));
+                (oldest.record_start(), rest)
+            } else {
+                (oldest.t_start, span_cycles(self.entries.iter().skip(1)))
+            };
+            let too_long = newest.t_end - start > self.opts.max_seconds;
+            let not_needed = held >= self.opts.min_cycles;
             if too_many || too_long || not_needed {
                 self.entries.pop_front();
             } else {
@@ -296,7 +311,14 @@ impl DampingPool {
         let w: Vec<f64> = self
             .entries
             .iter()
-            .map(|e| (e.t_end - e.t_start) * e.frequency_hz)
+            .map(|e| {
+                let start = if self.opts.count_records {
+                    e.record_start()
+                } else {
+                    e.t_start
+                };
+                (e.t_end - start) * e.frequency_hz
+            })
             .collect();
         let sw: f64 = w.iter().sum();
         let zeta = match self.opts.location {
@@ -482,6 +504,57 @@ mod tests {
             slow.push(e).unwrap();
         }
         assert_eq!(slow.len(), 12);
+    }
+
+    /// Counted by records (`count_records`): estimates that read 20 s of a 5 Hz gate (100
+    /// cycles), 5 s apart, hold 150 distinct cycles in three windows, where counted by their
+    /// 10 s windows the pool keeps five; `max_seconds` bounds the records' span; a window-only
+    /// estimate among them weighs its window.
+    #[test]
+    fn a_pool_counted_by_records_holds_fewer_windows() {
+        let push_all = |count_records: bool, max_seconds: f64| {
+            let mut p = DampingPool::new(PoolOptions {
+                min_cycles: 150.0,
+                max_seconds,
+                count_records,
+                ..PoolOptions::default()
+            })
+            .unwrap();
+            let mut last = None;
+            for k in 0..10 {
+                let e = WindowEstimate {
+                    frequency_hz: 5.0,
+                    record_seconds: 20.0,
+                    ..est(5.0 * k as f64, 0.01, 0.004)
+                };
+                last = Some(p.push(e).unwrap());
+            }
+            last.unwrap()
+        };
+        let by_record = push_all(true, 60.0);
+        assert_eq!(by_record.windows, 3);
+        assert_relative_eq!(by_record.record_cycles, 150.0, epsilon = 1e-9);
+        assert_eq!(push_all(false, 60.0).windows, 5);
+        // 30 s of records at most: two windows (25 s), whatever the cycles ask
+        assert_eq!(push_all(true, 28.0).windows, 2);
+        // the weights: a 20 s record at 0.010 and a 10 s window at 0.016 pool to 0.012 by
+        // records, to 0.013 by windows
+        let mixed = |count_records: bool| {
+            let mut p = DampingPool::new(PoolOptions {
+                min_cycles: 1000.0,
+                count_records,
+                ..PoolOptions::default()
+            })
+            .unwrap();
+            let record = WindowEstimate {
+                record_seconds: 20.0,
+                ..est(0.0, 0.01, 0.004)
+            };
+            p.push(record).unwrap();
+            p.push(est(5.0, 0.016, 0.004)).unwrap().zeta
+        };
+        assert_relative_eq!(mixed(true), 0.012, epsilon = 1e-12);
+        assert_relative_eq!(mixed(false), 0.013, epsilon = 1e-12);
     }
 
     #[test]
