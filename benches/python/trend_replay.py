@@ -3,7 +3,7 @@ shipped trend fit or a variant of its confident crossing, to try a rule on recor
 without re-streaming them.
 
 The fit is a transcription of `analysis::trend::fit` (IRLS with Huber weights on the windows'
-interval-derived sds, the scale `max(0.5, chi2 / (n - 2))`, the AR(1) overlap factor, Student's
+interval-derived sds, the scale `max(1, chi2 / (n - 2))`, the AR(1) overlap factor, Student's
 t on `n / overlap - 2`), the alert's readings and streaks those of
 `alert::engine::trend_alert` with the defaults (horizon 600 s, minimum span 300 s, lead 600 s,
 two windows to fire and to resolve; the confident crossing within the lead and the trend's
@@ -32,6 +32,12 @@ Variants (`--variants`, comma-separated; each a `+`-joined set of changes to the
   would (its variance goes as `1 / zeta`): the 95 % upper bound of the rise of `ln RMS` over the
   trend's span (least squares, the same AR(1) overlap factor) below `F` times the rise the line
   implies, `0.5 ln(zeta_old / zeta_now)` (the line's ends, the newer one at least 0.05 %).
+- `nwL` (e.g. `nw12`, stop 84): the overlap factor from the residuals' autocorrelations up to
+  `L` lags with Bartlett's weights (Newey-West) instead of the AR(1) factor of the lag-1;
+  `nwL+max`: the larger of the two.
+- `floorF` (e.g. `floor1`, stop 84): the scale's floor `F` instead of the shipped one (1 since
+  stop 84; 0.5 from session 20 to stop 83: replay a trace of those builds with `floor0.5` to see
+  what they did, and mind that `base` now means 1).
 `--min-span` sets `trend_min_span_seconds` (300, the default since stop 68).
 
     python3 -m venv /tmp/venv && /tmp/venv/bin/pip install numpy scipy
@@ -86,7 +92,8 @@ def fit(t, z, low, high, flags, span_share, threshold=0.0):
         slope = (s0 * sxy - s1 * sy) / det
         level = (sy - s1 * slope) / s0
     r = (z - level - slope * x) / sd
-    scale = max((huber(r) * r * r).sum() / (n - 2), 0.5)
+    floor = next((float(f[5:]) for f in flags if f.startswith("floor")), 1.0)
+    scale = max((huber(r) * r * r).sum() / (n - 2), floor)
     rho = lag1(r)
     if "young" in flags or "taper" in flags:
         # session 45's small-sample correction of the lag-1 estimate while the horizon fills
@@ -97,6 +104,16 @@ def fit(t, z, low, high, flags, span_share, threshold=0.0):
             share = min(max(2.0 * (1.0 - span_share), 0.0), 1.0)
         rho = min(rho + share * (1 + 7.5 * rho) / n, 0.9)
     overlap = (1 + rho) / (1 - rho)
+    for f in flags:
+        if f.startswith("nw"):
+            # Bartlett (Newey-West) long-run variance over L lags instead of the AR(1) factor
+            lags = int(f[2:])
+            c0 = (r * r).sum()
+            acc = 1.0
+            for j in range(1, min(lags, n - 1) + 1):
+                rj = (r[j:] * r[:-j]).sum() / c0 if c0 > 1e-6 * n else 0.0
+                acc += 2.0 * (1.0 - j / (lags + 1.0)) * rj
+            overlap = max(overlap, acc) if "max" in flags else max(acc, 1.0)
     k = scale * overlap / det
     for f in flags:
         if f.startswith("s"):
@@ -165,8 +182,8 @@ def rms_supports(a, e, fraction):
 def replay(windows, variant, min_span=300.0, horizon=600.0, lead=600.0, for_windows=2, resolve_windows=2):
     """The first firing times of `GateDampingDeclining` over one run's windows."""
     flags = set(variant.split("+")) - {"base"}
-    unknown = {f for f in flags - {"lead", "band", "young", "taper"}
-               if not re.fullmatch(r"(s|csd)\d+(\.\d+)?", f)}
+    unknown = {f for f in flags - {"lead", "band", "young", "taper", "max"}
+               if not re.fullmatch(r"(s|csd|nw|floor)\d+(\.\d+)?", f)}
     csd = next((float(f[3:]) for f in flags if f.startswith("csd")), None)
     if unknown:
         raise SystemExit(f"unknown variant {', '.join(sorted(unknown))} in {variant!r}")

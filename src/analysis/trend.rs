@@ -12,8 +12,8 @@
 //!   errors) make a window that is wildly off (a bad fit that was still trusted) count as if it
 //!   were only `k` standard deviations off, so one outlier cannot fake a trend;
 //! - the slope's standard error is scaled by how the residuals scatter against what the
-//!   intervals claim (scale `max(0.5, chi2 / (n - 2))`: wider when they scatter more, narrower,
-//!   at most by half, when the intervals were conservative) and inflated for the correlation
+//!   intervals claim (scale `max(1, chi2 / (n - 2))`: wider when they scatter more, never
+//!   narrower than the intervals say) and inflated for the correlation
 //!   between overlapping windows
 //!   (lag-1 autocorrelation `r` of the residuals: factor `sqrt((1 + r) / (1 - r))`, the AR(1)
 //!   variance inflation), so the intervals' optimism and the overlap both widen it.
@@ -50,19 +50,21 @@ const HUBER_K: f64 = 1.345;
 /// IRLS iterations: the weights settle in a few; a fixed count keeps the cost fixed.
 const IRLS_ITERATIONS: usize = 10;
 /// Least scale of the slope's variance: the residuals may say the windows' intervals are too
-/// wide, but at most by a factor of 2 in variance.
+/// narrow, never that they are too wide. The intervals are a floor.
 ///
-/// Why not 1 (the intervals taken as a floor): the windows' intervals are conservative (the
-/// pooled ambient estimates covered the truth in 97 to 100 % of the windows, against 95 %
-/// claimed; `bench warning`), and the overlap factor below already widens the slope for the
-/// correlation between windows, so a floor of 1 counted the same caution twice. On the 5 Hz lock
-/// gate the residuals scattered at 0.2 to 0.7 times the claimed variance (median 0.3 on a steady
-/// +0.5 % gate, 0.4 on the slow drift), the overlap factor was 9 to 14, and the warning came 25 s
-/// after the zero crossing on one seed of the slow drift. Why not lower (the scatter alone): with
-/// about 120 windows correlated at 0.85 the scatter rests on about 10 independent values, and
-/// trusting it fully fired one warning in 24 h of that steady gate (docs/benchmarks.md, "The
-/// trend's scale", session 20).
-const MIN_SCALE: f64 = 0.5;
+/// History: 1 until session 20, then 0.5 until stop 84. The windows' intervals were then
+/// conservative (the pooled ambient estimates covered the truth in 97 to 100 % of the windows,
+/// against 95 % claimed), and with the overlap factor below a floor of 1 counted the same
+/// caution twice: the lock gate's slow drift warned 25 s after zero (docs/benchmarks.md, "The
+/// trend's scale", session 20). Since stop 84 a slow gate's ambient estimate reads 100 cycles
+/// of its history, and its intervals are about as wide as its readings scatter (the 2 Hz
+/// barrier gate's pooled interval is a third narrower, the lock gate's up to a tenth). On those,
+/// the floor of 0.5 let the scatter of about ten independent values in a horizon make the slope
+/// bound tighter than the intervals: in 24 h of the barrier gate at +0.5 % two false
+/// `GateDampingDeclining`, and two of 200 cold starts (none at 1). The scatter of a fitted line's
+/// correlated residuals understates the readings' own, so it may widen the slope's error but
+/// not narrow it below what the intervals say (docs/benchmarks.md, "Stop 84").
+const MIN_SCALE: f64 = 1.0;
 /// Floor of a window's standard deviation (0.01 percentage point): an interval of zero width
 /// would otherwise take all the weight.
 const MIN_SD: f64 = 1e-4;
