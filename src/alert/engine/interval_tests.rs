@@ -841,9 +841,11 @@ fn steady_stable_gates_give_no_alert_in_a_day() {
 
 /// A new gate's first minutes: a trend over a couple of minutes of overlapping windows reads
 /// their correlation too low (the lag-1 autocorrelation of two dozen residuals is biased low)
-/// and claims more confidence than it has, so a steady gate warns by chance on 12 of these 200
-/// cold starts at the old `trend_min_span_seconds` of 120 s (30 with the rules of session 45).
-/// A longer record warns less: 4 at 240 s, 3 at the default (300 s), none before it.
+/// and claims more confidence than it has, so a steady gate warns by chance on 4 of these 200
+/// cold starts at the old `trend_min_span_seconds` of 120 s. A longer record warns less: 2 at
+/// the default (300 s), none before it. (With the trend's scale floored at 0.5, until stop 84:
+/// 12 at 120 s, 3 at 300 s; 30 at 120 s with the rules of session 45. These windows' intervals
+/// are honest, which is where that floor made the trend claim too much.)
 #[test]
 fn a_cold_start_of_a_steady_gate_rarely_warns() {
     let cold_starts = |min_span: f64| {
@@ -870,7 +872,7 @@ fn a_cold_start_of_a_steady_gate_rarely_warns() {
         "a warning before the trend spans {default} s: {new:?}"
     );
     assert!(
-        old.len() >= 10 && 2 * new.len() <= old.len(),
+        old.len() >= 3 && 2 * new.len() <= old.len(),
         "cold-start warnings: {} at 120 s ({old:?}), {} at {default} s ({new:?})",
         old.len(),
         new.len()
