@@ -278,6 +278,16 @@ impl DampingPool {
         Ok(p)
     }
 
+    /// Where an estimate counts from ([`PoolOptions::count_records`]): its record's start, or
+    /// its window's.
+    fn counted_start(&self, e: &WindowEstimate) -> f64 {
+        if self.opts.count_records {
+            e.record_start()
+        } else {
+            e.t_start
+        }
+    }
+
     /// Drops the oldest windows beyond the bounds, or not needed for `min_cycles`.
     fn trim(&mut self) {
         let newest = match self.entries.back() {
@@ -287,14 +297,13 @@ impl DampingPool {
         while self.entries.len() > 1 {
             let oldest = self.entries[0];
             let too_many = self.entries.len() > self.opts.max_windows;
-            let (start, held) = if self.opts.count_records {
-                let rest = record_span_cycles(self.entries.iter().skip(1));
-                (oldest.record_start(), rest)
-            } else {
-                (oldest.t_start, span_cycles(self.entries.iter().skip(1)))
-            };
-            let too_long = newest.t_end - start > self.opts.max_seconds;
-            let not_needed = held >= self.opts.min_cycles;
+            let too_long = newest.t_end - self.counted_start(&oldest) > self.opts.max_seconds;
+            let newer = self
+                .entries
+                .iter()
+                .skip(1)
+                .map(|e| (self.counted_start(e), e));
+            let not_needed = covered_cycles(newer) >= self.opts.min_cycles;
             if too_many || too_long || not_needed {
                 self.entries.pop_front();
             } else {
@@ -311,14 +320,7 @@ impl DampingPool {
         let w: Vec<f64> = self
             .entries
             .iter()
-            .map(|e| {
-                let start = if self.opts.count_records {
-                    e.record_start()
-                } else {
-                    e.t_start
-                };
-                (e.t_end - start) * e.frequency_hz
-            })
+            .map(|e| (e.t_end - self.counted_start(e)) * e.frequency_hz)
             .collect();
         let sw: f64 = w.iter().sum();
         let zeta = match self.opts.location {
