@@ -40,6 +40,36 @@ fn gate(mass: f64, f_hz: f64, rate_hz: f64) -> GateParams {
     p
 }
 
+/// A simulator of `p` at a constant `zeta`, past ten envelope correlation times of burn-in.
+fn settled(p: &GateParams, zeta: f64, seed: u64) -> GateSimulator {
+    let mut sim = GateSimulator::new(p.clone(), ZetaSchedule::Constant(zeta), seed);
+    let burn_s = 10.0 / (zeta * 2.0 * PI * p.natural_frequency_hz());
+    let mut burn = vec![0.0; (burn_s * p.rate_hz) as usize];
+    sim.fill(&mut burn);
+    sim
+}
+
+/// The SSI-COV reading of `x` near `f_hz` as the pool takes it: the `k`-th window (10 s every
+/// 5 s), whose estimate read `record_seconds` (0: its window); `None` without a mode.
+fn estimate(
+    x: &[f64],
+    rate_hz: f64,
+    f_hz: f64,
+    k: usize,
+    record_seconds: f64,
+) -> Option<WindowEstimate> {
+    let s = ssi_cov_damping(x, rate_hz, f_hz, &SsiOptions::default()).ok()?;
+    let t0 = k as f64 * STEP_S;
+    Some(WindowEstimate {
+        t_start: t0,
+        t_end: t0 + WINDOW_S,
+        zeta: s.zeta,
+        stderr: s.zeta_stderr,
+        frequency_hz: s.frequency_hz,
+        record_seconds,
+    })
+}
+
 /// The crate's median (`identify::median`) of a copy.
 fn median(v: &[f64]) -> f64 {
     gatewatch::identify::median(&mut v.to_vec()).unwrap_or(f64::NAN)
@@ -89,10 +119,7 @@ fn run(p: &GateParams, zeta: f64, seeds: u64) -> Errors {
     let n_step = (STEP_S * p.rate_hz) as usize;
     let mut sa = SpectralAnalyzer::new(n_window, p.rate_hz).unwrap();
     for seed in 0..seeds {
-        let mut sim = GateSimulator::new(p.clone(), ZetaSchedule::Constant(zeta), seed);
-        let burn_s = 10.0 / (zeta * 2.0 * PI * f_hz);
-        let mut burn = vec![0.0; (burn_s * p.rate_hz) as usize];
-        sim.fill(&mut burn);
+        let mut sim = settled(p, zeta, seed);
         let mut x = vec![0.0; n_window + n_step * (windows - 1)];
         sim.fill(&mut x);
         let mut pools = LOCATIONS.map(|l| DampingPool::new(options(l)).unwrap());
@@ -100,22 +127,12 @@ fn run(p: &GateParams, zeta: f64, seeds: u64) -> Errors {
         for k in 0..windows {
             let seg = &x[k * n_step..k * n_step + n_window];
             let peak = sa.dominant_frequency(seg, 0.5).unwrap();
-            let Ok(s) = ssi_cov_damping(seg, p.rate_hz, peak.frequency_hz, &SsiOptions::default())
-            else {
+            let Some(w) = estimate(seg, p.rate_hz, peak.frequency_hz, k, 0.0) else {
                 continue;
             };
             if k == 0 {
-                e.single.push(100.0 * (s.zeta - zeta));
+                e.single.push(100.0 * (w.zeta - zeta));
             }
-            let t0 = k as f64 * STEP_S;
-            let w = WindowEstimate {
-                t_start: t0,
-                t_end: t0 + WINDOW_S,
-                zeta: s.zeta,
-                stderr: s.zeta_stderr,
-                frequency_hz: s.frequency_hz,
-                record_seconds: 0.0,
-            };
             for (pool, last) in pools.iter_mut().zip(&mut last) {
                 *last = pool.push(w).ok();
             }
@@ -233,10 +250,7 @@ fn records_against_windows(p: &GateParams, zeta: f64, seeds: u64) -> [Vec<(f64, 
     let mut sa = SpectralAnalyzer::new(n_window, p.rate_hz).unwrap();
     let mut out: [Vec<(f64, bool, f64)>; 2] = Default::default();
     for seed in 0..seeds {
-        let mut sim = GateSimulator::new(p.clone(), ZetaSchedule::Constant(zeta), seed);
-        let burn_s = 10.0 / (zeta * 2.0 * PI * f_hz);
-        let mut burn = vec![0.0; (burn_s * p.rate_hz) as usize];
-        sim.fill(&mut burn);
+        let mut sim = settled(p, zeta, seed);
         let pre = n_record - n_window;
         let mut x = vec![0.0; pre + n_window + n_step * (windows - 1)];
         sim.fill(&mut x);
@@ -245,23 +259,12 @@ fn records_against_windows(p: &GateParams, zeta: f64, seeds: u64) -> [Vec<(f64, 
         for k in 0..windows {
             let end = pre + k * n_step + n_window;
             let peak = sa.dominant_frequency(&x[end - n_window..end], 0.5).unwrap();
-            let t0 = k as f64 * STEP_S;
             for (i, len) in [n_window, n_record].into_iter().enumerate() {
+                let record = (len - 1) as f64 / p.rate_hz;
                 let f = peak.frequency_hz;
-                let Ok(s) =
-                    ssi_cov_damping(&x[end - len..end], p.rate_hz, f, &SsiOptions::default())
-                else {
-                    continue;
-                };
-                let w = WindowEstimate {
-                    t_start: t0,
-                    t_end: t0 + WINDOW_S,
-                    zeta: s.zeta,
-                    stderr: s.zeta_stderr,
-                    frequency_hz: s.frequency_hz,
-                    record_seconds: (len - 1) as f64 / p.rate_hz,
-                };
-                last[i] = pools[i].push(w).ok().or(last[i]);
+                if let Some(w) = estimate(&x[end - len..end], p.rate_hz, f, k, record) {
+                    last[i] = pools[i].push(w).ok().or(last[i]);
+                }
             }
         }
         for (o, l) in out.iter_mut().zip(last) {
