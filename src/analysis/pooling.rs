@@ -569,6 +569,15 @@ mod tests {
         assert_eq!((up.zeta0, up.zeta0_windows), (Some(0.02), Some(1)));
         let p = up.pooled_zeta.expect("the pool's figure");
         assert!((p.zeta - 0.012).abs() < 1e-12, "pooled {p:?}");
+        // beside one record, a rising window's own 0.02 (not its record's 0.05) joins the pool
+        let mut fresh = ZetaPools::new(opts).unwrap();
+        fresh.apply(0.0, 10.0, &mut window(0.02, Some(0.012)));
+        let mut up = window(0.02, Some(0.05));
+        up.ambient_ratio = Some(1.6);
+        up.departure_ratio = Some(3.0);
+        fresh.apply(5.0, 15.0, &mut up);
+        let p = up.pooled_zeta.expect("a pool of two");
+        assert!(p.zeta > 0.0121 && p.zeta < 0.02, "pooled {p:?}");
     }
 
     /// A window that rose to half the departure ratio is reported alone, with its own figure,
