@@ -86,7 +86,8 @@ pub use trend::{
     MIN_TREND_POINTS,
 };
 pub use verdict::{
-    ambient_decision, claims_unseen_growth, decide, Decision, VerdictFacts, WindowGrowth,
+    ambient_decision, claims_unseen_growth, decide, refuse_few_cycles, Decision, VerdictFacts,
+    WindowGrowth, MIN_WINDOW_CYCLES,
 };
 
 use serde::{Deserialize, Serialize};

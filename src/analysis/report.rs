@@ -287,6 +287,12 @@ pub struct DampingReport {
     /// (`docs/damping.md`, "A growing window read over common instants").
     #[serde(default)]
     pub ssi_growing: bool,
+    /// Whether the window holds fewer than `analysis::MIN_WINDOW_CYCLES` (16) cycles of its
+    /// dominant frequency (`window_cycles`): its figures are then no evidence (untrusted,
+    /// verdict `unknown`, no alert, not in the trend). A gate this slow needs a longer window
+    /// (`docs/operations.md`, "A slow gate").
+    #[serde(default)]
+    pub too_few_cycles: bool,
 }
 
 impl DampingReport {
@@ -346,6 +352,7 @@ impl DampingReport {
             rms_swing: None,
             spans_change: false,
             ssi_growing: false,
+            too_few_cycles: false,
         }
     }
 }

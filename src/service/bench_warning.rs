@@ -63,7 +63,7 @@ pub struct BenchWarningArgs {
     /// Scenarios to run (default: all).
     #[arg(long, value_delimiter = ',')]
     pub scenarios: Vec<String>,
-    /// Gate presets (lab, lock, barrier).
+    /// Gate presets (lab, lock, barrier, surge).
     #[arg(long, value_delimiter = ',', default_value = "lab,lock")]
     pub gates: Vec<String>,
     /// Sensor noise RMS in signal units (N), the same on every gate; overrides --noise-rel.
@@ -117,6 +117,10 @@ pub struct BenchWarningArgs {
     /// the configuration's, 5). Keep it half the window for the overlap the defaults assume.
     #[arg(long)]
     pub identify_every_seconds: Option<f64>,
+    /// The pools' `max_seconds` (`[defaults.pooling]`; default: the configuration's, 60): the
+    /// most sample time a pool spans. A slow gate's pool needs more seconds for its cycles.
+    #[arg(long)]
+    pub pool_max_seconds: Option<f64>,
 }
 
 /// What one run streams.
@@ -603,8 +607,12 @@ fn configure(args: &BenchWarningArgs, gate: GatePreset) -> anyhow::Result<Config
         if let Some(e) = args.identify_every_seconds {
             g.identify_every_seconds = e;
         }
-        g.validate(&format!("gates.{name}"))
-            .map_err(|e| anyhow::anyhow!("{e} (--window-seconds, --identify-every-seconds)"))?;
+        if let Some(m) = args.pool_max_seconds {
+            g.pooling.max_seconds = m;
+        }
+        g.validate(&format!("gates.{name}")).map_err(|e| {
+            anyhow::anyhow!("{e} (--window-seconds, --identify-every-seconds, --pool-max-seconds)")
+        })?;
     }
     Ok(config)
 }

@@ -98,6 +98,9 @@ struct GateEntry {
     failure_log: LogLimiter,
     /// Its sample-rate mismatches' warnings, at most one per [`FAILURE_LOG_INTERVAL`].
     rate_log: LogLimiter,
+    /// Its warnings that a window held too few cycles to be evidence
+    /// (`analysis::refuse_few_cycles`), at most one per [`FAILURE_LOG_INTERVAL`].
+    cycles_log: LogLimiter,
     /// Trend of `zeta0` over the last `alert.trend_horizon_seconds` (GateDampingDeclining).
     trend: DampingTrend,
     /// Its latest estimate, for the API.
@@ -453,6 +456,7 @@ impl AppState {
                     last_error: None,
                     failure_log: LogLimiter::new(FAILURE_LOG_INTERVAL),
                     rate_log: LogLimiter::new(FAILURE_LOG_INTERVAL),
+                    cycles_log: LogLimiter::new(FAILURE_LOG_INTERVAL),
                     trend_estimate,
                     last_data: now,
                     unknown,
@@ -839,6 +843,21 @@ impl AppState {
                     p.apply(window.0, window.1, &mut a.damping);
                 }
                 e.cycle.observe(window.1, &mut a.damping);
+                // a window of a few cycles is no evidence, whichever source read it: the gate
+                // needs a longer window (one line a minute says so)
+                if crate::analysis::refuse_few_cycles(&mut a.damping) {
+                    if let Some(held_back) = e.cycles_log.allow(std::time::Instant::now()) {
+                        tracing::warn!(
+                            gate = g,
+                            window_cycles = a.damping.window_cycles,
+                            frequency_hz = a.damping.frequency_hz,
+                            window_seconds = window.1 - window.0,
+                            min_cycles = crate::analysis::MIN_WINDOW_CYCLES,
+                            held_back,
+                            "the window holds too few cycles of the gate's vibration for its damping to be evidence: reported untrusted, no alert; give this gate a window of at least 50 cycles ([gates.ID] window_seconds, docs/operations.md \"A slow gate\")"
+                        );
+                    }
+                }
                 let d = &a.damping;
                 let set = |gv: &prometheus::GaugeVec, v: Option<f64>| {
                     if let Some(v) = v.filter(|v| v.is_finite()) {

@@ -19,6 +19,8 @@ pub enum GatePreset {
     Lock,
     /// A 500 kg, 2 Hz barrier gate sampled at 50 Hz (20 cycles in a 10 s window).
     Barrier,
+    /// A 10 000 kg, 1 Hz surge-barrier gate sampled at 20 Hz (10 cycles in a 10 s window).
+    Surge,
 }
 
 /// Ratio of the limit-cycle force amplitude at `zeta = -2 %` to the ambient force std at
@@ -28,7 +30,12 @@ const LIMIT_CYCLE_OVER_AMBIENT: f64 = 17.0;
 
 impl GatePreset {
     /// Every preset, in table order.
-    pub const ALL: [GatePreset; 3] = [GatePreset::Lab, GatePreset::Lock, GatePreset::Barrier];
+    pub const ALL: [GatePreset; 4] = [
+        GatePreset::Lab,
+        GatePreset::Lock,
+        GatePreset::Barrier,
+        GatePreset::Surge,
+    ];
 
     /// Name on the command line and in tables.
     pub fn as_str(self) -> &'static str {
@@ -36,6 +43,7 @@ impl GatePreset {
             GatePreset::Lab => "lab",
             GatePreset::Lock => "lock",
             GatePreset::Barrier => "barrier",
+            GatePreset::Surge => "surge",
         }
     }
 
@@ -45,7 +53,7 @@ impl GatePreset {
             .into_iter()
             .find(|g| g.as_str() == s)
             .ok_or_else(|| {
-                format!("unknown gate preset `{s}` (expected one of lab, lock, barrier)")
+                format!("unknown gate preset `{s}` (expected one of lab, lock, barrier, surge)")
             })
     }
 
@@ -57,6 +65,7 @@ impl GatePreset {
             // ratios to the noise and to the limit cycle matter to an estimator
             GatePreset::Lock => (2000.0, 5.0, 100.0, 100.0),
             GatePreset::Barrier => (500.0, 2.0, 50.0, 25.0),
+            GatePreset::Surge => (10_000.0, 1.0, 20.0, 500.0),
         };
         let w = 2.0 * std::f64::consts::PI * f_hz;
         let mut p = GateParams {

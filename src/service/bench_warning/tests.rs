@@ -10,8 +10,11 @@ use crate::analysis::{AnalysisError, DampingReport, Verdict, WindowAnalysis, Win
 
 /// Reports `zeta0 = -2 %` (interval +-0.5 points) for windows ending after `negative_after` s of
 /// stream, `+1 %` before: on the onset scenario the alert's time follows from the rules alone.
+/// Each report says its window holds `window_cycles` cycles (`None`: unknown, as a report
+/// without a spectrum).
 struct Scripted {
     negative_after: f64,
+    window_cycles: Option<f64>,
 }
 
 impl WindowAnalyzer for Scripted {
@@ -42,6 +45,7 @@ impl WindowAnalyzer for Scripted {
                 } else {
                     Verdict::Damped
                 },
+                window_cycles: self.window_cycles,
                 ..DampingReport::unknown()
             },
             evaluations: 0,
@@ -70,6 +74,7 @@ async fn a_known_alert_time_gives_the_computed_delay() {
         config,
         Arc::new(Scripted {
             negative_after: 150.0,
+            window_cycles: None,
         }),
     )
     .await
@@ -130,6 +135,46 @@ async fn a_known_alert_time_gives_the_computed_delay() {
     assert!(amb.windows >= 20);
     assert!((amb.median_abs_error_pts.unwrap() - 1.0).abs() < 0.2);
     assert_eq!(amb.pass_error, Some(false));
+}
+
+/// A window of fewer than `analysis::MIN_WINDOW_CYCLES` cycles is no evidence in the daemon,
+/// however confident its figure (`analysis::refuse_few_cycles`, called by the state on every
+/// result): the scripted drop to -2 % (+-0.5 points) fires `GateNegativeDamping` and the trend's
+/// warning from windows of 20 cycles, and neither from windows of 10, the default 10 s windows
+/// of a 1 Hz gate. Streamed through the real state, as `bench warning` streams.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_window_of_too_few_cycles_raises_no_alert() {
+    let spec = RunSpec {
+        scenario: ScenarioName::Onset,
+        gate: GatePreset::Lab,
+        seed: 1,
+        noise_rms: 0.0,
+        duration_s: 360.0,
+        trace: false,
+    };
+    let mut fired = Vec::new();
+    for cycles in [20.0, 10.0] {
+        let rec = run_stream(
+            &spec,
+            run_config(GatePreset::Lab, 1),
+            Arc::new(Scripted {
+                negative_after: 150.0,
+                window_cycles: Some(cycles),
+            }),
+        )
+        .await
+        .unwrap();
+        assert!(rec.windows.iter().all(|w| w.zeta0.is_some()), "{cycles}");
+        fired.push((
+            fire_times(&rec.windows, ALERT_NEGATIVE).len(),
+            fire_times(&rec.windows, ALERT_DECLINING).len(),
+        ));
+    }
+    assert_eq!(
+        fired,
+        [(1, 1), (0, 0)],
+        "(negative, declining) at 20 and 10 cycles"
+    );
 }
 
 fn window(end: f64, zeta0: Option<f64>, interval: Option<(f64, f64)>, truth: f64) -> WindowRecord {
@@ -307,6 +352,7 @@ fn plan_refuses_bad_arguments_naming_the_flag() {
         trend_min_span_seconds: None,
         window_seconds: None,
         identify_every_seconds: None,
+        pool_max_seconds: None,
     };
     let p = plan(&args).unwrap();
     assert_eq!(p.len(), 8);
