@@ -56,17 +56,22 @@ impl WindowAnalyzer for Scripted {
     }
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn a_known_alert_time_gives_the_computed_delay() {
-    let spec = RunSpec {
+/// The lab gate's onset, noise-free, for a [`Scripted`] analyzer: 360 s, long enough for the
+/// trend to span `trend_min_span_seconds` (300 s) after the scripted drop.
+fn scripted_onset() -> RunSpec {
+    RunSpec {
         scenario: ScenarioName::Onset,
         gate: GatePreset::Lab,
         seed: 1,
         noise_rms: 0.0,
-        // long enough for the trend to span `trend_min_span_seconds` (300 s) after the drop
         duration_s: 360.0,
         trace: false,
-    };
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_known_alert_time_gives_the_computed_delay() {
+    let spec = scripted_onset();
     let config = run_config(GatePreset::Lab, 1);
     let rules = config.defaults.alert.clone();
     let rec = run_stream(
@@ -144,14 +149,7 @@ async fn a_known_alert_time_gives_the_computed_delay() {
 /// of a 1 Hz gate. Streamed through the real state, as `bench warning` streams.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_window_of_too_few_cycles_raises_no_alert() {
-    let spec = RunSpec {
-        scenario: ScenarioName::Onset,
-        gate: GatePreset::Lab,
-        seed: 1,
-        noise_rms: 0.0,
-        duration_s: 360.0,
-        trace: false,
-    };
+    let spec = scripted_onset();
     let mut fired = Vec::new();
     for cycles in [20.0, 10.0] {
         let rec = run_stream(
