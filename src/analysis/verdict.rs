@@ -250,7 +250,7 @@ pub fn claims_unseen_growth(a: AmbientZeta, growth: Option<WindowGrowth>) -> boo
 /// is confidently wrong. A 1 Hz gate in 10 s windows (10 cycles, `bench warning --gates surge`,
 /// stop 85) read a stable gate at +1 % with a median error of 3.6 points, covered in 63 % of
 /// its windows, and paged 91 times a day at +1 % and 194 at +0.5 % (`GateNegativeDamping`),
-/// with as many `GateDampingDeclining`. The 2 Hz barrier gate's 20 cycles pass, as its
+/// and warned 79 and 91 times (`GateDampingDeclining`). The 2 Hz barrier gate's 20 cycles pass, as its
 /// benchmark rows do. What serves a slow gate is a longer window: docs/operations.md, "A slow
 /// gate".
 pub const MIN_WINDOW_CYCLES: f64 = 16.0;
