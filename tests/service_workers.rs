@@ -314,9 +314,10 @@ async fn a_day_of_samples_keeps_the_reported_times_true() {
         i += chunk;
     }
     // windows end at sample 200 + offset, then every 720 000 samples: the last ends 23 cadences
-    // after the first
+    // after the first. The fake reports 1.5 Hz, so the identification reads the 40 cycles of
+    // `window_cycles` as far as the history holds: six windows, 1 200 samples
     let last = 200 + offset + 23 * 720_000u64 - 1;
-    let (start, end) = (T0 + (last - 199) as f64 / RATE, T0 + last as f64 / RATE);
+    let (start, end) = (T0 + (last - 1_199) as f64 / RATE, T0 + last as f64 / RATE);
     let tolerance = 0.01 / RATE; // a hundredth of a period
     wait_until(|| {
         state
@@ -326,6 +327,7 @@ async fn a_day_of_samples_keeps_the_reported_times_true() {
     })
     .await;
     let v = state.gate_view("g1").unwrap();
+    assert_eq!(v.window.identification_seconds, 6.0);
     let id = v.identification.expect("identified");
     for (what, got, want) in [
         ("window_start", id.window_start, start),

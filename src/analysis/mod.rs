@@ -64,6 +64,7 @@ pub use linearisation::{
 };
 pub use model_free::{
     relaxation_detrend_degree, rms_swing, BEND_DEGREE, BEND_LEVEL_CHANGE, LIMIT_CYCLE_CYCLES,
+    RELAXATION_CYCLES,
 };
 pub use model_interval::{intervals, zeta0_interval, FittedModel};
 pub use pooling::{

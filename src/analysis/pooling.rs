@@ -76,7 +76,15 @@ impl PoolingSettings {
 pub struct ZetaPools {
     ambient: DampingPool,
     envelope: DampingPool,
+    /// The configured `max_seconds` (the pools' own follow the window: [`Self::follow_window`]).
+    max_seconds: f64,
 }
+
+/// Windows' lengths a pool may span whatever `max_seconds` says ([`ZetaPools::follow_window`]).
+/// Why three: a 1 Hz gate's 50 s windows in pools of 60 s never trusted its held limit cycle,
+/// which a gate without an ambient level trusts from 140 distinct cycles of pooled record; in
+/// pools of 150 s it fired at 150 s (docs/benchmarks.md, "Stop 85").
+pub const POOL_MIN_WINDOWS: f64 = 3.0;
 
 impl ZetaPools {
     /// Empty pools with `opts` (checked).
@@ -92,7 +100,22 @@ impl ZetaPools {
                 ..opts
             })?,
             envelope: DampingPool::new(opts)?,
+            max_seconds: opts.max_seconds,
         })
+    }
+
+    /// Lets the pools span [`POOL_MIN_WINDOWS`] windows of `window_seconds` where that is more
+    /// than the configured `max_seconds`: the daemon lengthens a slow gate's window to hold
+    /// `window_cycles` (`service::window_span`), and its pools follow. Returns the pools' bound.
+    pub fn follow_window(&mut self, window_seconds: f64) -> f64 {
+        let bound = if window_seconds.is_finite() {
+            self.max_seconds.max(POOL_MIN_WINDOWS * window_seconds)
+        } else {
+            self.max_seconds
+        };
+        self.ambient.set_max_seconds(bound);
+        self.envelope.set_max_seconds(bound);
+        bound
     }
 
     /// Pools the report of the window `[t_start, t_end]` (sample time) into its source's pool
@@ -347,6 +370,31 @@ mod tests {
         ] {
             assert!(bad.pools().is_err(), "{bad:?}");
         }
+    }
+
+    /// A 1 Hz gate's 40 s windows every 5 s: pools of 60 s hold five of them; following the
+    /// window (`follow_window`, three windows: 120 s) they hold as many as `max_windows` (16),
+    /// and a window shorter than a third of `max_seconds` leaves the bound as configured.
+    #[test]
+    fn pools_follow_a_lengthened_window() {
+        let held = |follow: Option<f64>| {
+            let mut pools = PoolingSettings::default().pools().unwrap().unwrap();
+            let bound = follow.map(|w| pools.follow_window(w));
+            let mut last = None;
+            for i in 0..40 {
+                let t = 40.0 + 5.0 * f64::from(i);
+                let mut d = DampingReport {
+                    frequency_hz: Some(1.0),
+                    ..ambient(0.01, 0.01)
+                };
+                pools.apply(t - 40.0, t, &mut d);
+                last = d.zeta0_windows;
+            }
+            (bound, last)
+        };
+        assert_eq!(held(None), (None, Some(5)));
+        assert_eq!(held(Some(40.0)), (Some(120.0), Some(16)));
+        assert_eq!(held(Some(10.0)), (Some(60.0), Some(5)));
     }
 
     /// Windows of 10 s every 5 s at 5 Hz (50 cycles each): the pool narrows the interval and

@@ -110,9 +110,13 @@ pub struct BenchWarningArgs {
     #[arg(long)]
     pub trend_min_span_seconds: Option<f64>,
     /// Window length in seconds of sample time (`window_seconds`; default: the
-    /// configuration's, 10): a slow gate's windows can be made to hold more cycles.
+    /// configuration's, 10): the shortest record an identification reads.
     #[arg(long)]
     pub window_seconds: Option<f64>,
+    /// Cycles of the gate's frequency an identification reads at least (`window_cycles`;
+    /// default: the configuration's, 40); 0 reads `--window-seconds` always, as before stop 86.
+    #[arg(long)]
+    pub window_cycles: Option<f64>,
     /// Identification cadence in seconds of new sample time (`identify_every_seconds`; default:
     /// the configuration's, 5). Keep it half the window for the overlap the defaults assume.
     #[arg(long)]
@@ -170,6 +174,9 @@ pub struct WindowRecord {
     pub truth_mean: f64,
     /// Natural frequency at the window's centre, Hz (for Au's limit).
     pub frequency_hz: f64,
+    /// Length of the record the identification read, s (`window_s`, or longer where
+    /// `window_cycles` lengthened it).
+    pub record_s: f64,
     /// Regime of the window.
     pub regime: Regime,
     /// Names of the gate's alerts firing after this window (and the early-warning baseline's
@@ -266,6 +273,8 @@ pub async fn run_stream(
     let rate = p.rate_hz;
     let every = gate_cfg.every_samples();
     let window_s = gate_cfg.window_samples() as f64 / rate;
+    let history_s =
+        crate::service::window::history_samples(gate_cfg.window_samples()) as f64 / rate;
     let state = AppState::new(config, analyzer)?;
     while sim.time() < -0.5 / rate {
         sim.next_sample();
@@ -336,14 +345,23 @@ pub async fn run_stream(
             .gate_view(id)
             .ok_or_else(|| anyhow::anyhow!("gate `{id}` vanished"))?;
         let end = end_unix - STREAM_EPOCH;
-        let start = end - (gate_cfg.window_samples() - 1) as f64 / rate;
         // the identification shown is this window's only if its end matches (a failed job
-        // leaves the previous one in place: then this window has no estimate)
-        let (zeta0, interval, source) = match &view.identification {
+        // leaves the previous one in place: then this window has no estimate); its start is
+        // the record it read (`window_cycles` lengthens a slow gate's)
+        let (zeta0, interval, source, start) = match &view.identification {
             Some(iv) if (iv.window_end - end_unix).abs() < 0.5 / rate => {
-                damping_fields(&serde_json::to_value(&iv.damping)?)
+                let (z, i, s) = damping_fields(&serde_json::to_value(&iv.damping)?);
+                // counted in samples, so a window of the configured length starts where the
+                // grid says, not a rounding of Unix seconds away from it
+                let n = ((iv.window_end - iv.window_start) * rate).round();
+                (z, i, s, end - n / rate)
             }
-            _ => (None, None, None),
+            _ => (
+                None,
+                None,
+                None,
+                end - (gate_cfg.window_samples() - 1) as f64 / rate,
+            ),
         };
         let centre = 0.5 * (start + end);
         let truth_centre = def.true_zeta(centre);
@@ -456,12 +474,13 @@ pub async fn run_stream(
             truth_centre,
             truth_mean,
             frequency_hz,
+            record_s: end - start + 1.0 / rate,
             regime,
             firing,
             variance: measured_variance,
         });
-        // keep only the chunks a future window can reach
-        let keep_from = end - 2.0 * window_s;
+        // keep only the chunks a future window can reach: it reads at most the history
+        let keep_from = end - history_s - window_s;
         chunks.retain(|c| c.0 >= keep_from);
     }
     let (_abandoned, _clean) = state.pool().shutdown(Duration::from_secs(10)).await;
@@ -604,6 +623,9 @@ fn configure(args: &BenchWarningArgs, gate: GatePreset) -> anyhow::Result<Config
         if let Some(w) = args.window_seconds {
             g.window_seconds = w;
         }
+        if let Some(c) = args.window_cycles {
+            g.window_cycles = c;
+        }
         if let Some(e) = args.identify_every_seconds {
             g.identify_every_seconds = e;
         }
@@ -611,7 +633,10 @@ fn configure(args: &BenchWarningArgs, gate: GatePreset) -> anyhow::Result<Config
             g.pooling.max_seconds = m;
         }
         g.validate(&format!("gates.{name}")).map_err(|e| {
-            anyhow::anyhow!("{e} (--window-seconds, --identify-every-seconds, --pool-max-seconds)")
+            anyhow::anyhow!(
+                "{e} (--window-seconds, --window-cycles, --identify-every-seconds, \
+                 --pool-max-seconds)"
+            )
         })?;
     }
     Ok(config)

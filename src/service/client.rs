@@ -42,8 +42,8 @@ pub enum Scenario {
 #[derive(Debug, Clone, Default, clap::Args)]
 pub struct GateSensorArgs {
     /// Gate preset: lab (19 kg, 10.4 Hz, 200 Hz), lock (2000 kg, 5 Hz, 100 Hz), barrier
-    /// (500 kg, 2 Hz, 50 Hz), surge (10 000 kg, 1 Hz, 20 Hz: give it a window of at least
-    /// 50 s). (`--gate` is the gate's id.)
+    /// (500 kg, 2 Hz, 50 Hz), surge (10 000 kg, 1 Hz, 20 Hz: the daemon reads 40 s records of
+    /// it once it knows its frequency, `window_cycles`). (`--gate` is the gate's id.)
     #[arg(long = "gate-preset", default_value = "lab", value_parser = crate::simulate::GatePreset::parse)]
     pub preset: crate::simulate::GatePreset,
     /// Sensor noise RMS in signal units (N), as a load cell's noise floor is given.

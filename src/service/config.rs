@@ -50,6 +50,15 @@ pub const DEFAULT_MAX_TCP_CONNECTIONS: usize = 64;
 pub const DEFAULT_SHUTDOWN_GRACE_SECONDS: f64 = 10.0;
 /// Default `Retry-After` seconds sent with 429/503.
 pub const DEFAULT_RETRY_AFTER_SECONDS: u64 = 1;
+/// Default `window_cycles`: 40 cycles lengthen a 2 Hz barrier gate's 10 s window to 20 s and a
+/// 1 Hz gate's to 40 s, and leave the lab gate's (104 cycles) and a 5 Hz lock gate's (50) as
+/// they are. Why 40: the barrier gate read better at 20 s than at 10 s in every regime but one
+/// (docs/benchmarks.md, "Stop 86"), and a 1 Hz gate at 10 s paged 91 times a day.
+pub const DEFAULT_WINDOW_CYCLES: f64 = 40.0;
+/// Largest `window_cycles` accepted (the history kept bounds the span whatever it is; a larger
+/// figure is a typo).
+pub const MAX_WINDOW_CYCLES: f64 = 100_000.0;
+
 /// Largest window accepted: bounds the memory of one gate (`window_seconds * rate_hz` samples).
 pub const MAX_WINDOW_SAMPLES: usize = 10_000_000;
 /// Alertmanager's default `resolve_timeout` (5 min): an alert not re-sent within it is resolved.
@@ -421,8 +430,12 @@ pub struct GateConfig {
     pub model_interval: crate::analysis::ModelInterval,
     /// Which reference instants the ambient SSI-COV correlations use: lagged | common.
     pub ssi_reference: crate::analysis::SsiReference,
-    /// Window length, seconds of sample time.
+    /// Window length, seconds of sample time: the shortest record an identification reads.
     pub window_seconds: f64,
+    /// Cycles of the gate's dominant frequency an identification reads at least, once the
+    /// frequency is known: the window is lengthened up to the history kept (six windows;
+    /// `service::window_span`). 0: `window_seconds` always.
+    pub window_cycles: f64,
     /// Identification cadence, seconds of new sample time.
     pub identify_every_seconds: f64,
     /// Whether a gate's first window waits a fraction of the cadence fixed by its ID, so that
@@ -461,6 +474,7 @@ impl Default for GateConfig {
             model_interval: crate::analysis::ModelInterval::default(),
             ssi_reference: crate::analysis::SsiReference::default(),
             window_seconds: 10.0,
+            window_cycles: DEFAULT_WINDOW_CYCLES,
             identify_every_seconds: 5.0,
             stagger: true,
             max_future_seconds: DEFAULT_MAX_FUTURE_SECONDS,

@@ -5,7 +5,8 @@
 //! - [`config`]: TOML configuration, environment overrides, validation naming the key.
 //! - [`ingest`]: request formats ([`ingest::json`], [`ingest::line_protocol`]), pure parsing.
 //! - [`ingest_checks`]: sample times against the daemon's clock, repeated query parameters.
-//! - [`window`]: the ring buffer of a gate and the sample-time cadence.
+//! - [`window`]: the ring buffer of a gate and the sample-time cadence; [`window_span`]: how
+//!   much of it an identification reads (`window_cycles` of the gate's frequency).
 //! - [`worker`]: `WindowAnalyzer`, the worker pool and its replace-don't-queue scheduler.
 //! - [`state`]: the shared state; the only user of the alert engine ([`crate::alert`]) and of
 //!   its notifier.
@@ -35,9 +36,9 @@
 //! Imports go one way (no circle): `cli` -> `server`, `demo`, `client`, `shutdown`; `demo`,
 //! `bench` -> `server`, `client`; `bench_warning` -> `state`, `worker`, `ingest`, `config`;
 //! `server` -> `api`, `listen`, `tcp`, `state`, `worker`; `api`, `tcp` -> `state`, `ingest`,
-//! `metrics`, `limits`; `state` -> `worker`, `window`, `ingest`, `ingest_checks`, `metrics`,
+//! `metrics`, `limits`; `state` -> `worker`, `window`, `window_span`, `ingest`, `ingest_checks`, `metrics`,
 //! `config`, `resume`, `log_limit`; `resume` -> `worker`, `config`; `ingest_checks` -> `ingest`, `metrics`, `config`;
-//! `ingest`, `worker` -> `config`; and `config`, `window`, `clock`, `sync`, `stdout`,
+//! `ingest`, `worker` -> `config`; and `config`, `window`, `window_span`, `clock`, `sync`, `stdout`,
 //! `rust_log` import nothing of the service.
 
 pub mod api;
@@ -68,6 +69,7 @@ pub mod storage;
 pub mod sync;
 pub mod tcp;
 pub mod window;
+pub mod window_span;
 pub mod worker;
 
 /// Alert types as the daemon uses them (re-exported for tests and the integrator).

@@ -23,6 +23,7 @@ use super::metrics::{Metrics, NotificationCounts, RejectReason};
 use super::storage::{identification_record, Persistence};
 use super::sync::lock;
 use super::window::{history_samples, Window};
+use super::window_span::CycleSpan;
 use super::worker::{Job, JobOutcome, Submitted, WindowAnalyzer, WorkerPool};
 use crate::alert::notify::{spawn_notifier_with_ack, NotifierHandle};
 use crate::alert::{Alert, AlertEngine, AlertEvent, GateState, Observation};
@@ -111,6 +112,9 @@ struct GateEntry {
     pools: Option<ZetaPools>,
     /// The damping law of the gate's last growth, which reads its limit cycle's amplitude.
     cycle: CycleAmplitude,
+    /// How much of the history an identification reads (`window_cycles` of the gate's
+    /// frequency, at least the window).
+    span: CycleSpan,
     /// Wall-clock time of the last samples (or of creation): gate expiry is counted from it.
     last_data: SystemTime,
     /// Created by `accept_unknown_gates` (not a `[gates.*]` table): such a gate expires after
@@ -448,6 +452,7 @@ impl AppState {
                     // only mean no pooling
                     pools: cfg.pooling.pools().ok().flatten(),
                     cycle,
+                    span: CycleSpan::new(cfg.rate_hz, cfg.window_samples(), cfg.window_cycles),
                     config: cfg,
                     latest: None,
                     last_identification: None,
@@ -674,11 +679,16 @@ impl AppState {
                     if n_due > 1 {
                         self.metrics.jobs_replaced.inc_by(n_due - 1);
                     }
+                    // a slow gate's identification reads more of the history than the window
+                    let (t0, values) = match entry.span.slice(w.t0, &w.values, &w.history) {
+                        (t0, read) if read.len() > w.values.len() => (t0, read.to_vec()),
+                        _ => (w.t0, w.values),
+                    };
                     jobs.push(Job {
                         gate: batch.gate.clone(),
-                        t0: w.t0,
+                        t0,
                         rate_hz: rate,
-                        values: w.values,
+                        values,
                         history: w.history,
                         end_index: w.end_index,
                         generation: entry.generation,
@@ -854,9 +864,25 @@ impl AppState {
                             window_seconds = window.1 - window.0,
                             min_cycles = crate::analysis::MIN_WINDOW_CYCLES,
                             held_back,
-                            "the window holds too few cycles of the gate's vibration for its damping to be evidence: reported untrusted, no alert; give this gate a window of at least 50 cycles ([gates.ID] window_seconds, docs/operations.md \"A slow gate\")"
+                            "the window holds too few cycles of the gate's vibration for its damping to be evidence: reported untrusted, no alert; it lengthens to window_cycles once the gate's frequency is known, up to six window_seconds: if this goes on, lengthen [gates.ID] window_seconds (docs/operations.md \"A slow gate\")"
                         );
                     }
+                }
+                // the next windows read window_cycles of the gate's frequency, its pools span
+                // at least three of them, and its history holds what the envelope reads
+                if e.span.observe(a.damping.frequency_hz) {
+                    let seconds = e.span.seconds();
+                    let pool_seconds = e.pools.as_mut().map(|p| p.follow_window(seconds));
+                    e.window.set_history(e.span.history_samples());
+                    tracing::info!(
+                        gate = g,
+                        identification_seconds = seconds,
+                        history_seconds = e.span.history_samples() as f64 / e.config.rate_hz,
+                        frequency_hz = a.damping.frequency_hz,
+                        window_cycles = e.config.window_cycles,
+                        pool_max_seconds = pool_seconds,
+                        "the gate's identifications read a new length of record, to hold window_cycles of its frequency"
+                    );
                 }
                 let d = &a.damping;
                 let set = |gv: &prometheus::GaugeVec, v: Option<f64>| {
@@ -1049,6 +1075,7 @@ impl AppState {
                 samples_total: w.accepted_total(),
                 rate_hz: e.config.rate_hz,
                 stagger_seconds: w.offset() as f64 / e.config.rate_hz,
+                identification_seconds: e.span.seconds(),
             },
             identification: e.latest.as_ref().map(|a| IdentificationView {
                 time: e.last_identification.map(unix_seconds).unwrap_or(0.0),

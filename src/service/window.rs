@@ -5,8 +5,11 @@
 //! Memory: the buffer keeps values only (8 bytes per sample; the time of every sample follows
 //! from the time of the newest and the rate since the window is uniform and contiguous), so a
 //! gate costs 8 bytes per sample kept: six windows (`HISTORY_WINDOWS`), 96 KB at 10 s and
-//! 200 Hz, and never more than the window plus 100 000 samples (`MAX_HISTORY_EXTRA`). The history is what a limit cycle's envelope
-//! relaxation reads (100 cycles, docs/damping.md); the identification sees the window.
+//! 200 Hz, or 110 cycles of a slower gate (`service::window_span`, [`Window::set_history`]),
+//! and never more than the window plus 100 000 samples (`MAX_HISTORY_EXTRA`). The history is
+//! what a limit cycle's envelope relaxation reads (100 cycles, docs/damping.md); the
+//! identification reads the window, or more of the history on a slow gate
+//! (`service::window_span`).
 //!
 //! Times are never accumulated: the first sample's time is derived from the newest sample's
 //! actual time, `t_last - (len - 1) / rate_hz`. Adding the period sample after sample would
@@ -185,6 +188,16 @@ impl Window {
             consecutive_old: 0,
             check_t: None,
             since_check: 0,
+        }
+    }
+
+    /// Keeps up to `history` contiguous samples from now on (at least the window; the oldest
+    /// go at once where fewer are kept): a slow gate's history follows its frequency
+    /// (`service::window_span`).
+    pub fn set_history(&mut self, history: usize) {
+        self.history = history.max(self.capacity);
+        while self.values.len() > self.history {
+            self.values.pop_front();
         }
     }
 
@@ -895,6 +908,26 @@ mod tests {
         assert_eq!(history_samples(2_000), 12_000);
         assert_eq!(history_samples(500) as f64 / 50.0, 60.0);
         assert_eq!(history_samples(10_000_000), 10_100_000);
+    }
+
+    #[test]
+    fn the_history_can_grow_and_shrink_between_pushes() {
+        let data = stream(2_000, 100.0);
+        let mut w = Window::with_history(100.0, 300, 50, 600);
+        let due = w.push(data[..700].iter().copied()).1;
+        assert_eq!(due.last().unwrap().history.len(), 600);
+        // longer: the history fills up to it, contiguous, the windows as before
+        w.set_history(1_000);
+        let due = w.push(data[700..1_500].iter().copied()).1;
+        let last = due.last().unwrap();
+        assert_eq!((last.history.len(), last.values.len()), (1_000, 300));
+        let want: Vec<f64> = data[500..1_500].iter().map(|s| s.1).collect();
+        assert_eq!(last.history, want);
+        // shorter: the oldest go at once, never below the window
+        w.set_history(100);
+        assert_eq!(w.values.len(), 300);
+        let due = w.push(data[1_500..1_550].iter().copied()).1;
+        assert_eq!(due.last().unwrap().history.len(), 300);
     }
 
     #[test]

@@ -207,6 +207,19 @@ impl DampingPool {
         self.entries.is_empty()
     }
 
+    /// Sets [`PoolOptions::max_seconds`] (ignored unless positive and finite): the daemon
+    /// lengthens a slow gate's pools with its windows (`analysis::ZetaPools::follow_window`).
+    pub fn set_max_seconds(&mut self, max_seconds: f64) {
+        if max_seconds.is_finite() && max_seconds > 0.0 {
+            self.opts.max_seconds = max_seconds;
+        }
+    }
+
+    /// [`PoolOptions::max_seconds`] now.
+    pub fn max_seconds(&self) -> f64 {
+        self.opts.max_seconds
+    }
+
     /// Empties the pool (and forgets a held window).
     pub fn clear(&mut self) {
         self.entries.clear();

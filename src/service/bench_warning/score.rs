@@ -218,7 +218,7 @@ pub fn regime_rows_with(records: &[RunRecord], targets: &Targets) -> Vec<RegimeR
                     if covers(w) {
                         covered += 1;
                     }
-                    if let Some(a) = au_limit(w.truth_centre, w.frequency_hz * r.window_s) {
+                    if let Some(a) = au_limit(w.truth_centre, w.frequency_hz * w.record_s) {
                         au.push(a);
                     }
                 }

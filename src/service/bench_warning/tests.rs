@@ -11,10 +11,12 @@ use crate::analysis::{AnalysisError, DampingReport, Verdict, WindowAnalysis, Win
 /// Reports `zeta0 = -2 %` (interval +-0.5 points) for windows ending after `negative_after` s of
 /// stream, `+1 %` before: on the onset scenario the alert's time follows from the rules alone.
 /// Each report says its window holds `window_cycles` cycles (`None`: unknown, as a report
-/// without a spectrum).
+/// without a spectrum), or, with `frequency_hz`, that frequency and the cycles of it the record
+/// it was handed holds.
 struct Scripted {
     negative_after: f64,
     window_cycles: Option<f64>,
+    frequency_hz: Option<f64>,
 }
 
 impl WindowAnalyzer for Scripted {
@@ -31,6 +33,10 @@ impl WindowAnalyzer for Scripted {
         } else {
             0.01
         };
+        let seconds = input.values.len() as f64 / input.rate_hz;
+        let window_cycles = self
+            .window_cycles
+            .or(self.frequency_hz.map(|f| f * seconds));
         Ok(WindowAnalysis {
             equation: String::new(),
             coefficients: Vec::new(),
@@ -45,7 +51,8 @@ impl WindowAnalyzer for Scripted {
                 } else {
                     Verdict::Damped
                 },
-                window_cycles: self.window_cycles,
+                window_cycles,
+                frequency_hz: self.frequency_hz,
                 ..DampingReport::unknown()
             },
             evaluations: 0,
@@ -80,6 +87,7 @@ async fn a_known_alert_time_gives_the_computed_delay() {
         Arc::new(Scripted {
             negative_after: 150.0,
             window_cycles: None,
+            frequency_hz: None,
         }),
     )
     .await
@@ -158,6 +166,7 @@ async fn a_window_of_too_few_cycles_raises_no_alert() {
             Arc::new(Scripted {
                 negative_after: 150.0,
                 window_cycles: Some(cycles),
+                frequency_hz: None,
             }),
         )
         .await
@@ -175,6 +184,50 @@ async fn a_window_of_too_few_cycles_raises_no_alert() {
     );
 }
 
+/// A 1 Hz gate's 10 s windows hold 10 cycles: at the default `window_cycles` (40) the
+/// identification reads more of the history, window after window, until it holds 40 s, and the
+/// gate is watched (the scripted onset fires both alerts); with `window_cycles = 0` every
+/// window is refused and nothing fires.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_slow_gates_windows_lengthen_to_its_cycles() {
+    let spec = RunSpec {
+        gate: GatePreset::Surge,
+        ..scripted_onset()
+    };
+    let mut seen = Vec::new();
+    for cycles in [crate::service::config::DEFAULT_WINDOW_CYCLES, 0.0] {
+        let mut config = run_config(GatePreset::Surge, 1);
+        config
+            .gates
+            .values_mut()
+            .for_each(|g| g.window_cycles = cycles);
+        let rec = run_stream(
+            &spec,
+            config,
+            Arc::new(Scripted {
+                negative_after: 150.0,
+                window_cycles: None,
+                frequency_hz: Some(1.0),
+            }),
+        )
+        .await
+        .unwrap();
+        let lengths: Vec<f64> = rec.windows.iter().map(|w| w.record_s.round()).collect();
+        seen.push((
+            lengths[..9].to_vec(),
+            lengths.iter().copied().fold(0.0, f64::max),
+            fire_times(&rec.windows, ALERT_NEGATIVE).len(),
+            fire_times(&rec.windows, ALERT_DECLINING).len(),
+        ));
+    }
+    let grown = vec![10.0, 15.0, 20.0, 25.0, 30.0, 35.0, 40.0, 40.0, 40.0];
+    assert_eq!(
+        seen,
+        [(grown, 40.0, 1, 1), (vec![10.0; 9], 10.0, 0, 0)],
+        "(first record lengths, longest, negative, declining) at 40 and 0 cycles"
+    );
+}
+
 fn window(end: f64, zeta0: Option<f64>, interval: Option<(f64, f64)>, truth: f64) -> WindowRecord {
     WindowRecord {
         start: end - 10.0,
@@ -185,6 +238,7 @@ fn window(end: f64, zeta0: Option<f64>, interval: Option<(f64, f64)>, truth: f64
         truth_centre: truth,
         truth_mean: truth,
         frequency_hz: 10.0,
+        record_s: 10.0,
         regime: Regime::Ambient,
         firing: Vec::new(),
         variance: 1.0,
@@ -349,6 +403,7 @@ fn plan_refuses_bad_arguments_naming_the_flag() {
         resolve_probability: None,
         trend_min_span_seconds: None,
         window_seconds: None,
+        window_cycles: None,
         identify_every_seconds: None,
         pool_max_seconds: None,
     };
@@ -378,6 +433,11 @@ fn plan_refuses_bad_arguments_naming_the_flag() {
     assert!(
         window.contains("gates.lab.window_seconds") && window.contains("--window-seconds"),
         "{window}"
+    );
+    let cycles = bad(&|a| a.window_cycles = Some(4.0));
+    assert!(
+        cycles.contains("gates.lab.window_cycles") && cycles.contains("--window-cycles"),
+        "{cycles}"
     );
     let cadence = bad(&|a| a.identify_every_seconds = Some(0.0));
     assert!(
@@ -415,6 +475,7 @@ fn plan_refuses_bad_arguments_naming_the_flag() {
     // a slow gate's longer windows are accepted
     plan(&BenchWarningArgs {
         window_seconds: Some(25.0),
+        window_cycles: Some(0.0),
         identify_every_seconds: Some(12.5),
         ..args.clone()
     })

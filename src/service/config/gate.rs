@@ -140,6 +140,17 @@ impl GateConfig {
                 &format!("window_seconds * rate_hz must be <= {MAX_WINDOW_SAMPLES} samples"),
             );
         }
+        // fewer than the ambient estimator reads at all would lengthen the window to no use
+        let min_cycles = crate::analysis::MIN_WINDOW_CYCLES;
+        if !(self.window_cycles.is_finite()
+            && (self.window_cycles == 0.0
+                || (min_cycles..=MAX_WINDOW_CYCLES).contains(&self.window_cycles)))
+        {
+            return err(
+                "window_cycles",
+                &format!("must be 0 (off) or in {min_cycles}..={MAX_WINDOW_CYCLES}"),
+            );
+        }
         if !(self.identify_every_seconds.is_finite() && self.identify_every_seconds > 0.0) {
             return err("identify_every_seconds", "must be > 0");
         }

@@ -101,6 +101,20 @@ fn errors_name_the_key() {
         err("[defaults]\nwindow_seconds = -1.0\n"),
         "defaults.window_seconds: must be > 0, line 2"
     );
+    // fewer cycles than the ambient estimator reads at all would lengthen windows to no use
+    for bad in ["8.0", "-1.0", "nan", "1e9"] {
+        assert_eq!(
+            err(&format!(
+                "[gates.g1]\nrate_hz = 20.0\nwindow_cycles = {bad}\n"
+            )),
+            "gates.g1.window_cycles: must be 0 (off) or in 16..=100000, line 3",
+            "{bad}"
+        );
+    }
+    for good in ["0.0", "16.0", "50"] {
+        let c = Config::from_toml(&format!("[defaults]\nwindow_cycles = {good}\n")).unwrap();
+        assert_eq!(c.defaults.window_cycles, good.parse::<f64>().unwrap());
+    }
     assert!(
         err("[gates.g1]\nrte_hz = 1.0\n").starts_with("gates.g1.rte_hz: unknown field `rte_hz`")
     );

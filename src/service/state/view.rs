@@ -76,6 +76,9 @@ pub struct WindowView {
     /// Seconds the gate's first window (and its first after a gap) waits once full: its
     /// stagger (`service::window`), 0 with `stagger = false`.
     pub stagger_seconds: f64,
+    /// Seconds of sample time an identification reads now: `window_seconds`, or longer where
+    /// that holds fewer than `window_cycles` cycles of the gate (`service::window_span`).
+    pub identification_seconds: f64,
 }
 
 /// The latest identification.
