@@ -118,7 +118,8 @@ pub struct BenchWarningArgs {
     #[arg(long)]
     pub window_cycles: Option<f64>,
     /// Identification cadence in seconds of new sample time (`identify_every_seconds`; default:
-    /// the configuration's, 5). Keep it half the window for the overlap the defaults assume.
+    /// the configuration's, 5). Records longer than the window keep it: on a 1 Hz gate's 50 s
+    /// windows 5 s served better than 25 s (docs/benchmarks.md, "Stop 85").
     #[arg(long)]
     pub identify_every_seconds: Option<f64>,
     /// The pools' `max_seconds` (`[defaults.pooling]`; default: the configuration's, 60): the
