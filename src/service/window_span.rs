@@ -112,13 +112,8 @@ impl CycleSpan {
         }
         self.frequencies.push_back(f);
         let mut sorted: Vec<f64> = self.frequencies.iter().copied().collect();
-        sorted.sort_by(f64::total_cmp);
-        let n = sorted.len();
-        let median = if n % 2 == 1 {
-            sorted[n / 2]
-        } else {
-            0.5 * (sorted[n / 2 - 1] + sorted[n / 2])
-        };
+        // never empty: `f` was just pushed
+        let median = crate::identify::median(&mut sorted).unwrap_or(f);
         let samples = |cycles: f64, low: usize, high: usize| {
             let wanted = (cycles * self.rate_hz / median).ceil();
             if wanted >= high as f64 {

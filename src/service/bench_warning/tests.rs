@@ -76,22 +76,23 @@ fn scripted_onset() -> RunSpec {
     }
 }
 
+/// The [`Scripted`] analyzer that turns negative after 150 s.
+fn scripted(window_cycles: Option<f64>, frequency_hz: Option<f64>) -> Arc<Scripted> {
+    Arc::new(Scripted {
+        negative_after: 150.0,
+        window_cycles,
+        frequency_hz,
+    })
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_known_alert_time_gives_the_computed_delay() {
     let spec = scripted_onset();
     let config = run_config(GatePreset::Lab, 1);
     let rules = config.defaults.alert.clone();
-    let rec = run_stream(
-        &spec,
-        config,
-        Arc::new(Scripted {
-            negative_after: 150.0,
-            window_cycles: None,
-            frequency_hz: None,
-        }),
-    )
-    .await
-    .unwrap();
+    let rec = run_stream(&spec, config, scripted(None, None))
+        .await
+        .unwrap();
     // 10 s windows every 5 s over 360 s: the first ends at 10 s, the last at 360 s
     assert_eq!(rec.windows.len(), 71);
     let last = rec.windows.last().unwrap();
@@ -163,11 +164,7 @@ async fn a_window_of_too_few_cycles_raises_no_alert() {
         let rec = run_stream(
             &spec,
             run_config(GatePreset::Lab, 1),
-            Arc::new(Scripted {
-                negative_after: 150.0,
-                window_cycles: Some(cycles),
-                frequency_hz: None,
-            }),
+            scripted(Some(cycles), None),
         )
         .await
         .unwrap();
@@ -201,17 +198,9 @@ async fn a_slow_gates_windows_lengthen_to_its_cycles() {
             .gates
             .values_mut()
             .for_each(|g| g.window_cycles = cycles);
-        let rec = run_stream(
-            &spec,
-            config,
-            Arc::new(Scripted {
-                negative_after: 150.0,
-                window_cycles: None,
-                frequency_hz: Some(1.0),
-            }),
-        )
-        .await
-        .unwrap();
+        let rec = run_stream(&spec, config, scripted(None, Some(1.0)))
+            .await
+            .unwrap();
         let lengths: Vec<f64> = rec.windows.iter().map(|w| w.record_s.round()).collect();
         seen.push((
             lengths[..9].to_vec(),
