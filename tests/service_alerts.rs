@@ -115,6 +115,7 @@ async fn metrics_exposition_is_valid() {
         "gatewatch_last_identification_timestamp_seconds",
         "gatewatch_samples_ingested_total",
         "gatewatch_window_fill_ratio",
+        "gatewatch_identification_record_seconds",
         "gatewatch_samples_rejected_total",
         "gatewatch_identification_duration_seconds",
         "gatewatch_http_requests_total",
@@ -126,6 +127,11 @@ async fn metrics_exposition_is_valid() {
     // the fake's windows are trusted
     assert!(
         text.contains("gatewatch_damping_trusted{gate=\"g1\"} 1\n"),
+        "{text}"
+    );
+    // the first window's record is the window (1 s): the history holds no more yet
+    assert!(
+        text.contains("gatewatch_identification_record_seconds{gate=\"g1\"} 1\n"),
         "{text}"
     );
     promtool_check_metrics(&text);

@@ -328,6 +328,12 @@ async fn a_day_of_samples_keeps_the_reported_times_true() {
     .await;
     let v = state.gate_view("g1").unwrap();
     assert_eq!(v.window.identification_seconds, 6.0);
+    // and what it read is on /metrics
+    let read = state
+        .metrics
+        .identification_record_seconds
+        .with_label_values(&["g1"]);
+    assert_eq!(read.get(), 6.0);
     let id = v.identification.expect("identified");
     for (what, got, want) in [
         ("window_start", id.window_start, start),

@@ -70,6 +70,9 @@ pub struct Metrics {
     pub samples_ingested: IntCounterVec,
     /// `gatewatch_window_fill_ratio{gate}`.
     pub window_fill_ratio: GaugeVec,
+    /// `gatewatch_identification_record_seconds{gate}`: the record the last identification read
+    /// (the window, or `window_cycles` of a slow gate: `service::window_span`).
+    pub identification_record_seconds: GaugeVec,
     /// `gatewatch_window_gaps_total{gate}`.
     pub window_gaps: IntCounterVec,
     /// `gatewatch_samples_rejected_total{reason}`: samples.
@@ -459,6 +462,11 @@ impl Metrics {
                 "Held fraction of a full window.",
                 &["gate"],
             ),
+            identification_record_seconds: gauge(
+                "gatewatch_identification_record_seconds",
+                "Seconds of sample time the last identification read: the window, or window_cycles of a slow gate.",
+                &["gate"],
+            ),
             window_gaps: counter(
                 "gatewatch_window_gaps_total",
                 "Gaps (> 1.5 sample periods) that restarted the window.",
@@ -678,6 +686,7 @@ impl Metrics {
             &self.amplitude,
             &self.last_identification,
             &self.window_fill_ratio,
+            &self.identification_record_seconds,
         ] {
             remove_series_of(g, gate);
         }

@@ -897,6 +897,10 @@ impl AppState {
                 );
                 set(&self.metrics.equivalent_damping_ratio, d.zeta_eq);
                 set(&self.metrics.frequency_hertz, d.frequency_hz);
+                set(
+                    &self.metrics.identification_record_seconds,
+                    Some(job.values.len() as f64 / job.rate_hz),
+                );
                 set(&self.metrics.fit_nmae, Some(d.fit_nmae));
                 set(&self.metrics.amplitude, d.amplitude);
                 for (name, v) in &a.coefficients {
