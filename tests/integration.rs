@@ -66,6 +66,7 @@ mod service_workers;
 mod soak;
 mod store_history;
 mod store_nats;
+mod store_nats_busy;
 mod store_nats_history;
 mod store_nats_lease;
 mod store_nats_serve;

@@ -7,7 +7,7 @@ use gatewatch::store::{
 };
 
 mod fixtures;
-use fixtures::outbox_row;
+pub use fixtures::outbox_row;
 pub use fixtures::record;
 
 /// The gate name no subject or key could hold as it is.

@@ -86,6 +86,17 @@ pub const CLOCK_MARGIN: Duration = Duration::from_secs(3600);
 /// (17 280 rows) is a few round trips, small enough that one answer is about a megabyte.
 const FETCH_BATCH: usize = 1000;
 
+/// How long the server may hold one fetch that finds fewer messages than the consumer
+/// counted. A fetch is a no-wait pull request; without an expiry, nats-server before 2.12
+/// does not answer one whose counted messages were deleted after the consumer was made (a
+/// gate's alert state replaced, an outbox row delivered, rows pruned) until another message
+/// arrives: no `404 No Messages` (nats-server issue 7457, fixed by its pull request 7466;
+/// Debian's 2.9.10 has the bug). Seen here as fetches answered only at the writer's next
+/// write; with no next write the read would wait out the operation timeout. With an expiry
+/// the server ends such a request with `408 Request Timeout` after this long at most, and the
+/// read goes on with what it has; a fetch that finds its messages is answered at once.
+const FETCH_EXPIRES: Duration = Duration::from_millis(500);
+
 /// Messages [`Store::prune`] reads from the start of the history at most in one call: the
 /// writer prunes every hour, so the expired rows of an hour of many gates are removed in one
 /// call and a backlog over several; what is older is removed by the stream's `max_age` anyway.

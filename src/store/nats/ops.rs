@@ -17,7 +17,7 @@ use futures_util::StreamExt;
 use super::super::row::{stored_row, HistoryRow};
 use super::super::{Pruned, WriteBatch};
 use super::names::{decode, encode, Names};
-use super::read::{read_from, read_messages};
+use super::read::read_from;
 use super::{ctx, Conn, Failure, NatsOptions, StoredOutbox, PRUNE_SCAN_MAX};
 
 /// The longest wait between two attempts to reconnect to a server that went away.
@@ -254,13 +254,7 @@ pub(super) async fn delete_outbox_row(c: &Conn, seq: u64) -> Result<(), Failure>
     // the server answered (it is up): is the row there?
     if matches!(e.kind(), DeleteMessageErrorKind::JetStream(_)) {
         let gone = match c.outbox.get_raw_message(seq).await {
-            Err(g) => match g.kind() {
-                LastRawMessageErrorKind::NoMessageFound => true,
-                LastRawMessageErrorKind::JetStream(j) => {
-                    j.error_code() == ErrorCode::NO_MESSAGE_FOUND
-                }
-                _ => false,
-            },
+            Err(g) => no_message(&g),
             Ok(_) => false,
         };
         if gone {
@@ -356,21 +350,54 @@ pub(super) async fn write_batch(c: Arc<Conn>, batch: WriteBatch) -> Result<Vec<i
     Ok(ids)
 }
 
-/// The alert states, sorted by gate: every message of the alert stream (one per gate).
+/// The alert states, sorted by gate: the last message of each subject of the alert stream
+/// (one per gate), each read by its subject.
+///
+/// Why not a consumer over the stream: a writer replaces a gate's state by storing a new
+/// message and deleting the old one, so a read over the messages stored when it began misses
+/// the gates replaced meanwhile, and one that follows the stream chases the writer
+/// (`read::read_each`). One request per gate is bounded by the gates (at most `max_gates`, a
+/// few milliseconds each on a loopback) and gives each gate's newest state.
 pub(super) async fn read_alert_states(c: Arc<Conn>) -> Result<Vec<(String, String)>, Failure> {
     let filter = format!("{}.alert.*", c.names.prefix);
-    let messages = read_messages(&c.alerts, filter).await?;
-    let mut out = Vec::with_capacity(messages.len());
-    for (subject, payload) in messages {
+    let mut info = c
+        .alerts
+        .info_with_subjects(&filter)
+        .await
+        .map_err(ctx("subjects of the alert states"))?;
+    let mut subjects = Vec::new();
+    while let Some(s) = info.next().await {
+        let (subject, count) = s.map_err(ctx("subjects of the alert states"))?;
+        if count > 0 {
+            subjects.push(subject);
+        }
+    }
+    let mut out = Vec::with_capacity(subjects.len());
+    for subject in subjects {
         let token = subject.rsplit('.').next().unwrap_or_default();
         let gate = decode(token)
             .ok_or_else(|| format!("alert state subject {subject:?} is not a gate"))?;
-        let state =
-            String::from_utf8(payload).map_err(ctx(format!("alert state of gate {gate}")))?;
+        let message = match c.alerts.get_last_raw_message_by_subject(&subject).await {
+            Ok(m) => m,
+            // deleted since the listing: the gate was removed from the configuration
+            Err(e) if no_message(&e) => continue,
+            Err(e) => return Err(format!("alert state of gate {gate}: {e}")),
+        };
+        let state = String::from_utf8(message.payload.to_vec())
+            .map_err(ctx(format!("alert state of gate {gate}")))?;
         out.push((gate, state));
     }
     out.sort();
     Ok(out)
+}
+
+/// Whether a raw get found no message (the server's two ways of saying it).
+fn no_message(e: &stream::LastRawMessageError) -> bool {
+    match e.kind() {
+        LastRawMessageErrorKind::NoMessageFound => true,
+        LastRawMessageErrorKind::JetStream(j) => j.error_code() == ErrorCode::NO_MESSAGE_FOUND,
+        _ => false,
+    }
 }
 
 /// The gates of the history stream's subjects, sorted.

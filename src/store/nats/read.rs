@@ -21,7 +21,7 @@ use async_nats::jetstream::stream;
 use futures_util::StreamExt;
 
 use super::super::row::HistoryRow;
-use super::{ctx, Failure, FETCH_BATCH};
+use super::{ctx, Failure, FETCH_BATCH, FETCH_EXPIRES};
 
 /// An ephemeral consumer of `subject` (a filter) from `start` on, without acks; its name and
 /// the number of messages it has to deliver.
@@ -57,15 +57,30 @@ async fn consumer(
     Ok((consumer, name, pending))
 }
 
-/// Hands every message of `subject` (a filter) in `stream` from `start` on to `each`, as
-/// `(sequence, subject, payload)` in stream order, until `each` returns `false` or none is
-/// pending; fetched [`FETCH_BATCH`] at a time, nothing kept here.
+/// Hands every message of `subject` (a filter) in `stream` from `start` on that was stored
+/// when the read began to `each`, as `(sequence, subject, payload)` in stream order, until
+/// `each` returns `false` or none is left; fetched [`FETCH_BATCH`] at a time (each fetch
+/// answered within [`FETCH_EXPIRES`] when its messages went away meanwhile), nothing kept
+/// here.
+///
+/// # Why the read ends at the stream's last sequence at its start
+/// The consumer's count of what is left includes what a writer stores meanwhile. Reading
+/// until that count reached zero chased a busy writer: reading two gates' alert states while
+/// a writer replaced them every 2 ms, 14 of 155 reads ran into a 2 s timeout, one to two
+/// messages a fetch (docs/benchmarks.md, "NATS reads that chased their writer"). A message
+/// stored after the start is newer than the read; the next read has it.
 pub(super) async fn read_each(
     stream: &stream::Stream,
     subject: String,
     start: DeliverPolicy,
     mut each: impl FnMut(u64, &str, &[u8]) -> Result<bool, Failure>,
 ) -> Result<(), Failure> {
+    let last = stream
+        .get_info()
+        .await
+        .map_err(ctx(format!("info of the stream of {subject}")))?
+        .state
+        .last_sequence;
     let (consumer, name, mut pending) = consumer(stream, &subject, start).await?;
     let result: Result<(), Failure> = async {
         while pending > 0 {
@@ -75,6 +90,7 @@ pub(super) async fn read_each(
             let mut batch = consumer
                 .fetch()
                 .max_messages(want)
+                .expires(FETCH_EXPIRES)
                 .messages()
                 .await
                 .map_err(ctx(format!("read of {subject}")))?;
@@ -82,9 +98,13 @@ pub(super) async fn read_each(
             while let Some(m) = batch.next().await {
                 let m = m.map_err(ctx(format!("read of {subject}")))?;
                 let info = m.info().map_err(ctx(format!("read of {subject}")))?;
+                let seq = info.stream_sequence;
+                if seq > last {
+                    return Ok(()); // stored after the read began
+                }
                 pending = info.pending;
                 got += 1;
-                if !each(info.stream_sequence, &m.message.subject, &m.message.payload)? {
+                if !each(seq, &m.message.subject, &m.message.payload)? || seq == last {
                     return Ok(());
                 }
             }
@@ -117,16 +137,6 @@ pub(super) async fn read_from(
     })
     .await?;
     Ok(out)
-}
-
-/// Every message of `subject` (a filter) in `stream`, `(subject, payload)` in stream order.
-/// For the small streams only (alert states, outbox): not a gate's history.
-pub(super) async fn read_messages(
-    stream: &stream::Stream,
-    subject: String,
-) -> Result<Vec<(String, Vec<u8>)>, Failure> {
-    let all = read_from(stream, subject, usize::MAX).await?;
-    Ok(all.into_iter().map(|(_, s, p)| (s, p)).collect())
 }
 
 /// The last `n` messages of `subject` in `stream`, `(sequence, payload)` in stream order, read
