@@ -56,16 +56,7 @@ fn gap_threshold(points: &[DampingPoint]) -> Option<(f64, f64)> {
         .map(|w| w[1].time - w[0].time)
         .filter(|d| *d > 0.0)
         .collect();
-    if d.is_empty() {
-        return None;
-    }
-    d.sort_by(f64::total_cmp);
-    let n = d.len();
-    let median = if n % 2 == 1 {
-        d[n / 2]
-    } else {
-        0.5 * (d[n / 2 - 1] + d[n / 2])
-    };
+    let median = crate::identify::median(&mut d)?;
     Some((GAP_FACTOR * median, median))
 }
 
