@@ -360,23 +360,8 @@ pub(super) async fn write_batch(c: Arc<Conn>, batch: WriteBatch) -> Result<Vec<i
 /// few milliseconds each on a loopback) and gives each gate's newest state.
 pub(super) async fn read_alert_states(c: Arc<Conn>) -> Result<Vec<(String, String)>, Failure> {
     let filter = format!("{}.alert.*", c.names.prefix);
-    let mut info = c
-        .alerts
-        .info_with_subjects(&filter)
-        .await
-        .map_err(ctx("subjects of the alert states"))?;
-    let mut subjects = Vec::new();
-    while let Some(s) = info.next().await {
-        let (subject, count) = s.map_err(ctx("subjects of the alert states"))?;
-        if count > 0 {
-            subjects.push(subject);
-        }
-    }
-    let mut out = Vec::with_capacity(subjects.len());
-    for subject in subjects {
-        let token = subject.rsplit('.').next().unwrap_or_default();
-        let gate = decode(token)
-            .ok_or_else(|| format!("alert state subject {subject:?} is not a gate"))?;
+    let mut out = Vec::new();
+    for (subject, gate) in gate_subjects(&c.alerts, &filter, "alert states").await? {
         let message = match c.alerts.get_last_raw_message_by_subject(&subject).await {
             Ok(m) => m,
             // deleted since the listing: the gate was removed from the configuration
@@ -400,24 +385,38 @@ fn no_message(e: &stream::LastRawMessageError) -> bool {
     }
 }
 
+/// The subjects of `stream` matching `filter` that hold a message, each with its gate;
+/// `what` names them in errors ("alert states", "history").
+async fn gate_subjects(
+    stream: &stream::Stream,
+    filter: &str,
+    what: &str,
+) -> Result<Vec<(String, String)>, Failure> {
+    let mut info = stream
+        .info_with_subjects(filter)
+        .await
+        .map_err(ctx(format!("subjects of the {what}")))?;
+    let mut out = Vec::new();
+    while let Some(s) = info.next().await {
+        let (subject, count) = s.map_err(ctx(format!("subjects of the {what}")))?;
+        if count > 0 {
+            let token = subject.rsplit('.').next().unwrap_or_default();
+            let gate =
+                decode(token).ok_or_else(|| format!("{what} subject {subject:?} is not a gate"))?;
+            out.push((subject, gate));
+        }
+    }
+    Ok(out)
+}
+
 /// The gates of the history stream's subjects, sorted.
 pub(super) async fn read_history_gates(c: Arc<Conn>) -> Result<Vec<String>, Failure> {
     let filter = format!("{}.history.*", c.names.prefix);
-    let mut info = c
-        .history
-        .info_with_subjects(&filter)
-        .await
-        .map_err(ctx("subjects of the history"))?;
-    let mut gates = Vec::new();
-    while let Some(s) = info.next().await {
-        let (subject, count) = s.map_err(ctx("subjects of the history"))?;
-        let token = subject.rsplit('.').next().unwrap_or_default();
-        let gate =
-            decode(token).ok_or_else(|| format!("history subject {subject:?} is not a gate"))?;
-        if count > 0 {
-            gates.push(gate);
-        }
-    }
+    let mut gates: Vec<String> = gate_subjects(&c.history, &filter, "history")
+        .await?
+        .into_iter()
+        .map(|(_, gate)| gate)
+        .collect();
     gates.sort();
     Ok(gates)
 }
