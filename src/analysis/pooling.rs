@@ -126,10 +126,12 @@ impl ZetaPools {
     /// unchanged and empty the pools.
     pub fn apply(&mut self, t_start: f64, t_end: f64, d: &mut DampingReport) {
         let source = d.zeta0_source;
-        // a window that did not rise is read with its history where that holds more cycles
-        // than the window (`ambient_record_zeta`): the pool then counts that record
+        // a window that neither rose nor fell is read with its history where that holds more
+        // cycles than the window (`ambient_record_zeta`): the pool then counts that record
         let record = match (d.ambient_record_zeta, d.ambient_record_seconds) {
-            (Some(a), Some(s)) if !rising(d) && a.low <= a.high && s.is_finite() && s > 0.0 => {
+            (Some(a), Some(s))
+                if !stands_alone(d) && a.low <= a.high && s.is_finite() && s > 0.0 =>
+            {
                 Some((a, s))
             }
             _ => None,
@@ -196,7 +198,7 @@ impl ZetaPools {
             }
             return;
         }
-        if source == Some(Zeta0Source::Ambient) && rising(d) {
+        if source == Some(Zeta0Source::Ambient) && stands_alone(d) {
             // the window's own figure, interval and verdict stand; the pool keeps it, and the
             // trend reads the pool's figure (`trend_reading`)
             d.zeta0_windows = Some(1);
@@ -268,6 +270,33 @@ pub fn rising(d: &DampingReport) -> bool {
         (Some(r), Some(bar)) => r >= RISING_SHARE * bar,
         _ => false,
     }
+}
+
+/// Standard errors by which a window's envelope must fall for the window to count as falling
+/// ([`falling`]).
+pub const FALLING_SIGMAS: f64 = 2.0;
+
+/// Whether a window's envelope fell: its growth rate (`growth_rate`) lies more than
+/// [`FALLING_SIGMAS`] standard errors below zero. An ambient window that fell is reported as a
+/// [`rising`] one is: alone, by its own SSI-COV reading, not by its 100-cycle record, though it
+/// still joins the pool. Why: a decay after a recovery is another state of the gate, and the
+/// record and the pool both reach back into the cycle before it. On the 1 Hz surge gate the
+/// record reaches 100 s back and the decay's windows read 0.82 points low, 35 % covered; their
+/// own readings 0.46 points, 98 %. A steady gate's envelope falls by chance in about one window
+/// in twenty, which then loses only the record's precision, as a rising one does
+/// (`docs/damping.md`, "A falling window stands alone").
+pub fn falling(d: &DampingReport) -> bool {
+    match (d.growth_rate, d.growth_rate_stderr) {
+        (Some(g), Some(se)) if g.is_finite() && se.is_finite() && se >= 0.0 => {
+            g < -FALLING_SIGMAS * se
+        }
+        _ => false,
+    }
+}
+
+/// Whether an ambient window is reported alone: it [`rising`] or [`falling`].
+fn stands_alone(d: &DampingReport) -> bool {
+    rising(d) || falling(d)
 }
 
 /// What the gate's trend reads of a window's report: `(zeta0, interval, trusted)`, the pool's
@@ -677,6 +706,76 @@ mod tests {
             (next_without.zeta0_windows, next_without.zeta0_interval),
             "the rising window is in the pool"
         );
+    }
+
+    /// A window whose envelope fell by more than two standard errors (a decay after a
+    /// recovery) is reported by its own reading, not by its record, which reaches back into the
+    /// cycle before it; it joins the pool, whose figure the trend reads. A window whose envelope
+    /// fell by less, or whose fall has no standard error, is read by its record as before.
+    #[test]
+    fn a_falling_window_stands_alone_by_its_own_reading() {
+        let opts = PoolOptions {
+            min_cycles: 150.0,
+            max_seconds: 60.0,
+            ..PoolOptions::default()
+        };
+        let window = |zeta: f64, growth: Option<(f64, f64)>| {
+            let mut d = ambient(zeta, 0.01);
+            d.ambient_record_zeta = Some(AmbientZeta {
+                zeta: 0.004,
+                low: 0.0,
+                high: 0.008,
+            });
+            d.ambient_record_seconds = Some(20.0);
+            d.growth_rate = growth.map(|g| g.0);
+            d.growth_rate_stderr = growth.map(|g| g.1);
+            d
+        };
+        // a fall of 2.5 standard errors stands alone; one of 1.5, or none, does not
+        let down = window(0.02, Some((-0.05, 0.02)));
+        assert!(falling(&down) && !rising(&down));
+        for steady in [
+            window(0.02, Some((-0.03, 0.02))),
+            window(0.02, Some((0.05, 0.02))),
+            window(0.02, None),
+            window(0.02, Some((-0.05, f64::NAN))),
+        ] {
+            assert!(!falling(&steady), "{:?}", steady.growth_rate);
+        }
+        let mut pools = ZetaPools::new(opts).unwrap();
+        for k in 0..4 {
+            let t0 = 5.0 * k as f64;
+            let mut d = window(0.02, Some((-0.03, 0.02)));
+            pools.apply(t0, t0 + 10.0, &mut d);
+            assert!(
+                (d.zeta0.unwrap() - 0.004).abs() < 1e-12,
+                "read by its record"
+            );
+        }
+        let mut down = window(0.02, Some((-0.05, 0.02)));
+        let own = down.clone();
+        pools.apply(20.0, 30.0, &mut down);
+        assert_eq!(
+            (down.zeta0, down.zeta0_interval, down.verdict, down.trusted),
+            (own.zeta0, own.zeta0_interval, own.verdict, own.trusted),
+            "the window's own figure stands"
+        );
+        assert_eq!(down.zeta0_windows, Some(1));
+        let p = down.pooled_zeta.expect("the pool's figure");
+        assert!((0.0039..0.012).contains(&p.zeta), "pooled {p:?}");
+        assert!(
+            p.high - p.low < 0.02,
+            "narrower than the window's own: {p:?}"
+        );
+        assert_eq!(
+            trend_reading(&down),
+            (Some(p.zeta), Some((p.low, p.high)), true)
+        );
+        // alone in its pool, it still reads its own figure, not its record's
+        let mut fresh = ZetaPools::new(opts).unwrap();
+        let mut first = window(0.02, Some((-0.05, 0.02)));
+        fresh.apply(0.0, 10.0, &mut first);
+        assert_eq!((first.zeta0, first.zeta0_windows), (Some(0.02), Some(1)));
     }
 
     /// The envelope estimates of a limit cycle pool too, and a negative pooled interval makes
