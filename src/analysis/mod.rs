@@ -68,8 +68,8 @@ pub use model_free::{
 };
 pub use model_interval::{intervals, zeta0_interval, FittedModel};
 pub use pooling::{
-    falling, rising, trend_reading, PoolingSettings, ZetaPools, MIN_CYCLE_POOL_CYCLES,
-    POOL_MIN_WINDOWS, RISING_SHARE,
+    falling, rising, trend_reading, PoolingSettings, ZetaPools, FALLING_SIGMAS,
+    MIN_CYCLE_POOL_CYCLES, POOL_MIN_WINDOWS, RISING_SHARE,
 };
 pub use population::{biased_population, SpectralTarget};
 pub use prediction_error::{prediction_error_zeta, read_by_prediction_errors};
