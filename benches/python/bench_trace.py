@@ -1,6 +1,6 @@
 """The windows of `gatewatch bench warning --trace` output, parsed once for the trace scripts
 (trend_replay.py, trace_by_age.py, compare_firings.py, slope_calibration.py,
-rising_replay.py). Standard library only."""
+rising_replay.py, falling_share.py). Standard library only."""
 import re
 
 HEADER = re.compile(r"\[\d+/\d+\] (\S+) on (\w+) gate, seed (\d+)")
@@ -21,6 +21,8 @@ REGIME = re.compile(r"ssi common\) Some\(\(Some\((\w+)\)")
 RMS = re.compile(r"  rms ([\d.]+e[+-]?\d+)")
 # the trend's slope and its one-sided upper bound, %/min, where the window has a trend
 TREND = re.compile(r"trend \(%/min, upper %/min, confident crossing s\) Some\(\((-?[\d.e+-]+), (-?[\d.e+-]+), ")
+# the window's envelope growth rate and its standard error, 1/s
+GROWTH = re.compile(r"growth \(1/s, se\) Some\(\(Some\(([-\d.e+]+)\), Some\(([-\d.e+]+)\)\)\)")
 
 
 def trend(line):
@@ -33,6 +35,12 @@ def pool(line):
     """(zeta0, low, high) of a rising window's pool, None where the trace shows none."""
     m = POOL.search(line)
     return tuple(float(g) for g in m.groups()) if m else None
+
+
+def growth(line):
+    """(growth rate, standard error) of the window's envelope in 1/s, None where it has none."""
+    m = GROWTH.search(line)
+    return (float(m.group(1)), float(m.group(2))) if m else None
 
 
 def rms(line):
@@ -64,7 +72,7 @@ def read_trace(path):
             run["windows"].append({
                 "t": num(1), "true": num(2), "zeta0": num(3), "low": num(4), "high": num(5),
                 "source": m.group(6), "trusted": m.group(7) == "true", "firing": m.group(8),
-                "trend": trend(line), "rms": rms(line), "pool": pool(line),
+                "trend": trend(line), "rms": rms(line), "growth": growth(line), "pool": pool(line),
                 "regime": (lambda r: r.group(1) if r else None)(REGIME.search(line)), "line": line,
             })
     return runs

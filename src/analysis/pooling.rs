@@ -300,12 +300,12 @@ fn stands_alone(d: &DampingReport) -> bool {
 }
 
 /// What the gate's trend reads of a window's report: `(zeta0, interval, trusted)`, the pool's
-/// figure where a rising window is reported alone (`DampingReport::pooled_zeta`), else the
-/// report's own. Why the pool's: the trend weighs each window by its interval and fits a line
-/// through minutes of them; the lone figures of the windows that stand high by chance, a tenth
-/// of a steady gate's, made it warn on steady gates (replayed on 20 six-hour lock days at +0.5 %
-/// and 400 cold starts: three false `GateDampingDeclining`), while the pool they join follows a
-/// real drift as before.
+/// figure where a rising or falling window is reported alone (`DampingReport::pooled_zeta`),
+/// else the report's own. Why the pool's: the trend weighs each window by its interval and
+/// fits a line through minutes of them; the lone figures of the windows that stand high by
+/// chance, a tenth of a steady gate's, made it warn on steady gates (replayed on 20 six-hour
+/// lock days at +0.5 % and 400 cold starts: three false `GateDampingDeclining`), while the pool
+/// they join follows a real drift as before.
 pub fn trend_reading(d: &DampingReport) -> (Option<f64>, Option<(f64, f64)>, bool) {
     match d.pooled_zeta {
         Some(p) => (

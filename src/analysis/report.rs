@@ -236,10 +236,12 @@ pub struct DampingReport {
     #[serde(default)]
     pub zeta0_held: bool,
     /// On an ambient window that rose towards the departure ratio (`ambient_ratio` at least
-    /// half of `departure_ratio`, `analysis::rising`) and is therefore reported alone
-    /// (`zeta0_windows` 1, its own `zeta0` and interval): the figure and 95 % interval of the
-    /// pool it still joined. The trend reads this one, as it reads every pooled window
-    /// (`analysis::trend_reading`; `docs/damping.md`, "A rising window stands alone"). Also on
+    /// half of `departure_ratio`, `analysis::rising`), or whose envelope fell (`growth_rate`
+    /// more than two standard errors below zero, `analysis::falling`), and is therefore
+    /// reported alone (`zeta0_windows` 1, its own `zeta0` and interval): the figure and 95 %
+    /// interval of the pool it still joined. The trend reads this one, as it reads every pooled
+    /// window (`analysis::trend_reading`; `docs/damping.md`, "A rising window stands alone",
+    /// "A falling window stands alone"). Also on
     /// a limit-cycle window whose pool lies below zero but is short of
     /// `analysis::MIN_CYCLE_POOL_CYCLES` at the ambient level, reported untrusted: the pool's
     /// figure, which the trend reads as it did before that rule. `None` elsewhere.
