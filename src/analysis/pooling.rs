@@ -593,6 +593,15 @@ mod tests {
         assert_eq!(next.zeta0_windows, Some(1), "the pools were emptied");
     }
 
+    /// Pools of 150 cycles and at most 60 s: three 20 s records at 5 Hz, or five 10 s windows.
+    fn record_pool_options() -> PoolOptions {
+        PoolOptions {
+            min_cycles: 150.0,
+            max_seconds: 60.0,
+            ..PoolOptions::default()
+        }
+    }
+
     /// A window with an ambient record (`ambient_record_zeta`: its history read with it) is
     /// pooled by the record: alone in its pool it reports the record's figure and interval;
     /// pooled, the record's 20 s count, so three windows hold the pool's 150 cycles at 5 Hz
@@ -600,11 +609,7 @@ mod tests {
     /// reading whatever its record.
     #[test]
     fn the_ambient_pool_reads_each_windows_record() {
-        let opts = PoolOptions {
-            min_cycles: 150.0,
-            max_seconds: 60.0,
-            ..PoolOptions::default()
-        };
+        let opts = record_pool_options();
         let window = |zeta: f64, record: Option<f64>| {
             let mut d = ambient(zeta, 0.02);
             d.ambient_record_zeta = record.map(|z| AmbientZeta {
@@ -715,11 +720,7 @@ mod tests {
     /// fell by less, or whose fall has no standard error, is read by its record as before.
     #[test]
     fn a_falling_window_stands_alone_by_its_own_reading() {
-        let opts = PoolOptions {
-            min_cycles: 150.0,
-            max_seconds: 60.0,
-            ..PoolOptions::default()
-        };
+        let opts = record_pool_options();
         let window = |zeta: f64, growth: Option<(f64, f64)>| {
             let mut d = ambient(zeta, 0.01);
             d.ambient_record_zeta = Some(AmbientZeta {
