@@ -20,6 +20,8 @@
 //!   extended Kalman filter that carries the forcing as process noise.
 //! - `cycle_amplitude`: a limit cycle's zeta0 from its amplitude and the damping law of the
 //!   gate's last growth.
+//! - `falling_cycle`: a limit-cycle window whose envelope fell, its interval widened to span the
+//!   envelope's drift over the window.
 //! - `tracking`: when a window may refine the previous window's model instead of searching.
 //! - `analyzer`: the daemon's per-gate [`Analyzer`].
 //! - `trend`: the robust weighted trend of `zeta0` over recent windows and its predicted
@@ -33,6 +35,7 @@ mod ambient_level;
 mod analyzer;
 mod cycle_amplitude;
 mod early_warning;
+mod falling_cycle;
 mod growing;
 mod linearisation;
 mod model_free;
@@ -58,6 +61,7 @@ pub use cycle_amplitude::{
     CycleAmplitude, LAW_AMPLITUDE_TOLERANCE, LAW_INTERVAL_INFLATION, LAW_MAX_AGE_SECONDS,
 };
 pub use early_warning::{kendall_tau, lag1_autocorrelation, rolling, variance, EwsIndicators};
+pub use falling_cycle::span_the_fall;
 pub use growing::{read_growing_window, GROWING_MIN_RATIO, GROWING_MIN_SHIFT};
 pub use linearisation::{
     cycle_zeta0, equivalent_damping, limit_cycle, time_to_amplitude, Linearization,
@@ -68,8 +72,8 @@ pub use model_free::{
 };
 pub use model_interval::{intervals, zeta0_interval, FittedModel};
 pub use pooling::{
-    falling, rising, trend_reading, PoolingSettings, ZetaPools, FALLING_SIGMAS,
-    MIN_CYCLE_POOL_CYCLES, POOL_MIN_WINDOWS, RISING_SHARE,
+    falling, rising, trend_reading, PoolingSettings, ZetaPools, MIN_CYCLE_POOL_CYCLES,
+    POOL_MIN_WINDOWS, RISING_SHARE,
 };
 pub use population::{biased_population, SpectralTarget};
 pub use prediction_error::{prediction_error_zeta, read_by_prediction_errors};
@@ -88,8 +92,8 @@ pub use trend::{
     MIN_TREND_POINTS,
 };
 pub use verdict::{
-    ambient_decision, claims_unseen_growth, decide, refuse_few_cycles, Decision, VerdictFacts,
-    WindowGrowth, MIN_WINDOW_CYCLES,
+    ambient_decision, claims_unseen_growth, decide, falls, refuse_few_cycles, Decision,
+    VerdictFacts, WindowGrowth, FALLING_SIGMAS, MIN_WINDOW_CYCLES,
 };
 
 use serde::{Deserialize, Serialize};

@@ -61,7 +61,8 @@ pub(super) struct ModelFree {
     pub(super) sigma_clean: Option<f64>,
     /// `zeta0` from the envelope's relaxation, on a limit-cycle window.
     pub(super) relaxation: Option<AmbientZeta>,
-    /// `zeta0` from the envelope's drift, on a limit-cycle window the relaxation refused.
+    /// `zeta0` from the envelope's drift over the window, on a limit-cycle window the relaxation
+    /// refused or whose envelope fell ([`super::verdict::falls`]).
     pub(super) drift: Option<AmbientZeta>,
     /// Seconds of record behind `relaxation` or `drift`: the relaxation's record (the gate's
     /// history, or the window) or the window's for the drift.
@@ -147,12 +148,23 @@ pub(super) fn model_free(
                     ),
                     None => (sa.envelope_relaxation(&work, f, &relax), window_seconds),
                 };
+            let drift_opts = crate::spectral::DriftOptions::default();
+            let mut drift = || {
+                sa.envelope_drift(&work, f, relax.band, &drift_opts)
+                    .ok()
+                    .as_ref()
+                    .map(AmbientZeta::from)
+            };
             match relaxation {
+                // a cycle whose envelope fell is no saturated cycle, which the relaxation
+                // assumes: the drift over the window is read as well, and the reported
+                // interval spans it (`span_the_fall`)
+                Ok(r) if super::verdict::falls(s.growth.sigma, s.growth.stderr) => {
+                    (Some(AmbientZeta::from(&r)), drift(), record_seconds)
+                }
                 Ok(r) => (Some(AmbientZeta::from(&r)), None, record_seconds),
                 Err(_) => {
-                    let opts = crate::spectral::DriftOptions::default();
-                    let d = sa.envelope_drift(&work, f, relax.band, &opts).ok();
-                    let d = d.as_ref().map(AmbientZeta::from);
+                    let d = drift();
                     (None, d, d.and(window_seconds))
                 }
             }

@@ -23,6 +23,7 @@ use serde::{Deserialize, Serialize};
 
 use super::ambient_level::departed;
 use super::report::{AmbientZeta, DampingReport, Verdict, Zeta0Source};
+use super::verdict::falls;
 use crate::spectral::{self, DampingPool, PoolLocation, PoolOptions, Regime, WindowEstimate};
 
 /// The pooling of a gate (`[defaults.pooling]` / `[gates.ID.pooling]`).
@@ -272,12 +273,8 @@ pub fn rising(d: &DampingReport) -> bool {
     }
 }
 
-/// Standard errors by which a window's envelope must fall for the window to count as falling
-/// ([`falling`]).
-pub const FALLING_SIGMAS: f64 = 2.0;
-
 /// Whether a window's envelope fell: its growth rate (`growth_rate`) lies more than
-/// [`FALLING_SIGMAS`] standard errors below zero. An ambient window that fell is reported as a
+/// [`FALLING_SIGMAS`](super::FALLING_SIGMAS) standard errors below zero. An ambient window that fell is reported as a
 /// [`rising`] one is: alone, by its own SSI-COV reading, not by its 100-cycle record, though it
 /// still joins the pool. Why: a decay after a recovery is another state of the gate, and the
 /// record and the pool both reach back into the cycle before it. On the 1 Hz surge gate the
@@ -288,9 +285,7 @@ pub const FALLING_SIGMAS: f64 = 2.0;
 /// (`docs/damping.md`, "A falling window stands alone").
 pub fn falling(d: &DampingReport) -> bool {
     match (d.growth_rate, d.growth_rate_stderr) {
-        (Some(g), Some(se)) if g.is_finite() && se.is_finite() && se >= 0.0 => {
-            g < -FALLING_SIGMAS * se
-        }
+        (Some(g), Some(se)) => falls(g, se),
         _ => false,
     }
 }

@@ -152,6 +152,14 @@ pub struct DampingReport {
     /// estimate. What the pool counts as the record consecutive estimates share.
     #[serde(default)]
     pub envelope_record_seconds: Option<f64>,
+    /// `zeta0` of a limit-cycle window from its envelope's drift over the window alone, with its
+    /// 95 % interval, where the relaxation refused the window or the window's envelope fell
+    /// (`growth_rate` more than two standard errors below zero: a shrinking cycle, not a
+    /// saturated one); `None` elsewhere. On a falling cycle read by the relaxation, `zeta0`'s
+    /// interval spans this one too (`analysis::span_the_fall`; `docs/damping.md`, "A falling
+    /// cycle's interval spans its drift").
+    #[serde(default)]
+    pub envelope_drift_zeta: Option<AmbientZeta>,
     /// The SSI-COV reading of the window together with its history, the last 100 cycles back to
     /// where the response's level moved, with its 95 % interval; `None` where the window itself
     /// holds 100 cycles or the history adds nothing (`docs/damping.md`, "One ambient reading of
@@ -328,6 +336,7 @@ impl DampingReport {
             ambient_common_zeta: None,
             envelope_zeta: None,
             envelope_record_seconds: None,
+            envelope_drift_zeta: None,
             ambient_record_zeta: None,
             ambient_record_seconds: None,
             model_zeta: None,

@@ -416,6 +416,7 @@ fn analyze(
     }
     damping.envelope_zeta = free.relaxation;
     damping.envelope_record_seconds = free.envelope_record_seconds;
+    damping.envelope_drift_zeta = free.drift;
     damping.ambient_record_zeta = free.ambient_record.map(|r| r.0);
     damping.ambient_record_seconds = free.ambient_record.map(|r| r.1);
     let runs_zeta: Vec<f64> = identification

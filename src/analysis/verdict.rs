@@ -68,6 +68,19 @@ impl WindowGrowth {
     }
 }
 
+/// Standard errors by which a window's envelope must fall for the window to count as falling
+/// ([`falls`], [`super::falling`]).
+pub const FALLING_SIGMAS: f64 = 2.0;
+
+/// Whether an envelope growth rate `sigma` (1/s) with standard error `stderr` says the envelope
+/// fell: `sigma` lies more than [`FALLING_SIGMAS`] standard errors below zero (both finite,
+/// `stderr` not negative). An ambient window that fell stands alone ([`super::falling`]); a
+/// limit-cycle window that fell is no saturated cycle, and its envelope's drift is read too
+/// (`model_free`, [`super::span_the_fall`]).
+pub fn falls(sigma: f64, stderr: f64) -> bool {
+    sigma.is_finite() && stderr.is_finite() && stderr >= 0.0 && sigma < -FALLING_SIGMAS * stderr
+}
+
 /// How far two envelope growth rates may differ and still agree: [`GROWTH_TOLERANCE_SIGMAS`]
 /// times `stderr` (their summed standard errors) plus [`GROWTH_TOLERANCE_ZETA`] at `omega`.
 fn growth_tolerance(stderr: f64, omega: f64) -> f64 {
