@@ -1119,10 +1119,12 @@ fn explore_cycle_amplitude() {
 /// The 2 Hz barrier gate's recovery (on the -2 % cycle for 2 min, back to +2 % over 60 s)
 /// streamed through the daemon's state and analysis as `bench warning` streams it: a window of
 /// the shrinking cycle read as a cycle never claims a confident negative once the true `zeta0`
-/// is back at zero or above. Before `analysis::span_the_fall` the relaxation read seed 101's
-/// window ending at 165 s -1.72 % (-3.22, -0.23) at a true +0.33 %, and seed 103's at 160 s
-/// -1.53 % (-2.87, -0.20) at a true 0 (docs/damping.md, "A falling cycle's interval spans its
-/// drift"). The held cycle before the ramp is still read confidently negative.
+/// is back at zero or above. Before stop 89 the relaxation read seed 101's window ending at 165 s
+/// -1.72 % (-3.22, -0.23) at a true +0.33 %, and seed 103's at 160 s -1.53 % (-2.87, -0.20) at
+/// a true 0; the fall is now read through the cycle the gate held (`CycleAmplitude::read_fall`)
+/// or, without one, spans the envelope's drift (`analysis::span_the_fall`; docs/damping.md, "A
+/// falling cycle read through the cycle it held"). The held cycle before the ramp is still read
+/// confidently negative.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_shrinking_cycle_is_never_read_confidently_negative() {
     use gatewatch::service::bench_warning::{run_config, run_stream, RunSpec};
@@ -1174,5 +1176,27 @@ async fn a_shrinking_cycle_is_never_read_confidently_negative() {
                 .any(|w| w.end <= 120.0 && w.interval.is_some_and(|(_, high)| high < 0.0)),
             "seed {seed}: the held cycle was never read confidently negative"
         );
+        // the ramp's falling windows read through the held cycle cover the truth
+        let read_fall: Vec<_> = run
+            .windows
+            .iter()
+            .filter(|w| w.end > 120.0 && w.source.as_deref() == Some("amplitude"))
+            .collect();
+        assert!(
+            read_fall.len() >= 3,
+            "seed {seed}: {} windows of the ramp read through the held cycle",
+            read_fall.len()
+        );
+        for w in read_fall {
+            assert!(
+                w.interval
+                    .is_some_and(|(low, high)| low <= w.truth_mean && w.truth_mean <= high),
+                "seed {seed}, window ending at {:.0} s: {:?} {:?} at a true {:+.2} %",
+                w.end,
+                w.zeta0,
+                w.interval,
+                100.0 * w.truth_mean
+            );
+        }
     }
 }

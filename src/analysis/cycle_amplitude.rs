@@ -33,6 +33,7 @@
 //! coverage on growths), and the two readings are combined by their inverse variances. The carried one is shared by every
 //! window of a cycle, so it is combined after the envelope's pool, never pooled itself.
 
+use super::falling_cycle::HeldCycle;
 use super::report::{AmbientZeta, DampingReport, Verdict, Zeta0Source};
 use crate::spectral::{normal_quantile, Regime};
 
@@ -70,6 +71,8 @@ struct GrowthLaw {
 #[derive(Debug, Clone, PartialEq)]
 pub struct CycleAmplitude {
     law: Option<GrowthLaw>,
+    /// The gate's last steady cycle, whose law reads a fall ([`Self::read_fall`]).
+    held: Option<HeldCycle>,
     exponent: f64,
 }
 
@@ -77,6 +80,7 @@ impl Default for CycleAmplitude {
     fn default() -> Self {
         CycleAmplitude {
             law: None,
+            held: None,
             exponent: crate::spectral::RelaxationOptions::default().exponent,
         }
     }
@@ -92,8 +96,44 @@ impl CycleAmplitude {
             if let Some(law) = growth_law(t_end, d) {
                 memory.law = Some(law);
             }
+            if let Some(held) = HeldCycle::of(t_end, d) {
+                memory.held = Some(held);
+            }
         }
         memory
+    }
+
+    /// Reads the final report of the window ending at `t_end` (sample time), after
+    /// [`Self::observe`]: a steady cycle is remembered ([`HeldCycle`]); a limit-cycle window read
+    /// as a cycle whose envelope fell is read through the last held cycle's law, in sample time at
+    /// most [`LAW_MAX_AGE_SECONDS`] back (`zeta0_source = "amplitude"`, its own reading: one
+    /// window, the verdict by its interval as the envelope's rows of `decide` read it, and the
+    /// trend reads it). Returns whether it read the fall; where it did not, the daemon spans the
+    /// fall's two readings instead ([`super::span_the_fall`]). `docs/damping.md`, "A falling
+    /// cycle read through the cycle it held".
+    pub fn read_fall(&mut self, t_end: f64, d: &mut DampingReport) -> bool {
+        if let Some(held) = HeldCycle::of(t_end, d) {
+            self.held = Some(held);
+            return false;
+        }
+        let Some(held) = self.held.filter(|h| t_end - h.t_end <= LAW_MAX_AGE_SECONDS) else {
+            return false;
+        };
+        let Some(z) = held.read_fall(d, self.exponent) else {
+            return false;
+        };
+        d.zeta0 = Some(z.zeta);
+        d.zeta0_interval = Some((z.low, z.high));
+        d.zeta0_source = Some(Zeta0Source::Amplitude);
+        d.amplitude_zeta = Some(z);
+        d.zeta0_windows = Some(1);
+        d.pooled_zeta = None;
+        (d.verdict, d.trusted) = if z.high < 0.0 {
+            (Verdict::SelfExcited, true)
+        } else {
+            (Verdict::Unknown, false)
+        };
+        true
     }
 
     /// Reads the report of the window ending at `t_end` (sample time), after the envelope's

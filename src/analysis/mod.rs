@@ -61,7 +61,7 @@ pub use cycle_amplitude::{
     CycleAmplitude, LAW_AMPLITUDE_TOLERANCE, LAW_INTERVAL_INFLATION, LAW_MAX_AGE_SECONDS,
 };
 pub use early_warning::{kendall_tau, lag1_autocorrelation, rolling, variance, EwsIndicators};
-pub use falling_cycle::span_the_fall;
+pub use falling_cycle::{span_the_fall, HeldCycle};
 pub use growing::{read_growing_window, GROWING_MIN_RATIO, GROWING_MIN_SHIFT};
 pub use linearisation::{
     cycle_zeta0, equivalent_damping, limit_cycle, time_to_amplitude, Linearization,

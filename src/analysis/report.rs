@@ -155,9 +155,10 @@ pub struct DampingReport {
     /// `zeta0` of a limit-cycle window from its envelope's drift over the window alone, with its
     /// 95 % interval, where the relaxation refused the window or the window's envelope fell
     /// (`growth_rate` more than two standard errors below zero: a shrinking cycle, not a
-    /// saturated one); `None` elsewhere. On a falling cycle read by the relaxation, `zeta0`'s
-    /// interval spans this one too (`analysis::span_the_fall`; `docs/damping.md`, "A falling
-    /// cycle's interval spans its drift").
+    /// saturated one); `None` elsewhere. On a falling cycle read by the relaxation, where no
+    /// held cycle reads it (`amplitude_zeta`), `zeta0`'s interval spans this one too
+    /// (`analysis::span_the_fall`; `docs/damping.md`, "A falling cycle's interval spans its
+    /// drift").
     #[serde(default)]
     pub envelope_drift_zeta: Option<AmbientZeta>,
     /// The SSI-COV reading of the window together with its history, the last 100 cycles back to
@@ -178,7 +179,9 @@ pub struct DampingReport {
     /// `zeta0` of a limit-cycle window from the cycle's amplitude and the damping law of the
     /// gate's last growth (`[zeta, low, high]`), before its combination with the envelope's;
     /// `None` without a growth in the last half hour (`docs/damping.md`, "The cycle's
-    /// amplitude").
+    /// amplitude"). On a cycle whose envelope fell, the reading through the law of the cycle the
+    /// gate held before (its envelope's fall and its amplitude; then also `zeta0`,
+    /// `docs/damping.md`, "A falling cycle read through the cycle it held").
     #[serde(default)]
     pub amplitude_zeta: Option<AmbientZeta>,
     /// On a window that grew into its limit cycle and whose model decided it: the model's

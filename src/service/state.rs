@@ -853,7 +853,9 @@ impl AppState {
                     p.apply(window.0, window.1, &mut a.damping);
                 }
                 e.cycle.observe(window.1, &mut a.damping);
-                crate::analysis::span_the_fall(&mut a.damping);
+                if !e.cycle.read_fall(window.1, &mut a.damping) {
+                    crate::analysis::span_the_fall(&mut a.damping);
+                }
                 // a window of a few cycles is no evidence, whichever source read it: the gate
                 // needs a longer window (one line a minute says so)
                 if crate::analysis::refuse_few_cycles(&mut a.damping) {
