@@ -157,8 +157,9 @@ pub(super) fn model_free(
             };
             match relaxation {
                 // a cycle whose envelope fell is no saturated cycle, which the relaxation
-                // assumes: the drift over the window is read as well, and the reported
-                // interval spans it (`span_the_fall`)
+                // assumes: the drift over the window is read as well, and where no held cycle
+                // reads the fall (`CycleAmplitude::read_fall`) the reported interval spans it
+                // (`span_the_fall`)
                 Ok(r) if super::verdict::falls(s.growth.sigma, s.growth.stderr) => {
                     (Some(AmbientZeta::from(&r)), drift(), record_seconds)
                 }

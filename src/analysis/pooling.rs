@@ -274,8 +274,8 @@ pub fn rising(d: &DampingReport) -> bool {
 }
 
 /// Whether a window's envelope fell: its growth rate (`growth_rate`) lies more than
-/// [`FALLING_SIGMAS`](super::FALLING_SIGMAS) standard errors below zero. An ambient window that fell is reported as a
-/// [`rising`] one is: alone, by its own SSI-COV reading, not by its 100-cycle record, though it
+/// [`FALLING_SIGMAS`](super::FALLING_SIGMAS) standard errors below zero ([`falls`]). An ambient
+/// window that fell is reported as a [`rising`] one is: alone, by its own SSI-COV reading, not by its 100-cycle record, though it
 /// still joins the pool. Why: a decay after a recovery is another state of the gate, and the
 /// record and the pool both reach back into the cycle before it. On the 1 Hz surge gate the
 /// record reaches 100 s back and the decay's windows read 0.82 points low, 35 % covered; their
