@@ -29,6 +29,15 @@ use super::report::{AmbientZeta, DampingReport, Verdict, Zeta0Source};
 use super::verdict::falls;
 use crate::spectral::Regime;
 
+/// Whether `d` is a limit-cycle window read as a cycle: by its envelope, or through the cycle's
+/// amplitude.
+fn read_as_cycle(d: &DampingReport) -> bool {
+    matches!(
+        d.zeta0_source,
+        Some(Zeta0Source::Envelope | Zeta0Source::Amplitude)
+    ) && d.regime == Some(Regime::LimitCycle)
+}
+
 /// The gate's last steady cycle: a trusted, confidently negative reading of a limit-cycle window
 /// read as a cycle whose envelope neither fell nor rose by more than two standard errors, with
 /// the window's RMS and end (sample time). What [`HeldCycle::read_fall`] reads a fall through.
@@ -45,22 +54,16 @@ pub struct HeldCycle {
 impl HeldCycle {
     /// The held cycle a final report of the window ending at `t_end` shows, if it shows one.
     pub fn of(t_end: f64, d: &DampingReport) -> Option<HeldCycle> {
-        let read_as_cycle = matches!(
-            d.zeta0_source,
-            Some(Zeta0Source::Envelope | Zeta0Source::Amplitude)
-        );
         let (g, se) = (d.growth_rate?, d.growth_rate_stderr?);
         let steady = !falls(g, se) && !falls(-g, se);
         let (zeta, (low, high)) = (d.zeta0?, d.zeta0_interval?);
         let rms = d.signal_rms.filter(|r| r.is_finite() && *r > 0.0)?;
         let confident = d.trusted && d.verdict == Verdict::SelfExcited && high < 0.0;
-        (read_as_cycle && d.regime == Some(Regime::LimitCycle) && steady && confident).then_some(
-            HeldCycle {
-                zeta0: AmbientZeta { zeta, low, high },
-                rms,
-                t_end,
-            },
-        )
+        (read_as_cycle(d) && steady && confident).then_some(HeldCycle {
+            zeta0: AmbientZeta { zeta, low, high },
+            rms,
+            t_end,
+        })
     }
 
     /// `zeta0` of a falling cycle read through this held cycle's law (module documentation),
@@ -68,11 +71,7 @@ impl HeldCycle {
     /// window read as a cycle whose envelope fell ([`falling`]), or lacks its frequency, growth
     /// or RMS.
     pub fn read_fall(&self, d: &DampingReport, exponent: f64) -> Option<AmbientZeta> {
-        let read_as_cycle = matches!(
-            d.zeta0_source,
-            Some(Zeta0Source::Envelope | Zeta0Source::Amplitude)
-        );
-        if !(read_as_cycle && d.regime == Some(Regime::LimitCycle) && falling(d)) {
+        if !(read_as_cycle(d) && falling(d)) {
             return None;
         }
         let w = 2.0 * std::f64::consts::PI * d.frequency_hz.filter(|f| *f > 0.0)?;
@@ -109,11 +108,7 @@ impl HeldCycle {
 /// of 14 decay windows and 97 % of the limit-cycle ones on 20 recoveries (64 % and 94 % before;
 /// `docs/damping.md`, "A falling cycle's interval spans its drift").
 pub fn span_the_fall(d: &mut DampingReport) -> bool {
-    let read_as_cycle = matches!(
-        d.zeta0_source,
-        Some(Zeta0Source::Envelope | Zeta0Source::Amplitude)
-    );
-    if !(read_as_cycle && d.regime == Some(Regime::LimitCycle) && falling(d)) {
+    if !(read_as_cycle(d) && falling(d)) {
         return false;
     }
     let (Some((low, high)), Some(e)) = (d.zeta0_interval, d.envelope_drift_zeta) else {
