@@ -1200,3 +1200,66 @@ async fn a_shrinking_cycle_is_never_read_confidently_negative() {
         }
     }
 }
+
+/// The 2 Hz barrier gate's onset (+2 % to -2 % over 60 s, then the -2 % cycle) streamed through
+/// the daemon's state and analysis as `bench warning` streams it: every window of the held cycle
+/// read as a cycle covers the truth. Before stop 90 the cycle was read through a damping law from
+/// a window of the ramp, whose constant-coefficient model read the ramp's average: seed 107's
+/// law (-1.0 %, from a growing window) decided 19 windows at -1.0 % (-1.65, -0.3), none covering
+/// -2 %; seed 119's (-0.82 %, from a window read as a cycle whose envelope still rose by five
+/// standard errors) 20 of 22. Now a window read by its prediction errors that contradicts a law
+/// drops it (seed 107), and a window read as a cycle still pushed out carries none (seed 119):
+/// `CycleAmplitude`, docs/damping.md, "A law from one damping". The cycle is still read
+/// confidently negative.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_onsets_cycle_is_not_read_through_the_ramps_average() {
+    use gatewatch::service::bench_warning::{run_config, run_stream, RunSpec};
+    use gatewatch::service::worker::{AnalyzerMap, WindowAnalyzer};
+    use std::sync::Arc;
+    let gate = GatePreset::Barrier;
+    let p = gate.params();
+    let config = run_config(gate, 1);
+    let analyzer: Arc<dyn WindowAnalyzer> =
+        Arc::new(AnalyzerMap::from_config(&config).expect("analyzer"));
+    for seed in [107, 119] {
+        let spec = RunSpec {
+            scenario: ScenarioName::Onset,
+            gate,
+            seed,
+            noise_rms: NoiseLevel::Relative(0.125).rms(&p),
+            duration_s: ScenarioName::Onset.def(&p).duration_s,
+            trace: false,
+        };
+        let run = run_stream(&spec, config.clone(), analyzer.clone())
+            .await
+            .expect("stream");
+        let held: Vec<_> = run
+            .windows
+            .iter()
+            .filter(|w| w.truth_mean <= -0.0199)
+            .filter(|w| matches!(w.source.as_deref(), Some("envelope" | "amplitude")))
+            .collect();
+        assert!(
+            held.len() >= 10,
+            "seed {seed}: {} windows of the held cycle read as a cycle",
+            held.len()
+        );
+        for w in &held {
+            assert!(
+                w.interval
+                    .is_some_and(|(low, high)| low <= w.truth_mean && w.truth_mean <= high),
+                "seed {seed}, window ending at {:.0} s ({:?}): {:?} {:?} at a true {:+.2} %",
+                w.end,
+                w.source,
+                w.zeta0,
+                w.interval,
+                100.0 * w.truth_mean
+            );
+        }
+        assert!(
+            held.iter()
+                .any(|w| w.interval.is_some_and(|(_, high)| high < 0.0)),
+            "seed {seed}: the held cycle was never read confidently negative"
+        );
+    }
+}
