@@ -27,7 +27,8 @@
 //!   72), its non-linear term as uncertain as the rest;
 //! - the growth window read one damping: it grew, or the regime read it as a cycle whose envelope
 //!   did not still rise over it (`saw_one_damping`; a cycle still pushed out across a window is an
-//!   onset's ramp, whose model reads the ramp's average);
+//!   onset's ramp, whose model reads the ramp's average, and such a window drops the gate's
+//!   earlier law, read earlier on the same ramp);
 //! - the cycle is where that model said it would settle (within [`LAW_AMPLITUDE_TOLERANCE`]),
 //!   and no later window read by its prediction errors contradicts the law (`contradicted`): the
 //!   damping has not moved since (`docs/damping.md`, "A law from one damping");
@@ -110,16 +111,29 @@ impl CycleAmplitude {
     pub fn resume<'a>(reports: impl IntoIterator<Item = (&'a DampingReport, f64)>) -> Self {
         let mut memory = CycleAmplitude::default();
         for (d, t_end) in reports {
-            if let Some(law) = growth_law(t_end, d) {
-                memory.law = Some(law);
-            } else if memory.law.is_some_and(|l| contradicted(l, d)) {
-                memory.law = None;
-            }
+            memory.follow_law(t_end, d);
             if let Some(held) = HeldCycle::of(t_end, d) {
                 memory.held = Some(held);
             }
         }
         memory
+    }
+
+    /// The law after the window ending at `t_end`: a growth window that read one damping brings
+    /// its law; one whose cycle was still pushed out ([`saw_one_damping`]), or a reading that
+    /// contradicts the law ([`contradicted`]), drops it, since the damping is still moving (an
+    /// earlier window of the same ramp read an older damping still). Returns whether the window
+    /// was a growth window or dropped the law (then it is not read through a law).
+    fn follow_law(&mut self, t_end: f64, d: &DampingReport) -> bool {
+        if let Some(law) = growth_law(t_end, d) {
+            self.law = saw_one_damping(d).then_some(law);
+            return true;
+        }
+        if self.law.is_some_and(|l| contradicted(l, d)) {
+            self.law = None;
+            return true;
+        }
+        false
     }
 
     /// Reads the final report of the window ending at `t_end` (sample time), after
@@ -161,12 +175,7 @@ impl CycleAmplitude {
     /// `zeta0`, its interval, the verdict and `trusted` become their combination
     /// (`zeta0_source = "amplitude"`).
     pub fn observe(&mut self, t_end: f64, d: &mut DampingReport) {
-        if let Some(law) = growth_law(t_end, d) {
-            self.law = Some(law);
-            return;
-        }
-        if self.law.is_some_and(|l| contradicted(l, d)) {
-            self.law = None;
+        if self.follow_law(t_end, d) {
             return;
         }
         let Some(law) = self.law.filter(|l| t_end - l.t_end <= LAW_MAX_AGE_SECONDS) else {
@@ -221,7 +230,7 @@ fn growth_law(t_end: f64, d: &DampingReport) -> Option<GrowthLaw> {
     let model_read_it = d.zeta0_source == Some(Zeta0Source::Model)
         || (d.zeta0_source == Some(Zeta0Source::PredictionError)
             && d.model_zeta.is_some_and(|m| m.high < 0.0));
-    if !(d.trusted && model_read_it && saw_one_damping(d)) {
+    if !(d.trusted && model_read_it) {
         return None;
     }
     let zeta0 = d.growth_law_zeta?;
@@ -494,6 +503,19 @@ mod tests {
             memory.observe(90.0, &mut d);
             assert_eq!(d.amplitude_zeta.is_some(), carried, "{window:?}");
             assert_eq!(CycleAmplitude::resume([(&window, 70.0)]), memory);
+            // after an earlier growth's law: a window still pushed out drops it too (the damping
+            // is still moving, and the earlier window read an older damping still)
+            let earlier = growth(-0.012, 0.004);
+            let mut memory = CycleAmplitude::default();
+            memory.observe(60.0, &mut earlier.clone());
+            memory.observe(70.0, &mut window.clone());
+            let mut d = cycle(A_STAR, -0.018, 0.008, 3);
+            memory.observe(90.0, &mut d);
+            let read = d.amplitude_zeta.map(|c| c.zeta);
+            assert_eq!(read.is_some(), carried, "{window:?}");
+            assert!(read.is_none_or(|z| (z + 0.02).abs() < 1e-12), "{read:?}");
+            let stored = [(&earlier, 60.0), (&window, 70.0)];
+            assert_eq!(CycleAmplitude::resume(stored), memory);
         }
     }
 
