@@ -1116,6 +1116,45 @@ fn explore_cycle_amplitude() {
     }
 }
 
+/// The 2 Hz barrier gate's `scenario` for `seed`, at the bench's sensor noise, streamed through
+/// the daemon's state and analysis (the real analyzer) as `bench warning` streams it.
+async fn barrier_stream(
+    scenario: ScenarioName,
+    seed: u64,
+) -> gatewatch::service::bench_warning::RunRecord {
+    use gatewatch::service::bench_warning::{run_config, run_stream, RunSpec};
+    use gatewatch::service::worker::{AnalyzerMap, WindowAnalyzer};
+    use std::sync::Arc;
+    let gate = GatePreset::Barrier;
+    let p = gate.params();
+    let config = run_config(gate, 1);
+    let analyzer: Arc<dyn WindowAnalyzer> =
+        Arc::new(AnalyzerMap::from_config(&config).expect("analyzer"));
+    let spec = RunSpec {
+        scenario,
+        gate,
+        seed,
+        noise_rms: NoiseLevel::Relative(0.125).rms(&p),
+        duration_s: scenario.def(&p).duration_s,
+        trace: false,
+    };
+    run_stream(&spec, config, analyzer).await.expect("stream")
+}
+
+/// Asserts that the window's reported interval holds its true mean `zeta0`.
+fn assert_covers(seed: u64, w: &gatewatch::service::bench_warning::WindowRecord) {
+    assert!(
+        w.interval
+            .is_some_and(|(low, high)| low <= w.truth_mean && w.truth_mean <= high),
+        "seed {seed}, window ending at {:.0} s ({:?}): {:?} {:?} at a true {:+.2} %",
+        w.end,
+        w.source,
+        w.zeta0,
+        w.interval,
+        100.0 * w.truth_mean
+    );
+}
+
 /// The 2 Hz barrier gate's recovery (on the -2 % cycle for 2 min, back to +2 % over 60 s)
 /// streamed through the daemon's state and analysis as `bench warning` streams it: a window of
 /// the shrinking cycle read as a cycle never claims a confident negative once the true `zeta0`
@@ -1127,26 +1166,8 @@ fn explore_cycle_amplitude() {
 /// confidently negative.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_shrinking_cycle_is_never_read_confidently_negative() {
-    use gatewatch::service::bench_warning::{run_config, run_stream, RunSpec};
-    use gatewatch::service::worker::{AnalyzerMap, WindowAnalyzer};
-    use std::sync::Arc;
-    let gate = GatePreset::Barrier;
-    let p = gate.params();
-    let config = run_config(gate, 1);
-    let analyzer: Arc<dyn WindowAnalyzer> =
-        Arc::new(AnalyzerMap::from_config(&config).expect("analyzer"));
     for seed in [101, 103] {
-        let spec = RunSpec {
-            scenario: ScenarioName::Recovery,
-            gate,
-            seed,
-            noise_rms: NoiseLevel::Relative(0.125).rms(&p),
-            duration_s: ScenarioName::Recovery.def(&p).duration_s,
-            trace: false,
-        };
-        let run = run_stream(&spec, config.clone(), analyzer.clone())
-            .await
-            .expect("stream");
+        let run = barrier_stream(ScenarioName::Recovery, seed).await;
         let as_cycle = |w: &&gatewatch::service::bench_warning::WindowRecord| {
             matches!(w.source.as_deref(), Some("envelope" | "amplitude"))
         };
@@ -1188,15 +1209,7 @@ async fn a_shrinking_cycle_is_never_read_confidently_negative() {
             read_fall.len()
         );
         for w in read_fall {
-            assert!(
-                w.interval
-                    .is_some_and(|(low, high)| low <= w.truth_mean && w.truth_mean <= high),
-                "seed {seed}, window ending at {:.0} s: {:?} {:?} at a true {:+.2} %",
-                w.end,
-                w.zeta0,
-                w.interval,
-                100.0 * w.truth_mean
-            );
+            assert_covers(seed, w);
         }
     }
 }
@@ -1213,26 +1226,8 @@ async fn a_shrinking_cycle_is_never_read_confidently_negative() {
 /// confidently negative.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn an_onsets_cycle_is_not_read_through_the_ramps_average() {
-    use gatewatch::service::bench_warning::{run_config, run_stream, RunSpec};
-    use gatewatch::service::worker::{AnalyzerMap, WindowAnalyzer};
-    use std::sync::Arc;
-    let gate = GatePreset::Barrier;
-    let p = gate.params();
-    let config = run_config(gate, 1);
-    let analyzer: Arc<dyn WindowAnalyzer> =
-        Arc::new(AnalyzerMap::from_config(&config).expect("analyzer"));
     for seed in [107, 119] {
-        let spec = RunSpec {
-            scenario: ScenarioName::Onset,
-            gate,
-            seed,
-            noise_rms: NoiseLevel::Relative(0.125).rms(&p),
-            duration_s: ScenarioName::Onset.def(&p).duration_s,
-            trace: false,
-        };
-        let run = run_stream(&spec, config.clone(), analyzer.clone())
-            .await
-            .expect("stream");
+        let run = barrier_stream(ScenarioName::Onset, seed).await;
         let held: Vec<_> = run
             .windows
             .iter()
@@ -1245,16 +1240,7 @@ async fn an_onsets_cycle_is_not_read_through_the_ramps_average() {
             held.len()
         );
         for w in &held {
-            assert!(
-                w.interval
-                    .is_some_and(|(low, high)| low <= w.truth_mean && w.truth_mean <= high),
-                "seed {seed}, window ending at {:.0} s ({:?}): {:?} {:?} at a true {:+.2} %",
-                w.end,
-                w.source,
-                w.zeta0,
-                w.interval,
-                100.0 * w.truth_mean
-            );
+            assert_covers(seed, w);
         }
         assert!(
             held.iter()
