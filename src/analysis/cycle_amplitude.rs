@@ -278,11 +278,21 @@ fn contradicted(law: GrowthLaw, d: &DampingReport) -> bool {
     let (Some(z), Some((lo, hi))) = (d.zeta0, d.zeta0_interval) else {
         return false;
     };
-    let c = law.carried(1.0);
+    standard_errors((z, lo, hi), law.carried(1.0)).is_some_and(|(_, _, differ)| differ)
+}
+
+/// The standard errors of a reading `(zeta, low, high)` and a carried one (each interval's half
+/// width over 1.96), and whether the two differ: their difference beyond 1.96 standard errors of
+/// it. `None` when an interval is empty.
+fn standard_errors((z, lo, hi): (f64, f64, f64), c: AmbientZeta) -> Option<(f64, f64, bool)> {
     let q = normal_quantile(0.975);
-    let se_w = (hi - lo) / (2.0 * q);
+    let se_e = (hi - lo) / (2.0 * q);
     let se_c = (c.high - c.low) / (2.0 * q);
-    se_w > 0.0 && se_c > 0.0 && (z - c.zeta).abs() > q * se_w.hypot(se_c)
+    if !(se_e > 0.0 && se_c > 0.0) {
+        return None;
+    }
+    let differ = (z - c.zeta).abs() > q * (se_e * se_e + se_c * se_c).sqrt();
+    Some((se_e, se_c, differ))
 }
 
 /// The inverse-variance combination of the envelope's `(zeta, low, high)` and the carried
@@ -290,15 +300,11 @@ fn contradicted(law: GrowthLaw, d: &DampingReport) -> bool {
 /// errors of it) or an interval is empty. Each interval's half width over 1.96 is its standard
 /// error (the envelope's is normal; the model's may be a wider t interval, on the safe side).
 fn combine((z, lo, hi): (f64, f64, f64), c: AmbientZeta) -> Option<(f64, (f64, f64))> {
+    let (se_e, se_c, differ) = standard_errors((z, lo, hi), c)?;
+    if differ {
+        return None;
+    }
     let q = normal_quantile(0.975);
-    let se_e = (hi - lo) / (2.0 * q);
-    let se_c = (c.high - c.low) / (2.0 * q);
-    if !(se_e > 0.0 && se_c > 0.0) {
-        return None;
-    }
-    if (z - c.zeta).abs() > q * (se_e * se_e + se_c * se_c).sqrt() {
-        return None;
-    }
     let (w_e, w_c) = (1.0 / (se_e * se_e), 1.0 / (se_c * se_c));
     let zeta = (w_e * z + w_c * c.zeta) / (w_e + w_c);
     let half = q / (w_e + w_c).sqrt();
