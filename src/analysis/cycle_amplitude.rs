@@ -161,6 +161,8 @@ impl CycleAmplitude {
         d.amplitude_zeta = Some(z);
         d.zeta0_windows = Some(1);
         d.pooled_zeta = None;
+        // read through this window's amplitude: it stands for the window
+        (d.zeta0_lag_seconds, d.pooled_lag_seconds) = (None, None);
         (d.verdict, d.trusted) = if z.high < 0.0 {
             (Verdict::SelfExcited, true)
         } else {
@@ -207,6 +209,8 @@ impl CycleAmplitude {
         d.zeta0 = Some(zeta);
         d.zeta0_interval = Some(interval);
         d.zeta0_source = Some(Zeta0Source::Amplitude);
+        // read through this window's amplitude: it stands for the window
+        d.zeta0_lag_seconds = None;
         // a lone limit-cycle window stays no evidence on its own (`ZetaPools::apply`); a pooled
         // one is read as the envelope's rows of `decide` read it
         if d.zeta0_windows != Some(1) {

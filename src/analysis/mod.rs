@@ -88,7 +88,7 @@ pub use series::{
 };
 pub use tracking::{gate_hash, Path, Previous, TrackingPolicy};
 pub use trend::{
-    fit_trend, DampingTrend, TrendError, TrendEstimate, TrendPoint, MAX_TREND_POINTS,
+    fit_trend, DampingTrend, TrendError, TrendEstimate, TrendPoint, TrendReading, MAX_TREND_POINTS,
     MIN_TREND_POINTS,
 };
 pub use verdict::{

@@ -23,6 +23,7 @@ use serde::{Deserialize, Serialize};
 
 use super::ambient_level::departed;
 use super::report::{AmbientZeta, DampingReport, Verdict, Zeta0Source};
+use super::trend::TrendReading;
 use super::verdict::falls;
 use crate::spectral::{self, DampingPool, PoolLocation, PoolOptions, Regime, WindowEstimate};
 
@@ -179,10 +180,15 @@ impl ZetaPools {
             self.envelope.clear();
             return;
         };
+        let lag = t_end - p.record_middle;
         if p.windows < 2 {
             // alone in its pool: the window's own (possibly asymmetric) interval and verdict, or
             // its record's ...
             d.zeta0_windows = Some(1);
+            d.zeta0_lag_seconds = Some(lag);
+            if source == Some(Zeta0Source::Ambient) {
+                span_the_prediction_errors(d);
+            }
             if let (Some(Zeta0Source::Ambient), Some((a, _))) = (source, record) {
                 d.zeta0 = Some(a.zeta);
                 d.zeta0_interval = Some((a.low, a.high));
@@ -204,11 +210,14 @@ impl ZetaPools {
             // trend reads the pool's figure (`trend_reading`)
             d.zeta0_windows = Some(1);
             d.pooled_zeta = Some(AmbientZeta::from(&p));
+            d.pooled_lag_seconds = Some(lag);
+            span_the_prediction_errors(d);
             return;
         }
         d.zeta0 = Some(p.zeta);
         d.zeta0_interval = Some(p.interval);
         d.zeta0_windows = Some(p.windows);
+        d.zeta0_lag_seconds = Some(lag);
         d.zeta0_held = p.held;
         (d.verdict, d.trusted) = match source {
             // the rows of `decide` for the envelope: negative, or cannot tell (untrusted); on a
@@ -226,6 +235,7 @@ impl ZetaPools {
                     // pool's figure as before (`trend_reading`): without it the lock gate's
                     // slow drift warned 50 s later on one of 40 seeds (stop 82)
                     d.pooled_zeta = Some(AmbientZeta::from(&p));
+                    d.pooled_lag_seconds = Some(lag);
                 }
                 (Verdict::Unknown, false)
             }
@@ -290,26 +300,71 @@ pub fn falling(d: &DampingReport) -> bool {
     }
 }
 
+/// On an ambient window that [`rising`] and is read by its own SSI-COV estimate, the interval
+/// becomes the hull of SSI-COV's and the prediction-error method's (`prediction_error_zeta`, read
+/// on the worker from [`RISING_SHARE`] of the departure ratio up), and the verdict follows it;
+/// the figure stays SSI-COV's. Why: a window that rose may have seen the gate's damping change
+/// (an onset that crossed zero a few seconds before) or a steady gate's chance swell, and
+/// neither reading is right in both. SSI-COV assumes a stationary response: on the lab gate's
+/// onset its windows that stood 1.6 to 2.5 times above the level at -0.33 % read +0.2 to +1.0 %
+/// with intervals that ended above the truth (the growth row 77 % covered over 200 seeds), the
+/// response still carrying the positive damping of the seconds before. The filter re-anchors
+/// the state at every sample and read those windows right in the median (94 % covered at
+/// -0.33 %), but on a steady gate's chance swells its cubic term reads a confident negative
+/// damping now and then (stop 77: 82 of 843 lock windows at 1.5 to 2 times the level). The
+/// hull says "somewhere across these"; it is below zero only where both are, so no alert fires
+/// that would not have, and the trend reads the pool's figure for such a window anyway
+/// ([`trend_reading`]). `docs/damping.md`, "A rising window's interval spans its prediction
+/// errors".
+fn span_the_prediction_errors(d: &mut DampingReport) {
+    let (true, Some(p), Some((low, high))) = (rising(d), d.prediction_error_zeta, d.zeta0_interval)
+    else {
+        return;
+    };
+    if !(p.low.is_finite() && p.high.is_finite() && p.low <= p.high) {
+        return;
+    }
+    let hull = (low.min(p.low), high.max(p.high));
+    d.zeta0_interval = Some(hull);
+    (d.verdict, d.trusted) = ambient_rows(hull, d.regime);
+}
+
 /// Whether an ambient window is reported alone: it [`rising`] or [`falling`].
 fn stands_alone(d: &DampingReport) -> bool {
     rising(d) || falling(d)
 }
 
-/// What the gate's trend reads of a window's report: `(zeta0, interval, trusted)`, the pool's
-/// figure where a rising or falling window is reported alone (`DampingReport::pooled_zeta`),
-/// else the report's own. Why the pool's: the trend weighs each window by its interval and
-/// fits a line through minutes of them; the lone figures of the windows that stand high by
-/// chance, a tenth of a steady gate's, made it warn on steady gates (replayed on 20 six-hour
-/// lock days at +0.5 % and 400 cold starts: three false `GateDampingDeclining`), while the pool
-/// they join follows a real drift as before.
-pub fn trend_reading(d: &DampingReport) -> (Option<f64>, Option<(f64, f64)>, bool) {
+/// What the gate's trend reads of a window's report, the window `window_seconds` long: the
+/// pool's figure where a rising or falling window is reported alone
+/// (`DampingReport::pooled_zeta`), else the report's own. Why the pool's: the trend weighs each
+/// window by its interval and fits a line through minutes of them; the lone figures of the
+/// windows that stand high by chance, a tenth of a steady gate's, made it warn on steady gates
+/// (replayed on 20 six-hour lock days at +0.5 % and 400 cold starts: three false
+/// `GateDampingDeclining`), while the pool they join follows a real drift as before.
+///
+/// The figure stands for the middle of the record behind it: a pool's records
+/// (`pooled_lag_seconds`, `zeta0_lag_seconds`), or the window's middle for a figure the window
+/// read alone. A report stored without the lags reads as the window's middle too.
+pub fn trend_reading(d: &DampingReport, window_seconds: f64) -> TrendReading {
+    let own = if window_seconds.is_finite() && window_seconds > 0.0 {
+        0.5 * window_seconds
+    } else {
+        0.0
+    };
+    let lag = |l: Option<f64>| l.filter(|l| l.is_finite() && *l >= 0.0).unwrap_or(own);
     match d.pooled_zeta {
-        Some(p) => (
-            Some(p.zeta),
-            Some((p.low, p.high)),
-            ambient_rows((p.low, p.high), d.regime).1,
-        ),
-        None => (d.zeta0, d.zeta0_interval, d.trusted),
+        Some(p) => TrendReading {
+            zeta0: Some(p.zeta),
+            interval: Some((p.low, p.high)),
+            trusted: ambient_rows((p.low, p.high), d.regime).1,
+            lag_seconds: lag(d.pooled_lag_seconds),
+        },
+        None => TrendReading {
+            zeta0: d.zeta0,
+            interval: d.zeta0_interval,
+            trusted: d.trusted,
+            lag_seconds: lag(d.zeta0_lag_seconds),
+        },
     }
 }
 
@@ -689,9 +744,17 @@ mod tests {
         let p = up.pooled_zeta.expect("the pool's figure");
         assert!((0.008..0.0101).contains(&p.zeta), "pooled {p:?}");
         assert!(p.high - p.low < 0.02, "narrower than one window's: {p:?}");
+        // the pool's figure, at the middle of its windows: behind the rising window's own middle
+        let lag = up.pooled_lag_seconds.expect("the pool's lag");
+        assert!((5.5..=15.0).contains(&lag), "lag {lag}");
         assert_eq!(
-            trend_reading(&up),
-            (Some(p.zeta), Some((p.low, p.high)), true)
+            trend_reading(&up, 10.0),
+            TrendReading {
+                zeta0: Some(p.zeta),
+                interval: Some((p.low, p.high)),
+                trusted: true,
+                lag_seconds: lag,
+            }
         );
         let mut next = window(0.01, 0.01, 1.4);
         pools.apply(25.0, 35.0, &mut next);
@@ -699,14 +762,67 @@ mod tests {
         without.apply(25.0, 35.0, &mut next_without);
         assert!(next.zeta0_windows.unwrap() >= 2 && next.pooled_zeta.is_none());
         assert_eq!(
-            trend_reading(&next),
-            (next.zeta0, next.zeta0_interval, next.trusted)
+            trend_reading(&next, 10.0),
+            TrendReading {
+                zeta0: next.zeta0,
+                interval: next.zeta0_interval,
+                trusted: next.trusted,
+                lag_seconds: next.zeta0_lag_seconds.expect("a pooled figure's lag"),
+            }
         );
         assert_ne!(
             (next.zeta0_windows, next.zeta0_interval),
             (next_without.zeta0_windows, next_without.zeta0_interval),
             "the rising window is in the pool"
         );
+    }
+
+    /// A rising window read by its own SSI-COV estimate has its interval span the
+    /// prediction-error method's reading of it too: its figure stays, its verdict follows the
+    /// hull, and the pool's figure the trend reads does not move. A window that did not rise
+    /// keeps its interval, and so does a rising one the filter did not read.
+    #[test]
+    fn a_rising_windows_interval_spans_its_prediction_errors() {
+        let window = |ratio: f64, pem: Option<(f64, f64, f64)>| {
+            let mut d = ambient(0.004, 0.003);
+            d.verdict = Verdict::Damped;
+            d.ambient_ratio = Some(ratio);
+            d.departure_ratio = Some(3.0);
+            d.prediction_error_zeta = pem.map(AmbientZeta::from);
+            d
+        };
+        let (low, high) = window(1.0, None).zeta0_interval.unwrap();
+        assert!(low > 0.0);
+        let run = |mut last: DampingReport| {
+            let mut pools = ZetaPools::new(PoolOptions::default()).unwrap();
+            for k in 0..4 {
+                let t0 = 5.0 * k as f64;
+                pools.apply(t0, t0 + 10.0, &mut window(1.0, None));
+            }
+            pools.apply(20.0, 30.0, &mut last);
+            last
+        };
+        let filter = Some((-0.003, -0.006, 0.0));
+        let up = run(window(1.6, filter));
+        assert_eq!(up.zeta0, Some(0.004));
+        assert_eq!(up.zeta0_interval, Some((-0.006, high)));
+        assert_eq!((up.verdict, up.trusted), (Verdict::Unknown, true));
+        let plain = run(window(1.6, None));
+        assert_eq!(plain.zeta0_interval, Some((low, high)));
+        assert_eq!(plain.verdict, Verdict::Damped);
+        assert_eq!(up.pooled_zeta, plain.pooled_zeta);
+        assert!(up.pooled_zeta.is_some());
+        // below half the departure ratio the window is pooled, and the filter's reading is not
+        // used
+        assert_eq!(
+            run(window(1.4, filter)).zeta0_interval,
+            run(window(1.4, None)).zeta0_interval
+        );
+        // alone in its pool (the first window after a flush) the hull holds as well
+        let mut fresh = ZetaPools::new(PoolOptions::default()).unwrap();
+        let mut first = window(1.6, filter);
+        fresh.apply(0.0, 10.0, &mut first);
+        assert_eq!(first.zeta0_interval, Some((-0.006, high)));
     }
 
     /// A window whose envelope fell by more than two standard errors (a decay after a
@@ -764,10 +880,12 @@ mod tests {
             p.high - p.low < 0.02,
             "narrower than the window's own: {p:?}"
         );
+        let r = trend_reading(&down, 10.0);
         assert_eq!(
-            trend_reading(&down),
+            (r.zeta0, r.interval, r.trusted),
             (Some(p.zeta), Some((p.low, p.high)), true)
         );
+        assert_eq!(Some(r.lag_seconds), down.pooled_lag_seconds);
         // alone in its pool, it still reads its own figure, not its record's
         let mut fresh = ZetaPools::new(opts).unwrap();
         let mut first = window(0.02, Some((-0.05, 0.02)));
@@ -885,8 +1003,11 @@ mod tests {
                 assert_eq!(d.zeta0_windows, Some(k));
                 // short of the cycles, the trend still reads the pool's figure as trusted
                 if (2..decides).contains(&k) {
-                    let (z, iv, trusted) = trend_reading(&d);
-                    assert_eq!((z, iv, trusted), (d.zeta0, d.zeta0_interval, true));
+                    let r = trend_reading(&d, 10.0);
+                    assert_eq!(
+                        (r.zeta0, r.interval, r.trusted),
+                        (d.zeta0, d.zeta0_interval, true)
+                    );
                 } else {
                     assert_eq!(d.pooled_zeta, None);
                 }

@@ -192,10 +192,11 @@ pub struct DampingReport {
     #[serde(default)]
     pub growth_zeta: Option<AmbientZeta>,
     /// The prediction-error method's `zeta0` with its 95 % interval, read where the window stood
-    /// at least the departure ratio above the gate's ambient level when it was dispatched and
-    /// is no held cycle (`analysis::read_by_prediction_errors`); `None` elsewhere. The gate's
+    /// at least half the departure ratio above the gate's ambient level when it was dispatched
+    /// and is no held cycle (`analysis::read_by_prediction_errors`); `None` elsewhere. The gate's
     /// memory reports it for a window that left the level (`docs/damping.md`, "A departed
-    /// window read by its prediction errors").
+    /// window read by its prediction errors"), and a rising window's `zeta0_interval` spans it
+    /// ("A rising window's interval spans its prediction errors").
     #[serde(default)]
     pub prediction_error_zeta: Option<AmbientZeta>,
     /// On the same window: the damping law the gate carries to the cycle after it, as the zeta0
@@ -258,6 +259,19 @@ pub struct DampingReport {
     /// figure, which the trend reads as it did before that rule. `None` elsewhere.
     #[serde(default)]
     pub pooled_zeta: Option<AmbientZeta>,
+    /// Seconds from the window's end back to the instant a pooled `zeta0` stands for: the middle
+    /// of the records its pool combined (`spectral::PooledEstimate::record_middle`), set where
+    /// the pool wrote `zeta0` (ambient or envelope source, `zeta0_windows` set). `None` where
+    /// `zeta0` is the window's own reading (a model, the prediction errors, the cycle's
+    /// amplitude, a rising or falling window alone), which stands for the window's middle. The
+    /// trend places each figure at its instant, not at the window's end (`docs/damping.md`,
+    /// "Trend": a pool of a 5 Hz gate reads about 16 s behind its newest window).
+    #[serde(default)]
+    pub zeta0_lag_seconds: Option<f64>,
+    /// The same for `pooled_zeta`: seconds from the window's end back to the middle of that
+    /// pool's records; `None` where `pooled_zeta` is.
+    #[serde(default)]
+    pub pooled_lag_seconds: Option<f64>,
     /// Standard deviation of the window's signal about its mean, in the signal's unit (`None`
     /// without a model-free analysis): what the gate's memory compares with its ambient level
     /// (`docs/damping.md`, "The gate's ambient level").
@@ -359,6 +373,8 @@ impl DampingReport {
             zeta0_windows: None,
             zeta0_held: false,
             pooled_zeta: None,
+            zeta0_lag_seconds: None,
+            pooled_lag_seconds: None,
             signal_rms: None,
             ambient_ratio: None,
             departure_ratio: None,

@@ -2,7 +2,9 @@
 //!
 //! Each identified window gives `zeta0` with a 95 % interval. [`DampingTrend`] keeps the recent
 //! ones (a bounded horizon of SAMPLE time) and fits a straight line `zeta0(t) = level + slope *
-//! (t - t_last)` by iteratively reweighted least squares:
+//! (t - t_last)` by iteratively reweighted least squares, each figure at the instant it stands
+//! for (the middle of the record behind it, [`TrendPoint::lag`] before its window's end: a pooled
+//! figure reaches back further than its window), `t_last` the newest window's end:
 //!
 //! - each window weighs `1 / var`, its variance read off its interval (`half width / 1.96`), so a
 //!   confident window counts more than a vague one, but never more than four times the horizon's
@@ -70,11 +72,16 @@ const MIN_SCALE: f64 = 1.0;
 /// would otherwise take all the weight.
 const MIN_SD: f64 = 1e-4;
 
-/// One window's damping ratio with its 95 % interval, at the sample time of the window's end.
+/// One window's damping ratio with its 95 % interval, kept at the sample time of the window's
+/// end and fitted at the instant it stands for, `lag` seconds before.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct TrendPoint {
     /// Sample time of the window's last sample, seconds (any origin; Unix seconds in the daemon).
     pub t: f64,
+    /// Seconds before `t` that the figure stands for: the middle of the record it read (half
+    /// the window for a window read alone; more for a pooled figure, whose records reach back).
+    /// The line is fitted at `t - lag` and read at the newest window's end.
+    pub lag: f64,
     /// The window's `zeta0`.
     pub zeta0: f64,
     /// Lower end of its 95 % interval.
@@ -90,7 +97,7 @@ pub struct TrendEstimate {
     pub windows: usize,
     /// Sample time spanned by them, seconds.
     pub span_seconds: f64,
-    /// The line's value at the newest window (the smoothed current `zeta0`).
+    /// The line's value at the newest window's end (the smoothed current `zeta0`).
     pub level: f64,
     /// Slope, damping ratio per second of sample time (negative: declining).
     pub slope_per_second: f64,
@@ -118,13 +125,29 @@ impl TrendEstimate {
     }
 }
 
+/// What the trend reads of one window's report (`analysis::trend_reading`): its figure, 95 %
+/// interval and whether it is evidence, and how long before the window's end that figure
+/// stands.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TrendReading {
+    /// The figure (`None`: no evidence).
+    pub zeta0: Option<f64>,
+    /// Its 95 % interval (`None`: no evidence).
+    pub interval: Option<(f64, f64)>,
+    /// Whether the window is evidence at all.
+    pub trusted: bool,
+    /// Seconds from the window's end back to the middle of the record behind the figure.
+    pub lag_seconds: f64,
+}
+
 /// Why a point was refused by [`DampingTrend::push`].
 #[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
 pub enum TrendError {
-    /// A time, value or bound is NaN or infinite.
-    #[error("trend point at t = {t}: zeta0 {zeta0} and interval ({low}, {high}) must be finite")]
+    /// A time, lag, value or bound is NaN or infinite, or the lag is negative.
+    #[error("trend point at t = {t} (lag {lag} s): zeta0 {zeta0} and interval ({low}, {high}) must be finite, the lag finite and not negative")]
     NotFinite {
         t: f64,
+        lag: f64,
         zeta0: f64,
         low: f64,
         high: f64,
@@ -176,9 +199,11 @@ impl DampingTrend {
     /// Add a window and drop those older than the horizon (and beyond [`MAX_TREND_POINTS`]).
     /// A point at the same time as the newest replaces it (a window identified twice).
     pub fn push(&mut self, p: TrendPoint) -> Result<(), TrendError> {
-        if !(p.t.is_finite() && p.zeta0.is_finite() && p.low.is_finite() && p.high.is_finite()) {
+        let finite = p.t.is_finite() && p.zeta0.is_finite() && p.low.is_finite();
+        if !(finite && p.high.is_finite() && p.lag.is_finite() && p.lag >= 0.0) {
             return Err(TrendError::NotFinite {
                 t: p.t,
+                lag: p.lag,
                 zeta0: p.zeta0,
                 low: p.low,
                 high: p.high,
@@ -215,21 +240,27 @@ impl DampingTrend {
     }
 
     /// One identified window, as the daemon calls it: a trusted window with a finite `zeta0` and
-    /// 95 % interval joins the trend (at `t`, its last sample's time); any other window is no
+    /// 95 % interval joins the trend (kept at `t`, its last sample's time, fitted at the instant
+    /// its figure stands for, [`TrendReading::lag_seconds`] before); any other window is no
     /// evidence and is skipped (so is a window older than the newest kept: a replay). Returns the
     /// trend afterwards against `threshold`.
     pub fn observe(
         &mut self,
         t: f64,
-        zeta0: Option<f64>,
-        interval: Option<(f64, f64)>,
-        trusted: bool,
+        reading: TrendReading,
         threshold: f64,
     ) -> Option<TrendEstimate> {
+        let TrendReading {
+            zeta0,
+            interval,
+            trusted,
+            lag_seconds,
+        } = reading;
         if let (true, Some(zeta0), Some((low, high))) = (trusted, zeta0, interval) {
             // A refused point (non-finite, reversed, out of order) is simply not evidence.
             let _ = self.push(TrendPoint {
                 t,
+                lag: lag_seconds,
                 zeta0,
                 low,
                 high,
@@ -259,11 +290,16 @@ fn fit(
     if n < MIN_TREND_POINTS || !threshold.is_finite() {
         return None;
     }
+    // Kept by their windows' ends, fitted at the instants their figures stand for, and read at
+    // the newest window's end: a pooled figure stands for the middle of its records, 20 s and
+    // more behind the window that reported it, and a line through the windows' ends would lag a
+    // drift by as much (docs/damping.md, "Trend").
     let t_last = points.clone().last()?.t;
     let t_first = points.clone().next()?.t;
     if t_last <= t_first {
         return None;
     }
+    let x_of = |p: &TrendPoint| p.t - p.lag - t_last;
     // Each window's prior precision from its interval, never above four times that of the
     // horizon's (lower) median window (sd floored at half the median sd). Why: a model-sourced
     // window whose interval was ten times too narrow (-0.62 % (-0.71, -0.53) on a stable
@@ -284,7 +320,7 @@ fn fit(
     for it in 0..IRLS_ITERATIONS {
         let (mut s0, mut s1, mut s2, mut sy, mut sxy) = (0.0, 0.0, 0.0, 0.0, 0.0);
         for p in points.clone() {
-            let x = p.t - t_last;
+            let x = x_of(&p);
             let s = sd(&p);
             let robust = if it == 0 {
                 1.0
@@ -311,7 +347,7 @@ fn fit(
     let mut chi2 = 0.0;
     let (mut r_prev, mut c0, mut c1) = (None::<f64>, 0.0, 0.0);
     for p in points.clone() {
-        let x = p.t - t_last;
+        let x = x_of(&p);
         let r = (p.zeta0 - level - slope * x) / sd(&p);
         chi2 += huber(r) * r * r;
         c0 += r * r;

@@ -15,12 +15,61 @@ fn series(seed: u64, n: usize, sd: f64, truth: impl Fn(f64) -> f64) -> Vec<Trend
             let z = truth(t) + noise.sample(&mut rng);
             TrendPoint {
                 t,
+                lag: 0.0,
                 zeta0: z,
                 low: z - 1.96 * sd,
                 high: z + 1.96 * sd,
             }
         })
         .collect()
+}
+
+/// A figure is fitted at the instant it stands for, and the line is read at the newest window's
+/// end: windows whose figures each read the drift `lag` seconds before their end (a pool's
+/// records reach back) give the truth at the newest end, where a line through the windows' ends
+/// reads it `lag` seconds late. Lags that differ from window to window (a pool that fills and
+/// flushes) make no difference to an exact line.
+#[test]
+fn a_figure_stands_at_the_middle_of_its_record() {
+    let truth = |t: f64| 0.02 - 2e-5 * t;
+    let at = |lag: fn(usize) -> f64| -> Vec<TrendPoint> {
+        (0..30)
+            .map(|i| {
+                let t = 5.0 * i as f64;
+                let z = truth(t - lag(i));
+                TrendPoint {
+                    t,
+                    lag: lag(i),
+                    zeta0: z,
+                    low: z - 0.002,
+                    high: z + 0.002,
+                }
+            })
+            .collect()
+    };
+    for lag in [|_| 20.0, |i| 5.0 + 2.5 * (i % 7) as f64] {
+        let pts = at(lag);
+        let e = fit_trend(&pts, 0.0).unwrap();
+        assert_relative_eq!(e.slope_per_second, -2e-5, max_relative = 1e-9);
+        assert_relative_eq!(e.level, truth(145.0), max_relative = 1e-9);
+        assert_relative_eq!(
+            e.crossing_seconds.unwrap(),
+            1000.0 - 145.0,
+            max_relative = 1e-6
+        );
+        assert_relative_eq!(e.span_seconds, 145.0);
+        // the same figures kept at their windows' ends read the level late, by the lags
+        let late: Vec<_> = pts.iter().map(|p| TrendPoint { lag: 0.0, ..*p }).collect();
+        let l = fit_trend(&late, 0.0).unwrap();
+        assert!(l.level > e.level + 2e-5 * 4.9, "{} {}", l.level, e.level);
+    }
+    // a negative or non-finite lag is refused
+    let mut tr = DampingTrend::new(600.0);
+    let p = at(|_| 10.0)[0];
+    for lag in [-1.0, f64::NAN] {
+        let e = tr.push(TrendPoint { lag, ..p }).unwrap_err();
+        assert!(matches!(e, TrendError::NotFinite { .. }), "{e}");
+    }
 }
 
 #[test]
@@ -31,6 +80,7 @@ fn exact_line_is_recovered() {
             let z = 0.02 - 1e-5 * t;
             TrendPoint {
                 t,
+                lag: 0.0,
                 zeta0: z,
                 low: z - 0.002,
                 high: z + 0.002,
@@ -147,6 +197,7 @@ fn one_overconfident_window_does_not_make_a_trend() {
         let last = pts.len() - 1;
         pts[last] = TrendPoint {
             t: pts[last].t,
+            lag: 0.0,
             zeta0: -0.0062,
             low: -0.0071,
             high: -0.0053,
@@ -165,6 +216,7 @@ fn wide_windows_weigh_less() {
             if i % 2 == 0 {
                 TrendPoint {
                     t,
+                    lag: 0.0,
                     zeta0: 0.01,
                     low: 0.009,
                     high: 0.011,
@@ -172,6 +224,7 @@ fn wide_windows_weigh_less() {
             } else {
                 TrendPoint {
                     t,
+                    lag: 0.0,
                     zeta0: -0.05,
                     low: -0.5,
                     high: 0.4,
@@ -190,6 +243,7 @@ fn horizon_and_bounds_are_kept() {
         let t = 5.0 * i as f64;
         tr.push(TrendPoint {
             t,
+            lag: 0.0,
             zeta0: 0.01,
             low: 0.0,
             high: 0.02,
@@ -202,6 +256,7 @@ fn horizon_and_bounds_are_kept() {
     // the same time again replaces the newest
     tr.push(TrendPoint {
         t: 495.0,
+        lag: 0.0,
         zeta0: 0.02,
         low: 0.01,
         high: 0.03,
@@ -214,6 +269,7 @@ fn horizon_and_bounds_are_kept() {
     for i in 0..(MAX_TREND_POINTS + 10) {
         long.push(TrendPoint {
             t: i as f64,
+            lag: 0.0,
             zeta0: 0.0,
             low: -0.1,
             high: 0.1,
@@ -228,6 +284,7 @@ fn bad_points_are_refused_with_their_time() {
     let mut tr = DampingTrend::new(600.0);
     let ok = TrendPoint {
         t: 10.0,
+        lag: 0.0,
         zeta0: 0.01,
         low: 0.0,
         high: 0.02,
@@ -276,6 +333,7 @@ fn correlated_windows_widen_the_bound_beyond_the_normal_quantile() {
             let last = w[11];
             TrendPoint {
                 t: last.t,
+                lag: 0.0,
                 zeta0: z,
                 low: z - 1.96 * 0.002,
                 high: z + 1.96 * 0.002,
@@ -303,6 +361,7 @@ fn below_the_threshold_only_a_falling_line_crosses() {
                 let z = -0.02 + slope * (t - 195.0);
                 TrendPoint {
                     t,
+                    lag: 0.0,
                     zeta0: z,
                     low: z - 0.004,
                     high: z + 0.004,

@@ -448,7 +448,7 @@ pub async fn run_stream(
                     ""
                 },
                 // the readings the report did not show: the prediction-error method's (where the
-                // window departed) and a rising window's pool (which the trend read)
+                // window rose) and a rising window's pool (which the trend read)
                 view.identification.as_ref().map_or(String::new(), |i| {
                     let mut more = String::new();
                     if let Some(p) = &i.damping.prediction_error_zeta {
@@ -462,6 +462,11 @@ pub async fn run_stream(
                     if let Some(rms) = i.damping.signal_rms {
                         more += &format!("  rms {rms:.5e}");
                     }
+                    // how far before the window's end the trend placed its reading (the middle
+                    // of the record behind it, `analysis::trend_reading`)
+                    let seconds = i.window_end - i.window_start;
+                    let lag = crate::analysis::trend_reading(&i.damping, seconds).lag_seconds;
+                    more += &format!("  lag {lag:.1}");
                     more
                 }),
             );

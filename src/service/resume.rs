@@ -40,7 +40,7 @@
 use crate::alert::AlertRules;
 use crate::analysis::{
     trend_reading, AmbientLevel, CycleAmplitude, DampingReport, DampingTrend, Path, Previous,
-    TrendEstimate, WindowAnalysis, MAX_TREND_POINTS,
+    TrendEstimate, TrendReading, WindowAnalysis, MAX_TREND_POINTS,
 };
 use crate::store::HistoryRow;
 
@@ -112,12 +112,18 @@ pub fn rebuild(
     for (r, w) in rows.iter().zip(&windows) {
         // what the trend read live (`analysis::trend_reading`: a rising window's pool), from the
         // stored report; the stored columns where it does not decode
-        let (zeta0, interval, trusted) = w
-            .as_ref()
-            .map_or((r.zeta0, r.zeta0_interval, r.trusted), |(a, _, _)| {
-                trend_reading(&a.damping)
-            });
-        trend_estimate = trend.observe(r.window_end, zeta0, interval, trusted, rules.fire_below);
+        let window_seconds = r.window_end - r.window_start;
+        let reading = w.as_ref().map_or(
+            TrendReading {
+                zeta0: r.zeta0,
+                interval: r.zeta0_interval,
+                trusted: r.trusted,
+                // the window's middle, as `trend_reading` reads a report without its lags
+                lag_seconds: (0.5 * window_seconds).max(0.0),
+            },
+            |(a, _, _)| trend_reading(&a.damping, window_seconds),
+        );
+        trend_estimate = trend.observe(r.window_end, reading, rules.fire_below);
     }
     let decoded: Vec<(WindowAnalysis, f64, f64)> = windows.into_iter().flatten().collect();
     // every window read: a gate held on its limit cycle for minutes still finds the
@@ -384,9 +390,14 @@ mod tests {
                 a.damping.pooled_zeta = Some((0.03, 0.026, 0.034).into());
             }
             let d = &a.damping;
-            let (z, iv, trusted) = trend_reading(d);
-            estimate = trend.observe(end, z, iv, trusted, 0.0);
-            from_columns = by_columns.observe(end, d.zeta0, d.zeta0_interval, d.trusted, 0.0);
+            estimate = trend.observe(end, trend_reading(d, 10.0), 0.0);
+            let columns = TrendReading {
+                zeta0: d.zeta0,
+                interval: d.zeta0_interval,
+                trusted: d.trusted,
+                lag_seconds: 5.0,
+            };
+            from_columns = by_columns.observe(end, columns, 0.0);
             rows.push(stored(&a, end));
         }
         let m = rebuild("g", &rows, &rules(), &analyzer, 1100.0).unwrap();

@@ -924,8 +924,8 @@ impl AppState {
                     .inc();
                 let fire_below = inner.alerts.rules(g).fire_below;
                 let trend = inner.gates.get_mut(g).and_then(|e| {
-                    let (z, iv, trusted) = crate::analysis::trend_reading(d);
-                    e.trend_estimate = e.trend.observe(window.1, z, iv, trusted, fire_below);
+                    let reading = crate::analysis::trend_reading(d, window.1 - window.0);
+                    e.trend_estimate = e.trend.observe(window.1, reading, fire_below);
                     e.trend_estimate
                 });
                 self.metrics.set_trend(g, d.zeta0_interval, trend.as_ref());

@@ -161,6 +161,13 @@ pub struct PooledEstimate {
     /// ending at its window's end, the window where that is longer): more than
     /// [`PooledEstimate::cycles`] where an estimate read the gate's history.
     pub record_cycles: f64,
+    /// The sample time the figure stands for: the middle of the records its estimates read
+    /// (each from its [`WindowEstimate::record_seconds`] start to its window's end), averaged
+    /// with the weights the pool gives them. Three windows 5 s apart, each reading 20 s, stand
+    /// for the instant 15 s before the newest window ends, and a drifting damping
+    /// was there then, not at the window's end (`analysis::DampingTrend` places it there;
+    /// docs/damping.md, "Trend").
+    pub record_middle: f64,
     /// Whether this window flushed the pool (a regime change).
     pub flushed: bool,
     /// Whether this window signalled a change alone and was held back: the estimate is the
@@ -362,6 +369,13 @@ impl DampingPool {
             }
         }
         let stderr = var.sqrt() / sw;
+        let record_middle = self
+            .entries
+            .iter()
+            .zip(&w)
+            .map(|(e, w)| w * 0.5 * (e.record_start() + e.t_end))
+            .sum::<f64>()
+            / sw;
         let q = super::normal_quantile(0.5 + self.opts.confidence / 2.0);
         Some(PooledEstimate {
             zeta,
@@ -370,6 +384,7 @@ impl DampingPool {
             windows: self.entries.len(),
             cycles: span_cycles(self.entries.iter()),
             record_cycles: record_span_cycles(self.entries.iter()),
+            record_middle,
             flushed: false,
             held: false,
         })
@@ -463,6 +478,43 @@ mod tests {
             frequency_hz: 10.0,
             record_seconds: 0.0,
         }
+    }
+
+    /// The pooled figure stands for the middle of its records, weighted as the pool weighs
+    /// them: three 10 s windows 5 s apart stand for the middle one's middle, 10 s before the
+    /// newest ends; counted by 20 s records, 15 s before; a held window leaves the instant where
+    /// the pool's figure was.
+    #[test]
+    fn a_pool_stands_at_the_middle_of_its_records() {
+        let mut p = DampingPool::new(PoolOptions::default()).unwrap();
+        for k in 0..3 {
+            p.push(est(5.0 * k as f64, 0.01, 0.002)).unwrap();
+        }
+        let r = p.push(est(15.0, 0.01, 0.002)).unwrap();
+        assert_eq!(r.windows, 4);
+        assert_relative_eq!(r.record_middle, 12.5, epsilon = 1e-9);
+        let held = p.push(est(20.0, 0.2, 0.002)).unwrap();
+        assert!(held.held);
+        assert_relative_eq!(held.record_middle, 12.5, epsilon = 1e-9);
+        // a longer record weighs more and reaches further back
+        let opts = PoolOptions {
+            count_records: true,
+            min_cycles: 1000.0,
+            ..PoolOptions::default()
+        };
+        let mut p = DampingPool::new(opts).unwrap();
+        let mut r = None;
+        for (k, record) in [(0, 20.0), (1, 20.0), (2, 40.0)] {
+            let e = WindowEstimate {
+                record_seconds: record,
+                ..est(100.0 + 5.0 * k as f64, 0.01, 0.002)
+            };
+            r = Some(p.push(e).unwrap());
+        }
+        let r = r.unwrap();
+        assert_eq!(r.windows, 3);
+        // middles 100, 105, 100 (ends 110, 115, 120), weights 20, 20, 40 s of record
+        assert_relative_eq!(r.record_middle, 101.25, epsilon = 1e-9);
     }
 
     #[test]

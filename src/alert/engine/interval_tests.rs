@@ -806,7 +806,13 @@ fn run_with(
     let (mut negative, mut declining) = (Vec::new(), Vec::new());
     for (end, z, half) in stream {
         let iv = Some((z - half, z + half));
-        let estimate = tr.observe(end, Some(z), iv, true, rules.fire_below);
+        let reading = crate::analysis::TrendReading {
+            zeta0: Some(z),
+            interval: iv,
+            trusted: true,
+            lag_seconds: 0.0,
+        };
+        let estimate = tr.observe(end, reading, rules.fire_below);
         let o = Observation {
             trend: estimate,
             ..obs(z, z - half, z + half)
