@@ -166,8 +166,8 @@ fn best_of<const N: usize>(
 /// spectrum did not call it a held cycle, which the envelope reads. A window that left the
 /// level is then read by it (`analysis::AmbientLevel`), and one that only rose towards it has
 /// its interval span it (`analysis::ZetaPools::apply`). Elsewhere it costs nothing: on a steady
-/// gate about one window in ten to twenty stands that high by chance (60 ms of a lock gate's
-/// window, 100 ms of the lab gate's). Says whether it read.
+/// lock gate at +0.5 % 8 % of the windows stand that high by chance (60 ms of a lock gate's
+/// window, 100 ms of the lab gate's; docs/benchmarks.md, "Stop 91"). Says whether it read.
 pub fn read_by_prediction_errors(
     d: &mut DampingReport,
     values: &[f64],

@@ -291,9 +291,9 @@ fn fit(
         return None;
     }
     // Kept by their windows' ends, fitted at the instants their figures stand for, and read at
-    // the newest window's end: a pooled figure stands for the middle of its records, 20 s and
-    // more behind the window that reported it, and a line through the windows' ends would lag a
-    // drift by as much (docs/damping.md, "Trend").
+    // the newest window's end: a pooled figure stands for the middle of its records (a median
+    // 16 s before its window's end on the 5 Hz lock gate, 30 s on the 2 Hz barrier gate), and
+    // a line through the windows' ends would lag a drift by as much (docs/damping.md, "Trend").
     let t_last = points.clone().last()?.t;
     let t_first = points.clone().next()?.t;
     if t_last <= t_first {
