@@ -481,9 +481,9 @@ mod tests {
     }
 
     /// The pooled figure stands for the middle of its records, weighted as the pool weighs
-    /// them: three 10 s windows 5 s apart stand for the middle one's middle, 10 s before the
-    /// newest ends; counted by 20 s records, 15 s before; a held window leaves the instant where
-    /// the pool's figure was.
+    /// them: four 10 s windows 5 s apart (ending at 10 to 25 s) stand for the mean of their
+    /// middles, 12.5 s; a held window leaves the instant where the pool's figure was; records of
+    /// 20, 20 and 40 s weigh by their length, and the longest reaches back furthest.
     #[test]
     fn a_pool_stands_at_the_middle_of_its_records() {
         let mut p = DampingPool::new(PoolOptions::default()).unwrap();
