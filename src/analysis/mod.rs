@@ -72,8 +72,8 @@ pub use model_free::{
 };
 pub use model_interval::{intervals, zeta0_interval, FittedModel};
 pub use pooling::{
-    falling, rising, trend_reading, PoolingSettings, ZetaPools, MIN_CYCLE_POOL_CYCLES,
-    POOL_MIN_WINDOWS, RISING_SHARE,
+    falling, rising, trend_reading, window_middle_lag, PoolingSettings, ZetaPools,
+    MIN_CYCLE_POOL_CYCLES, POOL_MIN_WINDOWS, RISING_SHARE,
 };
 pub use population::{biased_population, SpectralTarget};
 pub use prediction_error::{prediction_error_zeta, read_by_prediction_errors};

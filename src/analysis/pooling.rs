@@ -347,11 +347,7 @@ fn stands_alone(d: &DampingReport) -> bool {
 /// (`pooled_lag_seconds`, `zeta0_lag_seconds`), or the window's middle for a figure the window
 /// read alone. A report stored without the lags reads as the window's middle too.
 pub fn trend_reading(d: &DampingReport, window_seconds: f64) -> TrendReading {
-    let own = if window_seconds.is_finite() && window_seconds > 0.0 {
-        0.5 * window_seconds
-    } else {
-        0.0
-    };
+    let own = window_middle_lag(window_seconds);
     let lag = |l: Option<f64>| l.filter(|l| l.is_finite() && *l >= 0.0).unwrap_or(own);
     match d.pooled_zeta {
         Some(p) => TrendReading {
@@ -366,6 +362,16 @@ pub fn trend_reading(d: &DampingReport, window_seconds: f64) -> TrendReading {
             trusted: d.trusted,
             lag_seconds: lag(d.zeta0_lag_seconds),
         },
+    }
+}
+
+/// Seconds from a window's end back to its middle, the instant a figure the window read alone
+/// stands for (0 for a window of no finite, positive length).
+pub fn window_middle_lag(window_seconds: f64) -> f64 {
+    if window_seconds.is_finite() && window_seconds > 0.0 {
+        0.5 * window_seconds
+    } else {
+        0.0
     }
 }
 

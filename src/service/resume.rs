@@ -39,8 +39,8 @@
 
 use crate::alert::AlertRules;
 use crate::analysis::{
-    trend_reading, AmbientLevel, CycleAmplitude, DampingReport, DampingTrend, Path, Previous,
-    TrendEstimate, TrendReading, WindowAnalysis, MAX_TREND_POINTS,
+    trend_reading, window_middle_lag, AmbientLevel, CycleAmplitude, DampingReport, DampingTrend,
+    Path, Previous, TrendEstimate, TrendReading, WindowAnalysis, MAX_TREND_POINTS,
 };
 use crate::store::HistoryRow;
 
@@ -119,7 +119,7 @@ pub fn rebuild(
                 interval: r.zeta0_interval,
                 trusted: r.trusted,
                 // the window's middle, as `trend_reading` reads a report without its lags
-                lag_seconds: (0.5 * window_seconds).max(0.0),
+                lag_seconds: window_middle_lag(window_seconds),
             },
             |(a, _, _)| trend_reading(&a.damping, window_seconds),
         );
