@@ -166,7 +166,10 @@ fn promtool_passes(args: &[&str], stdin: std::process::Stdio) {
 }
 
 /// Gate `g1` after twelve identified windows whose damping falls by 0.1 points a window (a
-/// window every 0.5 s of sample time), its fake analyzer holding `dampings` figures in all.
+/// window every 0.5 s of sample time), its fake analyzer holding `dampings` figures in all. The
+/// windows stay 1 s long (`window_cycles = 0`: the fake's 1.5 Hz would otherwise lengthen them
+/// with the history, up to 6 s), so each figure stands 0.5 s before its window's end and the
+/// trend's instants are 0.5 s apart, as the windows' ends are.
 async fn declining_gate(
     dampings: usize,
 ) -> (
@@ -191,7 +194,10 @@ async fn declining_gate_with(
         hold_call,
         ..Fake::default()
     });
-    let (app, state) = app_with(config(""), fake.clone());
+    let (app, state) = app_with(
+        config_with_defaults("", "window_cycles = 0.0"),
+        fake.clone(),
+    );
     // one window at a time: a window that comes due while the gate's last one is pending
     // replaces it
     post_json(&app, uniform("g1", 0.0, 100)).await;

@@ -122,10 +122,15 @@ impl WindowAnalyzer for Fake {
 /// soon as it is full (`stagger = false`: these tests count windows from the start; the stagger
 /// has its own tests in `service_workers` and `service::window`).
 pub fn config(extra: &str) -> Config {
+    config_with_defaults(extra, "")
+}
+
+/// [`config`] with more keys of `[defaults]` (`defaults`, TOML lines).
+pub fn config_with_defaults(extra: &str, defaults: &str) -> Config {
     Config::from_toml(&format!(
         "[server]\nworker_threads = 1\nlisten = \"127.0.0.1:0\"\n{extra}\n\
          [defaults]\nrate_hz = 100.0\nwindow_seconds = 1.0\nidentify_every_seconds = 0.5\n\
-         max_past_seconds = 0.0\nstagger = false\n"
+         max_past_seconds = 0.0\nstagger = false\n{defaults}\n"
     ))
     .unwrap()
 }
