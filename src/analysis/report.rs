@@ -261,9 +261,10 @@ pub struct DampingReport {
     pub pooled_zeta: Option<AmbientZeta>,
     /// Seconds from the window's end back to the instant a pooled `zeta0` stands for: the middle
     /// of the records its pool combined (`spectral::PooledEstimate::record_middle`), set where
-    /// the pool wrote `zeta0` (ambient or envelope source, `zeta0_windows` set). `None` where
-    /// `zeta0` is the window's own reading (a model, the prediction errors, the cycle's
-    /// amplitude, a rising or falling window alone), which stands for the window's middle. The
+    /// the pool set `zeta0_windows` (ambient or envelope source; a window alone in its pool:
+    /// its own record's middle). `None` where `zeta0` is the window's own reading (a model, the
+    /// prediction errors, the cycle's amplitude, a rising or falling window beside its pool),
+    /// which stands for the window's middle. The
     /// trend places each figure at its instant, not at the window's end (`docs/damping.md`,
     /// "Trend": a pool of a 5 Hz gate reads about 16 s behind its newest window).
     #[serde(default)]
