@@ -1,6 +1,8 @@
-//! How the daemon's 1 s moving-average removal shifts the ambient (SSI-COV) damping reading,
-//! across gate frequencies (docs/damping.md, "The 1 s moving average's share, which depends on
-//! the gate"; figures in docs/benchmarks.md, "Stop 75").
+//! How a 1 s moving-average removal shifts the ambient (SSI-COV) damping reading across gate
+//! frequencies, and how the daemon's average over a whole number of the gate's periods (since
+//! stop 92, `spectral::moving_average_samples`) does not (docs/damping.md, "The 1 s moving
+//! average's share, which depended on the gate"; figures in docs/benchmarks.md, "Stop 75" and
+//! "Stop 92").
 //!
 //! Every gate is the same in its own units: 100 cycles a window, 20 samples a period, `zeta` =
 //! +2 %, no cubic damping, white sensor noise at 1/8 of the response at +1 %. Only the frequency
@@ -13,7 +15,9 @@
 //! ```
 
 use gatewatch::simulate::{GateParams, GateSimulator, ZetaSchedule};
-use gatewatch::spectral::{detrend_linear, remove_moving_average, ssi_cov_damping, SsiOptions};
+use gatewatch::spectral::{
+    detrend_linear, moving_average_samples, remove_moving_average, ssi_cov_damping, SsiOptions,
+};
 use std::f64::consts::PI;
 
 /// The true damping ratio of every gate.
@@ -37,12 +41,12 @@ fn main() {
         },
     };
     println!("zeta {:+.1} %, {CYCLES} cycles a window, {seeds} seeds a frequency; errors in percentage points (median)\n", ZETA * 100.0);
-    println!("| f, Hz | f T | mode amplitude the filter keeps | without the filter | with the 1 s filter | shift of the median | spread without / with | windows |");
-    println!("|---:|---:|---:|---:|---:|---:|---:|---:|");
+    println!("| f, Hz | f T | mode amplitude the filter keeps | without the filter | with the 1 s filter | shift of the median | spread without / with | f T, whole periods | with them | their shift | windows |");
+    println!("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
     for f in [0.5, 1.0, 2.0, 3.3, 5.0, 7.7, 10.4] {
         let row = measure(f, seeds);
         println!(
-            "| {f} | {:.2} | {:.2} | {:+.3} | {:+.3} | {:+.3} | {:.2} / {:.2} | {} |",
+            "| {f} | {:.2} | {:.2} | {:+.3} | {:+.3} | {:+.3} | {:.2} / {:.2} | {:.2} | {:+.3} | {:+.3} | {} |",
             row.f_t,
             row.kept,
             row.without,
@@ -50,6 +54,9 @@ fn main() {
             row.with - row.without,
             row.spread_without,
             row.spread_with,
+            row.f_t_whole,
+            row.whole,
+            row.whole - row.without,
             row.windows
         );
     }
@@ -69,6 +76,10 @@ struct Row {
     spread_without: f64,
     /// Spread with it, points.
     spread_with: f64,
+    /// The frequency times the length of the daemon's average (a whole number of periods).
+    f_t_whole: f64,
+    /// Median error with the daemon's average, points.
+    whole: f64,
     /// Windows read both ways.
     windows: usize,
 }
@@ -85,16 +96,19 @@ fn measure(f: f64, seeds: u64) -> Row {
         ..GateParams::default()
     };
     p.noise_std = p.stationary_force_std(0.01) / 8.0;
-    // the daemon's window: an odd number of samples (`analysis::model_free`)
-    let w = ((MOVING_AVERAGE_SECONDS * rate).round() as usize) | 1;
+    // the plain second (the daemon's until stop 92): an odd number of samples
+    let w = moving_average_samples(MOVING_AVERAGE_SECONDS, rate, None);
+    // the daemon's since: the odd length nearest to a whole number of periods
+    let w_whole = moving_average_samples(MOVING_AVERAGE_SECONDS, rate, Some(f));
     let t = w as f64 / rate;
     let kept = (1.0 - (PI * f * t).sin() / (w as f64 * (PI * f / rate).sin())).abs();
     let opts = SsiOptions::default();
     let n = (CYCLES / f * rate) as usize;
     let burn = (10.0 / (ZETA * 2.0 * PI * f) * rate) as usize;
-    let (mut without, mut with) = (Vec::new(), Vec::new());
+    let (mut without, mut with, mut whole) = (Vec::new(), Vec::new(), Vec::new());
     let mut x = vec![0.0; n];
     let mut filtered = vec![0.0; n];
+    let mut filtered_whole = vec![0.0; n];
     let mut burn_in = vec![0.0; burn];
     for seed in 0..seeds {
         let mut sim = GateSimulator::new(p.clone(), ZetaSchedule::Constant(ZETA), 5000 + seed);
@@ -102,17 +116,23 @@ fn measure(f: f64, seeds: u64) -> Row {
         sim.fill(&mut x);
         remove_moving_average(&x, w, &mut filtered);
         detrend_linear(&mut filtered);
+        remove_moving_average(&x, w_whole, &mut filtered_whole);
+        detrend_linear(&mut filtered_whole);
         detrend_linear(&mut x);
-        if let (Ok(a), Ok(b)) = (
+        if let (Ok(a), Ok(b), Ok(c)) = (
             ssi_cov_damping(&x, rate, f, &opts),
             ssi_cov_damping(&filtered, rate, f, &opts),
+            ssi_cov_damping(&filtered_whole, rate, f, &opts),
         ) {
             without.push((a.zeta - ZETA) * 100.0);
             with.push((b.zeta - ZETA) * 100.0);
+            whole.push((c.zeta - ZETA) * 100.0);
         }
     }
     Row {
         f_t: f * t,
+        f_t_whole: f * w_whole as f64 / rate,
+        whole: quantile(&mut whole, 0.5),
         kept,
         windows: without.len(),
         spread_without: spread(&mut without),

@@ -51,6 +51,114 @@ fn moving_average_matches_brute_force_and_removes_offset() {
     }
 }
 
+/// The daemon's average spans a whole number of the gate's periods (stop 92): the odd length
+/// nearest to `round(seconds * f)` periods, the seconds themselves where the frequency is
+/// unknown or too low; and removing it leaves an oscillation at that frequency alone, where
+/// one over the plain second left a part of it (the lab gate: 10.4 Hz at 200 Hz).
+#[test]
+fn the_moving_average_spans_whole_periods_and_leaves_the_mode_alone() {
+    // 10 periods of 10.4 Hz are 192.3 samples at 200 Hz: 193, not the second's 201
+    assert_eq!(moving_average_samples(1.0, 200.0, Some(10.4)), 193);
+    assert_eq!(moving_average_samples(1.0, 200.0, None), 201);
+    // 5 periods of 5 Hz at 100 Hz are 100 samples: the tie goes to the longer odd length
+    assert_eq!(moving_average_samples(1.0, 100.0, Some(5.0)), 101);
+    assert_eq!(moving_average_samples(1.0, 100.0, Some(5.03)), 99);
+    // a 2 Hz gate at 50 Hz, a 1 Hz one at 20 Hz (2 and 1 periods)
+    assert_eq!(moving_average_samples(1.0, 50.0, Some(2.0)), 51);
+    assert_eq!(moving_average_samples(1.0, 20.0, Some(1.0)), 21);
+    // a period longer than twice the seconds, or no frequency to speak of: the seconds
+    for f in [
+        Some(0.4),
+        Some(0.0),
+        Some(-3.0),
+        Some(f64::NAN),
+        Some(f64::INFINITY),
+    ] {
+        assert_eq!(moving_average_samples(1.0, 200.0, f), 201, "{f:?}");
+    }
+    // one period of 0.6 Hz (1.67 s) rather than a fraction of it
+    assert_eq!(moving_average_samples(1.0, 200.0, Some(0.6)), 333);
+    assert_eq!(moving_average_samples(0.0, 200.0, Some(10.4)), 0);
+    assert_eq!(moving_average_samples(f64::NAN, 200.0, None), 0);
+
+    let n = 2000;
+    let f = 10.4;
+    let clean = sine(n, f, 1.0, 0.3, 0.0);
+    let left = |w: usize| {
+        let y: Vec<f64> = clean.iter().map(|v| v + 5.0).collect();
+        let mut out = vec![0.0; n];
+        remove_moving_average(&y, w, &mut out);
+        (300..n - 300)
+            .map(|i| (out[i] - clean[i]).abs())
+            .fold(0.0, f64::max)
+    };
+    let whole = left(moving_average_samples(1.0, FS, Some(f)));
+    let second = left(moving_average_samples(1.0, FS, None));
+    assert!(whole < 0.005, "whole periods leave {whole} of a unit sine");
+    assert!(
+        second > 0.02,
+        "the plain second leaves {second} of a unit sine"
+    );
+}
+
+/// What the whole periods are for: the ambient SSI-COV reading of a pre-processed record is the
+/// reading of the record itself, where the plain second gave the 10.4 Hz gate a bias of its own
+/// (+0.12 points at +2 % over 300 seeds, `examples/moving_average_bias.rs`). Each seed's record
+/// (100 cycles at +2 %, no cubic damping, the sensor's noise at 1/8 of the response) is read
+/// three ways, and the paired differences against the unfiltered reading are compared.
+#[test]
+fn a_whole_period_average_leaves_the_ambient_reading_as_it_was() {
+    let (f, rate, zeta) = (10.4, 200.0, 0.02);
+    let mass = 19.0;
+    let mut p = GateParams {
+        mass,
+        stiffness: mass * (2.0 * PI * f).powi(2),
+        c3: 0.0,
+        forcing_std: 1.0,
+        rate_hz: rate,
+        ..GateParams::default()
+    };
+    p.noise_std = p.stationary_force_std(0.01) / 8.0;
+    let n = (100.0 / f * rate) as usize;
+    let opts = SsiOptions::default();
+    let read = |x: &[f64], w: Option<usize>| {
+        let mut y = x.to_vec();
+        if let Some(w) = w {
+            remove_moving_average(x, w, &mut y);
+        }
+        detrend_linear(&mut y);
+        ssi_cov_damping(&y, rate, f, &opts).map(|e| e.zeta * 100.0)
+    };
+    let whole = moving_average_samples(1.0, rate, Some(f));
+    let second = moving_average_samples(1.0, rate, None);
+    let (mut d_whole, mut d_second) = (Vec::new(), Vec::new());
+    for seed in 0..40 {
+        let x = simulate(zeta, n as f64 / rate, 7000 + seed, p.clone());
+        if let (Ok(a), Ok(b), Ok(c)) = (
+            read(&x, None),
+            read(&x, Some(whole)),
+            read(&x, Some(second)),
+        ) {
+            d_whole.push(b - a);
+            d_second.push(c - a);
+        }
+    }
+    assert!(d_whole.len() >= 35, "{} of 40 records read", d_whole.len());
+    let median = |v: &mut Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let (m_whole, m_second) = (median(&mut d_whole), median(&mut d_second));
+    assert!(
+        m_whole.abs() < 0.03,
+        "whole periods moved the reading by {m_whole:+.3} points (median of the pairs)"
+    );
+    assert!(
+        m_second > 0.06,
+        "the plain second moved it by {m_second:+.3} points, not the bias it is known for"
+    );
+}
+
 #[test]
 fn detrend_removes_a_line_exactly() {
     let mut x: Vec<f64> = (0..500)
