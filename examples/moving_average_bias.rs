@@ -1,8 +1,7 @@
-//! How a 1 s moving-average removal shifts the ambient (SSI-COV) damping reading across gate
-//! frequencies, and how the daemon's average over a whole number of the gate's periods (since
-//! stop 92, `spectral::moving_average_samples`) does not (docs/damping.md, "The 1 s moving
-//! average's share, which depended on the gate"; figures in docs/benchmarks.md, "Stop 75" and
-//! "Stop 92").
+//! How the daemon's 1 s moving-average removal shifts the ambient (SSI-COV) damping reading,
+//! across gate frequencies, and how much less an average over a whole number of the gate's
+//! periods does (tried in stop 92, not shipped: docs/damping.md, "The 1 s moving average's
+//! share, which depends on the gate"; figures in docs/benchmarks.md, "Stop 75" and "Stop 92").
 //!
 //! Every gate is the same in its own units: 100 cycles a window, 20 samples a period, `zeta` =
 //! +2 %, no cubic damping, white sensor noise at 1/8 of the response at +1 %. Only the frequency
@@ -15,9 +14,7 @@
 //! ```
 
 use gatewatch::simulate::{GateParams, GateSimulator, ZetaSchedule};
-use gatewatch::spectral::{
-    detrend_linear, moving_average_samples, remove_moving_average, ssi_cov_damping, SsiOptions,
-};
+use gatewatch::spectral::{detrend_linear, remove_moving_average, ssi_cov_damping, SsiOptions};
 use std::f64::consts::PI;
 
 /// The true damping ratio of every gate.
@@ -76,9 +73,9 @@ struct Row {
     spread_without: f64,
     /// Spread with it, points.
     spread_with: f64,
-    /// The frequency times the length of the daemon's average (a whole number of periods).
+    /// The frequency times the length of the whole-period average.
     f_t_whole: f64,
-    /// Median error with the daemon's average, points.
+    /// Median error with the whole-period average, points.
     whole: f64,
     /// Windows read both ways.
     windows: usize,
@@ -96,10 +93,11 @@ fn measure(f: f64, seeds: u64) -> Row {
         ..GateParams::default()
     };
     p.noise_std = p.stationary_force_std(0.01) / 8.0;
-    // the plain second (the daemon's until stop 92): an odd number of samples
-    let w = moving_average_samples(MOVING_AVERAGE_SECONDS, rate, None);
-    // the daemon's since: the odd length nearest to a whole number of periods
-    let w_whole = moving_average_samples(MOVING_AVERAGE_SECONDS, rate, Some(f));
+    // the daemon's window: an odd number of samples (`analysis::model_free`)
+    let w = ((MOVING_AVERAGE_SECONDS * rate).round() as usize) | 1;
+    // the variant: the odd length nearest to a whole number of periods, at least one
+    let periods = (MOVING_AVERAGE_SECONDS * f).round().max(1.0);
+    let w_whole = 2 * ((periods * rate / f - 1.0) / 2.0).round() as usize + 1;
     let t = w as f64 / rate;
     let kept = (1.0 - (PI * f * t).sin() / (w as f64 * (PI * f / rate).sin())).abs();
     let opts = SsiOptions::default();

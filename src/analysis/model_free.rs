@@ -29,72 +29,24 @@ pub const CLEAN_GROWTH_RELATIVE_ERROR: f64 = 0.1;
 /// envelope with `sigma` near zero pass. Value: far below any physical growth rate.
 pub const CLEAN_GROWTH_FLOOR: f64 = 1e-9;
 
-/// Pre-processing: force signals lose their centred moving average of `moving_average` samples
-/// (drift; [`moving_average_window`] chooses it once per window, and the window's history is
-/// pre-processed with the same), when there is one and it is shorter than the series.
-pub(super) fn preprocess(series: &TimeSeries, moving_average: Option<usize>) -> TimeSeries {
+/// Pre-processing: force signals lose their centred moving average (drift), when the series is
+/// uniformly sampled and the average is shorter than the series.
+pub(super) fn preprocess(series: &TimeSeries, opts: &SeriesOptions) -> TimeSeries {
     let mut data = series.clone();
-    if let Some(w) = moving_average.filter(|&w| w > 1 && w < series.len()) {
+    if let Some(w) = moving_average_window(series, opts) {
         crate::spectral::remove_moving_average(&series.y, w, &mut data.y);
     }
     data
 }
 
-/// The samples of the centred moving average [`preprocess`] removes from a force window (odd),
-/// when it removes one: `moving_average_seconds` rounded to a whole number of periods of the
-/// window's dominant frequency `frequency_hz` (read from the raw window, [`raw_frequency`]), or
-/// the seconds themselves where that frequency is unknown or its period longer than twice them.
-///
-/// Why whole periods (stop 92): an average over a whole number of periods holds none of the
-/// mode, so removing it leaves the mode alone. Over a fixed 1 s it held a part set by where the
-/// gate's frequency falls against 1 s, and the ambient SSI-COV reading moved by a bias of the
-/// gate's own: +0.12 points at 10.4 Hz (`f T` 10.45), -0.15 at 3.3 Hz, -0.01 at 5 Hz
-/// (docs/damping.md, "The 1 s moving average's share").
-pub(super) fn moving_average_window(
-    series: &TimeSeries,
-    opts: &SeriesOptions,
-    frequency_hz: Option<f64>,
-) -> Option<usize> {
+/// The samples of the centred moving average [`preprocess`] removes (odd), when it removes one.
+pub(super) fn moving_average_window(series: &TimeSeries, opts: &SeriesOptions) -> Option<usize> {
     if opts.signal != Signal::Force || opts.moving_average_seconds <= 0.0 {
         return None;
     }
     let fs = 1.0 / series.uniform_step()?;
-    let w = crate::spectral::moving_average_samples(opts.moving_average_seconds, fs, frequency_hz);
+    let w = ((opts.moving_average_seconds * fs).round() as usize) | 1;
     (w > 1 && w < series.len()).then_some(w)
-}
-
-/// The dominant frequency of the raw window (linearly detrended), which
-/// [`moving_average_window`] rounds the average to; `None` where the window is not uniformly
-/// sampled or has no peak above [`MIN_PERIODS`] periods.
-pub(super) fn raw_frequency(
-    series: &TimeSeries,
-    spectral: &mut Option<SpectralAnalyzer>,
-) -> Option<f64> {
-    let n = series.len();
-    let duration = series.t[n.checked_sub(1)?] - series.t[0];
-    let sa = analyzer_for(series, spectral)?;
-    let mut detrended = series.y.clone();
-    crate::spectral::detrend_linear(&mut detrended);
-    sa.dominant_frequency(&detrended, MIN_PERIODS / duration.max(f64::MIN_POSITIVE))
-        .ok()
-        .map(|p| p.frequency_hz)
-}
-
-/// The analyzer of `spectral`, replaced when it does not fit the window's length and rate;
-/// `None` when the window is not uniformly sampled (or too short for one).
-fn analyzer_for<'a>(
-    data: &TimeSeries,
-    spectral: &'a mut Option<SpectralAnalyzer>,
-) -> Option<&'a mut SpectralAnalyzer> {
-    let n = data.len();
-    let fs = data.uniform_step().map(|h| 1.0 / h);
-    let fits = |sa: &SpectralAnalyzer| {
-        fs.is_some_and(|fs| sa.len() == n && (sa.rate_hz() - fs).abs() <= 1e-9 * fs)
-    };
-    if !spectral.as_ref().is_some_and(fits) {
-        *spectral = fs.and_then(|fs| SpectralAnalyzer::new(n, fs).ok());
-    }
-    spectral.as_mut()
 }
 
 /// What the model-free analysis of the (pre-processed) window found.
@@ -126,7 +78,6 @@ pub(super) fn model_free(
     data: &TimeSeries,
     history: &[f64],
     opts: &SeriesOptions,
-    moving_average: Option<usize>,
     spectral: &mut Option<SpectralAnalyzer>,
 ) -> ModelFree {
     let n = data.len();
@@ -141,10 +92,17 @@ pub(super) fn model_free(
         }),
         ..WindowOptions::default()
     };
-    let spec = analyzer_for(data, spectral)
+    let fits = |sa: &SpectralAnalyzer| {
+        fs.is_some_and(|fs| sa.len() == n && (sa.rate_hz() - fs).abs() <= 1e-9 * fs)
+    };
+    if !spectral.as_ref().is_some_and(fits) {
+        *spectral = fs.and_then(|fs| SpectralAnalyzer::new(n, fs).ok());
+    }
+    let spec = spectral
+        .as_mut()
         .and_then(|sa| sa.analyze_window(&data.y, &window_options).ok())
         .map(|s| match fs {
-            Some(fs) => steady_over_cycles(s, history, fs, n, &window_options, moving_average),
+            Some(fs) => steady_over_cycles(s, history, fs, n, &window_options, opts),
             None => s,
         });
     // A short record (a few periods) cannot give an envelope growth, but its dominant frequency
@@ -182,7 +140,7 @@ pub(super) fn model_free(
                 ..crate::spectral::RelaxationOptions::default()
             };
             let (relaxation, record_seconds) =
-                match fs.and_then(|fs| relaxation_record(history, fs, f, n, moving_average)) {
+                match fs.and_then(|fs| relaxation_record(history, fs, f, n, opts)) {
                     Some((record, fs)) => (
                         SpectralAnalyzer::new(record.len(), fs)
                             .and_then(|mut long| long.envelope_relaxation(&record, f, &relax)),
@@ -215,15 +173,10 @@ pub(super) fn model_free(
         _ => (None, None, None),
     };
     let ambient_record = match (&spec, fs) {
-        (Some(s), Some(fs)) if s.ambient.is_some() => ambient_record(
-            history,
-            fs,
-            s.peak.frequency_hz,
-            n,
-            &window_options,
-            moving_average,
-        )
-        .map(|(a, len)| (a, span(len, fs))),
+        (Some(s), Some(fs)) if s.ambient.is_some() => {
+            ambient_record(history, fs, s.peak.frequency_hz, n, &window_options, opts)
+                .map(|(a, len)| (a, span(len, fs)))
+        }
         _ => None,
     };
     ModelFree {
@@ -267,14 +220,14 @@ fn steady_over_cycles(
     fs: f64,
     n: usize,
     window: &WindowOptions,
-    moving_average: Option<usize>,
+    opts: &SeriesOptions,
 ) -> WindowSpectral {
     let f = spec.peak.frequency_hz;
     if spec.regime != Regime::LimitCycle || f.is_nan() || f <= 0.0 {
         return spec;
     }
     let len = record_len(history, fs, f, LIMIT_CYCLE_CYCLES);
-    let Some(work) = history_record(history, fs, len, n, moving_average) else {
+    let Some(work) = history_record(history, fs, len, n, opts) else {
         return spec;
     };
     let cv = SpectralAnalyzer::new(work.len(), fs)
@@ -372,17 +325,10 @@ pub(super) fn relaxation_record(
     fs: f64,
     frequency_hz: f64,
     n: usize,
-    moving_average: Option<usize>,
+    opts: &SeriesOptions,
 ) -> Option<(Vec<f64>, f64)> {
     let len = record_len(history, fs, frequency_hz, RELAXATION_CYCLES);
-    held_record(
-        history,
-        fs,
-        len,
-        n,
-        MAX_HISTORY_LEVEL_CHANGE,
-        moving_average,
-    )
+    held_record(history, fs, len, n, MAX_HISTORY_LEVEL_CHANGE, opts)
 }
 
 /// The last `len` samples of `history` ([`history_record`]), or the longest tail of them whose
@@ -395,9 +341,9 @@ fn held_record(
     len: usize,
     n: usize,
     max_change: f64,
-    moving_average: Option<usize>,
+    opts: &SeriesOptions,
 ) -> Option<(Vec<f64>, f64)> {
-    let work = history_record(history, fs, len, n, moving_average)?;
+    let work = history_record(history, fs, len, n, opts)?;
     let len = work.len();
     let rms = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt();
     let level = rms(&work[len - n..]);
@@ -419,10 +365,7 @@ fn held_record(
     match kept {
         0 => None,
         k if k == blocks => Some((work, fs)),
-        k => Some((
-            history_record(history, fs, (k + 1) * n, n, moving_average)?,
-            fs,
-        )),
+        k => Some((history_record(history, fs, (k + 1) * n, n, opts)?, fs)),
     }
 }
 
@@ -464,7 +407,7 @@ fn ambient_record(
     frequency_hz: f64,
     n: usize,
     window: &WindowOptions,
-    moving_average: Option<usize>,
+    opts: &SeriesOptions,
 ) -> Option<(AmbientZeta, usize)> {
     let AmbientMethod::Ssi(ssi) = window.ambient else {
         return None;
@@ -473,14 +416,7 @@ fn ambient_record(
         return None;
     }
     let len = record_len(history, fs, frequency_hz, AMBIENT_RECORD_CYCLES);
-    let (record, _) = held_record(
-        history,
-        fs,
-        len,
-        n,
-        MAX_AMBIENT_LEVEL_CHANGE,
-        moving_average,
-    )?;
+    let (record, _) = held_record(history, fs, len, n, MAX_AMBIENT_LEVEL_CHANGE, opts)?;
     let e = crate::spectral::ssi_cov_damping(&record, fs, frequency_hz, &ssi).ok()?;
     let a = AmbientZeta::from(&crate::spectral::AmbientDamping::from(e));
     Some((a, record.len()))
@@ -500,7 +436,7 @@ fn history_record(
     fs: f64,
     len: usize,
     n: usize,
-    moving_average: Option<usize>,
+    opts: &SeriesOptions,
 ) -> Option<Vec<f64>> {
     let len = len.min(history.len());
     if len <= n || !history.iter().all(|v| v.is_finite()) {
@@ -508,7 +444,7 @@ fn history_record(
     }
     let raw = &history[history.len() - len..];
     let series = TimeSeries::new((0..len).map(|i| i as f64 / fs).collect(), raw.to_vec()).ok()?;
-    let mut work = preprocess(&series, moving_average).y;
+    let mut work = preprocess(&series, opts).y;
     crate::spectral::detrend_linear(&mut work);
     Some(work)
 }

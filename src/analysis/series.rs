@@ -5,9 +5,7 @@
 use super::linearisation::{
     cycle_zeta0, equivalent_damping, limit_cycle, time_to_amplitude, Linearization,
 };
-use super::model_free::{
-    model_free, moving_average_window, preprocess, raw_frequency, rms_swing, ModelFree,
-};
+use super::model_free::{model_free, moving_average_window, preprocess, rms_swing, ModelFree};
 use super::model_interval::{intervals, zeta0_interval, FittedModel};
 use super::population::{initial_population, PopulationInputs, SpectralTarget};
 use super::report::{AmbientZeta, DampingReport, Verdict, Zeta0Source};
@@ -35,10 +33,8 @@ pub struct SeriesOptions {
     pub identify: identify::Config,
     /// Bias half of the initial population towards the measured frequency and growth.
     pub fft_bias: bool,
-    /// Force mode: a centred moving average over about this many seconds is subtracted first
-    /// (the chapter's only pre-processing; removes drift), rounded to a whole number of periods
-    /// of the window's dominant frequency so that it removes none of the mode (stop 92;
-    /// `model_free::moving_average_window`). 0: none.
+    /// Force mode: a centred moving average over this many seconds is subtracted first (the
+    /// chapter's only pre-processing; removes drift). 0: none.
     pub moving_average_seconds: f64,
     /// Amplitude in the signal's unit whose time of reach is predicted.
     pub amplitude_limit: Option<f64>,
@@ -301,15 +297,9 @@ fn analyze(
         return Err(AnalysisError::Window(format!("{n} samples are too few")));
     }
     let t0 = series.t[0];
-    // the average spans a whole number of the gate's periods: read its frequency first, from
-    // the raw window (only where there is an average to remove)
-    let frequency = (opts.signal == Signal::Force && opts.moving_average_seconds > 0.0)
-        .then(|| raw_frequency(series, spectral))
-        .flatten();
-    let moving_average = moving_average_window(series, opts, frequency);
-    let data = preprocess(series, moving_average);
-    let edge_samples = moving_average.map_or(0, |w| w / 2);
-    let free = model_free(&data, history, opts, moving_average, spectral);
+    let data = preprocess(series, opts);
+    let edge_samples = moving_average_window(series, opts).map_or(0, |w| w / 2);
+    let free = model_free(&data, history, opts, spectral);
 
     let mut config = opts.identify.clone();
     if opts.polish_solver == PolishSolver::Rk4 {

@@ -178,26 +178,34 @@ fn stepped_sine(fs: f64, f: f64, step: usize, before: f64) -> Vec<f64> {
         .collect()
 }
 
+/// A displacement signal's options: no moving average before the relaxation.
+fn displacement() -> series::SeriesOptions {
+    series::SeriesOptions {
+        signal: Signal::Displacement,
+        ..series::SeriesOptions::default()
+    }
+}
+
 /// The relaxation's record: the last 100 cycles of the history when they are longer than the
 /// window and the cycle's level held; else the window alone (`None`).
 #[test]
 fn the_relaxation_reads_the_history_only_over_a_steady_cycle() {
     let (fs, f, n) = (100.0, 5.0, 1000);
-    let ma = None; // a displacement signal's: no moving average before the relaxation
+    let opts = displacement();
     let wave = |amp_before: f64| stepped_sine(fs, f, 2000, amp_before);
     // steady: the last 100 cycles (2000 samples at 20 per cycle) of the 3000 held
-    let (record, rate) = model_free::relaxation_record(&wave(1.1), fs, f, n, ma).unwrap();
+    let (record, rate) = model_free::relaxation_record(&wave(1.1), fs, f, n, &opts).unwrap();
     assert_eq!((record.len(), rate), (2000, fs));
     // the cycle grew by half within the history: the window alone
-    assert!(model_free::relaxation_record(&wave(0.6), fs, f, n, ma).is_none());
-    assert!(model_free::relaxation_record(&wave(1.5), fs, f, n, ma).is_none());
+    assert!(model_free::relaxation_record(&wave(0.6), fs, f, n, &opts).is_none());
+    assert!(model_free::relaxation_record(&wave(1.5), fs, f, n, &opts).is_none());
     // no history beyond the window, or a gate fast enough for its window: the window alone
-    assert!(model_free::relaxation_record(&wave(1.0)[2000..], fs, f, n, ma).is_none());
-    assert!(model_free::relaxation_record(&wave(1.0), fs, 10.4, 2000, ma).is_none());
+    assert!(model_free::relaxation_record(&wave(1.0)[2000..], fs, f, n, &opts).is_none());
+    assert!(model_free::relaxation_record(&wave(1.0), fs, 10.4, 2000, &opts).is_none());
     // a non-finite sample in the history: the window alone
     let mut bad = wave(1.0);
     bad[10] = f64::NAN;
-    assert!(model_free::relaxation_record(&bad, fs, f, n, ma).is_none());
+    assert!(model_free::relaxation_record(&bad, fs, f, n, &opts).is_none());
 }
 
 /// Where the 100 cycles hold several windows (a 2 Hz gate: 50 s, five 10 s windows), the record
@@ -207,10 +215,10 @@ fn the_relaxation_reads_the_history_only_over_a_steady_cycle() {
 #[test]
 fn the_relaxation_reads_the_history_back_to_where_the_level_moved() {
     let (fs, f, n) = (50.0, 2.0, 500);
-    let ma = None; // a displacement signal's: no moving average before the relaxation
-                   // 60 s of history (six windows); the cycle at `old` until 30 s ago, at 1 since
+    let opts = displacement();
+    // 60 s of history (six windows); the cycle at `old` until 30 s ago, at 1 since
     let wave = |old: f64| stepped_sine(fs, f, 1500, old);
-    let steady = model_free::relaxation_record(&wave(1.1), fs, f, n, ma).unwrap();
+    let steady = model_free::relaxation_record(&wave(1.1), fs, f, n, &opts).unwrap();
     assert_eq!((steady.0.len(), steady.1), (2500, fs), "100 cycles");
     let grown = wave(0.6);
     let rms = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt();
@@ -219,12 +227,12 @@ fn the_relaxation_reads_the_history_back_to_where_the_level_moved() {
         before > 1.0 / 1.25,
         "the mean level before the window passes: {before}"
     );
-    let (record, _) = model_free::relaxation_record(&grown, fs, f, n, ma).unwrap();
+    let (record, _) = model_free::relaxation_record(&grown, fs, f, n, &opts).unwrap();
     assert_eq!(record.len(), 1500, "back to where the level moved");
     // the block just before the window moved: the window alone
     let mut late = wave(1.0);
     late[1900..2500].iter_mut().for_each(|v| *v *= 0.5);
-    assert!(model_free::relaxation_record(&late, fs, f, n, ma).is_none());
+    assert!(model_free::relaxation_record(&late, fs, f, n, &opts).is_none());
 }
 
 /// `rms_swing`: about 1 on a steady oscillation, the ratio of the amplitudes where the third
@@ -419,11 +427,9 @@ fn a_limit_cycle_window_must_be_steady_over_a_hundred_cycles() {
         while end <= y.len() {
             let t: Vec<f64> = (0..w).map(|i| i as f64 / fs).collect();
             let series = crate::data::TimeSeries::new(t, y[end - w..end].to_vec()).unwrap();
-            let f = model_free::raw_frequency(&series, &mut spectral);
-            let ma = model_free::moving_average_window(&series, &opts, f);
-            let data = model_free::preprocess(&series, ma);
+            let data = model_free::preprocess(&series, &opts);
             let mut lc = |history: &[f64]| {
-                model_free::model_free(&data, history, &opts, ma, &mut spectral)
+                model_free::model_free(&data, history, &opts, &mut spectral)
                     .spec
                     .is_some_and(|s| s.regime == crate::spectral::Regime::LimitCycle)
             };
@@ -479,12 +485,10 @@ fn a_slow_gates_ambient_reading_reads_100_cycles_of_its_history() {
         y[..cut].iter_mut().for_each(|v| *v *= before);
         let t: Vec<f64> = (0..w).map(|i| i as f64 / fs).collect();
         let series = crate::data::TimeSeries::new(t, y[hist - w..].to_vec()).unwrap();
+        let data = model_free::preprocess(&series, &opts);
         let mut spectral = None;
-        let f = model_free::raw_frequency(&series, &mut spectral);
-        let ma = model_free::moving_average_window(&series, &opts, f);
-        let data = model_free::preprocess(&series, ma);
-        let with = model_free::model_free(&data, y, &opts, ma, &mut spectral);
-        let alone = model_free::model_free(&data, &y[hist - w..], &opts, ma, &mut spectral);
+        let with = model_free::model_free(&data, y, &opts, &mut spectral);
+        let alone = model_free::model_free(&data, &y[hist - w..], &opts, &mut spectral);
         assert!(alone.ambient_record.is_none());
         let own = with
             .spec

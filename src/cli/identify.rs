@@ -109,8 +109,7 @@ pub struct IdentifyArgs {
     #[arg(long)]
     no_fft_bias: bool,
     /// With --signal force only (refused on a displacement record, which is not detrended):
-    /// about this many seconds of centred moving average removed first, rounded to a whole
-    /// number of periods of the record's dominant frequency (0: none; default 1).
+    /// seconds of the centred moving average removed first (0: none; default 1).
     #[arg(long, allow_negative_numbers = true)]
     moving_average: Option<f64>,
     /// Amplitude (unit of the signal) whose time of reach is predicted.

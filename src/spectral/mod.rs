@@ -6,8 +6,7 @@
 //! and as a fallback verdict. Everything here is plain numerics (no async, no metrics).
 //!
 //! # Pieces (one file each)
-//! - `preprocess`: [`remove_moving_average`] (over [`moving_average_samples`]),
-//!   [`detrend_linear`], [`hann_into`].
+//! - `preprocess`: [`remove_moving_average`], [`detrend_linear`], [`hann_into`].
 //! - `analyzer`: [`SpectralAnalyzer`], FFTs planned once per window length, with reused buffers;
 //!   [`SpectralAnalyzer::dominant_frequency`] (Hann window + exact 3-point Hann interpolation),
 //!   [`SpectralAnalyzer::envelope`] (analytic signal by FFT) and
@@ -43,10 +42,7 @@ pub use classify::{
 };
 pub use drift::{envelope_drift, DriftOptions, EnvelopeDrift};
 pub use pool::{DampingPool, PoolLocation, PoolOptions, PooledEstimate, WindowEstimate};
-pub use preprocess::{
-    damping_from_growth, detrend_linear, hann, hann_into, moving_average_samples,
-    remove_moving_average,
-};
+pub use preprocess::{damping_from_growth, detrend_linear, hann, hann_into, remove_moving_average};
 pub use relaxation::{
     envelope_relaxation, envelope_relaxation_whittle, EnvelopeRelaxation, RelaxationOptions,
     NOISE_BAND,

@@ -46,29 +46,6 @@ pub fn remove_moving_average(input: &[f64], window: usize, out: &mut [f64]) {
     }
 }
 
-/// The length (odd, in samples at `rate_hz`) of a centred moving average of about `seconds`
-/// that spans a whole number of periods of `frequency_hz`: the odd length nearest to
-/// `round(seconds * f)` periods, so that [`remove_moving_average`] removes none of an
-/// oscillation at `f`. Where `f` is unknown (`None`, not finite or not positive) or its period
-/// is longer than twice `seconds` (no whole period near them), `seconds` themselves, rounded up
-/// to odd. Values below 1 mean no average.
-pub fn moving_average_samples(seconds: f64, rate_hz: f64, frequency_hz: Option<f64>) -> usize {
-    let periods = frequency_hz
-        .filter(|f| f.is_finite() && *f > 0.0)
-        .map(|f| ((seconds * f).round(), f))
-        .filter(|(k, _)| *k >= 1.0);
-    let samples = match periods {
-        // the odd length nearest to k periods (ties to the longer)
-        Some((k, f)) => 2.0 * ((k * rate_hz / f - 1.0) / 2.0).round() + 1.0,
-        None => (seconds * rate_hz).round(),
-    };
-    if samples.is_finite() && samples >= 1.0 {
-        (samples as usize) | 1
-    } else {
-        0
-    }
-}
-
 /// Removes the least-squares straight line `a + b*i` from `x` in place; returns `(a, b)`
 /// (intercept and slope per sample). No allocation.
 pub fn detrend_linear(x: &mut [f64]) -> (f64, f64) {

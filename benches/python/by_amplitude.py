@@ -1,0 +1,97 @@
+"""How a window's own amplitude goes with its ambient reading's error, in `gatewatch bench
+warning --trace` outputs (stop 92).
+
+Two tables:
+
+- steady gates (`stable`, `stable-low`): the ambient windows after the first minute, ranked by
+  their RMS, in four bands (the lowest 2 %, 2-10 %, 10-90 %, the top 10 %): median error against
+  the truth and the interval's coverage. A noise-driven response's amplitude wanders, and a
+  window at the bottom of a wander follows a fall of its envelope.
+- near zero (every scenario): the windows the bench scored with a true mean in [-0.35, 0) %,
+  by the regime the bench gave them (`score::Regime::classify`: growth below half the cycle's
+  amplitude at that zeta0, limit cycle above) and by `zeta0_source`: count, median RMS,
+  median error, coverage.
+
+Usage: python by_amplitude.py TRACE...
+
+Standard library only. Used in docs/benchmarks.md ("Stop 92")."""
+import os
+import re
+import statistics
+import sys
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from bench_trace import read_trace  # noqa: E402
+
+SCORED = re.compile(r"scored (\S+) \(true mean ([-+\d.]+) %\)")
+BANDS = [(0.0, 0.02, "lowest 2 %"), (0.02, 0.10, "2-10 %"), (0.10, 0.90, "10-90 %"), (0.90, 1.0, "top 10 %")]
+NEAR_ZERO = (-0.35, 0.0)
+
+
+def covered(w, truth):
+    return w["low"] is not None and w["low"] <= truth <= w["high"]
+
+
+def steady(runs):
+    rows = []
+    keys = sorted({(r["scenario"], r["gate"]) for r in runs if r["scenario"] in ("stable", "stable-low")})
+    for scenario, gate in keys:
+        ws = [
+            w
+            for r in runs
+            if (r["scenario"], r["gate"]) == (scenario, gate)
+            for w in r["windows"]
+            if w["source"] == "ambient" and w["zeta0"] is not None and w["rms"] and w["t"] > 60.0
+        ]
+        ws.sort(key=lambda w: w["rms"])
+        for lo, hi, name in BANDS:
+            band = ws[int(lo * len(ws)) : int(hi * len(ws))]
+            if not band:
+                continue
+            err = statistics.median(w["zeta0"] - w["true"] for w in band)
+            cov = sum(covered(w, w["true"]) for w in band) / len(band)
+            rows.append(f"| {scenario} | {gate} | {name} | {len(band)} | {err:+.2f} | {cov:.0%} |")
+    return rows
+
+
+def near_zero(runs):
+    table = {}
+    for r in runs:
+        for w in r["windows"]:
+            m = SCORED.search(w["line"])
+            if m is None or w["zeta0"] is None:
+                continue
+            truth = float(m.group(2))
+            if not NEAR_ZERO[0] <= truth < NEAR_ZERO[1]:
+                continue
+            key = (r["scenario"], r["gate"], m.group(1), w["source"])
+            table.setdefault(key, []).append((w, truth))
+    rows = []
+    for (scenario, gate, regime, source), ws in sorted(table.items()):
+        rms = statistics.median(w["rms"] or 0.0 for w, _ in ws)
+        err = statistics.median(w["zeta0"] - t for w, t in ws)
+        cov = sum(covered(w, t) for w, t in ws) / len(ws)
+        rows.append(f"| {scenario} | {gate} | {regime} | {source} | {len(ws)} | {rms:.3g} | {err:+.2f} | {cov:.0%} |")
+    return rows
+
+
+def main():
+    if len(sys.argv) < 2:
+        raise SystemExit(__doc__)
+    runs = [run for path in sys.argv[1:] for run in read_trace(path)]
+    rows = steady(runs)
+    if rows:
+        print("| scenario | gate | windows by RMS | windows | median error | coverage |")
+        print("|---|---|---|---:|---:|---:|")
+        print("\n".join(rows))
+        print()
+    rows = near_zero(runs)
+    if rows:
+        print(f"true mean in [{NEAR_ZERO[0]}, {NEAR_ZERO[1]}) %:\n")
+        print("| scenario | gate | scored | zeta0_source | windows | median RMS | median error | coverage |")
+        print("|---|---|---|---|---:|---:|---:|---:|")
+        print("\n".join(rows))
+
+
+if __name__ == "__main__":
+    main()
