@@ -21,6 +21,8 @@ REGIME = re.compile(r"ssi common\) Some\(\(Some\((\w+)\)")
 RMS = re.compile(r"  rms ([\d.]+e[+-]?\d+)")
 # the trend's slope and its one-sided upper bound, %/min, where the window has a trend
 TREND = re.compile(r"trend \(%/min, upper %/min, confident crossing s\) Some\(\((-?[\d.e+-]+), (-?[\d.e+-]+), ")
+# the regime the bench scored the window in and the true mean over it, %, where it was scored
+SCORED = re.compile(r"scored ([\w-]+) \(true mean ([+-]?[\d.]+) %\)")
 # the window's envelope growth rate and its standard error, 1/s
 GROWTH = re.compile(r"growth \(1/s, se\) Some\(\(Some\(([-\d.e+]+)\), Some\(([-\d.e+]+)\)\)\)")
 
@@ -69,10 +71,13 @@ def read_trace(path):
             if m is None or run is None:
                 raise SystemExit(f"{path}:{number}: not a window line of `bench warning --trace`")
             num = lambda g: float(m.group(g)) if m.group(g) is not None else None
+            scored = SCORED.search(line)
             run["windows"].append({
                 "t": num(1), "true": num(2), "zeta0": num(3), "low": num(4), "high": num(5),
                 "source": m.group(6), "trusted": m.group(7) == "true", "firing": m.group(8),
                 "trend": trend(line), "rms": rms(line), "growth": growth(line), "pool": pool(line),
                 "regime": (lambda r: r.group(1) if r else None)(REGIME.search(line)), "line": line,
+                "scored": scored.group(1) if scored else None,
+                "truth": float(scored.group(2)) if scored else None,
             })
     return runs

@@ -16,14 +16,12 @@ Usage: python by_amplitude.py TRACE...
 
 Standard library only. Used in docs/benchmarks.md ("Stop 92")."""
 import os
-import re
 import statistics
 import sys
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from bench_trace import read_trace  # noqa: E402
 
-SCORED = re.compile(r"scored (\S+) \(true mean ([-+\d.]+) %\)")
 BANDS = [(0.0, 0.02, "lowest 2 %"), (0.02, 0.10, "2-10 %"), (0.10, 0.90, "10-90 %"), (0.90, 1.0, "top 10 %")]
 NEAR_ZERO = (-0.35, 0.0)
 
@@ -58,13 +56,12 @@ def near_zero(runs):
     table = {}
     for r in runs:
         for w in r["windows"]:
-            m = SCORED.search(w["line"])
-            if m is None or w["zeta0"] is None:
+            truth = w["truth"]
+            if w["scored"] is None or w["zeta0"] is None:
                 continue
-            truth = float(m.group(2))
             if not NEAR_ZERO[0] <= truth < NEAR_ZERO[1]:
                 continue
-            key = (r["scenario"], r["gate"], m.group(1), w["source"])
+            key = (r["scenario"], r["gate"], w["scored"], w["source"])
             table.setdefault(key, []).append((w, truth))
     rows = []
     for (scenario, gate, regime, source), ws in sorted(table.items()):

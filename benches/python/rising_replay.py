@@ -28,7 +28,6 @@ FACTS = re.compile(
     r"ssi common\) Some\(\((?:Some\(\w+\)|None), (?:Some\((\d+)\)|None), "
     r"(?:Some\(\(" + num + ", " + num + ", " + num + r"\)\)|None), (?:Some\(" + num + r"\)|None),"
 )
-SCORED = re.compile(r"scored ([\w-]+) \(true mean ([+-][\d.]+) %\)")
 
 
 def read(path):
@@ -37,15 +36,14 @@ def read(path):
     runs = read_trace(path)
     for run in runs:
         for w in run["windows"]:
-            facts, s = FACTS.search(w["line"]), SCORED.search(w["line"])
-            if not (facts and s):
+            facts = FACTS.search(w["line"])
+            if not (facts and w["scored"]):
                 raise SystemExit(f"{path}: the window at t = {w['t']} of {run['scenario']} "
                                  f"{run['gate']} seed {run['seed']} has no pooling facts or score")
             w.update({
                 "pooled": int(facts.group(1)) if facts.group(1) else None,
                 "own": tuple(float(facts.group(i)) for i in (2, 3, 4)) if facts.group(2) else None,
                 "ratio": float(facts.group(5)) if facts.group(5) else None,
-                "scored": s.group(1), "truth": float(s.group(2)),
             })
     return runs
 
