@@ -67,6 +67,7 @@ fn estimate(
         stderr: s.zeta_stderr,
         frequency_hz: s.frequency_hz,
         record_seconds,
+        rms: None,
     })
 }
 

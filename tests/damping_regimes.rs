@@ -296,6 +296,7 @@ fn limit_cycle_envelope_lock_gate_pooled() {
                 stderr: e.zeta0_stderr,
                 frequency_hz: f,
                 record_seconds: 0.0,
+                rms: None,
             })
             .unwrap();
         eprintln!(
@@ -635,6 +636,7 @@ fn explore_relaxation_across_zeta() {
                             stderr: e.zeta0_stderr,
                             frequency_hz: f,
                             record_seconds: 0.0,
+                            rms: None,
                         })
                         .unwrap();
                     if i >= 4 {

@@ -99,6 +99,10 @@ impl ZetaPools {
                 location: PoolLocation::SqrtHodgesLehmann,
                 // its estimates read up to 100 cycles of history (`ambient_record_zeta`)
                 count_records: true,
+                // and one state of the gate: a reading whose window's RMS is three times the
+                // newest's or a third of it, the bar at which a window counts as having left
+                // its ambient level, ends the pool (docs/damping.md, "A pool holds one level")
+                max_level_change: Some(super::ambient_level::DEPARTED_FROM_AMBIENT),
                 ..opts
             })?,
             envelope: DampingPool::new(opts)?,
@@ -150,15 +154,16 @@ impl ZetaPools {
                     .ambient_frequency_hz
                     .filter(|g| g.is_finite() && *g > 0.0)
                     .unwrap_or(f);
+                let rms = d.signal_rms;
                 match record {
                     Some((a, s)) => push(
                         &mut self.ambient,
                         (t_start, t_end, s),
                         a.zeta,
                         (a.low, a.high),
-                        f,
+                        (f, rms),
                     ),
-                    None => push(&mut self.ambient, (t_start, t_end, 0.0), z, iv, f),
+                    None => push(&mut self.ambient, (t_start, t_end, 0.0), z, iv, (f, rms)),
                 }
             }
             (Some(Zeta0Source::Envelope), Some(z), Some(iv), Some(f)) => {
@@ -171,7 +176,13 @@ impl ZetaPools {
                     .envelope_record_seconds
                     .filter(|s| s.is_finite() && *s > 0.0)
                     .unwrap_or(super::model_free::RELAXATION_CYCLES / f);
-                push(&mut self.envelope, (t_start, t_end, record), z, iv, f)
+                push(
+                    &mut self.envelope,
+                    (t_start, t_end, record),
+                    z,
+                    iv,
+                    (f, None),
+                )
             }
             _ => None,
         };
@@ -397,7 +408,7 @@ fn push(
     (t_start, t_end, record_seconds): (f64, f64, f64),
     zeta: f64,
     (low, high): (f64, f64),
-    frequency_hz: f64,
+    (frequency_hz, rms): (f64, Option<f64>),
 ) -> Option<spectral::PooledEstimate> {
     // the window's own interval is 95 % two-sided (normal or Student-t): its half width over
     // the normal quantile is the standard error the pool weighs; a t interval gives a slightly
@@ -410,6 +421,7 @@ fn push(
         stderr,
         frequency_hz,
         record_seconds,
+        rms,
     })
     .ok()
 }
@@ -648,6 +660,35 @@ mod tests {
         next.ambient_ratio = Some(2.9);
         pools.apply(25.0, 35.0, &mut next);
         assert_eq!(next.zeta0_windows, Some(1), "the pools were emptied");
+    }
+
+    /// The ambient pool holds one level of the gate: on a decay after a recovery (each window's
+    /// RMS 30 % below the one before, the figures low at first and right later), the newest
+    /// window is pooled only with the windows whose RMS lies within three times its own
+    /// (`DEPARTED_FROM_AMBIENT`), while a window without a measured RMS is pooled as before.
+    #[test]
+    fn the_ambient_pool_holds_one_level() {
+        let run = |rms: &dyn Fn(usize) -> Option<f64>| {
+            let mut pools = ZetaPools::new(PoolOptions::default()).unwrap();
+            let mut last = ambient(0.0, 0.0);
+            for k in 0..8 {
+                let t0 = 5.0 * k as f64;
+                // 0.2 % in the decay's first windows, 2 % once the gate is back
+                let mut d = ambient(if k < 4 { 0.002 } else { 0.02 }, 0.03);
+                d.signal_rms = rms(k);
+                pools.apply(t0, t0 + 10.0, &mut d);
+                last = d;
+            }
+            last
+        };
+        let decay = run(&|k| Some(300.0 * 0.7f64.powi(k as i32)));
+        // 300 x 0.7^7 = 25: 0.7^-3 = 2.9 keeps the three windows before it, all at 2 %, and
+        // 0.7^-4 = 4.2 ends the pool
+        assert_eq!(decay.zeta0_windows, Some(4), "{decay:?}");
+        assert!((decay.zeta0.unwrap() - 0.02).abs() < 1e-9, "{decay:?}");
+        let unmeasured = run(&|_| None);
+        assert!(unmeasured.zeta0_windows.unwrap() > 4, "{unmeasured:?}");
+        assert!(unmeasured.zeta0.unwrap() < 0.02 - 1e-4, "{unmeasured:?}");
     }
 
     /// Pools of 150 cycles and at most 60 s: three 20 s records at 5 Hz, or five 10 s windows.

@@ -80,6 +80,14 @@ pub struct PoolOptions {
     /// further back and lagging a drift more (the daemon's ambient pool,
     /// `analysis::ZetaPools`; docs/damping.md, "One ambient reading of 100 cycles").
     pub count_records: bool,
+    /// The pool holds only estimates whose window's RMS ([`WindowEstimate::rms`]) lies within
+    /// this factor of the newest's: an older one outside it, and every estimate before it, is
+    /// dropped. `None` (the default): no such bound. Why: under the same forcing a response
+    /// whose RMS moved by a factor 2 has a quarter of the damping, or is another state (a decay
+    /// after a limit cycle), and a pool that reaches back across it reports the state before
+    /// (the daemon's ambient pool, the same bound as the ambient record's blocks,
+    /// `analysis::ZetaPools`; docs/damping.md, "A pool holds one level").
+    pub max_level_change: Option<f64>,
 }
 
 /// The pooled figure's location: the windows' cycle-weighted mean, or their cycle-weighted
@@ -113,6 +121,7 @@ impl Default for PoolOptions {
             confidence: 0.95,
             location: PoolLocation::Mean,
             count_records: false,
+            max_level_change: None,
         }
     }
 }
@@ -135,6 +144,10 @@ pub struct WindowEstimate {
     /// overlap of their records, not of their windows; a value below the window's length counts
     /// as the window's.
     pub record_seconds: f64,
+    /// The window's signal RMS ([`PoolOptions::max_level_change`]); `None` (or not a positive
+    /// number): not measured, and such an estimate is never dropped for its level, nor drops
+    /// others.
+    pub rms: Option<f64>,
 }
 
 impl WindowEstimate {
@@ -193,7 +206,10 @@ impl DampingPool {
             && opts.flush_sigmas > 0.0
             && opts.max_frequency_shift > 0.0
             && opts.confidence > 0.0
-            && opts.confidence < 1.0;
+            && opts.confidence < 1.0
+            && opts
+                .max_level_change
+                .is_none_or(|k| k.is_finite() && k > 1.0);
         if !ok {
             return Err(SpectralError::Invalid(format!("pool options {opts:?}")));
         }
@@ -308,12 +324,22 @@ impl DampingPool {
         }
     }
 
-    /// Drops the oldest windows beyond the bounds, or not needed for `min_cycles`.
+    /// Drops the oldest windows beyond the bounds, or not needed for `min_cycles`, and those
+    /// from before the newest one whose level is not the newest's
+    /// ([`PoolOptions::max_level_change`]).
     fn trim(&mut self) {
         let newest = match self.entries.back() {
             Some(e) => *e,
             None => return,
         };
+        let level = |e: &WindowEstimate| e.rms.filter(|r| r.is_finite() && *r > 0.0);
+        if let (Some(k), Some(now)) = (self.opts.max_level_change, level(&newest)) {
+            let other_level =
+                |e: &WindowEstimate| level(e).is_some_and(|r| r * k < now || r > now * k);
+            if let Some(i) = self.entries.iter().rposition(other_level) {
+                self.entries.drain(..=i);
+            }
+        }
         while self.entries.len() > 1 {
             let oldest = self.entries[0];
             let too_many = self.entries.len() > self.opts.max_windows;
@@ -477,6 +503,7 @@ mod tests {
             stderr,
             frequency_hz: 10.0,
             record_seconds: 0.0,
+            rms: None,
         }
     }
 
@@ -809,5 +836,55 @@ mod tests {
             ..PoolOptions::default()
         })
         .is_err());
+        for k in [1.0, 0.5, f64::NAN, f64::INFINITY] {
+            let opts = PoolOptions {
+                max_level_change: Some(k),
+                ..PoolOptions::default()
+            };
+            assert!(DampingPool::new(opts).is_err(), "{k}");
+        }
+    }
+
+    /// With `max_level_change`, a window whose RMS moved by more than the factor from an older
+    /// one's drops that one and every one before it, whatever its figure: a decay after a
+    /// limit cycle (each window a third below the one before, every figure near the pool's) is
+    /// pooled only back to where the level was within twice the newest's. A window without a
+    /// measured RMS neither drops nor is dropped, and without the option nothing moves.
+    #[test]
+    fn a_pool_holds_one_level() {
+        let at = |t: f64, rms: Option<f64>| WindowEstimate {
+            rms,
+            ..est(t, 0.01, 0.004)
+        };
+        let levels = [300.0, 200.0, 133.0, 89.0, 59.0];
+        let push_all = |opts: PoolOptions| {
+            let mut p = DampingPool::new(opts).unwrap();
+            let mut last = None;
+            for (k, r) in levels.iter().enumerate() {
+                last = Some(p.push(at(5.0 * k as f64, Some(*r))).unwrap());
+            }
+            (p, last.unwrap())
+        };
+        // enough cycles wanted that only the level drops a window
+        let unbounded = PoolOptions {
+            min_cycles: 1000.0,
+            ..PoolOptions::default()
+        };
+        let (mut p, r) = push_all(PoolOptions {
+            max_level_change: Some(2.0),
+            ..unbounded
+        });
+        // 59 keeps 89 (1.5 times) and drops 133 (2.25 times) with everything older
+        assert_eq!(r.windows, 2, "{r:?}");
+        assert!(!r.flushed && !r.held);
+        let (_, all) = push_all(unbounded);
+        assert_eq!(all.windows, levels.len());
+        // an unmeasured window joins and stays; the next measured one is read against the
+        // measured ones
+        assert_eq!(p.push(at(25.0, None)).unwrap().windows, 3);
+        assert_eq!(p.push(at(30.0, Some(60.0))).unwrap().windows, 4);
+        // a rise is another level as well: the pool restarts at the rising window
+        let r = p.push(at(35.0, Some(130.0))).unwrap();
+        assert_eq!(r.windows, 1, "{r:?}");
     }
 }
