@@ -82,11 +82,12 @@ pub struct PoolOptions {
     pub count_records: bool,
     /// The pool holds only estimates whose window's RMS ([`WindowEstimate::rms`]) lies within
     /// this factor of the newest's: an older one outside it, and every estimate before it, is
-    /// dropped. `None` (the default): no such bound. Why: under the same forcing a response
-    /// whose RMS moved by a factor 2 has a quarter of the damping, or is another state (a decay
-    /// after a limit cycle), and a pool that reaches back across it reports the state before
-    /// (the daemon's ambient pool, the same bound as the ambient record's blocks,
-    /// `analysis::ZetaPools`; docs/damping.md, "A pool holds one level").
+    /// dropped. `None` (the default): no such bound. Why: under the same forcing a response's
+    /// variance goes as `1 / zeta`, so an RMS that moved by a factor `k` is a damping moved by
+    /// `k^2`, or another state (a decay after a limit cycle), and a pool that reaches back
+    /// across it reports the state before. The daemon's ambient pool uses 3, the bar at which a
+    /// window has left its gate's ambient level (`analysis::ZetaPools`; docs/damping.md, "A pool
+    /// holds one level").
     pub max_level_change: Option<f64>,
 }
 
