@@ -119,28 +119,29 @@ def near_zero(runs):
     return rows
 
 
+def table(header, rows):
+    """A markdown table: `header` the column names (a leading ">" right-aligns a column)."""
+    names = [h.lstrip(">") for h in header]
+    rule = ["---:" if h.startswith(">") else "---" for h in header]
+    return "\n".join(["| " + " | ".join(names) + " |", "|" + "|".join(rule) + "|", *rows])
+
+
 def main():
     if len(sys.argv) < 2:
         raise SystemExit(__doc__)
     runs = [run for path in sys.argv[1:] for run in read_trace(path)]
+    out = []
     rows = steady(runs)
     if rows:
-        print("| scenario | gate | windows by RMS | windows | median error | coverage |")
-        print("|---|---|---|---:|---:|---:|")
-        print("\n".join(rows))
-        print()
+        out.append(table(["scenario", "gate", "windows by RMS", ">windows", ">median error", ">coverage"], rows))
     rows = by_ratio(runs)
     if rows:
-        print("| scenario | gate | ambient_ratio | windows | median error | in sds | coverage |")
-        print("|---|---|---|---:|---:|---:|---:|")
-        print("\n".join(rows))
-        print()
+        out.append(table(["scenario", "gate", "ambient_ratio", ">windows", ">median error", ">in sds", ">coverage"], rows))
     rows = near_zero(runs)
     if rows:
-        print(f"true mean in [{NEAR_ZERO[0]}, {NEAR_ZERO[1]}) %:\n")
-        print("| scenario | gate | scored | zeta0_source | windows | median RMS | median error | coverage |")
-        print("|---|---|---|---|---:|---:|---:|---:|")
-        print("\n".join(rows))
+        header = ["scenario", "gate", "scored", "zeta0_source", ">windows", ">median RMS", ">median error", ">coverage"]
+        out.append(f"true mean in [{NEAR_ZERO[0]}, {NEAR_ZERO[1]}) %:\n\n" + table(header, rows))
+    print("\n\n".join(out))
 
 
 if __name__ == "__main__":
