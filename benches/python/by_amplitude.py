@@ -15,8 +15,8 @@ Two tables:
   window low in its wander reads high whatever the sensor noise).
 - near zero (every scenario): the windows the bench scored with a true mean in [-0.35, 0) %,
   by the regime the bench gave them (`score::Regime::classify`: growth below half the cycle's
-  amplitude at that zeta0, limit cycle above) and by `zeta0_source`: count, median RMS,
-  median error, coverage.
+  amplitude at that zeta0, limit cycle above) and by `zeta0_source`: count, median RMS, median
+  `ambient_ratio` (since stop 93), median error, coverage.
 
 Usage: python by_amplitude.py TRACE...
 
@@ -115,7 +115,11 @@ def near_zero(runs):
         rms = statistics.median(w["rms"] or 0.0 for w, _ in ws)
         err = statistics.median(w["zeta0"] - t for w, t in ws)
         cov = sum(covered(w, t) for w, t in ws) / len(ws)
-        rows.append(f"| {scenario} | {gate} | {regime} | {source} | {len(ws)} | {rms:.3g} | {err:+.2f} | {cov:.0%} |")
+        ratios = [float(m.group(1)) for m in (RATIO.search(w["line"]) for w, _ in ws) if m]
+        ratio = f"{statistics.median(ratios):.2f}" if ratios else "-"
+        rows.append(
+            f"| {scenario} | {gate} | {regime} | {source} | {len(ws)} | {rms:.3g} | {ratio} | {err:+.2f} | {cov:.0%} |"
+        )
     return rows
 
 
@@ -139,7 +143,8 @@ def main():
         out.append(table(["scenario", "gate", "ambient_ratio", ">windows", ">median error", ">in sds", ">coverage"], rows))
     rows = near_zero(runs)
     if rows:
-        header = ["scenario", "gate", "scored", "zeta0_source", ">windows", ">median RMS", ">median error", ">coverage"]
+        header = ["scenario", "gate", "scored", "zeta0_source", ">windows", ">median RMS", ">median ambient_ratio",
+                  ">median error", ">coverage"]
         out.append(f"true mean in [{NEAR_ZERO[0]}, {NEAR_ZERO[1]}) %:\n\n" + table(header, rows))
     print("\n\n".join(out))
 
