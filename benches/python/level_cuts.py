@@ -7,8 +7,9 @@ Two tables:
   `--back` windows before (3 by default: the lock gate's pool holds three or four readings,
   the barrier gate's two or three) has an RMS more than `k` times the window's or less than a
   `k`-th of it. That is how often the daemon's ambient pool would end at such a window by
-  chance (`spectral::PoolOptions::max_level_change`). The trace's RMS is the bench's, of the
-  window's clean signal, not the daemon's `signal_rms`; close on these streams, not equal.
+  chance (`spectral::PoolOptions::max_level_change`). The trace's `rms` is the report's
+  `signal_rms`, the very figure the pool compares; which windows a pool holds depends on its
+  other bounds, so the share is of windows, not of the pool's cuts.
 - recovery: the windows the bench scored as ambient in 20 s bins of sample time, with their
   median error against the true mean and their coverage: the minute after the ramp back to
   +2 % is where a pool that reaches back into the decay read low.
