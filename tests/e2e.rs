@@ -191,6 +191,9 @@ struct Step {
     alerts: Vec<String>,
     /// The window's `zeta0_interval`.
     interval: Option<(f64, f64)>,
+    /// The window's own interval where `zeta0_interval` reaches down to the trend
+    /// (`window_interval`, absent elsewhere).
+    own: Option<(f64, f64)>,
     /// The window's `zeta0_source`.
     source: Option<String>,
     state: String,
@@ -250,6 +253,12 @@ async fn lockstep(
             interval: fresh
                 .then(|| {
                     let iv = &ident["damping"]["zeta0_interval"];
+                    Some((iv[0].as_f64()?, iv[1].as_f64()?))
+                })
+                .flatten(),
+            own: fresh
+                .then(|| {
+                    let iv = &ident["damping"]["window_interval"];
                     Some((iv[0].as_f64()?, iv[1].as_f64()?))
                 })
                 .flatten(),
@@ -502,6 +511,21 @@ async fn slow_drift_warns_before_zero() {
             .all(|s| !s.firing),
         "GateNegativeDamping fired before the warning"
     );
+    // the declining gate's intervals reach down to the trend's forecast (docs/damping.md, "A
+    // declining gate's interval reaches down to its trend"): only downwards, never before the
+    // trend spans trend_min_span_seconds (300 s), and not at all while the gate is steady
+    let reached: Vec<&Step> = steps.iter().filter(|s| s.own.is_some()).collect();
+    assert!(!reached.is_empty(), "no interval reached down to the trend");
+    for s in &reached {
+        let ((lo, hi), (own_lo, own_hi)) = (s.interval.unwrap(), s.own.unwrap());
+        assert!(lo < own_lo && hi == own_hi, "{s:?}");
+        assert!(s.end > 300.0, "{s:?}");
+    }
+    let drift_start = def
+        .zeta
+        .first_time_at_or_below(def.zeta.at(0.0) - 1e-4, 0.0, def.duration_s, 0.5)
+        .unwrap();
+    assert!(reached.iter().all(|s| s.end > drift_start), "{reached:?}");
     hook.wait_for("firing", "GateDampingDeclining", "g1").await;
     d.stop().await;
     hook.task.abort();

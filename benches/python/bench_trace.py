@@ -17,6 +17,9 @@ WINDOW = re.compile(
 POOL = re.compile(r"  pool \(([-\d.]+), ([-\d.]+), ([-\d.]+)\)")
 # the spectrum's regime of the window (the first field of the facts' tuple)
 REGIME = re.compile(r"ssi common\) Some\(\(Some\((\w+)\)")
+# the window's own 95 % interval where the report's reaches down to the gate's declining trend
+# (stop 94, `analysis::reach_down_to_trend`): what the trend and the alert read
+OWN = re.compile(r"  own \(([-\d.]+), ([-\d.]+)\)")
 # the window's RMS in the signal's unit, where the trace has it (since stop 81)
 RMS = re.compile(r"  rms ([\d.]+e[+-]?\d+)")
 # the trend's slope and its one-sided upper bound, %/min, where the window has a trend
@@ -42,6 +45,12 @@ def pool(line):
 def growth(line):
     """(growth rate, standard error) of the window's envelope in 1/s, None where it has none."""
     m = GROWTH.search(line)
+    return (float(m.group(1)), float(m.group(2))) if m else None
+
+
+def own(line):
+    """(low, high) of the window's own interval where the report's was widened to the trend."""
+    m = OWN.search(line)
     return (float(m.group(1)), float(m.group(2))) if m else None
 
 
@@ -76,6 +85,7 @@ def read_trace(path):
                 "t": num(1), "true": num(2), "zeta0": num(3), "low": num(4), "high": num(5),
                 "source": m.group(6), "trusted": m.group(7) == "true", "firing": m.group(8),
                 "trend": trend(line), "rms": rms(line), "growth": growth(line), "pool": pool(line),
+                "own": own(line),
                 "regime": (lambda r: r.group(1) if r else None)(REGIME.search(line)), "line": line,
                 "scored": scored.group(1) if scored else None,
                 "truth": float(scored.group(2)) if scored else None,

@@ -151,11 +151,14 @@ def trend_reading(w):
     """What the daemon's trend reads of a window (`analysis::trend_reading`): a rising window's
     pool where the trace shows one (stop 79; its `trusted` by the ambient rows: an interval above
     zero on a window the spectrum calls growing or a limit cycle cannot tell), else the window's
-    own figure."""
+    own figure and interval (`own (...)` where the report's reaches down to the trend)."""
     if w.get("pool") is not None:
         z, low, high = w["pool"]
         trusted = not (low > 0 and w.get("regime") in ("SelfExcited", "LimitCycle"))
         return z, low, high, trusted
+    if w.get("own") is not None:
+        # the window's own interval, where the report's reaches down to the trend (stop 94)
+        return w["zeta0"], w["own"][0], w["own"][1], w["trusted"]
     return w["zeta0"], w["low"], w["high"], w["trusted"]
 
 

@@ -50,6 +50,7 @@ mod series;
 mod tests;
 pub mod tracking;
 mod trend;
+mod trend_reach;
 mod verdict;
 
 pub use ambient_level::{
@@ -91,6 +92,7 @@ pub use trend::{
     fit_trend, DampingTrend, TrendError, TrendEstimate, TrendPoint, TrendReading, MAX_TREND_POINTS,
     MIN_TREND_POINTS,
 };
+pub use trend_reach::reach_down_to_trend;
 pub use verdict::{
     ambient_decision, claims_unseen_growth, decide, falls, refuse_few_cycles, Decision,
     VerdictFacts, WindowGrowth, FALLING_SIGMAS, MIN_WINDOW_CYCLES,

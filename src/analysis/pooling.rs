@@ -369,7 +369,7 @@ pub fn trend_reading(d: &DampingReport, window_seconds: f64) -> TrendReading {
         },
         None => TrendReading {
             zeta0: d.zeta0,
-            interval: d.zeta0_interval,
+            interval: d.own_interval(),
             trusted: d.trusted,
             lag_seconds: lag(d.zeta0_lag_seconds),
         },

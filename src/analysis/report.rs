@@ -321,6 +321,12 @@ pub struct DampingReport {
     /// (`docs/operations.md`, "A slow gate").
     #[serde(default)]
     pub too_few_cycles: bool,
+    /// The window's own 95 % interval for `zeta0`, set only where `zeta0_interval` was widened
+    /// down to the gate's declining trend (`analysis::reach_down_to_trend`, docs/damping.md, "A
+    /// declining gate's interval reaches down to its trend"). The trend and the alert read this
+    /// one ([`DampingReport::own_interval`]): the widened end is the trend's, not the window's.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub window_interval: Option<(f64, f64)>,
 }
 
 impl DampingReport {
@@ -384,7 +390,15 @@ impl DampingReport {
             spans_change: false,
             ssi_growing: false,
             too_few_cycles: false,
+            window_interval: None,
         }
+    }
+
+    /// The window's own 95 % interval for `zeta0`: `window_interval` where the report's was
+    /// widened down to the trend, else `zeta0_interval`. What the trend and the alert read of
+    /// the window, so that neither reads the trend's own band back as a window's evidence.
+    pub fn own_interval(&self) -> Option<(f64, f64)> {
+        self.window_interval.or(self.zeta0_interval)
     }
 }
 

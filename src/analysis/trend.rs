@@ -47,6 +47,8 @@ pub const MIN_TREND_POINTS: usize = 6;
 const Z95_TWO_SIDED: f64 = 1.959_963_984_540_054;
 /// Probability of a one-sided 95 % bound (its quantile: Student's t on the effective windows).
 const Z95_ONE_SIDED_PROB: f64 = 0.95;
+/// Probability of each end of a two-sided 95 % band.
+const Z95_TWO_SIDED_PROB: f64 = 0.975;
 /// Huber's tuning constant (95 % efficiency at the normal distribution).
 const HUBER_K: f64 = 1.345;
 /// IRLS iterations: the weights settle in a few; a fixed count keeps the cost fixed.
@@ -99,6 +101,15 @@ pub struct TrendEstimate {
     pub span_seconds: f64,
     /// The line's value at the newest window's end (the smoothed current `zeta0`).
     pub level: f64,
+    /// Standard error of `level` (scaled and inflated as the slope's).
+    pub level_stderr: f64,
+    /// Covariance of `level` and the slope (per second), for the band away from the newest
+    /// window ([`TrendEstimate::band_at`]).
+    #[serde(skip)]
+    pub level_slope_covariance: f64,
+    /// Student's t quantile of a two-sided 95 % band on the windows' effective number less two.
+    #[serde(skip)]
+    pub band_quantile: f64,
     /// Slope, damping ratio per second of sample time (negative: declining).
     pub slope_per_second: f64,
     /// Standard error of the slope (inflated for excess scatter and window overlap).
@@ -122,6 +133,25 @@ impl TrendEstimate {
     pub fn crosses_within(&self, lead_seconds: f64) -> bool {
         self.crossing_seconds_confident
             .is_some_and(|t| t <= lead_seconds)
+    }
+
+    /// Whether the trend declines with 95 % confidence (its slope's one-sided upper bound is
+    /// negative) over at least `min_span_seconds` of windows: the trend `GateDampingDeclining`
+    /// may act on (`trend_min_span_seconds`).
+    pub fn declines(&self, min_span_seconds: f64) -> bool {
+        self.slope_upper < 0.0 && self.span_seconds >= min_span_seconds
+    }
+
+    /// The line's two-sided 95 % confidence band `offset_seconds` after the newest window's end
+    /// (negative: before it), from the level's and the slope's errors and their covariance.
+    pub fn band_at(&self, offset_seconds: f64) -> (f64, f64) {
+        let x = offset_seconds;
+        let centre = self.level + self.slope_per_second * x;
+        let var = self.level_stderr.powi(2)
+            + x * x * self.slope_stderr.powi(2)
+            + 2.0 * x * self.level_slope_covariance;
+        let half = self.band_quantile * var.max(0.0).sqrt();
+        (centre - half, centre + half)
     }
 }
 
@@ -274,6 +304,17 @@ impl DampingTrend {
     pub fn estimate(&self, threshold: f64) -> Option<TrendEstimate> {
         fit(self.points.iter().copied(), self.points.len(), threshold)
     }
+
+    /// The line through the windows that ended at or before `until` alone, read at sample
+    /// time `at`: its two-sided 95 % band there. A forecast of a reading whose record began at
+    /// `until` from windows that share none of its samples; `None` where fewer than
+    /// [`MIN_TREND_POINTS`] such windows are kept.
+    pub fn forecast_band(&self, until: f64, at: f64) -> Option<(f64, f64)> {
+        let before = self.points.iter().copied().filter(|p| p.t <= until);
+        let newest = before.clone().next_back()?.t;
+        let e = fit(before.clone(), before.count(), 0.0)?;
+        Some(e.band_at(at - newest))
+    }
 }
 
 /// The weighted robust line fit of [`DampingTrend::estimate`], over `points` in time order.
@@ -364,8 +405,11 @@ fn fit(
         0.0
     };
     let overlap = (1.0 + rho) / (1.0 - rho);
-    let var_slope = sw / (sw * sxx - sx * sx) * scale * overlap;
+    let k = scale * overlap / (sw * sxx - sx * sx);
+    let var_slope = sw * k;
     let slope_stderr = var_slope.sqrt();
+    // x = 0 at the newest window's end: the level's variance and its covariance with the slope
+    let level_stderr = (sxx * k).sqrt();
     // The slope's error rests on the residuals' scatter, and overlapping windows leave fewer
     // independent residuals than windows: about n / overlap of them, less the line's two
     // parameters, give the t quantile. Why: with the normal quantile a steady +0.5 % lock gate
@@ -391,6 +435,9 @@ fn fit(
         windows: n,
         span_seconds: t_last - t_first,
         level,
+        level_stderr,
+        level_slope_covariance: -sx * k,
+        band_quantile: crate::spectral::t_quantile(Z95_TWO_SIDED_PROB, dof),
         slope_per_second: slope,
         slope_stderr,
         slope_upper,

@@ -457,6 +457,12 @@ pub async fn run_stream(
                     if let Some(p) = &i.damping.pooled_zeta {
                         more += &format!("  pool {:?}", pct(p));
                     }
+                    // the window's own interval where the report's reaches down to the trend
+                    // (`analysis::reach_down_to_trend`): what the trend and the alert read
+                    if let Some((lo, hi)) = i.damping.window_interval {
+                        let p = |v: f64| (v * 1e4).round() / 100.0;
+                        more += &format!("  own ({}, {})", p(lo), p(hi));
+                    }
                     // the window's RMS, in the signal's unit (the scale the trend's replays
                     // compare with the damping: a stable gate's variance goes as 1 / zeta)
                     if let Some(rms) = i.damping.signal_rms {

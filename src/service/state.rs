@@ -887,6 +887,26 @@ impl AppState {
                         "the gate's identifications read a new length of record, to hold window_cycles of its frequency"
                     );
                 }
+                let rules = inner.alerts.rules(g);
+                let (fire_below, min_span) = (rules.fire_below, rules.trend_min_span_seconds);
+                let trend = inner.gates.get_mut(g).and_then(|e| {
+                    let reading = crate::analysis::trend_reading(&a.damping, window.1 - window.0);
+                    e.trend_estimate = e.trend.observe(window.1, reading, fire_below);
+                    e.trend_estimate
+                });
+                // a declining gate's interval reaches down to its trend's forecast
+                // (docs/damping.md, "A declining gate's interval reaches down to its trend")
+                if let (Some(t), Some(e)) = (&trend, inner.gates.get(g)) {
+                    let (end, seconds) = (window.1, window.1 - window.0);
+                    crate::analysis::reach_down_to_trend(
+                        &mut a.damping,
+                        t,
+                        &e.trend,
+                        end,
+                        seconds,
+                        min_span,
+                    );
+                }
                 let d = &a.damping;
                 let set = |gv: &prometheus::GaugeVec, v: Option<f64>| {
                     if let Some(v) = v.filter(|v| v.is_finite()) {
@@ -922,12 +942,6 @@ impl AppState {
                     .identifications
                     .with_label_values(&[g, a.path.as_str()])
                     .inc();
-                let fire_below = inner.alerts.rules(g).fire_below;
-                let trend = inner.gates.get_mut(g).and_then(|e| {
-                    let reading = crate::analysis::trend_reading(d, window.1 - window.0);
-                    e.trend_estimate = e.trend.observe(window.1, reading, fire_below);
-                    e.trend_estimate
-                });
                 self.metrics.set_trend(g, d.zeta0_interval, trend.as_ref());
                 // a window that was in flight when its gate went silent: the gate still predicts
                 // nothing, as the stale tick left it (`Metrics::clear_predictions`), until it
@@ -945,7 +959,8 @@ impl AppState {
                     g,
                     &Observation {
                         zeta0: d.zeta0,
-                        zeta0_interval: d.zeta0_interval,
+                        // the window's own: the alert decides on the window's evidence
+                        zeta0_interval: d.own_interval(),
                         trend,
                         trusted: d.trusted,
                         ambient_ratio: d.ambient_ratio,
