@@ -244,7 +244,9 @@ pub fn read(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::analysis::{AmbientZeta, AnalysisError, Verdict, WindowInput, Zeta0Source};
+    use crate::analysis::{
+        reach_down_to_trend, AmbientZeta, AnalysisError, Verdict, WindowInput, Zeta0Source,
+    };
     use crate::spectral::Regime;
 
     /// An analyzer that only remembers (the default `remember`), and knows one model: the
@@ -359,12 +361,15 @@ mod tests {
         let mut cycle = CycleAmplitude::default();
         let mut previous: Option<Previous> = None;
         let mut rows = Vec::new();
+        let mut widened = 0;
         for i in 0..20 {
             let end = 1000.0 + 5.0 * f64::from(i);
             let zeta = 0.02 - 0.0005 * f64::from(i);
             // the model changed at the 15th window; windows 17 to 19 were tracked
             let eq = if i < 15 { "old" } else { "new" };
             let path = if i >= 17 { Path::Tracked } else { Path::Full };
+            // the last three read high, as a declining gate's windows do near zero
+            let zeta = zeta + if i >= 17 { 0.005 } else { 0.0 };
             let mut a = analysis(end, zeta, &format!("{eq} {zeta}"), path);
             // the pool remembers the analysis's report; the service then reads it and stores it
             previous = if i < 15 {
@@ -398,8 +403,21 @@ mod tests {
                 lag_seconds: 5.0,
             };
             from_columns = by_columns.observe(end, columns, 0.0);
+            // the service then reaches the declining gate's interval down to the trend (with
+            // no span asked, so these few windows do): stored widened, read back as its own
+            if let Some(e) = &estimate {
+                widened += usize::from(reach_down_to_trend(
+                    &mut a.damping,
+                    e,
+                    &trend,
+                    end,
+                    10.0,
+                    0.0,
+                ));
+            }
             rows.push(stored(&a, end));
         }
+        assert!(widened > 0, "no window reached down to the trend");
         let m = rebuild("g", &rows, &rules(), &analyzer, 1100.0).unwrap();
         assert_eq!(m.trend_estimate, estimate);
         assert_ne!(

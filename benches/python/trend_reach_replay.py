@@ -1,0 +1,138 @@
+"""Replays `analysis::reach_down_to_trend` over the windows of `gatewatch bench warning --trace`
+and prints, per scenario, gate and the regime the bench scored, how often the window's own 95 %
+interval and the interval reached down to the trend cover the true mean (stop 94).
+
+Each window is read as the daemon's trend reads it (`trend_replay.trend_reading`: a rising
+window's pool, else the window's own interval, `own (...)` where the trace prints it), kept by its
+window's end and fitted at its figure's instant (`lag` in the trace, since stop 91). Where the
+trend after the window declines with confidence (its slope's one-sided 95 % bound below zero)
+over at least `--min-span` seconds, the window's lower end reaches down to the lower end of the
+line's two-sided 95 % band at the figure's instant:
+
+- `forecast` (shipped): the line through the windows that ended at or before the figure's
+  record began (twice its lag before the window's end);
+- `fit`: the line through every window kept, this one included.
+
+On a trace of a build from stop 94 on, the shipped reach is already in the printed interval;
+replay a trace of an earlier build (or compare the `own` column). The trace prints figures to
+0.01 points, so the replay's bands match the daemon's to about that.
+
+    python3 -m venv /tmp/venv && /tmp/venv/bin/pip install numpy scipy
+    gatewatch bench warning --seeds 20 --first-seed 101 --gates lab --scenarios slow-drift --trace 2> sd.trace
+    /tmp/venv/bin/python benches/python/trend_reach_replay.py sd.trace --variants forecast,fit
+
+docs/damping.md, "A declining gate's interval reaches down to its trend (stop 94)".
+"""
+import argparse
+import collections
+import math
+import os
+import re
+import sys
+
+import numpy as np
+from scipy.stats import t as student
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from bench_trace import read_trace  # noqa: E402
+from trend_replay import HUBER_K, Z95_TWO_SIDED, huber, lag1, trend_reading  # noqa: E402,F401
+
+LAG = re.compile(r"  lag ([\d.]+)")
+
+
+def line(x, z, low, high):
+    """`analysis::trend::fit` at x = 0 (the newest window's end): level, slope, their variances
+    and covariance, the effective degrees of freedom; None as in the daemon."""
+    n = len(x)
+    if n < 6 or x.max() <= x.min():
+        return None
+    raw = np.maximum((high - low) / (2 * Z95_TWO_SIDED), 0.01)
+    sd = np.maximum(raw, 0.5 * np.sort(raw)[(n - 1) // 2])
+    level = slope = 0.0
+    for it in range(10):
+        w = (np.ones(n) if it == 0 else huber((z - level - slope * x) / sd)) / sd**2
+        s0, s1, s2 = w.sum(), (w * x).sum(), (w * x * x).sum()
+        sy, sxy = (w * z).sum(), (w * x * z).sum()
+        det = s0 * s2 - s1 * s1
+        if not det > 0:
+            return None
+        slope = (s0 * sxy - s1 * sy) / det
+        level = (sy - s1 * slope) / s0
+    r = (z - level - slope * x) / sd
+    scale = max((huber(r) * r * r).sum() / (n - 2), 1.0)
+    rho = lag1(r)
+    overlap = (1 + rho) / (1 - rho)
+    k = scale * overlap / det
+    return {"level": level, "slope": slope, "vs": s0 * k, "vl": s2 * k, "cov": -s1 * k,
+            "dof": max(n / overlap - 2.0, 1.0)}
+
+
+def band_low(e, x):
+    """Lower end of the line's two-sided 95 % band at x (seconds from its newest window)."""
+    var = e["vl"] + x * x * e["vs"] + 2 * x * e["cov"]
+    return e["level"] + e["slope"] * x - student.ppf(0.975, e["dof"]) * math.sqrt(max(var, 0.0))
+
+
+def replay(runs, variants, horizon, min_span):
+    rows = collections.defaultdict(lambda: {"n": 0, "own": 0, **{v: [0, 0] for v in variants}})
+    for run in runs:
+        pts = []  # (window end, figure's instant, zeta0, low, high)
+        for w in run["windows"]:
+            m = LAG.search(w["line"])
+            lag = float(m.group(1)) if m else 5.0
+            zeta0, low, high, trusted = trend_reading(w)
+            if trusted and zeta0 is not None and low is not None:
+                pts.append((w["t"], w["t"] - lag, zeta0, low, high))
+                while w["t"] - pts[0][0] > horizon:
+                    pts.pop(0)
+            own = w.get("own") or (w["low"], w["high"])
+            if w["scored"] is None or w["zeta0"] is None or own[0] is None:
+                continue
+            lows = {v: own[0] for v in variants}
+            a = np.array(pts) if pts else None
+            if a is not None and len(a) >= 6 and a[-1, 0] - a[0, 0] >= min_span:
+                now = line(a[:, 1] - w["t"], a[:, 2], a[:, 3], a[:, 4])
+                if now and now["slope"] + student.ppf(0.95, now["dof"]) * math.sqrt(now["vs"]) < 0:
+                    for v in variants:
+                        b = a if v == "fit" else a[a[:, 0] <= w["t"] - 2 * lag]
+                        if len(b) < 6:
+                            continue
+                        newest = b[-1, 0]
+                        e = line(b[:, 1] - newest, b[:, 2], b[:, 3], b[:, 4])
+                        if e:
+                            lows[v] = min(own[0], band_low(e, w["t"] - lag - newest))
+            r = rows[(run["scenario"], run["gate"], w["scored"])]
+            truth = w["truth"]
+            r["n"] += 1
+            r["own"] += own[0] <= truth <= own[1]
+            for v in variants:
+                r[v][0] += lows[v] <= truth <= own[1]
+                r[v][1] += lows[v] < own[0]
+    return rows
+
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("traces", nargs="+", help="stderr of `gatewatch bench warning --trace`")
+    p.add_argument("--variants", default="forecast,fit")
+    p.add_argument("--horizon", type=float, default=600.0, help="trend_horizon_seconds")
+    p.add_argument("--min-span", type=float, default=300.0, help="trend_min_span_seconds")
+    args = p.parse_args()
+    variants = args.variants.split(",")
+    unknown = set(variants) - {"forecast", "fit"}
+    if unknown:
+        raise SystemExit(f"unknown variant {', '.join(sorted(unknown))}")
+    runs = [r for path in args.traces for r in read_trace(path)]
+    rows = replay(runs, variants, args.horizon, args.min_span)
+    head = " | ".join(f"{v}: covered | {v}: reached" for v in variants)
+    print(f"| scenario | gate | regime | windows | own: covered | {head} |")
+    print("|---|---|---|---:|---:|" + "---:|---:|" * len(variants))
+    for k in sorted(rows):
+        r = rows[k]
+        n = r["n"]
+        cells = " | ".join(f"{100 * r[v][0] / n:.0f} % | {100 * r[v][1] / n:.0f} %" for v in variants)
+        print(f"| {k[0]} | {k[1]} | {k[2]} | {n} | {100 * r['own'] / n:.0f} % | {cells} |")
+
+
+if __name__ == "__main__":
+    main()
