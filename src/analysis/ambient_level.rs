@@ -236,8 +236,7 @@ impl AmbientLevel {
             level.record(d);
             level.previous_source = d.zeta0_source;
             level.previous_regime = Some(d.regime.unwrap_or(Regime::Undecided));
-            // the window's own: the live memory took it before the trend could widen it
-            level.previous_interval = d.own_interval().filter(|_| !d.spans_change);
+            level.previous_interval = d.zeta0_interval.filter(|_| !d.spans_change);
             level.previous_end = Some(end);
         }
         level

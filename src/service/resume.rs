@@ -154,7 +154,11 @@ pub fn rebuild(
 /// A stored window as the analysis made it: its report, its coefficients as the refinement's
 /// start, its path, its span. `None` when the stored JSON does not decode.
 fn window_of(r: &HistoryRow) -> Option<(WindowAnalysis, f64, f64)> {
-    let damping: DampingReport = serde_json::from_str(&r.damping).ok()?;
+    let mut damping: DampingReport = serde_json::from_str(&r.damping).ok()?;
+    // the report as the gate's memory read it live: with the window's own interval, before the
+    // service reached it down to the trend (`analysis::reach_down_to_trend`)
+    damping.zeta0_interval = damping.own_interval();
+    damping.window_interval = None;
     let coefficients: Vec<(String, f64)> = serde_json::from_str(&r.coefficients).ok()?;
     let path = if r.path == Path::Tracked.as_str() {
         Path::Tracked
