@@ -26,6 +26,7 @@
 //! - `analyzer`: the daemon's per-gate [`Analyzer`].
 //! - `trend`: the robust weighted trend of `zeta0` over recent windows and its predicted
 //!   crossing of a threshold (the `GateDampingDeclining` warning's evidence).
+//! - `trend_reach`: a declining gate's reported interval reaching down to the trend's forecast.
 //! - `selection`: ranking candidate equations of one record (information criteria and the
 //!   accuracy/complexity front): the seam for structure discovery.
 //! - `early_warning`: the model-free critical-slowing-down indicators (rolling variance, lag-1
