@@ -35,7 +35,7 @@ from scipy.stats import t as student
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from bench_trace import read_trace  # noqa: E402
-from trend_replay import HUBER_K, Z95_TWO_SIDED, huber, lag1, trend_reading  # noqa: E402,F401
+from trend_replay import huber, irls, lag1, trend_reading  # noqa: E402
 
 LAG = re.compile(r"  lag ([\d.]+)")
 
@@ -46,18 +46,10 @@ def line(x, z, low, high):
     n = len(x)
     if n < 6 or x.max() <= x.min():
         return None
-    raw = np.maximum((high - low) / (2 * Z95_TWO_SIDED), 0.01)
-    sd = np.maximum(raw, 0.5 * np.sort(raw)[(n - 1) // 2])
-    level = slope = 0.0
-    for it in range(10):
-        w = (np.ones(n) if it == 0 else huber((z - level - slope * x) / sd)) / sd**2
-        s0, s1, s2 = w.sum(), (w * x).sum(), (w * x * x).sum()
-        sy, sxy = (w * z).sum(), (w * x * z).sum()
-        det = s0 * s2 - s1 * s1
-        if not det > 0:
-            return None
-        slope = (s0 * sxy - s1 * sy) / det
-        level = (sy - s1 * slope) / s0
+    fitted = irls(x, z, low, high)
+    if fitted is None:
+        return None
+    level, slope, sd, s0, s1, s2, det = fitted
     r = (z - level - slope * x) / sd
     scale = max((huber(r) * r * r).sum() / (n - 2), 1.0)
     rho = lag1(r)

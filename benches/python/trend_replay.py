@@ -73,14 +73,14 @@ def lag1(r):
     return min(max(c1 / c0, 0.0), 0.9) if c0 > 1e-6 * len(r) else 0.0
 
 
-def fit(t, z, low, high, flags, span_share, threshold=0.0):
-    """The trend at the newest point, in the trace's unit (percent); None as in the daemon."""
-    n = len(t)
-    if n < 6 or t[-1] <= t[0]:
-        return None
+def irls(x, z, low, high):
+    """`analysis::trend::fit`'s weighted Huber line through `z` at `x` (seconds from the newest
+    window): each point's sd from its interval (floored at 0.01 points and at half the median),
+    ten IRLS iterations. Returns (level, slope, sd, s0, s1, s2, det), None where the daemon has
+    none. Shared with trend_reach_replay.py."""
+    n = len(x)
     raw = np.maximum((high - low) / (2 * Z95_TWO_SIDED), 0.01)  # MIN_SD, 0.01 points
     sd = np.maximum(raw, 0.5 * np.sort(raw)[(n - 1) // 2])
-    x = t - t[-1]
     level = slope = 0.0
     for it in range(10):
         w = (np.ones(n) if it == 0 else huber((z - level - slope * x) / sd)) / sd**2
@@ -91,6 +91,19 @@ def fit(t, z, low, high, flags, span_share, threshold=0.0):
             return None
         slope = (s0 * sxy - s1 * sy) / det
         level = (sy - s1 * slope) / s0
+    return level, slope, sd, s0, s1, s2, det
+
+
+def fit(t, z, low, high, flags, span_share, threshold=0.0):
+    """The trend at the newest point, in the trace's unit (percent); None as in the daemon."""
+    n = len(t)
+    if n < 6 or t[-1] <= t[0]:
+        return None
+    x = t - t[-1]
+    line = irls(x, z, low, high)
+    if line is None:
+        return None
+    level, slope, sd, s0, s1, s2, det = line
     r = (z - level - slope * x) / sd
     floor = next((float(f[5:]) for f in flags if f.startswith("floor")), 1.0)
     scale = max((huber(r) * r * r).sum() / (n - 2), floor)
