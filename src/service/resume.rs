@@ -111,7 +111,8 @@ pub fn rebuild(
     let windows: Vec<Option<(WindowAnalysis, f64, f64)>> = rows.iter().map(window_of).collect();
     for (r, w) in rows.iter().zip(&windows) {
         // what the trend read live (`analysis::trend_reading`: a rising window's pool), from the
-        // stored report; the stored columns where it does not decode
+        // stored report; the stored columns where it does not decode (they hold the reported
+        // interval, which on a declining gate may reach below the window's own)
         let window_seconds = r.window_end - r.window_start;
         let reading = w.as_ref().map_or(
             TrendReading {
