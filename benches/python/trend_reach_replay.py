@@ -65,8 +65,21 @@ def band_low(e, x):
     return e["level"] + e["slope"] * x - student.ppf(0.975, e["dof"]) * math.sqrt(max(var, 0.0))
 
 
-def replay(runs, variants, horizon, min_span):
-    rows = collections.defaultdict(lambda: {"n": 0, "own": 0, **{v: [0, 0] for v in variants}})
+def decides(now, gate):
+    """Whether the trend after the window lets it reach down: `confident` (shipped), its
+    slope's one-sided 95 % bound below zero; `fitted`, its fitted slope below zero; `span`,
+    any trend over the minimum span; `near`, a confident decline, or a fitted slope below zero with
+    the forecast's lower end below zero."""
+    if gate == "confident":
+        return now["slope"] + student.ppf(0.95, now["dof"]) * math.sqrt(now["vs"]) < 0
+    if gate in ("fitted", "near"):
+        return now["slope"] < 0
+    return True
+
+
+def replay(runs, variants, horizon, min_span, gate="confident"):
+    rows = collections.defaultdict(
+        lambda: {"n": 0, "own": 0, "width": [], **{v: [0, 0, []] for v in variants}})
     for run in runs:
         pts = []  # (window end, figure's instant, zeta0, low, high)
         for w in run["windows"]:
@@ -84,7 +97,7 @@ def replay(runs, variants, horizon, min_span):
             a = np.array(pts) if pts else None
             if a is not None and len(a) >= 6 and a[-1, 0] - a[0, 0] >= min_span:
                 now = line(a[:, 1] - w["t"], a[:, 2], a[:, 3], a[:, 4])
-                if now and now["slope"] + student.ppf(0.95, now["dof"]) * math.sqrt(now["vs"]) < 0:
+                if now and decides(now, gate):
                     for v in variants:
                         b = a if v == "fit" else a[a[:, 0] <= w["t"] - 2 * lag]
                         if len(b) < 6:
@@ -92,14 +105,18 @@ def replay(runs, variants, horizon, min_span):
                         newest = b[-1, 0]
                         e = line(b[:, 1] - newest, b[:, 2], b[:, 3], b[:, 4])
                         if e:
-                            lows[v] = min(own[0], band_low(e, w["t"] - lag - newest))
+                            floor = band_low(e, w["t"] - lag - newest)
+                            if gate != "near" or decides(now, "confident") or floor < 0:
+                                lows[v] = min(own[0], floor)
             r = rows[(run["scenario"], run["gate"], w["scored"])]
             truth = w["truth"]
             r["n"] += 1
             r["own"] += own[0] <= truth <= own[1]
+            r["width"].append(own[1] - own[0])
             for v in variants:
                 r[v][0] += lows[v] <= truth <= own[1]
                 r[v][1] += lows[v] < own[0]
+                r[v][2].append(own[1] - lows[v])
     return rows
 
 
@@ -109,21 +126,25 @@ def main():
     p.add_argument("--variants", default="forecast,fit")
     p.add_argument("--horizon", type=float, default=600.0, help="trend_horizon_seconds")
     p.add_argument("--min-span", type=float, default=300.0, help="trend_min_span_seconds")
+    p.add_argument("--gate", choices=["confident", "fitted", "near", "span"], default="confident",
+                   help="which trend lets a window reach down (`decides`; shipped: confident)")
     args = p.parse_args()
     variants = args.variants.split(",")
     unknown = set(variants) - {"forecast", "fit"}
     if unknown:
         raise SystemExit(f"unknown variant {', '.join(sorted(unknown))}")
     runs = [r for path in args.traces for r in read_trace(path)]
-    rows = replay(runs, variants, args.horizon, args.min_span)
-    head = " | ".join(f"{v}: covered | {v}: reached" for v in variants)
-    print(f"| scenario | gate | regime | windows | own: covered | {head} |")
-    print("|---|---|---|---:|---:|" + "---:|---:|" * len(variants))
+    rows = replay(runs, variants, args.horizon, args.min_span, args.gate)
+    head = " | ".join(f"{v}: covered | {v}: reached | {v}: width" for v in variants)
+    print(f"| scenario | gate | regime | windows | own: covered | own: width | {head} |")
+    print("|---|---|---|---:|---:|---:|" + "---:|---:|---:|" * len(variants))
     for k in sorted(rows):
         r = rows[k]
         n = r["n"]
-        cells = " | ".join(f"{100 * r[v][0] / n:.0f} % | {100 * r[v][1] / n:.0f} %" for v in variants)
-        print(f"| {k[0]} | {k[1]} | {k[2]} | {n} | {100 * r['own'] / n:.0f} % | {cells} |")
+        cells = " | ".join(f"{100 * r[v][0] / n:.0f} % | {100 * r[v][1] / n:.0f} % | "
+                           f"{np.median(r[v][2]):.2f}" for v in variants)
+        print(f"| {k[0]} | {k[1]} | {k[2]} | {n} | {100 * r['own'] / n:.0f} % | "
+              f"{np.median(r['width']):.2f} | {cells} |")
 
 
 if __name__ == "__main__":

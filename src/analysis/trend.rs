@@ -195,6 +195,9 @@ pub enum TrendError {
 pub struct DampingTrend {
     horizon_seconds: f64,
     points: VecDeque<TrendPoint>,
+    /// The newest window end at which the trend [`DampingTrend::observe`] returned declined
+    /// with confidence (its slope's one-sided 95 % bound below zero), and its span then.
+    confident_decline: Option<(f64, f64)>,
 }
 
 impl DampingTrend {
@@ -208,6 +211,7 @@ impl DampingTrend {
                 0.0
             },
             points: VecDeque::new(),
+            confident_decline: None,
         }
     }
 
@@ -224,6 +228,16 @@ impl DampingTrend {
     /// Forget every window (e.g. after a gap in the data or a change of the gate's settings).
     pub fn clear(&mut self) {
         self.points.clear();
+        self.confident_decline = None;
+    }
+
+    /// Whether the trend declined with confidence over at least `min_span_seconds`
+    /// ([`TrendEstimate::declines`]) at a window that ended within its horizon before `now`: a
+    /// decline it confirmed and has not yet forgotten. Recorded by [`DampingTrend::observe`].
+    pub fn declined_within_horizon(&self, now: f64, min_span_seconds: f64) -> bool {
+        self.confident_decline.is_some_and(|(t, span)| {
+            span >= min_span_seconds && t <= now && now - t <= self.horizon_seconds
+        })
     }
 
     /// Add a window and drop those older than the horizon (and beyond [`MAX_TREND_POINTS`]).
@@ -296,7 +310,13 @@ impl DampingTrend {
                 high,
             });
         }
-        self.estimate(threshold)
+        let estimate = self.estimate(threshold);
+        if let (Some(e), Some(newest)) = (estimate, self.points.back()) {
+            if e.slope_upper < 0.0 {
+                self.confident_decline = Some((newest.t, e.span_seconds));
+            }
+        }
+        estimate
     }
 
     /// The trend and its crossing of `threshold`; `None` with fewer than

@@ -19,8 +19,10 @@ use super::{trend_reading, DampingReport, DampingTrend, TrendEstimate};
 /// (the gate's trend, this window observed) forecasts for the instant the window's figure stands
 /// for, from the windows that ended before the figure's record began (twice its lag before the
 /// window's end, `window_end`; `window_seconds` the window's length). Only where `trend` (the
-/// estimate after this window) declines over `min_span_seconds` (`trend_min_span_seconds`) and
-/// the forecast reaches below the window's own lower end. Returns whether it widened.
+/// estimate after this window) declines with confidence over `min_span_seconds`
+/// (`trend_min_span_seconds`), or its fitted slope is negative and `history` declined so within
+/// its horizon ([`DampingTrend::declined_within_horizon`]), and where the forecast reaches below
+/// the window's own lower end. Returns whether it widened.
 pub fn reach_down_to_trend(
     d: &mut DampingReport,
     trend: &TrendEstimate,
@@ -32,7 +34,14 @@ pub fn reach_down_to_trend(
     let (Some(_), Some((low, high))) = (d.zeta0, d.own_interval()) else {
         return false;
     };
-    if !trend.declines(min_span_seconds) {
+    // A confident decline now, or one confirmed within the horizon while the line still falls:
+    // near zero the windows read high and flatten the line until its slope's bound rises above
+    // zero, though the gate goes on declining (the hysteresis of `GateDampingDeclining`, which
+    // fires on a confident crossing and holds while the fitted line crosses).
+    let declining = trend.declines(min_span_seconds)
+        || (trend.slope_per_second < 0.0
+            && history.declined_within_horizon(window_end, min_span_seconds));
+    if !declining {
         return false;
     }
     let lag = trend_reading(d, window_seconds).lag_seconds;
@@ -152,6 +161,75 @@ mod tests {
             &mut none, &trend, &tr, 600.0, 10.0, 300.0
         ));
         assert_eq!(none.window_interval, None);
+    }
+
+    #[test]
+    fn a_decline_confirmed_within_the_horizon_reaches_while_the_line_falls() {
+        // A drift from +2 % down by 0.2 points a minute, windows every 5 s reading +-0.4 points
+        // about the truth with +-0.6 point intervals, observed as the daemon does; from 600 s
+        // (the truth at 0) the windows hold at +0.3 % (the amplitude shift) while the truth
+        // goes on down. `pushed` holds the same windows without `observe`: no memory.
+        let mut observed = DampingTrend::new(600.0);
+        let mut pushed = DampingTrend::new(600.0);
+        let mut last_confident = None;
+        for i in 0..=200 {
+            let t = 5.0 * i as f64;
+            let scatter = 0.004 * (((i * 7919) % 17) as f64 / 8.0 - 1.0);
+            let z = scatter + if t <= 600.0 { 0.02 - 0.002 * t / 60.0 } else { 0.003 };
+            let e = observed.observe(t, trend_reading(&window(z, 0.006), 10.0), 0.0);
+            if e.is_some_and(|e| e.declines(300.0)) {
+                last_confident = Some(t);
+            }
+            let p = TrendPoint {
+                t,
+                lag: 5.0,
+                zeta0: z,
+                low: z - 0.006,
+                high: z + 0.006,
+            };
+            pushed.push(p).unwrap();
+        }
+        // the held windows flattened the line: its bound rose above zero, its slope still falls
+        let trend = observed.estimate(0.0).unwrap();
+        assert_eq!(pushed.estimate(0.0), Some(trend), "the same windows");
+        assert!(!trend.declines(300.0) && trend.slope_per_second < 0.0, "{trend:?}");
+        let confirmed = last_confident.expect("the drift declined with confidence");
+        assert!(confirmed > 600.0 && confirmed < 1000.0, "{confirmed}");
+        assert!(observed.declined_within_horizon(1000.0, 300.0));
+        assert!(!observed.declined_within_horizon(1000.0, 900.0), "a span too short");
+        assert!(!observed.declined_within_horizon(confirmed + 601.0, 300.0), "forgotten");
+        assert!(!pushed.declined_within_horizon(1000.0, 300.0), "push alone records nothing");
+        // a window reading +0.8 % (+0.4, +1.2) at 1000 s, truth -1.33 %: without the memory it
+        // is left alone, with it it reads down to the line's forecast
+        let mut alone = window(0.008, 0.004);
+        assert!(!reach_down_to_trend(
+            &mut alone, &trend, &pushed, 1000.0, 10.0, 300.0
+        ));
+        let own = window(0.008, 0.004).zeta0_interval;
+        assert_eq!(alone.zeta0_interval, own);
+        let mut d = window(0.008, 0.004);
+        assert!(reach_down_to_trend(
+            &mut d, &trend, &observed, 1000.0, 10.0, 300.0
+        ));
+        let (low, high) = d.zeta0_interval.unwrap();
+        let forecast = observed.forecast_band(990.0, 995.0).unwrap();
+        assert_eq!(low, forecast.0, "the forecast's lower end");
+        assert!(low < 0.003, "{low}");
+        assert_eq!(Some(high), own.map(|o| o.1), "the upper end is the window's");
+        assert_eq!(d.window_interval, own);
+        // a rising line does not reach, memory or not
+        let rising = TrendEstimate {
+            slope_per_second: 1e-6,
+            slope_upper: 2e-6,
+            ..trend
+        };
+        let mut up = window(0.008, 0.004);
+        assert!(!reach_down_to_trend(
+            &mut up, &rising, &observed, 1000.0, 10.0, 300.0
+        ));
+        // forgetting the windows forgets the decline
+        observed.clear();
+        assert!(!observed.declined_within_horizon(1000.0, 300.0));
     }
 
     #[test]
