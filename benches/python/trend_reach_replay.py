@@ -1,13 +1,16 @@
 """Replays `analysis::reach_down_to_trend` over the windows of `gatewatch bench warning --trace`
 and prints, per scenario, gate and the regime the bench scored, how often the window's own 95 %
-interval and the interval reached down to the trend cover the true mean (stop 94).
+interval and the interval reached down to the trend cover the true mean (stop 94), how often a
+window reached down, and the intervals' median width.
 
 Each window is read as the daemon's trend reads it (`trend_replay.trend_reading`: a rising
 window's pool, else the window's own interval, `own (...)` where the trace prints it), kept by its
 window's end and fitted at its figure's instant (`lag` in the trace, since stop 91). Where the
-trend after the window declines with confidence (its slope's one-sided 95 % bound below zero)
-over at least `--min-span` seconds, the window's lower end reaches down to the lower end of the
-line's two-sided 95 % band at the figure's instant:
+trend after the window spans at least `--min-span` seconds and `--gate` lets it (shipped since
+stop 95, `recent`: the trend declines with confidence, its slope's one-sided 95 % bound below
+zero, or its fitted slope is negative and it so declined within the horizon; stop 94's
+`confident`: the first alone; see `decides` for the others), the window's lower end reaches down
+to the lower end of the line's two-sided 95 % band at the figure's instant:
 
 - `forecast` (shipped): the line through the windows that ended at or before the figure's
   record began (twice its lag before the window's end);
@@ -20,8 +23,10 @@ replay a trace of an earlier build (or compare the `own` column). The trace prin
     python3 -m venv /tmp/venv && /tmp/venv/bin/pip install numpy scipy
     gatewatch bench warning --seeds 20 --first-seed 101 --gates lab --scenarios slow-drift --trace 2> sd.trace
     /tmp/venv/bin/python benches/python/trend_reach_replay.py sd.trace --variants forecast,fit
+    /tmp/venv/bin/python benches/python/trend_reach_replay.py sd.trace --variants forecast --gate confident
 
-docs/damping.md, "A declining gate's interval reaches down to its trend (stop 94)".
+docs/damping.md, "A declining gate's interval reaches down to its trend (stop 94)" and "... while
+the line still falls (stop 95)".
 """
 import argparse
 import collections
@@ -65,23 +70,34 @@ def band_low(e, x):
     return e["level"] + e["slope"] * x - student.ppf(0.975, e["dof"]) * math.sqrt(max(var, 0.0))
 
 
-def decides(now, gate):
-    """Whether the trend after the window lets it reach down: `confident` (shipped), its
-    slope's one-sided 95 % bound below zero; `fitted`, its fitted slope below zero; `span`,
-    any trend over the minimum span; `near`, a confident decline, or a fitted slope below zero with
-    the forecast's lower end below zero."""
+def confident(now):
+    """Whether the trend declines with confidence: its slope's one-sided 95 % bound below zero."""
+    return now["slope"] + student.ppf(0.95, now["dof"]) * math.sqrt(now["vs"]) < 0
+
+
+def decides(now, gate, recent, floor):
+    """Whether the trend after the window (over the minimum span) lets it reach down to `floor`:
+    `recent` (shipped since stop 95), a confident decline, or a fitted slope below zero with a
+    confident decline within the horizon (`recent`); `confident` (stop 94), a confident decline;
+    `fitted`, a fitted slope below zero; `near`, a confident decline, or a fitted slope below zero
+    with the forecast's lower end below zero; `span`, any trend."""
     if gate == "confident":
-        return now["slope"] + student.ppf(0.95, now["dof"]) * math.sqrt(now["vs"]) < 0
-    if gate in ("fitted", "near"):
+        return confident(now)
+    if gate == "recent":
+        return confident(now) or (now["slope"] < 0 and recent)
+    if gate == "fitted":
         return now["slope"] < 0
+    if gate == "near":
+        return confident(now) or (now["slope"] < 0 and floor < 0)
     return True
 
 
-def replay(runs, variants, horizon, min_span, gate="confident"):
+def replay(runs, variants, horizon, min_span, gate="recent"):
     rows = collections.defaultdict(
         lambda: {"n": 0, "own": 0, "width": [], **{v: [0, 0, []] for v in variants}})
     for run in runs:
         pts = []  # (window end, figure's instant, zeta0, low, high)
+        declined = None  # the newest window kept when the trend last declined with confidence
         for w in run["windows"]:
             m = LAG.search(w["line"])
             lag = float(m.group(1)) if m else 5.0
@@ -90,24 +106,28 @@ def replay(runs, variants, horizon, min_span, gate="confident"):
                 pts.append((w["t"], w["t"] - lag, zeta0, low, high))
                 while w["t"] - pts[0][0] > horizon:
                     pts.pop(0)
+            a = np.array(pts) if pts else None
+            now = None
+            if a is not None and len(a) >= 6 and a[-1, 0] - a[0, 0] >= min_span:
+                now = line(a[:, 1] - w["t"], a[:, 2], a[:, 3], a[:, 4])
+                if now and confident(now):
+                    declined = a[-1, 0]
+            recent = declined is not None and w["t"] - declined <= horizon
             own = w.get("own") or (w["low"], w["high"])
             if w["scored"] is None or w["zeta0"] is None or own[0] is None:
                 continue
             lows = {v: own[0] for v in variants}
-            a = np.array(pts) if pts else None
-            if a is not None and len(a) >= 6 and a[-1, 0] - a[0, 0] >= min_span:
-                now = line(a[:, 1] - w["t"], a[:, 2], a[:, 3], a[:, 4])
-                if now and decides(now, gate):
-                    for v in variants:
-                        b = a if v == "fit" else a[a[:, 0] <= w["t"] - 2 * lag]
-                        if len(b) < 6:
-                            continue
-                        newest = b[-1, 0]
-                        e = line(b[:, 1] - newest, b[:, 2], b[:, 3], b[:, 4])
-                        if e:
-                            floor = band_low(e, w["t"] - lag - newest)
-                            if gate != "near" or decides(now, "confident") or floor < 0:
-                                lows[v] = min(own[0], floor)
+            if now:
+                for v in variants:
+                    b = a if v == "fit" else a[a[:, 0] <= w["t"] - 2 * lag]
+                    if len(b) < 6:
+                        continue
+                    newest = b[-1, 0]
+                    e = line(b[:, 1] - newest, b[:, 2], b[:, 3], b[:, 4])
+                    if e:
+                        floor = band_low(e, w["t"] - lag - newest)
+                        if decides(now, gate, recent, floor):
+                            lows[v] = min(own[0], floor)
             r = rows[(run["scenario"], run["gate"], w["scored"])]
             truth = w["truth"]
             r["n"] += 1
@@ -126,8 +146,9 @@ def main():
     p.add_argument("--variants", default="forecast,fit")
     p.add_argument("--horizon", type=float, default=600.0, help="trend_horizon_seconds")
     p.add_argument("--min-span", type=float, default=300.0, help="trend_min_span_seconds")
-    p.add_argument("--gate", choices=["confident", "fitted", "near", "span"], default="confident",
-                   help="which trend lets a window reach down (`decides`; shipped: confident)")
+    p.add_argument("--gate", choices=["recent", "confident", "fitted", "near", "span"],
+                   default="recent",
+                   help="which trend lets a window reach down (`decides`; shipped: recent)")
     args = p.parse_args()
     variants = args.variants.split(",")
     unknown = set(variants) - {"forecast", "fit"}

@@ -175,7 +175,12 @@ mod tests {
         for i in 0..=200 {
             let t = 5.0 * i as f64;
             let scatter = 0.004 * (((i * 7919) % 17) as f64 / 8.0 - 1.0);
-            let z = scatter + if t <= 600.0 { 0.02 - 0.002 * t / 60.0 } else { 0.003 };
+            let z = scatter
+                + if t <= 600.0 {
+                    0.02 - 0.002 * t / 60.0
+                } else {
+                    0.003
+                };
             let e = observed.observe(t, trend_reading(&window(z, 0.006), 10.0), 0.0);
             if e.is_some_and(|e| e.declines(300.0)) {
                 last_confident = Some(t);
@@ -192,13 +197,25 @@ mod tests {
         // the held windows flattened the line: its bound rose above zero, its slope still falls
         let trend = observed.estimate(0.0).unwrap();
         assert_eq!(pushed.estimate(0.0), Some(trend), "the same windows");
-        assert!(!trend.declines(300.0) && trend.slope_per_second < 0.0, "{trend:?}");
+        assert!(
+            !trend.declines(300.0) && trend.slope_per_second < 0.0,
+            "{trend:?}"
+        );
         let confirmed = last_confident.expect("the drift declined with confidence");
         assert!(confirmed > 600.0 && confirmed < 1000.0, "{confirmed}");
         assert!(observed.declined_within_horizon(1000.0, 300.0));
-        assert!(!observed.declined_within_horizon(1000.0, 900.0), "a span too short");
-        assert!(!observed.declined_within_horizon(confirmed + 601.0, 300.0), "forgotten");
-        assert!(!pushed.declined_within_horizon(1000.0, 300.0), "push alone records nothing");
+        assert!(
+            !observed.declined_within_horizon(1000.0, 900.0),
+            "a span too short"
+        );
+        assert!(
+            !observed.declined_within_horizon(confirmed + 601.0, 300.0),
+            "forgotten"
+        );
+        assert!(
+            !pushed.declined_within_horizon(1000.0, 300.0),
+            "push alone records nothing"
+        );
         // a window reading +0.8 % (+0.4, +1.2) at 1000 s, truth -1.33 %: without the memory it
         // is left alone, with it it reads down to the line's forecast
         let mut alone = window(0.008, 0.004);
@@ -215,7 +232,11 @@ mod tests {
         let forecast = observed.forecast_band(990.0, 995.0).unwrap();
         assert_eq!(low, forecast.0, "the forecast's lower end");
         assert!(low < 0.003, "{low}");
-        assert_eq!(Some(high), own.map(|o| o.1), "the upper end is the window's");
+        assert_eq!(
+            Some(high),
+            own.map(|o| o.1),
+            "the upper end is the window's"
+        );
         assert_eq!(d.window_interval, own);
         // a rising line does not reach, memory or not
         let rising = TrendEstimate {

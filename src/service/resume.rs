@@ -425,6 +425,9 @@ mod tests {
         assert!(widened > 0, "no window reached down to the trend");
         let m = rebuild("g", &rows, &rules(), &analyzer, 1100.0).unwrap();
         assert_eq!(m.trend_estimate, estimate);
+        // and the decline the live trend confirmed, on which a window reaches down
+        assert!(trend.declined_within_horizon(1095.0, 0.0));
+        assert!(m.trend.declined_within_horizon(1095.0, 0.0));
         assert_ne!(
             estimate, from_columns,
             "the rising window's pool changes the trend"
