@@ -5,7 +5,8 @@
 //! how far below its reading `zeta0` lies (docs/damping.md, "Near zero, on a gate whose damping
 //! grows with amplitude"). The trend's line through the windows before the reading's record,
 //! most of them further from zero where that shift is small, forecasts where `zeta0` stands now.
-//! Where the gate declines with confidence and that forecast's 95 % band reaches below the
+//! Where the gate declines with confidence (or did within the trend's horizon and its line still
+//! falls: near zero the high windows flatten it) and that forecast's 95 % band reaches below the
 //! window's own interval, the report's interval is widened down to it: the union of two 95 %
 //! intervals covers `zeta0` whenever either does. `zeta0` and the upper end stay the window's,
 //! and the window's own interval is kept as `window_interval`, which the trend and the alert
