@@ -38,6 +38,9 @@ Variants (`--variants`, comma-separated; each a `+`-joined set of changes to the
 - `floorF` (e.g. `floor1`, stop 84): the scale's floor `F` instead of the shipped one (1 since
   stop 84; 0.5 from session 20 to stop 83: replay a trace of those builds with `floor0.5` to see
   what they did, and mind that `base` now means 1).
+- `medF` (e.g. `med1`, stop 95): each window's sd floored at `F` times the horizon's median sd
+  instead of half of it (`med1`: no window weighs more than the median one; near zero the
+  windows' intervals narrow with the damping, so they weigh most where they read high).
 `--min-span` sets `trend_min_span_seconds` (300, the default since stop 68).
 
     python3 -m venv /tmp/venv && /tmp/venv/bin/pip install numpy scipy
@@ -73,14 +76,14 @@ def lag1(r):
     return min(max(c1 / c0, 0.0), 0.9) if c0 > 1e-6 * len(r) else 0.0
 
 
-def irls(x, z, low, high):
+def irls(x, z, low, high, median_floor=0.5):
     """`analysis::trend::fit`'s weighted Huber line through `z` at `x` (seconds from the newest
-    window): each point's sd from its interval (floored at 0.01 points and at half the median),
-    ten IRLS iterations. Returns (level, slope, sd, s0, s1, s2, det), None where the daemon has
-    none. Shared with trend_reach_replay.py."""
+    window): each point's sd from its interval (floored at 0.01 points and at `median_floor`
+    times the median, half in the daemon), ten IRLS iterations. Returns (level, slope, sd, s0,
+    s1, s2, det), None where the daemon has none. Shared with trend_reach_replay.py."""
     n = len(x)
     raw = np.maximum((high - low) / (2 * Z95_TWO_SIDED), 0.01)  # MIN_SD, 0.01 points
-    sd = np.maximum(raw, 0.5 * np.sort(raw)[(n - 1) // 2])
+    sd = np.maximum(raw, median_floor * np.sort(raw)[(n - 1) // 2])
     level = slope = 0.0
     for it in range(10):
         w = (np.ones(n) if it == 0 else huber((z - level - slope * x) / sd)) / sd**2
@@ -100,7 +103,8 @@ def fit(t, z, low, high, flags, span_share, threshold=0.0):
     if n < 6 or t[-1] <= t[0]:
         return None
     x = t - t[-1]
-    line = irls(x, z, low, high)
+    median_floor = next((float(f[3:]) for f in flags if f.startswith("med")), 0.5)
+    line = irls(x, z, low, high, median_floor)
     if line is None:
         return None
     level, slope, sd, s0, s1, s2, det = line
@@ -199,7 +203,7 @@ def replay(windows, variant, min_span=300.0, horizon=600.0, lead=600.0, for_wind
     """The first firing times of `GateDampingDeclining` over one run's windows."""
     flags = set(variant.split("+")) - {"base"}
     unknown = {f for f in flags - {"lead", "band", "young", "taper", "max"}
-               if not re.fullmatch(r"(s|csd|nw|floor)\d+(\.\d+)?", f)}
+               if not re.fullmatch(r"(s|csd|nw|floor|med)\d+(\.\d+)?", f)}
     csd = next((float(f[3:]) for f in flags if f.startswith("csd")), None)
     if unknown:
         raise SystemExit(f"unknown variant {', '.join(sorted(unknown))} in {variant!r}")
