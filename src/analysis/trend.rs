@@ -287,7 +287,8 @@ impl DampingTrend {
     /// 95 % interval joins the trend (kept at `t`, its last sample's time, fitted at the instant
     /// its figure stands for, [`TrendReading::lag_seconds`] before); any other window is no
     /// evidence and is skipped (so is a window older than the newest kept: a replay). Returns the
-    /// trend afterwards against `threshold`.
+    /// trend afterwards against `threshold`, and remembers it where it declines with confidence
+    /// ([`DampingTrend::declined_within_horizon`]).
     pub fn observe(
         &mut self,
         t: f64,
