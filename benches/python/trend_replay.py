@@ -8,8 +8,9 @@ t on `n / overlap - 2`), the alert's readings and streaks those of
 `alert::engine::trend_alert` with the defaults (horizon 600 s, minimum span 300 s, lead 600 s,
 two windows to fire and to resolve; the confident crossing within the lead and the trend's
 span). Each window is read as the daemon's trend reads it (`analysis::trend_reading`): a rising
-window's pool where the trace prints one (`pool (...)`, since stop 79), else its own figure.
-The trace prints zeta0 to 0.01 points, so the replay's slope matches the traced one to about
+window's pool where the trace prints one (`pool (...)`, since stop 79), else its own figure,
+kept by its window's end and fitted at its figure's instant (`lag` in the trace, as the daemon
+since stop 91; the replay fitted at the windows' ends until stop 95). The trace prints zeta0 to 0.01 points, so the replay's slope matches the traced one to about
 1e-4 points a minute; `base` must reproduce the traced first firings to a window (it prints
 both; on a trace recorded before stop 67, `lead` must).
 
@@ -65,6 +66,8 @@ HUBER_K = 1.345
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from bench_trace import read_trace  # noqa: E402
 
+LAG = re.compile(r"  lag ([\d.]+)")
+
 def huber(r):
     a = np.abs(r)
     return np.where(a <= HUBER_K, 1.0, HUBER_K / np.maximum(a, 1e-300))
@@ -97,12 +100,14 @@ def irls(x, z, low, high, median_floor=0.5):
     return level, slope, sd, s0, s1, s2, det
 
 
-def fit(t, z, low, high, flags, span_share, threshold=0.0):
-    """The trend at the newest point, in the trace's unit (percent); None as in the daemon."""
+def fit(t, z, low, high, flags, span_share, threshold=0.0, lag=None):
+    """The trend at the newest point, in the trace's unit (percent); None as in the daemon.
+    Points are kept by their windows' ends `t` and fitted at their figures' instants, `lag`
+    seconds before (since stop 91; zero where the trace prints no lag)."""
     n = len(t)
     if n < 6 or t[-1] <= t[0]:
         return None
-    x = t - t[-1]
+    x = t - (0.0 if lag is None else lag) - t[-1]
     median_floor = next((float(f[3:]) for f in flags if f.startswith("med")), 0.5)
     line = irls(x, z, low, high, median_floor)
     if line is None:
@@ -213,13 +218,16 @@ def replay(windows, variant, min_span=300.0, horizon=600.0, lead=600.0, for_wind
     for w in windows:
         zeta0, low, high, trusted = trend_reading(w)
         if trusted and zeta0 is not None and low is not None:
-            points.append((w["t"], zeta0, low, high, w.get("rms") or math.nan))
+            m = LAG.search(w["line"])
+            points.append((w["t"], zeta0, low, high, w.get("rms") or math.nan,
+                           float(m.group(1)) if m else 0.0))
             while w["t"] - points[0][0] > horizon:
                 points.pop(0)
         reading = "unknown"
         if trusted and len(points) >= 6:
             a = np.array(points)
-            e = fit(a[:, 0], a[:, 1], a[:, 2], a[:, 3], flags, (a[-1, 0] - a[0, 0]) / horizon)
+            e = fit(a[:, 0], a[:, 1], a[:, 2], a[:, 3], flags, (a[-1, 0] - a[0, 0]) / horizon,
+                    lag=a[:, 5])
             if e is not None and e["span"] >= min_span:
                 reach = lead if "lead" in flags else min(lead, e["span"])
                 if e["confident"] is not None and e["confident"] <= reach:
