@@ -40,14 +40,16 @@ from scipy.stats import t as student
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from bench_trace import read_trace  # noqa: E402
-from trend_replay import huber, irls, lag1, trend_reading  # noqa: E402
+from trend_replay import huber, irls, lag1, records_overlap, trend_reading  # noqa: E402
 
 LAG = re.compile(r"  lag ([\d.]+)")
 
 
-def line(x, z, low, high):
+def line(x, z, low, high, lag, ar1=False):
     """`analysis::trend::fit` at x = 0 (the newest window's end): level, slope, their variances
-    and covariance, the effective degrees of freedom; None as in the daemon."""
+    and covariance, the effective degrees of freedom; None as in the daemon. The overlap factor
+    from the figures' records (`lag`, half of each; since stop 96), or with `ar1` from the
+    residuals' lag-1 autocorrelation (the rule before)."""
     n = len(x)
     if n < 6 or x.max() <= x.min():
         return None
@@ -57,8 +59,11 @@ def line(x, z, low, high):
     level, slope, sd, s0, s1, s2, det = fitted
     r = (z - level - slope * x) / sd
     scale = max((huber(r) * r * r).sum() / (n - 2), 1.0)
-    rho = lag1(r)
-    overlap = (1 + rho) / (1 - rho)
+    if ar1:
+        rho = lag1(r)
+        overlap = (1 + rho) / (1 - rho)
+    else:
+        overlap = records_overlap(x, lag, sd, huber(r) / sd**2)
     k = scale * overlap / det
     return {"level": level, "slope": slope, "vs": s0 * k, "vl": s2 * k, "cov": -s1 * k,
             "dof": max(n / overlap - 2.0, 1.0)}
@@ -92,7 +97,7 @@ def decides(now, gate, recent, floor):
     return True
 
 
-def replay(runs, variants, horizon, min_span, gate="recent"):
+def replay(runs, variants, horizon, min_span, gate="recent", ar1=False):
     rows = collections.defaultdict(
         lambda: {"n": 0, "own": 0, "width": [], **{v: [0, 0, []] for v in variants}})
     for run in runs:
@@ -109,7 +114,7 @@ def replay(runs, variants, horizon, min_span, gate="recent"):
             a = np.array(pts) if pts else None
             now = None
             if a is not None and len(a) >= 6 and a[-1, 0] - a[0, 0] >= min_span:
-                now = line(a[:, 1] - w["t"], a[:, 2], a[:, 3], a[:, 4])
+                now = line(a[:, 1] - w["t"], a[:, 2], a[:, 3], a[:, 4], a[:, 0] - a[:, 1], ar1)
                 if now and confident(now):
                     declined = a[-1, 0]
             recent = declined is not None and w["t"] - declined <= horizon
@@ -123,7 +128,7 @@ def replay(runs, variants, horizon, min_span, gate="recent"):
                     if len(b) < 6:
                         continue
                     newest = b[-1, 0]
-                    e = line(b[:, 1] - newest, b[:, 2], b[:, 3], b[:, 4])
+                    e = line(b[:, 1] - newest, b[:, 2], b[:, 3], b[:, 4], b[:, 0] - b[:, 1], ar1)
                     if e:
                         floor = band_low(e, w["t"] - lag - newest)
                         if decides(now, gate, recent, floor):
@@ -149,13 +154,16 @@ def main():
     p.add_argument("--gate", choices=["recent", "confident", "fitted", "near", "span"],
                    default="recent",
                    help="which trend lets a window reach down (`decides`; shipped: recent)")
+    p.add_argument("--overlap", choices=["records", "ar1"], default="records",
+                   help="the trend's overlap factor: from the figures' records (shipped since "
+                        "stop 96) or the residuals' AR(1) (before)")
     args = p.parse_args()
     variants = args.variants.split(",")
     unknown = set(variants) - {"forecast", "fit"}
     if unknown:
         raise SystemExit(f"unknown variant {', '.join(sorted(unknown))}")
     runs = [r for path in args.traces for r in read_trace(path)]
-    rows = replay(runs, variants, args.horizon, args.min_span, args.gate)
+    rows = replay(runs, variants, args.horizon, args.min_span, args.gate, args.overlap == "ar1")
     head = " | ".join(f"{v}: covered | {v}: reached | {v}: width" for v in variants)
     print(f"| scenario | gate | regime | windows | own: covered | own: width | {head} |")
     print("|---|---|---|---:|---:|---:|" + "---:|---:|---:|" * len(variants))

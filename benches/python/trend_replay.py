@@ -79,6 +79,23 @@ def lag1(r):
     return min(max(c1 / c0, 0.0), 0.9) if c0 > 1e-6 * len(r) else 0.0
 
 
+def records_overlap(x, lag, sd, w):
+    """`analysis::trend::overlap_factor` (since stop 96): the weighted slope's variance with each
+    pair of figures correlated by the share of record they have in common (figure i read
+    `[x_i - lag_i, x_i + lag_i]`), over its variance were they independent; at least 1.
+    Shared with trend_reach_replay.py."""
+    lag = np.zeros(len(x)) if lag is None else np.asarray(lag, dtype=float)
+    u = w * (w.sum() * x - (w * x).sum()) * sd
+    lo, hi = x - lag, x + lag
+    common = np.clip(np.minimum(hi[:, None], hi[None, :]) - np.maximum(lo[:, None], lo[None, :]),
+                     0.0, None)
+    length = np.sqrt(np.outer(2 * lag, 2 * lag))
+    corr = np.divide(common, length, out=np.zeros_like(common), where=length > 0)
+    np.fill_diagonal(corr, 1.0)
+    independent = (u * u).sum()
+    return max(float(u @ corr @ u) / independent, 1.0) if independent > 0 else 1.0
+
+
 def irls(x, z, low, high, median_floor=0.5):
     """`analysis::trend::fit`'s weighted Huber line through `z` at `x` (seconds from the newest
     window): each point's sd from its interval (floored at 0.01 points and at `median_floor`
@@ -117,6 +134,8 @@ def fit(t, z, low, high, flags, span_share, threshold=0.0, lag=None):
     floor = next((float(f[5:]) for f in flags if f.startswith("floor")), 1.0)
     scale = max((huber(r) * r * r).sum() / (n - 2), floor)
     rho = lag1(r)
+    overlap = (records_overlap(x, lag, sd, huber(r) / sd**2) if "ar1" not in flags
+               else (1 + rho) / (1 - rho))
     if "young" in flags or "taper" in flags:
         # session 45's small-sample correction of the lag-1 estimate while the horizon fills
         # (`span_share`: the points' span over the horizon)
@@ -125,7 +144,7 @@ def fit(t, z, low, high, flags, span_share, threshold=0.0, lag=None):
         else:
             share = min(max(2.0 * (1.0 - span_share), 0.0), 1.0)
         rho = min(rho + share * (1 + 7.5 * rho) / n, 0.9)
-    overlap = (1 + rho) / (1 - rho)
+        overlap = (1 + rho) / (1 - rho)
     for f in flags:
         if f.startswith("nw"):
             # Bartlett (Newey-West) long-run variance over L lags instead of the AR(1) factor
@@ -166,7 +185,7 @@ def fit(t, z, low, high, flags, span_share, threshold=0.0, lag=None):
     else:
         confident = crossing(upper)
     return {"span": t[-1] - t[0], "expected": crossing(slope), "confident": confident,
-            "level": level, "slope": slope}
+            "level": level, "slope": slope, "se": math.sqrt(var_slope), "q": q, "upper": upper}
 
 
 def trend_reading(w):
@@ -207,7 +226,7 @@ def rms_supports(a, e, fraction):
 def replay(windows, variant, min_span=300.0, horizon=600.0, lead=600.0, for_windows=2, resolve_windows=2):
     """The first firing times of `GateDampingDeclining` over one run's windows."""
     flags = set(variant.split("+")) - {"base"}
-    unknown = {f for f in flags - {"lead", "band", "young", "taper", "max"}
+    unknown = {f for f in flags - {"lead", "band", "young", "taper", "max", "ar1"}
                if not re.fullmatch(r"(s|csd|nw|floor|med)\d+(\.\d+)?", f)}
     csd = next((float(f[3:]) for f in flags if f.startswith("csd")), None)
     if unknown:

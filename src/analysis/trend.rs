@@ -16,16 +16,16 @@
 //! - the slope's standard error is scaled by how the residuals scatter against what the
 //!   intervals claim (scale `max(1, chi2 / (n - 2))`: wider when they scatter more, never
 //!   narrower than the intervals say) and inflated for the correlation
-//!   between overlapping windows
-//!   (lag-1 autocorrelation `r` of the residuals: factor `sqrt((1 + r) / (1 - r))`, the AR(1)
-//!   variance inflation), so the intervals' optimism and the overlap both widen it.
+//!   between figures whose records overlap (each pair correlated by the share of record they
+//!   have in common, [`TrendPoint::lag`] being half the record), so the intervals' optimism and
+//!   the overlap both widen it.
 //!
 //! The crossing time is given twice: from the slope itself ("expected") and from the slope's
 //! one-sided 95 % upper bound `slope + t se` ("confident"), with `t` Student's quantile on the
 //! windows' effective number less the line's two parameters (`n / overlap - 2`: the scale is
 //! estimated from residuals that overlapping windows make fewer than the windows; 1.645 with
-//! many, 2.1 with the 6 that 120 windows correlated at 0.9 are worth): only when even that bound is
-//! negative is the decline taken as real, and the confident crossing is the latest the line
+//! many, more where overlapping records leave few: 1.9 for the 7 that 120 figures of 60 s records
+//! read every 5 s are worth): only when even that bound is negative is the decline taken as real, and the confident crossing is the latest the line
 //! would cross at that bound. `docs/damping.md` ("Trend") explains the choices.
 //!
 //! Pure and deterministic: no randomness, no I/O; memory bounded by [`MAX_TREND_POINTS`].
@@ -82,7 +82,9 @@ pub struct TrendPoint {
     pub t: f64,
     /// Seconds before `t` that the figure stands for: the middle of the record it read (half
     /// the window for a window read alone; more for a pooled figure, whose records reach back).
-    /// The line is fitted at `t - lag` and read at the newest window's end.
+    /// The line is fitted at `t - lag` and read at the newest window's end. The record is
+    /// taken as `2 lag` long, ending at `t`: figures whose records overlap are correlated, and
+    /// the slope's error counts it (0: a figure that shares no record).
     pub lag: f64,
     /// The window's `zeta0`.
     pub zeta0: f64,
@@ -101,12 +103,17 @@ pub struct TrendEstimate {
     pub span_seconds: f64,
     /// The line's value at the newest window's end (the smoothed current `zeta0`).
     pub level: f64,
-    /// Standard error of `level` (scaled and inflated as the slope's).
+    /// Standard error of `level`, scaled as the slope's and inflated for the windows' overlap
+    /// and the line's misfit, whichever is larger (the band's: [`TrendEstimate::band_at`]).
     pub level_stderr: f64,
     /// Covariance of `level` and the slope (per second), for the band away from the newest
     /// window ([`TrendEstimate::band_at`]).
     #[serde(skip)]
     pub level_slope_covariance: f64,
+    /// The slope's standard error as the band reckons it (inflated as `level_stderr`; at least
+    /// `slope_stderr`).
+    #[serde(skip)]
+    pub band_slope_stderr: f64,
     /// Student's t quantile of a two-sided 95 % band on the windows' effective number less two.
     #[serde(skip)]
     pub band_quantile: f64,
@@ -143,12 +150,16 @@ impl TrendEstimate {
     }
 
     /// The line's two-sided 95 % confidence band `offset_seconds` after the newest window's end
-    /// (negative: before it), from the level's and the slope's errors and their covariance.
+    /// (negative: before it), from the level's and the slope's errors and their covariance,
+    /// each inflated for the windows' overlap or for the line's misfit, whichever is larger: a
+    /// claim on where `zeta0` itself lies must own the line's misfit (near zero the windows read
+    /// high and bend away from it), which the slope's test of a decline need not (see
+    /// `overlap_factor`).
     pub fn band_at(&self, offset_seconds: f64) -> (f64, f64) {
         let x = offset_seconds;
         let centre = self.level + self.slope_per_second * x;
         let var = self.level_stderr.powi(2)
-            + x * x * self.slope_stderr.powi(2)
+            + x * x * self.band_slope_stderr.powi(2)
             + 2.0 * x * self.level_slope_covariance;
         let half = self.band_quantile * var.max(0.0).sqrt();
         (centre - half, centre + half)
@@ -407,30 +418,41 @@ fn fit(
     // Scale: how much more (or less) the residuals scatter than the intervals say, never below
     // MIN_SCALE.
     let mut chi2 = 0.0;
+    let mut fitted = Vec::with_capacity(n);
     let (mut r_prev, mut c0, mut c1) = (None::<f64>, 0.0, 0.0);
     for p in points.clone() {
         let x = x_of(&p);
-        let r = (p.zeta0 - level - slope * x) / sd(&p);
+        let s = sd(&p);
+        let r = (p.zeta0 - level - slope * x) / s;
         chi2 += huber(r) * r * r;
         c0 += r * r;
         if let Some(q) = r_prev {
             c1 += r * q;
         }
         r_prev = Some(r);
+        fitted.push(Fitted {
+            x,
+            half_record: p.lag,
+            weight: huber(r) / (s * s),
+            sd: s,
+        });
     }
     let scale = (chi2 / (n - 2) as f64).max(MIN_SCALE);
-    // Residuals at rounding level (a perfect line) carry no correlation to speak of.
+    // The slope's test counts the correlation the shared records give the figures; the band,
+    // a claim on where zeta0 itself lies, also the line's misfit, which the residuals' lag-1
+    // autocorrelation shows (AR(1) factor; residuals at rounding level carry none). See
+    // `overlap_factor`.
+    let overlap = overlap_factor(&fitted);
     let rho = if c0 > 1e-6 * n as f64 {
         (c1 / c0).clamp(0.0, 0.9)
     } else {
         0.0
     };
-    let overlap = (1.0 + rho) / (1.0 - rho);
-    let k = scale * overlap / (sw * sxx - sx * sx);
-    let var_slope = sw * k;
-    let slope_stderr = var_slope.sqrt();
-    // x = 0 at the newest window's end: the level's variance and its covariance with the slope
-    let level_stderr = (sxx * k).sqrt();
+    let band_overlap = overlap.max((1.0 + rho) / (1.0 - rho));
+    let det = sw * sxx - sx * sx;
+    let k = scale * overlap / det;
+    let k_band = scale * band_overlap / det;
+    let slope_stderr = (sw * k).sqrt();
     // The slope's error rests on the residuals' scatter, and overlapping windows leave fewer
     // independent residuals than windows: about n / overlap of them, less the line's two
     // parameters, give the t quantile. Why: with the normal quantile a steady +0.5 % lock gate
@@ -438,6 +460,7 @@ fn fit(
     // ended a run of low ones) once its pooled estimate was no longer biased high; a 2 Hz
     // barrier gate warned twice a day (`bench warning`, docs/benchmarks.md, session 39).
     let dof = (n as f64 / overlap - 2.0).max(1.0);
+    let band_dof = (n as f64 / band_overlap - 2.0).max(1.0);
     let quantile = crate::spectral::t_quantile(Z95_ONE_SIDED_PROB, dof);
     let slope_upper = slope + quantile * slope_stderr;
     // A line already at or below the threshold "crosses it in 0 s" while it still falls; a flat
@@ -456,9 +479,12 @@ fn fit(
         windows: n,
         span_seconds: t_last - t_first,
         level,
-        level_stderr,
-        level_slope_covariance: -sx * k,
-        band_quantile: crate::spectral::t_quantile(Z95_TWO_SIDED_PROB, dof),
+        // x = 0 at the newest window's end: the level's variance and its covariance with the
+        // slope, as the band reckons them
+        level_stderr: (sxx * k_band).sqrt(),
+        level_slope_covariance: -sx * k_band,
+        band_slope_stderr: (sw * k_band).sqrt(),
+        band_quantile: crate::spectral::t_quantile(Z95_TWO_SIDED_PROB, band_dof),
         slope_per_second: slope,
         slope_stderr,
         slope_upper,
@@ -470,6 +496,74 @@ fn fit(
             None
         },
     })
+}
+
+/// One figure as the fit weighed it, for [`overlap_factor`].
+struct Fitted {
+    /// Where it was fitted, seconds from the newest window's end (the middle of its record).
+    x: f64,
+    /// Half its record: the figure read the samples from `x - half_record` to `x + half_record`
+    /// ([`TrendPoint::lag`]).
+    half_record: f64,
+    /// Its weight in the fit (Huber's weight over its variance).
+    weight: f64,
+    /// Its standard deviation.
+    sd: f64,
+}
+
+/// How much the figures' shared records inflate the slope's variance: the variance of the
+/// weighted least-squares slope with each pair of figures correlated by the share of record
+/// they have in common (`overlap / sqrt(length_i length_j)`), over its variance were they
+/// independent. At least 1; 1 where no two records overlap (a figure of no record, `lag` 0,
+/// shares none).
+///
+/// Why from the records and not from the residuals (their lag-1 autocorrelation `r` and the
+/// AR(1) factor `(1 + r) / (1 - r)`, until stop 96): figures read from overlapping records are
+/// a moving average of the gate's motion, whose correlation falls linearly with the distance
+/// and ends where the records part, while the AR(1) factor assumes a correlation that decays
+/// geometrically for ever. Simulated (`the_slopes_error_counts_the_shared_records`), it made
+/// the slope's standard error 1.28 and 1.26 times its scatter on 20 s and 50 s records read
+/// every 5 s (the 5 Hz lock gate's and the 2 Hz barrier gate's 100 cycles), this factor 0.97
+/// to 1.06 (the test's seeds and the replay's). And where the windows near zero read high and bend away from the line, the
+/// residuals' correlation took the bend for overlap and held a real decline's slope more
+/// uncertain still. The line's misfit is the band's business ([`TrendEstimate::band_at`]
+/// keeps the larger of the two factors). On steady days (docs/benchmarks.md, "Stop 96") the
+/// slope over its standard error scattered with a standard deviation under 1 with either.
+///
+/// Cost: every pair of figures, `O(n^2)` for `n` kept (14,400 pairs for 120 windows, at most
+/// [`MAX_TREND_POINTS`] squared).
+fn overlap_factor(fitted: &[Fitted]) -> f64 {
+    let (sw, sx) = fitted.iter().fold((0.0, 0.0), |(s0, s1), f| {
+        (s0 + f.weight, s1 + f.weight * f.x)
+    });
+    // The slope is sum_i c_i z_i with c_i = w_i (sw x_i - sx) / det; u_i = c_i sd_i up to the
+    // common factor 1 / det, which cancels in the ratio.
+    let u = |f: &Fitted| f.weight * (sw * f.x - sx) * f.sd;
+    let mut independent = 0.0;
+    let mut shared = 0.0;
+    for (i, a) in fitted.iter().enumerate() {
+        let ua = u(a);
+        independent += ua * ua;
+        if a.half_record <= 0.0 {
+            continue;
+        }
+        for b in &fitted[i + 1..] {
+            if b.half_record <= 0.0 {
+                continue;
+            }
+            let common = (a.x + a.half_record).min(b.x + b.half_record)
+                - (a.x - a.half_record).max(b.x - b.half_record);
+            if common > 0.0 {
+                let correlation = common / (2.0 * (a.half_record * b.half_record).sqrt());
+                shared += 2.0 * ua * u(b) * correlation;
+            }
+        }
+    }
+    if independent > 0.0 && independent.is_finite() && shared.is_finite() {
+        ((independent + shared) / independent).max(1.0)
+    } else {
+        1.0
+    }
 }
 
 /// Huber's weight of a standardised residual.

@@ -313,8 +313,9 @@ fn bad_points_are_refused_with_their_time() {
 
 /// The bound's quantile follows the windows' effective number: 120 independent windows leave
 /// it near the normal 1.645; windows that wander together (a pooled figure sharing most of its
-/// record with its neighbours, here a moving average over 12 windows) are worth about eleven, and the
-/// bound stands further above the slope (Student's t on `n / overlap - 2`).
+/// record with its neighbours, here a moving average over 12 windows, a record of 60 s) are
+/// worth about eleven, and the bound stands further above the slope (Student's t on
+/// `n / overlap - 2`).
 #[test]
 fn correlated_windows_widen_the_bound_beyond_the_normal_quantile() {
     let ratio = |pts: &[TrendPoint]| {
@@ -333,7 +334,7 @@ fn correlated_windows_widen_the_bound_beyond_the_normal_quantile() {
             let last = w[11];
             TrendPoint {
                 t: last.t,
-                lag: 0.0,
+                lag: 30.0,
                 zeta0: z,
                 low: z - 1.96 * 0.002,
                 high: z + 1.96 * 0.002,
@@ -342,10 +343,54 @@ fn correlated_windows_widen_the_bound_beyond_the_normal_quantile() {
         .collect();
     assert_eq!(pooled.len(), 120);
     let r = ratio(&pooled);
-    // (1.83 here, t with 9 degrees of freedom: the residuals' lag-1 correlation reads about
-    // 0.83, so 120 windows count as about 11; with the normal quantile it was 1.645 whatever
-    // the overlap)
+    // (1.83 here, t with 9 degrees of freedom: 60 s records every 5 s share 11/12, 10/12, ...
+    // of their samples with their neighbours, so 120 windows count as about 11; with the
+    // normal quantile it was 1.645 whatever the overlap)
     assert!(r > 1.75, "windows that share their record: t = {r}");
+}
+
+/// The slope's standard error counts the records the figures share, no more and no less: a
+/// figure every 5 s, each the mean of the last `m` independent 5 s readings (a record of
+/// `5 m` s, so `lag = 2.5 m`) with an honest interval. Over 400 seeds the slope scatters as
+/// its standard error says, within sampling error, whether the records are 5, 20 or 50 s long
+/// (0.97 to 0.99 here; the residuals' AR(1) factor, before stop 96, made the standard error
+/// 1.28 and 1.26 times the scatter on the 20 s and 50 s records, replayed in
+/// `benches/python/trend_replay.py`'s transcription).
+#[test]
+fn the_slopes_error_counts_the_shared_records() {
+    for m in [1usize, 4, 10] {
+        let (mut slopes, mut variances) = (Vec::new(), Vec::new());
+        for seed in 0..400 {
+            let raw = series(1000 + seed, 119 + m, 0.003, |_| 0.01);
+            let sd = 0.003 / (m as f64).sqrt();
+            let pts: Vec<TrendPoint> = raw
+                .windows(m)
+                .map(|w| {
+                    let z = w.iter().map(|p| p.zeta0).sum::<f64>() / m as f64;
+                    TrendPoint {
+                        t: w[m - 1].t,
+                        lag: 2.5 * m as f64,
+                        zeta0: z,
+                        low: z - 1.96 * sd,
+                        high: z + 1.96 * sd,
+                    }
+                })
+                .collect();
+            assert_eq!(pts.len(), 120);
+            let e = fit_trend(&pts, 0.0).unwrap();
+            slopes.push(e.slope_per_second);
+            variances.push(e.slope_stderr.powi(2));
+        }
+        let mean = slopes.iter().sum::<f64>() / 400.0;
+        let scatter = slopes.iter().map(|s| (s - mean).powi(2)).sum::<f64>() / 399.0;
+        let claimed = variances.iter().sum::<f64>() / 400.0;
+        let ratio = (claimed / scatter).sqrt();
+        // 400 seeds: the scatter's own relative error is about 3.5 %
+        assert!(
+            (0.9..1.2).contains(&ratio),
+            "records of {m} readings: se / sd {ratio}"
+        );
+    }
 }
 
 /// A line at or below the threshold crosses it "in 0 s" while it falls; flat or rising there it

@@ -777,6 +777,7 @@ mod tests {
             level: 0.01,
             level_stderr: 0.001,
             level_slope_covariance: 0.0,
+            band_slope_stderr: 3e-6,
             band_quantile: 1.96,
             slope_per_second: -2e-5,
             slope_stderr: 3e-6,
