@@ -46,10 +46,11 @@ LAG = re.compile(r"  lag ([\d.]+)")
 
 
 def line(x, z, low, high, lag, ar1=False):
-    """`analysis::trend::fit` at x = 0 (the newest window's end): level, slope, their variances
-    and covariance, the effective degrees of freedom; None as in the daemon. The overlap factor
-    from the figures' records (`lag`, half of each; since stop 96), or with `ar1` from the
-    residuals' lag-1 autocorrelation (the rule before)."""
+    """`analysis::trend::fit` at x = 0 (the newest window's end): level, slope, the slope's
+    variance and the effective degrees of freedom its test reads, and the band's (`b...`);
+    None as in the daemon. Since stop 96 the slope's test counts the figures' shared records
+    (`lag`, half of each) and the band the larger of that and the residuals' AR(1) factor;
+    with `ar1` both read the AR(1) factor (the rule before)."""
     n = len(x)
     if n < 6 or x.max() <= x.min():
         return None
@@ -59,20 +60,19 @@ def line(x, z, low, high, lag, ar1=False):
     level, slope, sd, s0, s1, s2, det = fitted
     r = (z - level - slope * x) / sd
     scale = max((huber(r) * r * r).sum() / (n - 2), 1.0)
-    if ar1:
-        rho = lag1(r)
-        overlap = (1 + rho) / (1 - rho)
-    else:
-        overlap = records_overlap(x, lag, sd, huber(r) / sd**2)
-    k = scale * overlap / det
-    return {"level": level, "slope": slope, "vs": s0 * k, "vl": s2 * k, "cov": -s1 * k,
-            "dof": max(n / overlap - 2.0, 1.0)}
+    rho = lag1(r)
+    residual = (1 + rho) / (1 - rho)
+    overlap = residual if ar1 else records_overlap(x, lag, sd, huber(r) / sd**2)
+    band = max(overlap, residual)
+    k, kb = scale * overlap / det, scale * band / det
+    return {"level": level, "slope": slope, "vs": s0 * k, "dof": max(n / overlap - 2.0, 1.0),
+            "bvs": s0 * kb, "bvl": s2 * kb, "bcov": -s1 * kb, "bdof": max(n / band - 2.0, 1.0)}
 
 
 def band_low(e, x):
     """Lower end of the line's two-sided 95 % band at x (seconds from its newest window)."""
-    var = e["vl"] + x * x * e["vs"] + 2 * x * e["cov"]
-    return e["level"] + e["slope"] * x - student.ppf(0.975, e["dof"]) * math.sqrt(max(var, 0.0))
+    var = e["bvl"] + x * x * e["bvs"] + 2 * x * e["bcov"]
+    return e["level"] + e["slope"] * x - student.ppf(0.975, e["bdof"]) * math.sqrt(max(var, 0.0))
 
 
 def confident(now):
@@ -155,8 +155,9 @@ def main():
                    default="recent",
                    help="which trend lets a window reach down (`decides`; shipped: recent)")
     p.add_argument("--overlap", choices=["records", "ar1"], default="records",
-                   help="the trend's overlap factor: from the figures' records (shipped since "
-                        "stop 96) or the residuals' AR(1) (before)")
+                   help="the trend's overlap factor: the slope's test from the figures' "
+                        "records and the band the larger of that and the residuals' AR(1) "
+                        "(shipped since stop 96), or the AR(1) for both (before)")
     args = p.parse_args()
     variants = args.variants.split(",")
     unknown = set(variants) - {"forecast", "fit"}
