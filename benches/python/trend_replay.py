@@ -3,8 +3,8 @@ shipped trend fit or a variant of its confident crossing, to try a rule on recor
 without re-streaming them.
 
 The fit is a transcription of `analysis::trend::fit` (IRLS with Huber weights on the windows'
-interval-derived sds, the scale `max(1, chi2 / (n - 2))`, the AR(1) overlap factor, Student's
-t on `n / overlap - 2`), the alert's readings and streaks those of
+interval-derived sds, the scale `max(1, chi2 / (n - 2))`, the overlap factor of the figures'
+shared records, Student's t on `n / overlap - 2`), the alert's readings and streaks those of
 `alert::engine::trend_alert` with the defaults (horizon 600 s, minimum span 300 s, lead 600 s,
 two windows to fire and to resolve; the confident crossing within the lead and the trend's
 span). Each window is read as the daemon's trend reads it (`analysis::trend_reading`): a rising
@@ -16,6 +16,9 @@ both; on a trace recorded before stop 67, `lead` must).
 
 Variants (`--variants`, comma-separated; each a `+`-joined set of changes to the shipped rule,
 `base` for none):
+- `ar1`: the slope's error inflated by the AR(1) factor of the residuals' lag-1
+  autocorrelation, the rule until stop 96 (shipped since: the figures' shared records,
+  `records_overlap`); replay a trace of an earlier build with `ar1` to reproduce its warnings;
 - `lead`: the rule before stop 67, a confident crossing within the lead whatever the trend's
   span (shipped: within the lead and within the span, no further ahead than the trend reaches
   back; stop 66's figures are `lead` and `lead+band`);

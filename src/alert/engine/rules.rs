@@ -77,9 +77,10 @@ pub struct AlertRules {
     /// The trend acts only once its windows span at least this much sample time, seconds
     /// (default 300): a line through the first few windows says little, and says it too
     /// confidently. Why 240 and not 120 (until session 45): a gate's pooled figures are
-    /// correlated over up to a minute, and the lag-1 autocorrelation the trend reads off 24
-    /// residuals is biased low (a true 0.85 reads about 0.5), so a trend over the first two to
-    /// four minutes of a new gate claims more independent windows than it has. In 400 cold
+    /// correlated over up to a minute, and the lag-1 autocorrelation the trend then read off 24
+    /// residuals is biased low (a true 0.85 reads about 0.5; since stop 96 the trend counts the
+    /// shared records instead), so a trend over the first two to four minutes of a new gate
+    /// claimed more independent windows than it had. In 400 cold
     /// starts of steady +1 % and +0.5 % gates (`bench warning --seeds 100 --scenarios
     /// stable,stable-low --hours 0.1`) it warned 9 times on the lab gate and 3 times on the lock
     /// gate at 120 s, between 135 and 345 s of stream; at 240 s twice. One slow drift's warning
