@@ -24,9 +24,10 @@
 //! one-sided 95 % upper bound `slope + t se` ("confident"), with `t` Student's quantile on the
 //! windows' effective number less the line's two parameters (`n / overlap - 2`: the scale is
 //! estimated from residuals that overlapping windows make fewer than the windows; 1.645 with
-//! many, more where overlapping records leave few: 1.9 for the 7 that 120 figures of 60 s records
-//! read every 5 s are worth): only when even that bound is negative is the decline taken as real, and the confident crossing is the latest the line
-//! would cross at that bound. `docs/damping.md` ("Trend") explains the choices.
+//! many, more where overlapping records leave few: 1.83 for the 11 or so that 120 figures of
+//! 60 s records read every 5 s are worth): only when even that bound is negative is the
+//! decline taken as real, and the confident crossing is the latest the line would cross at
+//! that bound. `docs/damping.md` ("Trend") explains the choices.
 //!
 //! Pure and deterministic: no randomness, no I/O; memory bounded by [`MAX_TREND_POINTS`].
 
@@ -524,9 +525,9 @@ struct Fitted {
 /// geometrically for ever. Simulated (`the_slopes_error_counts_the_shared_records`), it made
 /// the slope's standard error 1.28 and 1.26 times its scatter on 20 s and 50 s records read
 /// every 5 s (the 5 Hz lock gate's and the 2 Hz barrier gate's 100 cycles), this factor 0.97
-/// to 1.06 (the test's seeds and the replay's). And where the windows near zero read high and bend away from the line, the
-/// residuals' correlation took the bend for overlap and held a real decline's slope more
-/// uncertain still. The line's misfit is the band's business ([`TrendEstimate::band_at`]
+/// to 1.06 (the test's seeds and the replay's). And where the windows near zero read high and
+/// bend away from the line, the residuals' correlation took the bend for overlap and held a
+/// real decline's slope more uncertain still. The line's misfit is the band's business ([`TrendEstimate::band_at`]
 /// keeps the larger of the two factors). On steady days (docs/benchmarks.md, "Stop 96") the
 /// slope over its standard error scattered with a standard deviation under 1 with either.
 ///
