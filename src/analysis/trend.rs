@@ -527,9 +527,10 @@ struct Fitted {
 /// every 5 s (the 5 Hz lock gate's and the 2 Hz barrier gate's 100 cycles), this factor 0.97
 /// to 1.06 (the test's seeds and the replay's). And where the windows near zero read high and
 /// bend away from the line, the residuals' correlation took the bend for overlap and held a
-/// real decline's slope more uncertain still. The line's misfit is the band's business ([`TrendEstimate::band_at`]
-/// keeps the larger of the two factors). On steady days (docs/benchmarks.md, "Stop 96") the
-/// slope over its standard error scattered with a standard deviation under 1 with either.
+/// real decline's slope more uncertain still. The line's misfit is the band's business
+/// ([`TrendEstimate::band_at`] keeps the larger of the two factors). On steady days
+/// (docs/benchmarks.md, "Stop 96") the slope over its standard error scattered with a
+/// standard deviation under 1 with either.
 ///
 /// Cost: every pair of figures, `O(n^2)` for `n` kept (14,400 pairs for 120 windows, at most
 /// [`MAX_TREND_POINTS`] squared).
