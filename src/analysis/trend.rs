@@ -425,7 +425,8 @@ fn fit(
         let x = x_of(&p);
         let s = sd(&p);
         let r = (p.zeta0 - level - slope * x) / s;
-        chi2 += huber(r) * r * r;
+        let robust = huber(r);
+        chi2 += robust * r * r;
         c0 += r * r;
         if let Some(q) = r_prev {
             c1 += r * q;
@@ -434,7 +435,7 @@ fn fit(
         fitted.push(Fitted {
             x,
             half_record: p.lag,
-            weight: huber(r) / (s * s),
+            weight: robust / (s * s),
             sd: s,
         });
     }
