@@ -393,6 +393,70 @@ fn the_slopes_error_counts_the_shared_records() {
     }
 }
 
+/// The overlap factor pairs each record only with those that start before it ends; it must
+/// give what every pair gives, whatever the records' order and lengths (pooled figures stand
+/// for instants out of their windows' order, and some carry no record at all).
+#[test]
+fn the_overlap_factor_sums_every_overlapping_pair() {
+    fn every_pair(fitted: &[Fitted]) -> f64 {
+        let sw: f64 = fitted.iter().map(|f| f.weight).sum();
+        let sx: f64 = fitted.iter().map(|f| f.weight * f.x).sum();
+        let u = |f: &Fitted| f.weight * (sw * f.x - sx) * f.sd;
+        let (mut independent, mut shared) = (0.0, 0.0);
+        for (i, a) in fitted.iter().enumerate() {
+            independent += u(a) * u(a);
+            for b in &fitted[i + 1..] {
+                if a.half_record <= 0.0 || b.half_record <= 0.0 {
+                    continue;
+                }
+                let common = (a.x + a.half_record).min(b.x + b.half_record)
+                    - (a.x - a.half_record).max(b.x - b.half_record);
+                if common > 0.0 {
+                    let c = common / (2.0 * (a.half_record * b.half_record).sqrt());
+                    shared += 2.0 * u(a) * u(b) * c;
+                }
+            }
+        }
+        ((independent + shared) / independent).max(1.0)
+    }
+    let mut rng = ChaCha8Rng::seed_from_u64(97);
+    let unit = rand_distr::Uniform::new(0.0, 1.0).unwrap();
+    for n in [3usize, 20, 120, 400] {
+        let fitted: Vec<Fitted> = (0..n)
+            .map(|i| {
+                let half_record = match i % 5 {
+                    0 => 0.0,
+                    1 => 2.5,
+                    _ => 30.0 * unit.sample(&mut rng),
+                };
+                Fitted {
+                    // windows every 5 s, their figures standing up to 30 s before their ends
+                    x: -5.0 * (n - 1 - i) as f64 - 30.0 * unit.sample(&mut rng),
+                    half_record,
+                    weight: 0.5 + unit.sample(&mut rng),
+                    sd: 0.5 + unit.sample(&mut rng),
+                }
+            })
+            .collect();
+        let (banded, reference) = (overlap_factor(&fitted), every_pair(&fitted));
+        assert!(
+            reference > 1.05,
+            "{n} figures: records overlap, {reference}"
+        );
+        assert_relative_eq!(banded, reference, max_relative = 1e-9);
+    }
+    // no records, no overlap
+    let alone: Vec<Fitted> = (0..10)
+        .map(|i| Fitted {
+            x: i as f64,
+            half_record: 0.0,
+            weight: 1.0,
+            sd: 1.0,
+        })
+        .collect();
+    assert_eq!(overlap_factor(&alone), 1.0);
+}
+
 /// A line at or below the threshold crosses it "in 0 s" while it falls; flat or rising there it
 /// predicts no crossing at all, so a warning that fired on the way down resolves once the gate
 /// settles on its limit cycle (issue 8: the warning resolves when the trend flattens; the
