@@ -423,7 +423,9 @@ impl TimeSeries {
                     column: column.to_string(),
                     cell: shown(text),
                 })?;
-                if !v.is_finite() {
+                // `1e400` parses as infinity: a finite number too large, not "inf" or "NaN"
+                let spelled = text.to_ascii_lowercase();
+                if v.is_nan() || (v.is_infinite() && spelled.contains("inf")) {
                     return Err(DataError::NotFinite {
                         path: p(),
                         line,
@@ -679,6 +681,11 @@ mod tests {
         assert!(matches!(e, DataError::NotFinite { line: 3, .. }), "{e}");
         let e = load("t,y\n0,1\n0.1,inf\n").unwrap_err();
         assert!(matches!(e, DataError::NotFinite { line: 3, .. }), "{e}");
+        // a finite number past f64's range is too large, not "not finite"
+        for big in ["1e400", "-1e400"] {
+            let e = load(&format!("t,y\n0,1\n0.1,{big}\n")).unwrap_err();
+            assert!(matches!(e, DataError::TooLarge { line: 3, .. }), "{e}");
+        }
         let e = load("t,y\n0,1\n0.1,2\n0.1,3\n").unwrap_err();
         assert!(
             matches!(e, DataError::TimeNotIncreasing { line: 4, .. }),

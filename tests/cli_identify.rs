@@ -200,12 +200,7 @@ fn bad_cells_name_line_and_column() {
     );
     let f = d.write("t.csv", "t,y\n0,1\nx0.1,2\n");
     bad(&identify_args(&f, VDP, &[]), &["line 3", "'t'", "'x0.1'"]);
-    for (name, cell) in [
-        ("NaN", "NaN"),
-        ("inf", "inf"),
-        ("minf", "-inf"),
-        ("big", "1e999"),
-    ] {
+    for (name, cell) in [("NaN", "NaN"), ("inf", "inf"), ("minf", "-inf")] {
         let f = d.write(
             &format!("{name}.csv"),
             &format!("t,y\n0,1\n0.1,2\n0.2,3\n0.3,{cell}\n0.4,1\n"),
@@ -215,6 +210,12 @@ fn bad_cells_name_line_and_column() {
             &["line 5", "'y'", "not finite"],
         );
     }
+    // a finite number past f64's range is named for what it is (it read "not finite")
+    let f = d.write("big.csv", "t,y\n0,1\n0.1,2\n0.2,3\n0.3,1e999\n0.4,1\n");
+    bad(
+        &identify_args(&f, VDP, &[]),
+        &["line 5", "'y'", "value 1e999 is beyond +-1e100"],
+    );
     // A comment line counts: the error still names the physical line.
     let f = d.write("comment.csv", "t,y\n# note\n0,1\n0.1,NaN\n");
     bad(&identify_args(&f, VDP, &[]), &["line 4", "not finite"]);
@@ -961,6 +962,17 @@ fn force_signal_options_are_checked() {
         with(&["--stiffness", "81360", "--moving-average", "-1"]),
         &["--moving-average"],
     );
+    // one that removes nothing from this record of 8 samples at 200 Hz: before, it ran as if
+    // it were 0, without a word
+    for span in ["0.001", "0.04", "1e300"] {
+        run(
+            with(&["--stiffness", "81360", "--moving-average", span]),
+            &[
+                "--moving-average",
+                "must span more than one sample and fewer than the record",
+            ],
+        );
+    }
     run(
         with(&["--stiffness", "81360", "--max-fit-nmae", "0"]),
         &["--max-fit-nmae"],
@@ -1115,6 +1127,14 @@ fn gate_example_bench_rejects_bad_options() {
         &["bench", "gate-example", "--population", "2"],
         &["--population"],
     );
+    // these failed in the analysis (exit 1) naming no flag
+    bad(
+        &["bench", "gate-example", "--generations", "0"],
+        &["--generations must be at least 1"],
+    );
+    for drift in ["NaN", "1e300", "-2000"] {
+        bad(&["bench", "gate-example", "--drift", drift], &["--drift"]);
+    }
     // refused up front, once: it was exit 1 with the reason printed twice
     let line = bad(
         &["bench", "seed-cases", "--rtol", "0"],

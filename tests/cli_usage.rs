@@ -621,7 +621,7 @@ fn demo_refuses_a_negative_onset_shape_naming_the_flag() {
     for (args, needle) in [
         (
             &["--onset-hold", "-1"][..],
-            "--onset-hold must be >= 0 seconds, got -1",
+            "--onset-hold must be >= 0 seconds and at most 31622400, got -1",
         ),
         (
             &["--onset-ramp", "nan"][..],
@@ -987,7 +987,7 @@ fn benches_refuse_out_of_range_numbers_as_input() {
     for (args, needle) in [
         (
             &["bench", "history", "--hours", "-1"][..],
-            "gatewatch bench history: --hours must be > 0, got -1",
+            "gatewatch bench history: --hours must be > 0 and at most 8760 (a year), got -1",
         ),
         (
             &["bench", "history", "--every-seconds", "0"][..],
@@ -1021,8 +1021,73 @@ fn benches_refuse_out_of_range_numbers_as_input() {
             &["simulate", "--url", "http://127.0.0.1:9", "--rate", "-5"][..],
             "--rate must be > 0 (or 0 for the preset's rate), got -5",
         ),
+        // Past the bounds a `Duration` holds: these panicked (exit 101), `bench soak` leaving
+        // its daemon running; `bench warning --worker-threads 100000` spawned threads until
+        // the process aborted.
+        (
+            &["bench", "history", "--hours", "1e300"][..],
+            "gatewatch bench history: --hours must be > 0 and at most 8760 (a year), got 1e300",
+        ),
+        (
+            &["bench", "history", "--db", "/nonexistent/dir/x.db"][..],
+            "--db /nonexistent/dir/x.db: its directory /nonexistent/dir does not exist",
+        ),
+        (
+            &["bench", "soak", "--minutes", "1e300"][..],
+            "(--minutes and --interval at most a year)",
+        ),
+        (
+            &["bench", "soak", "--interval", "1e300"][..],
+            "(--minutes and --interval at most a year)",
+        ),
+        (
+            &["bench", "warning", "--worker-threads", "100000"][..],
+            "--worker-threads must be at most 256",
+        ),
+        (
+            &["bench", "warning", "--hours", "1e300"][..],
+            "--hours must be > 0 and at most 744",
+        ),
+        (
+            &["demo", "--duration", "1e300"][..],
+            "gatewatch demo: --duration must be > 0 and at most 31536000 seconds (a year), got 1e300",
+        ),
+        (
+            &["simulate", "--url", "http://127.0.0.1:9", "--speed", "1e-30"][..],
+            "--speed 1e-30: --duration",
+        ),
+        (
+            &["simulate", "--protocol", "tcp", "--tcp-addr", "notanaddr"][..],
+            "--tcp-addr 'notanaddr': expected host:port",
+        ),
+        // a negative number reaches the flag's own range check (clap refused it as "unexpected
+        // argument '-1'", naming no flag)
+        (
+            &["simulate", "--url", "http://127.0.0.1:9", "--start", "-1"][..],
+            "--start must be Unix seconds from 0",
+        ),
+        (
+            &["bench", "warning", "--trend-min-span-seconds", "-1"][..],
+            "--trend-min-span-seconds must be a number >= 0",
+        ),
     ] {
         refused_as_input(args, needle);
+    }
+    // a negative count is clap's invalid value, naming the flag
+    for (args, flag) in [
+        (
+            &["bench", "warning", "--seeds", "-1"][..],
+            "'--seeds <SEEDS>'",
+        ),
+        (&["bench", "soak", "--gates", "-2"][..], "'--gates <GATES>'"),
+    ] {
+        let o = gw(args);
+        let err = text(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {err}");
+        assert!(
+            err.contains("invalid value '-") && err.contains(flag),
+            "{args:?}: {err}"
+        );
     }
 }
 

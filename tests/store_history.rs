@@ -691,6 +691,26 @@ fn history_refuses_bad_input_naming_it_with_exit_code_2() {
     let (code, _, err) = history(&["--db", d, "--gate", "g1"]);
     assert_eq!(code, 2, "{err}");
     assert!(err.contains("is a directory"), "{err}");
+    // a device is not a missing file either; nor is a directory given as --config
+    let (code, _, err) = history(&["--db", "/dev/null", "--gate", "g1"]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("not a regular file"), "{err}");
+    let svg = dir.path().join("d.svg");
+    let (code, _, err) = history(&[
+        "--db",
+        db,
+        "--gate",
+        "g1",
+        "--plot",
+        svg.to_str().unwrap(),
+        "--config",
+        d,
+    ]);
+    assert_eq!(code, 2, "{err}");
+    assert!(
+        err.contains("a directory, not a configuration file"),
+        "{err}"
+    );
     // an RFC 3339 offset is the same instant as its UTC time: 14:00+02:00 is T0
     let (code, out, err) = history(&[
         "--db",
@@ -713,6 +733,42 @@ fn history_refuses_bad_input_naming_it_with_exit_code_2() {
         .collect();
     assert_eq!(lines.len(), 3);
     assert_eq!(lines[0]["window_end"], T0);
+}
+
+/// A full page says that the range holds more, and where the next page starts: a day and a
+/// half of a gate printed its first 20 000 rows, exit 0, without a word. The page that holds
+/// the range's last window, even at exactly `--limit` rows, says nothing.
+#[test]
+fn history_says_when_the_limit_cut_the_range_and_where_to_go_on() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let db = database(dir.path());
+    let db = db.to_str().unwrap();
+    let (code, out, err) = history(&["--db", db, "--gate", "g1", "--csv", "--limit", "5"]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(out.lines().count(), 6, "{out}");
+    let next = T0 + 30.0 * 4.0;
+    assert!(
+        err.contains("more than --limit 5 windows of gate g1")
+            && err.contains(&format!("--from {next}")),
+        "{err}"
+    );
+    // following the note pages on: the first row again, then the next four
+    let from = next.to_string();
+    let (code, out, err) = history(&[
+        "--db", db, "--gate", "g1", "--csv", "--limit", "5", "--from", &from,
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let first = out.lines().nth(1).expect("a row");
+    assert!(first.starts_with(&format!("g1,{},", next + 1.5)), "{first}");
+    // the whole range in one page, and the last page at exactly the limit: no note
+    for args in [
+        vec!["--db", db, "--gate", "g1", "--limit", &N.to_string()],
+        vec!["--db", db, "--gate", "g2", "--limit", "3"],
+    ] {
+        let (code, _, err) = history(&args);
+        assert_eq!(code, 0, "{err}");
+        assert!(err.is_empty(), "{args:?}: {err}");
+    }
 }
 
 /// Many gates: the "unknown gate" message names the first 10 and counts the rest, on one line.

@@ -69,8 +69,8 @@ pub use linearisation::{
     cycle_zeta0, equivalent_damping, limit_cycle, time_to_amplitude, Linearization,
 };
 pub use model_free::{
-    relaxation_detrend_degree, rms_swing, BEND_DEGREE, BEND_LEVEL_CHANGE, LIMIT_CYCLE_CYCLES,
-    RELAXATION_CYCLES,
+    moving_average_samples, relaxation_detrend_degree, rms_swing, BEND_DEGREE, BEND_LEVEL_CHANGE,
+    LIMIT_CYCLE_CYCLES, RELAXATION_CYCLES,
 };
 pub use model_interval::{intervals, zeta0_interval, FittedModel};
 pub use pooling::{

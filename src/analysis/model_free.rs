@@ -44,9 +44,23 @@ pub(super) fn moving_average_window(series: &TimeSeries, opts: &SeriesOptions) -
     if opts.signal != Signal::Force || opts.moving_average_seconds <= 0.0 {
         return None;
     }
-    let fs = 1.0 / series.uniform_step()?;
-    let w = ((opts.moving_average_seconds * fs).round() as usize) | 1;
-    (w > 1 && w < series.len()).then_some(w)
+    moving_average_samples(
+        series.uniform_step()?,
+        series.len(),
+        opts.moving_average_seconds,
+    )
+}
+
+/// The samples (odd) of a centred moving average of `seconds` over a record of `len` samples
+/// every `step` seconds, when it has one: more than one sample and fewer than the record
+/// (`None` otherwise, and the drift is not removed).
+pub fn moving_average_samples(step: f64, len: usize, seconds: f64) -> Option<usize> {
+    let span = (seconds / step).round();
+    if !(span.is_finite() && span >= 0.0 && span < len as f64) {
+        return None;
+    }
+    let w = (span as usize) | 1;
+    (w > 1 && w < len).then_some(w)
 }
 
 /// What the model-free analysis of the (pre-processed) window found.

@@ -11,10 +11,10 @@ use std::io::Write;
 #[derive(Debug, Args)]
 pub struct GateExampleArgs {
     /// Runs (noise and DE seeds seed, seed + 1, ...).
-    #[arg(long, default_value_t = 25)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 25)]
     runs: usize,
     /// Seed of the first run.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1)]
     seed: u64,
     /// Measurement noise, fraction of the signal's standard deviation.
     #[arg(long, allow_negative_numbers = true, default_value_t = 0.01)]
@@ -23,10 +23,10 @@ pub struct GateExampleArgs {
     #[arg(long, allow_negative_numbers = true, default_value_t = 0.2)]
     drift: f64,
     /// DE population.
-    #[arg(long, default_value_t = 20)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 20)]
     population: usize,
     /// DE generations.
-    #[arg(long, default_value_t = 40)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 40)]
     generations: usize,
     /// Without the FFT-biased initial population.
     #[arg(long)]
@@ -35,6 +35,9 @@ pub struct GateExampleArgs {
     #[arg(long)]
     json: bool,
 }
+
+/// Largest `--drift`, N/s.
+const MAX_DRIFT: f64 = 1000.0;
 
 pub(super) fn run(a: GateExampleArgs) -> Result<(), CliError> {
     if a.runs == 0 {
@@ -65,6 +68,18 @@ pub(super) fn run(a: GateExampleArgs) -> Result<(), CliError> {
     }
     if a.population < 4 {
         return Err(input("--population must be at least 4"));
+    }
+    if a.generations == 0 {
+        return Err(input("--generations must be at least 1"));
+    }
+    // the drift of a 10 s record: a few newtons per second at most are a sensor's; past a
+    // kilonewton per second the record is the drift (and NaN or 1e300 failed in the analysis,
+    // naming no flag)
+    if !(-MAX_DRIFT..=MAX_DRIFT).contains(&a.drift) {
+        return Err(input(format!(
+            "--drift must be a number from -{MAX_DRIFT} to {MAX_DRIFT} N/s, got {}",
+            crate::number::Num(a.drift)
+        )));
     }
     let opts = bench::GateExampleOptions {
         runs: a.runs,

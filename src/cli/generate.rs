@@ -16,7 +16,7 @@ pub struct GenerateArgs {
     #[arg(long = "case", value_name = "ID")]
     case: String,
     /// Seed of the noise (gate_example).
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1)]
     seed: u64,
     /// Output file (stdout when absent).
     #[arg(long, value_name = "FILE")]

@@ -47,7 +47,7 @@ pub struct HistoryArgs {
     #[arg(long, allow_negative_numbers = true)]
     pub to: Option<String>,
     /// At most this many rows (1..=20000).
-    #[arg(long, default_value_t = MAX_HISTORY_LIMIT)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = MAX_HISTORY_LIMIT)]
     pub limit: usize,
     /// CSV instead of JSON lines.
     #[arg(long, conflicts_with = "plot")]
@@ -152,6 +152,28 @@ pub fn run(args: HistoryArgs) -> Result<(), CliError> {
             }
         )));
     }
+    // A full page may not be the whole range: say so, and where the next page starts, rather
+    // than end a day's CSV at its 20 000th row without a word.
+    if rows.len() == query.limit {
+        let last = rows.last().map_or(f64::NAN, |r| r.window_end);
+        let next = HistoryQuery {
+            from: Some(last),
+            limit: 2,
+            ..query.clone()
+        };
+        let more = store.history(&next).map_err(anyhow::Error::from)?;
+        if more.iter().any(|r| r.window_end > last) {
+            let _ = writeln!(
+                std::io::stderr(),
+                "gatewatch history: the range holds more than --limit {} windows of gate {}; \
+                 these are the oldest {0}. The next page: --from {} (that window comes again \
+                 first)",
+                query.limit,
+                args.gate,
+                crate::number::Num(last)
+            );
+        }
+    }
     if let Some(path) = &args.plot {
         let points: Vec<DampingPoint> = rows.iter().map(point).collect();
         crate::plot::damping_history(path, &args.gate, &points, thresholds)
@@ -211,8 +233,15 @@ fn point(r: &IdentificationRecord) -> DampingPoint {
 /// table, or the defaults).
 fn thresholds(path: &std::path::Path, gate: &str) -> Result<Thresholds, CliError> {
     if !path.is_file() {
+        let why = if path.is_dir() {
+            "a directory, not a configuration file"
+        } else if path.exists() {
+            "not a regular file"
+        } else {
+            "no such file"
+        };
         return Err(CliError::Input(format!(
-            "--config {}: no such file",
+            "--config {}: {why}",
             path.display()
         )));
     }

@@ -6,6 +6,7 @@ use crate::analysis::{self, SeriesOptions, Signal};
 use crate::data::{GridDeparture, TimeSeries};
 use crate::identify::{Config, IdentifyError, Initial, Protocol, Search};
 use crate::model::Model;
+use crate::number::Num;
 use crate::ode::Method;
 use clap::Args;
 use std::io::Write;
@@ -57,13 +58,13 @@ pub struct IdentifyArgs {
     #[arg(long, default_value_t = 1, allow_negative_numbers = true)]
     split_seed: u64,
     /// DE population size (4 to 10000: each member costs an integration per generation).
-    #[arg(long, default_value_t = 50)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 50)]
     population: usize,
     /// DE generations (at most 100000).
-    #[arg(long, default_value_t = 120)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 120)]
     generations: usize,
     /// Independent runs (1 to 1000).
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1)]
     runs: usize,
     /// Seed of the first run.
     #[arg(long, default_value_t = 1, allow_negative_numbers = true)]
@@ -81,7 +82,7 @@ pub struct IdentifyArgs {
     #[arg(long, default_value = "auto")]
     solver: String,
     /// RK4 steps per sample interval (default 2; 1 with the automatic choice for force signals).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     substeps: Option<usize>,
     /// Skip the Levenberg-Marquardt polish of the DE winner.
     #[arg(long)]
@@ -286,6 +287,26 @@ pub(super) fn run(a: IdentifyArgs) -> Result<(), CliError> {
             )));
         }
     }
+    // the default's, said once the arguments are all accepted
+    let mut skipped_moving_average = None;
+    // A moving average of one sample, or of the whole record, removes nothing: `--moving-average
+    // 20` on a 10 s record gave what `0` gives, without a word.
+    if let (Signal::Force, Some(step)) = (signal, series.uniform_step()) {
+        let span = analysis::moving_average_samples(step, series.len(), moving_average);
+        if moving_average > 0.0 && span.is_none() {
+            let why = format!(
+                "a moving average of {} s spans {} samples of this record of {} samples every {} s; it must span more than one sample and fewer than the record",
+                Num(moving_average),
+                Num((moving_average / step).round()),
+                series.len(),
+                Num(step)
+            );
+            if a.moving_average.is_some() {
+                return Err(input(format!("--moving-average: {why} (0 turns it off)")));
+            }
+            skipped_moving_average = Some(why);
+        }
+    }
     let (solver, substeps) = match a.solver.as_str() {
         "auto" if signal == Signal::Force && series.uniform_step().is_some() => {
             (Method::Rk4, a.substeps.unwrap_or(1))
@@ -372,6 +393,12 @@ pub(super) fn run(a: IdentifyArgs) -> Result<(), CliError> {
     if let Some(dir) = &a.plot {
         check_plot_dir(dir)?;
         crate::plot::prepare_dir(dir).map_err(|e| input(format!("--plot: {e}")))?;
+    }
+    if let Some(why) = skipped_moving_average {
+        let _ = writeln!(
+            std::io::stderr(),
+            "gatewatch identify: the force's drift is not removed: {why} (--moving-average)"
+        );
     }
     let prepared = Prepared {
         series,

@@ -12,13 +12,13 @@ use std::io::Write;
 #[derive(Debug, Args)]
 pub struct SeedCasesArgs {
     /// Runs per case.
-    #[arg(long, default_value_t = 25)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 25)]
     runs: usize,
     /// Only these cases (repeatable); all by default.
     #[arg(long = "case", value_name = "ID")]
     cases: Vec<String>,
     /// Seed of the first run.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1)]
     seed: u64,
     /// Fitness solver: dopri5, rk4 or stiff.
     #[arg(long, default_value = "dopri5")]
@@ -41,7 +41,7 @@ pub struct SeedCasesArgs {
     fft_bias: bool,
     /// Trials the fitness integrates in lockstep: 1 (one by one), 4 or 8. Results are
     /// identical; only the time differs.
-    #[arg(long, default_value_t = crate::identify::LANES)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = crate::identify::LANES)]
     lanes: usize,
     /// Print the results as JSON.
     #[arg(long)]

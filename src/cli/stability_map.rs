@@ -46,10 +46,10 @@ pub struct StabilityMapArgs {
     )]
     t_end: Option<f64>,
     /// Monte Carlo samples (1 to 1000000: each is a trial, a CSV line and a marker).
-    #[arg(long, default_value_t = 6000)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 6000)]
     samples: usize,
     /// Seed of the samples.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1)]
     seed: u64,
     /// CSV output (columns NAME,NAME,stable); stdout when absent.
     #[arg(long, value_name = "FILE")]

@@ -40,29 +40,29 @@ use crate::simulate::{GateParams, GateSimulator, Scenario};
 #[derive(Debug, Clone, clap::Args)]
 pub struct BenchDaemonArgs {
     /// Samples sent per protocol in the ingest measurement.
-    #[arg(long, default_value_t = 2_000_000)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 2_000_000)]
     pub samples: u64,
     /// Samples per request (per write on TCP).
-    #[arg(long, default_value_t = 2000)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 2000)]
     pub batch: usize,
     /// Concurrent senders (one gate each).
-    #[arg(long, default_value_t = 4)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 4)]
     pub senders: usize,
     /// Windows identified cold and warm in the latency measurement.
-    #[arg(long, default_value_t = 5)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 5)]
     pub windows: usize,
     /// Wall seconds of real-time streaming per gate count in the capacity measurement.
     #[arg(long, default_value_t = 30.0, allow_negative_numbers = true)]
     pub seconds: f64,
     /// Largest gate count tried.
-    #[arg(long, default_value_t = 64)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 64)]
     pub max_gates: usize,
     /// Gate counts of the capacity sweep, e.g. `8,32,128,200,512` (every one is run); without
     /// it, powers of two up to `--max-gates` until one is not sustained.
     #[arg(long, value_delimiter = ',')]
     pub gates: Vec<usize>,
     /// Identification worker threads (0: cores - 1).
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 0)]
     pub worker_threads: usize,
     /// Skip measurements: any of ingest, latency, capacity.
     #[arg(long, value_delimiter = ',')]

@@ -42,7 +42,7 @@ use crate::store::{
 #[derive(Debug, clap::Args)]
 pub struct BenchHistoryArgs {
     /// Gates.
-    #[arg(long, default_value_t = 16)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 16)]
     pub gates: usize,
     /// Hours of history per gate.
     #[arg(long, default_value_t = 24.0, allow_negative_numbers = true)]
@@ -51,14 +51,14 @@ pub struct BenchHistoryArgs {
     #[arg(long, default_value_t = 5.0, allow_negative_numbers = true)]
     pub every_seconds: f64,
     /// Timed requests of each kind (the first, cold one is reported apart).
-    #[arg(long, default_value_t = 10)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 10)]
     pub queries: usize,
     /// The database file to create (must not exist); default: in a temporary directory,
     /// deleted at the end.
     #[arg(long)]
     pub db: Option<PathBuf>,
     /// Seed of the per-row variation.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1)]
     pub seed: u64,
     /// A NATS server (`nats-server -js`) to write to and read from instead of a SQLite file,
     /// e.g. nats://127.0.0.1:4222. The streams are made under a prefix of this run's own
@@ -109,8 +109,13 @@ fn check(args: &BenchHistoryArgs) -> anyhow::Result<()> {
     if args.gates == 0 {
         anyhow::bail!("--gates must be >= 1");
     }
-    if !positive(args.hours) {
-        anyhow::bail!("--hours must be > 0, got {}", Num(args.hours));
+    // the rows' times count back from now: past a year they left the clock's range
+    if !(positive(args.hours) && args.hours * 3600.0 <= crate::service::config::MAX_SECONDS) {
+        anyhow::bail!(
+            "--hours must be > 0 and at most {} (a year), got {}",
+            Num(crate::service::config::MAX_SECONDS / 3600.0),
+            Num(args.hours)
+        );
     }
     if !positive(args.every_seconds) {
         anyhow::bail!(
@@ -128,6 +133,14 @@ fn check(args: &BenchHistoryArgs) -> anyhow::Result<()> {
     if let Some(p) = &args.db {
         if p.exists() {
             anyhow::bail!("--db {}: exists; give a new file", p.display());
+        }
+        let parent = p.parent().filter(|d| !d.as_os_str().is_empty());
+        if let Some(dir) = parent.filter(|d| !d.is_dir()) {
+            anyhow::bail!(
+                "--db {}: its directory {} does not exist",
+                p.display(),
+                dir.display()
+            );
         }
     }
     Ok(())

@@ -55,16 +55,16 @@ pub struct BenchSoakArgs {
     #[arg(long, default_value_t = 30.0, allow_negative_numbers = true)]
     pub minutes: f64,
     /// Steady gates over HTTP (half JSON, half line protocol).
-    #[arg(long, default_value_t = 8)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 8)]
     pub gates: usize,
     /// Steady gates over the raw TCP listener.
-    #[arg(long, default_value_t = 2)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 2)]
     pub tcp_gates: usize,
     /// Names the transient gates cycle through (bounds the gates the daemon sees).
-    #[arg(long, default_value_t = 16)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 16)]
     pub churn_gates: usize,
     /// Slowloris connections held open at once.
-    #[arg(long, default_value_t = 32)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 32)]
     pub slow_clients: usize,
     /// Broken requests per second.
     #[arg(long, default_value_t = 2.0, allow_negative_numbers = true)]
@@ -79,7 +79,7 @@ pub struct BenchSoakArgs {
     #[arg(long, default_value_t = 120.0, allow_negative_numbers = true)]
     pub warmup: f64,
     /// Identification worker threads of the daemon.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1)]
     pub worker_threads: usize,
     /// The resident-memory bound judged against, MiB (the shipped Kubernetes limit).
     #[arg(long, default_value_t = 512.0, allow_negative_numbers = true)]
@@ -178,7 +178,13 @@ struct Daemon {
 }
 
 impl Drop for Daemon {
+    /// The daemon dies with the bench, whatever ended it (an error, a panic): an orphan kept
+    /// its ports and its log in a directory that no longer existed.
     fn drop(&mut self) {
+        if matches!(self.child.try_wait(), Ok(None)) {
+            let _ = self.child.kill();
+            let _ = self.child.wait();
+        }
         let _ = std::fs::remove_dir_all(&self.dir);
     }
 }
@@ -540,8 +546,11 @@ pub fn summarise(
 /// `gatewatch bench soak`.
 pub fn bench_soak(args: BenchSoakArgs) -> ExitCode {
     let positive = |v: f64| v > 0.0 && v.is_finite();
-    if !positive(args.minutes)
-        || !positive(args.interval)
+    // a year at most (`config::MAX_SECONDS`): the run's end and its ticks are `Duration`s,
+    // which a huge float overflows
+    let seconds = |v: f64| v > 0.0 && v <= crate::service::config::MAX_SECONDS;
+    if !seconds(args.minutes * 60.0)
+        || !seconds(args.interval)
         || !positive(args.rate)
         || !positive(args.rss_bound_mib)
         || !(args.broken_per_second == 0.0 || positive(args.broken_per_second))
@@ -549,7 +558,8 @@ pub fn bench_soak(args: BenchSoakArgs) -> ExitCode {
     {
         errln!(
             "gatewatch bench soak: --minutes, --interval, --rate and --rss-bound-mib must be \
-             > 0, --broken-per-second and --warmup >= 0"
+             > 0 (--minutes and --interval at most a year), --broken-per-second and --warmup \
+             >= 0"
         );
         return ExitCode::from(2);
     }

@@ -47,11 +47,11 @@ pub const WINDOW_TIMEOUT: Duration = Duration::from_secs(300);
 #[derive(Debug, Clone, clap::Args)]
 pub struct BenchWarningArgs {
     /// Seeds per scenario and gate (seeds F..F+N-1, F the `--first-seed`).
-    #[arg(long, default_value_t = 3)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 3)]
     pub seeds: u64,
     /// The first seed: extends a run to new streams without repeating the ones already run
     /// (`--seeds 4 --first-seed 5` streams seeds 5 to 8).
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1)]
     pub first_seed: u64,
     /// Print JSON instead of the tables.
     #[arg(long)]
@@ -74,7 +74,7 @@ pub struct BenchWarningArgs {
     #[arg(long, default_value_t = 0.125, allow_negative_numbers = true)]
     pub noise_rel: f64,
     /// Identification worker threads of the daemon under test.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1)]
     pub worker_threads: usize,
     /// Print every window to stderr: truth, zeta0 with its interval and source, the trend's
     /// slope and confident crossing, the firing alerts (for engineers checking a scenario).
@@ -93,38 +93,38 @@ pub struct BenchWarningArgs {
     #[arg(long)]
     pub force_terms: Option<crate::analysis::ForceTerms>,
     /// `GateNegativeDamping`'s `fire_at_once_probability` (default: the configuration's).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub fire_at_once_probability: Option<f64>,
     /// `GateNegativeDamping`'s `fire_at_once_min_ratio`: how far above its ambient level one
     /// window must stand to fire at once (default: `alert::at_once_ratio` of the gate's
     /// departure ratio, 3.5 from about 38 cycles a window up, 4.68 at 20).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub fire_at_once_min_ratio: Option<f64>,
     /// `GateNegativeDamping`'s `resolve_probability`: how sure a window must be that `zeta0`
     /// is at or above `clear_above` to count towards resolving (default: the configuration's,
     /// 0.9; 0.975 is the whole-interval rule).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub resolve_probability: Option<f64>,
     /// `GateDampingDeclining`'s `trend_min_span_seconds`: the sample time the trend's windows
     /// must span before it may warn (default: the configuration's, 300).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub trend_min_span_seconds: Option<f64>,
     /// Window length in seconds of sample time (`window_seconds`; default: the
     /// configuration's, 10): the shortest record an identification reads.
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub window_seconds: Option<f64>,
     /// Cycles of the gate's frequency an identification reads at least (`window_cycles`;
     /// default: the configuration's, 40); 0 reads `--window-seconds` always, as before stop 86.
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub window_cycles: Option<f64>,
     /// Identification cadence in seconds of new sample time (`identify_every_seconds`; default:
     /// the configuration's, 5). Records longer than the window keep it: on a 1 Hz gate's 50 s
     /// windows 5 s served better than 25 s (docs/benchmarks.md, "Stop 85").
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub identify_every_seconds: Option<f64>,
     /// The pools' `max_seconds` (`[defaults.pooling]`; default: the configuration's, 60): the
     /// most sample time a pool spans. A slow gate's pool needs more seconds for its cycles.
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub pool_max_seconds: Option<f64>,
 }
 
@@ -507,6 +507,9 @@ pub async fn run_stream(
     })
 }
 
+/// Largest `--hours` of one run.
+const MAX_HOURS: f64 = 744.0;
+
 /// The runs `args` asks for, in table order.
 pub fn plan(args: &BenchWarningArgs) -> anyhow::Result<Vec<RunSpec>> {
     anyhow::ensure!(args.seeds >= 1, "--seeds must be at least 1");
@@ -516,9 +519,18 @@ pub fn plan(args: &BenchWarningArgs) -> anyhow::Result<Vec<RunSpec>> {
         args.first_seed,
         args.seeds
     );
+    // Every window of a run is kept until the tables are printed (about 200 bytes each): a
+    // month of 5 s windows is 0.1 GB per run.
     anyhow::ensure!(
-        args.hours > 0.0 && args.hours.is_finite(),
-        "--hours must be > 0"
+        args.hours > 0.0 && args.hours <= MAX_HOURS,
+        "--hours must be > 0 and at most {MAX_HOURS} (a month of sample time per run), got {}",
+        crate::number::Num(args.hours)
+    );
+    anyhow::ensure!(
+        args.worker_threads <= crate::service::config::MAX_WORKER_THREADS,
+        "--worker-threads must be at most {}, as server.worker_threads, got {}",
+        crate::service::config::MAX_WORKER_THREADS,
+        args.worker_threads
     );
     anyhow::ensure!(
         args.noise_rel >= 0.0 && args.noise_rel.is_finite(),

@@ -88,7 +88,7 @@ pub struct SimulateArgs {
     #[arg(long, allow_negative_numbers = true)]
     pub duration: Option<f64>,
     /// Random seed.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1)]
     pub seed: u64,
     /// Protocol.
     #[arg(long, value_enum, default_value = "json")]
@@ -104,7 +104,7 @@ pub struct SimulateArgs {
     pub chunk_seconds: f64,
     /// Start time, Unix seconds (default: now, or for `--speed` above 1 so far back that the
     /// stream never runs ahead of the wall clock, its last sample timed when it is sent).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub start: Option<f64>,
     /// With --scenario onset only (refused with the others, whose timing is fixed): seconds of
     /// sample time at +2 % damping before the ramp. Without `--onset-hold` and `--onset-ramp`
@@ -344,6 +344,14 @@ pub fn check_stream(args: &SimulateArgs) -> anyhow::Result<()> {
         "--speed must be a number (<= 0: as fast as possible), got {}",
         Num(args.speed)
     );
+    // the stream paces itself on `Duration`s of wall time, which a tiny speed overflowed
+    anyhow::ensure!(
+        args.speed <= 0.0 || duration / args.speed <= SIMULATE_MAX_DURATION,
+        "--speed {}: --duration {} s would take more than {} s (366 days) of wall time",
+        Num(args.speed),
+        Num(duration),
+        Num(SIMULATE_MAX_DURATION)
+    );
     anyhow::ensure!(
         args.start
             .is_none_or(|s| (0.0..=SIMULATE_MAX_START).contains(&s)),
@@ -354,7 +362,25 @@ pub fn check_stream(args: &SimulateArgs) -> anyhow::Result<()> {
     // The raw TCP protocol does not use the URL.
     if args.protocol != Protocol::Tcp {
         check_url(&args.url)?;
+    } else {
+        check_tcp_addr(&args.tcp_addr)?;
     }
+    Ok(())
+}
+
+/// `--tcp-addr` as `host:port` (a name is resolved when the stream connects).
+fn check_tcp_addr(addr: &str) -> anyhow::Result<()> {
+    let port = addr.rsplit_once(':').and_then(|(host, port)| {
+        let host = host.trim_start_matches('[').trim_end_matches(']');
+        (!host.is_empty())
+            .then(|| port.parse::<u16>().ok())
+            .flatten()
+    });
+    anyhow::ensure!(
+        port.is_some_and(|p| p > 0),
+        "--tcp-addr '{}': expected host:port, e.g. 127.0.0.1:8094",
+        addr.escape_debug()
+    );
     Ok(())
 }
 

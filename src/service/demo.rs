@@ -55,7 +55,7 @@ pub struct DemoArgs {
     #[arg(long, default_value_t = 600.0, allow_negative_numbers = true)]
     pub onset_ramp: f64,
     /// Random seed of the simulated turbulence.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, allow_negative_numbers = true, default_value_t = 1)]
     pub seed: u64,
 }
 
@@ -123,28 +123,51 @@ fn alert_lines(payload: &Value) -> Vec<String> {
         .collect()
 }
 
-/// `gatewatch demo`: exit 0 after `--duration` or Ctrl-C, 1 when something cannot start.
-pub fn demo(args: DemoArgs) -> ExitCode {
-    if !(args.duration > 0.0 && args.duration.is_finite()) {
-        errln!("gatewatch demo: --duration must be > 0");
-        return ExitCode::from(2);
+/// The flags' ranges, before anything starts (exit 2 naming the flag).
+fn check(args: &DemoArgs) -> Result<(), String> {
+    use crate::number::Num;
+    use crate::service::client::SIMULATE_MAX_DURATION;
+    use crate::service::config::MAX_SECONDS;
+    // a year at most: the deadline is a `Duration`, which a huge float overflows
+    if !(args.duration > 0.0 && args.duration <= MAX_SECONDS) {
+        return Err(format!(
+            "--duration must be > 0 and at most {} seconds (a year), got {}",
+            Num(MAX_SECONDS),
+            Num(args.duration)
+        ));
     }
-    if !(args.speed > 0.0 && args.speed.is_finite()) {
-        errln!("gatewatch demo: --speed must be > 0");
-        return ExitCode::from(2);
+    // the simulated gate streams `--speed` times `--duration` seconds of samples, which
+    // `simulate` bounds as its own `--duration`
+    if !(args.speed > 0.0 && args.speed * args.duration <= SIMULATE_MAX_DURATION) {
+        return Err(format!(
+            "--speed must be > 0, and --speed times --duration at most {} seconds of samples \
+             (366 days), got {} and {}",
+            Num(SIMULATE_MAX_DURATION),
+            Num(args.speed),
+            Num(args.duration)
+        ));
     }
     // as `simulate` refuses them (a negative hold ran, as a ramp begun before the stream)
     for (flag, v) in [
         ("--onset-hold", args.onset_hold),
         ("--onset-ramp", args.onset_ramp),
     ] {
-        if !(v >= 0.0 && v.is_finite()) {
-            errln!(
-                "gatewatch demo: {flag} must be >= 0 seconds, got {}",
-                crate::number::Num(v)
-            );
-            return ExitCode::from(2);
+        if !(0.0..=SIMULATE_MAX_DURATION).contains(&v) {
+            return Err(format!(
+                "{flag} must be >= 0 seconds and at most {}, got {}",
+                Num(SIMULATE_MAX_DURATION),
+                Num(v)
+            ));
         }
+    }
+    Ok(())
+}
+
+/// `gatewatch demo`: exit 0 after `--duration` or Ctrl-C, 1 when something cannot start.
+pub fn demo(args: DemoArgs) -> ExitCode {
+    if let Err(e) = check(&args) {
+        errln!("gatewatch demo: {e}");
+        return ExitCode::from(2);
     }
     // Daemon logs (warnings only, unless RUST_LOG says otherwise) go to stderr; stdout is the
     // demo's narrative.
@@ -526,8 +549,41 @@ fn rule_lines(rules: &crate::alert::AlertRules) -> [String; 2] {
 
 #[cfg(test)]
 mod rule_tests {
-    use super::{alert_lines, rule_lines, DemoSummary};
+    use super::{alert_lines, check, rule_lines, DemoArgs, DemoSummary};
     use crate::alert::AlertRules;
+
+    /// Every flag out of range is refused by name before anything starts; a duration of 1e300
+    /// panicked converting to the deadline's `Duration`.
+    #[test]
+    fn the_demo_refuses_flags_out_of_range_naming_them() {
+        let args = DemoArgs {
+            duration: 90.0,
+            speed: 15.0,
+            onset_hold: 240.0,
+            onset_ramp: 600.0,
+            seed: 1,
+        };
+        assert_eq!(check(&args), Ok(()));
+        let bad = |f: &dyn Fn(&mut DemoArgs)| {
+            let mut a = args.clone();
+            f(&mut a);
+            check(&a).unwrap_err()
+        };
+        for d in [0.0, -1.0, f64::NAN, f64::INFINITY, 1e300, 4e7] {
+            assert!(bad(&|a| a.duration = d).starts_with("--duration"), "{d}");
+        }
+        for s in [0.0, -2.0, f64::NAN, 1e300] {
+            assert!(bad(&|a| a.speed = s).starts_with("--speed"), "{s}");
+        }
+        // each within its own range, together past what `simulate` streams
+        let both = bad(&|a| {
+            a.duration = 3e7;
+            a.speed = 10.0
+        });
+        assert!(both.contains("--speed times --duration"), "{both}");
+        assert!(bad(&|a| a.onset_hold = -1.0).starts_with("--onset-hold"));
+        assert!(bad(&|a| a.onset_ramp = 1e300).starts_with("--onset-ramp"));
+    }
 
     #[test]
     fn the_demo_states_the_rules_the_engine_applies() {

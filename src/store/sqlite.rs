@@ -304,9 +304,14 @@ impl SqliteStore {
             });
         }
         if !path.is_file() {
+            let message = if path.exists() {
+                "not a regular file (a device or a pipe), not a database file"
+            } else {
+                "no such file"
+            };
             return Err(StoreError::Open {
                 path: name,
-                message: "no such file".into(),
+                message: message.into(),
             });
         }
         let flags = OpenFlags::SQLITE_OPEN_READ_ONLY | OpenFlags::SQLITE_OPEN_NO_MUTEX;

@@ -415,7 +415,11 @@ fn plan_refuses_bad_arguments_naming_the_flag() {
     };
     assert!(bad(&|a| a.scenarios = vec!["nope".into()]).contains("--scenarios"));
     assert!(bad(&|a| a.gates = vec!["weir".into()]).contains("--gates"));
-    assert!(bad(&|a| a.hours = 0.0).contains("--hours"));
+    for h in [0.0, f64::NAN, 745.0, 1e300] {
+        assert!(bad(&|a| a.hours = h).contains("--hours"), "{h}");
+    }
+    // the daemon's own bound (a typo of 100000 spawned threads until the process died)
+    assert!(bad(&|a| a.worker_threads = 100_000).contains("--worker-threads"));
     assert!(bad(&|a| a.noise_abs = Some(-1.0)).contains("--noise-abs"));
     assert!(bad(&|a| a.fire_at_once_probability = Some(0.2)).contains("--fire-at-once-probability"));
     let window = bad(&|a| a.window_seconds = Some(-3.0));
