@@ -311,6 +311,26 @@ async fn a_silent_tcp_connection_is_closed_after_the_idle_timeout() {
     stop(r).await;
 }
 
+/// The idle timeout runs from the last byte: a half line sent once, then silence, held its
+/// connection slot until twice the timeout after the connection opened (the wait restarted
+/// whole when the buffer had changed at any time during the last one).
+#[tokio::test]
+async fn a_half_line_then_silence_is_closed_one_timeout_after_its_last_byte() {
+    let r = start_default("tcp_idle_timeout_seconds = 1.0").await;
+    let mut c = TcpStream::connect(r.tcp).await.unwrap();
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    c.write_all(b"m,gate=half force=1").await.unwrap();
+    let last_byte = std::time::Instant::now();
+    assert!(closed_by_server(&mut c).await);
+    let silent = last_byte.elapsed().as_secs_f64();
+    // closed at 1.9 s after the last byte before; scheduling may add a little
+    assert!(
+        (0.95..1.6).contains(&silent),
+        "closed {silent} s after the last byte"
+    );
+    stop(r).await;
+}
+
 /// Idle means no byte: a client still sending its line, a byte at a time, was cut after one
 /// timeout (the wait timed whole lines) and its line lost; a line begun and never ended when
 /// the connection goes idle is refused and counted (`bad_line`), not dropped without a word.

@@ -200,6 +200,38 @@ impl Decoder for Lines {
     }
 }
 
+/// The connection's reader, with the instant it last read a byte (or was accepted): what
+/// `tcp_idle_timeout_seconds` counts from.
+struct LastRead {
+    stream: TcpStream,
+    last: Instant,
+}
+
+impl LastRead {
+    fn new(stream: TcpStream) -> LastRead {
+        LastRead {
+            stream,
+            last: Instant::now(),
+        }
+    }
+}
+
+impl tokio::io::AsyncRead for LastRead {
+    fn poll_read(
+        mut self: std::pin::Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+        buf: &mut tokio::io::ReadBuf<'_>,
+    ) -> std::task::Poll<io::Result<()>> {
+        let before = buf.filled().len();
+        let this = &mut *self;
+        let poll = std::pin::Pin::new(&mut this.stream).poll_read(cx, buf);
+        if buf.filled().len() > before {
+            this.last = Instant::now();
+        }
+        poll
+    }
+}
+
 /// Complete lines read but not yet applied: `text` holds them, each ending in `\n`, the first
 /// being line `first_line` of the connection.
 struct Pending {
@@ -216,7 +248,7 @@ async fn handle(
 ) {
     let max = state.config.ingest.tcp_max_line_bytes;
     let idle = Duration::from_secs_f64(state.config.server.tcp_idle_timeout_seconds);
-    let mut frames = FramedRead::new(stream, Lines::new(max));
+    let mut frames = FramedRead::new(LastRead::new(stream), Lines::new(max));
     let mut pending = Pending {
         text: String::with_capacity(1024),
         first_line: 1,
@@ -225,17 +257,17 @@ async fn handle(
     loop {
         // a connection that sends nothing for `tcp_idle_timeout_seconds` is closed: silent
         // sockets must not hold connection slots forever. Nothing means no byte: a client
-        // still sending its line (a byte at a time) is not idle, so the wait starts again
-        // while the codec's buffer changes (it timed whole lines, and cut such a client).
+        // still sending its line (a byte at a time) is not idle, so the wait runs from the
+        // last byte read (it timed whole lines, and cut such a client; then it restarted a
+        // whole timeout when the buffer had changed at any time during the last, and a half
+        // line sent once held its slot for up to twice the timeout).
         // `FramedRead::next` is cancel safe: what it read stays in the buffer.
-        let mut seen = frames.read_buffer().len();
         let frame = loop {
+            let deadline = tokio::time::Instant::from_std(frames.get_ref().last + idle);
             tokio::select! {
-                f = tokio::time::timeout(idle, frames.next()) => match f {
+                f = tokio::time::timeout_at(deadline, frames.next()) => match f {
                     Ok(f) => break Some(f),
-                    Err(_) if frames.read_buffer().len() != seen => {
-                        seen = frames.read_buffer().len();
-                    }
+                    Err(_) if frames.get_ref().last.elapsed() < idle => {}
                     Err(_) => {
                         tracing::debug!(peer = %bad.peer, "tcp connection idle, closing");
                         break None;
