@@ -36,6 +36,7 @@ fn bench(c: &mut Criterion) {
         value_fields: &fields,
         precision: Precision::Ns,
         now: 0.0,
+        max_gates: usize::MAX,
     };
     for (name, extra) in [("plain", false), ("extra tags+fields", true)] {
         let body = telegraf_body(LINES, GATES, RATE_HZ, 0, extra);

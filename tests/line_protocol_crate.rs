@@ -116,6 +116,7 @@ fn mapping(fields: &[String]) -> Mapping<'_> {
         value_fields: fields,
         precision: Precision::Ns,
         now: 0.0,
+        max_gates: usize::MAX,
     }
 }
 

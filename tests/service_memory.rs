@@ -1,5 +1,6 @@
 //! The documented memory bound holds against the real binary (issue 12, point 1): 16
-//! concurrent 4 MB bodies, JSON then line protocol, three rounds, and the process's peak
+//! concurrent 4 MB bodies, JSON, line protocol of one gate, then line protocol whose every line
+//! names another gate, three rounds, and the process's peak
 //! resident memory (`VmHWM` in /proc/PID/status) stays under the bound of docs/design.md. A bound test, not a
 //! timing test: the waits are guards against hanging.
 
@@ -186,6 +187,24 @@ async fn sixteen_concurrent_4_mb_bodies_stay_under_the_documented_bound() {
             "{codes:?}"
         );
         assert!(codes.iter().any(|c| *c == 200 || *c == 204), "{codes:?}");
+
+        // line protocol whose every line names another gate (4-character ids): refused whole
+        // at the first gate past `max_gates`, where a batch per line was built first (80 MB a
+        // request, 385 MB peak in a review's burst)
+        let mut many = Vec::with_capacity(4_190_000);
+        let digits = b"0123456789abcdefghijklmnopqrstuvwxyz";
+        let mut i = 0usize;
+        while many.len() < 4_150_000 {
+            let id: Vec<u8> = (0..4).map(|k| digits[(i / 36usize.pow(k)) % 36]).collect();
+            many.extend_from_slice(b"m,gate=");
+            many.extend_from_slice(&id);
+            many.extend_from_slice(b" force=0\n");
+            i += 1;
+        }
+        let codes = burst(&format!("{base}/api/v2/write?precision=ns"), many).await;
+        eprintln!("round {round}, one gate a line, statuses: {codes:?}");
+        assert!(codes.iter().all(|c| [400, 503].contains(c)), "{codes:?}");
+        assert!(codes.contains(&400), "{codes:?}");
         hwm = vm_hwm_kib(pid);
     }
     eprintln!(

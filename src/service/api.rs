@@ -356,6 +356,7 @@ async fn post_write(
                 value_fields: &cfg.value_fields,
                 precision,
                 now,
+                max_gates: state.config.server.max_gates,
             },
         )
         .map_err(|e| invalid(&state, e))?;

@@ -387,6 +387,8 @@ fn process(state: &AppState, text: &str, line_no: usize) -> Option<(Option<Rejec
         value_fields: &cfg.value_fields,
         precision: cfg.tcp_precision,
         now: now_unix(),
+        // one line, one gate
+        max_gates: usize::MAX,
     };
     let batches = match line_protocol::to_batches(&[(line_no, line)], &mapping) {
         Ok(b) => b,

@@ -325,6 +325,9 @@ pub struct Mapping<'a> {
     pub precision: Precision,
     /// Time of lines without timestamp (unix seconds, the receive time).
     pub now: f64,
+    /// Gates a request may name (`server.max_gates`): [`parse_to_batches`] stops at the first
+    /// line of one more, a request the daemon refuses whole (`usize::MAX`: no bound).
+    pub max_gates: usize,
 }
 
 /// Turns parsed lines into per-gate batches (in order of first appearance).
@@ -385,11 +388,20 @@ impl Batches {
 /// into its sample at once, so a request's peak memory is its body plus its samples (24 bytes
 /// a line: time, value, line number), never a parsed `Line` (a few hundred bytes of strings
 /// and vectors) per line of the body. Same answers, same errors as the two steps.
+///
+/// It stops at the first line of a gate beyond `m.max_gates`, keeping that line: no daemon can
+/// hold more gates than that, so the request is refused whole, naming the first gate over
+/// ([`crate::service::state`]'s check), and parsing the rest only cost memory. A body whose
+/// every line names another gate built a batch, a gate id and an index entry per line (80 MB
+/// for a 4 MiB body, twenty times it) before that check.
 pub fn parse_to_batches(text: &str, m: &Mapping<'_>) -> Result<Vec<Batch>, BadRequest> {
     let mut batches = Batches::default();
     for (i, l) in text.split('\n').enumerate() {
         if let Some(line) = parse_line(l, i + 1)? {
             push_line(&mut batches, i + 1, &line, m)?;
+            if batches.batches.len() > m.max_gates {
+                break;
+            }
         }
     }
     batches.finish()
@@ -588,6 +600,31 @@ mod tests {
         }
     }
 
+    /// Past `max_gates` the body is not read on: the first line of one gate more is kept (the
+    /// daemon refuses the request naming it), nothing after it, not even a bad line.
+    #[test]
+    fn parsing_stops_at_the_first_gate_past_the_bound() {
+        let fields = vec!["force".to_string()];
+        let m = Mapping {
+            gate_tag: "gate",
+            value_fields: &fields,
+            precision: Precision::Ns,
+            now: 0.0,
+            max_gates: 3,
+        };
+        let mut body: String = (0..10)
+            .map(|i| format!("m,gate=g{i} force=1 {i}\n"))
+            .collect();
+        body.push_str("not a line\n");
+        let b = parse_to_batches(&body, &m).unwrap();
+        let gates: Vec<&str> = b.iter().map(|b| b.gate.as_str()).collect();
+        assert_eq!(gates, ["g0", "g1", "g2", "g3"]);
+        assert_eq!(b[3].lines, Some(vec![4]));
+        // within the bound, repeated gates: the whole body, and its bad line
+        let within = "m,gate=a force=1 1\nm,gate=b force=1 2\nm,gate=a force=1 3\nbad\n";
+        assert_eq!(parse_to_batches(within, &m).unwrap_err().line, Some(4));
+    }
+
     #[test]
     fn mapping_to_batches() {
         let lines =
@@ -598,6 +635,7 @@ mod tests {
             value_fields: &fields,
             precision: Precision::Ms,
             now: 0.0,
+            max_gates: usize::MAX,
         };
         let b = to_batches(&lines, &m).unwrap();
         assert_eq!(b.len(), 2);
