@@ -271,6 +271,73 @@ async fn slow_request_times_out_with_408() {
     stop(r).await;
 }
 
+/// A request whose body has wholly arrived when the request timeout runs out is finished and
+/// answered for what it did. The handler was dropped at the deadline while its parsing and
+/// applying went on in the blocking pool: 408 ("nothing changed, retry") for samples that
+/// were applied, and the request's admission freed while it still held its body. Here the
+/// timeout (10 ms) runs out while a 4 MB body, read at once, is parsed: each answer must say
+/// what happened (2xx: its samples are in; 408: none are). A body still arriving at the
+/// deadline gets its 408, and nothing of it is applied.
+#[tokio::test]
+async fn a_body_read_before_the_deadline_is_answered_for_what_it_did() {
+    use axum::body::Body;
+    use axum::http::StatusCode;
+    use futures_util::StreamExt;
+    let (app, _) = make_app("request_timeout_seconds = 0.01");
+    let samples = |gate: &str| {
+        json!({"gate": gate, "start": 1000.0, "rate_hz": 100.0, "values": vec![0.5; 990_000]})
+            .to_string()
+    };
+    let request = |body: Body| {
+        axum::http::Request::builder()
+            .method("POST")
+            .uri("/api/v1/samples")
+            .header("content-type", "application/json")
+            .body(body)
+            .unwrap()
+    };
+    let stored = |v: &Value| v["window"]["samples_total"].as_u64();
+    for i in 0..3 {
+        let gate = format!("in_time{i}");
+        let body = samples(&gate);
+        assert!(body.len() < 4 * 1024 * 1024);
+        let r = tower::ServiceExt::oneshot(app.clone(), request(Body::from(body)))
+            .await
+            .unwrap();
+        // time for work the answer did not wait for to land (it did before: the 408 came while
+        // the blocking pool still parsed)
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        let (status, v, _) = send(&app, "GET", &format!("/api/v1/gates/{gate}"), "", None).await;
+        match r.status() {
+            StatusCode::NO_CONTENT => assert_eq!(stored(&v), Some(990_000), "{v}"),
+            StatusCode::REQUEST_TIMEOUT => {
+                assert_eq!(
+                    status,
+                    StatusCode::NOT_FOUND,
+                    "a 408 whose samples went in: {v}"
+                )
+            }
+            other => panic!("{other}"),
+        }
+    }
+    // half a body, and the client goes quiet: 408, nothing applied
+    let half = samples("too_late");
+    let half = half[..half.len() / 2].to_string();
+    let (tx, rx) = tokio::sync::mpsc::channel::<Result<String, std::io::Error>>(1);
+    tx.send(Ok(half)).await.unwrap();
+    let stream = futures_util::stream::unfold(rx, |mut rx| async move {
+        rx.recv().await.map(|chunk| (chunk, rx))
+    })
+    .boxed();
+    let r = tower::ServiceExt::oneshot(app.clone(), request(Body::from_stream(stream)))
+        .await
+        .unwrap();
+    assert_eq!(r.status(), StatusCode::REQUEST_TIMEOUT);
+    drop(tx);
+    let (status, _, _) = send(&app, "GET", "/api/v1/gates/too_late", "", None).await;
+    assert_eq!(status, StatusCode::NOT_FOUND);
+}
+
 #[tokio::test]
 async fn readiness_and_graceful_shutdown_with_a_job_in_flight() {
     let fake = Arc::new(Fake {

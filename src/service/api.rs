@@ -4,6 +4,7 @@
 /// module because it answers with this module's [`HttpError`].
 mod influx;
 
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -707,10 +708,64 @@ pub fn router(state: Arc<AppState>) -> Router {
                     s.max_concurrent_requests,
                 )),
         )
-        .layer(tower_http::timeout::TimeoutLayer::with_status_code(
-            StatusCode::REQUEST_TIMEOUT,
-            timeout,
-        ))
+        .layer(middleware::from_fn_with_state(timeout, deadline))
         .layer(middleware::from_fn_with_state(state.clone(), track))
         .with_state(state)
+}
+
+/// `server.request_timeout_seconds` of the main router: 408 to a request not answered in
+/// time, unless its body was wholly read by then. A request whose body has arrived is the
+/// daemon's to finish (parsing and applying a body is bounded work, at most
+/// `body_limit_bytes`), and it answers what it did.
+///
+/// Why not `tower_http`'s `TimeoutLayer`, as until stop 97 (the health listener keeps it: its
+/// probes read no body): it dropped the handler at the deadline, but the parsing and applying
+/// the handler awaited run on the blocking pool and cannot be cancelled. A body whose last
+/// bytes came just before the deadline was answered 408 ("the request changed nothing, retry
+/// it", docs/api.md) while its samples were applied, and the request's place in
+/// `max_concurrent_ingest` and its bytes in `max_body_bytes_in_flight` were freed while it
+/// still held its body and parsed it: a review pushed the peak to 694 MB against the 224 MiB
+/// bound that way. A request whose body has not wholly arrived never reached its handler's
+/// work, so its 408 is still true.
+async fn deadline(State(timeout): State<Duration>, req: Request, next: Next) -> Response {
+    let read = Arc::new(AtomicBool::new(false));
+    let req = req.map(|body| {
+        axum::body::Body::from_stream(EndFlag {
+            inner: body.into_data_stream(),
+            ended: read.clone(),
+        })
+    });
+    let handler = next.run(req);
+    tokio::pin!(handler);
+    tokio::select! {
+        response = &mut handler => response,
+        () = tokio::time::sleep(timeout) => {
+            if read.load(Ordering::Acquire) {
+                handler.await
+            } else {
+                StatusCode::REQUEST_TIMEOUT.into_response()
+            }
+        }
+    }
+}
+
+/// A request body that says when it has been read to its end ([`deadline`]).
+struct EndFlag {
+    inner: axum::body::BodyDataStream,
+    ended: Arc<AtomicBool>,
+}
+
+impl futures_util::Stream for EndFlag {
+    type Item = Result<Bytes, axum::Error>;
+
+    fn poll_next(
+        mut self: std::pin::Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+    ) -> std::task::Poll<Option<Self::Item>> {
+        let next = self.inner.poll_next_unpin(cx);
+        if let std::task::Poll::Ready(None) = next {
+            self.ended.store(true, Ordering::Release);
+        }
+        next
+    }
 }
