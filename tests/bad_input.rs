@@ -979,10 +979,10 @@ fn lp_cases() -> Vec<Case> {
             Want::Line(2),
         ),
         lp_case(
-            "LP: not UTF-8",
+            "LP: not UTF-8 (named by its line and column, as other syntax errors)",
             v2,
-            b"m,gate=g\xff force=1".to_vec(),
-            Want::Status(400),
+            b"m,gate=g1 force=1\nm,gate=g\xff force=1".to_vec(),
+            Want::LineColumn,
         ),
         lp_case("LP: empty body", v2, "", Want::Status(400)),
         lp_case("LP: only a comment", v2, "# nothing\n", Want::Status(400)),
@@ -1169,6 +1169,8 @@ fn http_cases() -> Vec<Case> {
         with("HTTP: a 60 000-character gate id's history", "GET", &long_history, &[], b"", Want::StatusSays(404, "... (60000 bytes)`")),
         with("HTTP: gate id not UTF-8 (%ff%fe)", "GET", "/api/v1/gates/%ff%fe", &[], b"", Want::Field("id")),
         with("HTTP: gate id not UTF-8 in the history (%ff)", "GET", "/api/v1/gates/%ff/history", &[], b"", Want::Field("id")),
+        // it decoded to U+FFFD and ended the paging with an empty page
+        with("HTTP: gate list cursor not a gate id (%ff)", "GET", "/api/v1/gates?after=%ff", &[], b"", Want::Field("after")),
         with("HTTP: GET on the ingestion route", "GET", "/api/v1/samples", &[], b"", Want::Status(405)),
         with("HTTP: PUT on /write", "PUT", "/write", &[], b"m,gate=g1 force=1", Want::Status(405)),
         with("HTTP: PATCH on a gate", "PATCH", "/api/v1/gates/g1", &[], b"", Want::Status(405)),

@@ -345,8 +345,17 @@ async fn post_write(
     };
     let bytes = body(&state, b)?;
     blocking(move || {
-        let text = std::str::from_utf8(&bytes)
-            .map_err(|e| invalid(&state, BadRequest::new(format!("body is not UTF-8: {e}"))))?;
+        let text = std::str::from_utf8(&bytes).map_err(|e| {
+            // where, as every other line-protocol error says it: the line and column of
+            // the first byte that is not UTF-8
+            let good = &bytes[..e.valid_up_to()];
+            let line = good.iter().filter(|&&b| b == b'\n').count() + 1;
+            let start = good.iter().rposition(|&b| b == b'\n').map_or(0, |i| i + 1);
+            let column = std::str::from_utf8(&good[start..]).map_or(1, |s| s.chars().count() + 1);
+            let mut b = BadRequest::new(format!("body is not UTF-8: {e}")).line(line);
+            b.column = Some(column);
+            invalid(&state, b)
+        })?;
         let cfg = &state.config.ingest;
         let now = now_unix();
         // one pass, line by line: no parsed `Line` per line of the body is held
@@ -420,6 +429,20 @@ async fn list_gates(
         }
         (a, c) => a.or(c),
     };
+    // a cursor is a gate id (`next`): one that cannot be (`%ff` decodes to U+FFFD) ended the
+    // paging with an empty page, as if there were no more gates
+    if let Some(a) = after
+        .as_deref()
+        .filter(|a| !super::config::valid_gate_id(a))
+    {
+        return Err(HttpError::BadRequest(
+            BadRequest::new(format!(
+                "invalid after `{}`: a gate id, as `next` gives it",
+                for_log(a)
+            ))
+            .field("after"),
+        ));
+    }
     let (gates, next) = state.gate_page(after.as_deref(), limit);
     Ok(Json(serde_json::json!({ "gates": gates, "next": next })).into_response())
 }

@@ -75,6 +75,10 @@ pub const DEFAULT_MAX_PAST_SECONDS: f64 = 3600.0;
 /// values past `u64::MAX` seconds and deadlines far past the clock's range overflow; a year is
 /// far beyond any sensible timeout, grace period or window.
 pub const MAX_SECONDS: f64 = 365.0 * 86_400.0;
+/// Largest `ingest.tcp_max_line_bytes` (1 MiB): every TCP connection may buffer one line, so
+/// with `max_tcp_connections` (64) the lines alone hold up to 64 MiB (a line of line protocol is
+/// about 50 bytes; the default is 64 KiB).
+pub const MAX_TCP_LINE_BYTES: usize = 1024 * 1024;
 /// Default equation of motion: van der Pol-like damping, known installed stiffness `k`.
 pub const DEFAULT_MODEL: &str = "c1*ydd + (c2 + c3*yd^2)*yd + k*y = 0";
 
@@ -1134,8 +1138,11 @@ impl Config {
                 return Err(ConfigError::new(format!("ingest.value_fields[{i}]: {e}")));
             }
         }
-        if self.ingest.tcp_max_line_bytes < 64 {
-            return Err(ConfigError::new("ingest.tcp_max_line_bytes: must be >= 64"));
+        // each connection buffers up to one line: at most `max_tcp_connections` of them
+        if !(64..=MAX_TCP_LINE_BYTES).contains(&self.ingest.tcp_max_line_bytes) {
+            return Err(ConfigError::new(format!(
+                "ingest.tcp_max_line_bytes: must be from 64 to {MAX_TCP_LINE_BYTES}"
+            )));
         }
         if let Err(e) = self.notify.validate() {
             return Err(ConfigError::new(format!("notify.{}: {e}", e.key())));

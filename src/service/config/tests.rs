@@ -235,6 +235,15 @@ fn errors_name_the_key() {
         "{e}"
     );
     assert!(err("[server]\nmax_gates = 0\n").starts_with("server.max_gates:"));
+    // each TCP connection buffers one line: 99999999999 accepted defeated the memory bound
+    for bytes in ["63", "1048577", "99999999999"] {
+        let e = err(&format!("[ingest]\ntcp_max_line_bytes = {bytes}\n"));
+        assert!(
+            e.starts_with("ingest.tcp_max_line_bytes: must be from 64 to 1048576"),
+            "{e}"
+        );
+    }
+    Config::from_toml("[ingest]\ntcp_max_line_bytes = 1048576\n").unwrap();
     assert!(err("[server]\nauth_tokens = [\"short\"]\n").starts_with("server.auth_tokens:"));
     assert!(
         err("[defaults]\nsignal = \"pressure\"\n").starts_with("defaults.signal: unknown variant")
