@@ -338,6 +338,53 @@ async fn a_body_read_before_the_deadline_is_answered_for_what_it_did() {
     assert_eq!(status, StatusCode::NOT_FOUND);
 }
 
+/// A request dropped while its body is parsed (its client gone) keeps its place in
+/// `max_concurrent_ingest` until the blocking work it started has finished: the place was given
+/// back with the handler's future while the blocking pool still held and parsed the body, so
+/// clients that disconnect at once could pile up parses past every bound. Whenever the place
+/// comes back, the request's effect is final.
+#[tokio::test]
+async fn a_request_dropped_mid_parse_keeps_its_admission_until_its_work_ends() {
+    use axum::body::Body;
+    let (app, state) = make_app("");
+    let places = state.config.server.max_concurrent_ingest;
+    for i in 0..3 {
+        let gate = format!("gone{i}");
+        let body = json!({"gate": gate, "start": 1000.0, "rate_hz": 100.0,
+            "values": vec![0.5; 990_000]})
+        .to_string();
+        let req = axum::http::Request::builder()
+            .method("POST")
+            .uri("/api/v1/samples")
+            .header("content-type", "application/json")
+            .body(Body::from(body))
+            .unwrap();
+        // the client goes away 2 ms in: the request's future is dropped
+        let _ = tokio::time::timeout(
+            Duration::from_millis(2),
+            tower::ServiceExt::oneshot(app.clone(), req),
+        )
+        .await;
+        let deadline = std::time::Instant::now() + Duration::from_secs(30);
+        while state.ingest_permits.available_permits() < places {
+            assert!(
+                std::time::Instant::now() < deadline,
+                "the place never came back"
+            );
+            tokio::time::sleep(Duration::from_micros(200)).await;
+        }
+        let uri = format!("/api/v1/gates/{gate}");
+        let (at_release, v, _) = send(&app, "GET", &uri, "", None).await;
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        let (later, w, _) = send(&app, "GET", &uri, "", None).await;
+        assert_eq!(
+            (at_release, v["window"]["samples_total"].clone()),
+            (later, w["window"]["samples_total"].clone()),
+            "the work went on after the request's place was given back"
+        );
+    }
+}
+
 #[tokio::test]
 async fn readiness_and_graceful_shutdown_with_a_job_in_flight() {
     let fake = Arc::new(Fake {

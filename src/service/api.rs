@@ -12,7 +12,9 @@ use axum::body::Bytes;
 use axum::error_handling::HandleErrorLayer;
 use axum::extract::path::ErrorKind;
 use axum::extract::rejection::{BytesRejection, PathRejection, QueryRejection};
-use axum::extract::{DefaultBodyLimit, MatchedPath, Path, Query, RawQuery, Request, State};
+use axum::extract::{
+    DefaultBodyLimit, Extension, MatchedPath, Path, Query, RawQuery, Request, State,
+};
 use axum::http::{header, HeaderValue, StatusCode};
 use axum::middleware::{self, Next};
 use axum::response::{IntoResponse, Response};
@@ -230,9 +232,24 @@ async fn admit_ingest(State(adm): State<Admission>, mut req: Request, next: Next
     if let Reservation::Metered(m) = &bytes {
         req.extensions_mut().insert(m.clone());
     }
+    // the handler's blocking work takes a share (`Admitted`): a client that disconnects while
+    // its body is parsed drops this future, and the work must not leave the bounds with it
+    let admitted = Admitted {
+        _held: Arc::new((bytes, slot)),
+    };
+    req.extensions_mut().insert(admitted.clone());
     let resp = next.run(req).await;
-    drop((bytes, slot));
+    drop(admitted);
     resp
+}
+
+/// What an admitted request holds of the ingestion bounds (its body's bytes in
+/// `max_body_bytes_in_flight`, its place in `max_concurrent_ingest`), until the last of its
+/// middleware and its blocking work lets go: the parsing and applying on the blocking pool
+/// cannot be cancelled, so a handler dropped mid-way (its client gone) must not free them.
+#[derive(Clone)]
+struct Admitted {
+    _held: Arc<(Reservation, OwnedSemaphorePermit)>,
 }
 
 /// What an admitted request holds of the body budget until it is answered.
@@ -275,10 +292,12 @@ fn budget_exceeded(e: &(dyn std::error::Error + 'static)) -> bool {
 
 async fn post_samples(
     State(state): State<Arc<AppState>>,
+    admitted: Option<Extension<Admitted>>,
     b: Result<Bytes, BytesRejection>,
 ) -> Result<Response, HttpError> {
     let bytes = body(&state, b)?;
     blocking(move || {
+        let _admitted = admitted;
         let batches = json::parse(&bytes).map_err(|e| invalid(&state, e))?;
         let summary = state.ingest(batches)?;
         Ok(accepted(summary, false))
@@ -324,6 +343,7 @@ pub const DROPPED_HEADER: header::HeaderName =
 async fn post_write(
     State(state): State<Arc<AppState>>,
     RawQuery(query): RawQuery,
+    admitted: Option<Extension<Admitted>>,
     b: Result<Bytes, BytesRejection>,
 ) -> Result<Response, HttpError> {
     // other InfluxDB parameters (db, org, bucket, rp) are accepted and ignored; `m` and `h`
@@ -345,6 +365,7 @@ async fn post_write(
     };
     let bytes = body(&state, b)?;
     blocking(move || {
+        let _admitted = admitted;
         let text = std::str::from_utf8(&bytes).map_err(|e| {
             // where, as every other line-protocol error says it: the line and column of
             // the first byte that is not UTF-8
