@@ -768,7 +768,7 @@ pub fn router(state: Arc<AppState>) -> Router {
 /// bytes came just before the deadline was answered 408 ("the request changed nothing, retry
 /// it", docs/api.md) while its samples were applied, and the request's place in
 /// `max_concurrent_ingest` and its bytes in `max_body_bytes_in_flight` were freed while it
-/// still held its body and parsed it: a review pushed the peak to 694 MB against the 224 MiB
+/// still held its body and parsed it: a review pushed the peak to 701 MB against the 224 MiB
 /// bound that way. A request whose body has not wholly arrived never reached its handler's
 /// work, so its 408 is still true.
 async fn deadline(State(timeout): State<Duration>, req: Request, next: Next) -> Response {
