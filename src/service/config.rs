@@ -502,6 +502,11 @@ pub struct ConfigError {
     /// environment variable the bad value came from, so a caller that prefixes the file's name
     /// does not say it twice or blame the file.
     names_file: bool,
+    /// Other keys the fault may lie in (a rule on two settings: `window_seconds * rate_hz`),
+    /// full dotted paths. When the file does not write the named key but writes one of these,
+    /// the error names that one and its line: `rate_hz = 1e-300` was reported as
+    /// `defaults.window_seconds`, a key the file did not have, at the table's header.
+    also: Vec<String>,
 }
 
 /// Every `GATEWATCH_*` variable `serve` reads, with the key it sets (`None`: no key of the file;
@@ -560,6 +565,16 @@ impl ConfigError {
         ConfigError {
             message: message.into().replace('\n', " "),
             names_file: false,
+            also: Vec::new(),
+        }
+    }
+
+    /// The error of a rule on two settings: it names `key` and, when the file writes `other`
+    /// but not `key`, `with_line` names `other` instead (both full dotted paths).
+    fn on_pair(key: &str, other: &str, message: &str) -> Self {
+        ConfigError {
+            also: vec![other.to_string()],
+            ..ConfigError::new(format!("{key}: {message}"))
         }
     }
 
@@ -669,9 +684,19 @@ fn with_line(text: &str, err: ConfigError) -> ConfigError {
     if err.message.contains(", line ") {
         return err;
     }
-    let Some((key, _)) = err.message.split_once(": ") else {
+    let Some((key, rest)) = err.message.split_once(": ") else {
         return err;
     };
+    // a rule on two settings names the one the file writes
+    if written_line(text, key).is_none() {
+        if let Some((other, line)) = err
+            .also
+            .iter()
+            .find_map(|other| written_line(text, other).map(|line| (other, line)))
+        {
+            return ConfigError::new(format!("{other}: {rest}, line {line}"));
+        }
+    }
     let path = locate::key_path(key);
     let line = locate::line_of(text, &path)
         .filter(|_| path.len() > 1)
@@ -687,6 +712,20 @@ fn with_line(text: &str, err: ConfigError) -> ConfigError {
         Some(l) => ConfigError::new(format!("{}, line {l}", err.message)),
         None => err,
     }
+}
+
+/// The line of `key` (a full dotted path) when the file writes that very key, under its gate or
+/// (a gate's) under `[defaults]`; `None` when only a table above it is written.
+fn written_line(text: &str, key: &str) -> Option<usize> {
+    let path = locate::key_path(key);
+    locate::exact_line_of(text, &path).or_else(|| {
+        (path.len() > 2 && path[0] == "gates").then(|| {
+            let alt: Vec<String> = std::iter::once("defaults".to_string())
+                .chain(path[2..].iter().cloned())
+                .collect();
+            locate::exact_line_of(text, &alt)
+        })?
+    })
 }
 
 fn merge(base: &mut toml::Table, over: toml::Table) {

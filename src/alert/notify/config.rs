@@ -193,6 +193,12 @@ impl NotifyConfig {
                 });
             }
         }
+        // every alert carries it as `generatorURL`, which Alertmanager's API requires to be a
+        // URI: `external_url = "gatewatch.example.org"` made it answer 422 to every
+        // notification (measured against prometheus-alertmanager 0.25), and each was lost
+        if !self.external_url.is_empty() {
+            check("external_url".into(), "external", &self.external_url)?;
+        }
         if !(self.timeout_seconds.is_finite() && self.timeout_seconds > 0.0) {
             return Err(NotifyConfigError::BadTimeout(self.timeout_seconds));
         }

@@ -16,6 +16,15 @@ impl GateConfig {
         ((self.identify_every_seconds * self.rate_hz).round() as usize).max(1)
     }
 
+    /// The longest span of sample time the gate's trend can hold: its horizon, and no more than
+    /// [`crate::analysis::MAX_TREND_POINTS`] windows at its cadence.
+    pub fn trend_reach_seconds(&self) -> f64 {
+        let windows = (crate::analysis::MAX_TREND_POINTS - 1) as f64;
+        self.alert
+            .trend_horizon_seconds
+            .min(windows * self.identify_every_seconds)
+    }
+
     /// Samples gate `id`'s first window (and its first after a gap) waits once full: the ID's
     /// stagger offset below the cadence and below the window (so that a long cadence, an hour,
     /// does not hold back a gate's first report by as much; the first window comes at most two
@@ -57,6 +66,14 @@ impl GateConfig {
 
     pub(crate) fn validate(&self, prefix: &str) -> Result<(), ConfigError> {
         let err = |key: &str, msg: &str| Err(ConfigError::new(format!("{prefix}.{key}: {msg}")));
+        // a rule on two settings: named by whichever of the two the file writes
+        let pair = |key: &str, other: &str, msg: &str| {
+            Err(ConfigError::on_pair(
+                &format!("{prefix}.{key}"),
+                &format!("{prefix}.{other}"),
+                msg,
+            ))
+        };
         if !(self.rate_hz.is_finite() && self.rate_hz > 0.0) {
             return err("rate_hz", "must be > 0");
         }
@@ -128,16 +145,25 @@ impl GateConfig {
         if !(self.window_seconds.is_finite() && self.window_seconds > 0.0) {
             return err("window_seconds", "must be > 0");
         }
+        let product = format!(
+            "({} s * {} Hz)",
+            Num(self.window_seconds),
+            Num(self.rate_hz)
+        );
         if self.window_samples() < 16 {
-            return err(
+            return pair(
                 "window_seconds",
-                "window_seconds * rate_hz must be >= 16 samples",
+                "rate_hz",
+                &format!("window_seconds * rate_hz must be >= 16 samples {product}"),
             );
         }
         if self.window_samples() > MAX_WINDOW_SAMPLES {
-            return err(
+            return pair(
                 "window_seconds",
-                &format!("window_seconds * rate_hz must be <= {MAX_WINDOW_SAMPLES} samples"),
+                "rate_hz",
+                &format!(
+                    "window_seconds * rate_hz must be <= {MAX_WINDOW_SAMPLES} samples {product}"
+                ),
             );
         }
         // fewer than the ambient estimator reads at all would lengthen the window to no use
@@ -175,8 +201,19 @@ impl GateConfig {
         if !a.fire_below.is_finite() {
             return err("alert.fire_below", "must be a finite number");
         }
-        if !(a.clear_above.is_finite() && a.clear_above >= a.fire_below) {
-            return err("alert.clear_above", "must be >= alert.fire_below");
+        if !a.clear_above.is_finite() {
+            return err("alert.clear_above", "must be a finite number");
+        }
+        if a.clear_above < a.fire_below {
+            return pair(
+                "alert.clear_above",
+                "alert.fire_below",
+                &format!(
+                    "alert.clear_above ({}) must be >= alert.fire_below ({})",
+                    Num(a.clear_above),
+                    Num(a.fire_below)
+                ),
+            );
         }
         if a.for_windows == 0 {
             return err("alert.for_windows", "must be >= 1");
@@ -238,12 +275,34 @@ impl GateConfig {
             ("alert.trend_horizon_seconds", a.trend_horizon_seconds),
             ("alert.warn_lead_seconds", a.warn_lead_seconds),
         ] {
-            if !(v.is_finite() && v > 0.0) {
-                return err(key, "must be > 0");
+            if !(v.is_finite() && v > 0.0 && v <= MAX_SECONDS) {
+                return err(key, &format!("must be > 0 and <= {MAX_SECONDS} (one year)"));
             }
         }
         if !(a.trend_min_span_seconds.is_finite() && a.trend_min_span_seconds >= 0.0) {
             return err("alert.trend_min_span_seconds", "must be >= 0");
+        }
+        // The trend spans at most its horizon, and at most MAX_TREND_POINTS windows: a longer
+        // minimum span was accepted and GateDampingDeclining could never fire.
+        let reach = self.trend_reach_seconds();
+        if a.trend_min_span_seconds > reach {
+            let other = if a.trend_min_span_seconds > a.trend_horizon_seconds {
+                "alert.trend_horizon_seconds"
+            } else {
+                "identify_every_seconds"
+            };
+            return pair(
+                "alert.trend_min_span_seconds",
+                other,
+                &format!(
+                    "alert.trend_min_span_seconds ({} s) is longer than the trend can span ({} s: \
+                     alert.trend_horizon_seconds, and at most {} windows of \
+                     identify_every_seconds), so GateDampingDeclining could never fire",
+                    Num(a.trend_min_span_seconds),
+                    Num(reach),
+                    crate::analysis::MAX_TREND_POINTS
+                ),
+            );
         }
         if a.warn_for_windows == 0 {
             return err("alert.warn_for_windows", "must be >= 1");

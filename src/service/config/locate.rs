@@ -102,10 +102,23 @@ fn unknown_field(message: &str) -> Option<&str> {
 
 /// The 1-based line of the key at `path` in `text`, or of the deepest part of it that exists.
 pub(super) fn line_of(text: &str, path: &[String]) -> Option<usize> {
+    find(text, path).map(|(line, _)| line)
+}
+
+/// The 1-based line of the key at `path` in `text` when the text has that very key.
+pub(super) fn exact_line_of(text: &str, path: &[String]) -> Option<usize> {
+    find(text, path)
+        .filter(|&(_, depth)| depth == path.len())
+        .map(|(line, _)| line)
+}
+
+/// The line of the deepest part of `path` that `text` has, and how many segments that is.
+fn find(text: &str, path: &[String]) -> Option<(usize, usize)> {
     let root = DeTable::parse(text).ok()?;
     let mut table: &DeTable = root.get_ref();
     let mut array: Option<&[toml::Spanned<DeValue>]> = None;
     let mut found = None;
+    let mut depth = 0;
     for seg in path {
         let value = if let Some(items) = array.take() {
             let Some(item) = seg.parse::<usize>().ok().and_then(|i| items.get(i)) else {
@@ -127,11 +140,12 @@ pub(super) fn line_of(text: &str, path: &[String]) -> Option<usize> {
             found = Some(key.span().start);
             value
         };
+        depth += 1;
         match value.get_ref() {
             DeValue::Table(t) => table = t,
             DeValue::Array(a) => array = Some(a),
             _ => break,
         }
     }
-    found.map(|offset| text[..offset].matches('\n').count() + 1)
+    found.map(|offset| (text[..offset].matches('\n').count() + 1, depth))
 }

@@ -91,6 +91,106 @@ fn notify_errors_name_the_key_and_its_line() {
     assert!(e.ends_with(", line 5"), "{e}");
 }
 
+/// Every alert carries `external_url` as its `generatorURL`, and Alertmanager's API answers
+/// 422 to an alert whose `generatorURL` is not a URI: a host name without a scheme lost every
+/// notification. Empty (the default: no URL) stays allowed.
+#[test]
+fn the_external_url_is_a_url_or_empty() {
+    for bad in ["gatewatch.example.org:9464", "not a url", "ftp://gw/"] {
+        let e = err(&format!(
+            "[server]\nmax_gates = 4\n\n[notify]\nexternal_url = {bad:?}\n"
+        ));
+        assert!(
+            e.starts_with(&format!(
+                "notify.external_url: invalid external URL {bad:?}"
+            )),
+            "{e}"
+        );
+        assert!(e.ends_with(", line 5"), "{e}");
+    }
+    for good in ["", "http://gw:9464", "https://gatewatch.example.org/"] {
+        let c = Config::from_toml(&format!("[notify]\nexternal_url = {good:?}\n")).unwrap();
+        assert_eq!(c.notify.external_url, good);
+    }
+}
+
+/// A rule on two settings names the one the file writes, at its line, with both values: a
+/// `rate_hz` too low was reported as `defaults.window_seconds`, a key the file did not have, at
+/// the table's header; `fire_below` above the default `clear_above` as `alert.clear_above`.
+#[test]
+fn a_rule_on_two_settings_names_the_one_the_file_writes() {
+    for (toml, expected) in [
+        (
+            "[defaults]\nrate_hz = 1e-300\n",
+            "defaults.rate_hz: window_seconds * rate_hz must be >= 16 samples (10 s * 1e-300 Hz), line 2",
+        ),
+        (
+            "[gates.g1]\nrate_hz = 1.0\n",
+            "gates.g1.rate_hz: window_seconds * rate_hz must be >= 16 samples (10 s * 1 Hz), line 2",
+        ),
+        // the gate inherits the rate from [defaults]: that line is named
+        (
+            "[defaults]\n\nrate_hz = 1e9\n[gates.g1]\nstagger = true\n",
+            "defaults.rate_hz: window_seconds * rate_hz must be <= 10000000 samples (10 s * 1000000000 Hz), line 3",
+        ),
+        // both written: the window is named, as before
+        (
+            "[defaults]\nrate_hz = 1.0\nwindow_seconds = 2.0\n",
+            "defaults.window_seconds: window_seconds * rate_hz must be >= 16 samples (2 s * 1 Hz), line 3",
+        ),
+        (
+            "[server]\nmax_gates = 4\n[defaults]\nrate_hz = 200.0\n[defaults.alert]\nfire_below = 0.1\n",
+            "defaults.alert.fire_below: alert.clear_above (0.005) must be >= alert.fire_below (0.1), line 6",
+        ),
+        (
+            "[defaults.alert]\nclear_above = -0.5\n",
+            "defaults.alert.clear_above: alert.clear_above (-0.5) must be >= alert.fire_below (0), line 2",
+        ),
+    ] {
+        assert_eq!(err(toml), expected, "{toml}");
+    }
+}
+
+/// The trend spans at most its horizon and `MAX_TREND_POINTS` windows: a longer
+/// `trend_min_span_seconds` was accepted and `GateDampingDeclining` could never fire.
+#[test]
+fn a_minimum_span_the_trend_cannot_reach_is_refused() {
+    let e = err("[defaults.alert]\ntrend_min_span_seconds = 1e300\n");
+    assert!(
+        e.starts_with("defaults.alert.trend_min_span_seconds: alert.trend_min_span_seconds (1e300 s) is longer than the trend can span (600 s"),
+        "{e}"
+    );
+    assert!(e.ends_with("could never fire, line 2"), "{e}");
+    // a horizon shortened below the default minimum span is named on its own line
+    let e = err("[defaults.alert]\n\ntrend_horizon_seconds = 120.0\n");
+    assert!(
+        e.starts_with("defaults.alert.trend_horizon_seconds: alert.trend_min_span_seconds (300 s) is longer than the trend can span (120 s"),
+        "{e}"
+    );
+    assert!(e.ends_with(", line 3"), "{e}");
+    // 1,023 windows of 0.125 s span 127.875 s, short of the default 300 s, whatever the horizon
+    let e = err("[gates.g1]\nidentify_every_seconds = 0.125\n");
+    assert!(
+        e.starts_with("gates.g1.identify_every_seconds: alert.trend_min_span_seconds (300 s) is longer than the trend can span (127.875 s"),
+        "{e}"
+    );
+    // and the limits themselves: the span equal to the reach passes
+    let c = Config::from_toml(
+        "[defaults.alert]\ntrend_horizon_seconds = 300.0\ntrend_min_span_seconds = 300.0\n",
+    )
+    .unwrap();
+    assert_eq!(c.defaults.trend_reach_seconds(), 300.0);
+    for key in ["trend_horizon_seconds", "warn_lead_seconds"] {
+        let e = err(&format!("[defaults.alert]\n{key} = 1e300\n"));
+        assert!(
+            e.starts_with(&format!(
+                "defaults.alert.{key}: must be > 0 and <= 31536000"
+            )),
+            "{e}"
+        );
+    }
+}
+
 #[test]
 fn errors_name_the_key() {
     assert_eq!(
