@@ -343,6 +343,19 @@ impl TimeSeries {
             .headers()
             .map_err(|e| malformed(path, &bytes, &e))?
             .clone();
+        // A stray quote in the header swallowed the file into one column name, which the
+        // "no column named" error then printed whole (8.9 MB on stderr for a 200,000-line file).
+        let header_line = headers
+            .position()
+            .map_or(1, |pos| LineCounter::new(&bytes).line_at(pos.byte()));
+        if let Some(reason) = multi_line_cell(&headers, None, header_line) {
+            let line = header_line;
+            return Err(DataError::Malformed {
+                path: p(),
+                line,
+                reason: format!("the header: {reason}"),
+            });
+        }
         if headers.iter().all(|h| h.parse::<f64>().is_ok()) {
             let first = bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(&bytes);
             return Err(DataError::NoHeader {
@@ -365,7 +378,7 @@ impl TimeSeries {
                 .ok_or_else(|| DataError::UnknownColumn {
                     path: p(),
                     column: name.to_string(),
-                    available: headers.iter().collect::<Vec<_>>().join(", "),
+                    available: headers.iter().map(shown).collect::<Vec<_>>().join(", "),
                 })
         };
         // Only when a column is missing: a file that names its columns and merely contains a
@@ -492,21 +505,8 @@ fn check_record(
     headers: &csv::StringRecord,
     line: u64,
 ) -> Result<(), String> {
-    if let Some((j, cell)) = record
-        .iter()
-        .enumerate()
-        .find(|(_, c)| c.contains(['\n', '\r']))
-    {
-        let breaks = cell.matches('\n').count() as u64;
-        let column = headers
-            .get(j)
-            .map_or_else(|| format!("{}", j + 1), |h| format!("'{h}'"));
-        return Err(format!(
-            "column {column}: a quote (\") opens a cell on this line that is not closed on it, so the cell runs over {} lines, to line {} (it reads '{}'); remove the stray quote or close it",
-            breaks + 1,
-            line + breaks,
-            shown(cell)
-        ));
+    if let Some(reason) = multi_line_cell(record, Some(headers), line) {
+        return Err(reason);
     }
     if record.len() != headers.len() {
         let fields = |n: usize| {
@@ -523,6 +523,30 @@ fn check_record(
         ));
     }
     Ok(())
+}
+
+/// Why `record`, which starts on `line`, is malformed when a cell of it runs over several
+/// lines (a quote that opens a cell and is not closed on its line); the column is named by the
+/// header's name when there is a header.
+fn multi_line_cell(
+    record: &csv::StringRecord,
+    headers: Option<&csv::StringRecord>,
+    line: u64,
+) -> Option<String> {
+    let (j, cell) = record
+        .iter()
+        .enumerate()
+        .find(|(_, c)| c.contains(['\n', '\r']))?;
+    let breaks = cell.matches('\n').count() as u64;
+    let column = headers
+        .and_then(|h| h.get(j))
+        .map_or_else(|| format!("{}", j + 1), |h| format!("'{}'", shown(h)));
+    Some(format!(
+        "column {column}: a quote (\") opens a cell on this line that is not closed on it, so the cell runs over {} lines, to line {} (it reads '{}'); remove the stray quote or close it",
+        breaks + 1,
+        line + breaks,
+        shown(cell)
+    ))
 }
 
 /// Longest part of a cell an error quotes.
@@ -746,6 +770,31 @@ mod tests {
         assert!(message.contains("line 5: column 'y'"), "{message}");
         assert!(message.contains("1997 lines, to line 2001"), "{message}");
         assert!(message.len() < 400 && !message.contains('\n'), "{message}");
+    }
+
+    /// A stray quote in the header made the whole file one column name, and the "no column
+    /// named" error printed it whole (8.9 MB on stderr); a header name with a control character
+    /// was listed as if it were the name asked for (`the header has: t, y` for `y\0`).
+    #[test]
+    fn a_stray_quote_in_the_header_is_named_where_it_opens() {
+        let mut text = String::from("# logger export\n\"t,y\n");
+        for i in 0..2000 {
+            text.push_str(&format!("{},{}\n", i as f64 * 0.1, i));
+        }
+        let e = load(&text).unwrap_err();
+        assert!(matches!(e, DataError::Malformed { line: 2, .. }), "{e}");
+        let message = e.to_string();
+        assert!(
+            message.contains("line 2: the header: column 1: a quote (\") opens a cell"),
+            "{message}"
+        );
+        assert!(message.contains("2001 lines, to line 2002"), "{message}");
+        assert!(message.len() < 400 && !message.contains('\n'), "{message}");
+        let e = load("t,y\u{0}\n0,1\n").unwrap_err().to_string();
+        assert!(
+            e.contains("no column named 'y' (the header has: t, y\\u{0})"),
+            "{e}"
+        );
     }
 
     /// A line of spaces is blank, like an empty line; a short row says "1 field"; a control

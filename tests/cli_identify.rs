@@ -420,6 +420,46 @@ fn a_stray_quote_in_a_comment_column_is_refused_where_it_opens() {
     );
 }
 
+/// Unix milliseconds read as seconds made a 200 Hz record a 0.2 Hz one: the fit ran on it and
+/// reported a gate a million times heavier, trusted, exit 0. Now the first time names the unit
+/// it is likely in (and Unix seconds, 1.7e9, still pass).
+#[test]
+fn unix_milliseconds_are_refused_naming_the_unit() {
+    let d = Dir::new();
+    for (start, step, unit) in [
+        (1_700_000_000_000.0, 5.0, "milliseconds"),
+        (1.7e15, 5000.0, "microseconds"),
+    ] {
+        let rows: String = (0..400)
+            .map(|i| {
+                let t = start + i as f64 * step;
+                format!("{t},{}\n", (2.0 * PI * 0.01 * i as f64).sin())
+            })
+            .collect();
+        let f = d.write("epoch.csv", &format!("# logger\nt,y\n{rows}"));
+        bad(
+            &identify_args(&f, "ydd + c1*yd + c2*y = 0", &[]),
+            &[
+                &f,
+                "column 't' line 3: the first time,",
+                &format!("are the times Unix time in {unit}?"),
+            ],
+        );
+    }
+    let rows: String = (0..400)
+        .map(|i| {
+            let t = 1.7e9 + i as f64 * 0.02;
+            format!("{t},{}\n", (2.0 * PI * t).sin())
+        })
+        .collect();
+    let f = d.write("seconds.csv", &format!("t,y\n{rows}"));
+    ok(&identify_args(
+        &f,
+        "ydd + c1*yd + c2*y = 0",
+        &["--generations", "3"],
+    ));
+}
+
 /// A force record sampled at 3000 Hz and exported with 6-decimal times (the step 3.333333e-4 s
 /// prints as 3.33e-4 or 3.34e-4 s) is uniform: it was refused as "data row 3 comes 3.34e-4 s
 /// after the previous sample, where the median step is 3.33e-4 s". A sample missing from it is

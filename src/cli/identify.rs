@@ -275,6 +275,14 @@ pub(super) fn run(a: IdentifyArgs) -> Result<(), CliError> {
     let (series, lines) =
         TimeSeries::from_csv_with_lines(&a.input, &a.time_column, &a.value_column)
             .map_err(input)?;
+    if let Some(why) = epoch_in_another_unit(&series) {
+        return Err(input(format!(
+            "{}: column '{}' line {}: {why}",
+            a.input.display(),
+            a.time_column,
+            lines.first().copied().unwrap_or(2)
+        )));
+    }
     // A force signal's drift removal and spectral analysis need a uniform grid; without one they
     // were skipped silently and the window failed later for another reason ("no dominant
     // frequency"), on a file whose only fault was its timing.
@@ -567,6 +575,32 @@ fn in_flags(e: IdentifyError) -> String {
         _ => return e.to_string(),
     };
     format!("{flag} {reason}")
+}
+
+/// Why the record's times must be Unix time in milliseconds, microseconds or nanoseconds,
+/// when they must: a first time of 1e11 or more is past the year 5000 read in seconds, and
+/// Unix milliseconds (1.7e12) were read as seconds: a 19 kg gate sampled at 200 Hz came out
+/// as 1.9e7 kg at 0.0104 Hz, marked trusted, exit 0.
+fn epoch_in_another_unit(series: &TimeSeries) -> Option<String> {
+    const LATEST_SECONDS: f64 = 1e11;
+    let first = *series.t.first()?;
+    if first.abs() < LATEST_SECONDS {
+        return None;
+    }
+    let unit = [
+        (1e3, "milliseconds"),
+        (1e6, "microseconds"),
+        (1e9, "nanoseconds"),
+    ]
+    .into_iter()
+    .find(|(k, _)| (first / k).abs() < LATEST_SECONDS)
+    .map_or("another unit", |(_, name)| name);
+    Some(format!(
+        "the first time, {}, is more than 1e11 s (3,000 years) after 1970 if it is in seconds: \
+         are the times Unix time in {unit}? gatewatch reads times in seconds; convert the \
+         column (divide by 1000 for milliseconds)",
+        Num(first)
+    ))
 }
 
 /// What to check when no trial integrated: the input first (a time column in milliseconds
