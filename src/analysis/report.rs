@@ -227,7 +227,8 @@ pub struct DampingReport {
     /// on 20 rows printed "frequency: n/a" and then "agrees with the spectrum: yes".
     #[serde(default)]
     pub agrees: Option<bool>,
-    /// NMAE of the model on the window.
+    /// NMAE of the model on the window (infinite when the model did not integrate over it).
+    #[serde(deserialize_with = "null_is_infinite")]
     pub fit_nmae: f64,
     /// Whether the model can be trusted (fits, agrees); an untrusted model never raises an alarm.
     pub trusted: bool,
@@ -327,6 +328,14 @@ pub struct DampingReport {
     /// one ([`DampingReport::own_interval`]): the widened end is the trend's, not the window's.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub window_interval: Option<(f64, f64)>,
+}
+
+/// `fit_nmae` read back: JSON has no infinity, so serde_json writes an infinite NMAE (a model
+/// that did not integrate over the window) as `null`; `null` reads back as that infinity. It was
+/// refused, and the daemon counted every such stored window as damaged at each restart and
+/// rebuilt the gate's memory without it.
+fn null_is_infinite<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+    Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::INFINITY))
 }
 
 impl DampingReport {

@@ -470,6 +470,28 @@ mod tests {
         assert_eq!(m.previous.map(|p| p.t_end), Some(1005.0));
     }
 
+    /// A window whose model did not integrate (`fit_nmae` infinite, stored by serde_json as
+    /// `null`, as are its other non-finite figures) decodes: it was counted as a damaged row at
+    /// every restart and left out of the rebuilt memory.
+    #[test]
+    fn a_window_whose_model_did_not_integrate_decodes() {
+        let mut a = analysis(1005.0, 0.01, "m", Path::Full);
+        a.damping.fit_nmae = f64::INFINITY;
+        a.damping.trusted = false;
+        a.damping.amplitude = Some(f64::INFINITY);
+        let rows = vec![row(1000.0, 0.01, "m", "full"), stored(&a, 1005.0)];
+        assert!(
+            rows[1].damping.contains("\"fit_nmae\":null"),
+            "{}",
+            rows[1].damping
+        );
+        let m = rebuild("g", &rows, &rules(), &Remembers { known: "m" }, 1006.0).unwrap();
+        assert_eq!((m.windows, m.skipped), (2, 0));
+        let (decoded, _, _) = window_of(&rows[1]).unwrap();
+        assert_eq!(decoded.damping.fit_nmae, f64::INFINITY);
+        assert!(!decoded.damping.trusted);
+    }
+
     /// `read` takes the configured gates first, then other gates with history where unknown
     /// gates are accepted, `max_gates` in all: a stored gate that sorts first does not push a
     /// configured one out; a gate the configuration no longer accepts is not read.
