@@ -177,8 +177,10 @@ fn a_corrupt_or_unusable_database_stops_the_start_naming_the_file() {
         store.checkpoint().expect("checkpoint");
     }
     let mut bytes = std::fs::read(&db).expect("read");
-    let page = bytes.len() / 8192 / 2;
-    bytes[page * 8192..(page + 1) * 8192].fill(0x5a);
+    // the file's own page size (header bytes 16-17, big-endian): one whole page, mid-file
+    let size = usize::from(u16::from_be_bytes([bytes[16], bytes[17]]));
+    let page = bytes.len() / size / 2;
+    bytes[page * size..(page + 1) * size].fill(0x5a);
     std::fs::write(&db, &bytes).expect("damage a page");
     let err = refused_start(&cfg);
     let line = err
@@ -694,13 +696,31 @@ async fn terminate(mut child: Daemon) -> std::process::ExitStatus {
 /// Runs `serve` on `cfg`, which must stop at start with exit 1 (a store it cannot use); its
 /// stderr.
 fn refused_start(cfg: &Path) -> String {
-    let out = Command::new(BIN)
+    let mut child = Command::new(BIN)
         .args(["serve", "--config"])
         .arg(cfg)
-        .output()
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
         .expect("run");
-    let err = String::from_utf8_lossy(&out.stderr).into_owned();
-    assert_eq!(out.status.code(), Some(1), "{err}");
+    // bounded: a daemon that starts after all (the test's damage missed) must fail the test,
+    // not hang it
+    let deadline = Instant::now() + Duration::from_secs(60);
+    let status = loop {
+        if let Some(status) = child.try_wait().expect("wait") {
+            break status;
+        }
+        if Instant::now() > deadline {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("the daemon started (still running after 60 s) instead of refusing");
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    let mut err = String::new();
+    std::io::Read::read_to_string(&mut child.stderr.take().expect("stderr"), &mut err)
+        .expect("stderr");
+    assert_eq!(status.code(), Some(1), "{err}");
     err
 }
 

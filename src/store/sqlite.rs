@@ -29,11 +29,15 @@ use super::{
     WriteBatch, MAX_HISTORY_LIMIT,
 };
 
-/// Page size of a new file. 8 KiB rather than SQLite's 4 KiB: the history is a `WITHOUT ROWID`
-/// table, whose rows stay on their page only up to about a quarter of it (2 030 bytes here,
-/// 1 002 with 4 KiB pages), and a stored identification is about 800 bytes; an old file keeps
-/// its 4 KiB pages (changing them needs a `VACUUM`, a copy of the whole file).
-const PAGE_SIZE: u32 = 8192;
+/// Page size of a new file. 16 KiB rather than SQLite's 4 KiB: the history is a `WITHOUT ROWID`
+/// table, whose rows stay on their page only up to about a quarter of it (4 086 bytes here,
+/// 2 030 with 8 KiB pages, 1 002 with 4 KiB); a row that does not fits its first part there and
+/// the rest on an overflow page of its own. A stored identification was about 800 bytes when
+/// 8 KiB was chosen; it is now 1 700 to 2 100 (the damping report grew), and with 8 KiB pages
+/// half of `bench history`'s rows overflowed: 5 736 bytes of file per row, 3.3 times the rows'
+/// own size (docs/benchmarks.md, "Stop 98: the store's rows outgrew their page"). An old file
+/// keeps its page size (changing it needs a `VACUUM`, a copy of the whole file).
+const PAGE_SIZE: u32 = 16384;
 
 /// The size bound starts pruning when the pages in use pass this fraction of `max_size_mb`...
 pub const SIZE_HIGH_WATERMARK: f64 = 0.9;
@@ -47,9 +51,10 @@ pub const SIZE_LOW_WATERMARK: f64 = 0.8;
 /// transaction long (the history route reads meanwhile, WAL), and each batch frees pages.
 pub const PRUNE_BATCH_ROWS: u64 = 2000;
 
-/// Bytes of file per stored identification (docs/benchmarks.md, "History": 1 735 with a real
-/// damping report at stop 58, 1 225 when schema 2 was made), to turn a size into rows.
-pub(crate) const ROW_BYTES: u64 = 1735;
+/// Bytes of file per stored identification (docs/benchmarks.md, "Stop 98: the store's rows
+/// outgrew their page": 2 115 with 16 KiB pages and today's reports; 1 735 at stop 58, 1 225
+/// when schema 2 was made), to turn a size into rows.
+pub(crate) const ROW_BYTES: u64 = 2115;
 
 /// History rows deleted by one pruning transaction for a bound of `max_bytes`: about 1 % of the
 /// bound, between 16 and [`PRUNE_BATCH_ROWS`]. Why proportional: the pruning stops at the first
@@ -248,6 +253,17 @@ impl SqliteStore {
             .query_row("PRAGMA page_size", [], |r| r.get::<_, i64>(0))
             .map_err(open_err)?
             .max(512) as u64;
+        if page_size < u64::from(PAGE_SIZE) {
+            tracing::warn!(
+                store = %name,
+                page_size,
+                "store {name} has pages of {page_size} bytes (made by an earlier gatewatch): many \
+                 history rows overflow such a page, and the file holds about 2.7 times what a \
+                 new store's would for the same rows; with the daemon stopped, `sqlite3 FILE 'PRAGMA \
+                 journal_mode=DELETE; PRAGMA page_size={PAGE_SIZE}; VACUUM; PRAGMA \
+                 journal_mode=WAL'` rewrites it (docs/operations.md, \"Size\")"
+            );
+        }
         let pages = max_size_mb.saturating_mul(1024 * 1024) / page_size;
         write
             .query_row(&format!("PRAGMA max_page_count = {pages}"), [], |_| Ok(()))

@@ -209,10 +209,13 @@ fn a_damaged_page_is_refused_at_open() {
         store.checkpoint().expect("checkpoint");
     }
     let mut bytes = std::fs::read(&path).expect("read");
-    let pages = bytes.len() / 8192;
+    // the file's own page size (header bytes 16-17, big-endian): one whole page, mid-file
+    let size = usize::from(u16::from_be_bytes([bytes[16], bytes[17]]));
+    assert_eq!(size, 16384, "a new file's pages");
+    let pages = bytes.len() / size;
     assert!(pages > 8, "{pages} pages");
     let page = pages / 2;
-    bytes[page * 8192..(page + 1) * 8192].fill(0x5a);
+    bytes[page * size..(page + 1) * size].fill(0x5a);
     std::fs::write(&path, &bytes).expect("damage");
     let e = SqliteStore::open(&path, 64).expect_err("damaged");
     let msg = e.to_string();
@@ -229,7 +232,8 @@ fn a_damaged_page_is_refused_at_open() {
 /// follows the bound.
 #[test]
 fn a_small_bound_counts_the_wal_and_prunes_in_proportion() {
-    assert_eq!(prune_batch_rows(3 << 20), 18);
+    assert_eq!(prune_batch_rows(4 << 20), 19);
+    assert_eq!(prune_batch_rows(3 << 20), 16);
     assert_eq!(prune_batch_rows(12_288 << 20), PRUNE_BATCH_ROWS);
     assert_eq!(prune_batch_rows(1 << 20), 16);
     assert_eq!(wal_budget(12_288 << 20), 64 << 20);
