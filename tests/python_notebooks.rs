@@ -174,6 +174,12 @@ fn the_notebook_recipes_run_as_written_against_a_real_daemon() {
     let png = std::fs::read(&plot).expect("the recipe saved its picture");
     assert!(png.starts_with(b"\x89PNG\r\n\x1a\n"), "not a PNG");
     assert!(png.len() > 10_000, "a {}-byte picture", png.len());
+    // and on the configured g2, which has no window yet (a header alone: its `trusted` column
+    // was read as an empty object column, and `h[h["trusted"]]` raised KeyError)
+    let mut env_g2 = env.clone();
+    env_g2[1].1 = "g2".to_string();
+    let out = run_recipe(&python, dir.path(), &recipes[0], &env_g2);
+    assert!(out.contains("windows 0, trusted 0"), "{out}");
 
     // 2. every gate: the configured g2 without data too, the fed g1 with its samples
     let out = run_recipe(&python, dir.path(), &recipes[1], &env);
