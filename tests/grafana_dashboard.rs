@@ -125,6 +125,66 @@ fn dashboard_is_well_formed() {
     assert!(prov.contains("path: /var/lib/grafana/dashboards/gatewatch"));
 }
 
+/// Grafana draws the top-level panels where their `gridPos` says, and a row holds the panels
+/// below it down to the next row: each panel must lie under the row it is listed after, a
+/// panel of the gates' figures (a query on `$gate`) under the "Gates" row, and no two panels
+/// may overlap. The trend panel (a gate's figure) sat at the bottom, under the "Daemon" row.
+#[test]
+fn every_panel_lies_under_its_row_and_none_overlap() {
+    let d = dashboard();
+    let top = d["panels"].as_array().expect("panels");
+    let pos = |p: &Value, k: &str| p["gridPos"][k].as_u64().expect("gridPos");
+    let rows: Vec<u64> = top
+        .iter()
+        .filter(|p| p["type"] == "row")
+        .map(|p| pos(p, "y"))
+        .collect();
+    let mut row: Option<(u64, &Value)> = None;
+    for p in top {
+        let y = pos(p, "y");
+        if p["type"] == "row" {
+            row = Some((y, &p["title"]));
+            continue;
+        }
+        let (above, title) = row.expect("a panel before the first row");
+        let of_gates = p["targets"]
+            .as_array()
+            .into_iter()
+            .flatten()
+            .any(|t| t["expr"].as_str().is_some_and(|e| e.contains("$gate")));
+        if of_gates {
+            assert_eq!(
+                title, "Gates",
+                "panel {} ({}) shows gates' figures under the row {title}",
+                p["id"], p["title"]
+            );
+        }
+        let next = rows
+            .iter()
+            .copied()
+            .find(|&r| r > above)
+            .unwrap_or(u64::MAX);
+        assert!(
+            y > above && y + pos(p, "h") <= next,
+            "panel {} ({}) at y {y} is not under its row at y {above} (next row at {next})",
+            p["id"],
+            p["title"]
+        );
+    }
+    let cells = |p: &Value| {
+        let (x, y, w, h) = (pos(p, "x"), pos(p, "y"), pos(p, "w"), pos(p, "h"));
+        (x..x + w).flat_map(move |cx| (y..y + h).map(move |cy| (cx, cy)))
+    };
+    let mut taken = std::collections::HashMap::new();
+    for p in top {
+        for c in cells(p) {
+            if let Some(other) = taken.insert(c, p["id"].clone()) {
+                panic!("panels {other} and {} overlap at {c:?}", p["id"]);
+            }
+        }
+    }
+}
+
 #[test]
 fn every_query_parses_with_promtool() {
     if Command::new("promtool").arg("--version").output().is_err() {

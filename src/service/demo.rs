@@ -50,8 +50,8 @@ pub struct DemoArgs {
     #[arg(long, default_value_t = 240.0, allow_negative_numbers = true)]
     pub onset_hold: f64,
     /// Seconds of sample time of the ramp from +2 % to -2 % (600: 0.4 points a minute, a drift
-    /// the trend sees coming; on seeds 1 to 3 it warned at +0.56 to +0.83 % and the damping
-    /// alert followed 12 to 14 s of wall time later).
+    /// the trend sees coming; on seeds 1 to 3 it warned at a true +0.49 to +0.69 % and the
+    /// damping alert followed 8 to 11 s of wall time later).
     #[arg(long, default_value_t = 600.0, allow_negative_numbers = true)]
     pub onset_ramp: f64,
     /// Random seed of the simulated turbulence.
