@@ -700,14 +700,7 @@ fn with_line(text: &str, err: ConfigError) -> ConfigError {
     let path = locate::key_path(key);
     let line = locate::line_of(text, &path)
         .filter(|_| path.len() > 1)
-        .or_else(|| {
-            (path.len() > 2 && path[0] == "gates").then(|| {
-                let alt: Vec<String> = std::iter::once("defaults".to_string())
-                    .chain(path[2..].iter().cloned())
-                    .collect();
-                locate::line_of(text, &alt)
-            })?
-        });
+        .or_else(|| locate::line_of(text, &inherited_from(&path)?));
     match line {
         Some(l) => ConfigError::new(format!("{}, line {l}", err.message)),
         None => err,
@@ -718,13 +711,16 @@ fn with_line(text: &str, err: ConfigError) -> ConfigError {
 /// (a gate's) under `[defaults]`; `None` when only a table above it is written.
 fn written_line(text: &str, key: &str) -> Option<usize> {
     let path = locate::key_path(key);
-    locate::exact_line_of(text, &path).or_else(|| {
-        (path.len() > 2 && path[0] == "gates").then(|| {
-            let alt: Vec<String> = std::iter::once("defaults".to_string())
-                .chain(path[2..].iter().cloned())
-                .collect();
-            locate::exact_line_of(text, &alt)
-        })?
+    locate::exact_line_of(text, &path)
+        .or_else(|| locate::exact_line_of(text, &inherited_from(&path)?))
+}
+
+/// Where a gate's key (`gates.ID.KEY...`) is inherited from: `defaults.KEY...`.
+fn inherited_from(path: &[String]) -> Option<Vec<String>> {
+    (path.len() > 2 && path[0] == "gates").then(|| {
+        std::iter::once("defaults".to_string())
+            .chain(path[2..].iter().cloned())
+            .collect()
     })
 }
 
