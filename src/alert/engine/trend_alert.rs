@@ -13,7 +13,7 @@
 use std::collections::BTreeMap;
 use std::time::SystemTime;
 
-use super::annotations::fmt_percent;
+use super::annotations::{fmt_percent, fmt_sig};
 use super::{Alert, AlertEvent, AlertRules, Observation, ALERT_DAMPING_DECLINING};
 use crate::analysis::TrendEstimate;
 
@@ -225,19 +225,20 @@ fn declining_annotations(
         description.push('.');
     }
     a.insert("description".to_string(), description);
+    // four significant digits, as GateNegativeDamping's (this one printed all 17)
     if let Some(z) = obs.zeta0.filter(|z| z.is_finite()) {
-        a.insert("damping_ratio".to_string(), z.to_string());
+        a.insert("damping_ratio".to_string(), fmt_sig(z));
     }
     if let Some((lo, hi)) = obs.zeta0_interval {
-        a.insert("damping_ratio_lower".to_string(), lo.to_string());
-        a.insert("damping_ratio_upper".to_string(), hi.to_string());
+        a.insert("damping_ratio_lower".to_string(), fmt_sig(lo));
+        a.insert("damping_ratio_upper".to_string(), fmt_sig(hi));
     }
-    a.insert("trend_per_minute".to_string(), per_minute.to_string());
+    a.insert("trend_per_minute".to_string(), fmt_sig(per_minute));
     if let Some(s) = trend.crossing_seconds {
-        a.insert("crossing_seconds".to_string(), s.to_string());
+        a.insert("crossing_seconds".to_string(), fmt_sig(s));
     }
     if let Some(c) = confident {
-        a.insert("crossing_seconds_confident".to_string(), c.to_string());
+        a.insert("crossing_seconds_confident".to_string(), fmt_sig(c));
     }
     a
 }
