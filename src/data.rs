@@ -349,10 +349,9 @@ impl TimeSeries {
             .position()
             .map_or(1, |pos| LineCounter::new(&bytes).line_at(pos.byte()));
         if let Some(reason) = multi_line_cell(&headers, None, header_line) {
-            let line = header_line;
             return Err(DataError::Malformed {
                 path: p(),
-                line,
+                line: header_line,
                 reason: format!("the header: {reason}"),
             });
         }

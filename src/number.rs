@@ -37,6 +37,25 @@ impl Num {
     }
 }
 
+/// `x` rounded to `digits` significant digits, through its decimal form, so that it prints
+/// short: `0.01235`, not `0.012345678901234567` (the store's curve points), `0.005` for a step
+/// computed from times as `0.004999999999999999`. Infinite, NaN and zero are returned as they
+/// are.
+///
+/// ```
+/// use gatewatch::number::round_significant;
+/// assert_eq!(round_significant(0.012345678901234567, 4), 0.01235);
+/// assert_eq!(round_significant(0.004999999999999999, 12), 0.005);
+/// ```
+pub fn round_significant(x: f64, digits: usize) -> f64 {
+    if !x.is_finite() || x == 0.0 {
+        return x;
+    }
+    format!("{x:.*e}", digits.saturating_sub(1))
+        .parse()
+        .unwrap_or(x)
+}
+
 impl fmt::Display for Num {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         let x = self.0;

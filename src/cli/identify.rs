@@ -307,8 +307,8 @@ pub(super) fn run(a: IdentifyArgs) -> Result<(), CliError> {
                 Num(moving_average),
                 Num((moving_average / step).round()),
                 series.len(),
-                // to 12 digits: a step of 1/200 s reads 0.004999999999999999 from the times
-                Num(format!("{step:.11e}").parse().unwrap_or(step))
+                // a step of 1/200 s reads 0.004999999999999999 from the times
+                Num(crate::number::round_significant(step, 12))
             );
             if a.moving_average.is_some() {
                 return Err(input(format!("--moving-average: {why} (0 turns it off)")));

@@ -143,17 +143,6 @@ impl Summary {
     }
 }
 
-/// `x` rounded to `digits` significant digits (through its decimal form, so the stored text
-/// is short: `0.01235`, not `0.012345678901234567`).
-fn round_significant(x: f64, digits: usize) -> f64 {
-    if !x.is_finite() || x == 0.0 {
-        return x;
-    }
-    format!("{x:.*e}", digits.saturating_sub(1))
-        .parse()
-        .unwrap_or(x)
-}
-
 /// The damping report as stored: its `zeta_eq_curve` thinned to [`CURVE_STORED_POINTS`] at
 /// [`CURVE_STORED_DIGITS`] (see the module); everything else as it is. Idempotent.
 pub(crate) fn compact_damping(damping: &Value) -> Value {
@@ -174,10 +163,11 @@ pub(crate) fn compact_damping(damping: &Value) -> Value {
         Value::Array(xs) => Value::Array(
             xs.into_iter()
                 .map(|x| match x.as_f64() {
-                    Some(f) => {
-                        serde_json::Number::from_f64(round_significant(f, CURVE_STORED_DIGITS))
-                            .map_or(x, Value::Number)
-                    }
+                    Some(f) => serde_json::Number::from_f64(crate::number::round_significant(
+                        f,
+                        CURVE_STORED_DIGITS,
+                    ))
+                    .map_or(x, Value::Number),
                     None => x,
                 })
                 .collect(),
